@@ -1,0 +1,5 @@
+import sys
+
+from bimcap.cli import main
+
+sys.exit(main())

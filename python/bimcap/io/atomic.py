@@ -1,0 +1,54 @@
+"""Atomic writes: write to a temporary file in the target directory, fsync, then rename.
+
+A reader never sees a half-written output, and a crash leaves the previous file intact.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from collections.abc import Iterable
+from os import PathLike
+from pathlib import Path
+from typing import Any
+
+from bimcap.errors import InputError
+
+
+def atomic_write_bytes(path: str | PathLike[str], data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically, creating parent directories."""
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, target)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def atomic_write_text(path: str | PathLike[str], text: str) -> None:
+    """Write UTF-8 ``text`` to ``path`` atomically."""
+    atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def atomic_write_json(path: str | PathLike[str], obj: Any) -> None:
+    """Write ``obj`` as indented JSON atomically (NaN is refused: JSON has no NaN)."""
+    atomic_write_text(path, json.dumps(obj, indent=2, allow_nan=False) + "\n")
+
+
+def check_not_input(output: str | PathLike[str], inputs: Iterable[str | PathLike[str]]) -> None:
+    """Raise :class:`InputError` if the file ``output`` would replace one of the files ``inputs``.
+
+    Every command calls this before writing, so that nothing the user gave is overwritten.
+    """
+    out = Path(output).resolve()
+    for item in inputs:
+        if out == Path(item).resolve():
+            raise InputError(f"refusing to overwrite the input file {item}", output)

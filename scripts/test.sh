@@ -1,0 +1,13 @@
+#!/usr/bin/env bash
+# Set up, then run every test: the C++ suite (CTest + GoogleTest) and the Python suite (pytest).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bash scripts/setup.sh
+
+echo "==> C++ tests (CTest)"
+cmake -S . -B build/ctest -G Ninja -DCMAKE_BUILD_TYPE=Release -DBIMCAP_BUILD_TESTS=ON -DBIMCAP_PYTHON=OFF >/dev/null
+cmake --build build/ctest -j "$(nproc)"
+ctest --test-dir build/ctest --output-on-failure -j "$(nproc)"
+
+echo "==> Python tests (pytest)"
+.venv/bin/python -m pytest tests
