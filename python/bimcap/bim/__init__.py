@@ -1,0 +1,1 @@
+"""The BIM reference: IFC → per-class meshes, semantic point cloud, planes, vectorized floor plan."""

@@ -1,0 +1,1 @@
+"""On-disk sequence directories (manifest, images, LiDAR, labels, poses) and importers (ConSLAM)."""

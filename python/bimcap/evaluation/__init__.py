@@ -1,0 +1,1 @@
+"""Metrics (ATE, yaw/pitch/roll, MME, MPV, NND) and plots."""

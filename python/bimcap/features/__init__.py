@@ -1,0 +1,1 @@
+"""SIFT features, sequential matching with geometric verification, tracks, keypoint depths."""

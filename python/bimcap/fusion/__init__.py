@@ -1,0 +1,1 @@
+"""LiDAR → camera projection and depth completion (interpolation, classical, ONNX, hybrid)."""

@@ -1,0 +1,1 @@
+"""Bundle adjustment against the BIM: problem arrays, options, problem files, the Ceres solve."""

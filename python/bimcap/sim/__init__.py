@@ -1,0 +1,1 @@
+"""The synthetic world: parametric IFC building generator, sensor simulator, drift generator."""
