@@ -92,6 +92,7 @@ class SimulatorConfig:
     z_floor: storey floor height to walk on; None = the lowest large floor of the model.
     write_labels, write_depth: write the ground-truth label and depth images.
     png_compression: zlib level of the PNG files (0–9; 1 is fast).
+    texture_seed: seed of the baked surface textures (element texture offsets follow ``seed``).
     workers: render processes (1 = in this process; 0 = one per CPU).
     threads_per_worker: ray-casting threads per process (0 = Open3D's default).
     """
@@ -109,6 +110,7 @@ class SimulatorConfig:
     write_labels: bool = True
     write_depth: bool = True
     png_compression: int = 1
+    texture_seed: int = 0
     workers: int = 2
     threads_per_worker: int = 1
 
@@ -532,7 +534,7 @@ def simulate_world(
         placed = place_clutter(free, walk.path_xy, np.random.default_rng([seed, 12]),
                                cfg.clutter_density_per_m2)
         world = World.from_parts(parts + [c.part for c in placed], seed=seed)
-    textures = TextureBank.bake(seed)
+    textures = TextureBank.bake(cfg.texture_seed)
     timings["world"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()

@@ -17,6 +17,7 @@ the tile's 4 m periodicity.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from enum import IntEnum
 from typing import Any
@@ -53,18 +54,24 @@ REFLECTIVITY = np.array([0.75, 0.45, 0.35, 0.8, 0.5, 0.08, 0.55, 0.6, 0.25], dty
 
 
 def _periodic_value_noise(rng: np.random.Generator, n: int, cells: int) -> F32:
-    """(n, n) periodic value noise in [0, 1] with ``cells`` lattice cells per side (smoothstep)."""
+    """(n, n) periodic value noise in [0, 1] with ``cells`` lattice cells per side.
+
+    The random lattice is wrap-padded and upsampled by ``n / cells`` with bicubic interpolation
+    (``cells`` must divide ``n``), then cropped to exactly one period.
+    """
+    import cv2
+
+    if n % cells:
+        raise ValueError(f"{cells} cells do not divide {n} texels")
     lattice = rng.random((cells, cells), dtype=np.float32)
-    coord = (np.arange(n, dtype=np.float32) + 0.5) * (cells / n)
-    i0 = np.floor(coord).astype(np.int64)
-    f = coord - i0
-    f = f * f * (3.0 - 2.0 * f)
-    i0 %= cells
-    i1 = (i0 + 1) % cells
-    # separable smooth interpolation: rows then columns
-    rows = lattice[i0] * (1.0 - f)[:, None] + lattice[i1] * f[:, None]  # (n, cells)
-    out = rows[:, i0] * (1.0 - f)[None, :] + rows[:, i1] * f[None, :]
-    return out.astype(np.float32)
+    if cells == n:
+        return lattice
+    k = n // cells
+    pad = 2
+    padded = np.pad(lattice, pad, mode="wrap")
+    big = cv2.resize(padded, ((cells + 2 * pad) * k, (cells + 2 * pad) * k),
+                     interpolation=cv2.INTER_CUBIC)
+    return np.ascontiguousarray(big[pad * k : pad * k + n, pad * k : pad * k + n])
 
 
 def fractal_noise(
@@ -96,9 +103,12 @@ def _bake_material(material: Material, rng: np.random.Generator, n: int) -> F32:
     noise = fractal_noise(rng, n)
     fine = fractal_noise(rng, n, base_cells=64, octaves=4, persistence=0.7)
     speck = rng.random((n, n), dtype=np.float32)
+    # blob-like marks of 2-6 cm (stains, aggregate, filler patches): what SIFT locks on to
+    blob_field = fractal_noise(rng, n, base_cells=64, octaves=3, persistence=0.5)
+    blobs = np.clip((np.abs(blob_field) - 1.4) * 2.5, 0.0, 1.0) * np.sign(blob_field)
     if material is Material.PLASTER:
         blotch = fractal_noise(rng, n, base_cells=8, octaves=4)
-        grey = 0.74 + 0.06 * noise + 0.05 * fine + 0.09 * np.tanh(2.0 * blotch)
+        grey = 0.72 + 0.06 * noise + 0.07 * fine + 0.09 * np.tanh(2.0 * blotch) + 0.14 * blobs
         grey -= 0.25 * (speck > 0.996)  # small pores
         colour = np.array([1.0, 0.97, 0.9], dtype=np.float32)
     elif material is Material.TILES:
@@ -106,13 +116,13 @@ def _bake_material(material: Material, rng: np.random.Generator, n: int) -> F32:
         grout = np.maximum(_grid_lines(n, period, 2)[:, None], _grid_lines(n, period, 2)[None, :])
         tile_id = (np.arange(n) // period)[:, None] * 8 + (np.arange(n) // period)[None, :]
         tint = rng.random(64, dtype=np.float32)[tile_id]
-        grey = 0.55 + 0.12 * tint + 0.07 * noise + 0.06 * fine
+        grey = 0.55 + 0.12 * tint + 0.07 * noise + 0.08 * fine + 0.12 * blobs
         grey = grey * (1.0 - 0.6 * grout)
         grey += 0.2 * (speck > 0.997)
         colour = np.array([0.95, 0.9, 0.82], dtype=np.float32)
     elif material is Material.CONCRETE:
         seams = np.maximum(_grid_lines(n, n // 4, 1)[:, None], _grid_lines(n, n // 2, 1)[None, :])
-        grey = 0.5 + 0.08 * noise + 0.08 * fine
+        grey = 0.5 + 0.08 * noise + 0.1 * fine + 0.15 * blobs
         grey -= 0.3 * (speck > 0.985) - 0.15 * (speck < 0.01)
         grey *= 1.0 - 0.45 * seams
         colour = np.array([1.0, 1.0, 0.98], dtype=np.float32)
@@ -120,26 +130,26 @@ def _bake_material(material: Material, rng: np.random.Generator, n: int) -> F32:
         period = n // 8
         frame = np.maximum(_grid_lines(n, period, 3)[:, None], _grid_lines(n, period, 3)[None, :])
         holes = (speck > 0.97).astype(np.float32)
-        grey = 0.82 + 0.04 * noise + 0.04 * fine - 0.35 * holes
+        grey = 0.8 + 0.04 * noise + 0.06 * fine - 0.35 * holes + 0.1 * blobs
         grey = grey * (1.0 - 0.35 * frame)
         colour = np.array([0.98, 0.98, 1.0], dtype=np.float32)
     elif material is Material.WOOD:
         t_coord = np.arange(n, dtype=np.float32)[:, None]
         warp = fractal_noise(rng, n, base_cells=4, octaves=3)
         grain = np.sin(2.0 * np.pi * (t_coord / 6.0 + 0.8 * warp))
-        grey = 0.5 + 0.1 * grain + 0.08 * noise + 0.05 * fine
+        grey = 0.5 + 0.1 * grain + 0.08 * noise + 0.07 * fine + 0.1 * blobs
         colour = np.array([1.0, 0.72, 0.45], dtype=np.float32)
     elif material is Material.GLASS:
         grey = 0.18 + 0.06 * noise + 0.03 * fine
         colour = np.array([0.75, 0.9, 1.0], dtype=np.float32)
     elif material is Material.CARDBOARD:
         tape = _grid_lines(n, n // 2, 12, offset=-n // 4)[None, :]
-        grey = 0.55 + 0.07 * noise + 0.07 * fine + 0.15 * tape
+        grey = 0.55 + 0.07 * noise + 0.08 * fine + 0.15 * tape + 0.12 * blobs
         grey -= 0.25 * (speck > 0.995)
         colour = np.array([0.95, 0.72, 0.45], dtype=np.float32)
     elif material is Material.METAL:
         scratches = (fractal_noise(rng, n, base_cells=128, octaves=2) > 2.0).astype(np.float32)
-        grey = 0.55 + 0.08 * noise + 0.05 * fine + 0.3 * scratches
+        grey = 0.55 + 0.08 * noise + 0.07 * fine + 0.3 * scratches + 0.12 * blobs
         colour = np.array([0.55, 0.65, 0.95], dtype=np.float32)
     elif material is Material.FABRIC:
         weave = _grid_lines(n, 6, 1)[:, None] * 0.5 + _grid_lines(n, 6, 1)[None, :] * 0.5
@@ -183,7 +193,14 @@ class TextureBank:
 
     @classmethod
     def bake(cls, seed: int, levels: int = 9) -> TextureBank:
-        """Bake every :class:`Material` tile and its mip chain from ``seed`` (deterministic)."""
+        """Bake every :class:`Material` tile and its mip chain from ``seed`` (deterministic).
+
+        Banks are cached per ``(seed, levels)`` within a process (they are read-only).
+        """
+        return _bake_cached(seed, levels)
+
+    @classmethod
+    def _bake(cls, seed: int, levels: int) -> TextureBank:
         n = TILE_TEXELS
         chains = []
         for m in Material:
@@ -272,6 +289,11 @@ def _remap_points(image: NDArray[Any], x: NDArray[Any], y: NDArray[Any]) -> NDAr
         borderMode=cv2.BORDER_REPLICATE,
     )
     return out.reshape((rows * cols,) + image.shape[2:])[:m]
+
+
+@functools.lru_cache(maxsize=2)
+def _bake_cached(seed: int, levels: int) -> TextureBank:
+    return TextureBank._bake(seed, levels)
 
 
 def surface_coordinates(

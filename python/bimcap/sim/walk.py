@@ -125,7 +125,7 @@ class FreeSpace:
         doors_xy: F64 | None = None,
         door_radius_m: float = 0.6,
         resolution: float = 0.1,
-        heights_m: Sequence[float] = (0.7, 1.1, 1.5, 1.9),
+        heights_m: Sequence[float] = (0.5, 1.0, 1.3, 1.6),
     ) -> FreeSpace:
         """Region from free-space polygons (each (K, 2) world xy) plus discs at door centres."""
         import cv2
@@ -154,7 +154,7 @@ class FreeSpace:
         world: World,
         z_floor: float | None = None,
         resolution: float = 0.1,
-        heights_m: Sequence[float] = (0.7, 1.1, 1.5, 1.9),
+        heights_m: Sequence[float] = (0.5, 1.0, 1.3, 1.6),
     ) -> FreeSpace:
         """Region derived from the meshes of an arbitrary building (no polygons available).
 
@@ -365,7 +365,7 @@ def plan_walk(
         d = np.minimum(d, np.linalg.norm(cand_xy - cand_xy[nxt], axis=1))
     waypoints = node[rr[good[chosen]], cc[good[chosen]]]
 
-    need_m = duration_s * cfg.speed_mps * 1.25 + 3.0
+    need_m = duration_s * cfg.speed_mps * 1.4 + 5.0
     current = int(waypoints[0])
     unvisited = set(int(w) for w in waypoints[1:])
     nodes_path = [current]
@@ -387,8 +387,10 @@ def plan_walk(
         seg = [pick]
         while seg[-1] != current:
             seg.append(int(pred[seg[-1]]))
-        nodes_path += seg[::-1][1:]
-        length += float(dist[pick])
+        seg = seg[::-1]
+        seg_xy = np.stack([cc[seg], rr[seg]], axis=-1) * res
+        length += float(np.linalg.norm(np.diff(seg_xy, axis=0), axis=1).sum())
+        nodes_path += seg[1:]
         unvisited.discard(pick)
         current = pick
     raw = np.stack([cc[nodes_path], rr[nodes_path]], axis=-1) * res + free.origin_xy
