@@ -92,7 +92,7 @@ class BuildingSpecError(InputError):
 class BuildingSpec:
     """Parameters of a generated building. All lengths in metres.
 
-    The default is the demo world: one storey, a 14 m x 2.4 m corridor, 3 rooms north (4.0 m
+    The default is the demo world: one storey, a 15 m x 2.4 m corridor, 3 rooms north (4.0 m
     deep) and 4 south (4.4 m deep) with seeded unequal widths, 2 rectangular corridor columns and
     a round one in the widest south room.
     """
@@ -102,13 +102,13 @@ class BuildingSpec:
     slab_thickness_m: float = 0.2
     ceiling_height_m: float = 2.8
     ceiling_thickness_m: float = 0.03
-    corridor_length_m: float = 14.0
+    corridor_length_m: float = 15.0
     corridor_width_m: float = 2.4
     rooms_north: int = 3
     rooms_south: int = 4
     room_depth_north_m: float = 4.0
     room_depth_south_m: float = 4.4
-    room_width_jitter: float = 0.2
+    room_width_jitter: float = 0.12
     exterior_wall_thickness_m: float = 0.2
     interior_wall_thickness_m: float = 0.12
     corridor_columns: int = 2
@@ -664,6 +664,8 @@ def _write_ifc(spec: BuildingSpec, storeys: list[_StoreyContent], design_seed: i
         rel.RelatedElements = sorted(rel.RelatedElements, key=lambda e: e.id())
     for rel in f.by_type("IfcRelAggregates"):
         rel.RelatedObjects = sorted(rel.RelatedObjects, key=lambda e: e.id())
+    for units in f.by_type("IfcUnitAssignment"):
+        units.Units = sorted(units.Units, key=lambda e: e.id())
     # Seeded GUIDs: named elements keep theirs between design and as-built (hash of the id);
     # relationships are numbered in file order.
     counter: dict[str, int] = {}
