@@ -28,8 +28,8 @@ ground floor, FLOOR above) whose top is the storey elevation and a suspended cei
 (:class:`~bimcap.sim.building_truth.BuildingTruth`, a JSON sidecar ``NAME.truth.json``);
 :func:`as_built` writes the same building as it was built: every wall shifted along its normal by
 a few centimetres, columns offset, and some interior elements (partitions, columns, door and
-window fills; never the shell, the corridor walls or the slabs) missing. Same seed → byte-identical
-IFC: GUIDs are hashed from the seed and the element's id, the header time stamp is fixed.
+window fills; never the shell, the corridor walls or the slabs) missing. Same seed → identical
+IFC bytes: GUIDs are hashed from the seed and the element's id, the header time stamp is fixed.
 """
 
 from __future__ import annotations
@@ -548,7 +548,9 @@ def _free_space(spec: BuildingSpec, plan: _Plan, k: int, pos: dict[str, float],
 # IFC writing.
 
 
-def _placement(origin: tuple[float, float, float], x_axis: tuple[float, float]) -> NDArray:
+def _placement(origin: tuple[float, float, float], x_axis: tuple[float, float]
+               ) -> NDArray[np.float64]:
+    """(4, 4) world matrix: local x along ``x_axis`` (unit, horizontal), z up, at ``origin``."""
     m = np.eye(4)
     m[:3, 0] = [x_axis[0], x_axis[1], 0.0]
     m[:3, 1] = [-x_axis[1], x_axis[0], 0.0]
@@ -588,8 +590,9 @@ def _write_ifc(spec: BuildingSpec, storeys: list[_StoreyContent], design_seed: i
         place(storey, (0.0, 0.0, s.elevation))
         ifc_walls: dict[str, Any] = {}
         for w in st.walls:
+            wall_type = "SOLIDWALL" if w.kind is WallKind.EXTERIOR else "PARTITIONING"
             wall = run("root.create_entity", f, ifc_class="IfcWall", name=w.id,
-                       predefined_type="SOLIDWALL" if w.kind is WallKind.EXTERIOR else "PARTITIONING")
+                       predefined_type=wall_type)
             run("spatial.assign_container", f, relating_structure=storey, products=[wall])
             d = w.direction
             place(wall, (w.start[0], w.start[1], w.z_min), (float(d[0]), float(d[1])))

@@ -7,8 +7,39 @@ Everything here is in the IFC's frame (z up) and in metres. A wall is stored by 
 and the passages (door holes, removed walls) are axis-aligned rectangles whose union is the
 walkable free space of a storey; the walk graph's edges stay inside it and clear of columns.
 
-The sidecar is versioned (``format`` ``"bimcap-building-truth"``, ``version`` 1); read it back
-with :func:`load_building_truth`.
+Sidecar ``NAME.truth.json`` (read it with :func:`load_building_truth`)::
+
+    {"format": "bimcap-building-truth", "version": 1, "units": "m", "schema": "IFC4",
+     "variant": "design" | "as_built", "seed": int (design seed), "spec": {BuildingSpec fields},
+     "counts": {"IfcBuildingStorey": n, "IfcWall": n, "IfcSlab": n, "IfcCovering": n,
+                "IfcColumn": n, "IfcDoor": n, "IfcWindow": n, "IfcOpeningElement": n},
+     "storeys": [{"index", "name" ("S0"...), "guid", "elevation", "floor_z", "ceiling_z",
+                  "wall_top_z"}],
+     "walls": [{"id" ("S0/wall/corr-north"), "guid", "storey", "kind": "exterior" | "corridor" |
+                "partition", "start": [x, y], "end": [x, y], "thickness", "height", "z_min",
+                "z_max", "normal": [nx, ny], "faces": [[x1, y1, x2, y2] (+normal side),
+                                                     [x1, y1, x2, y2] (-normal side)]}],
+     "columns": [{"id", "guid", "storey", "shape": "rectangular" | "round", "center": [x, y],
+                  "size": [sx, sy] | null, "radius": r | null, "z_min", "z_max"}],
+     "doors" / "windows": [{"id" ("S0/door/north-2"), "kind": "door" | "window", "storey",
+                  "host_wall" (wall id), "opening_guid", "fill_guid" (null if the fill is
+                  missing), "center": [x, y] (on the host centre line), "direction": [dx, dy]
+                  (host direction), "width", "height", "z_min", "z_max"}],
+     "slabs": [{"id", "guid", "storey", "ifc_class": "IfcSlab", "predefined_type": "BASESLAB" |
+                "FLOOR" | "ROOF", "polygon": [[x, y], ...], "z_min", "z_max"}],
+     "coverings": [same, "ifc_class": "IfcCovering", "predefined_type": "CEILING"],
+     "free_space": [{"storey", "floor_z",
+                     "regions": [{"id", "kind": "room" | "corridor" | "door" | "removed_wall",
+                                  "rect": [x_min, y_min, x_max, y_max], "polygon": 4 x [x, y]}],
+                     "walk_graph": {"nodes": [[x, y], ...], "edges": [[i, j], ...]},
+                     "tour": [node index, ...] (closed: first == last)}],
+     "deviations": null | {"seed", "shift_sigma_m", "missing_fraction",
+                           "wall_shifts": {wall id: metres along +normal},
+                           "column_offsets": {column id: [dx, dy]},
+                           "missing": [element ids absent from this IFC]}}
+
+Ids are the IFC ``Name`` of each element (openings are named ``<door/window id>/opening``);
+GUIDs are the same in a design file and its as-built.
 """
 
 from __future__ import annotations
@@ -263,7 +294,7 @@ class Region:
         return np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
 
     def contains(self, p_xy: NDArray[np.float64], margin: float = 0.0) -> NDArray[np.bool_]:
-        """(M,) whether each of the (M, 2) points lies inside, ``margin`` metres in from the edge."""
+        """(M,) whether each (M, 2) point lies inside, at least ``margin`` metres from the edge."""
         p = np.atleast_2d(p_xy)
         x0, y0, x1, y1 = self.rect
         return (
