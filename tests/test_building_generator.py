@@ -371,6 +371,21 @@ def test_rooms_do_not_overlap_walls(demo: GeneratedBuilding) -> None:
 # --- files, errors, CLI --------------------------------------------------------------------------
 
 
+def test_explicit_room_widths(tmp_path: Path) -> None:
+    # 15 m corridor, 0.12 m partitions: 3 north rooms fill 14.76 m, 2 south rooms 14.88 m.
+    spec = BuildingSpec(room_widths_north_m=(3.0, 6.76, 5.0), rooms_south=2,
+                        room_widths_south_m=(10.0, 4.88))
+    t = generate_building(spec, 0, tmp_path / "w.ifc").truth
+    assert t.wall("S0/wall/part-north-1").start[0] == pytest.approx(3.06)
+    assert t.wall("S0/wall/part-north-2").start[0] == pytest.approx(3.0 + 0.12 + 6.76 + 0.06)
+    assert t.wall("S0/wall/part-south-1").start[0] == pytest.approx(10.06)
+    rooms = sorted((r.rect for r in t.free_space[0].regions if r.kind == "room"),
+                   key=lambda r: (r[1], r[0]))
+    assert [r[2] - r[0] for r in rooms] == pytest.approx([10.0, 4.88, 3.0, 6.76, 5.0])
+    assert BuildingSpec.from_dict(json.loads((tmp_path / "w.truth.json").read_text())["spec"]) \
+        == spec
+
+
 def test_sidecar_round_trip(demo: GeneratedBuilding, demo_built: GeneratedBuilding) -> None:
     for b in (demo, demo_built):
         assert b.truth_path == truth_path_for(b.ifc_path)
@@ -396,7 +411,9 @@ def test_bad_sidecar_names_the_file(tmp_path: Path) -> None:
     ("changes", "field"),
     [({"rooms_north": 0}, "rooms_north"), ({"corridor_length_m": 4.0}, "corridor_length_m"),
      ({"ceiling_height_m": 3.0}, "ceiling_height_m"), ({"storeys": 0}, "storeys"),
-     ({"door_width_m": float("nan")}, "door_width_m")],
+     ({"door_width_m": float("nan")}, "door_width_m"),
+     ({"room_widths_north_m": (5.0, 5.0, 5.0)}, "room_widths_north_m"),
+     ({"room_widths_south_m": (8.0, 6.64)}, "room_widths_south_m")],
 )
 def test_bad_spec_names_the_field(changes: dict, field: str) -> None:
     with pytest.raises(BuildingSpecError, match=field):
