@@ -103,9 +103,9 @@ class World:
     def from_parts(cls, parts: Iterable[MeshPart], seed: int = 0, split_slabs: bool = True) -> World:
         """Concatenate parts into one world.
 
-        With ``split_slabs``, triangles of FLOOR/CEILING parts are relabelled by their normal:
-        facing up (n_z > 0.5) → FLOOR, facing down (n_z < -0.5) → CEILING, so a slab is floor from
-        above and ceiling from below. Texture offsets per element come from ``seed``.
+        With ``split_slabs``, the downward-facing triangles (n_z < -0.5) of FLOOR parts become
+        CEILING: a floor slab is the ceiling of the storey below (and a one-storey building's slab
+        seen from underneath). Texture offsets per element come from ``seed``.
         """
         verts: list[F64] = []
         faces: list[NDArray[np.int32]] = []
@@ -122,10 +122,9 @@ class World:
             if f.min() < 0 or f.max() >= len(v):
                 raise SimError(f"element {part.name}: face index out of range")
             lab = np.full(len(f), int(part.label), np.uint8)
-            if split_slabs and part.label in (Label.FLOOR, Label.CEILING):
+            if split_slabs and part.label == Label.FLOOR:
                 n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
                 nz = n[:, 2] / np.maximum(np.linalg.norm(n, axis=1), 1e-12)
-                lab[nz > 0.5] = Label.FLOOR
                 lab[nz < -0.5] = Label.CEILING
             mat = part.material if part.material is not None else LABEL_MATERIAL[part.label]
             mat_arr = np.full(len(f), int(mat), np.uint8)

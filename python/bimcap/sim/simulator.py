@@ -20,7 +20,6 @@ the same seed and configuration give byte-identical files whatever the number of
 from __future__ import annotations
 
 import io
-import json
 import os
 import time
 from collections.abc import Sequence
@@ -33,6 +32,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from bimcap.dataset import MANIFEST, FrameInfo, LidarInfo, Sequence, read_sequence
 from bimcap.geometry.camera import Camera
 from bimcap.geometry.poses import compose, matrix_to_pose
 from bimcap.geometry.trajectory import Trajectory, write_tum
@@ -153,14 +153,14 @@ class SimulationResult:
 
     Attributes
     ----------
-    out_dir: the sequence directory.
+    sequence: the written sequence, read back and validated by :func:`bimcap.dataset.read_sequence`.
     world_from_cam: (N, 7) ground-truth camera poses, TUM order.
     timestamps: (N,) seconds.
     clutter: the placed clutter objects.
     timings: seconds per stage (wall clock; not written to disk, which stays deterministic).
     """
 
-    out_dir: Path
+    sequence: Sequence
     world_from_cam: F64
     timestamps: F64
     clutter: list[ClutterObject]
@@ -168,7 +168,7 @@ class SimulationResult:
 
     def to_dict(self) -> dict[str, Any]:
         return {
-            "out_dir": str(self.out_dir),
+            "out_dir": str(self.sequence.root),
             "frames": len(self.timestamps),
             "clutter": [c.to_dict() for c in self.clutter],
             "timings": self.timings,
@@ -257,130 +257,43 @@ def corridor_building(
     return parts, polygons, np.asarray(doors, float)
 
 
-def _label_of_ifc_class(ifc_class: str) -> Label:
-    c = ifc_class.lower()
-    if c.startswith(("ifcwall", "ifccurtainwall")):
-        return Label.WALL
-    if c.startswith("ifcslab"):
-        return Label.FLOOR  # split into floor / ceiling by normal in World.from_parts
-    if c.startswith("ifccovering"):
-        return Label.CEILING
-    if c.startswith("ifccolumn"):
-        return Label.COLUMN
-    if c.startswith("ifcdoor"):
-        return Label.DOOR
-    if c.startswith("ifcwindow"):
-        return Label.WINDOW
-    if c.startswith("ifcroof"):
-        return Label.CEILING
-    return Label.UNKNOWN
-
-
-_SKIP_CLASSES = {"IfcSpace", "IfcOpeningElement", "IfcAnnotation", "IfcSite", "IfcGrid"}
-
-
 def load_ifc_parts(path: str | PathLike[str]) -> list[MeshPart]:
-    """Mesh parts of every building element of an IFC (world metres, labels per DESIGN §2).
+    """Mesh parts of every element of an IFC (world metres, labels of DESIGN §2).
 
-    Uses :func:`bimcap.bim.load_model` when it is available; otherwise a private fallback that
-    tessellates with IfcOpenShell's geometry iterator in world coordinates (metres whatever the
-    file's units). Spaces, openings and annotations are skipped.
+    Tessellation and classification are :func:`bimcap.bim.load_model`'s; parts are sorted by
+    GUID so that the world (and hence every output byte) does not depend on thread scheduling.
     """
-    p = Path(path)
-    if not p.is_file():
-        raise SimError(f"{p}: no such IFC file")
-    try:
-        from bimcap.bim import load_model  # type: ignore[attr-defined]
-    except ImportError:
-        load_model = None
-    if load_model is not None:
-        model = load_model(p)
-        return [
-            MeshPart(e.guid, Label(e.label), np.asarray(e.vertices, np.float64),
-                     np.asarray(e.faces, np.int32))
-            for e in model.elements
-            if e.ifc_class not in _SKIP_CLASSES
-        ]
-    return _load_ifc_parts_fallback(p)
+    from bimcap.bim import load_model
 
-
-def _load_ifc_parts_fallback(path: Path) -> list[MeshPart]:
-    import ifcopenshell
-    import ifcopenshell.geom
-
-    try:
-        model = ifcopenshell.open(str(path))
-    except Exception as exc:  # ifcopenshell raises plain Exceptions on bad files
-        raise SimError(f"{path}: cannot open as IFC ({exc})") from None
-    settings = ifcopenshell.geom.settings()
-    settings.set("use-world-coords", True)
-    parts: list[MeshPart] = []
-    it = ifcopenshell.geom.iterator(settings, model, max(1, min(2, os.cpu_count() or 1)))
-    if not it.initialize():
-        raise SimError(f"{path}: no geometry could be tessellated")
-    while True:
-        shape = it.get()
-        if shape.type not in _SKIP_CLASSES:
-            g = shape.geometry
-            v = np.asarray(g.verts, np.float64).reshape(-1, 3)
-            f = np.asarray(g.faces, np.int32).reshape(-1, 3)
-            if len(f):
-                parts.append(MeshPart(shape.guid, _label_of_ifc_class(shape.type), v, f))
-        if not it.next():
-            break
-    # the iterator's order depends on its threads: sort for determinism
+    model = load_model(Path(path))
+    parts = [
+        MeshPart(e.guid, Label(e.label), np.asarray(e.vertices, np.float64),
+                 np.asarray(e.faces, np.int32))
+        for e in model.elements
+    ]
     parts.sort(key=lambda q: q.name)
     return parts
 
 
-def _free_space_polygons_from_sidecar(ifc: Path) -> tuple[list[F64], F64] | None:
-    """Free-space polygons and door centres from a building generator sidecar, if one exists.
+def sidecar_free_space(ifc: str | PathLike[str], storey: int = 0
+                       ) -> tuple[list[F64], float] | None:
+    """Free-space polygons and floor height of ``storey`` from a generated building's sidecar.
 
-    Looks for ``<ifc stem>.json`` / ``<ifc stem>.truth.json`` / ``<ifc name>.json`` with
-    ``"format": "bimcap-building-truth"``; rooms, corridors and passages may be given as
-    ``polygon`` (K, 2) lists or axis-aligned ``min``/``max`` (or ``xy_min``/``xy_max``) corners.
-    Returns None when no usable sidecar is found.
+    Reads ``NAME.truth.json`` next to ``NAME.ifc`` (:func:`bimcap.sim.building.truth_path_for`);
+    returns None when there is none. The polygons are the storey's walkable regions (rooms,
+    corridor, door passages, removed walls), each (4, 2) world xy.
     """
-    for cand in (ifc.with_suffix(".json"), ifc.with_suffix(".truth.json"),
-                 ifc.with_name(ifc.name + ".json")):
-        if not cand.is_file():
-            continue
-        try:
-            doc = json.loads(cand.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            continue
-        if not isinstance(doc, dict) or doc.get("format") != "bimcap-building-truth":
-            continue
-        polygons: list[F64] = []
-        doors: list[tuple[float, float]] = []
+    from bimcap.sim.building import truth_path_for
+    from bimcap.sim.building_truth import load_building_truth
 
-        def visit(obj: Any) -> None:
-            if isinstance(obj, dict):
-                poly = obj.get("polygon")
-                lo = obj.get("min", obj.get("xy_min"))
-                hi = obj.get("max", obj.get("xy_max"))
-                if poly is not None:
-                    polygons.append(np.asarray(poly, float)[:, :2])
-                elif lo is not None and hi is not None:
-                    a, b = np.asarray(lo, float)[:2], np.asarray(hi, float)[:2]
-                    polygons.append(np.array([[a[0], a[1]], [b[0], a[1]], [b[0], b[1]], [a[0], b[1]]]))
-                if obj.get("kind") == "door" and "center" in obj:
-                    doors.append(tuple(float(x) for x in obj["center"][:2]))  # type: ignore[arg-type]
-                for key in ("rooms", "corridors", "corridor", "passages", "spaces", "storeys",
-                            "openings", "free_space"):
-                    if key in obj:
-                        visit(obj[key])
-            elif isinstance(obj, list):
-                for item in obj:
-                    visit(item)
-
-        try:
-            visit(doc)
-        except (TypeError, ValueError, IndexError):
-            continue
-        if polygons:
-            return polygons, np.asarray(doors, float).reshape(-1, 2)
-    return None
+    path = truth_path_for(ifc)
+    if not path.is_file():
+        return None
+    truth = load_building_truth(path)
+    for fs in truth.free_space:
+        if fs.storey == storey:
+            return [r.polygon() for r in fs.regions], float(fs.floor_z)
+    raise SimError(f"{path}: no free space for storey {storey}")
 
 
 # ------------------------------------------------------------------------------- frame writing
@@ -423,9 +336,33 @@ def _write_frame(out: Path, i: int, frame: RenderedFrame, scan: NDArray[np.float
         atomic_write_bytes(out / names["lidar"], np.ascontiguousarray(scan, "<f4").tobytes())
 
 
-def _write_manifest(out: Path, manifest: dict[str, Any]) -> None:
-    """Write the manifest last, atomically (switch to bimcap.dataset.SequenceWriter when landed)."""
-    atomic_write_json(out / "manifest.json", manifest)
+def _finish_sequence(out: Path, cfg: SimulatorConfig, timestamps: F64, world_from_cam: F64,
+                     ifc_ref: str | None, source: dict[str, Any]) -> Sequence:
+    """Write ``poses/gt.tum`` and then the manifest (last, atomically); read the sequence back.
+
+    The frame files were written by the render workers with :func:`frame_names`; the manifest is
+    :meth:`bimcap.dataset.Sequence.to_manifest`'s, so the schema is the dataset module's.
+    """
+    if cfg.lidar is None:  # the format requires a scan per frame: write empty ones
+        for i in range(len(timestamps)):
+            atomic_write_bytes(out / frame_names(i)["lidar"], b"")
+    write_tum(out / "poses" / "gt.tum", Trajectory(timestamps, world_from_cam),
+              header="world_from_cam ground truth (bimcap simulate)")
+    frames = []
+    for i, ts in enumerate(timestamps):
+        names = frame_names(i)
+        frames.append(FrameInfo(
+            i, float(ts), names["image"], names["lidar"],
+            names["labels"] if cfg.write_labels else None,
+            names["depth"] if cfg.write_depth else None,
+        ))
+    lidar = LidarInfo.from_dict((cfg.lidar or LidarConfig()).to_dict())
+    seq = Sequence(out, cfg.camera, np.asarray(cfg.cam_from_lidar), lidar, frames, None,
+                   {"gt": "poses/gt.tum"}, source)
+    doc = seq.to_manifest()
+    doc["ifc"] = ifc_ref
+    atomic_write_json(out / MANIFEST, doc)
+    return read_sequence(out)
 
 
 # ----------------------------------------------------------------------------- frame rendering
@@ -501,7 +438,7 @@ def simulate_world(
     """
     cfg = config or SimulatorConfig()
     out = Path(out_dir)
-    if (out / "manifest.json").exists() and not overwrite:
+    if (out / MANIFEST).exists() and not overwrite:
         raise SimError(f"{out}: already holds a sequence (manifest.json); choose another folder")
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
@@ -561,32 +498,12 @@ def simulate_world(
     timings.update({f"cpu_{k}": v for k, v in stage.items()})
 
     t0 = time.perf_counter()
-    traj = Trajectory(timestamps, world_from_cam)
-    write_tum(out / "poses" / "gt.tum", traj, header="world_from_cam ground truth (bimcap simulate)")
-    frames = []
-    for i, ts in enumerate(timestamps):
-        names = frame_names(i)
-        frames.append({
-            "timestamp": float(ts),
-            "image": names["image"],
-            "lidar": names["lidar"] if cfg.lidar is not None else None,
-            "labels": names["labels"] if cfg.write_labels else None,
-            "depth": names["depth"] if cfg.write_depth else None,
-        })
     ifc_ref = None
     if ifc_path is not None:
         ifc_ref = os.path.relpath(Path(ifc_path).resolve(), out.resolve())
-    lidar_block = (cfg.lidar or LidarConfig()).to_dict()
-    manifest = {
-        "format": "bimcap-sequence",
-        "version": 1,
-        "camera": cfg.camera.to_dict(),
-        "cam_from_lidar": [float(x) for x in cfg.cam_from_lidar],
-        "lidar": lidar_block,
-        "ifc": ifc_ref,
-        "frames": frames,
-        "poses": {"gt": "poses/gt.tum"},
-        "source": {
+    sequence = _finish_sequence(
+        out, cfg, timestamps, world_from_cam, ifc_ref,
+        {
             "generator": "bimcap simulate",
             "seed": seed,
             "config": cfg.to_dict(),
@@ -595,10 +512,9 @@ def simulate_world(
             "free_space": "polygons" if free_polygons is not None else "meshes",
             **(source or {}),
         },
-    }
-    _write_manifest(out, manifest)
+    )
     timings["manifest"] = time.perf_counter() - t0
-    return SimulationResult(out, world_from_cam, timestamps, placed, timings)
+    return SimulationResult(sequence, world_from_cam, timestamps, placed, timings)
 
 
 def simulate(
@@ -609,26 +525,31 @@ def simulate(
     as_built_ifc: str | PathLike[str] | None = None,
     clutter: bool = True,
     overwrite: bool = False,
-) -> Path:
+) -> Sequence:
     """Simulate a sequence directory for the building ``ifc_path``.
 
     The sensors see ``as_built_ifc`` if given (the generator's as-built variant), else the design
     model itself; the manifest's ``ifc`` always names the design model. The walk uses the free
     space of the generator's JSON sidecar when one sits next to the rendered IFC, else free space
-    derived from the meshes. Returns the sequence directory.
+    derived from the meshes. Returns the written sequence (validated; ``.root`` is ``out_dir``).
     """
     ifc = Path(ifc_path)
     seen = Path(as_built_ifc) if as_built_ifc is not None else ifc
     out = Path(out_dir)
     check_not_input(out / "manifest.json", [ifc, seen])
     parts = load_ifc_parts(seen)
-    sidecar = _free_space_polygons_from_sidecar(seen) or _free_space_polygons_from_sidecar(ifc)
-    polygons, doors = (None, None) if sidecar is None else sidecar
-    simulate_world(
-        parts, out, config, seed, polygons, doors, clutter, ifc, overwrite,
+    cfg = config or SimulatorConfig()
+    sidecar = sidecar_free_space(seen) or sidecar_free_space(ifc)
+    polygons = None
+    if sidecar is not None:
+        polygons, z_floor = sidecar
+        if cfg.z_floor is None:
+            cfg = replace(cfg, z_floor=z_floor)
+    result = simulate_world(
+        parts, out, cfg, seed, polygons, None, clutter, ifc, overwrite,
         source={"as_built_ifc": None if as_built_ifc is None else str(as_built_ifc)},
     )
-    return out
+    return result.sequence
 
 
 def with_frames(config: SimulatorConfig, frames: int) -> SimulatorConfig:
