@@ -157,6 +157,7 @@ class SimulationResult:
     world_from_cam: (N, 7) ground-truth camera poses, TUM order.
     timestamps: (N,) seconds.
     clutter: the placed clutter objects.
+    world_triangles: triangles in the rendered world (as-built meshes + clutter).
     timings: seconds per stage (wall clock; not written to disk, which stays deterministic).
     """
 
@@ -164,6 +165,7 @@ class SimulationResult:
     world_from_cam: F64
     timestamps: F64
     clutter: list[ClutterObject]
+    world_triangles: int
     timings: dict[str, float]
 
     def to_dict(self) -> dict[str, Any]:
@@ -514,7 +516,7 @@ def simulate_world(
         },
     )
     timings["manifest"] = time.perf_counter() - t0
-    return SimulationResult(sequence, world_from_cam, timestamps, placed, timings)
+    return SimulationResult(sequence, world_from_cam, timestamps, placed, world.n_triangles, timings)
 
 
 def simulate(
