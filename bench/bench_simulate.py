@@ -89,9 +89,9 @@ def main(argv: list[str] | None = None) -> int:
           f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
     print(f"measured wall: {total_sim:.1f} s for {args.frames} frames "
           f"-> {total_sim * 200 / args.frames:.1f} s per 200 frames")
+    per200 = serial + (est - serial) * 200 / args.frames
     print(f"CPU-time estimate on 2 idle cores: serial {serial:.1f} s + render CPU "
-          f"{cpu_total:.1f} s / 2 = {est:.1f} s -> {serial + (est - serial) * 200 / args.frames:.1f} s "
-          f"per 200 frames (target < 60 s)")
+          f"{cpu_total:.1f} s / 2 = {est:.1f} s -> {per200:.1f} s per 200 frames (target < 60 s)")
     size = sum(p.stat().st_size for p in seq_dir.rglob("*") if p.is_file())
     print(f"sequence size: {size / 1e6:.1f} MB in {seq_dir}")
     if not args.keep and args.out is None:

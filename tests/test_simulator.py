@@ -1,4 +1,4 @@
-"""Tests of the sensor simulator (bimcap.sim.simulator / render / lidar / walk / texture / clutter)."""
+"""Tests of the sensor simulator (bimcap.sim: simulator, render, lidar, walk, texture, clutter)."""
 
 from __future__ import annotations
 
@@ -136,7 +136,9 @@ def test_lidar_pattern_and_noise() -> None:
     fwd = (np.abs(pts[:, 1]) < 0.01) & (np.abs(pts[:, 2]) < 0.3) & (pts[:, 0] > 0)
     assert fwd.sum() >= 1
     # the points straight ahead: x is range·cos(elev) ≈ 4 within 4σ of the 3 cm noise
-    assert np.all(np.abs(pts[fwd, 0] / np.cos(np.arcsin(pts[fwd, 2] / np.linalg.norm(pts[fwd, :3], axis=1))) - 4.0) < 0.12)
+    rng_fwd = np.linalg.norm(pts[fwd, :3], axis=1)
+    cos_el = np.sqrt(1.0 - (pts[fwd, 2] / rng_fwd) ** 2)
+    assert np.all(np.abs(rng_fwd * cos_el - 4.0) < 0.12)
     # noise statistics of the floor returns behind the LiDAR (away from the wall at x = 4):
     # the floor is 1.5 m below, so a beam of elevation e has true range 1.5 / sin(-e)
     down = (pts[:, 2] < -0.2) & (pts[:, 0] < 0)
@@ -251,7 +253,8 @@ def test_neighbouring_frames_give_consistent_sift_matches(sequence: Path) -> Non
     good_pairs = 0
     for a in range(len(m["frames"]) - 1):
         b = a + 1
-        img = [cv2.imread(str(sequence / m["frames"][k]["image"]), cv2.IMREAD_GRAYSCALE) for k in (a, b)]
+        img = [cv2.imread(str(sequence / m["frames"][k]["image"]), cv2.IMREAD_GRAYSCALE)
+               for k in (a, b)]
         kp_a, des_a = sift.detectAndCompute(img[0], None)
         kp_b, des_b = sift.detectAndCompute(img[1], None)
         if des_a is None or des_b is None:
@@ -297,3 +300,19 @@ def test_refuses_to_overwrite_a_sequence(sequence: Path, building) -> None:
     parts, polys, doors = building
     with pytest.raises(SimError, match="already holds a sequence"):
         simulate_world(parts, sequence, SimulatorConfig.small(frames=1), 0, polys, doors)
+
+
+@pytest.mark.slow
+def test_worker_processes_do_not_change_the_files(tmp_path: Path, building) -> None:
+    """Frames rendered by two spawned worker processes are byte-identical to in-process ones."""
+    parts, polys, doors = building
+    digests = []
+    for workers in (1, 2):
+        cfg = SimulatorConfig.small(frames=2, workers=workers)
+        out = tmp_path / f"w{workers}"
+        simulate_world(parts, out, cfg, 11, polys, doors)
+        digests.append({
+            str(p.relative_to(out)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(out.rglob("*")) if p.is_file()
+        })
+    assert digests[0] == digests[1]

@@ -1,4 +1,4 @@
-"""End-to-end: ``simulate`` / ``bimcap simulate`` on a generated IFC building (design + as-built)."""
+"""End-to-end: ``simulate`` and ``bimcap simulate`` on generated (design + as-built) and real IFC."""
 
 from __future__ import annotations
 
@@ -39,7 +39,7 @@ def test_simulate_generated_building(tmp_path: Path, buildings: tuple[Path, Path
     assert len(again.frames) == 3
     assert again.ifc_path is not None and again.ifc_path.resolve() == design.resolve()
     assert seq.source["free_space"] == "polygons" and seq.source["as_built_ifc"] == str(built)
-    labels = np.concatenate([again.load_labels(i).ravel() for i in range(3)])  # type: ignore[union-attr]
+    labels = np.concatenate([np.ravel(again.load_labels(i)) for i in range(3)])
     assert (labels == Label.WALL).mean() > 0.2
     assert (labels == Label.FLOOR).any()
     # the GT poses stand on the storey floor at 1.2-1.7 m
@@ -48,7 +48,7 @@ def test_simulate_generated_building(tmp_path: Path, buildings: tuple[Path, Path
 
 
 def test_long_walk_in_as_built_building_keeps_clear(buildings: tuple[Path, Path]) -> None:
-    """The planner walks the sidecar's free space but checks clearance against the as-built meshes."""
+    """The planner walks the sidecar's free space, checking clearance on the as-built meshes."""
     _, built = buildings
     world = World.from_parts([p for p in load_ifc_parts(built) if p.label != Label.DOOR])
     side = sidecar_free_space(built)
@@ -62,17 +62,19 @@ def test_long_walk_in_as_built_building_keeps_clear(buildings: tuple[Path, Path]
     assert h.min() >= 1.2 and h.max() <= 1.7
 
 
-def test_cli_simulate(tmp_path: Path, buildings: tuple[Path, Path], capsys: pytest.CaptureFixture[str]) -> None:
+def test_cli_simulate(
+    tmp_path: Path, buildings: tuple[Path, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
     design, _ = buildings
     out = tmp_path / "cli-seq"
-    rc = main(["simulate", str(design), "-o", str(out), "--frames", "2", "--small", "--workers", "1",
-               "--no-depth", "--seed", "5"])
+    args = ["simulate", str(design), "-o", str(out), "--frames", "2", "--small", "--workers", "1"]
+    rc = main(args + ["--no-depth", "--seed", "5"])
     assert rc == 0
     assert "wrote 2 frames (320x239" in capsys.readouterr().out
     seq = read_sequence(out)
     assert not seq.has_depth and seq.has_labels
     # a second run into the same folder is refused with exit status 2 and a clear message
-    rc = main(["simulate", str(design), "-o", str(out), "--frames", "2", "--small", "--workers", "1"])
+    rc = main(args)
     assert rc == 2
     assert "already holds a sequence" in capsys.readouterr().err
 
@@ -86,6 +88,7 @@ def test_simulate_missing_ifc_is_an_input_error(tmp_path: Path) -> None:
         SimulatorConfig.small(frames=0)
 
 
+@pytest.mark.slow
 @pytest.mark.needs_shared
 def test_simulate_real_ifc_with_mesh_free_space(tmp_path: Path, ifc_dir: Path) -> None:
     """A real ArchiCAD model with no sidecar: free space comes from the meshes."""

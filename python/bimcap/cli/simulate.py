@@ -1,4 +1,4 @@
-"""``bimcap simulate``: ray-cast a handheld camera + VLP-16 walk through a building into a sequence."""
+"""``bimcap simulate``: ray-cast a handheld camera + VLP-16 walk through a building."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from typing import Any
 def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "simulate",
-        help="simulate a camera + LiDAR sequence (raw RGB, labels, depth, VLP-16) in an IFC building",
+        help="simulate a camera + LiDAR sequence (raw RGB, labels, depth, VLP-16) in a building",
         description="Walk a handheld ConSLAM-like rig (raw RGB through the distorted camera, "
         "VLP-16 LiDAR at ConSLAM's extrinsic) through the building and write a sequence "
         "directory with ground-truth poses, label images and depth. Same seed, same files.",
@@ -65,8 +65,9 @@ def run(args: argparse.Namespace) -> int:
     seq = simulate(args.model, args.output, cfg, args.seed, args.as_built,
                    clutter=not args.no_clutter, overwrite=args.overwrite)
     cam = seq.camera
+    span = seq.frames[-1].timestamp - seq.frames[0].timestamp
     print(
         f"wrote {len(seq.frames)} frames ({cam.width}x{cam.height}, "
-        f"{seq.frames[-1].timestamp - seq.frames[0].timestamp:.1f} s at {args.fps:g} Hz) to {seq.root}"
+        f"{span:.1f} s at {args.fps:g} Hz) to {seq.root}"
     )
     return 0

@@ -39,8 +39,10 @@ class ClutterKind(str, Enum):
     PERSON = "person"
 
 
-def box_mesh(lo: F64, hi: F64, yaw: float = 0.0, pivot: F64 | None = None) -> tuple[F64, NDArray[np.int32]]:
-    """An axis-aligned box ``[lo, hi]`` (3,) rotated by ``yaw`` about the vertical through ``pivot``.
+def box_mesh(
+    lo: F64, hi: F64, yaw: float = 0.0, pivot: F64 | None = None
+) -> tuple[F64, NDArray[np.int32]]:
+    """A box ``[lo, hi]`` (3,) rotated by ``yaw`` about the vertical through ``pivot``.
 
     Returns (8, 3) vertices and (12, 3) faces.
     """
@@ -119,14 +121,16 @@ def make_object(kind: ClutterKind, center: F64, z0: float, rng: np.random.Genera
         lx, ly = 1.2, 0.8
         for k in range(3):  # runners
             y = cy - ly / 2 + k * (ly - 0.1) / 2
-            pieces.append(box_mesh([cx - lx / 2, y, z0], [cx + lx / 2, y + 0.1, z0 + 0.1], yaw, piv))
+            lo = [cx - lx / 2, y, z0]
+            pieces.append(box_mesh(lo, [cx + lx / 2, y + 0.1, z0 + 0.1], yaw, piv))
         for k in range(5):  # top boards
             x = cx - lx / 2 + k * (lx - 0.14) / 4
             pieces.append(box_mesh([x, cy - ly / 2, z0 + 0.1], [x + 0.14, cy + ly / 2, z0 + 0.144],
                                    yaw, piv))
         if rng.random() < 0.6:  # a load of bagged material or blocks
             h = rng.uniform(0.3, 0.9)
-            pieces.append(box_mesh([cx - 0.5, cy - 0.35, z0 + 0.144], [cx + 0.5, cy + 0.35, z0 + 0.144 + h],
+            top = z0 + 0.144
+            pieces.append(box_mesh([cx - 0.5, cy - 0.35, top], [cx + 0.5, cy + 0.35, top + h],
                                    yaw, piv))
         radius = 0.75
     elif kind is ClutterKind.SCAFFOLD:
@@ -135,14 +139,17 @@ def make_object(kind: ClutterKind, center: F64, z0: float, rng: np.random.Genera
         for sx in (-1, 1):
             for sy in (-1, 1):
                 x, y = cx + sx * (lx / 2 - t), cy + sy * (ly / 2 - t)
-                pieces.append(box_mesh([x - t / 2, y - t / 2, z0], [x + t / 2, y + t / 2, z0 + hz], yaw, piv))
-        for zl in (0.15, hz / 2, hz - 0.05):
+                lo = [x - t / 2, y - t / 2, z0]
+                pieces.append(box_mesh(lo, [x + t / 2, y + t / 2, z0 + hz], yaw, piv))
+        for zl in (z0 + 0.15, z0 + hz / 2, z0 + hz - 0.05):
             for sy in (-1, 1):
                 y = cy + sy * (ly / 2 - t)
                 pieces.append(box_mesh([cx - lx / 2, y - t / 2, zl - t / 2],
                                        [cx + lx / 2, y + t / 2, zl + t / 2], yaw, piv))
-        # a deck board at mid height and a diagonal-ish brace approximated by a step
-        pieces.append(box_mesh([cx - lx / 2, cy - ly / 2, hz / 2], [cx + lx / 2, cy + ly / 2, hz / 2 + 0.04],
+        # a deck board at mid height
+        deck = z0 + hz / 2
+        pieces.append(box_mesh([cx - lx / 2, cy - ly / 2, deck],
+                               [cx + lx / 2, cy + ly / 2, deck + 0.04],
                                yaw, piv))
         radius = float(np.hypot(lx, ly) / 2)
     elif kind is ClutterKind.PERSON:

@@ -1,8 +1,8 @@
 """A spinning multi-beam LiDAR like the Velodyne VLP-16, ray-cast in the simulated world.
 
 LiDAR frame (Velodyne's): x forward, y left, z up. Beam ``b`` has elevation
-``fov[0] + b·(fov[1] − fov[0])/(channels − 1)`` (VLP-16: −15°…+15° in 2° steps); a sweep has
-``360 / azimuth_step`` columns. One scan is taken instantaneously at the frame's timestamp (no
+``fov[0] + b·(fov[1] − fov[0])/(channels − 1)`` (VLP-16: −15°…+15° in 2° steps); a sweep
+has ``360 / azimuth_step`` columns. One scan is taken instantaneously at the frame's timestamp (no
 motion distortion within the 0.1 s sweep; the camera frames are synchronised to scans as in
 ConSLAM's ``synced2rgb`` topics).
 
@@ -105,7 +105,8 @@ class LidarSimulator:
         noise = rng.standard_normal(n, dtype=np.float32) * np.float32(cfg.range_noise_m)
         u = rng.random(n, dtype=np.float32)
         inten_noise = rng.standard_normal(n, dtype=np.float32)
-        p_keep = (1.0 - cfg.dropout) * np.clip(cos_inc / 0.1, 0.0, 1.0) * np.clip(refl / 0.1, 0.0, 1.0)
+        p_keep = (1.0 - cfg.dropout) * np.clip(cos_inc / 0.1, 0.0, 1.0)
+        p_keep *= np.clip(refl / 0.1, 0.0, 1.0)
         measured = rng_true + noise
         ok &= u < p_keep
         ok &= (measured >= cfg.min_range_m) & (measured <= cfg.max_range_m)

@@ -100,7 +100,9 @@ class World:
     _scene: Any = field(default=None, repr=False, compare=False)
 
     @classmethod
-    def from_parts(cls, parts: Iterable[MeshPart], seed: int = 0, split_slabs: bool = True) -> World:
+    def from_parts(
+        cls, parts: Iterable[MeshPart], seed: int = 0, split_slabs: bool = True
+    ) -> World:
         """Concatenate parts into one world.
 
         With ``split_slabs``, the downward-facing triangles (n_z < -0.5) of FLOOR parts become
@@ -282,9 +284,12 @@ class Renderer:
         levels = np.arange(4096, dtype=np.float32) / 4095.0
         self._gamma_lut = (255.0 * np.power(levels, self.shading.gamma)).astype(np.float32) + 0.5
         sh = self.shading
-        self._noise_lut = np.sqrt(sh.noise_dn**2 + sh.shot_noise**2 * self._gamma_lut).astype(np.float32)
-        r2 = ((uv[:, 0] - camera.cx) / camera.width) ** 2 + ((uv[:, 1] - camera.cy) / camera.height) ** 2
-        self.vignette = (1.0 - self.shading.vignette * np.clip(r2 / 0.5, 0.0, 1.0)).astype(np.float32)
+        noise_var = sh.noise_dn**2 + sh.shot_noise**2 * self._gamma_lut
+        self._noise_lut = np.sqrt(noise_var).astype(np.float32)
+        r2 = ((uv[:, 0] - camera.cx) / camera.width) ** 2
+        r2 += ((uv[:, 1] - camera.cy) / camera.height) ** 2
+        vig = 1.0 - self.shading.vignette * np.clip(r2 / 0.5, 0.0, 1.0)
+        self.vignette = vig.astype(np.float32)
         # per triangle: dominant axis of the geometric normal and the element's texture offset
         tri = world.vertices[world.faces].astype(np.float64)
         n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
@@ -302,8 +307,9 @@ class Renderer:
     ) -> RenderedFrame:
         """Render one frame at pose ``world_from_cam`` (7,) TUM order; ``rng`` draws sensor noise.
 
-        The light is a lamp at the camera centre: irradiance = ambient + gain·cos(θ)/(1 + d²/d0²)
-        with θ the angle between the ray and the face normal and d the distance.
+        The light is a lamp at the camera centre:
+        irradiance = ambient + gain·cos(θ)/(1 + d²/d0²), θ the angle between the ray and the
+        face normal, d the distance.
         """
         import time
 

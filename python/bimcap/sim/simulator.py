@@ -62,7 +62,7 @@ CONSLAM_CAMERA = Camera(
     2064, 1544, 2351.85909, 2353.56734, 1017.24032, 788.70774,
     (-0.054366, 0.118389, 0.001781, -0.003908, 0.0),
 )
-#: ConSLAM's LiDAR→camera extrinsic (3×4, maps LiDAR points into the RGB optical frame), DESIGN §3.
+#: ConSLAM's LiDAR→camera extrinsic, 3×4, mapping LiDAR points into the RGB optical frame.
 CONSLAM_CAM_FROM_LIDAR_3X4 = np.array(
     [
         [0.05758374, -0.99833897, -0.00184651, -0.0081025],
@@ -70,7 +70,7 @@ CONSLAM_CAM_FROM_LIDAR_3X4 = np.array(
         [0.99833909, 0.05758685, -0.00168015, -0.0215235],
     ]
 )
-#: The same extrinsic as a TUM-order pose ``[tx, ty, tz, qx, qy, qz, qw]`` (rotation re-orthonormalised).
+#: The same extrinsic as a TUM-order pose ``[tx, ty, tz, qx, qy, qz, qw]``.
 CONSLAM_CAM_FROM_LIDAR: F64 = matrix_to_pose(CONSLAM_CAM_FROM_LIDAR_3X4)
 
 
@@ -227,7 +227,8 @@ def corridor_building(
             xc = (i + 0.5) * rw
             doors.append((xc, side * y_in))
             xs += [xc - door_width_m / 2, xc + door_width_m / 2]
-            add(Label.WALL, (xc - door_width_m / 2, y_lo, door_height_m), (xc + door_width_m / 2, y_hi, hz))
+            add(Label.WALL, (xc - door_width_m / 2, y_lo, door_height_m),
+                (xc + door_width_m / 2, y_hi, hz))
         xs.append(x1)
         for a, b in zip(xs[0::2], xs[1::2]):
             add(Label.WALL, (a, y_lo, 0.0), (b, y_hi, hz))
@@ -315,7 +316,8 @@ def _png_bytes(img: NDArray[np.uint8], compression: int) -> bytes:
     import cv2
 
     arr = img[:, :, ::-1] if img.ndim == 3 else img  # OpenCV writes BGR
-    ok, buf = cv2.imencode(".png", np.ascontiguousarray(arr), [cv2.IMWRITE_PNG_COMPRESSION, compression])
+    params = [cv2.IMWRITE_PNG_COMPRESSION, compression]
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(arr), params)
     if not ok:
         raise SimError("PNG encoding failed")
     return buf.tobytes()
@@ -502,7 +504,8 @@ def simulate_world(
 
         # spawn, not fork: Open3D's thread pools do not survive a fork
         with ProcessPoolExecutor(workers, mp.get_context("spawn"), _init_worker, (job,)) as pool:
-            results = list(pool.map(_render_one, tasks, chunksize=max(1, cfg.frames // (4 * workers))))
+            chunk = max(1, cfg.frames // (4 * workers))
+            results = list(pool.map(_render_one, tasks, chunksize=chunk))
     for r in results:
         for k, v in r.items():
             stage[k] = stage.get(k, 0.0) + v
@@ -527,7 +530,9 @@ def simulate_world(
         },
     )
     timings["manifest"] = time.perf_counter() - t0
-    return SimulationResult(sequence, world_from_cam, timestamps, placed, world.n_triangles, timings)
+    return SimulationResult(
+        sequence, world_from_cam, timestamps, placed, world.n_triangles, timings
+    )
 
 
 def simulate(

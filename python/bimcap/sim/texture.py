@@ -77,7 +77,11 @@ def _periodic_value_noise(rng: np.random.Generator, n: int, cells: int) -> F32:
 
 
 def fractal_noise(
-    rng: np.random.Generator, n: int, base_cells: int = 4, octaves: int = 8, persistence: float = 0.6
+    rng: np.random.Generator,
+    n: int,
+    base_cells: int = 4,
+    octaves: int = 8,
+    persistence: float = 0.6,
 ) -> F32:
     """(n, n) periodic multi-octave value noise normalised to zero mean and unit std."""
     acc = np.zeros((n, n), dtype=np.float32)
@@ -291,7 +295,8 @@ class TextureBank:
                 vals *= frac
                 out += vals
         assert out is not None
-        g = np.mod(np.asarray(st_m, np.float32) * np.float32(1.0 / GRIME_TEXEL_M), np.float32(GRIME_TEXELS))
+        g = np.asarray(st_m, np.float32) * np.float32(1.0 / GRIME_TEXEL_M)
+        g = np.mod(g, np.float32(GRIME_TEXELS))
         grime = _remap_points(self.grime, g[:, 0], g[:, 1]).reshape(-1, 1)
         out *= grime * np.float32(1.0 / 255.0)
         return out
@@ -322,29 +327,3 @@ def _remap_points(image: NDArray[Any], x: NDArray[Any], y: NDArray[Any]) -> NDAr
 @functools.lru_cache(maxsize=2)
 def _bake_cached(seed: int, levels: int) -> TextureBank:
     return TextureBank._bake(seed, levels)
-
-
-def surface_coordinates(
-    p_in_world: NDArray[np.float64], normal: NDArray[np.floating], offset_m: NDArray[np.float64]
-) -> NDArray[np.float64]:
-    """Planar surface coordinates ``(s, t)`` (M, 2) in metres of hit points.
-
-    Parameters
-    ----------
-    p_in_world: (M, 3) hit points.
-    normal: (M, 3) face normals (any sign, any length).
-    offset_m: (M, 2) per-element offsets added to ``(s, t)``.
-
-    Notes
-    -----
-    The dominant axis of the normal is dropped: ``|n_z|`` largest → ``(x, y)``; ``|n_x|`` → ``(y, z)``;
-    ``|n_y|`` → ``(x, z)``. ``t`` is the vertical coordinate on walls, so grain and seams stay level.
-    """
-    a = np.abs(normal)
-    axis = np.argmax(a, axis=1)
-    # column of p for s and t per dominant axis: z → (x, y), x → (y, z), y → (x, z)
-    s_col = np.array([1, 0, 0])[axis]
-    t_col = np.array([2, 2, 1])[axis]
-    rows = np.arange(len(p_in_world))
-    st = np.stack([p_in_world[rows, s_col], p_in_world[rows, t_col]], axis=1).astype(np.float64)
-    return st + offset_m

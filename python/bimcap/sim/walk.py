@@ -16,14 +16,14 @@ Planning happens on a 2-D grid over the storey:
 4. **Smoothing and timing**: the grid path is resampled, Gaussian-smoothed (pulled back towards the
    raw path wherever smoothing would cut a corner into the clearance margin), and walked at
    ``speed_mps`` (slower in turns, with a slow speed variation).
-5. **Orientation**: yaw looks ahead along the path, plus occasional head turns toward the nearest
-   wall; yaw rate is limited so consecutive frames overlap; pitch and roll sway at the step
-   frequency plus slow drifts; the camera height stays within ``height_range_m``.
+5. **Orientation**: yaw looks ahead along the path, plus occasional head turns toward the wall on
+   the more open side; yaw rate is limited so consecutive frames overlap; pitch and roll sway at
+   the step frequency plus slow drifts; the camera height stays within ``height_range_m``.
 
 Poses are ``world_from_cam`` in the OpenCV optical convention (x right, y down, z forward): with
-yaw ψ (heading in the world xy plane, from +x toward +y), pitch θ (positive = looking up) and roll φ
-(about the optical axis), ``R = R_level(ψ) · Rx(θ) · Rz(φ)`` where ``R_level(ψ)`` has columns
-right = (sin ψ, −cos ψ, 0), down = (0, 0, −1), forward = (cos ψ, sin ψ, 0).
+yaw ψ (heading in the world xy plane, from +x toward +y), pitch θ (positive = looking up) and
+roll φ (about the optical axis), ``R = R_level(ψ) · Rx(θ) · Rz(φ)`` where ``R_level(ψ)`` has
+columns right = (sin ψ, −cos ψ, 0), down = (0, 0, −1), forward = (cos ψ, sin ψ, 0).
 """
 
 from __future__ import annotations
@@ -54,7 +54,7 @@ class WalkConfig:
     grid_m: planning grid cell size.
     max_yaw_rate_dps: yaw rate limit (degrees per second).
     look_ahead_m: how far along the path the walker looks.
-    head_turn_interval_s: mean time between head turns toward a wall.
+    head_turn_interval_s: mean time between head turns (toward the wall on the more open side).
     head_turn_deg: (min, max) head-turn amplitude.
     pitch_deg: mean pitch (negative = looking down).
     sway_pitch_deg, sway_roll_deg: amplitudes of the step-frequency sway.
@@ -266,7 +266,7 @@ class Walk:
 
 
 def camera_rotation(yaw: F64, pitch: F64, roll: F64) -> F64:
-    """(N, 3, 3) ``world_from_cam`` rotations from yaw/pitch/roll (N,) radians (module docstring)."""
+    """(N, 3, 3) ``world_from_cam`` rotations from yaw, pitch, roll (N,) radians (see module)."""
     yaw, pitch, roll = (np.atleast_1d(np.asarray(a, np.float64)) for a in (yaw, pitch, roll))
     cy, sy = np.cos(yaw), np.sin(yaw)
     zero, one = np.zeros_like(yaw), np.ones_like(yaw)
@@ -291,7 +291,7 @@ def camera_rotation(yaw: F64, pitch: F64, roll: F64) -> F64:
 
 def _grid_graph(walkable: NDArray[np.bool_], clearance: NDArray[np.float32], res: float,
                 preferred: float) -> tuple[object, NDArray[np.int64]]:
-    """8-connected sparse graph over walkable cells; returns (csr matrix, node id grid (-1 = none))."""
+    """8-connected graph over walkable cells: (CSR matrix, node id per cell, -1 = none)."""
     from scipy.sparse import coo_matrix
 
     h, w = walkable.shape
@@ -442,12 +442,12 @@ def plan_walk(
     while t_next < duration_s:
         length_s = rng.uniform(2.0, 4.0)
         amp = np.deg2rad(rng.uniform(*cfg.head_turn_deg))
-        # toward the side with less clearance (the nearer wall), probed 1 m left and right
+        # toward the wall on the more open side (probed 1.5 m left and right): looking at the
+        # nearer wall from 0.5 m fills the image with a featureless close-up
         i = int(t_next / dt)
-        left = xy[i] + np.array([-np.sin(yaw_path[i]), np.cos(yaw_path[i])])
-        right = xy[i] - np.array([-np.sin(yaw_path[i]), np.cos(yaw_path[i])])
-        cl = free.clearance_at(np.stack([left, right]))
-        sign = 1.0 if cl[0] < cl[1] else -1.0
+        side_dir = 1.5 * np.array([-np.sin(yaw_path[i]), np.cos(yaw_path[i])])
+        cl = free.clearance_at(np.stack([xy[i] + side_dir, xy[i] - side_dir]))
+        sign = 1.0 if cl[0] >= cl[1] else -1.0
         tau = (t - t_next) / length_s
         inside = (tau >= 0.0) & (tau <= 1.0)
         turns[inside] += sign * amp * np.sin(np.pi * tau[inside]) ** 2
