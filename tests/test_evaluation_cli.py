@@ -43,7 +43,10 @@ def test_json_equals_evo_oracle(oracles_dir: Path, tmp_path: Path) -> None:
     d = oracles_dir / "trajectory"
     expected = json.loads((d / "trajectory_expected.json").read_text())["cases"]["sim3"]
     out = tmp_path / "metrics.json"
-    assert main(["evaluate", str(d / "est.tum"), str(d / "gt.tum"), "--align", "sim3", "-o", str(out)]) == 0
+    assert (
+        main(["evaluate", str(d / "est.tum"), str(d / "gt.tum"), "--align", "sim3", "-o", str(out)])
+        == 0
+    )
     got = json.loads(out.read_text())["trajectory"]
     assert got["ate_pos_m"]["rmse"] == pytest.approx(expected["trans_rmse_m"], abs=1e-9, rel=0)
     assert got["ate_rot_deg"]["mean"] == pytest.approx(expected["rot_mean_deg"], abs=1e-9, rel=0)
@@ -56,19 +59,36 @@ def test_map_and_reference(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -
     ref = rng.uniform(0.0, 1.0, (300, 3))
     est_map = ref + rng.normal(0.0, 0.01, ref.shape)
     for name, pts in (("map.ply", est_map), ("ref.ply", ref)):
-        o3d.io.write_point_cloud(str(tmp_path / name), o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts)))
+        o3d.io.write_point_cloud(
+            str(tmp_path / name), o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+        )
     est = _write_tum(tmp_path / "est.tum")
     out = tmp_path / "metrics.json"
-    args = ["evaluate", str(est), str(est), "--map", str(tmp_path / "map.ply"),
-            "--reference", str(tmp_path / "ref.ply"), "--radius", "0.3", "-o", str(out)]
+    args = [
+        "evaluate",
+        str(est),
+        str(est),
+        "--map",
+        str(tmp_path / "map.ply"),
+        "--reference",
+        str(tmp_path / "ref.ply"),
+        "--radius",
+        "0.3",
+        "-o",
+        str(out),
+    ]
     assert main(args) == 0
     assert "NND" in capsys.readouterr().out
     m = json.loads(out.read_text())["map"]
-    assert 0.0 < m["nnd_m"] < 0.05 and m["radius_m"] == 0.3 and m["nnd_reference"].endswith("ref.ply")
+    assert (
+        0.0 < m["nnd_m"] < 0.05 and m["radius_m"] == 0.3 and m["nnd_reference"].endswith("ref.ply")
+    )
     assert np.isfinite(m["mme"]) and m["mpv"] > 0
 
 
-def test_missing_file_exits_2_without_traceback(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_missing_file_exits_2_without_traceback(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     gt = _write_tum(tmp_path / "gt.tum")
     assert main(["evaluate", str(tmp_path / "nope.tum"), str(gt)]) == 2
     err = capsys.readouterr().err

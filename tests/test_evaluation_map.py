@@ -1,4 +1,4 @@
-"""Map metrics: MME/MPV against the map-metrics 0.0.5 oracle, neighbourhood rules, NND by hand, PLY."""
+"""Map metrics: MME/MPV vs the map-metrics 0.0.5 oracle, neighbourhood rules, NND by hand, PLY."""
 
 from __future__ import annotations
 
@@ -47,7 +47,9 @@ def test_mme_mpv_equal_map_metrics(
 
 
 @pytest.mark.needs_shared
-def test_perturbed_map_is_worse(oracle: tuple[list[np.ndarray], dict[str, np.ndarray], list[dict]]) -> None:
+def test_perturbed_map_is_worse(
+    oracle: tuple[list[np.ndarray], dict[str, np.ndarray], list[dict]],
+) -> None:
     scans, poses, _ = oracle
     good = map_metrics(aggregate_map(scans, poses["true_poses"]), 0.2)
     bad = map_metrics(aggregate_map(scans, poses["perturbed_poses"]), 0.2)
@@ -95,7 +97,9 @@ def test_planar_points_skipped_in_mme() -> None:
 def test_aggregate_map_order_and_transform() -> None:
     a = np.array([[1.0, 0.0, 0.0]])
     b = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
-    rot_z90 = np.array([[0.0, -1.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0, 0, 0, 1.0]])
+    rot_z90 = np.array(
+        [[0.0, -1.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0, 0, 0, 1.0]]
+    )
     shift = np.eye(4)
     shift[:3, 3] = [0.0, 0.0, 5.0]
     out = aggregate_map([a, b], np.stack([rot_z90, shift]))

@@ -1,4 +1,4 @@
-"""Trajectory metrics: evo oracle (none / SE(3) / Sim(3)), yaw/pitch/roll, invariants, association."""
+"""Trajectory metrics: evo oracle (none/SE(3)/Sim(3)), yaw/pitch/roll, invariants, association."""
 
 from __future__ import annotations
 
@@ -103,7 +103,9 @@ def test_pure_yaw_error() -> None:
 def test_pure_pitch_error_is_not_yaw() -> None:
     gt = _random_poses(20, 4)
     est = gt.copy()
-    est[:, 3:] = (Rotation.from_euler("y", 2.0, degrees=True) * Rotation.from_quat(gt[:, 3:])).as_quat()
+    est[:, 3:] = (
+        Rotation.from_euler("y", 2.0, degrees=True) * Rotation.from_quat(gt[:, 3:])
+    ).as_quat()
     m = trajectory_metrics(est, gt)
     assert m.pitch_rmse_deg == pytest.approx(2.0, abs=1e-9)
     assert m.yaw_rmse_deg == pytest.approx(0.0, abs=1e-9)

@@ -28,7 +28,9 @@ def _poses(n: int, offset: float) -> np.ndarray:
 
 
 def test_trajectories_on_plan(tmp_path: Path) -> None:
-    segments = np.array([[0, 0, 8, 0], [8, 0, 8, 8], [8, 8, 0, 8], [0, 8, 0, 0], [4, 4, 4.4, 4]], float)
+    segments = np.array(
+        [[0, 0, 8, 0], [8, 0, 8, 8], [8, 8, 0, 8], [0, 8, 0, 0], [4, 4, 4.4, 4]], float
+    )
     classes = np.array([Label.WALL] * 4 + [Label.COLUMN])
     out = tmp_path / "plan.png"
     fig = plots.plot_trajectories_on_plan(
@@ -61,7 +63,12 @@ def test_side_view(tmp_path: Path) -> None:
 
 def test_term_costs(tmp_path: Path) -> None:
     out = tmp_path / "costs.png"
-    summary = {"terms": {"G": {"cost_before": 10.0, "cost_after": 1.0}, "F": {"initial": 2.0, "final": 0.5}}}
+    summary = {
+        "terms": {
+            "G": {"cost_before": 10.0, "cost_after": 1.0},
+            "F": {"initial": 2.0, "final": 0.5},
+        }
+    }
     plots.plot_term_costs(summary, out)
     assert _is_png(out)
     flat = {"cost_before": {"W": 3.0}, "cost_after": {"W": 1.0}}

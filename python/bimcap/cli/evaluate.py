@@ -38,25 +38,58 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     )
     p.add_argument("est", type=Path, metavar="EST.tum", help="estimated trajectory")
     p.add_argument("gt", type=Path, metavar="GT.tum", help="ground-truth trajectory")
-    p.add_argument("--align", choices=[m.value for m in AlignMode], default=AlignMode.NONE.value,
-                   help="Umeyama alignment of EST onto GT before measuring (default: none)")
-    p.add_argument("--max-dt", type=float, default=DEFAULT_MAX_DT, metavar="S",
-                   help=f"timestamp tolerance in seconds for the association (default {DEFAULT_MAX_DT})")
+    p.add_argument(
+        "--align",
+        choices=[m.value for m in AlignMode],
+        default=AlignMode.NONE.value,
+        help="Umeyama alignment of EST onto GT before measuring (default: none)",
+    )
+    p.add_argument(
+        "--max-dt",
+        type=float,
+        default=DEFAULT_MAX_DT,
+        metavar="S",
+        help=f"timestamp tolerance in seconds for the association (default {DEFAULT_MAX_DT})",
+    )
     p.add_argument("--map", type=Path, metavar="EST_MAP.ply", help="point map (PLY) for MME/MPV")
-    p.add_argument("--reference", type=Path, metavar="REF.ply",
-                   help="reference cloud (PLY: GT map or BIM cloud) for NND; needs --map")
-    p.add_argument("--radius", type=float, default=DEFAULT_RADIUS, metavar="M",
-                   help=f"MME/MPV neighbourhood radius in metres (default {DEFAULT_RADIUS})")
-    p.add_argument("--min-neighbours", type=int, default=DEFAULT_MIN_NEIGHBOURS, metavar="K",
-                   help="use points with more than K neighbours, themselves included "
-                   f"(default {DEFAULT_MIN_NEIGHBOURS})")
-    p.add_argument("--nnd-cutoff", type=float, default=DEFAULT_NND_CUTOFF, metavar="M",
-                   help=f"NND cut-off in metres (default {DEFAULT_NND_CUTOFF})")
-    p.add_argument("--nnd-cutoff-mode", choices=[m.value for m in CutoffMode],
-                   default=CutoffMode.EXCLUDE.value,
-                   help="points beyond the cut-off: excluded from the mean, or counted as the "
-                   "cut-off (default exclude)")
-    p.add_argument("-o", "--output", type=Path, metavar="metrics.json", help="write the metrics JSON")
+    p.add_argument(
+        "--reference",
+        type=Path,
+        metavar="REF.ply",
+        help="reference cloud (PLY: GT map or BIM cloud) for NND; needs --map",
+    )
+    p.add_argument(
+        "--radius",
+        type=float,
+        default=DEFAULT_RADIUS,
+        metavar="M",
+        help=f"MME/MPV neighbourhood radius in metres (default {DEFAULT_RADIUS})",
+    )
+    p.add_argument(
+        "--min-neighbours",
+        type=int,
+        default=DEFAULT_MIN_NEIGHBOURS,
+        metavar="K",
+        help="use points with more than K neighbours, themselves included "
+        f"(default {DEFAULT_MIN_NEIGHBOURS})",
+    )
+    p.add_argument(
+        "--nnd-cutoff",
+        type=float,
+        default=DEFAULT_NND_CUTOFF,
+        metavar="M",
+        help=f"NND cut-off in metres (default {DEFAULT_NND_CUTOFF})",
+    )
+    p.add_argument(
+        "--nnd-cutoff-mode",
+        choices=[m.value for m in CutoffMode],
+        default=CutoffMode.EXCLUDE.value,
+        help="points beyond the cut-off: excluded from the mean, or counted as the "
+        "cut-off (default exclude)",
+    )
+    p.add_argument(
+        "-o", "--output", type=Path, metavar="metrics.json", help="write the metrics JSON"
+    )
     p.set_defaults(func=run)
 
 
@@ -79,8 +112,13 @@ def run(args: argparse.Namespace) -> int:
         points = read_ply_points(args.map)
         if args.reference is not None:
             mm = map_metrics_with_reference(
-                points, read_ply_points(args.reference), str(args.reference), args.radius,
-                args.min_neighbours, args.nnd_cutoff, CutoffMode(args.nnd_cutoff_mode),
+                points,
+                read_ply_points(args.reference),
+                str(args.reference),
+                args.radius,
+                args.min_neighbours,
+                args.nnd_cutoff,
+                CutoffMode(args.nnd_cutoff_mode),
             )
         else:
             mm = map_metrics(points, args.radius, args.min_neighbours)

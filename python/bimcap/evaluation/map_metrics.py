@@ -1,4 +1,4 @@
-"""Map-quality metrics of DESIGN §4: MME, MPV (no ground truth needed) and NND (against a reference).
+"""Map-quality metrics of DESIGN §4: MME, MPV (no ground truth needed) and NND (needs a reference).
 
 MME and MPV reproduce the ``map-metrics`` 0.0.5 package (Skoltech) to 1e-9:
 
@@ -7,7 +7,8 @@ MME and MPV reproduce the ``map-metrics`` 0.0.5 package (Skoltech) to 1e-9:
   distance ``<= radius``); the point is used if the count is **strictly greater** than
   ``min_neighbours``;
 - Σ is the unbiased (N − 1) covariance of those neighbours (``np.cov``);
-- MME = mean over used points with ``det(2πeΣ) > 0`` of ``½ ln det(2πeΣ)`` (nats; lower is sharper);
+- MME = mean over used points with ``det(2πeΣ) > 0`` of ``½ ln det(2πeΣ)`` (nats; lower is
+  sharper);
 - MPV = mean over used points of the smallest eigenvalue of Σ (m²).
 
 Covariances are computed in batches relative to each query point (better conditioned than raw
@@ -102,16 +103,18 @@ class MapMetrics:
     def format_table(self) -> str:
         """A plain-text table for the terminal."""
         lines = [
-            f"map: {self.n_points} points, radius {self.radius_m:g} m, "
-            f"more than {self.min_neighbours} neighbours (unbiased covariance)",
+            (
+                f"map: {self.n_points} points, radius {self.radius_m:g} m, "
+                f"more than {self.min_neighbours} neighbours (unbiased covariance)"
+            ),
             f"{'MME [nats]':<18}{self.mme:>12.4f}   ({self.n_used_mme} points)",
             f"{'MPV [m^2]':<18}{self.mpv:>12.6f}   ({self.n_used_mpv} points)",
         ]
         if self.nnd_m is not None:
+            mode = self.nnd_cutoff_mode.value if self.nnd_cutoff_mode else "?"
             lines.append(
                 f"{'NND [m]':<18}{self.nnd_m:>12.4f}   (reference {self.nnd_reference}, cut-off "
-                f"{self.nnd_cutoff_m:g} m, {self.nnd_cutoff_mode.value if self.nnd_cutoff_mode else ''}"
-                f", {self.n_beyond_cutoff} points beyond)"
+                f"{self.nnd_cutoff_m:g} m, {mode}, {self.n_beyond_cutoff} points beyond)"
             )
         return "\n".join(lines)
 

@@ -29,7 +29,9 @@ _PLAN_COLORS = {int(Label.WALL): "dimgray", int(Label.COLUMN): "tab:olive"}
 _TRAJ_COLORS = {"ground truth": "black", "gt": "black", "before": "tab:red", "after": "tab:blue"}
 
 
-def _new_figure(ncols: int = 1, nrows: int = 1, size: tuple[float, float] = (7.0, 6.0)) -> tuple[Figure, Any]:
+def _new_figure(
+    ncols: int = 1, nrows: int = 1, size: tuple[float, float] = (7.0, 6.0)
+) -> tuple[Figure, Any]:
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -80,7 +82,9 @@ def plot_trajectories_on_plan(
         sel = seg[cls == label]
         xs = np.stack([sel[:, 0], sel[:, 2], np.full(len(sel), np.nan)], axis=1).ravel()
         ys = np.stack([sel[:, 1], sel[:, 3], np.full(len(sel), np.nan)], axis=1).ravel()
-        name = Label(int(label)).name.lower() if int(label) in Label._value2member_map_ else str(label)
+        name = (
+            Label(int(label)).name.lower() if int(label) in Label._value2member_map_ else str(label)
+        )
         ax.plot(xs, ys, color=_PLAN_COLORS.get(int(label), "grey"), lw=2.0, label=f"plan: {name}")
     for name, traj in trajectories.items():
         xyz = np.asarray(traj, dtype=np.float64)
@@ -110,12 +114,25 @@ def plot_errors_per_frame(
     path: PNG to write, or None.
     """
     fig, axes = _new_figure(nrows=2, size=(8.0, 5.5))
-    for errs, name, colour in ((errors_before, "before", "tab:red"), (errors_after, "after", "tab:blue")):
+    for errs, name, colour in (
+        (errors_before, "before", "tab:red"),
+        (errors_after, "after", "tab:blue"),
+    ):
         frames = np.arange(len(errs.trans_m))
-        axes[0, 0].plot(frames, errs.trans_m, color=colour, lw=1.0,
-                        label=f"{name} (RMSE {np.sqrt(np.mean(errs.trans_m ** 2)):.3f} m)")
-        axes[1, 0].plot(frames, errs.rot_deg, color=colour, lw=1.0,
-                        label=f"{name} (RMSE {np.sqrt(np.mean(errs.rot_deg ** 2)):.2f}°)")
+        axes[0, 0].plot(
+            frames,
+            errs.trans_m,
+            color=colour,
+            lw=1.0,
+            label=f"{name} (RMSE {np.sqrt(np.mean(errs.trans_m**2)):.3f} m)",
+        )
+        axes[1, 0].plot(
+            frames,
+            errs.rot_deg,
+            color=colour,
+            lw=1.0,
+            label=f"{name} (RMSE {np.sqrt(np.mean(errs.rot_deg**2)):.2f}°)",
+        )
     axes[0, 0].set_ylabel("translation error [m]")
     axes[1, 0].set_ylabel("rotation error [deg]")
     axes[1, 0].set_xlabel("frame")
@@ -152,8 +169,14 @@ def plot_side_view(
     for ax, axis, name in ((axes[0, 0], 0, "x"), (axes[0, 1], 1, "y")):
         for label in (Label.FLOOR, Label.CEILING):
             sel = lab == label
-            ax.scatter(pts[sel, axis], pts[sel, 2], s=1.0, color=_colour(label), label=label.name.lower(),
-                       rasterized=True)
+            ax.scatter(
+                pts[sel, axis],
+                pts[sel, 2],
+                s=1.0,
+                color=_colour(label),
+                label=label.name.lower(),
+                rasterized=True,
+            )
         for i, (hname, z) in enumerate((heights or {}).items()):
             ax.axhline(float(z), ls="--", lw=1.0, color=f"C{i + 2}", label=hname)
         ax.set_xlabel(f"{name} [m]")
@@ -175,7 +198,11 @@ def _term_costs(summary: Mapping[str, Any]) -> dict[str, tuple[float, float]]:
                 after = t.get("cost_after", t.get("final_cost", t.get("final")))
                 if before is not None and after is not None:
                     out[str(name)] = (float(before), float(after))
-    for kb, ka in (("cost_before", "cost_after"), ("initial_costs", "final_costs"), ("term_costs_before", "term_costs_after")):
+    for kb, ka in (
+        ("cost_before", "cost_after"),
+        ("initial_costs", "final_costs"),
+        ("term_costs_before", "term_costs_after"),
+    ):
         b, a = summary.get(kb), summary.get(ka)
         if isinstance(b, Mapping) and isinstance(a, Mapping):
             for name in b:
