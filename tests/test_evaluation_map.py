@@ -111,13 +111,24 @@ def test_aggregate_map_order_and_transform() -> None:
 def test_nnd_hand_computed() -> None:
     points = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [5.0, 0.0, 0.0]])
     reference = np.array([[0.0, 0.0, 0.1], [1.2, 0.0, 0.0]])
-    nnd, beyond = nearest_neighbour_distance(points, reference, 0.3, CutoffMode.EXCLUDE)
-    assert nnd == pytest.approx(0.15, abs=1e-15) and beyond == 1
-    nnd, beyond = nearest_neighbour_distance(points, reference, 0.3, CutoffMode.CLAMP)
-    assert nnd == pytest.approx(0.2, abs=1e-15) and beyond == 1
+    nnd = nearest_neighbour_distance(points, reference, 0.3, CutoffMode.EXCLUDE)
+    assert nnd.mean_m == pytest.approx(0.15, abs=1e-15) and nnd.n_beyond_cutoff == 1
+    assert nnd.rmse_m == pytest.approx(np.sqrt((0.1**2 + 0.2**2) / 2), abs=1e-15)
+    nnd = nearest_neighbour_distance(points, reference, 0.3, CutoffMode.CLAMP)
+    assert nnd.mean_m == pytest.approx(0.2, abs=1e-15) and nnd.n_beyond_cutoff == 1
     m = map_metrics_with_reference(points, reference, "hand", radius=0.5)
     assert m.nnd_m == pytest.approx(0.15) and m.nnd_reference == "hand" and m.n_beyond_cutoff == 1
     assert "reference hand" in m.format_table()
+
+
+def test_nnd_cutoff_is_exclusive_like_conslam() -> None:
+    # ConSLAM keeps a neighbour only if its distance is < the threshold
+    points = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 2.0]])
+    reference = np.array([[0.5, 0.0, 0.0], [0.0, 0.0, 2.25]])
+    nnd = nearest_neighbour_distance(points, reference, cutoff=0.5)
+    assert nnd.n_beyond_cutoff == 1 and nnd.mean_m == 0.25
+    all_far = nearest_neighbour_distance(points, reference, cutoff=0.1)
+    assert all_far.n_beyond_cutoff == 2 and np.isnan(all_far.mean_m)
 
 
 def test_bad_inputs() -> None:

@@ -84,8 +84,8 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "--nnd-cutoff-mode",
         choices=[m.value for m in CutoffMode],
         default=CutoffMode.EXCLUDE.value,
-        help="points beyond the cut-off: excluded from the mean, or counted as the "
-        "cut-off (default exclude)",
+        help="points at or beyond the cut-off: excluded (ConSLAM's constrained_RMSE rule), or "
+        "counted as the cut-off (default exclude)",
     )
     p.add_argument(
         "-o", "--output", type=Path, metavar="metrics.json", help="write the metrics JSON"
