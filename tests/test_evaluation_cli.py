@@ -60,7 +60,7 @@ def test_map_and_reference(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -
     est_map = ref + rng.normal(0.0, 0.01, ref.shape)
     for name, pts in (("map.ply", est_map), ("ref.ply", ref)):
         o3d.io.write_point_cloud(
-            str(tmp_path / name), o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+            tmp_path / name, o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
         )
     est = _write_tum(tmp_path / "est.tum")
     out = tmp_path / "metrics.json"

@@ -146,7 +146,7 @@ def test_read_ply_points(tmp_path: Path) -> None:
     pts = np.random.default_rng(3).normal(size=(50, 3))
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
     path = tmp_path / "map.ply"
-    assert o3d.io.write_point_cloud(str(path), cloud)
+    assert o3d.io.write_point_cloud(path, cloud)
     np.testing.assert_allclose(read_ply_points(path), pts, atol=1e-6)
     with pytest.raises(EvaluationError, match="no such file"):
         read_ply_points(tmp_path / "missing.ply")

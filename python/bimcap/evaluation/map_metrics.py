@@ -341,7 +341,7 @@ def read_ply_points(path: str | PathLike[str]) -> F64:
             raise EvaluationError("not a PLY file (no 'ply' magic)", p)
     import open3d as o3d  # heavy; only here
 
-    cloud = o3d.io.read_point_cloud(str(p), format="ply")
+    cloud = o3d.io.read_point_cloud(p, format="ply")
     pts = np.asarray(cloud.points, dtype=np.float64)
     if pts.size == 0:
         raise EvaluationError("no points could be read", p)
