@@ -175,30 +175,31 @@ def neighbourhood_covariances(
     if not radius > 0:
         raise EvaluationError(f"radius must be positive, got {radius}")
     tree = cKDTree(pts)
-    counts = tree.query_ball_point(pts, radius, return_length=True).astype(np.int64)
-    keep = np.flatnonzero((counts > min_neighbours) & (counts >= 2))
-    covs = np.empty((len(keep), 3, 3))
-    start = 0
-    while start < len(keep):
-        # grow the batch until it holds about _CHUNK_PAIRS neighbour pairs
-        csum = np.cumsum(counts[keep[start:]])
-        stop = start + max(1, int(np.searchsorted(csum, _CHUNK_PAIRS)))
-        q = keep[start:stop]
-        # all (query, neighbour) pairs of this batch, self pairs included, in C
+    kept: list[NDArray[np.int64]] = []
+    cov_parts: list[F64] = []
+    start, batch = 0, 4096
+    while start < len(pts):
+        q = np.arange(start, min(len(pts), start + batch))
+        # all (query, neighbour) pairs of this batch, self pairs included, computed in C
         pairs = cKDTree(pts[q]).sparse_distance_matrix(tree, radius, output_type="ndarray")
-        owner = pairs["i"]
+        owner = np.ascontiguousarray(pairs["i"])
         d = pts[pairs["j"]] - pts[q][owner]  # offsets from the query point: small numbers
-        n = np.bincount(owner, minlength=len(q)).astype(np.float64)
+        n = np.bincount(owner, minlength=len(q))
         s1 = np.stack([np.bincount(owner, d[:, a], len(q)) for a in range(3)], axis=1)
         s2 = np.empty((len(q), 3, 3))
         for a in range(3):
             for b in range(a, 3):
                 s2[:, a, b] = s2[:, b, a] = np.bincount(owner, d[:, a] * d[:, b], len(q))
-        mean = s1 / n[:, None]
-        covs[start:stop] = (s2 - n[:, None, None] * mean[:, :, None] * mean[:, None, :]) / (
-            n[:, None, None] - 1.0
-        )
-        start = stop
+        use = (n > min_neighbours) & (n >= 2)
+        nf = n[use].astype(np.float64)[:, None, None]
+        mean = s1[use] / nf[:, :, 0]
+        cov_parts.append((s2[use] - nf * mean[:, :, None] * mean[:, None, :]) / (nf - 1.0))
+        kept.append(q[use])
+        start += len(q)
+        # size the next batch to about _CHUNK_PAIRS neighbour pairs
+        batch = max(1, int(_CHUNK_PAIRS * len(q) / max(len(pairs), 1)))
+    keep = np.concatenate(kept) if kept else np.zeros(0, dtype=np.int64)
+    covs = np.concatenate(cov_parts) if cov_parts else np.zeros((0, 3, 3))
     return keep.astype(np.int64), covs
 
 
