@@ -1,4 +1,4 @@
-"""Plots for the report (matplotlib, Agg backend, no display needed).
+"""Plots for the report (matplotlib ``Figure`` without pyplot, rendered by Agg; no display needed).
 
 Every function returns the :class:`matplotlib.figure.Figure`; with ``path`` it also writes a PNG
 atomically (rendered in memory, then :func:`bimcap.io.atomic.atomic_write_bytes`) and closes the
@@ -32,9 +32,7 @@ _TRAJ_COLORS = {"ground truth": "black", "gt": "black", "before": "tab:red", "af
 def _new_figure(
     ncols: int = 1, nrows: int = 1, size: tuple[float, float] = (7.0, 6.0)
 ) -> tuple[Figure, Any]:
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
+    # a pyplot-free Figure renders with Agg and never touches the user's pyplot state or display
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=size, dpi=_DPI, layout="constrained")
