@@ -26,7 +26,12 @@ if TYPE_CHECKING:
 _DPI = 120
 #: Line colours of well-known trajectory names; others cycle through matplotlib's defaults.
 _PLAN_COLORS = {int(Label.WALL): "dimgray", int(Label.COLUMN): "tab:olive"}
-_TRAJ_COLORS = {"ground truth": "black", "gt": "black", "before": "tab:red", "after": "tab:blue"}
+_TRAJ_COLORS = {
+    "ground truth": "tab:green",
+    "gt": "tab:green",
+    "before": "tab:red",
+    "after": "tab:blue",
+}
 
 
 def _new_figure(
@@ -88,14 +93,25 @@ def plot_trajectories_on_plan(
         xyz = np.asarray(traj, dtype=np.float64)
         if xyz.ndim != 2 or xyz.shape[1] < 3:
             raise EvaluationError(f"trajectory {name!r} must be (N, 3) or (N, 7), got {xyz.shape}")
-        ax.plot(xyz[:, 0], xyz[:, 1], "-", lw=1.2, color=_TRAJ_COLORS.get(name.lower()), label=name)
+        is_gt = name.lower() in ("ground truth", "gt")
+        # the ground truth is drawn wide and underneath, so a close estimate stays visible on it
+        ax.plot(
+            xyz[:, 0],
+            xyz[:, 1],
+            "-",
+            lw=3.0 if is_gt else 1.2,
+            alpha=0.6 if is_gt else 1.0,
+            color=_TRAJ_COLORS.get(name.lower()),
+            label=name,
+            zorder=2 if is_gt else 3,
+        )
         ax.plot(xyz[:1, 0], xyz[:1, 1], "o", ms=4, color=ax.lines[-1].get_color())
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.set_title(title)
     ax.grid(True, lw=0.3)
-    ax.legend(loc="best", fontsize=8)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
     return _finish(fig, path)
 
 
