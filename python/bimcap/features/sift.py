@@ -38,7 +38,8 @@ class SiftOptions:
     Attributes
     ----------
     backend: which implementation to use.
-    max_num_features: keep at most this many keypoints (the strongest / largest scale first).
+    max_num_features: keep at most this many keypoints (pycolmap: the largest scales; OpenCV:
+        the strongest responses).
     peak_threshold: DoG peak threshold (COLMAP ``peak_threshold``; OpenCV ``contrastThreshold``
         is ``3 × peak_threshold`` for the same three scales per octave).
     edge_threshold: DoG edge threshold.
@@ -156,6 +157,11 @@ def _extract_pycolmap(gray: NDArray[np.uint8], opts: SiftOptions) -> Features:
         dtype=np.float64,
     )
     desc = np.ascontiguousarray(descriptors.data, dtype=np.uint8)
+    if n > opts.max_num_features:
+        # COLMAP limits detections, but each may carry up to max_num_orientations descriptors;
+        # keep the largest scales, as COLMAP does when it limits.
+        keep = np.sort(np.argsort(-kp[:, 2], kind="stable")[: opts.max_num_features])
+        kp, desc = kp[keep], np.ascontiguousarray(desc[keep])
     # COLMAP: first pixel centre at (0.5, 0.5); bimcap: at (0, 0).
     return Features(kp[:, :2] - 0.5, kp[:, 2].copy(), kp[:, 3].copy(), desc)
 
@@ -169,6 +175,10 @@ def _extract_opencv(gray: NDArray[np.uint8], opts: SiftOptions) -> Features:
         nOctaveLayers=3,
         contrastThreshold=3.0 * opts.peak_threshold,
         edgeThreshold=opts.edge_threshold,
+        sigma=1.6,
+        # Without this, OpenCV's doubled first octave maps pixel x to 2x + 0.5 and every keypoint
+        # comes out ~0.25 px too far right and down (a test checks the blob positions).
+        enable_precise_upscale=True,
     )
     kps, desc = sift.detectAndCompute(gray, None)
     if desc is None or len(kps) == 0:
