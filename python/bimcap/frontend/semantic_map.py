@@ -3,8 +3,9 @@
 Labelled pixels with a valid depth are back-projected into the camera frame (undistorted pinhole
 pixels, z-depth in metres) and subsampled per class, either
 
-* by a **density**: each pixel covers ``z² / (fx·fy·cos θ)`` square metres of surface (θ between
-  the viewing ray and the surface normal estimated from the depth map), so it is kept with
+* by a **density**: a pixel at z-depth z covers ``z²·cos α / (fx·fy·cos θ)`` square metres of
+  surface (α between its ray and the optical axis, θ between its ray and the surface normal
+  estimated from the depth map; on a fronto-parallel plane this is ``z² / (fx·fy)``), so it is kept with
   probability ``min(1, density × area)``; the expected number of samples per square metre of wall
   is then the same near and far, head-on and oblique; or
 * by the peers' **stride** (the research code keeps every 150th wall pixel and every 30th floor
@@ -116,8 +117,9 @@ class SemanticSamplingOptions:
 def pixel_surface_area(depth: NDArray[np.floating], camera: Camera, min_cos: float = 0.1) -> F64:
     """Surface area in m² that each pixel of an undistorted depth map covers.
 
-    ``z² / (fx·fy)`` is the fronto-parallel footprint; dividing by ``cos θ`` (θ between the ray
-    and the normal from the depth map's gradient, clamped at ``min_cos``) accounts for slant.
+    The pixel's solid angle is ``cos³α / (fx·fy)`` and its range ``z / cos α``, so it covers
+    ``z²·cos α / (fx·fy·cos θ)``: α is the angle between the ray and the optical axis, θ between the
+    ray and the surface normal from the depth map's gradient (``cos θ`` clamped at ``min_cos``).
 
     Returns
     -------
@@ -138,7 +140,9 @@ def pixel_surface_area(depth: NDArray[np.floating], camera: Camera, min_cos: flo
         cos = np.abs((n * p).sum(axis=-1)) / (nn * pn)
     cos = np.where(np.isfinite(cos), cos, 1.0)
     cos = np.clip(cos, min_cos, 1.0)
-    return np.where(z > 0, z * z / (camera.fx * camera.fy) / cos, 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos_alpha = np.where(pn > 0, z / pn, 1.0)
+    return np.where(z > 0, z * z * cos_alpha / (camera.fx * camera.fy) / cos, 0.0)
 
 
 def sample_semantic_points(
@@ -273,7 +277,8 @@ def write_semantic_ply(
 
 def read_semantic_ply(path: str | PathLike[str]) -> tuple[F64, NDArray[np.uint8]]:
     """Read back a PLY written by :func:`write_semantic_ply`: points (P, 3), labels (P,)."""
-    data = open(path, "rb").read()
+    with open(path, "rb") as fh:
+        data = fh.read()
     end = data.find(b"end_header\n")
     if not data.startswith(b"ply\n") or end < 0:
         raise SemanticMapError("not a PLY file", path)
