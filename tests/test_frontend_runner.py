@@ -215,3 +215,29 @@ def test_provider_size_and_pose_count_errors(seq: SceneSequence) -> None:
         run_frontend(seq, CONFIG, seq.gt, _half_depth, LABELS, workers=1, progress=False)
     with pytest.raises(FrontendInputError, match="3 initial poses for 4 frames"):
         run_frontend(seq, CONFIG, seq.gt[:3], DEPTH, LABELS, workers=1, progress=False)
+
+
+def test_with_a_bimcap_dataset_sequence(seq: SceneSequence, tmp_path: Path) -> None:
+    """The real sequence reader (bimcap.dataset, once merged) drives the runner the same way."""
+    try:
+        from bimcap.dataset import SequenceWriter, read_sequence
+    except ImportError:
+        pytest.skip("bimcap.dataset.read_sequence not available on this branch yet")
+    root = tmp_path / "ds"
+    with SequenceWriter(root, seq.camera, [0.0, 0, 0, 0, 0, 0, 1]) as w:
+        for i in range(3):
+            w.add_frame(
+                seq.frames[i].timestamp, seq.load_image(i), np.zeros((0, 4), np.float32),
+                labels=seq.load_labels(i), depth=seq.load_depth(i),
+            )
+        w.add_trajectory("gt", seq.gt[:3])
+    real = read_sequence(root)
+    gt = real.trajectory("gt")
+    cache = tmp_path / "cache"
+    res = run_frontend(real, CONFIG, gt, DEPTH, LABELS, cache_dir=cache, workers=1, progress=False)
+    m = res.match_frames
+    pa = _backproject(res, gt.poses, m[:, 0], res.match_uv[:, :2], res.match_depth[:, 0])
+    pb = _backproject(res, gt.poses, m[:, 1], res.match_uv[:, 2:], res.match_depth[:, 1])
+    assert len(m) > 500 and np.median(np.linalg.norm(pa - pb, axis=1)) < 0.03
+    again = run_frontend(real, CONFIG, gt, DEPTH, LABELS, cache_dir=cache, workers=1, progress=False)
+    assert (again.run.frames_computed, again.run.pairs_computed) == (0, 0)

@@ -186,7 +186,12 @@ class GroundTruthDepthProvider:
     """Depth from the sequence's ``depth/`` files (simulator ground truth), undistorted."""
 
     def __call__(self, ctx: FrameContext) -> NDArray[np.float32]:
-        raw = np.asarray(ctx.sequence.load_depth(ctx.index), dtype=np.float32)
+        loaded = ctx.sequence.load_depth(ctx.index)
+        if loaded is None:
+            raise FrontendInputError(
+                f"frame {ctx.index} has no ground-truth depth file", None, f"frames[{ctx.index}].depth"
+            )
+        raw = np.asarray(loaded, dtype=np.float32)
         _check_map(raw, ctx.camera, ctx.index, "depth")
         return ctx.undistorter.nearest(raw)
 
@@ -196,7 +201,12 @@ class GroundTruthLabelProvider:
     """Labels from the sequence's ``labels/`` files (simulator ground truth), undistorted."""
 
     def __call__(self, ctx: FrameContext) -> NDArray[np.uint8]:
-        raw = np.asarray(ctx.sequence.load_labels(ctx.index))
+        loaded = ctx.sequence.load_labels(ctx.index)
+        if loaded is None:
+            raise FrontendInputError(
+                f"frame {ctx.index} has no label image", None, f"frames[{ctx.index}].labels"
+            )
+        raw = np.asarray(loaded)
         _check_map(raw, ctx.camera, ctx.index, "labels")
         return ctx.undistorter.nearest(raw.astype(np.uint8))
 
