@@ -19,6 +19,7 @@ from bimcap.frontend import (
     FrontendInputError,
     FrontendResult,
     GroundTruthDepthProvider,
+    SemanticSamplingOptions,
     GroundTruthLabelProvider,
     Undistorter,
     run_frontend,
@@ -133,11 +134,14 @@ def test_cache_reuses_and_invalidates(seq: SceneSequence, result: FrontendResult
     def run(cfg: FrontendConfig) -> FrontendResult:
         return run_frontend(seq, cfg, seq.gt, DEPTH, LABELS, cache_dir=cache, workers=1, progress=False)
 
+    def counts(r: FrontendResult) -> tuple[int, int, int]:
+        return r.run.features_computed, r.run.frames_computed, r.run.pairs_computed
+
     first = run(CONFIG)
     n_pairs = len(first.pair_stats)
-    assert (first.run.frames_computed, first.run.pairs_computed) == (NUM_FRAMES, n_pairs)
+    assert counts(first) == (NUM_FRAMES, NUM_FRAMES, n_pairs)
     second = run(CONFIG)
-    assert (second.run.frames_computed, second.run.pairs_computed) == (0, 0)
+    assert counts(second) == (0, 0, 0)
     assert all(s.cached for s in second.frame_stats)
     for name in OBSERVATION_ARRAYS:
         assert np.array_equal(getattr(second, name), getattr(first, name)), name
@@ -145,23 +149,58 @@ def test_cache_reuses_and_invalidates(seq: SceneSequence, result: FrontendResult
     # a matching setting: frames reused, every pair redone
     cfg_m = dataclasses.replace(CONFIG, match=MatchOptions(max_ratio=0.75))
     r = run(cfg_m)
-    assert (r.run.frames_computed, r.run.pairs_computed) == (0, n_pairs)
+    assert counts(r) == (0, 0, n_pairs)
+    # a sampling setting: depth/labels/samples redone, SIFT and pairs reused
+    cfg_d = dataclasses.replace(CONFIG, sampling=SemanticSamplingOptions(wall_density=10.0))
+    r = run(cfg_d)
+    assert counts(r) == (0, NUM_FRAMES, 0)
+    assert len(r.wall_frame) < len(first.wall_frame)
+    assert all(s.sift_time_s == 0.0 for s in r.frame_stats)
     # a filter applies after the cache: nothing recomputed, fewer matches
     cfg_f = dataclasses.replace(CONFIG, filters=MatchFilterOptions(max_initial_distance_m=0.001))
     r = run(cfg_f)
-    assert (r.run.frames_computed, r.run.pairs_computed) == (0, 0)
+    assert counts(r) == (0, 0, 0)
     assert len(r.match_frames) < len(first.match_frames)
     # an extraction setting: everything redone
     cfg_s = dataclasses.replace(CONFIG, sift=SiftOptions(max_num_features=1400))
     r = run(cfg_s)
-    assert (r.run.frames_computed, r.run.pairs_computed) == (NUM_FRAMES, n_pairs)
+    assert counts(r) == (NUM_FRAMES, NUM_FRAMES, n_pairs)
     # one changed input file: that frame and its pairs only
     img = seq.root / seq.frames[2].image
     st = img.stat()
     os.utime(img, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
     r = run(CONFIG)
     pairs_with_2 = sum(2 in (p.frame_a, p.frame_b) for p in first.pair_stats)
-    assert (r.run.frames_computed, r.run.pairs_computed) == (1, pairs_with_2)
+    assert counts(r) == (1, 1, pairs_with_2)
+    # another depth file: that frame's depth-dependent part only
+    dep = seq.root / str(seq.frames[1].depth)
+    st = dep.stat()
+    os.utime(dep, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+    assert counts(run(CONFIG)) == (0, 1, 0)
+
+
+@dataclasses.dataclass(frozen=True)
+class _PoseLabels:
+    """A label provider that declares that it uses the initial pose (as the geometric one does)."""
+
+    uses_pose = True
+
+    def __call__(self, ctx: FrameContext) -> np.ndarray:
+        return LABELS(ctx)
+
+
+def test_pose_dependent_provider_recomputes_on_new_poses(seq: SceneSequence, tmp_path: Path) -> None:
+    cache = tmp_path / "cache"
+    poses = seq.gt.copy()
+    r = run_frontend(seq, CONFIG, poses, DEPTH, _PoseLabels(), cache_dir=cache, workers=1, progress=False)
+    assert r.run.frames_computed == NUM_FRAMES
+    poses[1, 2] += 0.05
+    r = run_frontend(seq, CONFIG, poses, DEPTH, _PoseLabels(), cache_dir=cache, workers=1, progress=False)
+    assert (r.run.features_computed, r.run.frames_computed, r.run.pairs_computed) == (0, 1, 0)
+    # a provider that does not use the pose ignores pose changes
+    r0 = run_frontend(seq, CONFIG, seq.gt, DEPTH, LABELS, cache_dir=cache, workers=1, progress=False)
+    r1 = run_frontend(seq, CONFIG, poses, DEPTH, LABELS, cache_dir=cache, workers=1, progress=False)
+    assert r0.run.frames_computed == NUM_FRAMES and r1.run.frames_computed == 0
 
 
 @pytest.mark.slow

@@ -5,14 +5,24 @@ K, no distortion; the undistortion map is computed with :class:`bimcap.geometry.
 the reference for the distortion model), get dense depth and labels from the pluggable providers
 (in the undistorted image), extract SIFT, look up each keypoint's depth, subsample the labelled
 pixels. Per pair of frames within the window: match descriptors and verify geometrically.
-Both are cached on disk; a re-run recomputes only what changed. In the main process: tracks,
-the peers' filters, initial landmarks and the solver's arrays (:class:`FrontendResult`).
+In the main process: tracks, the peers' filters, initial landmarks and the solver's arrays
+(:class:`FrontendResult`).
 
 Providers are callables ``provider(ctx: FrameContext) -> (H, W) array`` in undistorted pinhole
-pixels: depth float32 metres (0 = unknown), labels uint8 :class:`bimcap.labels.Label` ids. They
-must be picklable (module-level classes or dataclasses) to run in worker processes. A provider
-may define ``cache_token`` (a string that changes whenever its output would); otherwise its
-class name and ``repr`` are used, which for a dataclass includes its settings.
+pixels: depth float32 metres (0 = unknown), labels uint8 :class:`bimcap.labels.Label` ids. The
+depth provider runs first; the label provider sees its result in ``ctx.depth``; an optional
+``depth_refiner(ctx, labels) -> depth`` runs last (the paper's floor/ceiling smoothing). They must
+be picklable (module-level classes or dataclasses) to run in worker processes.
+
+Cache: three kinds of entries, so that a change redoes only what depends on it.
+``features`` (SIFT) depend on the image file, the camera and the SIFT settings; ``pair`` entries
+on the two frames' feature keys and the matching settings; ``frame`` entries (depth, labels →
+keypoint depths, semantic samples) on all of the frame's files, the providers, the look-up and
+sampling settings, and the frame's initial pose if a provider declares ``uses_pose = True`` (the
+no-weights segmenter takes gravity from it). A provider may define ``cache_token`` (a string that
+changes whenever its output would); otherwise its class name and ``repr`` are used, which for a
+dataclass includes its settings. The match filters, tracks and landmarks are recomputed on every
+run (they are cheap and depend on the initial poses).
 """
 
 from __future__ import annotations
@@ -159,6 +169,8 @@ class FrameContext:
     pinhole: the undistorted camera every output is in.
     image: (H, W, 3) uint8 undistorted RGB image.
     undistorter: resamples raw-image maps into the pinhole image.
+    world_from_cam: (7,) TUM-order initial pose of the frame.
+    depth: (H, W) float32 dense depth once the depth provider has run (None before).
     """
 
     sequence: Any
@@ -167,6 +179,8 @@ class FrameContext:
     pinhole: Camera
     image: NDArray[np.uint8]
     undistorter: Undistorter
+    world_from_cam: NDArray[np.float64]
+    depth: NDArray[np.float32] | None = None
 
 
 class DepthProvider(Protocol):
@@ -179,6 +193,12 @@ class LabelProvider(Protocol):
     """``provider(ctx) -> (H, W) uint8`` :class:`bimcap.labels.Label` ids, pinhole pixels."""
 
     def __call__(self, ctx: FrameContext) -> NDArray[np.integer]: ...
+
+
+class DepthRefiner(Protocol):
+    """``refiner(ctx, labels) -> (H, W) float32`` depth refined with the labels (``ctx.depth``)."""
+
+    def __call__(self, ctx: FrameContext, labels: NDArray[np.integer]) -> NDArray[np.floating]: ...
 
 
 @dataclass(frozen=True)
@@ -230,15 +250,18 @@ def provider_token(provider: object) -> str:
     return f"{cls.__module__}.{cls.__qualname__}:{provider!r}"
 
 
-def frame_input_files(sequence: Any, index: int) -> list[Path]:
-    """The files frame ``index`` is computed from (they key the cache).
+def uses_pose(provider: object) -> bool:
+    """True if the provider's output depends on the frame's initial pose (``uses_pose``)."""
+    return bool(getattr(provider, "uses_pose", False))
 
-    Uses ``sequence.frame_files(index)`` when it exists; otherwise the ``image``, ``lidar``,
-    ``labels`` and ``depth`` entries of ``sequence.frames[index]`` resolved against the sequence
-    directory (``sequence.root`` or ``sequence.path``).
+
+def frame_input_files(sequence: Any, index: int) -> dict[str, Path]:
+    """The files frame ``index`` is computed from, by role (they key the cache).
+
+    The ``image``, ``lidar``, ``labels`` and ``depth`` entries of ``sequence.frames[index]``
+    (attributes or dict keys) that are not None, resolved against the sequence directory
+    (``sequence.root`` or ``sequence.path``) when relative.
     """
-    if hasattr(sequence, "frame_files"):
-        return [Path(p) for p in sequence.frame_files(index)]
     frame = sequence.frames[index]
     root = None
     for name in ("root", "path", "directory"):
@@ -246,7 +269,7 @@ def frame_input_files(sequence: Any, index: int) -> list[Path]:
         if isinstance(val, (str, PathLike)):
             root = Path(val)
             break
-    out: list[Path] = []
+    out: dict[str, Path] = {}
     for attr in ("image", "lidar", "labels", "depth"):
         val = frame.get(attr) if isinstance(frame, dict) else getattr(frame, attr, None)
         if val is None:
@@ -254,11 +277,11 @@ def frame_input_files(sequence: Any, index: int) -> list[Path]:
         p = Path(val)
         if not p.is_absolute() and root is not None:
             p = root / p
-        out.append(p)
-    if not out:
+        out[attr] = p
+    if "image" not in out:
         raise FrontendError(
-            f"cannot tell which files frame {index} comes from (no frame_files(), no image/lidar "
-            "entries); run without a cache directory"
+            f"cannot tell which image file frame {index} comes from (frames[{index}].image); "
+            "run without a cache directory"
         )
     return out
 
@@ -307,7 +330,8 @@ class FrontendConfig:
 
 @dataclass
 class FrameStats:
-    """Per-frame numbers: keypoints, keypoints with depth, semantic samples, time, cache hit."""
+    """Per-frame numbers: keypoints, keypoints with depth, semantic samples, the frame's total
+    time and its SIFT time (0 when the features came from the cache), cache hit."""
 
     index: int
     num_keypoints: int
@@ -317,6 +341,7 @@ class FrameStats:
     num_wall: int
     num_column: int
     time_s: float
+    sift_time_s: float
     cached: bool
 
 
@@ -335,8 +360,13 @@ class PairStats:
 
 @dataclass
 class RunStats:
-    """What one run did: how many frames and pairs it computed (not taken from the cache)."""
+    """What one run did: what it computed rather than took from the cache.
 
+    ``features_computed``: frames whose SIFT ran; ``frames_computed``: frames whose depth,
+    labels, keypoint depths and samples were computed; ``pairs_computed``: pairs matched.
+    """
+
+    features_computed: int = 0
     frames_computed: int = 0
     pairs_computed: int = 0
     wall_time_s: float = 0.0
@@ -493,6 +523,9 @@ class _FrameJob:
     config: FrontendConfig
     depth_provider: Any
     label_provider: Any
+    depth_refiner: Any
+    world_from_cam: F64
+    features: dict[str, NDArray[Any]] | None  # cached SIFT of this frame, or None to extract
 
 
 def _load_raw_image(sequence: Any, index: int, camera: Camera) -> NDArray[np.uint8]:
@@ -522,32 +555,47 @@ def _load_raw_image(sequence: Any, index: int, camera: Camera) -> NDArray[np.uin
     return img
 
 
+FEATURE_ARRAYS = ("uv", "scale", "orientation", "descriptors")
+
+
 def compute_frame(job: _FrameJob) -> dict[str, NDArray[Any]]:
-    """All per-frame work for one frame; returns the arrays that the cache stores."""
+    """All per-frame work for one frame.
+
+    Returns the SIFT arrays (``uv, scale, orientation, descriptors``; extracted unless
+    ``job.features`` holds them), the keypoint depths ``depth``, the semantic samples
+    ``<class>_p_in_cam`` and the timings ``time_s`` / ``sift_time_s``.
+    """
     t0 = time.perf_counter()
     seq, i, cfg = job.sequence, job.index, job.config
     camera: Camera = seq.camera
     und = get_undistorter(camera)
     image = und.image(_load_raw_image(seq, i, camera))
-    ctx = FrameContext(seq, i, camera, und.pinhole, image, und)
+    ctx = FrameContext(seq, i, camera, und.pinhole, image, und, np.asarray(job.world_from_cam))
     depth = np.asarray(job.depth_provider(ctx), dtype=np.float32)
     _check_map(depth, und.pinhole, i, "depth (from the depth provider)")
+    depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0).astype(np.float32)
+    ctx.depth = depth
     labels = np.asarray(job.label_provider(ctx))
     _check_map(labels, und.pinhole, i, "labels (from the label provider)")
-    if not np.isfinite(depth).all():
-        depth = np.where(np.isfinite(depth), depth, 0.0).astype(np.float32)
-    feats = extract_sift(image, cfg.sift)
-    kp_depth = lookup_depth(depth, feats.uv, cfg.depth_lookup)
+    if job.depth_refiner is not None:
+        depth = np.asarray(job.depth_refiner(ctx, labels), dtype=np.float32)
+        _check_map(depth, und.pinhole, i, "depth (from the depth refiner)")
+        depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0).astype(np.float32)
+        ctx.depth = depth
+    t1 = time.perf_counter()
+    if job.features is None:
+        f = extract_sift(image, cfg.sift)
+        feats = {"uv": f.uv, "scale": f.scale, "orientation": f.orientation, "descriptors": f.descriptors}
+        sift_time = time.perf_counter() - t1
+    else:
+        feats = {k: job.features[k] for k in FEATURE_ARRAYS}
+        sift_time = 0.0
+    kp_depth = lookup_depth(depth, np.asarray(feats["uv"]), cfg.depth_lookup)
     samples = sample_semantic_points(labels, depth, und.pinhole, i, cfg.sampling)
-    out: dict[str, NDArray[Any]] = {
-        "uv": feats.uv,
-        "scale": feats.scale,
-        "orientation": feats.orientation,
-        "descriptors": feats.descriptors,
-        "depth": kp_depth,
-    }
+    out: dict[str, NDArray[Any]] = {**feats, "depth": kp_depth}
     for lab, prefix in SEMANTIC_CLASSES.items():
         out[f"{prefix}_p_in_cam"] = samples[lab]
+    out["sift_time_s"] = np.array(sift_time)
     out["time_s"] = np.array(time.perf_counter() - t0)
     return out
 
@@ -635,6 +683,7 @@ def run_frontend(
     cache_dir: str | PathLike[str] | None = None,
     workers: int | None = None,
     progress: bool = True,
+    depth_refiner: DepthRefiner | None = None,
 ) -> FrontendResult:
     """Run the front end over a whole sequence.
 
@@ -643,11 +692,12 @@ def run_frontend(
     sequence: the sequence (raw camera, frames, images).
     config: settings; None for the defaults.
     init_traj: initial ``world_from_cam`` poses, a Trajectory or (N, 7) TUM-order array, one per
-        frame (used for the distance filter and the initial landmarks only).
-    depth_provider, label_provider: dense depth and labels per frame (see module doc).
-    cache_dir: folder of the per-frame / per-pair cache; None disables caching.
+        frame (for the distance filter, the initial landmarks, and providers that use the pose).
+    depth_provider, label_provider: dense depth and labels per frame (see the module doc).
+    cache_dir: folder of the cache; None disables caching.
     workers: processes (default ``os.cpu_count()``); 1 runs everything in this process.
     progress: draw a progress bar on stderr.
+    depth_refiner: optional ``refiner(ctx, labels) -> depth`` run after the labels.
 
     Returns
     -------
@@ -666,60 +716,85 @@ def run_frontend(
     num = len(sequence.frames)
     if num == 0:
         raise FrontendInputError("the sequence has no frames", None, "frames")
-    init = np.asarray(init_traj.poses if isinstance(init_traj, Trajectory) else init_traj, dtype=np.float64)
+    init = np.asarray(
+        init_traj.poses if isinstance(init_traj, Trajectory) else init_traj, dtype=np.float64
+    )
     validate_poses(init, field="init_traj")
     if len(init) != num:
-        raise FrontendInputError(
-            f"{len(init)} initial poses for {num} frames", None, "init_traj"
-        )
+        raise FrontendInputError(f"{len(init)} initial poses for {num} frames", None, "init_traj")
     nworkers = int(workers if workers is not None else (os.cpu_count() or 1))
     if nworkers < 1:
         raise FrontendError(f"workers must be >= 1, got {workers}")
     cache = ResultCache(cache_dir)
     run = RunStats(workers=nworkers)
+    providers = (depth_provider, label_provider, depth_refiner)
+    pose_dependent = any(uses_pose(p) for p in providers if p is not None)
 
-    frame_settings = {
-        "camera": camera.to_dict(),
-        "sift": cfg.sift.to_dict(),
-        "depth_lookup": cfg.depth_lookup.to_dict(),
-        "sampling": cfg.sampling.to_dict(),
-        "depth_provider": provider_token(depth_provider),
-        "label_provider": provider_token(label_provider),
-    }
+    # ---------------------------------------------------------------- cache keys
+    feat_keys: list[str] = []
     frame_keys: list[str] = []
     if cache.enabled:
+        feat_settings = {"camera": camera.to_dict(), "sift": cfg.sift.to_dict()}
+        frame_settings = {
+            "depth_lookup": cfg.depth_lookup.to_dict(),
+            "sampling": cfg.sampling.to_dict(),
+            "depth_provider": provider_token(depth_provider),
+            "label_provider": provider_token(label_provider),
+            "depth_refiner": None if depth_refiner is None else provider_token(depth_refiner),
+        }
         for i in range(num):
             files = frame_input_files(sequence, i)
-            frame_keys.append(frame_cache_key(files, {**frame_settings, "index": i}))
+            fk = frame_cache_key([files["image"]], feat_settings)
+            feat_keys.append(fk)
+            extra: dict[str, object] = {"index": i, "features": fk}
+            if pose_dependent:
+                extra["world_from_cam"] = [float(x) for x in init[i]]
+            frame_keys.append(frame_cache_key(list(files.values()), {**frame_settings, **extra}))
 
     frame_data: list[dict[str, NDArray[Any]] | None] = [None] * num
     frame_cached = [False] * num
+    cached_feats: list[dict[str, NDArray[Any]] | None] = [None] * num
     todo: list[int] = []
     for i in range(num):
-        hit = cache.get("frame", frame_keys[i]) if cache.enabled else None
-        if hit is not None:
-            frame_data[i], frame_cached[i] = hit, True
-        else:
-            todo.append(i)
+        if cache.enabled:
+            hit = cache.get("frame", frame_keys[i])
+            feats_hit = cache.get("features", feat_keys[i])
+            if hit is not None and feats_hit is not None:
+                frame_data[i] = {**hit, **feats_hit}
+                frame_cached[i] = True
+                continue
+            cached_feats[i] = feats_hit
+        todo.append(i)
 
     pairs = sequential_pairs(num, cfg.window)
     pool: ProcessPoolExecutor | None = None
-    njobs_max = max(len(todo), len(pairs))
-    if nworkers > 1 and njobs_max > 1:
+    if nworkers > 1 and max(len(todo), len(pairs)) > 1:
         pool = ProcessPoolExecutor(
-            max_workers=min(nworkers, njobs_max), mp_context=multiprocessing.get_context("spawn")
+            max_workers=min(nworkers, max(len(todo), len(pairs))),
+            mp_context=multiprocessing.get_context("spawn"),
         )
     try:
+        # ------------------------------------------------------------ frames
         bar = _Progress(len(todo), "frames", progress)
-        jobs = [_FrameJob(sequence, i, cfg, depth_provider, label_provider) for i in todo]
+        jobs = [
+            _FrameJob(sequence, i, cfg, depth_provider, label_provider, depth_refiner, init[i],
+                      cached_feats[i])
+            for i in todo
+        ]
         for k, res in _run_jobs(compute_frame, jobs, pool, bar):
             i = todo[k]
             frame_data[i] = res
             run.frames_computed += 1
+            if cached_feats[i] is None:
+                run.features_computed += 1
             if cache.enabled:
-                cache.put("frame", frame_keys[i], res)
+                if cached_feats[i] is None:
+                    cache.put("features", feat_keys[i], {k2: res[k2] for k2 in FEATURE_ARRAYS})
+                cache.put("frame", frame_keys[i], {k2: v for k2, v in res.items() if k2 not in FEATURE_ARRAYS})
 
-        feats = [_features_of(d) for d in frame_data if d is not None]
+        # ------------------------------------------------------------ pairs
+        frames_ok = [d for d in frame_data if d is not None]
+        feats = [_features_of(d) for d in frames_ok]
         pair_settings = {"camera": camera.to_dict(), "match": cfg.match.to_dict()}
         pair_results: list[dict[str, NDArray[Any]] | None] = [None] * len(pairs)
         pair_cached = [False] * len(pairs)
@@ -727,7 +802,7 @@ def run_frontend(
         ptodo: list[int] = []
         for k, (a, b) in enumerate(pairs):
             if cache.enabled:
-                key = stable_hash({"a": frame_keys[a], "b": frame_keys[b], **pair_settings})
+                key = stable_hash({"a": feat_keys[a], "b": feat_keys[b], **pair_settings})
                 pair_keys.append(key)
                 hit = cache.get("pair", key)
                 if hit is not None:
@@ -749,13 +824,18 @@ def run_frontend(
         if pool is not None:
             pool.shutdown(wait=True, cancel_futures=True)
 
-    frames_ok = [d for d in frame_data if d is not None]
-    pair_list = [
-        PairMatches(a, b, np.asarray(r["idx"], np.int32).reshape(-1, 2), int(r["num_putative"]), str(r["model"]))
-        for (a, b), r in zip(pairs, pair_results)
-        if r is not None
-    ]
-    result = _assemble(sequence, cfg, pinhole, init, frames_ok, pair_list)
+    pair_list: list[PairMatches] = []
+    pair_stats: list[PairStats] = []
+    for k, ((a, b), r) in enumerate(zip(pairs, pair_results)):
+        assert r is not None
+        pm = PairMatches(
+            a, b, np.asarray(r["idx"], np.int32).reshape(-1, 2), int(r["num_putative"]), str(r["model"])
+        )
+        pair_list.append(pm)
+        pair_stats.append(
+            PairStats(a, b, pm.num_putative, len(pm.idx), pm.model, float(r["time_s"]), pair_cached[k])
+        )
+    result = _assemble(cfg, pinhole, init, frames_ok, pair_list)
     result.frame_stats = [
         FrameStats(
             index=i,
@@ -763,24 +843,18 @@ def run_frontend(
             num_keypoints_with_depth=int((d["depth"] > 0).sum()),
             **{f"num_{p}": int(len(d[f"{p}_p_in_cam"])) for p in SEMANTIC_CLASSES.values()},
             time_s=float(d["time_s"]),
+            sift_time_s=float(d["sift_time_s"]),
             cached=frame_cached[i],
         )
         for i, d in enumerate(frames_ok)
     ]
-    result.pair_stats = [
-        PairStats(
-            pm.frame_a, pm.frame_b, pm.num_putative, int(len(pm.idx)), pm.model,
-            float(r["time_s"]) if r is not None else 0.0, pair_cached[k],
-        )
-        for k, (pm, r) in enumerate(zip(pair_list, pair_results))
-    ]
+    result.pair_stats = pair_stats
     run.wall_time_s = time.perf_counter() - t_start
     result.run = run
     return result
 
 
 def _assemble(
-    sequence: Any,
     cfg: FrontendConfig,
     pinhole: Camera,
     init: F64,
