@@ -334,3 +334,35 @@ def test_reader_accepts_extra_lidar_keys_and_moved_directory(
     assert seq.lidar.to_dict()["dropout"] == 0.05
     assert LidarInfo.from_dict(seq.lidar.to_dict()) == seq.lidar
     assert read_tum(seq.trajectory_path("gt")).poses.shape == (N, 7)
+
+
+def test_frames_written_by_workers_then_registered(tmp_path: Path) -> None:
+    """The parallel workflow: write_frame anywhere (any order), register_frame in order."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from bimcap.dataset import frame_info, write_frame
+
+    rng = np.random.default_rng(3)
+    data = [_frame_data(rng, i) for i in range(N)]
+    root = tmp_path / "par"
+    w = SequenceWriter(root, CAMERA, CAM_FROM_LIDAR, png_compression=0)
+    with ThreadPoolExecutor(2) as pool:
+        infos = list(pool.map(
+            lambda i: write_frame(root, i, data[i]["timestamp"], CAMERA, data[i]["image"],
+                                  data[i]["lidar"], data[i]["labels"], png_compression=9),
+            reversed(range(N)),
+        ))[::-1]
+    assert infos[0] == frame_info(0, data[0]["timestamp"], labels=True)
+    with pytest.raises(SequenceError, match="expected frame 0"):
+        w.register_frame(infos[1])
+    for info in infos:
+        w.register_frame(info)
+    with pytest.raises(SequenceError, match="does not exist"):
+        w.register_frame(frame_info(N, 999.0))  # its files were never written
+    seq = w.close()
+    for i in range(N):
+        np.testing.assert_array_equal(seq.load_image(i), data[i]["image"])
+        np.testing.assert_array_equal(seq.load_labels(i), data[i]["labels"])
+        assert seq.load_depth(i) is None
+    with pytest.raises(SequenceError, match=r"frames\[0\]\.image"):
+        write_frame(root, 0, 0.0, CAMERA, np.zeros((H, W), np.uint8), data[0]["lidar"])

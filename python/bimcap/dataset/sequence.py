@@ -633,6 +633,8 @@ class SequenceWriter:
         Free-form provenance (JSON-serialisable), e.g. simulator settings and seed.
     overwrite:
         Allow writing into a directory that already holds a ``manifest.json``.
+    png_compression:
+        OpenCV PNG compression level 0-9 for images and labels (None = OpenCV's default).
 
     Examples
     --------
@@ -651,8 +653,10 @@ class SequenceWriter:
         ifc: str | PathLike[str] | None = None,
         source: Mapping[str, Any] | None = None,
         overwrite: bool = False,
+        png_compression: int | None = None,
     ) -> None:
         self.root = Path(root)
+        self.png_compression = png_compression
         self.camera = camera
         pose = np.asarray(cam_from_lidar, dtype=np.float64)
         if pose.shape != (7,) or not np.isfinite(pose).all():
@@ -684,7 +688,7 @@ class SequenceWriter:
         labels: NDArray[np.uint8] | None = None,
         depth: NDArray[np.floating[Any]] | None = None,
     ) -> FrameInfo:
-        """Write one frame's files and remember it for the manifest.
+        """Write one frame's files (see :func:`write_frame`) and remember it for the manifest.
 
         Parameters
         ----------
@@ -699,82 +703,44 @@ class SequenceWriter:
         SequenceError
             On a timestamp out of order, a wrong shape or dtype, or a closed writer.
         """
-        import cv2
+        self._check_next(float(timestamp))
+        info = write_frame(
+            self.root, len(self.frames), timestamp, self.camera, image, lidar, labels, depth,
+            png_compression=self.png_compression,
+        )
+        self.frames.append(info)
+        return info
 
+    def register_frame(self, info: FrameInfo) -> None:
+        """Record a frame whose files were written elsewhere, e.g. by :func:`write_frame` in a
+        worker process. Frames must be registered in order: ``info.index == len(frames)``.
+        """
+        if info.index != len(self.frames):
+            raise SequenceError(
+                f"frame {info.index} registered, expected frame {len(self.frames)}",
+                self.root,
+                f"frames[{info.index}]",
+            )
+        self._check_next(info.timestamp)
+        for key in ("image", "lidar", "labels", "depth"):
+            rel = getattr(info, key)
+            if rel is not None:
+                _relative_file(rel, self.root, self.root, f"frames[{info.index}].{key}")
+        self.frames.append(info)
+
+    def _check_next(self, t: float) -> None:
         if self._closed:
             raise SequenceError("the writer is closed", self.root)
-        i = len(self.frames)
-        where = f"frames[{i}]"
-        t = float(timestamp)
+        where = f"frames[{len(self.frames)}].timestamp"
         if not math.isfinite(t):
-            raise SequenceError(f"timestamp must be finite, got {timestamp!r}", self.root, f"{where}.timestamp")
+            raise SequenceError(f"timestamp must be finite, got {t!r}", self.root, where)
         if self.frames and t <= self.frames[-1].timestamp:
             raise SequenceError(
                 f"timestamp {t!r} does not follow {self.frames[-1].timestamp!r}: frames must be "
                 "added in strictly increasing time order",
                 self.root,
-                f"{where}.timestamp",
+                where,
             )
-        hw = (self.camera.height, self.camera.width)
-        img = np.asarray(image)
-        if img.dtype != np.uint8 or img.shape != hw + (3,):
-            raise SequenceError(
-                f"expected a {hw + (3,)} uint8 RGB image, got {img.shape} {img.dtype}",
-                self.root,
-                f"{where}.image",
-            )
-        pts = np.asarray(lidar)
-        if pts.ndim != 2 or pts.shape[1] != 4 or not np.issubdtype(pts.dtype, np.floating):
-            raise SequenceError(
-                f"expected (M, 4) float x y z intensity, got {pts.shape} {pts.dtype}",
-                self.root,
-                f"{where}.lidar",
-            )
-        lab = None
-        if labels is not None:
-            lab = np.asarray(labels)
-            if lab.dtype != np.uint8 or lab.shape != hw:
-                raise SequenceError(
-                    f"expected a {hw} uint8 label image, got {lab.shape} {lab.dtype}",
-                    self.root,
-                    f"{where}.labels",
-                )
-            if lab.size and int(lab.max()) > max(Label):
-                raise SequenceError(
-                    f"label id {int(lab.max())} is not a bimcap.labels.Label", self.root, f"{where}.labels"
-                )
-        dep = None
-        if depth is not None:
-            dep = np.asarray(depth)
-            if not np.issubdtype(dep.dtype, np.floating) or dep.shape != hw:
-                raise SequenceError(
-                    f"expected a {hw} float depth image, got {dep.shape} {dep.dtype}",
-                    self.root,
-                    f"{where}.depth",
-                )
-            dep = dep.astype(np.float32)
-            if not np.isfinite(dep).all() or (dep < 0).any():
-                raise SequenceError("depth must be finite and >= 0", self.root, f"{where}.depth")
-
-        name = f"{i:06d}"
-        info = FrameInfo(
-            i,
-            t,
-            f"images/{name}.png",
-            f"lidar/{name}.bin",
-            None if lab is None else f"labels/{name}.png",
-            None if dep is None else f"depth/{name}.npy",
-        )
-        atomic_write_bytes(self.root / info.image, _encode_png(cv2, img[:, :, ::-1]))
-        atomic_write_bytes(self.root / info.lidar, pts.astype(_LIDAR_DTYPE).tobytes())
-        if lab is not None and info.labels is not None:
-            atomic_write_bytes(self.root / info.labels, _encode_png(cv2, lab))
-        if dep is not None and info.depth is not None:
-            buf = io.BytesIO()
-            np.save(buf, dep, allow_pickle=False)
-            atomic_write_bytes(self.root / info.depth, buf.getvalue())
-        self.frames.append(info)
-        return info
 
     # ------------------------------------------------------------------ poses
     def add_trajectory(self, name: str, world_from_cam: Trajectory | ArrayLike) -> None:
@@ -841,8 +807,92 @@ class SequenceWriter:
             self._closed = True
 
 
-def _encode_png(cv2: Any, array: NDArray[np.uint8]) -> bytes:
-    ok, buf = cv2.imencode(".png", np.ascontiguousarray(array))
+def frame_info(index: int, timestamp: float, labels: bool = False, depth: bool = False) -> FrameInfo:
+    """The standard file names of frame ``index`` (``images/NNNNNN.png`` etc.)."""
+    name = f"{index:06d}"
+    return FrameInfo(
+        index,
+        float(timestamp),
+        f"images/{name}.png",
+        f"lidar/{name}.bin",
+        f"labels/{name}.png" if labels else None,
+        f"depth/{name}.npy" if depth else None,
+    )
+
+
+def write_frame(
+    root: str | PathLike[str],
+    index: int,
+    timestamp: float,
+    camera: Camera,
+    image: NDArray[np.uint8],
+    lidar: ArrayLike,
+    labels: NDArray[np.uint8] | None = None,
+    depth: NDArray[np.floating[Any]] | None = None,
+    png_compression: int | None = None,
+) -> FrameInfo:
+    """Check and write the files of frame ``index`` atomically; return its :class:`FrameInfo`.
+
+    Stateless (safe in worker processes); :meth:`SequenceWriter.register_frame` then adds the
+    returned info in order. Arguments as in :meth:`SequenceWriter.add_frame`; ``png_compression``
+    is OpenCV's PNG level 0-9 (None = OpenCV's default).
+
+    Raises
+    ------
+    SequenceError
+        On a wrong shape, dtype or value (naming ``frames[index].<file>``).
+    """
+    import cv2
+
+    out = Path(root)
+    where = f"frames[{index}]"
+    hw = (camera.height, camera.width)
+    img = np.asarray(image)
+    if img.dtype != np.uint8 or img.shape != hw + (3,):
+        raise SequenceError(
+            f"expected a {hw + (3,)} uint8 RGB image, got {img.shape} {img.dtype}", out, f"{where}.image"
+        )
+    pts = np.asarray(lidar)
+    if pts.ndim != 2 or pts.shape[1] != 4 or not np.issubdtype(pts.dtype, np.floating):
+        raise SequenceError(
+            f"expected (M, 4) float x y z intensity, got {pts.shape} {pts.dtype}", out, f"{where}.lidar"
+        )
+    lab = None
+    if labels is not None:
+        lab = np.asarray(labels)
+        if lab.dtype != np.uint8 or lab.shape != hw:
+            raise SequenceError(
+                f"expected a {hw} uint8 label image, got {lab.shape} {lab.dtype}", out, f"{where}.labels"
+            )
+        if lab.size and int(lab.max()) > max(Label):
+            raise SequenceError(
+                f"label id {int(lab.max())} is not a bimcap.labels.Label", out, f"{where}.labels"
+            )
+    dep = None
+    if depth is not None:
+        dep = np.asarray(depth)
+        if not np.issubdtype(dep.dtype, np.floating) or dep.shape != hw:
+            raise SequenceError(
+                f"expected a {hw} float depth image, got {dep.shape} {dep.dtype}", out, f"{where}.depth"
+            )
+        dep = dep.astype(np.float32)
+        if not np.isfinite(dep).all() or (dep < 0).any():
+            raise SequenceError("depth must be finite and >= 0", out, f"{where}.depth")
+    params = [] if png_compression is None else [cv2.IMWRITE_PNG_COMPRESSION, int(png_compression)]
+    info = frame_info(index, timestamp, lab is not None, dep is not None)
+    atomic_write_bytes(out / info.image, _encode_png(cv2, img[:, :, ::-1], params))
+    atomic_write_bytes(out / info.lidar, pts.astype(_LIDAR_DTYPE).tobytes())
+    if lab is not None and info.labels is not None:
+        atomic_write_bytes(out / info.labels, _encode_png(cv2, lab, params))
+    if dep is not None and info.depth is not None:
+        buf = io.BytesIO()
+        np.save(buf, dep, allow_pickle=False)
+        atomic_write_bytes(out / info.depth, buf.getvalue())
+    return info
+
+
+def _encode_png(cv2: Any, array: NDArray[np.uint8], params: list[int] | None = None) -> bytes:
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(array), params or [])
     if not ok:
         raise SequenceError("PNG encoding failed")
     return bytes(buf.tobytes())
