@@ -7,15 +7,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from rosbags.rosbag1 import Writer
+from rosbags.typesys import Stores, get_typestore
 
-pytest.importorskip("rosbags")
-
-from rosbags.rosbag1 import Writer  # noqa: E402
-from rosbags.typesys import Stores, get_typestore  # noqa: E402
-
-from bimcap.cli import main  # noqa: E402
-from bimcap.dataset import read_sequence  # noqa: E402
-from bimcap.dataset.conslam import (  # noqa: E402
+from bimcap.cli import main
+from bimcap.dataset import read_sequence
+from bimcap.dataset.conslam import (
     CONSLAM_CAM_FROM_LIDAR,
     ConslamError,
     GtFrame,
@@ -23,8 +20,8 @@ from bimcap.dataset.conslam import (  # noqa: E402
     import_conslam,
     pair_nearest,
 )
-from bimcap.geometry import write_tum  # noqa: E402
-from bimcap.geometry.trajectory import Trajectory  # noqa: E402
+from bimcap.geometry import write_tum
+from bimcap.geometry.trajectory import Trajectory
 
 TS = get_typestore(Stores.ROS1_NOETIC)
 T0_SEC = 1_650_000_000
@@ -54,8 +51,15 @@ def _image_msg(sec: int, nsec: int, rgb: np.ndarray, pad: int = 8) -> object:
     buf = np.zeros((h, step), np.uint8)
     buf[:, : w * 3] = rgb.reshape(h, w * 3)
     buf[:, w * 3 :] = 77  # padding bytes that must not leak into the image
-    return Image(header=_header(sec, nsec), height=h, width=w, encoding="rgb8", is_bigendian=0,
-                 step=step, data=buf.ravel())
+    return Image(
+        header=_header(sec, nsec),
+        height=h,
+        width=w,
+        encoding="rgb8",
+        is_bigendian=0,
+        step=step,
+        data=buf.ravel(),
+    )
 
 
 def _cloud_msg(sec: int, nsec: int, xyzi: np.ndarray, bigendian: bool = False) -> object:
@@ -63,21 +67,41 @@ def _cloud_msg(sec: int, nsec: int, xyzi: np.ndarray, bigendian: bool = False) -
     PointCloud2 = TS.types["sensor_msgs/msg/PointCloud2"]
     PointField = TS.types["sensor_msgs/msg/PointField"]
     o = ">" if bigendian else "<"
-    dt = np.dtype({"names": ["x", "y", "z", "ring", "intensity"],
-                   "formats": [o + "f4", o + "f4", o + "f4", o + "u2", o + "f4"],
-                   "offsets": [0, 4, 8, 12, 16], "itemsize": 24})
+    dt = np.dtype(
+        {
+            "names": ["x", "y", "z", "ring", "intensity"],
+            "formats": [o + "f4", o + "f4", o + "f4", o + "u2", o + "f4"],
+            "offsets": [0, 4, 8, 12, 16],
+            "itemsize": 24,
+        }
+    )
     arr = np.zeros(len(xyzi), dtype=dt)
     for k, name in enumerate(("x", "y", "z")):
         arr[name] = xyzi[:, k]
     arr["intensity"] = xyzi[:, 3]
     arr["ring"] = 7
-    fields = [PointField(name=n, offset=off, datatype=dtp, count=1)
-              for n, off, dtp in (("intensity", 16, 7), ("x", 0, 7), ("ring", 12, 4),
-                                  ("y", 4, 7), ("z", 8, 7))]
+    fields = [
+        PointField(name=n, offset=off, datatype=dtp, count=1)
+        for n, off, dtp in (
+            ("intensity", 16, 7),
+            ("x", 0, 7),
+            ("ring", 12, 4),
+            ("y", 4, 7),
+            ("z", 8, 7),
+        )
+    ]
     data = np.frombuffer(arr.tobytes(), np.uint8)
-    return PointCloud2(header=_header(sec, nsec), height=1, width=len(xyzi), fields=fields,
-                       is_bigendian=bigendian, point_step=24, row_step=24 * len(xyzi),
-                       data=data, is_dense=False)
+    return PointCloud2(
+        header=_header(sec, nsec),
+        height=1,
+        width=len(xyzi),
+        fields=fields,
+        is_bigendian=bigendian,
+        point_step=24,
+        row_step=24 * len(xyzi),
+        data=data,
+        is_dense=False,
+    )
 
 
 def _info_msg(w: int, h: int) -> object:
@@ -85,11 +109,19 @@ def _info_msg(w: int, h: int) -> object:
     RegionOfInterest = TS.types["sensor_msgs/msg/RegionOfInterest"]
     fx, fy, cx, cy = K_INFO
     k = np.array([fx, 0, cx, 0, fy, cy, 0, 0, 1], float)
-    return CameraInfo(header=_header(T0_SEC, 0), height=h, width=w, distortion_model="plumb_bob",
-                      D=np.array(D_INFO), K=k, R=np.eye(3).ravel(),
-                      P=np.zeros(12), binning_x=0, binning_y=0,
-                      roi=RegionOfInterest(x_offset=0, y_offset=0, height=0, width=0,
-                                           do_rectify=False))
+    return CameraInfo(
+        header=_header(T0_SEC, 0),
+        height=h,
+        width=w,
+        distortion_model="plumb_bob",
+        D=np.array(D_INFO),
+        K=k,
+        R=np.eye(3).ravel(),
+        P=np.zeros(12),
+        binning_x=0,
+        binning_y=0,
+        roi=RegionOfInterest(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False),
+    )
 
 
 def _rot_z(a: float) -> np.ndarray:
@@ -114,27 +146,43 @@ def _write_recording(tmp: Path, w: int, h: int, with_info: bool) -> FakeRecordin
     gt_dir.mkdir()
     rec = FakeRecording(bag, gt_dir, [], [], [], [])
     with Writer(bag) as writer:
-        c_img = writer.add_connection("/pp_rgb/synced2points", "sensor_msgs/msg/Image", typestore=TS)
-        c_pts = writer.add_connection("/pp_points/synced2rgb", "sensor_msgs/msg/PointCloud2",
-                                      typestore=TS)
-        c_info = writer.add_connection("/pp_rgb/camera_info", "sensor_msgs/msg/CameraInfo",
-                                       typestore=TS)
+        c_img = writer.add_connection(
+            "/pp_rgb/synced2points", "sensor_msgs/msg/Image", typestore=TS
+        )
+        c_pts = writer.add_connection(
+            "/pp_points/synced2rgb", "sensor_msgs/msg/PointCloud2", typestore=TS
+        )
+        c_info = writer.add_connection(
+            "/pp_rgb/camera_info", "sensor_msgs/msg/CameraInfo", typestore=TS
+        )
         if with_info:
-            writer.write(c_info, T0_SEC * 10**9,
-                         TS.serialize_ros1(_info_msg(w, h), "sensor_msgs/msg/CameraInfo"))
+            writer.write(
+                c_info,
+                T0_SEC * 10**9,
+                TS.serialize_ros1(_info_msg(w, h), "sensor_msgs/msg/CameraInfo"),
+            )
         for k in range(6):
             nsec_img = 100_000_000 * k + 20_000  # µs-exact stamps
             nsec_pts = nsec_img + 3_000_000
             t_bag = T0_SEC * 10**9 + nsec_img
             rgb = rng.integers(0, 256, size=(h, w, 3), dtype=np.uint8)
-            writer.write(c_img, t_bag, TS.serialize_ros1(_image_msg(T0_SEC, nsec_img, rgb),
-                                                          "sensor_msgs/msg/Image"))
+            writer.write(
+                c_img,
+                t_bag,
+                TS.serialize_ros1(_image_msg(T0_SEC, nsec_img, rgb), "sensor_msgs/msg/Image"),
+            )
             if k == 3:
                 continue  # image without a scan
             pts = rng.normal(0.0, 5.0, size=(40 + k, 4)).astype(np.float32)
             pts[5, 1] = np.nan  # a "no return" point, dropped by the importer
-            writer.write(c_pts, t_bag + 3_000_000, TS.serialize_ros1(
-                _cloud_msg(T0_SEC, nsec_pts, pts, bigendian=(k == 2)), "sensor_msgs/msg/PointCloud2"))
+            writer.write(
+                c_pts,
+                t_bag + 3_000_000,
+                TS.serialize_ros1(
+                    _cloud_msg(T0_SEC, nsec_pts, pts, bigendian=(k == 2)),
+                    "sensor_msgs/msg/PointCloud2",
+                ),
+            )
             t_scan_us = T0_SEC * 1_000_000 + nsec_pts // 1000
             pose = np.eye(4)
             pose[:3, :3] = _rot_z(0.3 * k + 0.2)
@@ -146,8 +194,11 @@ def _write_recording(tmp: Path, w: int, h: int, with_info: bool) -> FakeRecordin
                 rec.image_times.append(T0_SEC + nsec_img * 1e-9)
                 rec.world_from_lidar.append(pose)
         lone = rng.normal(size=(10, 4)).astype(np.float32)
-        writer.write(c_pts, T0_SEC * 10**9 + 900_000_000, TS.serialize_ros1(
-            _cloud_msg(T0_SEC, 900_000_000, lone), "sensor_msgs/msg/PointCloud2"))
+        writer.write(
+            c_pts,
+            T0_SEC * 10**9 + 900_000_000,
+            TS.serialize_ros1(_cloud_msg(T0_SEC, 900_000_000, lone), "sensor_msgs/msg/PointCloud2"),
+        )
     (gt_dir / "README").write_text("not a pose")  # ignored: not named by a timestamp
     return rec
 
@@ -163,11 +214,13 @@ def _hand_world_from_cam(world_from_lidar: np.ndarray) -> np.ndarray:
 
 def _pose_matrix(pose: np.ndarray) -> np.ndarray:
     x, y, z, w = pose[3:]
-    r = np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])
+    r = np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
     m = np.eye(4)
     m[:3, :3] = r
     m[:3, 3] = pose[:3]
@@ -210,8 +263,10 @@ def test_hand_computed_camera_pose_for_identity_lidar_pose(tmp_path: Path) -> No
     """With world_from_lidar = I the camera centre in the world is -R_clᵀ t_cl and the camera's
     optical axis (z) is the LiDAR's x axis (R_cl's third row is ~[1, 0.058, 0])."""
     rec = _write_recording(tmp_path, 40, 30, with_info=True)
-    traj = Trajectory(np.array([T0_SEC + k * 0.1 + 2e-5 + 0.003 for k in range(6)]),
-                      np.tile([0, 0, 0, 0, 0, 0, 1.0], (6, 1)))
+    traj = Trajectory(
+        np.array([T0_SEC + k * 0.1 + 2e-5 + 0.003 for k in range(6)]),
+        np.tile([0, 0, 0, 0, 0, 0, 1.0], (6, 1)),
+    )
     seq = import_conslam(rec.bag, tmp_path / "seq", traj).sequence
     pose = seq.trajectory("gt").poses[0]
     centre = -R_CL.T @ T_CL
@@ -226,8 +281,9 @@ def test_import_defaults_without_camera_info_and_tum_camera_gt(tmp_path: Path) -
     cam_poses = np.array([[1.0 * k, 0, 0, 0, 0, 0, 1] for k in range(6)])
     tum = tmp_path / "gt.tum"
     write_tum(tum, Trajectory(np.array([T0_SEC + k * 0.1 + 2e-5 for k in range(6)]), cam_poses))
-    res = import_conslam(rec.bag, tmp_path / "seq", tum, gt_frame=GtFrame.CAMERA,
-                         gt_tolerance_s=0.01)
+    res = import_conslam(
+        rec.bag, tmp_path / "seq", tum, gt_frame=GtFrame.CAMERA, gt_tolerance_s=0.01
+    )
     seq = res.sequence
     assert res.camera_source.startswith("conslam_default scaled")
     assert seq.camera.width == 258 and seq.camera.height == 193
@@ -244,8 +300,10 @@ def test_import_stride_no_gt_and_cli(tmp_path: Path) -> None:
     rec = _write_recording(tmp_path, 40, 30, with_info=True)
     res = import_conslam(rec.bag, tmp_path / "a", None, stride=2, max_frames=2)
     assert res.n_frames == 2 and res.sequence.poses == {}
-    assert main(["import-conslam", str(rec.bag), "-o", str(tmp_path / "b"),
-                 "--gt", str(rec.gt_dir)]) == 0
+    assert (
+        main(["import-conslam", str(rec.bag), "-o", str(tmp_path / "b"), "--gt", str(rec.gt_dir)])
+        == 0
+    )
     assert len(read_sequence(tmp_path / "b").trajectory("gt")) == 4
     assert main(["import-conslam", str(rec.bag), "-o", str(tmp_path / "b")]) == 2  # exists
     assert main(["import-conslam", str(rec.bag), "-o", str(tmp_path / "b"), "--force"]) == 0
@@ -255,8 +313,10 @@ def test_import_errors(tmp_path: Path) -> None:
     rec = _write_recording(tmp_path, 40, 30, with_info=True)
     with pytest.raises(ConslamError, match="within 1e-05 s"):
         import_conslam(rec.bag, tmp_path / "s1", rec.gt_dir, gt_tolerance_s=0.0, tolerance_s=1e-5)
-    late = Trajectory(np.array([T0_SEC + k * 0.1 + 0.023 for k in range(6)]),
-                      np.tile([0, 0, 0, 0, 0, 0, 1.0], (6, 1)))  # 20 ms after each scan
+    late = Trajectory(
+        np.array([T0_SEC + k * 0.1 + 0.023 for k in range(6)]),
+        np.tile([0, 0, 0, 0, 0, 0, 1.0], (6, 1)),
+    )  # 20 ms after each scan
     with pytest.raises(ConslamError, match="no frame has a ground-truth pose"):
         import_conslam(rec.bag, tmp_path / "s2", late, gt_tolerance_s=0.01)
     assert import_conslam(rec.bag, tmp_path / "s2", late, gt_tolerance_s=0.03).n_frames == 5
@@ -274,8 +334,13 @@ def test_import_errors(tmp_path: Path) -> None:
     other = tmp_path / "other.bag"
     with Writer(other) as writer:
         c = writer.add_connection("/pp_rgb/synced2points", "sensor_msgs/msg/Image", typestore=TS)
-        writer.write(c, T0_SEC * 10**9, TS.serialize_ros1(
-            _image_msg(T0_SEC, 0, np.zeros((2, 2, 3), np.uint8)), "sensor_msgs/msg/Image"))
+        writer.write(
+            c,
+            T0_SEC * 10**9,
+            TS.serialize_ros1(
+                _image_msg(T0_SEC, 0, np.zeros((2, 2, 3), np.uint8)), "sensor_msgs/msg/Image"
+            ),
+        )
     with pytest.raises(ConslamError, match="pp_points/synced2rgb") as info:
         import_conslam(other, tmp_path / "s6")
     assert info.value.field == "topics"
@@ -292,8 +357,11 @@ def test_pair_nearest_uses_each_scan_once() -> None:
 def test_decode_pointcloud_field_offsets_and_endianness() -> None:
     pts = np.array([[1.5, -2.0, 3.25, 40.0], [0.0, 0.5, -1.0, 7.0]], np.float32)
     for big in (False, True):
-        out = decode_pointcloud(TS.deserialize_ros1(
-            TS.serialize_ros1(_cloud_msg(1, 0, pts, big), "sensor_msgs/msg/PointCloud2"),
-            "sensor_msgs/msg/PointCloud2"))
+        out = decode_pointcloud(
+            TS.deserialize_ros1(
+                TS.serialize_ros1(_cloud_msg(1, 0, pts, big), "sensor_msgs/msg/PointCloud2"),
+                "sensor_msgs/msg/PointCloud2",
+            )
+        )
         np.testing.assert_array_equal(out, pts)
     assert CONSLAM_CAM_FROM_LIDAR.shape == (7,)

@@ -133,9 +133,17 @@ def test_slam_like_is_smooth_and_bends_with_yaw() -> None:
     err = np.linalg.norm(bend.init.poses[:, :3] - gt.poses[:, :3], axis=1)
     assert err[0] == 0.0 and err[-1] > 0.5
     # Targets work in this mode as well.
-    cal = apply_drift(gt, DriftParams(sigma_t=0.01, sigma_yaw_deg=0.3, seed=4,
-                                      mode=DriftModel.SLAM_LIKE, target_ate_pos_m=10.0,
-                                      target_ate_rot_deg=5.0))
+    cal = apply_drift(
+        gt,
+        DriftParams(
+            sigma_t=0.01,
+            sigma_yaw_deg=0.3,
+            seed=4,
+            mode=DriftModel.SLAM_LIKE,
+            target_ate_pos_m=10.0,
+            target_ate_rot_deg=5.0,
+        ),
+    )
     assert cal.ate_pos == pytest.approx(10.0, abs=1e-9)
     assert cal.ate_rot == pytest.approx(5.0, abs=1e-9)
 
@@ -143,8 +151,10 @@ def test_slam_like_is_smooth_and_bends_with_yaw() -> None:
 def test_unreachable_and_invalid_parameters() -> None:
     gt = walking_trajectory(200)
     with pytest.raises(DriftError, match="cannot be reached"):
-        apply_drift(gt, DriftParams(sigma_yaw_deg=2.0, seed=0, mode=DriftModel.SLAM_LIKE,
-                                    target_ate_pos_m=0.0))
+        apply_drift(
+            gt,
+            DriftParams(sigma_yaw_deg=2.0, seed=0, mode=DriftModel.SLAM_LIKE, target_ate_pos_m=0.0),
+        )
     with pytest.raises(DriftError) as info:
         DriftParams(sigma_t=-1.0)
     assert info.value.field == "sigma_t"
@@ -170,7 +180,9 @@ def _tiny_sequence(root: Path, n: int = 30) -> Path:
     return root
 
 
-def test_cli_drift_writes_init_and_json_and_protects_files(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_cli_drift_writes_init_and_json_and_protects_files(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     import json
 
     from bimcap.cli import main
@@ -198,7 +210,24 @@ def test_cli_drift_writes_init_and_json_and_protects_files(tmp_path: Path, capsy
     assert main(["drift", str(root), "-o", str(root / "poses" / "gt.tum"), "--preset", "exp3"]) == 2
     assert (root / "poses" / "gt.tum").read_bytes() == gt_bytes
     out = tmp_path / "other" / "slam.tum"
-    assert main(["drift", str(root), "-o", str(out), "--mode", "slam_like", "--sigma-t", "0.01",
-                 "--sigma-yaw-deg", "0.2", "--seed", "1"]) == 0
+    assert (
+        main(
+            [
+                "drift",
+                str(root),
+                "-o",
+                str(out),
+                "--mode",
+                "slam_like",
+                "--sigma-t",
+                "0.01",
+                "--sigma-yaw-deg",
+                "0.2",
+                "--seed",
+                "1",
+            ]
+        )
+        == 0
+    )
     assert out.exists() and (tmp_path / "other" / "slam.drift.json").exists()
     assert "slam" not in read_sequence(root).poses

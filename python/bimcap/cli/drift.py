@@ -26,23 +26,47 @@ def register(subparsers: Any) -> None:
         "Preset sigmas are rescaled so that the ATE hits the preset's target exactly.",
     )
     p.add_argument("sequence", type=Path, metavar="SEQ", help="sequence directory")
-    p.add_argument("--preset", choices=sorted(PRESETS), default=None,
-                   help="paper experiment to imitate (default: none, give sigmas)")
+    p.add_argument(
+        "--preset",
+        choices=sorted(PRESETS),
+        default=None,
+        help="paper experiment to imitate (default: none, give sigmas)",
+    )
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--mode", choices=[m.value for m in DriftModel], default=None,
-                   help="drift model (default: paper)")
+    p.add_argument(
+        "--mode",
+        choices=[m.value for m in DriftModel],
+        default=None,
+        help="drift model (default: paper)",
+    )
     p.add_argument("--sigma-t", type=float, default=None, help="translation step sigma, metres")
     p.add_argument("--sigma-pitch-deg", type=float, default=None, help="pitch sigma, degrees")
     p.add_argument("--sigma-yaw-deg", type=float, default=None, help="yaw sigma, degrees")
-    p.add_argument("--target-ate-pos", type=float, default=None, metavar="M",
-                   help="rescale translation drift to this ATE_pos (metres)")
-    p.add_argument("--target-ate-rot", type=float, default=None, metavar="DEG",
-                   help="rescale rotation drift to this ATE_rot (degrees)")
+    p.add_argument(
+        "--target-ate-pos",
+        type=float,
+        default=None,
+        metavar="M",
+        help="rescale translation drift to this ATE_pos (metres)",
+    )
+    p.add_argument(
+        "--target-ate-rot",
+        type=float,
+        default=None,
+        metavar="DEG",
+        help="rescale rotation drift to this ATE_rot (degrees)",
+    )
     p.add_argument("--no-z", action="store_true", help="keep the height: planar translation walk")
     p.add_argument("--gt", default="gt", help="name of the ground-truth trajectory (default gt)")
     p.add_argument("--name", default="init", help="name of the trajectory to write (default init)")
-    p.add_argument("-o", "--output", type=Path, default=None, metavar="FILE.tum",
-                   help="write here instead of into the sequence")
+    p.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        default=None,
+        metavar="FILE.tum",
+        help="write here instead of into the sequence",
+    )
     p.add_argument("--force", action="store_true", help="replace an existing output trajectory")
     p.set_defaults(func=run)
 
@@ -77,7 +101,9 @@ def run(args: argparse.Namespace) -> int:
 
     seq = read_sequence(args.sequence)
     if args.name == args.gt:
-        raise SequenceError("the output trajectory must not be the ground truth", seq.root, "--name")
+        raise SequenceError(
+            "the output trajectory must not be the ground truth", seq.root, "--name"
+        )
     gt_path = seq.trajectory_path(args.gt)
     gt = seq.trajectory(args.gt)
     params = _params(args)

@@ -17,16 +17,41 @@ def register(subparsers: Any) -> None:
         "a sequence directory.",
     )
     p.add_argument("bag", type=Path, metavar="BAG", help="the ROS1 .bag file")
-    p.add_argument("-o", "--output", type=Path, required=True, metavar="SEQ",
-                   help="sequence directory to write")
-    p.add_argument("--gt", type=Path, default=None, metavar="DIR_OR_TUM",
-                   help="ground truth: folder of <microseconds>.txt 4x4 files, or a TUM file")
-    p.add_argument("--gt-frame", choices=("lidar", "camera"), default="lidar",
-                   help="the sensor the GT poses describe (default lidar, as ConSLAM ships them)")
-    p.add_argument("--tolerance", type=float, default=0.05, metavar="S",
-                   help="max image/scan time difference of a pair (default 0.05 s)")
-    p.add_argument("--gt-tolerance", type=float, default=0.05, metavar="S",
-                   help="max scan/GT time difference (default 0.05 s)")
+    p.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        required=True,
+        metavar="SEQ",
+        help="sequence directory to write",
+    )
+    p.add_argument(
+        "--gt",
+        type=Path,
+        default=None,
+        metavar="DIR_OR_TUM",
+        help="ground truth: folder of <microseconds>.txt 4x4 files, or a TUM file",
+    )
+    p.add_argument(
+        "--gt-frame",
+        choices=("lidar", "camera"),
+        default="lidar",
+        help="the sensor the GT poses describe (default lidar, as ConSLAM ships them)",
+    )
+    p.add_argument(
+        "--tolerance",
+        type=float,
+        default=0.05,
+        metavar="S",
+        help="max image/scan time difference of a pair (default 0.05 s)",
+    )
+    p.add_argument(
+        "--gt-tolerance",
+        type=float,
+        default=0.05,
+        metavar="S",
+        help="max scan/GT time difference (default 0.05 s)",
+    )
     p.add_argument("--ifc", type=Path, default=None, help="IFC file to record in the manifest")
     p.add_argument("--stride", type=int, default=1, help="keep every N-th frame (default 1)")
     p.add_argument("--max-frames", type=int, default=None, help="keep at most N frames")
@@ -58,6 +83,8 @@ def run(args: argparse.Namespace) -> int:
         f"scans ({result.n_pairs} pairs, max |dt| {result.max_pair_dt_s * 1e3:.1f} ms; "
         f"{result.n_without_gt} without ground truth)"
     )
-    print(f"  camera {seq.camera.width}x{seq.camera.height} from {result.camera_source}; "
-          f"trajectories: {', '.join(seq.poses) or 'none'}")
+    print(
+        f"  camera {seq.camera.width}x{seq.camera.height} from {result.camera_source}; "
+        f"trajectories: {', '.join(seq.poses) or 'none'}"
+    )
     return 0

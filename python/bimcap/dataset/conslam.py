@@ -27,8 +27,8 @@ What the importer does:
 
 The camera comes from the first ``camera_info`` message when it has a plumb_bob calibration,
 else ConSLAM's published calibration (:data:`CONSLAM_CAMERA`, scaled if the images are smaller by
-the same factor in both axes). The LiDAR→camera extrinsic is ConSLAM's (:data:`CONSLAM_CAM_FROM_LIDAR`)
-unless another is given.
+the same factor in both axes). The LiDAR→camera extrinsic is ConSLAM's
+(:data:`CONSLAM_CAM_FROM_LIDAR`) unless another is given.
 """
 
 from __future__ import annotations
@@ -153,7 +153,9 @@ def read_gt_folder(path: str | PathLike[str]) -> Trajectory:
         if not f.is_file() or not f.stem.isdigit():
             continue
         try:
-            vals = np.array(f.read_text(encoding="utf-8").replace(",", " ").split(), dtype=np.float64)
+            vals = np.array(
+                f.read_text(encoding="utf-8").replace(",", " ").split(), dtype=np.float64
+            )
         except ValueError as exc:
             raise ConslamError(f"not a matrix of numbers ({exc})", f) from None
         if vals.size not in (12, 16):
@@ -213,7 +215,9 @@ def decode_image(msg: Any) -> NDArray[np.uint8]:
     h, w, step, enc = int(msg.height), int(msg.width), int(msg.step), str(msg.encoding)
     channels = {"rgb8": 3, "bgr8": 3, "mono8": 1}.get(enc)
     if channels is None:
-        raise ConslamError(f"unsupported image encoding {enc!r} (rgb8, bgr8, mono8)", field="encoding")
+        raise ConslamError(
+            f"unsupported image encoding {enc!r} (rgb8, bgr8, mono8)", field="encoding"
+        )
     data = np.asarray(msg.data, dtype=np.uint8)
     if step < w * channels or data.size < h * step:
         raise ConslamError(
@@ -252,7 +256,7 @@ def decode_pointcloud(msg: Any) -> NDArray[np.float32]:
         offsets.append(int(f.offset))
     step, h, w = int(msg.point_step), int(msg.height), int(msg.width)
     dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": step})
-    if any(o + dtype.fields[n][0].itemsize > step for n, o in zip(names, offsets)):
+    if any(o + dtype.fields[n][0].itemsize > step for n, o in zip(names, offsets, strict=True)):
         raise ConslamError("a field lies outside point_step", field="point_step")
     data = np.asarray(msg.data, dtype=np.uint8)
     row_step = int(msg.row_step)
@@ -397,7 +401,9 @@ def import_conslam(
         raise ConslamError(f"stride must be >= 1, got {stride}", field="stride")
     if max_frames is not None and max_frames < 1:
         raise ConslamError(f"max_frames must be >= 1, got {max_frames}", field="max_frames")
-    extrinsic = CONSLAM_CAM_FROM_LIDAR if cam_from_lidar is None else np.asarray(cam_from_lidar, float)
+    extrinsic = (
+        CONSLAM_CAM_FROM_LIDAR if cam_from_lidar is None else np.asarray(cam_from_lidar, float)
+    )
     typestore = get_typestore(Stores.ROS1_NOETIC)
 
     gt_traj: Trajectory | None = None
@@ -437,7 +443,8 @@ def import_conslam(
             n_pairs = len(ia)
             if n_pairs == 0:
                 raise ConslamError(
-                    f"no image/scan pair within {tolerance_s} s ({len(ti)} images, {len(tp)} scans)",
+                    f"no image/scan pair within {tolerance_s} s "
+                    f"({len(ti)} images, {len(tp)} scans)",
                     bag_path,
                     "timestamps",
                 )
@@ -488,7 +495,9 @@ def import_conslam(
                     try:
                         images[k] = decode_image(msg)
                     except ConslamError as exc:
-                        raise ConslamError(str(exc), bag_path, f"{TOPIC_IMAGE}[{n_img - 1}]") from None
+                        raise ConslamError(
+                            str(exc), bag_path, f"{TOPIC_IMAGE}[{n_img - 1}]"
+                        ) from None
                 else:
                     k = pts_slot.get(n_pts)
                     n_pts += 1
@@ -498,7 +507,9 @@ def import_conslam(
                     try:
                         clouds[k] = decode_pointcloud(msg)
                     except ConslamError as exc:
-                        raise ConslamError(str(exc), bag_path, f"{TOPIC_POINTS}[{n_pts - 1}]") from None
+                        raise ConslamError(
+                            str(exc), bag_path, f"{TOPIC_POINTS}[{n_pts - 1}]"
+                        ) from None
                 while next_k in images and next_k in clouds:
                     img = images.pop(next_k)
                     if writer is None:
@@ -542,8 +553,11 @@ def import_conslam(
         camera_source=cam_source,
         max_pair_dt_s=max_pair_dt,
         max_gt_dt_s=max_gt_dt,
-        topics={"image": con_img.topic, "points": con_pts.topic,
-                "camera_info": con_info.topic if con_info is not None else ""},
+        topics={
+            "image": con_img.topic,
+            "points": con_pts.topic,
+            "camera_info": con_info.topic if con_info is not None else "",
+        },
     )
 
 
@@ -566,13 +580,20 @@ def _choose_camera(
                     "camera",
                 )
             cam = Camera(
-                w, h, cam.fx * fx, cam.fy * fy,
-                (cam.cx + 0.5) * fx - 0.5, (cam.cy + 0.5) * fy - 0.5, cam.dist,
+                w,
+                h,
+                cam.fx * fx,
+                cam.fy * fy,
+                (cam.cx + 0.5) * fx - 0.5,
+                (cam.cy + 0.5) * fy - 0.5,
+                cam.dist,
             )
             source = f"conslam_default scaled x{fx:.6g}"
     if (w, h) != (cam.width, cam.height):
         raise ConslamError(
-            f"images are {w}x{h} but the camera ({source}) is {cam.width}x{cam.height}", bag, "camera"
+            f"images are {w}x{h} but the camera ({source}) is {cam.width}x{cam.height}",
+            bag,
+            "camera",
         )
     return cam, source
 

@@ -38,6 +38,7 @@ the manifest last, so a directory without ``manifest.json`` is an unfinished seq
 from __future__ import annotations
 
 import io
+import itertools
 import json
 import math
 import os
@@ -126,7 +127,9 @@ class LidarInfo:
         if channels is not None and (
             not isinstance(channels, int) or isinstance(channels, bool) or channels <= 0
         ):
-            raise SequenceError(f"must be a positive integer, got {channels!r}", path, "lidar.channels")
+            raise SequenceError(
+                f"must be a positive integer, got {channels!r}", path, "lidar.channels"
+            )
         fov = d.get("vertical_fov_deg")
         fov_t: tuple[float, float] | None = None
         if fov is not None:
@@ -146,7 +149,14 @@ class LidarInfo:
                 if value <= 0:
                     raise SequenceError(f"must be positive, got {value}", path, f"lidar.{key}")
             positives[key] = value
-        known = {"model", "channels", "vertical_fov_deg", "azimuth_step_deg", "rate_hz", "max_range_m"}
+        known = {
+            "model",
+            "channels",
+            "vertical_fov_deg",
+            "azimuth_step_deg",
+            "rate_hz",
+            "max_range_m",
+        }
         extra = {k: v for k, v in d.items() if k not in known}
         return cls(model, channels, fov_t, extra=extra, **positives)  # type: ignore[arg-type]
 
@@ -249,7 +259,9 @@ class Sequence:
         path = self.root / self.frames[i].image
         bgr = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
         if bgr is None:
-            raise SequenceError("cannot decode image", path, f"frames[{self.frames[i].index}].image")
+            raise SequenceError(
+                "cannot decode image", path, f"frames[{self.frames[i].index}].image"
+            )
         if bgr.dtype != np.uint8 or bgr.ndim != 3 or bgr.shape[2] != 3:
             raise SequenceError(
                 f"expected an 8-bit 3-channel image, got shape {bgr.shape} dtype {bgr.dtype}",
@@ -265,7 +277,8 @@ class Sequence:
         data = path.read_bytes()
         if len(data) % LIDAR_POINT_BYTES:
             raise SequenceError(
-                f"size {len(data)} bytes is not a multiple of {LIDAR_POINT_BYTES} (x y z intensity float32)",
+                f"size {len(data)} bytes is not a multiple of {LIDAR_POINT_BYTES} "
+                "(x y z intensity float32)",
                 path,
                 f"frames[{self.frames[i].index}].lidar",
             )
@@ -305,7 +318,9 @@ class Sequence:
             raise SequenceError(f"cannot read depth array ({exc})", path, where) from None
         if depth.dtype != np.float32 or depth.ndim != 2:
             raise SequenceError(
-                f"expected a 2-D float32 array, got shape {depth.shape} dtype {depth.dtype}", path, where
+                f"expected a 2-D float32 array, got shape {depth.shape} dtype {depth.dtype}",
+                path,
+                where,
             )
         self._check_size(depth.shape, path, where)
         return depth
@@ -353,11 +368,15 @@ class Sequence:
             picked = self.frames[frames]
         else:
             idx = [int(i) for i in frames]
-            if any(b <= a for a, b in zip(idx, idx[1:])):
-                raise SequenceError("subset frame indices must increase strictly", self.root, "frames")
+            if any(b <= a for a, b in itertools.pairwise(idx)):
+                raise SequenceError(
+                    "subset frame indices must increase strictly", self.root, "frames"
+                )
             n = len(self.frames)
             if any(not -n <= i < n for i in idx):
-                raise SequenceError(f"subset index out of range for {n} frames", self.root, "frames")
+                raise SequenceError(
+                    f"subset index out of range for {n} frames", self.root, "frames"
+                )
             picked = [self.frames[i] for i in idx]
         view = replace(self, frames=list(picked))
         view._all_timestamps = self._all_timestamps
@@ -402,7 +421,9 @@ def read_sequence(path: str | PathLike[str]) -> Sequence:
     if not root.is_dir():
         raise SequenceError("not a directory", root)
     if not manifest_path.is_file():
-        raise SequenceError("no manifest.json: not a sequence directory (or unfinished)", manifest_path)
+        raise SequenceError(
+            "no manifest.json: not a sequence directory (or unfinished)", manifest_path
+        )
     try:
         doc = json.loads(manifest_path.read_text(encoding="utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
@@ -476,7 +497,8 @@ def _read_frame_trajectory(
     if (diff > TIMESTAMP_TOLERANCE_S).any():
         i = int(np.argmax(diff))
         raise SequenceError(
-            f"{path.name}: pose {i} has timestamp {traj.timestamps[i]!r}, frame {i} has {timestamps[i]!r}",
+            f"{path.name}: pose {i} has timestamp {traj.timestamps[i]!r}, "
+            f"frame {i} has {timestamps[i]!r}",
             manifest or path,
             field_name,
         )
@@ -507,7 +529,9 @@ def _parse_camera(d: Any, mp: Path) -> Camera:
         if key not in d:
             raise SequenceError("missing required key", mp, f"camera.{key}")
     if d["model"] != "plumb_bob":
-        raise SequenceError(f"only 'plumb_bob' is supported, got {d['model']!r}", mp, "camera.model")
+        raise SequenceError(
+            f"only 'plumb_bob' is supported, got {d['model']!r}", mp, "camera.model"
+        )
     for key in ("width", "height"):
         v = d[key]
         if not isinstance(v, int) or isinstance(v, bool) or v <= 0:
@@ -671,7 +695,8 @@ class SequenceWriter:
         self.source = dict(source or {})
         if (self.root / MANIFEST).exists() and not overwrite:
             raise SequenceError(
-                "already a sequence directory (pass overwrite=True to replace it)", self.root / MANIFEST
+                "already a sequence directory (pass overwrite=True to replace it)",
+                self.root / MANIFEST,
             )
         self.root.mkdir(parents=True, exist_ok=True)
         self.frames: list[FrameInfo] = []
@@ -705,7 +730,14 @@ class SequenceWriter:
         """
         self._check_next(float(timestamp))
         info = write_frame(
-            self.root, len(self.frames), timestamp, self.camera, image, lidar, labels, depth,
+            self.root,
+            len(self.frames),
+            timestamp,
+            self.camera,
+            image,
+            lidar,
+            labels,
+            depth,
             png_compression=self.png_compression,
         )
         self.frames.append(info)
@@ -786,7 +818,13 @@ class SequenceWriter:
             write_tum(self.root / rel, Trajectory(timestamps, poses), header="world_from_cam")
             poses_map[name] = rel
         doc = _manifest_dict(
-            self.camera, self.cam_from_lidar, self.lidar, self.ifc, self.frames, poses_map, self.source
+            self.camera,
+            self.cam_from_lidar,
+            self.lidar,
+            self.ifc,
+            self.frames,
+            poses_map,
+            self.source,
         )
         atomic_write_json(self.root / MANIFEST, doc)
         self._closed = True
@@ -807,7 +845,9 @@ class SequenceWriter:
             self._closed = True
 
 
-def frame_info(index: int, timestamp: float, labels: bool = False, depth: bool = False) -> FrameInfo:
+def frame_info(
+    index: int, timestamp: float, labels: bool = False, depth: bool = False
+) -> FrameInfo:
     """The standard file names of frame ``index`` (``images/NNNNNN.png`` etc.)."""
     name = f"{index:06d}"
     return FrameInfo(
@@ -848,21 +888,27 @@ def write_frame(
     where = f"frames[{index}]"
     hw = (camera.height, camera.width)
     img = np.asarray(image)
-    if img.dtype != np.uint8 or img.shape != hw + (3,):
+    if img.dtype != np.uint8 or img.shape != (*hw, 3):
         raise SequenceError(
-            f"expected a {hw + (3,)} uint8 RGB image, got {img.shape} {img.dtype}", out, f"{where}.image"
+            f"expected a {(*hw, 3)} uint8 RGB image, got {img.shape} {img.dtype}",
+            out,
+            f"{where}.image",
         )
     pts = np.asarray(lidar)
     if pts.ndim != 2 or pts.shape[1] != 4 or not np.issubdtype(pts.dtype, np.floating):
         raise SequenceError(
-            f"expected (M, 4) float x y z intensity, got {pts.shape} {pts.dtype}", out, f"{where}.lidar"
+            f"expected (M, 4) float x y z intensity, got {pts.shape} {pts.dtype}",
+            out,
+            f"{where}.lidar",
         )
     lab = None
     if labels is not None:
         lab = np.asarray(labels)
         if lab.dtype != np.uint8 or lab.shape != hw:
             raise SequenceError(
-                f"expected a {hw} uint8 label image, got {lab.shape} {lab.dtype}", out, f"{where}.labels"
+                f"expected a {hw} uint8 label image, got {lab.shape} {lab.dtype}",
+                out,
+                f"{where}.labels",
             )
         if lab.size and int(lab.max()) > max(Label):
             raise SequenceError(
@@ -873,7 +919,9 @@ def write_frame(
         dep = np.asarray(depth)
         if not np.issubdtype(dep.dtype, np.floating) or dep.shape != hw:
             raise SequenceError(
-                f"expected a {hw} float depth image, got {dep.shape} {dep.dtype}", out, f"{where}.depth"
+                f"expected a {hw} float depth image, got {dep.shape} {dep.dtype}",
+                out,
+                f"{where}.depth",
             )
         dep = dep.astype(np.float32)
         if not np.isfinite(dep).all() or (dep < 0).any():
@@ -924,9 +972,10 @@ def add_trajectory(
         raise SequenceError("refusing to overwrite the ground truth", target, "poses.gt")
     if target.exists() and not overwrite:
         raise SequenceError("already exists (use overwrite / --force)", target, f"poses.{name}")
-    if len(trajectory) != len(s.frames) or (
-        np.abs(trajectory.timestamps - s.timestamps) > TIMESTAMP_TOLERANCE_S
-    ).any():
+    if (
+        len(trajectory) != len(s.frames)
+        or (np.abs(trajectory.timestamps - s.timestamps) > TIMESTAMP_TOLERANCE_S).any()
+    ):
         raise SequenceError(
             f"needs one pose per frame with the frames' timestamps ({len(s.frames)} frames, "
             f"{len(trajectory)} poses)",

@@ -116,13 +116,17 @@ class DriftParams:
                 field="sigma_pitch_deg",
             )
         if self.target_ate_rot_deg is not None and self.target_ate_rot_deg >= 90.0:
-            raise DriftError("rotation targets must be below 90 degrees", field="target_ate_rot_deg")
+            raise DriftError(
+                "rotation targets must be below 90 degrees", field="target_ate_rot_deg"
+            )
 
     @classmethod
     def from_preset(cls, name: str, seed: int = 0, **overrides: Any) -> DriftParams:
         """The parameters of preset ``name`` (``exp1``, ``exp2``, ``exp3``) with ``seed``."""
         if name not in PRESETS:
-            raise DriftError(f"unknown preset {name!r}; choose one of {sorted(PRESETS)}", field="preset")
+            raise DriftError(
+                f"unknown preset {name!r}; choose one of {sorted(PRESETS)}", field="preset"
+            )
         p = PRESETS[name]
         kwargs: dict[str, Any] = {
             "sigma_t": p.sigma_t,
@@ -283,7 +287,9 @@ def _rotations(gt: Trajectory, pitch_deg: F64, yaw_deg: F64) -> Rotation:
     return rz * r_gt * rx
 
 
-def _positions(gt: Trajectory, unit: _Unit, mode: DriftModel, scale_t: float, yaw_deg: F64) -> tuple[F64, F64]:
+def _positions(
+    gt: Trajectory, unit: _Unit, mode: DriftModel, scale_t: float, yaw_deg: F64
+) -> tuple[F64, F64]:
     """Drifted camera centres (N, 3) and the accumulated translation offsets (N, 3)."""
     walk = np.cumsum(unit.steps_t * scale_t, axis=0)
     t_gt = gt.poses[:, :3]
