@@ -200,6 +200,7 @@ def _write_recording(tmp: Path, w: int, h: int, with_info: bool) -> FakeRecordin
             TS.serialize_ros1(_cloud_msg(T0_SEC, 900_000_000, lone), "sensor_msgs/msg/PointCloud2"),
         )
     (gt_dir / "README").write_text("not a pose")  # ignored: not named by a timestamp
+    (gt_dir / "notes.1.txt").write_text("not a pose either")
     return rec
 
 
@@ -344,6 +345,18 @@ def test_import_errors(tmp_path: Path) -> None:
     with pytest.raises(ConslamError, match="pp_points/synced2rgb") as info:
         import_conslam(other, tmp_path / "s6")
     assert info.value.field == "topics"
+
+
+def test_gt_folder_names_in_microseconds_or_seconds(tmp_path: Path) -> None:
+    from bimcap.dataset.conslam import read_gt_folder
+
+    pose = np.eye(4)
+    pose[:3, 3] = [1, 2, 3]
+    np.savetxt(tmp_path / "1650000000500000.txt", pose)
+    np.savetxt(tmp_path / "1650000000.25.txt", pose[:3])  # 3x4 form, seconds in the name
+    traj = read_gt_folder(tmp_path)
+    np.testing.assert_allclose(traj.timestamps, [1650000000.25, 1650000000.5], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(traj.poses, [[1, 2, 3, 0, 0, 0, 1]] * 2, atol=1e-15)
 
 
 def test_pair_nearest_uses_each_scan_once() -> None:

@@ -136,13 +136,24 @@ class ConslamImportResult:
 
 
 # --------------------------------------------------------------------------- ground truth
+def _gt_file_stamp(f: Path) -> float | None:
+    """Seconds from ``<microseconds>.txt`` (or ``<seconds>.<fraction>.txt``), else None."""
+    stem = f.stem
+    if stem.isdigit():
+        return int(stem) * 1e-6
+    whole, dot, frac = stem.partition(".")
+    if dot and whole.isdigit() and frac.isdigit():
+        return float(stem)
+    return None
+
+
 def read_gt_folder(path: str | PathLike[str]) -> Trajectory:
     """Read ConSLAM ground truth: one text file per scan, ``<microseconds>.txt``, a 4×4 matrix.
 
     Returns the ``world_from_lidar`` poses, timestamps in seconds, sorted by time. A file may
     hold 16 numbers (4×4) or 12 (the top 3×4); the last row of a 4×4 must be ``0 0 0 1``.
-    Files whose name is not an integer are ignored; the rotation is orthonormalised (nearest
-    rotation) after checking it is one to 1e-3.
+    A name ``<digits>.<digits>.txt`` is read as seconds instead. Other files are ignored. The
+    rotation is orthonormalised (nearest rotation) after checking it is one to 1e-3.
     """
     root = Path(path)
     if not root.is_dir():
@@ -150,7 +161,8 @@ def read_gt_folder(path: str | PathLike[str]) -> Trajectory:
     stamps: list[float] = []
     mats: list[F64] = []
     for f in sorted(root.iterdir()):
-        if not f.is_file() or not f.stem.isdigit():
+        stamp = _gt_file_stamp(f)
+        if stamp is None or not f.is_file():
             continue
         try:
             vals = np.array(
@@ -169,7 +181,7 @@ def read_gt_folder(path: str | PathLike[str]) -> Trajectory:
         r = m[:3, :3]
         if not np.allclose(r @ r.T, np.eye(3), atol=1e-3) or np.linalg.det(r) < 0:
             raise ConslamError("the 3x3 block is not a rotation", f)
-        stamps.append(int(f.stem) * 1e-6)
+        stamps.append(stamp)
         mats.append(m)
     if not mats:
         raise ConslamError("no ground-truth files named <microseconds>.txt", root)
