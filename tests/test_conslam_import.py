@@ -307,7 +307,20 @@ def test_import_stride_no_gt_and_cli(tmp_path: Path) -> None:
     )
     assert len(read_sequence(tmp_path / "b").trajectory("gt")) == 4
     assert main(["import-conslam", str(rec.bag), "-o", str(tmp_path / "b")]) == 2  # exists
-    assert main(["import-conslam", str(rec.bag), "-o", str(tmp_path / "b"), "--force"]) == 0
+    assert (
+        main(
+            [
+                "import-conslam",
+                str(rec.bag),
+                "-o",
+                str(tmp_path / "b"),
+                "--force",
+                "--png-compression",
+                "1",
+            ]
+        )
+        == 0
+    )
 
 
 def test_import_errors(tmp_path: Path) -> None:

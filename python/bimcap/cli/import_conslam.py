@@ -55,6 +55,14 @@ def register(subparsers: Any) -> None:
     p.add_argument("--ifc", type=Path, default=None, help="IFC file to record in the manifest")
     p.add_argument("--stride", type=int, default=1, help="keep every N-th frame (default 1)")
     p.add_argument("--max-frames", type=int, default=None, help="keep at most N frames")
+    p.add_argument(
+        "--png-compression",
+        type=int,
+        default=None,
+        choices=range(10),
+        metavar="0-9",
+        help="PNG compression level of the images (default: OpenCV's)",
+    )
     p.add_argument("--force", action="store_true", help="replace an existing sequence at -o")
     p.set_defaults(func=run)
 
@@ -76,6 +84,7 @@ def run(args: argparse.Namespace) -> int:
         stride=args.stride,
         max_frames=args.max_frames,
         overwrite=args.force,
+        png_compression=args.png_compression,
     )
     seq = result.sequence
     print(
