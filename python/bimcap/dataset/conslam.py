@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from bimcap.dataset.sequence import VLP16, Sequence, SequenceError, SequenceWriter
+from bimcap.dataset.sequence import MANIFEST, VLP16, Sequence, SequenceError, SequenceWriter
 from bimcap.geometry.camera import Camera
 from bimcap.geometry.poses import compose, invert, matrix_to_pose
 from bimcap.geometry.trajectory import Trajectory, TrajectoryError, read_tum
@@ -416,6 +416,8 @@ def import_conslam(
         raise ConslamError(f"stride must be >= 1, got {stride}", field="stride")
     if max_frames is not None and max_frames < 1:
         raise ConslamError(f"max_frames must be >= 1, got {max_frames}", field="max_frames")
+    if (Path(output) / MANIFEST).exists() and not overwrite:
+        raise ConslamError("already a sequence directory (use overwrite / --force)", output)
     extrinsic = (
         CONSLAM_CAM_FROM_LIDAR if cam_from_lidar is None else np.asarray(cam_from_lidar, float)
     )
@@ -428,6 +430,19 @@ def import_conslam(
     elif gt is not None:
         gt_traj, gt_label = read_gt(gt), str(gt)
 
+    source = {
+        "importer": "bimcap.dataset.conslam",
+        "bag": str(bag_path.resolve()),
+        "gt": gt_label,
+        "gt_frame": gt_frame.value if gt_traj is not None else None,
+        "topics": [TOPIC_IMAGE, TOPIC_POINTS, TOPIC_CAMERA_INFO],
+        "tolerance_s": tolerance_s,
+        "gt_tolerance_s": gt_tolerance_s,
+        "stride": stride,
+        "timestamps": "image header stamps (bag time where zero)",
+    }
+    writer: SequenceWriter | None = None
+    cam_source = "given"
     try:
         with Reader(bag_path) as reader:
             by_topic = {_norm_topic(c.topic): c for c in reader.connections}
@@ -438,124 +453,39 @@ def import_conslam(
                     )
             con_img, con_pts = by_topic[TOPIC_IMAGE], by_topic[TOPIC_POINTS]
             con_info = by_topic.get(TOPIC_CAMERA_INFO)
-
-            # Pass 1: header stamps only (and the first camera_info).
-            stamps: dict[int, list[tuple[float, float]]] = {con_img.id: [], con_pts.id: []}
-            info_camera: Camera | None = None
-            wanted = [con_img, con_pts] + ([con_info] if con_info is not None else [])
-            for con, bag_ns, raw in reader.messages(connections=wanted):
-                if con.id in stamps:
-                    stamps[con.id].append((_header_stamp(raw), bag_ns * 1e-9))
-                elif info_camera is None:
-                    info_camera = camera_from_info(typestore.deserialize_ros1(raw, con.msgtype))
-            ti, tp = _times(stamps[con_img.id]), _times(stamps[con_pts.id])
-            ia, ib = pair_nearest(ti, tp, tolerance_s)
-            # Frames in increasing image time; equal stamps keep the first.
-            order = np.argsort(ti[ia], kind="stable")
-            ia, ib = ia[order], ib[order]
-            fresh = np.concatenate([np.ones(min(len(ia), 1), bool), np.diff(ti[ia]) > 0])
-            ia, ib = ia[fresh], ib[fresh]
-            n_pairs = len(ia)
-            if n_pairs == 0:
-                raise ConslamError(
-                    f"no image/scan pair within {tolerance_s} s "
-                    f"({len(ti)} images, {len(tp)} scans)",
-                    bag_path,
-                    "timestamps",
-                )
-
-            world_from_cam: F64 | None = None
-            n_without_gt = 0
-            max_gt_dt = 0.0
-            if gt_traj is not None:
-                gi, gdt = _nearest(tp[ib], gt_traj.timestamps)
-                keep = gdt <= gt_tolerance_s
-                n_without_gt = int((~keep).sum())
-                ia, ib, gi, gdt = ia[keep], ib[keep], gi[keep], gdt[keep]
-                if len(ia) == 0:
-                    raise ConslamError(
-                        f"no frame has a ground-truth pose within {gt_tolerance_s} s",
-                        gt_label,
-                        "timestamps",
-                    )
-                poses = gt_traj.poses[gi]
+            ti, tp, info_camera = _read_stamps(reader, typestore, con_img, con_pts, con_info)
+            plan = _plan_frames(
+                ti, tp, tolerance_s, gt_traj, gt_tolerance_s, stride, max_frames, bag_path, gt_label
+            )
+            world_from_cam = None
+            if plan.world_from_gt is not None:
                 world_from_cam = (
-                    lidar_to_camera_poses(poses, extrinsic) if gt_frame is GtFrame.LIDAR else poses
+                    lidar_to_camera_poses(plan.world_from_gt, extrinsic)
+                    if gt_frame is GtFrame.LIDAR
+                    else plan.world_from_gt
                 )
-                max_gt_dt = float(gdt.max()) if len(gdt) else 0.0
-            sel = np.arange(0, len(ia), stride)
-            if max_frames is not None:
-                sel = sel[:max_frames]
-            ia, ib = ia[sel], ib[sel]
-            if world_from_cam is not None:
-                world_from_cam = world_from_cam[sel]
-            max_pair_dt = float(np.abs(ti[ia] - tp[ib]).max())
-
-            # Pass 2: decode the chosen messages and write frames in time order.
-            img_slot = {int(i): k for k, i in enumerate(ia)}
-            pts_slot = {int(j): k for k, j in enumerate(ib)}
-            images: dict[int, NDArray[np.uint8]] = {}
-            clouds: dict[int, NDArray[np.float32]] = {}
-            writer: SequenceWriter | None = None
-            cam_source = "given"
-            next_k = 0
-            n_img = n_pts = 0
-            for con, _, raw in reader.messages(connections=[con_img, con_pts]):
-                if con.id == con_img.id:
-                    k = img_slot.get(n_img)
-                    n_img += 1
-                    if k is None:
-                        continue
-                    msg = typestore.deserialize_ros1(raw, con.msgtype)
-                    try:
-                        images[k] = decode_image(msg)
-                    except ConslamError as exc:
-                        raise ConslamError(
-                            str(exc), bag_path, f"{TOPIC_IMAGE}[{n_img - 1}]"
-                        ) from None
-                else:
-                    k = pts_slot.get(n_pts)
-                    n_pts += 1
-                    if k is None:
-                        continue
-                    msg = typestore.deserialize_ros1(raw, con.msgtype)
-                    try:
-                        clouds[k] = decode_pointcloud(msg)
-                    except ConslamError as exc:
-                        raise ConslamError(
-                            str(exc), bag_path, f"{TOPIC_POINTS}[{n_pts - 1}]"
-                        ) from None
-                while next_k in images and next_k in clouds:
-                    img = images.pop(next_k)
-                    if writer is None:
-                        cam, cam_source = _choose_camera(camera, info_camera, img.shape, bag_path)
-                        writer = SequenceWriter(
-                            output,
-                            cam,
-                            extrinsic,
-                            lidar=VLP16,
-                            ifc=ifc,
-                            source={
-                                "importer": "bimcap.dataset.conslam",
-                                "bag": str(bag_path.resolve()),
-                                "gt": gt_label,
-                                "gt_frame": gt_frame.value if gt_traj is not None else None,
-                                "camera_source": cam_source,
-                                "topics": [TOPIC_IMAGE, TOPIC_POINTS, TOPIC_CAMERA_INFO],
-                                "tolerance_s": tolerance_s,
-                                "gt_tolerance_s": gt_tolerance_s,
-                                "stride": stride,
-                                "timestamps": "image header stamps (bag time where zero)",
-                            },
-                            overwrite=overwrite,
-                            png_compression=png_compression,
-                        )
-                    writer.add_frame(float(ti[ia[next_k]]), img, clouds.pop(next_k))
-                    next_k += 1
+            for k, image, cloud in _stream_frames(
+                reader, typestore, con_img, con_pts, plan, bag_path
+            ):
+                if writer is None:
+                    cam, cam_source = _choose_camera(camera, info_camera, image.shape, bag_path)
+                    writer = SequenceWriter(
+                        output,
+                        cam,
+                        extrinsic,
+                        lidar=VLP16,
+                        ifc=ifc,
+                        source={**source, "camera_source": cam_source},
+                        overwrite=overwrite,
+                        png_compression=png_compression,
+                    )
+                writer.add_frame(float(ti[plan.image_index[k]]), image, cloud)
     except ReaderError as exc:
         raise ConslamError(f"cannot read the bag ({exc})", bag_path) from None
-    if writer is None or next_k != len(ia):
-        raise ConslamError(f"only {next_k} of {len(ia)} frames could be assembled", bag_path)
+    n_planned = len(plan.image_index)
+    if writer is None or len(writer.frames) != n_planned:
+        done = 0 if writer is None else len(writer.frames)
+        raise ConslamError(f"only {done} of {n_planned} frames could be assembled", bag_path)
     if world_from_cam is not None:
         writer.add_trajectory("gt", world_from_cam)
     seq = writer.close()
@@ -563,18 +493,138 @@ def import_conslam(
         sequence=seq,
         n_images=len(ti),
         n_scans=len(tp),
-        n_pairs=n_pairs,
-        n_without_gt=n_without_gt,
+        n_pairs=plan.n_pairs,
+        n_without_gt=plan.n_without_gt,
         n_frames=len(seq),
         camera_source=cam_source,
-        max_pair_dt_s=max_pair_dt,
-        max_gt_dt_s=max_gt_dt,
+        max_pair_dt_s=plan.max_pair_dt_s,
+        max_gt_dt_s=plan.max_gt_dt_s,
         topics={
             "image": con_img.topic,
             "points": con_pts.topic,
             "camera_info": con_info.topic if con_info is not None else "",
         },
     )
+
+
+@dataclass(frozen=True)
+class _FramePlan:
+    """Which messages become frames, in writing order.
+
+    image_index, scan_index: (K,) message indices (per topic, in bag order) of each frame.
+    world_from_gt: (K, 7) ground-truth poses at the frames' scans (sensor of the GT), or None.
+    """
+
+    image_index: NDArray[np.int64]
+    scan_index: NDArray[np.int64]
+    world_from_gt: F64 | None
+    n_pairs: int
+    n_without_gt: int
+    max_pair_dt_s: float
+    max_gt_dt_s: float
+
+
+def _read_stamps(
+    reader: Any, typestore: Any, con_img: Any, con_pts: Any, con_info: Any | None
+) -> tuple[F64, F64, Camera | None]:
+    """Pass 1: image and scan stamps (header bytes only) and the first camera_info's camera."""
+    stamps: dict[int, list[tuple[float, float]]] = {con_img.id: [], con_pts.id: []}
+    info_camera: Camera | None = None
+    wanted = [con_img, con_pts] + ([con_info] if con_info is not None else [])
+    for con, bag_ns, raw in reader.messages(connections=wanted):
+        if con.id in stamps:
+            stamps[con.id].append((_header_stamp(raw), bag_ns * 1e-9))
+        elif info_camera is None:
+            info_camera = camera_from_info(typestore.deserialize_ros1(raw, con.msgtype))
+    return _times(stamps[con_img.id]), _times(stamps[con_pts.id]), info_camera
+
+
+def _plan_frames(
+    ti: F64,
+    tp: F64,
+    tolerance_s: float,
+    gt: Trajectory | None,
+    gt_tolerance_s: float,
+    stride: int,
+    max_frames: int | None,
+    bag: Path,
+    gt_label: str | None,
+) -> _FramePlan:
+    """Pair images with scans, attach ground truth, thin out; frames in increasing image time."""
+    ia, ib = pair_nearest(ti, tp, tolerance_s)
+    order = np.argsort(ti[ia], kind="stable")
+    ia, ib = ia[order], ib[order]
+    fresh = np.concatenate([np.ones(min(len(ia), 1), bool), np.diff(ti[ia]) > 0])
+    ia, ib = ia[fresh], ib[fresh]  # equal image stamps: keep the first
+    n_pairs = len(ia)
+    if n_pairs == 0:
+        raise ConslamError(
+            f"no image/scan pair within {tolerance_s} s ({len(ti)} images, {len(tp)} scans)",
+            bag,
+            "timestamps",
+        )
+    world_from_gt: F64 | None = None
+    n_without_gt = 0
+    max_gt_dt = 0.0
+    if gt is not None:
+        gi, gdt = _nearest(tp[ib], gt.timestamps)
+        keep = gdt <= gt_tolerance_s
+        n_without_gt = int((~keep).sum())
+        if not keep.any():
+            raise ConslamError(
+                f"no frame has a ground-truth pose within {gt_tolerance_s} s",
+                gt_label,
+                "timestamps",
+            )
+        ia, ib, gi, gdt = ia[keep], ib[keep], gi[keep], gdt[keep]
+        world_from_gt = gt.poses[gi]
+        max_gt_dt = float(gdt.max())
+    sel = np.arange(0, len(ia), stride)[:max_frames]
+    ia, ib = ia[sel], ib[sel]
+    return _FramePlan(
+        image_index=ia,
+        scan_index=ib,
+        world_from_gt=None if world_from_gt is None else world_from_gt[sel],
+        n_pairs=n_pairs,
+        n_without_gt=n_without_gt,
+        max_pair_dt_s=float(np.abs(ti[ia] - tp[ib]).max()),
+        max_gt_dt_s=max_gt_dt,
+    )
+
+
+def _stream_frames(
+    reader: Any, typestore: Any, con_img: Any, con_pts: Any, plan: _FramePlan, bag: Path
+) -> Iterator[tuple[int, NDArray[np.uint8], NDArray[np.float32]]]:
+    """Pass 2: decode only the planned messages; yield ``(k, rgb, scan)`` in frame order k.
+
+    Images and scans arrive interleaved; a frame is yielded as soon as both halves (and every
+    earlier frame) are there, so only a few frames are ever held in memory.
+    """
+    slot = {
+        con_img.id: {int(i): k for k, i in enumerate(plan.image_index)},
+        con_pts.id: {int(j): k for k, j in enumerate(plan.scan_index)},
+    }
+    count = {con_img.id: 0, con_pts.id: 0}
+    images: dict[int, NDArray[np.uint8]] = {}
+    clouds: dict[int, NDArray[np.float32]] = {}
+    next_k = 0
+    for con, _, raw in reader.messages(connections=[con_img, con_pts]):
+        n = count[con.id]
+        count[con.id] = n + 1
+        k = slot[con.id].get(n)
+        if k is None:
+            continue
+        msg = typestore.deserialize_ros1(raw, con.msgtype)
+        try:
+            if con.id == con_img.id:
+                images[k] = decode_image(msg)
+            else:
+                clouds[k] = decode_pointcloud(msg)
+        except ConslamError as exc:
+            raise ConslamError(str(exc), bag, f"{con.topic}[{n}]") from None
+        while next_k in images and next_k in clouds:
+            yield next_k, images.pop(next_k), clouds.pop(next_k)
+            next_k += 1
 
 
 def _choose_camera(
