@@ -115,6 +115,11 @@ def test_subset_view_and_its_trajectory(
     np.testing.assert_array_equal(sub.load_image(1), seq.load_image(3))
     np.testing.assert_allclose(sub.trajectory("gt").poses[:, :3], gt[[1, 3], :3])
     assert len(seq.subset(slice(0, 2))) == 2
+    assert [f.index for f in seq.subset([-3, -1]).frames] == [1, 3]
+    assert [f.index for f in sub.subset([1]).frames] == [3]  # a view of a view
+    np.testing.assert_allclose(sub.subset([1]).trajectory().poses[0, :3], gt[3, :3])
+    with pytest.raises(SequenceError, match="out of range"):
+        seq.subset([4])
     with pytest.raises(SequenceError, match="increase"):
         seq.subset([2, 1])
 

@@ -367,15 +367,16 @@ class Sequence:
         if isinstance(frames, slice):
             picked = self.frames[frames]
         else:
-            idx = [int(i) for i in frames]
-            if any(b <= a for a, b in itertools.pairwise(idx)):
-                raise SequenceError(
-                    "subset frame indices must increase strictly", self.root, "frames"
-                )
             n = len(self.frames)
+            idx = [int(i) for i in frames]
             if any(not -n <= i < n for i in idx):
                 raise SequenceError(
                     f"subset index out of range for {n} frames", self.root, "frames"
+                )
+            idx = [i % n for i in idx]
+            if any(b <= a for a, b in itertools.pairwise(idx)):
+                raise SequenceError(
+                    "subset frame indices must increase strictly", self.root, "frames"
                 )
             picked = [self.frames[i] for i in idx]
         view = replace(self, frames=list(picked))
@@ -386,18 +387,6 @@ class Sequence:
         self.cam_from_lidar = np.asarray(self.cam_from_lidar, dtype=np.float64).reshape(7)
         # Timestamps of *all* manifest frames, used to validate trajectory files of subsets.
         self._all_timestamps = self.timestamps
-
-    def to_manifest(self) -> dict[str, Any]:
-        """The manifest dictionary describing this sequence (all its frames)."""
-        ifc: str | None = None
-        if self.ifc_path is not None:
-            try:
-                ifc = self.ifc_path.relative_to(self.root).as_posix()
-            except ValueError:
-                ifc = str(self.ifc_path)
-        return _manifest_dict(
-            self.camera, self.cam_from_lidar, self.lidar, ifc, self.frames, self.poses, self.source
-        )
 
 
 # --------------------------------------------------------------------------- reading
