@@ -371,6 +371,21 @@ def test_rooms_do_not_overlap_walls(demo: GeneratedBuilding) -> None:
 # --- files, errors, CLI --------------------------------------------------------------------------
 
 
+def test_explicit_room_widths(tmp_path: Path) -> None:
+    # 15 m corridor, 0.12 m partitions: 3 north rooms fill 14.76 m, 2 south rooms 14.88 m.
+    spec = BuildingSpec(room_widths_north_m=(3.0, 6.76, 5.0), rooms_south=2,
+                        room_widths_south_m=(10.0, 4.88))
+    t = generate_building(spec, 0, tmp_path / "w.ifc").truth
+    assert t.wall("S0/wall/part-north-1").start[0] == pytest.approx(3.06)
+    assert t.wall("S0/wall/part-north-2").start[0] == pytest.approx(3.0 + 0.12 + 6.76 + 0.06)
+    assert t.wall("S0/wall/part-south-1").start[0] == pytest.approx(10.06)
+    rooms = sorted((r.rect for r in t.free_space[0].regions if r.kind == "room"),
+                   key=lambda r: (r[1], r[0]))
+    assert [r[2] - r[0] for r in rooms] == pytest.approx([10.0, 4.88, 3.0, 6.76, 5.0])
+    assert BuildingSpec.from_dict(json.loads((tmp_path / "w.truth.json").read_text())["spec"]) \
+        == spec
+
+
 def test_sidecar_round_trip(demo: GeneratedBuilding, demo_built: GeneratedBuilding) -> None:
     for b in (demo, demo_built):
         assert b.truth_path == truth_path_for(b.ifc_path)
@@ -396,7 +411,9 @@ def test_bad_sidecar_names_the_file(tmp_path: Path) -> None:
     ("changes", "field"),
     [({"rooms_north": 0}, "rooms_north"), ({"corridor_length_m": 4.0}, "corridor_length_m"),
      ({"ceiling_height_m": 3.0}, "ceiling_height_m"), ({"storeys": 0}, "storeys"),
-     ({"door_width_m": float("nan")}, "door_width_m")],
+     ({"door_width_m": float("nan")}, "door_width_m"),
+     ({"room_widths_north_m": (5.0, 5.0, 5.0)}, "room_widths_north_m"),
+     ({"room_widths_south_m": (8.0, 6.64)}, "room_widths_south_m")],
 )
 def test_bad_spec_names_the_field(changes: dict, field: str) -> None:
     with pytest.raises(BuildingSpecError, match=field):
@@ -433,3 +450,68 @@ def test_same_bytes_in_another_process(tmp_path: Path) -> None:
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
                          check=True).stdout
     assert out == generate_building(BuildingSpec.tiny(), 9).ifc_text()
+
+
+# --- exact plan section ------------------------------------------------------------------------
+
+
+def _length(segments: np.ndarray) -> float:
+    return float(np.hypot(segments[:, 2] - segments[:, 0], segments[:, 3] - segments[:, 1]).sum())
+
+
+@pytest.mark.parametrize("variant", ["design", "as_built"])
+def test_plan_outline_lengths(variant: str, demo: GeneratedBuilding,
+                              demo_built: GeneratedBuilding) -> None:
+    t = (demo if variant == "design" else demo_built).truth
+    fs = t.free_space[0]
+    # Above doors and windows the wall section is the outer rectangle plus the boundary of every
+    # room and the corridor (rooms, corridor and walls tile the interior). A missing partition
+    # leaves the rooms' shared side out of the section.
+    outer = np.asarray(t.slabs[0].polygon)
+    te = t.spec["exterior_wall_thickness_m"]
+    shell = t.wall("S0/wall/ext-west"), t.wall("S0/wall/ext-east")
+    xs = [shell[0].start[0] - te / 2, shell[1].start[0] + te / 2]
+    ys = [t.wall("S0/wall/ext-south").start[1] - te / 2,
+          t.wall("S0/wall/ext-north").start[1] + te / 2]
+    expected = 2 * (xs[1] - xs[0]) + 2 * (ys[1] - ys[0])
+    for r in fs.regions:
+        x0, y0, x1, y1 = r.rect
+        if r.kind in ("room", "corridor"):
+            expected += 2 * (x1 - x0 + y1 - y0)
+        elif r.kind == "removed_wall":  # the two rooms merge: their shared sides go, the
+            expected += 2 * (x1 - x0) - 2 * (y1 - y0)  # partition's width joins both long sides
+    high = t.plan_outline(0, 2.5)
+    walls_high = high.segments[high.segment_class == 1]
+    assert _length(walls_high) == pytest.approx(expected, abs=1e-6)
+    if variant == "design":
+        assert outer.min(0) == pytest.approx([xs[0], ys[0]])
+    # At 1 m every door and window hole takes its width out of both faces and adds two jambs.
+    low = t.plan_outline(0, 1.0)
+    delta = sum(-2 * o.width + 2 * t.wall(o.host_wall).thickness
+                for o in (*t.doors, *t.windows) if o.storey == 0)
+    assert _length(low.segments[low.segment_class == 1]) == pytest.approx(expected + delta,
+                                                                          abs=1e-6)
+    # Every wall segment is axis-aligned and lies on a face or an end of some wall.
+    seg = low.segments[low.segment_class == 1]
+    assert np.all((seg[:, 0] == seg[:, 2]) | (seg[:, 1] == seg[:, 3]))
+    cols = low.segments[low.segment_class == 4]
+    n_round = sum(c.shape is ColumnShape.ROUND for c in t.columns)
+    assert len(cols) == 4 * (len(t.columns) - n_round) + 32 * n_round
+
+
+def test_plan_outline_demo_by_hand(demo: GeneratedBuilding) -> None:
+    """Total wall section of the demo above the openings, from the spec alone."""
+    s = demo.spec
+    te, ti = s.exterior_wall_thickness_m, s.interior_wall_thickness_m
+    length_in = s.corridor_length_m
+    depth_in = s.corridor_width_m + 2 * ti + s.room_depth_north_m + s.room_depth_south_m
+    outer = 2 * (length_in + 2 * te) + 2 * (depth_in + 2 * te)
+    corridor = 2 * (s.corridor_length_m + s.corridor_width_m)
+    # Room widths sum to the corridor length minus the partitions on each side.
+    north = 2 * (s.corridor_length_m - (s.rooms_north - 1) * ti) \
+        + 2 * s.rooms_north * s.room_depth_north_m
+    south = 2 * (s.corridor_length_m - (s.rooms_south - 1) * ti) \
+        + 2 * s.rooms_south * s.room_depth_south_m
+    o = demo.truth.plan_outline(0, 2.5)
+    assert _length(o.segments[o.segment_class == 1]) == pytest.approx(
+        outer + corridor + north + south, abs=1e-6)

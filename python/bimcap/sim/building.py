@@ -109,6 +109,8 @@ class BuildingSpec:
     room_depth_north_m: float = 4.0
     room_depth_south_m: float = 4.4
     room_width_jitter: float = 0.12
+    room_widths_north_m: tuple[float, ...] | None = None
+    room_widths_south_m: tuple[float, ...] | None = None
     exterior_wall_thickness_m: float = 0.2
     interior_wall_thickness_m: float = 0.12
     corridor_columns: int = 2
@@ -127,7 +129,12 @@ class BuildingSpec:
         self.validate()
 
     def validate(self) -> None:
-        """Raise :class:`BuildingSpecError` naming the field if the building cannot be built."""
+        """Raise :class:`BuildingSpecError` naming the field if the building cannot be built.
+
+        ``room_widths_north_m`` / ``room_widths_south_m``, when given, are the rooms' clear
+        widths from west to east; they replace the seeded widths, must number ``rooms_north`` /
+        ``rooms_south`` and, with the partitions between them, fill the corridor length.
+        """
 
         def bad(name: str, why: str) -> BuildingSpecError:
             return BuildingSpecError(f"{why} (got {getattr(self, name)!r})", None, name)
@@ -161,7 +168,17 @@ class BuildingSpec:
         min_room = self.door_width_m + 2 * ROOM_LOOP_MARGIN_M + 0.2
         for side, n in (("north", self.rooms_north), ("south", self.rooms_south)):
             clear = self.corridor_length_m - (n - 1) * self.interior_wall_thickness_m
-            if clear / n * (1 - self.room_width_jitter) < min_room:
+            widths = getattr(self, f"room_widths_{side}_m")
+            if widths is not None:
+                name = f"room_widths_{side}_m"
+                if len(widths) != n:
+                    raise bad(name, f"need rooms_{side} = {n} widths")
+                if abs(sum(widths) - clear) > 1e-6:
+                    raise bad(name, f"widths must sum to {clear:.6f} m (corridor length minus "
+                                    "the partitions)")
+                if min(widths) < min_room:
+                    raise bad(name, f"each room needs at least {min_room} m")
+            elif clear / n * (1 - self.room_width_jitter) < min_room:
                 raise bad("corridor_length_m",
                           f"too short for {n} rooms on the {side} side (each needs {min_room} m)")
         for name in ("room_depth_north_m", "room_depth_south_m"):
@@ -179,10 +196,15 @@ class BuildingSpec:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> BuildingSpec:
+        """Inverse of :meth:`to_dict` (the sidecar's ``spec``)."""
         known = set(cls.__dataclass_fields__)
         unknown = sorted(set(d) - known)
         if unknown:
             raise BuildingSpecError(f"unknown field(s) {unknown}", None, unknown[0])
+        d = dict(d)
+        for name in ("room_widths_north_m", "room_widths_south_m"):
+            if d.get(name) is not None:
+                d[name] = tuple(float(x) for x in d[name])
         return cls(**d)
 
     @classmethod
@@ -288,7 +310,9 @@ def _make_plan(spec: BuildingSpec, rng: np.random.Generator) -> _Plan:
     kinds = {k: WallKind.EXTERIOR if k.startswith("ext") else WallKind.CORRIDOR for k in pos}
     room_spans: dict[str, list[tuple[float, float]]] = {}
     for side, n in (("north", spec.rooms_north), ("south", spec.rooms_south)):
-        widths = _room_widths(length, n, ti, spec.room_width_jitter, rng)
+        given = getattr(spec, f"room_widths_{side}_m")
+        widths = _room_widths(length, n, ti, spec.room_width_jitter, rng) if given is None \
+            else np.asarray(given, dtype=np.float64)
         x0, spans = 0.0, []
         for i, w in enumerate(widths):
             spans.append((x0, x0 + w))
@@ -327,7 +351,7 @@ def _make_plan(spec: BuildingSpec, rng: np.random.Generator) -> _Plan:
         for i, (a, b) in enumerate(room_spans[side]):
             lo, hi = a + hw + 0.3, b - hw - 0.3
             lo, hi = max(lo, a + ROOM_LOOP_MARGIN_M + 0.05), min(hi, b - ROOM_LOOP_MARGIN_M - 0.05)
-            grid = np.linspace(lo, hi, 64)
+            grid = np.linspace(lo, hi, 64) if lo <= hi else np.zeros(0)
             if side == "north":
                 for cx in keep_out:
                     grid = grid[np.abs(grid - cx) >= spec.column_size_m / 2 + WALK_CLEARANCE_M]
@@ -389,7 +413,6 @@ class _StoreyContent:
     slabs: list[SlabTruth] = field(default_factory=list)
     coverings: list[SlabTruth] = field(default_factory=list)
     free_space: FreeSpace | None = None
-    opening_sills: dict[str, float] = field(default_factory=dict)
 
 
 def _guid(seed: int, key: str) -> str:

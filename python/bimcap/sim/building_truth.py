@@ -55,6 +55,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from bimcap.errors import InputError
+from bimcap.labels import Label
 
 TRUTH_FORMAT = "bimcap-building-truth"
 TRUTH_VERSION = 1
@@ -404,6 +405,10 @@ class BuildingTruth:
     counts: dict[str, int]
     deviations: Deviations | None = None
 
+    def plan_outline(self, storey: int, z: float, circle_sides: int = 32) -> PlanOutline:
+        """See :func:`plan_outline`."""
+        return plan_outline(self, storey, z, circle_sides)
+
     def wall(self, wall_id: str) -> WallTruth:
         for w in self.walls:
             if w.id == wall_id:
@@ -456,6 +461,124 @@ class BuildingTruth:
             )
         except (KeyError, TypeError, ValueError, IndexError) as exc:
             raise BuildingTruthError(f"malformed ground truth: {exc!r}", path) from exc
+
+
+@dataclass(frozen=True)
+class PlanOutline:
+    """The exact horizontal section of a storey's walls and columns at height ``z``.
+
+    Attributes
+    ----------
+    storey: storey index.
+    z: cut height, metres (world z).
+    segments: (S, 4) float64 ``x1 y1 x2 y2`` in metres: the outline of the union of the wall
+        solids at ``z`` (door and window holes cut), merged into maximal straight pieces, then
+        the outline of every column (round ones as regular polygons).
+    segment_class: (S,) uint8, ``Label.WALL`` or ``Label.COLUMN``.
+    """
+
+    storey: int
+    z: float
+    segments: NDArray[np.float64]
+    segment_class: NDArray[np.uint8]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"storey": self.storey, "z": self.z, "segments": self.segments.tolist(),
+                "segment_class": self.segment_class.tolist()}
+
+
+def _union_outline(rects: list[tuple[float, float, float, float]]) -> NDArray[np.float64]:
+    """(S, 4) boundary of a union of axis-aligned rectangles ``[x0, y0, x1, y1]``, exactly.
+
+    Coordinates are snapped to 1e-7 m so that butt joints computed in different ways meet.
+    """
+    if not rects:
+        return np.zeros((0, 4))
+    r = np.round(np.asarray(rects, dtype=np.float64), 7)
+    xs, ys = np.unique(r[:, [0, 2]]), np.unique(r[:, [1, 3]])
+    cx, cy = (xs[:-1] + xs[1:]) / 2, (ys[:-1] + ys[1:]) / 2
+    filled = np.zeros((cx.size, cy.size), dtype=bool)
+    for x0, y0, x1, y1 in r:
+        filled |= ((cx > x0) & (cx < x1))[:, None] & ((cy > y0) & (cy < y1))[None, :]
+    pad = np.pad(filled, 1)
+    out: list[list[float]] = []
+    # Vertical edges at xs[i]: solid on one side only; merge runs with the same solid side.
+    for i, x in enumerate(xs):
+        side = pad[i + 1, 1:-1].astype(np.int8) - pad[i, 1:-1].astype(np.int8)
+        j = 0
+        while j < side.size:
+            if side[j] == 0:
+                j += 1
+                continue
+            k = j
+            while k + 1 < side.size and side[k + 1] == side[j]:
+                k += 1
+            out.append([x, ys[j], x, ys[k + 1]])
+            j = k + 1
+    for j, y in enumerate(ys):
+        side = pad[1:-1, j + 1].astype(np.int8) - pad[1:-1, j].astype(np.int8)
+        i = 0
+        while i < side.size:
+            if side[i] == 0:
+                i += 1
+                continue
+            k = i
+            while k + 1 < side.size and side[k + 1] == side[i]:
+                k += 1
+            out.append([xs[i], y, xs[k + 1], y])
+            i = k + 1
+    return np.asarray(out, dtype=np.float64).reshape(-1, 4)
+
+
+def plan_outline(truth: BuildingTruth, storey: int, z: float, circle_sides: int = 32
+                 ) -> PlanOutline:
+    """The exact floor-plan section of ``storey`` at world height ``z`` (the oracle a floor-plan
+    vectorizer is scored against). Walls must be axis-aligned (the generator's are).
+
+    Parameters
+    ----------
+    truth: the building.
+    storey: storey index.
+    z: cut height in metres (world z, e.g. ``floor_z + 1.0``).
+    circle_sides: sides of the polygon that stands for a round column.
+    """
+    rects: list[tuple[float, float, float, float]] = []
+    holes = [o for o in (*truth.doors, *truth.windows)
+             if o.storey == storey and o.z_min < z < o.z_max]
+    for w in truth.walls:
+        if w.storey != storey or not w.z_min <= z <= w.z_max:
+            continue
+        d = w.direction
+        if min(abs(d[0]), abs(d[1])) > 1e-9:
+            raise ValueError(f"{w.id}: plan_outline needs axis-aligned walls")
+        axis = 0 if abs(d[0]) > 0.5 else 1
+        lo, hi = w.footprint().min(0), w.footprint().max(0)
+        cuts = sorted((o.center[axis] - o.width / 2, o.center[axis] + o.width / 2)
+                      for o in holes if o.host_wall == w.id)
+        start = lo[axis]
+        for a, b in [*cuts, (hi[axis], hi[axis])]:
+            if a > start:
+                piece_lo, piece_hi = lo.copy(), hi.copy()
+                piece_lo[axis], piece_hi[axis] = start, min(a, hi[axis])
+                rects.append((piece_lo[0], piece_lo[1], piece_hi[0], piece_hi[1]))
+            start = max(start, b)
+    segs = [_union_outline(rects)]
+    classes = [np.full(len(segs[0]), Label.WALL, dtype=np.uint8)]
+    for c in truth.columns:
+        if c.storey != storey or not c.z_min <= z <= c.z_max:
+            continue
+        if c.shape is ColumnShape.ROUND:
+            assert c.radius is not None
+            t = np.linspace(0.0, 2 * np.pi, circle_sides + 1)
+            p = np.asarray(c.center) + c.radius * np.c_[np.cos(t), np.sin(t)]
+        else:
+            assert c.size is not None
+            hx, hy = c.size[0] / 2, c.size[1] / 2
+            p = np.asarray(c.center) + np.array(
+                [[-hx, -hy], [hx, -hy], [hx, hy], [-hx, hy], [-hx, -hy]])
+        segs.append(np.c_[p[:-1], p[1:]])
+        classes.append(np.full(len(p) - 1, Label.COLUMN, dtype=np.uint8))
+    return PlanOutline(storey, float(z), np.concatenate(segs), np.concatenate(classes))
 
 
 def load_building_truth(path: str | PathLike[str]) -> BuildingTruth:
