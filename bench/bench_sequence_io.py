@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from bimcap.dataset import SequenceWriter, read_sequence
-from bimcap.dataset.conslam import CONSLAM_CAMERA, CONSLAM_CAM_FROM_LIDAR
+from bimcap.dataset.conslam import CONSLAM_CAM_FROM_LIDAR, CONSLAM_CAMERA
 
 
 def main() -> None:
