@@ -339,7 +339,7 @@ class SolveOutcome:
 
     def to_dict(self) -> dict[str, Any]:
         return {
-            "summaries": [s.to_dict() for s in self.summaries],
+            "summaries": [json.loads(s.to_json()) for s in self.summaries],
             "problem": self.problem_stats.to_dict(),
             "coarse": self.coarse,
             "seconds": self.seconds,
