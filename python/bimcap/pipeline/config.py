@@ -28,7 +28,9 @@ from bimcap.errors import BimcapError, InputError
 
 
 class PipelineError(BimcapError):
-    """A pipeline step failed (the message says which)."""
+    """A pipeline step failed (the message says which); the CLI exits with status 3."""
+
+    exit_code = 3
 
 
 class ConfigError(InputError):
