@@ -3,8 +3,9 @@
 Methods (:class:`CompletionMethod`):
 
 - ``LINEAR``: barycentric interpolation over a Delaunay triangulation of the sparse returns
-  (sub-pixel positions); triangles with an edge longer than ``max_edge_px`` or a depth ratio
-  ``z_max / z_min > max_depth_ratio`` (they bridge a depth edge) leave their pixels at 0.
+  (sub-pixel positions), of inverse depth by default (exact for a plane seen through a pinhole);
+  triangles with an edge longer than ``max_edge_px``, a depth ratio ``z_max / z_min >
+  max_depth_ratio`` (they bridge a depth edge) or an area under 1 px² leave their pixels at 0.
 - ``CLASSICAL``: CPU morphology in the spirit of Ku et al. 2018 ("In Defense of Classical Image
   Processing"): invert depth (so that dilation prefers near returns), diamond-kernel dilation,
   morphological close, small hole fill, optional column-wise extrapolation, large hole fill,
@@ -207,7 +208,9 @@ def complete_linear(sparse: SparseDepth | ArrayLike, options: LinearOptions | No
     )
     zt = z[simp]
     ratio = zt.max(1) / zt.min(1)
-    good = (edge <= opts.max_edge_px) & (ratio <= opts.max_depth_ratio)
+    e1, e2 = pb - pa, pc - pa
+    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]  # twice the signed area, px²
+    good = (edge <= opts.max_edge_px) & (ratio <= opts.max_depth_ratio) & (np.abs(det) > 2.0)
     # rasterise triangle ids (cv2 fill in a loop over kept triangles is far faster than
     # Delaunay.find_simplex on every pixel); id 0 = none
     tri_id = np.zeros((h, w), dtype=np.int32)
@@ -217,18 +220,22 @@ def complete_linear(sparse: SparseDepth | ArrayLike, options: LinearOptions | No
         cv2.fillConvexPoly(tri_id, poly, int(k) + 1, lineType=cv2.LINE_8, shift=4)
     rows, cols = np.nonzero(tri_id)
     k = tri_id[rows, cols] - 1
-    # barycentric coordinates through Qhull's affine transforms
-    trans = tri.transform[k]
-    q = np.stack([cols, rows], 1).astype(np.float64)
-    b01 = np.einsum("nij,nj->ni", trans[:, :2, :], q - trans[:, 2, :])
-    bary = np.concatenate([b01, 1.0 - b01.sum(1, keepdims=True)], 1)
-    bary = np.clip(bary, 0.0, 1.0)  # pixel centres just outside a triangle's exact edge
-    bary /= bary.sum(1, keepdims=True)
+    # barycentric coordinates from each triangle's 2x2 edge matrix (Qhull's tri.transform is
+    # computed for every simplex and is far slower); not clipped: a pixel centre up to half a
+    # pixel outside its rasterised triangle is extrapolated, which is exact for a plane
+    det = np.where(np.abs(det) > 1e-12, det, 1e-12)
+    q = np.stack([cols, rows], 1).astype(np.float64) - pa[k]
+    l1 = (q[:, 0] * e2[k, 1] - q[:, 1] * e2[k, 0]) / det[k]
+    l2 = (e1[k, 0] * q[:, 1] - e1[k, 1] * q[:, 0]) / det[k]
+    bary = np.stack([1.0 - l1 - l2, l1, l2], 1)
+    near = bary.min(1) > -1.0  # guard against rasterisation far off a thin triangle
+    rows, cols, k, bary = rows[near], cols[near], k[near], bary[near]
     out = np.zeros((h, w), dtype=np.float32)
     if opts.inverse_depth:
-        out[rows, cols] = 1.0 / (bary / zt[k]).sum(1)
+        inv = (bary / zt[k]).sum(1)
+        out[rows, cols] = np.where(inv > 0, 1.0 / np.maximum(inv, 1e-12), 0.0)
     else:
-        out[rows, cols] = (bary * zt[k]).sum(1)
+        out[rows, cols] = np.maximum((bary * zt[k]).sum(1), 0.0)
     return out
 
 
