@@ -7,9 +7,11 @@ Methods (:class:`CompletionMethod`):
   triangles with an edge longer than ``max_edge_px``, a depth ratio ``z_max / z_min >
   max_depth_ratio`` (they bridge a depth edge) or an area under 1 px² leave their pixels at 0.
 - ``CLASSICAL``: CPU morphology in the spirit of Ku et al. 2018 ("In Defense of Classical Image
-  Processing"): invert depth (so that dilation prefers near returns), diamond-kernel dilation,
-  morphological close, small hole fill, optional column-wise extrapolation, large hole fill,
-  median blur, bilateral or Gaussian blur, re-invert. Runs at ``work_scale`` of the image
+  Processing"): invert depth (so that dilation prefers near returns), diamond-kernel dilation
+  (joins the returns along each ring), column-wise interpolation of the gaps between rings in
+  1/z (our addition, see :class:`ClassicalOptions`), morphological close, small hole fill,
+  optional column-wise extrapolation, large hole fill, median blur, bilateral or Gaussian blur,
+  re-invert. Runs at ``work_scale`` of the image
   (the sparse map is min-pooled down, the result resized up; stated in the bench table).
 - ``ONNX``: a user-supplied network (CompletionFormer-like: RGB + sparse depth in, dense depth
   out) through ONNX Runtime, see :mod:`bimcap.fusion.onnx_completion`.
@@ -71,8 +73,8 @@ class ClassicalOptions:
     max_depth_m: inversion constant (``max_depth - z``), larger than any depth.
     dilation_size: size of the diamond kernel of the first dilation.
     close_size, small_fill_size, large_fill_size: full kernels of close / small and large hole fill.
-    vertical_interpolation: before Ku's large fill, fill the gaps between LiDAR rings column by
-        column, linearly in inverse depth (gaps <= ``max_gap_px`` rows whose end depths differ by
+    vertical_interpolation: right after the first dilation, fill the gaps between LiDAR rings
+        column by column, linearly in inverse depth (gaps <= ``max_gap_px`` rows whose end depths differ by
         a ratio <= ``max_gap_depth_ratio``). Not in Ku et al. (KITTI's 64 rings leave small
         gaps); for 16-32 ring LiDARs it is what lets the method beat nearest-neighbour filling.
     extrapolate: extend each column's top-most and bottom-most values to the image border.
@@ -297,14 +299,14 @@ def complete_classical(sparse: SparseDepth | ArrayLike, options: ClassicalOption
     valid = d > 0.1
     d[valid] = opts.max_depth_m - d[valid]
     d = cv2.dilate(d, _diamond(opts.dilation_size))
+    if opts.vertical_interpolation:
+        d = _fill_vertical_gaps(d, opts)
     if opts.close_size > 1:
         d = cv2.morphologyEx(d, cv2.MORPH_CLOSE, np.ones((opts.close_size,) * 2, np.uint8))
     if opts.small_fill_size > 1:
         empty = d < 0.1
         dil = cv2.dilate(d, np.ones((opts.small_fill_size,) * 2, np.uint8))
         d[empty] = dil[empty]
-    if opts.vertical_interpolation:
-        d = _fill_vertical_gaps(d, opts)
     if opts.extrapolate:
         d = _extrapolate_columns(d)
     if opts.large_fill_size > 1:
