@@ -222,22 +222,24 @@ def complete_linear(sparse: SparseDepth | ArrayLike, options: LinearOptions | No
         cv2.fillConvexPoly(tri_id, poly, int(k) + 1, lineType=cv2.LINE_8, shift=4)
     rows, cols = np.nonzero(tri_id)
     k = tri_id[rows, cols] - 1
-    # barycentric coordinates from each triangle's 2x2 edge matrix (Qhull's tri.transform is
-    # computed for every simplex and is far slower); not clipped: a pixel centre up to half a
-    # pixel outside its rasterised triangle is extrapolated, which is exact for a plane
-    det = np.where(np.abs(det) > 1e-12, det, 1e-12)
-    q = np.stack([cols, rows], 1).astype(np.float64) - pa[k]
-    l1 = (q[:, 0] * e2[k, 1] - q[:, 1] * e2[k, 0]) / det[k]
-    l2 = (e1[k, 0] * q[:, 1] - e1[k, 1] * q[:, 0]) / det[k]
-    bary = np.stack([1.0 - l1 - l2, l1, l2], 1)
-    near = bary.min(1) > -1.0  # guard against rasterisation far off a thin triangle
-    rows, cols, k, bary = rows[near], cols[near], k[near], bary[near]
+    # per triangle, the affine function f(u, v) = a u + b v + c through its three corners, with
+    # f = 1/z (exact for a plane seen through a pinhole) or f = z; one gather per pixel. Pixel
+    # centres up to half a pixel outside their rasterised triangle are extrapolated (exact for
+    # a plane); slivers (area < 1 px²) were dropped above, so this stays well conditioned.
+    gi = good_idx
+    mat = np.ones((len(gi), 3, 3))
+    mat[:, :, :2] = np.stack([pa[gi], pb[gi], pc[gi]], 1)
+    vals = 1.0 / zt[gi] if opts.inverse_depth else zt[gi]
+    coef_good = np.linalg.solve(mat, vals[:, :, None])[:, :, 0]
+    coef = np.zeros((len(simp), 3))
+    coef[gi] = coef_good
+    ck = coef[k]
+    f = ck[:, 0] * cols + ck[:, 1] * rows + ck[:, 2]
     out = np.zeros((h, w), dtype=np.float32)
     if opts.inverse_depth:
-        inv = (bary / zt[k]).sum(1)
-        out[rows, cols] = np.where(inv > 0, 1.0 / np.maximum(inv, 1e-12), 0.0)
+        out[rows, cols] = np.where(f > 0, 1.0 / np.maximum(f, 1e-12), 0.0)
     else:
-        out[rows, cols] = np.maximum((bary * zt[k]).sum(1), 0.0)
+        out[rows, cols] = np.maximum(f, 0.0)
     return out
 
 
