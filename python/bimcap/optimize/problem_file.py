@@ -193,7 +193,7 @@ def parse_problem_buffer(
         if required and name not in arrays:
             fail(name, "required array missing")
     full = {name: arrays.get(name, np.zeros((0, c) if c else (0,), dtype=d)) for name, (d, c, _) in FIELDS.items()}
-    validate_arrays(full, path)
+    validate_arrays(full, path, ProblemFileError)
     options = SolverOptions()
     if options_text is not None:
         flat: dict[str, str] = {}
