@@ -18,6 +18,9 @@ Per storey (DESIGN §1 step 2):
 6. **Merge** collinear pieces of one class (directions within ``merge_angle_deg``, offsets within
    ``merge_offset_m``, overlapping or closer than ``gap_m``), then refine once more.
 
+Columns take another route after step 3 (:func:`column_outlines`): each blob's band points are
+wrapped in their convex hull, whose sides are the column's outline segments (class COLUMN).
+
 The exact slice at the cut height is kept as the second opinion
 (:func:`bimcap.bim.slicing.agreement`).
 """
@@ -461,6 +464,52 @@ def vectorize(
     return segs[length >= opts.min_length_m], img
 
 
+def column_outlines(
+    pts: NDArray[np.float64],
+    origin: NDArray[np.float64],
+    shape: tuple[int, int],
+    opts: FloorPlanOptions,
+) -> tuple[NDArray[np.float64], NDArray[np.uint8]]:
+    """Column outlines: one convex polygon per connected blob of the column image.
+
+    Columns are small and (nearly always) convex, rectangular or round: line detectors find only
+    a few pixels per side, so each blob's band points are wrapped in their convex hull, simplified
+    to ``fit_tol_m`` (a round column of radius r becomes a polygon whose sides deviate from the
+    circle by at most that much), and its sides become the segments.
+
+    Returns
+    -------
+    segments (S, 4) metres and the cleaned (H, W) uint8 occupancy image.
+    """
+    import cv2
+    import shapely
+
+    res = opts.resolution_m
+    img = clean(rasterize(pts, origin, res, shape), opts.min_component_px)
+    if len(pts) < 3:
+        return np.zeros((0, 4)), img
+    # Blobs of the dilated image, so that the two faces of a hollow outline stay one blob.
+    n, lab = cv2.connectedComponents(cv2.dilate(img, np.ones((3, 3), np.uint8)), connectivity=8)
+    col = np.floor((pts[:, 0] - origin[0]) / res).astype(np.int64)
+    row = np.floor((pts[:, 1] - origin[1]) / res).astype(np.int64)
+    ok = (col >= 0) & (col < shape[1]) & (row >= 0) & (row < shape[0])
+    blob = np.zeros(len(pts), dtype=np.int64)
+    blob[ok] = lab[row[ok], col[ok]]
+    out = []
+    for k in range(1, n):
+        p = pts[blob == k]
+        if len(p) < 3:
+            continue
+        hull = shapely.MultiPoint(p).convex_hull.simplify(opts.fit_tol_m)
+        if hull.geom_type != "Polygon":
+            continue
+        ring = np.asarray(hull.exterior.coords)
+        out.append(np.concatenate([ring[:-1], ring[1:]], axis=1))
+    segs = np.concatenate(out) if out else np.zeros((0, 4))
+    length = np.hypot(segs[:, 2] - segs[:, 0], segs[:, 3] - segs[:, 1])
+    return segs[length > 1e-6], img
+
+
 # --------------------------------------------------------------------------- per storey
 
 
@@ -504,7 +553,10 @@ def storey_plan(
         exact_band[cls] = band
         # The band's slices repeat each vertical face: keep one point per res/8 square.
         pts = thin_points(sample_segments(band, opts.resolution_m / 4)[0], opts.resolution_m / 8)
-        segs, img = vectorize(pts, origin, shape, opts)
+        if cls == Label.COLUMN:
+            segs, img = column_outlines(pts, origin, shape, opts)
+        else:
+            segs, img = vectorize(pts, origin, shape, opts)
         images[cls] = img
         segs_all.append(segs)
         cls_all.append(np.full(len(segs), int(cls), dtype=np.int32))

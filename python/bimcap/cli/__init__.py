@@ -16,7 +16,7 @@ from bimcap import __version__
 from bimcap.errors import BimcapError
 
 #: Sub-command modules, in the order ``bimcap --help`` lists them.
-COMMANDS: tuple[str, ...] = ()
+COMMANDS: tuple[str, ...] = ("bim",)
 
 EXIT_BAD_INPUT = 2
 EXIT_SOLVE_FAILED = 3
