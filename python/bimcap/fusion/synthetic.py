@@ -36,6 +36,7 @@ class BoxRoom:
     height: float = 2.8
     column_center: tuple[float, float] = (5.0, 2.2)
     column_half: tuple[float, float] = (0.25, 0.25)
+    round_column: bool = False  #: a cylinder of radius ``column_half[0]`` instead of a box
 
 
 @dataclass(frozen=True)
@@ -100,11 +101,17 @@ class BoxRoomScene:
         ]
         cx, cy = r.column_center
         hx, hy = r.column_half
-        parts.append((Label.COLUMN, np.array([cx - hx, cy - hy, 0.0]), np.array([cx + hx, cy + hy, r.height])))
+        if not r.round_column:
+            parts.append((Label.COLUMN, np.array([cx - hx, cy - hy, 0.0]), np.array([cx + hx, cy + hy, r.height])))
         self._scene = o3d.t.geometry.RaycastingScene()
         ids = []
         for _, lo, hi in parts:
             ids.append(self._scene.add_triangles(_box_mesh(lo, hi)))
+        if r.round_column:
+            cyl = o3d.geometry.TriangleMesh.create_cylinder(radius=hx, height=r.height, resolution=64, split=4)
+            cyl.translate(np.array([cx, cy, r.height / 2.0]))
+            ids.append(self._scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(cyl)))
+            parts.append((Label.COLUMN, np.zeros(3), np.zeros(3)))
         lut = np.zeros(max(ids) + 2, dtype=np.uint8)
         for (label, _, _), gid in zip(parts, ids):
             lut[gid] = int(label)
@@ -215,10 +222,12 @@ def render_default_frames(
     camera: Camera | None = None,
     lidar: SpinningLidar | None = None,
     seed: int = 0,
+    room: BoxRoom | None = None,
 ) -> list[SyntheticFrame]:
-    """``n`` frames from varied handheld-like poses in the default room (deterministic)."""
+    """``n`` frames from varied handheld-like poses in the room (default :class:`BoxRoom`;
+    deterministic)."""
     rng = np.random.default_rng(seed)
-    scene = BoxRoomScene()
+    scene = BoxRoomScene(room)
     cam = camera or default_camera()
     frames = []
     for i in range(n):
