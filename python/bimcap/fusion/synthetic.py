@@ -37,6 +37,8 @@ class BoxRoom:
     column_center: tuple[float, float] = (5.0, 2.2)
     column_half: tuple[float, float] = (0.25, 0.25)
     round_column: bool = False  #: a cylinder of radius ``column_half[0]`` instead of a box
+    #: boxes ``(x0, y0, z0, x1, y1, z1)`` not in the BIM (tables, crates), labelled CLUTTER
+    clutter: tuple[tuple[float, float, float, float, float, float], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -99,6 +101,8 @@ class BoxRoomScene:
             (Label.WALL, np.array([0.0, -t, 0.0]), np.array([r.size_x, 0.0, r.height])),
             (Label.WALL, np.array([0.0, r.size_y, 0.0]), np.array([r.size_x, r.size_y + t, r.height])),
         ]
+        for box in r.clutter:
+            parts.append((Label.CLUTTER, np.array(box[:3], dtype=np.float64), np.array(box[3:], dtype=np.float64)))
         cx, cy = r.column_center
         hx, hy = r.column_half
         if not r.round_column:
