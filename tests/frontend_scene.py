@@ -131,6 +131,30 @@ class Room:
         )
 
 
+#: LiDAR frame (x forward, y left, z up) → camera optical frame, 5 cm above the camera.
+CAM_FROM_LIDAR = np.array([0.0, -0.05, 0.0, 0.5, -0.5, 0.5, 0.5])
+
+
+def lidar_scan(room: Room, world_from_cam: NDArray[np.float64], beams: int = 64) -> NDArray[np.float32]:
+    """A spinning-LiDAR scan ((M, 4) x y z intensity, LiDAR frame): ``beams`` rings ±25°, 0.4° steps."""
+    import open3d as o3d
+
+    from bimcap.geometry.poses import compose
+
+    world_from_lidar = pose_to_matrix(compose(world_from_cam, CAM_FROM_LIDAR))
+    el = np.deg2rad(np.linspace(-25.0, 25.0, beams))
+    az = np.deg2rad(np.arange(0.0, 360.0, 0.4))
+    e, a = np.meshgrid(el, az, indexing="ij")
+    d_l = np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)], axis=-1).reshape(-1, 3)
+    d_w = d_l @ world_from_lidar[:3, :3].T
+    o = np.broadcast_to(world_from_lidar[:3, 3], d_w.shape)
+    ans = room.scene.cast_rays(o3d.core.Tensor(np.concatenate([o, d_w], 1).astype(np.float32)))
+    t = ans["t_hit"].numpy().astype(np.float64)
+    ok = np.isfinite(t)
+    pts = d_l[ok] * t[ok, None]
+    return np.concatenate([pts, np.ones((len(pts), 1))], axis=1).astype(np.float32)
+
+
 @dataclass
 class FrameFiles:
     timestamp: float
@@ -148,15 +172,22 @@ class SceneSequence:
         self.camera = camera
         self.frames = frames
         self.gt = gt
+        self.cam_from_lidar = CAM_FROM_LIDAR.copy()
 
     @classmethod
-    def write(cls, root: Path, camera: Camera = TEST_CAMERA, poses: NDArray[np.float64] | None = None) -> SceneSequence:
+    def write(
+        cls,
+        root: Path,
+        camera: Camera = TEST_CAMERA,
+        poses: NDArray[np.float64] | None = None,
+        lidar: bool = False,
+    ) -> SceneSequence:
         import cv2
 
         poses = default_poses() if poses is None else poses
         room = Room()
         frames = []
-        for k in (root / "images", root / "depth", root / "labels"):
+        for k in (root / "images", root / "depth", root / "labels", root / "lidar"):
             k.mkdir(parents=True, exist_ok=True)
         for i, pose in enumerate(poses):
             r = room.render(camera, pose)
@@ -164,10 +195,20 @@ class SceneSequence:
             cv2.imwrite(str(root / "images" / f"{name}.png"), r.image[:, :, ::-1])
             np.save(root / "depth" / f"{name}.npy", r.depth)
             cv2.imwrite(str(root / "labels" / f"{name}.png"), r.labels)
+            scan = None
+            if lidar:
+                scan = f"lidar/{name}.bin"
+                (root / scan).write_bytes(lidar_scan(room, pose).astype("<f4").tobytes())
             frames.append(
-                FrameFiles(0.1 * i, f"images/{name}.png", None, f"labels/{name}.png", f"depth/{name}.npy")
+                FrameFiles(0.1 * i, f"images/{name}.png", scan, f"labels/{name}.png", f"depth/{name}.npy")
             )
         return cls(root, camera, frames, np.asarray(poses))
+
+    def load_lidar(self, index: int) -> NDArray[np.float32]:
+        rel = self.frames[index].lidar
+        if rel is None:
+            raise FileNotFoundError(f"frame {index} has no LiDAR scan")
+        return np.fromfile(self.root / rel, dtype="<f4").reshape(-1, 4)
 
     def load_image(self, index: int) -> NDArray[np.uint8]:
         import cv2

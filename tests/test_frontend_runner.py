@@ -280,3 +280,22 @@ def test_with_a_bimcap_dataset_sequence(seq: SceneSequence, tmp_path: Path) -> N
     assert len(m) > 500 and np.median(np.linalg.norm(pa - pb, axis=1)) < 0.03
     again = run_frontend(real, CONFIG, gt, DEPTH, LABELS, cache_dir=cache, workers=1, progress=False)
     assert (again.run.frames_computed, again.run.pairs_computed) == (0, 0)
+
+
+def test_maps_are_written(seq: SceneSequence, result: FrontendResult, tmp_path: Path) -> None:
+    import cv2
+
+    from bimcap.frontend.runner import map_paths
+
+    maps = tmp_path / "maps"
+    cache = tmp_path / "cache"
+    r = run_frontend(seq, CONFIG, seq.gt, DEPTH, LABELS, cache_dir=cache, workers=1, progress=False, maps_dir=maps)
+    und = Undistorter(TEST_CAMERA)
+    for i in range(NUM_FRAMES):
+        d_path, l_path = map_paths(maps, i)
+        assert np.array_equal(np.load(d_path), und.nearest(seq.load_depth(i)))
+        assert np.array_equal(cv2.imread(str(l_path), cv2.IMREAD_UNCHANGED), und.nearest(seq.load_labels(i)))
+    map_paths(maps, 1)[1].unlink()
+    r = run_frontend(seq, CONFIG, seq.gt, DEPTH, LABELS, cache_dir=cache, workers=1, progress=False, maps_dir=maps)
+    assert (r.run.features_computed, r.run.frames_computed, r.run.pairs_computed) == (0, 1, 0)
+    assert map_paths(maps, 1)[1].is_file()

@@ -7,8 +7,14 @@ returns a :class:`FrontendResult` whose ``to_problem_arrays()`` are the solver's
 from __future__ import annotations
 
 from bimcap.frontend.cache import ResultCache, file_fingerprint, frame_cache_key, stable_hash
+from bimcap.frontend.providers import (
+    LidarDepthProvider,
+    PlanarDepthRefiner,
+    SegmenterLabelProvider,
+)
 from bimcap.frontend.runner import (
     DepthProvider,
+    DepthRefiner,
     FrameContext,
     FrameStats,
     FrontendConfig,
@@ -39,6 +45,7 @@ from bimcap.frontend.semantic_map import (
 __all__ = [
     "SEMANTIC_CLASSES",
     "DepthProvider",
+    "DepthRefiner",
     "FrameContext",
     "FrameStats",
     "FrontendConfig",
@@ -48,10 +55,13 @@ __all__ = [
     "GroundTruthDepthProvider",
     "GroundTruthLabelProvider",
     "LabelProvider",
+    "LidarDepthProvider",
     "PairStats",
+    "PlanarDepthRefiner",
     "ResultCache",
     "RunStats",
     "SamplingMode",
+    "SegmenterLabelProvider",
     "SemanticMap",
     "SemanticMapError",
     "SemanticSamplingOptions",

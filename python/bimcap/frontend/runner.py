@@ -526,6 +526,28 @@ class _FrameJob:
     depth_refiner: Any
     world_from_cam: F64
     features: dict[str, NDArray[Any]] | None  # cached SIFT of this frame, or None to extract
+    maps_dir: Path | None = None  # write the frame's undistorted depth and labels here
+
+
+def map_paths(maps_dir: str | PathLike[str], index: int) -> tuple[Path, Path]:
+    """``(depth .npy, labels .png)`` written for frame ``index`` under ``maps_dir``."""
+    root = Path(maps_dir)
+    return root / "depth" / f"{index:06d}.npy", root / "labels" / f"{index:06d}.png"
+
+
+def _write_maps(maps_dir: Path, index: int, depth: NDArray[np.float32], labels: NDArray[Any]) -> None:
+    import io
+
+    import cv2
+
+    depth_path, label_path = map_paths(maps_dir, index)
+    buf = io.BytesIO()
+    np.save(buf, np.ascontiguousarray(depth, dtype=np.float32))
+    atomic_write_bytes(depth_path, buf.getvalue())
+    ok, png = cv2.imencode(".png", np.ascontiguousarray(labels, dtype=np.uint8))
+    if not ok:  # pragma: no cover - cv2 encodes any uint8 image
+        raise FrontendError(f"cannot encode the labels of frame {index}")
+    atomic_write_bytes(label_path, png.tobytes())
 
 
 def _load_raw_image(sequence: Any, index: int, camera: Camera) -> NDArray[np.uint8]:
@@ -582,6 +604,8 @@ def compute_frame(job: _FrameJob) -> dict[str, NDArray[Any]]:
         _check_map(depth, und.pinhole, i, "depth (from the depth refiner)")
         depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0).astype(np.float32)
         ctx.depth = depth
+    if job.maps_dir is not None:
+        _write_maps(job.maps_dir, i, depth, labels)
     t1 = time.perf_counter()
     if job.features is None:
         f = extract_sift(image, cfg.sift)
@@ -684,6 +708,7 @@ def run_frontend(
     workers: int | None = None,
     progress: bool = True,
     depth_refiner: DepthRefiner | None = None,
+    maps_dir: str | PathLike[str] | None = None,
 ) -> FrontendResult:
     """Run the front end over a whole sequence.
 
@@ -698,6 +723,9 @@ def run_frontend(
     workers: processes (default ``os.cpu_count()``); 1 runs everything in this process.
     progress: draw a progress bar on stderr.
     depth_refiner: optional ``refiner(ctx, labels) -> depth`` run after the labels.
+    maps_dir: if given, each frame's final undistorted depth (``depth/NNNNNN.npy``, float32
+        metres) and labels (``labels/NNNNNN.png``) are written there (atomically; see
+        :func:`map_paths`); a cached frame whose maps are missing is recomputed.
 
     Returns
     -------
@@ -759,7 +787,8 @@ def run_frontend(
         if cache.enabled:
             hit = cache.get("frame", frame_keys[i])
             feats_hit = cache.get("features", feat_keys[i])
-            if hit is not None and feats_hit is not None:
+            maps_there = maps_dir is None or all(p.is_file() for p in map_paths(maps_dir, i))
+            if hit is not None and feats_hit is not None and maps_there:
                 frame_data[i] = {**hit, **feats_hit}
                 frame_cached[i] = True
                 continue
@@ -778,7 +807,7 @@ def run_frontend(
         bar = _Progress(len(todo), "frames", progress)
         jobs = [
             _FrameJob(sequence, i, cfg, depth_provider, label_provider, depth_refiner, init[i],
-                      cached_feats[i])
+                      cached_feats[i], None if maps_dir is None else Path(maps_dir))
             for i in todo
         ]
         for k, res in _run_jobs(compute_frame, jobs, pool, bar):
