@@ -40,7 +40,7 @@ IoU reported by the bench includes what this costs.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -77,9 +77,10 @@ class GeometricOptions:
     min_region_fraction: float = 0.002
     column_max_width_m: float = 1.2
     column_min_height_m: float = 1.0
-    protrusion_px: int = 8
+    protrusion_px: int = 24
     protrusion_min_rows: float = 0.6
     crease_px: int = 8
+    protrusion_sides: int = 2
     top_gap_m: float = 0.4
     seed: int = 0
 
@@ -223,7 +224,10 @@ def _protrudes(region: B, pts: F64, plane: _Plane, opts: GeometricOptions) -> bo
     the other face of a convex corner: a column). A concave corner (a room corner: the adjacent
     wall is in front of the extension) or an occluder fails. Needs ``protrusion_min_rows`` of
     the decided rows to pass on every decided side (a side is undecided at the image border or
-    when fewer than 20 % of the rows find an off-plane pixel), and at least one decided side.
+    when fewer than 20 % of the rows find an off-plane pixel), and ``protrusion_sides`` decided
+    sides (default 2: a wall seen between the image border and a doorway protrudes on its one
+    visible side just as a column does; walls being far more common, a region cut by the image
+    border stays a wall).
     """
     rows = np.flatnonzero(region.any(1))
     w = region.shape[1]
@@ -253,7 +257,7 @@ def _protrudes(region: B, pts: F64, plane: _Plane, opts: GeometricOptions) -> bo
         sides += 1
         if behind[decided].mean() < opts.protrusion_min_rows:
             return False
-    return sides > 0
+    return sides >= opts.protrusion_sides
 
 
 def _reaches_up(region: B, pts: F64, up: F64, top_needed: float, opts: GeometricOptions) -> bool:
@@ -432,7 +436,8 @@ def segment_geometric(
             centroid = p.mean(0)
             if normal @ centroid > 0:
                 normal = -normal
-            if not _protrudes(region, pts, _Plane(normal, float(-normal @ centroid)), opts):
+            # one protruding side is enough here: a curved region is no wall end
+            if not _protrudes(region, pts, _Plane(normal, float(-normal @ centroid)), replace(opts, protrusion_sides=1)):
                 continue
             labels[region] = int(Label.COLUMN)
             assigned |= region
