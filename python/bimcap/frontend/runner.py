@@ -517,13 +517,28 @@ class FrontendResult:
 
 # --------------------------------------------------------------------------- per-frame work
 @dataclass
-class _FrameJob:
+class _RunShared:
+    """What every frame job of one run shares; sent once to each worker (pool initializer)."""
+
     sequence: Any
-    index: int
     config: FrontendConfig
     depth_provider: Any
     label_provider: Any
     depth_refiner: Any
+
+
+#: The run's shared state inside a worker process (set by :func:`_init_worker`).
+_SHARED: _RunShared | None = None
+
+
+def _init_worker(shared: _RunShared) -> None:
+    global _SHARED
+    _SHARED = shared
+
+
+@dataclass
+class _FrameJob:
+    index: int
     world_from_cam: F64
     features: dict[str, NDArray[Any]] | None  # cached SIFT of this frame, or None to extract
     maps_dir: Path | None = None  # write the frame's undistorted depth and labels here
@@ -588,19 +603,22 @@ def compute_frame(job: _FrameJob) -> dict[str, NDArray[Any]]:
     ``<class>_p_in_cam`` and the timings ``time_s`` / ``sift_time_s``.
     """
     t0 = time.perf_counter()
-    seq, i, cfg = job.sequence, job.index, job.config
+    shared = _SHARED
+    if shared is None:  # pragma: no cover - set by run_frontend / the pool initializer
+        raise FrontendError("compute_frame called outside run_frontend")
+    seq, i, cfg = shared.sequence, job.index, shared.config
     camera: Camera = seq.camera
     und = get_undistorter(camera)
     image = und.image(_load_raw_image(seq, i, camera))
     ctx = FrameContext(seq, i, camera, und.pinhole, image, und, np.asarray(job.world_from_cam))
-    depth = np.asarray(job.depth_provider(ctx), dtype=np.float32)
+    depth = np.asarray(shared.depth_provider(ctx), dtype=np.float32)
     _check_map(depth, und.pinhole, i, "depth (from the depth provider)")
     depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0).astype(np.float32)
     ctx.depth = depth
-    labels = np.asarray(job.label_provider(ctx))
+    labels = np.asarray(shared.label_provider(ctx))
     _check_map(labels, und.pinhole, i, "labels (from the label provider)")
-    if job.depth_refiner is not None:
-        depth = np.asarray(job.depth_refiner(ctx, labels), dtype=np.float32)
+    if shared.depth_refiner is not None:
+        depth = np.asarray(shared.depth_refiner(ctx, labels), dtype=np.float32)
         _check_map(depth, und.pinhole, i, "depth (from the depth refiner)")
         depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0).astype(np.float32)
         ctx.depth = depth
@@ -796,18 +814,24 @@ def run_frontend(
         todo.append(i)
 
     pairs = sequential_pairs(num, cfg.window)
+    shared = _RunShared(sequence, cfg, depth_provider, label_provider, depth_refiner)
     pool: ProcessPoolExecutor | None = None
     if nworkers > 1 and max(len(todo), len(pairs)) > 1:
+        # spawn, not fork: forking a process whose BLAS / pycolmap threads are running can
+        # deadlock. The sequence and providers travel once per worker, not once per job.
         pool = ProcessPoolExecutor(
             max_workers=min(nworkers, max(len(todo), len(pairs))),
             mp_context=multiprocessing.get_context("spawn"),
+            initializer=_init_worker,
+            initargs=(shared,),
         )
+    global _SHARED
+    previous, _SHARED = _SHARED, shared  # for jobs run inline in this process
     try:
         # ------------------------------------------------------------ frames
         bar = _Progress(len(todo), "frames", progress)
         jobs = [
-            _FrameJob(sequence, i, cfg, depth_provider, label_provider, depth_refiner, init[i],
-                      cached_feats[i], None if maps_dir is None else Path(maps_dir))
+            _FrameJob(i, init[i], cached_feats[i], None if maps_dir is None else Path(maps_dir))
             for i in todo
         ]
         for k, res in _run_jobs(compute_frame, jobs, pool, bar):
@@ -850,6 +874,7 @@ def run_frontend(
             if cache.enabled:
                 cache.put("pair", pair_keys[k], res)
     finally:
+        _SHARED = previous
         if pool is not None:
             pool.shutdown(wait=True, cancel_futures=True)
 
