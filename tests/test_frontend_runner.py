@@ -299,3 +299,25 @@ def test_maps_are_written(seq: SceneSequence, result: FrontendResult, tmp_path: 
     r = run_frontend(seq, CONFIG, seq.gt, DEPTH, LABELS, cache_dir=cache, workers=1, progress=False, maps_dir=maps)
     assert (r.run.features_computed, r.run.frames_computed, r.run.pairs_computed) == (0, 1, 0)
     assert map_paths(maps, 1)[1].is_file()
+
+
+def test_on_a_simulated_sequence(tmp_path: Path) -> None:
+    """The simulator's sequence (bimcap.sim, once merged): matches agree with its ground truth."""
+    try:
+        from bimcap.dataset import read_sequence
+        from bimcap.sim.simulator import SimulatorConfig, corridor_building, simulate_world
+    except ImportError:
+        pytest.skip("bimcap.sim / bimcap.dataset not merged on this branch yet")
+    parts, polys, doors = corridor_building(rooms_per_side=2)
+    out = tmp_path / "sim"
+    simulate_world(parts, out, SimulatorConfig.small(frames=4), seed=3, free_polygons=polys, doors_xy=doors)
+    seq = read_sequence(out)
+    gt = seq.trajectory("gt")
+    res = run_frontend(seq, CONFIG, gt, DEPTH, LABELS, workers=1, progress=False)
+    m = res.match_frames
+    assert len(m) > 100
+    pa = _backproject(res, gt.poses, m[:, 0], res.match_uv[:, :2], res.match_depth[:, 0])
+    pb = _backproject(res, gt.poses, m[:, 1], res.match_uv[:, 2:], res.match_depth[:, 1])
+    assert np.median(np.linalg.norm(pa - pb, axis=1)) < 0.03
+    floor = transform_points(gt.poses[res.floor_frame], res.floor_p_in_cam)
+    assert len(floor) > 0
