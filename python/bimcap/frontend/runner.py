@@ -32,8 +32,9 @@ import multiprocessing
 import os
 import sys
 import time
-from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor
+from collections import deque
+from collections.abc import Callable, Sequence
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import asdict, dataclass, field
 from os import PathLike
 from pathlib import Path
@@ -692,27 +693,16 @@ class _Progress:
         sys.stderr.flush()
 
 
-def _run_jobs(
-    fn: Callable[[Any], T], jobs: list[Any], pool: ProcessPoolExecutor | None, progress: _Progress
-) -> Iterator[tuple[int, T]]:
-    """Yield ``(position, fn(job))`` in completion order, in the pool or inline."""
-    if pool is None:
-        for k, job in enumerate(jobs):
-            res = fn(job)
-            progress.step()
-            yield k, res
-        return
-    from concurrent.futures import as_completed
-
-    futures = {pool.submit(fn, job): k for k, job in enumerate(jobs)}
+def _submit(pool: ProcessPoolExecutor | None, fn: Callable[[Any], T], job: Any) -> Future[T]:
+    """``fn(job)`` in the pool, or run now in this process as an already finished future."""
+    if pool is not None:
+        return pool.submit(fn, job)
+    fut: Future[T] = Future()
     try:
-        for fut in as_completed(futures):
-            res = fut.result()
-            progress.step()
-            yield futures[fut], res
-    finally:
-        for fut in futures:
-            fut.cancel()
+        fut.set_result(fn(job))
+    except BaseException as exc:  # re-raised by fut.result() in the caller, like the pool does
+        fut.set_exception(exc)
+    return fut
 
 
 # --------------------------------------------------------------------------- the runner
@@ -813,70 +803,116 @@ def run_frontend(
             cached_feats[i] = feats_hit
         todo.append(i)
 
+    # ---------------------------------------------------------------- pairs in the cache
     pairs = sequential_pairs(num, cfg.window)
+    pair_settings = {"camera": camera.to_dict(), "match": cfg.match.to_dict()}
+    pair_results: list[dict[str, NDArray[Any]] | None] = [None] * len(pairs)
+    pair_cached = [False] * len(pairs)
+    pair_keys: list[str] = []
+    pairs_of_frame: list[list[int]] = [[] for _ in range(num)]
+    for k, (a, b) in enumerate(pairs):
+        if cache.enabled:
+            key = stable_hash({"a": feat_keys[a], "b": feat_keys[b], **pair_settings})
+            pair_keys.append(key)
+            hit = cache.get("pair", key)
+            if hit is not None:
+                pair_results[k], pair_cached[k] = hit, True
+                continue
+        pairs_of_frame[a].append(k)
+        pairs_of_frame[b].append(k)
+    pairs_left = [len(p) for p in pairs_of_frame]
+    num_pair_jobs = sum(not c for c in pair_cached)
+
     shared = _RunShared(sequence, cfg, depth_provider, label_provider, depth_refiner)
     pool: ProcessPoolExecutor | None = None
-    if nworkers > 1 and max(len(todo), len(pairs)) > 1:
+    if nworkers > 1 and len(todo) + num_pair_jobs > 1:
         # spawn, not fork: forking a process whose BLAS / pycolmap threads are running can
         # deadlock. The sequence and providers travel once per worker, not once per job.
         pool = ProcessPoolExecutor(
-            max_workers=min(nworkers, max(len(todo), len(pairs))),
+            max_workers=min(nworkers, len(todo) + num_pair_jobs),
             mp_context=multiprocessing.get_context("spawn"),
             initializer=_init_worker,
             initargs=(shared,),
         )
     global _SHARED
     previous, _SHARED = _SHARED, shared  # for jobs run inline in this process
-    try:
-        # ------------------------------------------------------------ frames
-        bar = _Progress(len(todo), "frames", progress)
-        jobs = [
-            _FrameJob(i, init[i], cached_feats[i], None if maps_dir is None else Path(maps_dir))
-            for i in todo
-        ]
-        for k, res in _run_jobs(compute_frame, jobs, pool, bar):
-            i = todo[k]
-            frame_data[i] = res
-            run.frames_computed += 1
-            if cached_feats[i] is None:
-                run.features_computed += 1
-            if cache.enabled:
-                if cached_feats[i] is None:
-                    cache.put("features", feat_keys[i], {k2: res[k2] for k2 in FEATURE_ARRAYS})
-                cache.put("frame", frame_keys[i], {k2: v for k2, v in res.items() if k2 not in FEATURE_ARRAYS})
 
-        # ------------------------------------------------------------ pairs
-        frames_ok = [d for d in frame_data if d is not None]
-        feats = [_features_of(d) for d in frames_ok]
-        pair_settings = {"camera": camera.to_dict(), "match": cfg.match.to_dict()}
-        pair_results: list[dict[str, NDArray[Any]] | None] = [None] * len(pairs)
-        pair_cached = [False] * len(pairs)
-        pair_keys: list[str] = []
-        ptodo: list[int] = []
-        for k, (a, b) in enumerate(pairs):
-            if cache.enabled:
-                key = stable_hash({"a": feat_keys[a], "b": feat_keys[b], **pair_settings})
-                pair_keys.append(key)
-                hit = cache.get("pair", key)
-                if hit is not None:
-                    pair_results[k], pair_cached[k] = hit, True
-                    continue
-            ptodo.append(k)
-        bar = _Progress(len(ptodo), "pairs", progress)
-        pjobs = [
-            _PairJob(feats[pairs[k][0]], feats[pairs[k][1]], pinhole, *pairs[k], cfg.match)
-            for k in ptodo
-        ]
-        for n, res in _run_jobs(compute_pair, pjobs, pool, bar):
-            k = ptodo[n]
-            pair_results[k] = res
-            run.pairs_computed += 1
-            if cache.enabled:
-                cache.put("pair", pair_keys[k], res)
+    # Frames and pairs share one queue: a pair is submitted as soon as both of its frames have
+    # features (pairs first, so that descriptors can be released early: a frame keeps only
+    # keypoints, depths and samples once all of its pairs are matched). At most 2 × workers jobs
+    # are in flight, so that finished frames do not wait behind the whole frame list.
+    ready = [d is not None for d in frame_data]
+    frame_queue = deque(todo)
+    pair_queue: deque[int] = deque(
+        k for k, (a, b) in enumerate(pairs) if not pair_cached[k] and ready[a] and ready[b]
+    )
+
+    def release(i: int) -> None:
+        d = frame_data[i]
+        if d is not None and ready[i] and pairs_left[i] == 0:
+            for name in ("descriptors", "scale", "orientation"):
+                d.pop(name, None)
+
+    for i in range(num):
+        release(i)
+    bar = _Progress(len(todo) + num_pair_jobs, "frontend", progress)
+    limit = 1 if pool is None else 2 * nworkers
+    in_flight: dict[Future[dict[str, NDArray[Any]]], tuple[str, int]] = {}
+    try:
+        while frame_queue or pair_queue or in_flight:
+            while len(in_flight) < limit and (pair_queue or frame_queue):
+                if pair_queue:
+                    k = pair_queue.popleft()
+                    a, b = pairs[k]
+                    fa, fb = frame_data[a], frame_data[b]
+                    assert fa is not None and fb is not None
+                    pjob = _PairJob(_features_of(fa), _features_of(fb), pinhole, a, b, cfg.match)
+                    in_flight[_submit(pool, compute_pair, pjob)] = ("pair", k)
+                else:
+                    i = frame_queue.popleft()
+                    fjob = _FrameJob(
+                        i, init[i], cached_feats[i], None if maps_dir is None else Path(maps_dir)
+                    )
+                    in_flight[_submit(pool, compute_frame, fjob)] = ("frame", i)
+            done, _ = wait(list(in_flight), return_when=FIRST_COMPLETED)
+            for fut in done:
+                kind, n = in_flight.pop(fut)
+                res = fut.result()
+                bar.step()
+                if kind == "frame":
+                    i = n
+                    frame_data[i] = res
+                    ready[i] = True
+                    run.frames_computed += 1
+                    if cached_feats[i] is None:
+                        run.features_computed += 1
+                    if cache.enabled:
+                        if cached_feats[i] is None:
+                            cache.put("features", feat_keys[i], {k2: res[k2] for k2 in FEATURE_ARRAYS})
+                        cache.put(
+                            "frame", frame_keys[i],
+                            {k2: v for k2, v in res.items() if k2 not in FEATURE_ARRAYS},
+                        )
+                    cached_feats[i] = None  # not needed any more
+                    for k in pairs_of_frame[i]:
+                        a, b = pairs[k]
+                        if ready[a] and ready[b]:
+                            pair_queue.append(k)
+                    release(i)
+                else:
+                    k = n
+                    pair_results[k] = res
+                    run.pairs_computed += 1
+                    if cache.enabled:
+                        cache.put("pair", pair_keys[k], res)
+                    for f in pairs[k]:
+                        pairs_left[f] -= 1
+                        release(f)
     finally:
         _SHARED = previous
         if pool is not None:
             pool.shutdown(wait=True, cancel_futures=True)
+    frames_ok = [d for d in frame_data if d is not None]
 
     pair_list: list[PairMatches] = []
     pair_stats: list[PairStats] = []
