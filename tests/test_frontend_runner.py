@@ -236,6 +236,9 @@ def test_missing_frame_is_a_clear_error(seq: SceneSequence, tmp_path: Path) -> N
     with pytest.raises(FrontendInputError, match=r"frame 2") as info:
         run_frontend(bad, CONFIG, bad.gt, DEPTH, LABELS, workers=1, progress=False)
     assert info.value.field == "frames[2].image"
+    # the same error comes back from a worker process
+    with pytest.raises(FrontendInputError, match=r"frames\[2\]\.image: cannot load image of frame 2"):
+        run_frontend(bad, CONFIG, bad.gt, DEPTH, LABELS, workers=2, progress=False)
 
 
 def test_image_size_mismatch_is_a_clear_error(seq: SceneSequence, tmp_path: Path) -> None:
