@@ -220,6 +220,10 @@ def test_distance_filter_uses_initial_poses(seq: SceneSequence, result: Frontend
     r = run_frontend(seq, CONFIG, init, DEPTH, LABELS, cache_dir=cache, workers=1, progress=False)
     assert len(r.match_frames) > 0 and not (r.match_frames == 3).any()
     assert (result.match_frames == 3).any()
+    # tracks: frame 3's observations with depth are dropped too (the track median is elsewhere)
+    f3 = r.track_obs_frame == 3
+    assert (result.track_obs_frame == 3).sum() > 100 and not (r.track_obs_depth[f3] > 0).any()
+    assert len(r.track_points) > 0.8 * len(result.track_points)
     off = dataclasses.replace(CONFIG, filters=MatchFilterOptions(max_initial_distance_m=None))
     r = run_frontend(seq, off, init, DEPTH, LABELS, cache_dir=cache, workers=1, progress=False)
     assert len(r.match_frames) == len(result.match_frames)

@@ -51,6 +51,7 @@ from bimcap.features.tracks import (
     MatchFilterOptions,
     assemble_match_observations,
     build_tracks,
+    consistent_track_observations,
     lookup_depth,
     triangulate_tracks,
 )
@@ -962,11 +963,19 @@ def _assemble(
         sel = tracks.obs_frame == f
         t_uv[sel] = uvs[f][tracks.obs_keypoint[sel]]
         t_depth[sel] = depths[f][tracks.obs_keypoint[sel]]
-    points, valid = triangulate_tracks(
-        tracks.obs_frame, tracks.obs_point, t_uv, t_depth, pinhole, init
-    )
+    t_frame, t_point = tracks.obs_frame, tracks.obs_point
+    if cfg.filters.max_initial_distance_m is not None and len(t_point):
+        # The pairwise distance filter's analogue: drop observations far from their track.
+        keep = consistent_track_observations(
+            t_frame, t_point, t_uv, t_depth, pinhole, init, cfg.filters.max_initial_distance_m
+        )
+        keep &= np.bincount(t_point[keep], minlength=tracks.num_points)[t_point] >= cfg.min_track_length
+        _, t_point = np.unique(t_point[keep], return_inverse=True)
+        t_point = t_point.astype(np.int32).reshape(-1)
+        t_frame, t_uv, t_depth = t_frame[keep], t_uv[keep], t_depth[keep]
+    points, valid = triangulate_tracks(t_frame, t_point, t_uv, t_depth, pinhole, init)
     # Drop landmarks without a usable initial position and renumber the rest.
-    keep_obs = valid[tracks.obs_point] if len(valid) else np.zeros(0, bool)
+    keep_obs = valid[t_point] if len(valid) else np.zeros(0, bool)
     new_id = np.cumsum(valid) - 1
     sem: dict[str, NDArray[Any]] = {}
     for prefix in SEMANTIC_CLASSES.values():
@@ -981,8 +990,8 @@ def _assemble(
         match_frames=obs.match_frames,
         match_uv=obs.match_uv,
         match_depth=obs.match_depth,
-        track_obs_frame=tracks.obs_frame[keep_obs],
-        track_obs_point=new_id[tracks.obs_point[keep_obs]] if len(valid) else np.zeros(0, np.int32),
+        track_obs_frame=t_frame[keep_obs],
+        track_obs_point=new_id[t_point[keep_obs]] if len(valid) else np.zeros(0, np.int32),
         track_obs_uv=t_uv[keep_obs],
         track_obs_depth=t_depth[keep_obs],
         track_points=points[valid],
