@@ -91,17 +91,21 @@ def bench_features(frames: int, window: int, pycolmap_matcher: bool) -> list[tup
         rows.append(("undistort image (remap)", f"{1e3 * np.mean(t_und):.1f} ms/frame", ""))
 
         feats = {}
-        for backend in (SiftBackend.PYCOLMAP, SiftBackend.OPENCV):
-            opts = SiftOptions(backend=backend)
+        variants = [
+            ("pycolmap", SiftOptions()),
+            ("pycolmap first_octave 0", SiftOptions(first_octave=0)),
+            ("opencv", SiftOptions(backend=SiftBackend.OPENCV)),
+        ]
+        for name, opts in variants:
             res = [_timed(extract_sift, im, opts) for im in imgs]
-            feats[backend] = [f for f, _ in res]
+            feats[name] = [f for f, _ in res]
             n = np.mean([len(f) for f, _ in res])
             rows.append(
-                (f"SIFT {backend.value} (max {opts.max_num_features})",
+                (f"SIFT {name} (max {opts.max_num_features})",
                  f"{1e3 * np.mean([t for _, t in res]):.0f} ms/frame", f"{n:.0f} keypoints")
             )
 
-        f = feats[SiftBackend.PYCOLMAP]
+        f = feats["pycolmap"]
         kp_depth = [lookup_depth(d, ff.uv) for d, ff in zip(depth, f)]
         pairs = sequential_pairs(frames, window)
         t_match, t_ver, t_fund, errs, n_put, n_inl = [], [], [], [], [], []
