@@ -4,7 +4,7 @@ Times are process CPU seconds of single-threaded calls (BLAS and pycolmap on one
 
 Features part: per frame undistortion + SIFT (pycolmap, and OpenCV as the fallback), per pair
 descriptor matching (numpy, and pycolmap's brute force with ``--pycolmap-matcher``) and geometric
-verification, on frames ray-cast from the test room (tests/frontend_scene.py), with accuracy
+verification, on frames ray-cast from the test room (tests/_frontend_scene.py), with accuracy
 against the ground truth: the world distance between the two back-projections of each verified
 match under the true poses. Prints a table; never collected by pytest.
 
@@ -57,7 +57,7 @@ def _timed(fn, *args, repeat: int = 1, **kwargs):  # noqa: ANN001, ANN202
 
 def bench_features(frames: int, window: int, pycolmap_matcher: bool) -> list[tuple[str, str, str]]:
     """Rows ``(step, time per frame or pair, accuracy / count)``."""
-    from frontend_scene import SceneSequence, default_poses
+    from _frontend_scene import SceneSequence, default_poses
 
     from bimcap.features import (
         MatcherBackend,

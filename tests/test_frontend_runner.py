@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from frontend_scene import TEST_CAMERA, Room, SceneSequence, default_poses
+from _frontend_scene import TEST_CAMERA, Room, SceneSequence, default_poses
 
 from bimcap.features import MatchFilterOptions, MatchOptions, SiftOptions
 from bimcap.frontend import (
