@@ -4,7 +4,7 @@ Times are process CPU seconds of single-threaded calls (BLAS and pycolmap on one
 
 Features part: per frame undistortion + SIFT (pycolmap, and OpenCV as the fallback), per pair
 descriptor matching (numpy, and pycolmap's brute force with ``--pycolmap-matcher``) and geometric
-verification, on frames ray-cast from the test room (tests/frontend_scene.py), with accuracy
+verification, on frames ray-cast from the test room (tests/_frontend_scene.py), with accuracy
 against the ground truth: the world distance between the two back-projections of each verified
 match under the true poses. Prints a table; never collected by pytest.
 
@@ -57,7 +57,7 @@ def _timed(fn, *args, repeat: int = 1, **kwargs):  # noqa: ANN001, ANN202
 
 def bench_features(frames: int, window: int, pycolmap_matcher: bool) -> list[tuple[str, str, str]]:
     """Rows ``(step, time per frame or pair, accuracy / count)``."""
-    from frontend_scene import SceneSequence, default_poses
+    from _frontend_scene import SceneSequence, default_poses
 
     from bimcap.features import (
         MatcherBackend,
@@ -91,17 +91,21 @@ def bench_features(frames: int, window: int, pycolmap_matcher: bool) -> list[tup
         rows.append(("undistort image (remap)", f"{1e3 * np.mean(t_und):.1f} ms/frame", ""))
 
         feats = {}
-        for backend in (SiftBackend.PYCOLMAP, SiftBackend.OPENCV):
-            opts = SiftOptions(backend=backend)
+        variants = [
+            ("pycolmap", SiftOptions()),
+            ("pycolmap first_octave 0", SiftOptions(first_octave=0)),
+            ("opencv", SiftOptions(backend=SiftBackend.OPENCV)),
+        ]
+        for name, opts in variants:
             res = [_timed(extract_sift, im, opts) for im in imgs]
-            feats[backend] = [f for f, _ in res]
+            feats[name] = [f for f, _ in res]
             n = np.mean([len(f) for f, _ in res])
             rows.append(
-                (f"SIFT {backend.value} (max {opts.max_num_features})",
+                (f"SIFT {name} (max {opts.max_num_features})",
                  f"{1e3 * np.mean([t for _, t in res]):.0f} ms/frame", f"{n:.0f} keypoints")
             )
 
-        f = feats[SiftBackend.PYCOLMAP]
+        f = feats["pycolmap"]
         kp_depth = [lookup_depth(d, ff.uv) for d, ff in zip(depth, f)]
         pairs = sequential_pairs(frames, window)
         t_match, t_ver, t_fund, errs, n_put, n_inl = [], [], [], [], [], []
@@ -123,7 +127,7 @@ def bench_features(frames: int, window: int, pycolmap_matcher: bool) -> list[tup
             pb = transform_points(seq.gt[b], pin.backproject(f[b].uv[inl[ok, 1]], db[ok], distorted=False))
             errs.append(np.linalg.norm(pa - pb, axis=1))
         e = np.concatenate(errs)
-        per_frame = len(pairs) / frames
+        per_frame = window  # pairs per frame in steady state (fewer at the sequence's end)
         rows.append(
             ("match descriptors (numpy)", f"{1e3 * np.mean(t_match):.0f} ms/pair",
              f"{np.mean(n_put):.0f} putative")
@@ -146,6 +150,22 @@ def bench_features(frames: int, window: int, pycolmap_matcher: bool) -> list[tup
         rows.append(
             (f"SIFT + matching, window {window}", f"{1e3 * (sift_t + per_frame * pair_t):.0f} ms/frame",
              f"{1.0 / (sift_t + per_frame * pair_t):.2f} frames/s/core")
+        )
+        from bimcap.frontend import (
+            FrontendConfig,
+            GroundTruthDepthProvider,
+            GroundTruthLabelProvider,
+            run_frontend,
+        )
+
+        res, t = _timed(
+            run_frontend, seq, FrontendConfig(window=window), seq.gt, GroundTruthDepthProvider(),
+            GroundTruthLabelProvider(), workers=1, progress=False,
+        )
+        rows.append(
+            (f"run_frontend, GT depth/labels, window {window}", f"{1e3 * t / frames:.0f} ms/frame",
+             f"{len(res.match_frames)} matches, {len(res.track_points)} tracks, "
+             f"{sum(len(res.semantic_samples()[k][0]) for k in res.semantic_samples())} samples")
         )
         if pycolmap_matcher:
             opts = MatchOptions(backend=MatcherBackend.PYCOLMAP)

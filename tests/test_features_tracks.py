@@ -14,6 +14,7 @@ from bimcap.features import (
     RequireDepth,
     assemble_match_observations,
     build_tracks,
+    consistent_track_observations,
     frame_gap_ok,
     lookup_depth,
     triangulate_tracks,
@@ -164,3 +165,19 @@ def test_gap_and_depth_requirements() -> None:
     assert got.match_depth[0, 1] == 0.0
     with pytest.raises(FeatureError):
         MatchFilterOptions(min_frame_gap=0)
+
+
+def test_track_observation_consistency() -> None:
+    """Three views of one point; the third view's depth is 1 m off: only it is flagged."""
+    p_world = np.array([0.3, -0.2, 4.0])
+    poses = np.array([IDENTITY, [0.3, 0.0, 0.0, 0, 0, 0, 1], [0.6, 0.0, 0.0, 0, 0, 0, 1]])
+    p_cam = np.stack([transform_points(invert(pose), p_world[None])[0] for pose in poses])
+    uv, _ = CAM.project(p_cam)
+    depth = p_cam[:, 2].copy()
+    depth[2] += 1.0
+    frames = np.array([0, 1, 2], np.int32)
+    point = np.zeros(3, np.int32)
+    keep = consistent_track_observations(frames, point, uv, depth, CAM, poses, 0.4)
+    assert keep.tolist() == [True, True, False]
+    depth[2] = 0.0  # no depth: nothing to test, kept
+    assert consistent_track_observations(frames, point, uv, depth, CAM, poses, 0.4).all()

@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from frontend_scene import SceneSequence, default_poses
+from _frontend_scene import SceneSequence, default_poses
 
 from bimcap.frontend import FrontendConfig, GroundTruthDepthProvider, GroundTruthLabelProvider, run_frontend
 from bimcap.frontend.providers import LidarDepthProvider, PlanarDepthRefiner, SegmenterLabelProvider

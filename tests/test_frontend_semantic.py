@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from frontend_scene import COLUMN, ROOM, TEST_CAMERA, Room, default_poses
+from _frontend_scene import COLUMN, ROOM, TEST_CAMERA, Room, default_poses
 
 from bimcap.frontend import (
     SamplingMode,

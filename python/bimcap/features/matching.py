@@ -220,6 +220,14 @@ def verify_matches(
     -------
     inliers: (M', 2) int32, a subset of ``matches`` (empty when fewer than ``min_num_inliers``).
     model: name of the verified model.
+
+    Notes
+    -----
+    With ``TWO_VIEW``, COLMAP labels a pair ``PLANAR_OR_PANORAMIC`` when a homography explains
+    most essential-matrix inliers (small baseline, or a mostly planar view) and then keeps the
+    larger of the two inlier sets, usually the essential matrix's. Under (near) pure rotation the
+    epipolar test is weak, so a few wrong matches can pass; the 3-D distance filter
+    (:class:`bimcap.features.MatchFilterOptions`) removes those that have depth.
     """
     opts = options or MatchOptions()
     empty = np.zeros((0, 2), np.int32)

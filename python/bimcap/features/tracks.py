@@ -188,6 +188,44 @@ def build_tracks(
     )
 
 
+def consistent_track_observations(
+    obs_frame: I32,
+    obs_point: I32,
+    obs_uv: F64,
+    obs_depth: F64,
+    camera: Camera,
+    world_from_cam: F64,
+    max_distance_m: float,
+) -> NDArray[np.bool_]:
+    """The tracks' analogue of the pairwise distance filter.
+
+    Each observation with depth is back-projected into the world under ``world_from_cam``; it is
+    inconsistent if it lies further than ``max_distance_m`` from the per-coordinate median of its
+    track's back-projections. Observations without depth are kept.
+
+    Returns
+    -------
+    (K,) bool, True for observations to keep.
+    """
+    keep = np.ones(len(obs_point), bool)
+    has = np.flatnonzero(obs_depth > 0)
+    if len(has) == 0:
+        return keep
+    p = transform_points(
+        world_from_cam[obs_frame[has]], camera.backproject(obs_uv[has], obs_depth[has], distorted=False)
+    )
+    order = np.argsort(obs_point[has], kind="stable")
+    pid = obs_point[has][order]
+    starts = np.flatnonzero(np.r_[True, pid[1:] != pid[:-1]])
+    ends = np.r_[starts[1:], len(pid)]
+    centre = np.empty((len(has), 3))
+    for a, b in zip(starts, ends):
+        centre[order[a:b]] = np.median(p[order[a:b]], axis=0)
+    far = np.linalg.norm(p - centre, axis=1) > max_distance_m
+    keep[has[far]] = False
+    return keep
+
+
 def triangulate_tracks(
     obs_frame: I32,
     obs_point: I32,
@@ -270,7 +308,8 @@ class MatchFilterOptions:
     min_frame_gap: keep a pair only if ``|i − j| >= min_frame_gap`` (1 keeps every pair).
     max_initial_distance_m: drop a match whose two back-projected points lie further apart in
         the world than this under the initial poses (the paper uses 0.4 m); None disables it.
-        Applies only where both keypoints have depth.
+        Applies only where both keypoints have depth. The runner applies the same threshold to
+        track observations (distance to the track's median, :func:`consistent_track_observations`).
     require_depth: depth requirement on the two keypoints.
     """
 

@@ -32,8 +32,9 @@ import multiprocessing
 import os
 import sys
 import time
-from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor
+from collections import deque
+from collections.abc import Callable, Sequence
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import asdict, dataclass, field
 from os import PathLike
 from pathlib import Path
@@ -50,6 +51,7 @@ from bimcap.features.tracks import (
     MatchFilterOptions,
     assemble_match_observations,
     build_tracks,
+    consistent_track_observations,
     lookup_depth,
     triangulate_tracks,
 )
@@ -517,13 +519,28 @@ class FrontendResult:
 
 # --------------------------------------------------------------------------- per-frame work
 @dataclass
-class _FrameJob:
+class _RunShared:
+    """What every frame job of one run shares; sent once to each worker (pool initializer)."""
+
     sequence: Any
-    index: int
     config: FrontendConfig
     depth_provider: Any
     label_provider: Any
     depth_refiner: Any
+
+
+#: The run's shared state inside a worker process (set by :func:`_init_worker`).
+_SHARED: _RunShared | None = None
+
+
+def _init_worker(shared: _RunShared) -> None:
+    global _SHARED
+    _SHARED = shared
+
+
+@dataclass
+class _FrameJob:
+    index: int
     world_from_cam: F64
     features: dict[str, NDArray[Any]] | None  # cached SIFT of this frame, or None to extract
     maps_dir: Path | None = None  # write the frame's undistorted depth and labels here
@@ -588,19 +605,22 @@ def compute_frame(job: _FrameJob) -> dict[str, NDArray[Any]]:
     ``<class>_p_in_cam`` and the timings ``time_s`` / ``sift_time_s``.
     """
     t0 = time.perf_counter()
-    seq, i, cfg = job.sequence, job.index, job.config
+    shared = _SHARED
+    if shared is None:  # pragma: no cover - set by run_frontend / the pool initializer
+        raise FrontendError("compute_frame called outside run_frontend")
+    seq, i, cfg = shared.sequence, job.index, shared.config
     camera: Camera = seq.camera
     und = get_undistorter(camera)
     image = und.image(_load_raw_image(seq, i, camera))
     ctx = FrameContext(seq, i, camera, und.pinhole, image, und, np.asarray(job.world_from_cam))
-    depth = np.asarray(job.depth_provider(ctx), dtype=np.float32)
+    depth = np.asarray(shared.depth_provider(ctx), dtype=np.float32)
     _check_map(depth, und.pinhole, i, "depth (from the depth provider)")
     depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0).astype(np.float32)
     ctx.depth = depth
-    labels = np.asarray(job.label_provider(ctx))
+    labels = np.asarray(shared.label_provider(ctx))
     _check_map(labels, und.pinhole, i, "labels (from the label provider)")
-    if job.depth_refiner is not None:
-        depth = np.asarray(job.depth_refiner(ctx, labels), dtype=np.float32)
+    if shared.depth_refiner is not None:
+        depth = np.asarray(shared.depth_refiner(ctx, labels), dtype=np.float32)
         _check_map(depth, und.pinhole, i, "depth (from the depth refiner)")
         depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0).astype(np.float32)
         ctx.depth = depth
@@ -674,27 +694,16 @@ class _Progress:
         sys.stderr.flush()
 
 
-def _run_jobs(
-    fn: Callable[[Any], T], jobs: list[Any], pool: ProcessPoolExecutor | None, progress: _Progress
-) -> Iterator[tuple[int, T]]:
-    """Yield ``(position, fn(job))`` in completion order, in the pool or inline."""
-    if pool is None:
-        for k, job in enumerate(jobs):
-            res = fn(job)
-            progress.step()
-            yield k, res
-        return
-    from concurrent.futures import as_completed
-
-    futures = {pool.submit(fn, job): k for k, job in enumerate(jobs)}
+def _submit(pool: ProcessPoolExecutor | None, fn: Callable[[Any], T], job: Any) -> Future[T]:
+    """``fn(job)`` in the pool, or run now in this process as an already finished future."""
+    if pool is not None:
+        return pool.submit(fn, job)
+    fut: Future[T] = Future()
     try:
-        for fut in as_completed(futures):
-            res = fut.result()
-            progress.step()
-            yield futures[fut], res
-    finally:
-        for fut in futures:
-            fut.cancel()
+        fut.set_result(fn(job))
+    except BaseException as exc:  # re-raised by fut.result() in the caller, like the pool does
+        fut.set_exception(exc)
+    return fut
 
 
 # --------------------------------------------------------------------------- the runner
@@ -795,63 +804,116 @@ def run_frontend(
             cached_feats[i] = feats_hit
         todo.append(i)
 
+    # ---------------------------------------------------------------- pairs in the cache
     pairs = sequential_pairs(num, cfg.window)
-    pool: ProcessPoolExecutor | None = None
-    if nworkers > 1 and max(len(todo), len(pairs)) > 1:
-        pool = ProcessPoolExecutor(
-            max_workers=min(nworkers, max(len(todo), len(pairs))),
-            mp_context=multiprocessing.get_context("spawn"),
-        )
-    try:
-        # ------------------------------------------------------------ frames
-        bar = _Progress(len(todo), "frames", progress)
-        jobs = [
-            _FrameJob(sequence, i, cfg, depth_provider, label_provider, depth_refiner, init[i],
-                      cached_feats[i], None if maps_dir is None else Path(maps_dir))
-            for i in todo
-        ]
-        for k, res in _run_jobs(compute_frame, jobs, pool, bar):
-            i = todo[k]
-            frame_data[i] = res
-            run.frames_computed += 1
-            if cached_feats[i] is None:
-                run.features_computed += 1
-            if cache.enabled:
-                if cached_feats[i] is None:
-                    cache.put("features", feat_keys[i], {k2: res[k2] for k2 in FEATURE_ARRAYS})
-                cache.put("frame", frame_keys[i], {k2: v for k2, v in res.items() if k2 not in FEATURE_ARRAYS})
+    pair_settings = {"camera": camera.to_dict(), "match": cfg.match.to_dict()}
+    pair_results: list[dict[str, NDArray[Any]] | None] = [None] * len(pairs)
+    pair_cached = [False] * len(pairs)
+    pair_keys: list[str] = []
+    pairs_of_frame: list[list[int]] = [[] for _ in range(num)]
+    for k, (a, b) in enumerate(pairs):
+        if cache.enabled:
+            key = stable_hash({"a": feat_keys[a], "b": feat_keys[b], **pair_settings})
+            pair_keys.append(key)
+            hit = cache.get("pair", key)
+            if hit is not None:
+                pair_results[k], pair_cached[k] = hit, True
+                continue
+        pairs_of_frame[a].append(k)
+        pairs_of_frame[b].append(k)
+    pairs_left = [len(p) for p in pairs_of_frame]
+    num_pair_jobs = sum(not c for c in pair_cached)
 
-        # ------------------------------------------------------------ pairs
-        frames_ok = [d for d in frame_data if d is not None]
-        feats = [_features_of(d) for d in frames_ok]
-        pair_settings = {"camera": camera.to_dict(), "match": cfg.match.to_dict()}
-        pair_results: list[dict[str, NDArray[Any]] | None] = [None] * len(pairs)
-        pair_cached = [False] * len(pairs)
-        pair_keys: list[str] = []
-        ptodo: list[int] = []
-        for k, (a, b) in enumerate(pairs):
-            if cache.enabled:
-                key = stable_hash({"a": feat_keys[a], "b": feat_keys[b], **pair_settings})
-                pair_keys.append(key)
-                hit = cache.get("pair", key)
-                if hit is not None:
-                    pair_results[k], pair_cached[k] = hit, True
-                    continue
-            ptodo.append(k)
-        bar = _Progress(len(ptodo), "pairs", progress)
-        pjobs = [
-            _PairJob(feats[pairs[k][0]], feats[pairs[k][1]], pinhole, *pairs[k], cfg.match)
-            for k in ptodo
-        ]
-        for n, res in _run_jobs(compute_pair, pjobs, pool, bar):
-            k = ptodo[n]
-            pair_results[k] = res
-            run.pairs_computed += 1
-            if cache.enabled:
-                cache.put("pair", pair_keys[k], res)
+    shared = _RunShared(sequence, cfg, depth_provider, label_provider, depth_refiner)
+    pool: ProcessPoolExecutor | None = None
+    if nworkers > 1 and len(todo) + num_pair_jobs > 1:
+        # spawn, not fork: forking a process whose BLAS / pycolmap threads are running can
+        # deadlock. The sequence and providers travel once per worker, not once per job.
+        pool = ProcessPoolExecutor(
+            max_workers=min(nworkers, len(todo) + num_pair_jobs),
+            mp_context=multiprocessing.get_context("spawn"),
+            initializer=_init_worker,
+            initargs=(shared,),
+        )
+    global _SHARED
+    previous, _SHARED = _SHARED, shared  # for jobs run inline in this process
+
+    # Frames and pairs share one queue: a pair is submitted as soon as both of its frames have
+    # features (pairs first, so that descriptors can be released early: a frame keeps only
+    # keypoints, depths and samples once all of its pairs are matched). At most 2 × workers jobs
+    # are in flight, so that finished frames do not wait behind the whole frame list.
+    ready = [d is not None for d in frame_data]
+    frame_queue = deque(todo)
+    pair_queue: deque[int] = deque(
+        k for k, (a, b) in enumerate(pairs) if not pair_cached[k] and ready[a] and ready[b]
+    )
+
+    def release(i: int) -> None:
+        d = frame_data[i]
+        if d is not None and ready[i] and pairs_left[i] == 0:
+            for name in ("descriptors", "scale", "orientation"):
+                d.pop(name, None)
+
+    for i in range(num):
+        release(i)
+    bar = _Progress(len(todo) + num_pair_jobs, "frontend", progress)
+    limit = 1 if pool is None else 2 * nworkers
+    in_flight: dict[Future[dict[str, NDArray[Any]]], tuple[str, int]] = {}
+    try:
+        while frame_queue or pair_queue or in_flight:
+            while len(in_flight) < limit and (pair_queue or frame_queue):
+                if pair_queue:
+                    k = pair_queue.popleft()
+                    a, b = pairs[k]
+                    fa, fb = frame_data[a], frame_data[b]
+                    assert fa is not None and fb is not None
+                    pjob = _PairJob(_features_of(fa), _features_of(fb), pinhole, a, b, cfg.match)
+                    in_flight[_submit(pool, compute_pair, pjob)] = ("pair", k)
+                else:
+                    i = frame_queue.popleft()
+                    fjob = _FrameJob(
+                        i, init[i], cached_feats[i], None if maps_dir is None else Path(maps_dir)
+                    )
+                    in_flight[_submit(pool, compute_frame, fjob)] = ("frame", i)
+            done, _ = wait(list(in_flight), return_when=FIRST_COMPLETED)
+            for fut in done:
+                kind, n = in_flight.pop(fut)
+                res = fut.result()
+                bar.step()
+                if kind == "frame":
+                    i = n
+                    frame_data[i] = res
+                    ready[i] = True
+                    run.frames_computed += 1
+                    if cached_feats[i] is None:
+                        run.features_computed += 1
+                    if cache.enabled:
+                        if cached_feats[i] is None:
+                            cache.put("features", feat_keys[i], {k2: res[k2] for k2 in FEATURE_ARRAYS})
+                        cache.put(
+                            "frame", frame_keys[i],
+                            {k2: v for k2, v in res.items() if k2 not in FEATURE_ARRAYS},
+                        )
+                    cached_feats[i] = None  # not needed any more
+                    for k in pairs_of_frame[i]:
+                        a, b = pairs[k]
+                        if ready[a] and ready[b]:
+                            pair_queue.append(k)
+                    release(i)
+                else:
+                    k = n
+                    pair_results[k] = res
+                    run.pairs_computed += 1
+                    if cache.enabled:
+                        cache.put("pair", pair_keys[k], res)
+                    for f in pairs[k]:
+                        pairs_left[f] -= 1
+                        release(f)
     finally:
+        _SHARED = previous
         if pool is not None:
             pool.shutdown(wait=True, cancel_futures=True)
+    frames_ok = [d for d in frame_data if d is not None]
 
     pair_list: list[PairMatches] = []
     pair_stats: list[PairStats] = []
@@ -901,11 +963,19 @@ def _assemble(
         sel = tracks.obs_frame == f
         t_uv[sel] = uvs[f][tracks.obs_keypoint[sel]]
         t_depth[sel] = depths[f][tracks.obs_keypoint[sel]]
-    points, valid = triangulate_tracks(
-        tracks.obs_frame, tracks.obs_point, t_uv, t_depth, pinhole, init
-    )
+    t_frame, t_point = tracks.obs_frame, tracks.obs_point
+    if cfg.filters.max_initial_distance_m is not None and len(t_point):
+        # The pairwise distance filter's analogue: drop observations far from their track.
+        keep = consistent_track_observations(
+            t_frame, t_point, t_uv, t_depth, pinhole, init, cfg.filters.max_initial_distance_m
+        )
+        keep &= np.bincount(t_point[keep], minlength=tracks.num_points)[t_point] >= cfg.min_track_length
+        _, t_point = np.unique(t_point[keep], return_inverse=True)
+        t_point = t_point.astype(np.int32).reshape(-1)
+        t_frame, t_uv, t_depth = t_frame[keep], t_uv[keep], t_depth[keep]
+    points, valid = triangulate_tracks(t_frame, t_point, t_uv, t_depth, pinhole, init)
     # Drop landmarks without a usable initial position and renumber the rest.
-    keep_obs = valid[tracks.obs_point] if len(valid) else np.zeros(0, bool)
+    keep_obs = valid[t_point] if len(valid) else np.zeros(0, bool)
     new_id = np.cumsum(valid) - 1
     sem: dict[str, NDArray[Any]] = {}
     for prefix in SEMANTIC_CLASSES.values():
@@ -920,8 +990,8 @@ def _assemble(
         match_frames=obs.match_frames,
         match_uv=obs.match_uv,
         match_depth=obs.match_depth,
-        track_obs_frame=tracks.obs_frame[keep_obs],
-        track_obs_point=new_id[tracks.obs_point[keep_obs]] if len(valid) else np.zeros(0, np.int32),
+        track_obs_frame=t_frame[keep_obs],
+        track_obs_point=new_id[t_point[keep_obs]] if len(valid) else np.zeros(0, np.int32),
         track_obs_uv=t_uv[keep_obs],
         track_obs_depth=t_depth[keep_obs],
         track_points=points[valid],
