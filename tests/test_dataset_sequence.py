@@ -26,7 +26,9 @@ from bimcap.geometry import Camera, Trajectory, read_tum
 
 W, H, N = 16, 12, 4
 CAMERA = Camera(W, H, 20.0, 21.0, 7.5, 5.5, (-0.05, 0.1, 0.001, -0.002, 0.0))
-CAM_FROM_LIDAR = np.array([0.1, -0.2, 0.3, *Rotation.from_euler("xyz", [10, 20, 30], degrees=True).as_quat()])
+CAM_FROM_LIDAR = np.array(
+    [0.1, -0.2, 0.3, *Rotation.from_euler("xyz", [10, 20, 30], degrees=True).as_quat()]
+)
 
 
 def _frame_data(rng: np.random.Generator, i: int) -> dict[str, Any]:
@@ -40,7 +42,9 @@ def _frame_data(rng: np.random.Generator, i: int) -> dict[str, Any]:
 
 
 def _poses(rng: np.random.Generator, n: int) -> np.ndarray:
-    return np.concatenate([rng.normal(size=(n, 3)), Rotation.random(n, random_state=rng).as_quat()], 1)
+    return np.concatenate(
+        [rng.normal(size=(n, 3)), Rotation.random(n, random_state=rng).as_quat()], 1
+    )
 
 
 @pytest.fixture()
@@ -49,7 +53,9 @@ def written(tmp_path: Path) -> tuple[Path, list[dict[str, Any]], np.ndarray]:
     data = [_frame_data(rng, i) for i in range(N)]
     gt = _poses(rng, N)
     root = tmp_path / "seq"
-    with SequenceWriter(root, CAMERA, CAM_FROM_LIDAR, ifc="../model.ifc", source={"by": "test"}) as w:
+    with SequenceWriter(
+        root, CAMERA, CAM_FROM_LIDAR, ifc="../model.ifc", source={"by": "test"}
+    ) as w:
         for i, d in enumerate(data):
             if i == 2:  # one frame without optional files
                 w.add_frame(d["timestamp"], d["image"], d["lidar"])
@@ -99,7 +105,9 @@ def test_image_on_disk_is_rgb_png_read_by_opencv_as_bgr(
     np.testing.assert_array_equal(raw, data[1]["lidar"])
 
 
-def test_subset_view_and_its_trajectory(written: tuple[Path, list[dict[str, Any]], np.ndarray]) -> None:
+def test_subset_view_and_its_trajectory(
+    written: tuple[Path, list[dict[str, Any]], np.ndarray],
+) -> None:
     root, _, gt = written
     seq = read_sequence(root)
     sub = seq.subset([1, 3])
@@ -107,6 +115,11 @@ def test_subset_view_and_its_trajectory(written: tuple[Path, list[dict[str, Any]
     np.testing.assert_array_equal(sub.load_image(1), seq.load_image(3))
     np.testing.assert_allclose(sub.trajectory("gt").poses[:, :3], gt[[1, 3], :3])
     assert len(seq.subset(slice(0, 2))) == 2
+    assert [f.index for f in seq.subset([-3, -1]).frames] == [1, 3]
+    assert [f.index for f in sub.subset([1]).frames] == [3]  # a view of a view
+    np.testing.assert_allclose(sub.subset([1]).trajectory().poses[0, :3], gt[3, :3])
+    with pytest.raises(SequenceError, match="out of range"):
+        seq.subset([4])
     with pytest.raises(SequenceError, match="increase"):
         seq.subset([2, 1])
 
@@ -170,7 +183,9 @@ def test_writer_context_manager_writes_no_manifest_on_error(tmp_path: Path) -> N
         read_sequence(tmp_path / "s")
 
 
-def test_writer_refuses_existing_sequence(written: tuple[Path, list[dict[str, Any]], np.ndarray]) -> None:
+def test_writer_refuses_existing_sequence(
+    written: tuple[Path, list[dict[str, Any]], np.ndarray],
+) -> None:
     root, _, _ = written
     with pytest.raises(SequenceError, match="already a sequence"):
         SequenceWriter(root, CAMERA, CAM_FROM_LIDAR)
@@ -249,12 +264,22 @@ BAD: list[tuple[str, Edit, str, str]] = [
     ("non-finite extrinsic", _set("cam_from_lidar.0", 1e400), "cam_from_lidar[0]", "finite"),
     ("lidar without model", _set("lidar.model", _DELETE), "lidar.model", "model"),
     ("lidar bad channels", _set("lidar.channels", -3), "lidar.channels", "positive"),
-    ("lidar bad fov", _set("lidar.vertical_fov_deg", [15, -15]), "lidar.vertical_fov_deg", "lowest"),
+    (
+        "lidar bad fov",
+        _set("lidar.vertical_fov_deg", [15, -15]),
+        "lidar.vertical_fov_deg",
+        "lowest",
+    ),
     ("ifc not a string", _set("ifc", 3), "ifc", "path"),
     ("no frames", _set("frames", []), "frames", "non-empty"),
     ("frame without image", _set("frames.1.image", _DELETE), "frames[1].image", "missing"),
     ("frame timestamp text", _set("frames.1.timestamp", "x"), "frames[1].timestamp", "number"),
-    ("timestamps not increasing", _set("frames.2.timestamp", 100.1), "frames[2].timestamp", "increase"),
+    (
+        "timestamps not increasing",
+        _set("frames.2.timestamp", 100.1),
+        "frames[2].timestamp",
+        "increase",
+    ),
     ("path escaping root", _set("frames.0.image", "../x.png"), "frames[0].image", "inside"),
     ("absolute path", _set("frames.0.lidar", "/etc/passwd"), "frames[0].lidar", "inside"),
     ("missing image file", _remove("images/000001.png"), "frames[1].image", "does not exist"),
@@ -270,7 +295,9 @@ BAD: list[tuple[str, Edit, str, str]] = [
 ]
 
 
-@pytest.mark.parametrize(("edit", "field", "fragment"), [b[1:] for b in BAD], ids=[b[0] for b in BAD])
+@pytest.mark.parametrize(
+    ("edit", "field", "fragment"), [b[1:] for b in BAD], ids=[b[0] for b in BAD]
+)
 def test_reader_rejects_malformed(
     written: tuple[Path, list[dict[str, Any]], np.ndarray], edit: Edit, field: str, fragment: str
 ) -> None:
@@ -299,12 +326,12 @@ def test_reader_rejects_invalid_json_and_non_object(tmp_path: Path) -> None:
 def test_loaders_reject_wrong_sizes(written: tuple[Path, list[dict[str, Any]], np.ndarray]) -> None:
     root, _, _ = written
     seq = read_sequence(root)
-    ok, buf = cv2.imencode(".png", np.zeros((H + 1, W, 3), np.uint8))
+    _, buf = cv2.imencode(".png", np.zeros((H + 1, W, 3), np.uint8))
     (root / "images" / "000000.png").write_bytes(buf.tobytes())
     with pytest.raises(SequenceError, match=r"17x12|16x13") as info:
         seq.load_image(0)
     assert info.value.field == "frames[0].image"
-    ok, buf = cv2.imencode(".png", np.zeros((H, W, 3), np.uint8))
+    _, buf = cv2.imencode(".png", np.zeros((H, W, 3), np.uint8))
     (root / "labels" / "000000.png").write_bytes(buf.tobytes())
     with pytest.raises(SequenceError, match="single-channel") as info:
         seq.load_labels(0)
@@ -334,3 +361,45 @@ def test_reader_accepts_extra_lidar_keys_and_moved_directory(
     assert seq.lidar.to_dict()["dropout"] == 0.05
     assert LidarInfo.from_dict(seq.lidar.to_dict()) == seq.lidar
     assert read_tum(seq.trajectory_path("gt")).poses.shape == (N, 7)
+
+
+def test_frames_written_by_workers_then_registered(tmp_path: Path) -> None:
+    """The parallel workflow: write_frame anywhere (any order), register_frame in order."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from bimcap.dataset import frame_info, write_frame
+
+    rng = np.random.default_rng(3)
+    data = [_frame_data(rng, i) for i in range(N)]
+    root = tmp_path / "par"
+    w = SequenceWriter(root, CAMERA, CAM_FROM_LIDAR, png_compression=0)
+    with ThreadPoolExecutor(2) as pool:
+        infos = list(
+            pool.map(
+                lambda i: write_frame(
+                    root,
+                    i,
+                    data[i]["timestamp"],
+                    CAMERA,
+                    data[i]["image"],
+                    data[i]["lidar"],
+                    data[i]["labels"],
+                    png_compression=9,
+                ),
+                reversed(range(N)),
+            )
+        )[::-1]
+    assert infos[0] == frame_info(0, data[0]["timestamp"], labels=True)
+    with pytest.raises(SequenceError, match="expected frame 0"):
+        w.register_frame(infos[1])
+    for info in infos:
+        w.register_frame(info)
+    with pytest.raises(SequenceError, match="does not exist"):
+        w.register_frame(frame_info(N, 999.0))  # its files were never written
+    seq = w.close()
+    for i in range(N):
+        np.testing.assert_array_equal(seq.load_image(i), data[i]["image"])
+        np.testing.assert_array_equal(seq.load_labels(i), data[i]["labels"])
+        assert seq.load_depth(i) is None
+    with pytest.raises(SequenceError, match=r"frames\[0\]\.image"):
+        write_frame(root, 0, 0.0, CAMERA, np.zeros((H, W), np.uint8), data[0]["lidar"])

@@ -17,7 +17,9 @@ from bimcap.dataset.sequence import (
     SequenceError,
     SequenceWriter,
     add_trajectory,
+    frame_info,
     read_sequence,
+    write_frame,
 )
 
 __all__ = [
@@ -31,5 +33,7 @@ __all__ = [
     "SequenceError",
     "SequenceWriter",
     "add_trajectory",
+    "frame_info",
     "read_sequence",
+    "write_frame",
 ]

@@ -38,6 +38,7 @@ the manifest last, so a directory without ``manifest.json`` is an unfinished seq
 from __future__ import annotations
 
 import io
+import itertools
 import json
 import math
 import os
@@ -126,7 +127,9 @@ class LidarInfo:
         if channels is not None and (
             not isinstance(channels, int) or isinstance(channels, bool) or channels <= 0
         ):
-            raise SequenceError(f"must be a positive integer, got {channels!r}", path, "lidar.channels")
+            raise SequenceError(
+                f"must be a positive integer, got {channels!r}", path, "lidar.channels"
+            )
         fov = d.get("vertical_fov_deg")
         fov_t: tuple[float, float] | None = None
         if fov is not None:
@@ -146,7 +149,14 @@ class LidarInfo:
                 if value <= 0:
                     raise SequenceError(f"must be positive, got {value}", path, f"lidar.{key}")
             positives[key] = value
-        known = {"model", "channels", "vertical_fov_deg", "azimuth_step_deg", "rate_hz", "max_range_m"}
+        known = {
+            "model",
+            "channels",
+            "vertical_fov_deg",
+            "azimuth_step_deg",
+            "rate_hz",
+            "max_range_m",
+        }
         extra = {k: v for k, v in d.items() if k not in known}
         return cls(model, channels, fov_t, extra=extra, **positives)  # type: ignore[arg-type]
 
@@ -249,7 +259,9 @@ class Sequence:
         path = self.root / self.frames[i].image
         bgr = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
         if bgr is None:
-            raise SequenceError("cannot decode image", path, f"frames[{self.frames[i].index}].image")
+            raise SequenceError(
+                "cannot decode image", path, f"frames[{self.frames[i].index}].image"
+            )
         if bgr.dtype != np.uint8 or bgr.ndim != 3 or bgr.shape[2] != 3:
             raise SequenceError(
                 f"expected an 8-bit 3-channel image, got shape {bgr.shape} dtype {bgr.dtype}",
@@ -265,7 +277,8 @@ class Sequence:
         data = path.read_bytes()
         if len(data) % LIDAR_POINT_BYTES:
             raise SequenceError(
-                f"size {len(data)} bytes is not a multiple of {LIDAR_POINT_BYTES} (x y z intensity float32)",
+                f"size {len(data)} bytes is not a multiple of {LIDAR_POINT_BYTES} "
+                "(x y z intensity float32)",
                 path,
                 f"frames[{self.frames[i].index}].lidar",
             )
@@ -305,7 +318,9 @@ class Sequence:
             raise SequenceError(f"cannot read depth array ({exc})", path, where) from None
         if depth.dtype != np.float32 or depth.ndim != 2:
             raise SequenceError(
-                f"expected a 2-D float32 array, got shape {depth.shape} dtype {depth.dtype}", path, where
+                f"expected a 2-D float32 array, got shape {depth.shape} dtype {depth.dtype}",
+                path,
+                where,
             )
         self._check_size(depth.shape, path, where)
         return depth
@@ -352,12 +367,17 @@ class Sequence:
         if isinstance(frames, slice):
             picked = self.frames[frames]
         else:
-            idx = [int(i) for i in frames]
-            if any(b <= a for a, b in zip(idx, idx[1:])):
-                raise SequenceError("subset frame indices must increase strictly", self.root, "frames")
             n = len(self.frames)
+            idx = [int(i) for i in frames]
             if any(not -n <= i < n for i in idx):
-                raise SequenceError(f"subset index out of range for {n} frames", self.root, "frames")
+                raise SequenceError(
+                    f"subset index out of range for {n} frames", self.root, "frames"
+                )
+            idx = [i % n for i in idx]
+            if any(b <= a for a, b in itertools.pairwise(idx)):
+                raise SequenceError(
+                    "subset frame indices must increase strictly", self.root, "frames"
+                )
             picked = [self.frames[i] for i in idx]
         view = replace(self, frames=list(picked))
         view._all_timestamps = self._all_timestamps
@@ -367,18 +387,6 @@ class Sequence:
         self.cam_from_lidar = np.asarray(self.cam_from_lidar, dtype=np.float64).reshape(7)
         # Timestamps of *all* manifest frames, used to validate trajectory files of subsets.
         self._all_timestamps = self.timestamps
-
-    def to_manifest(self) -> dict[str, Any]:
-        """The manifest dictionary describing this sequence (all its frames)."""
-        ifc: str | None = None
-        if self.ifc_path is not None:
-            try:
-                ifc = self.ifc_path.relative_to(self.root).as_posix()
-            except ValueError:
-                ifc = str(self.ifc_path)
-        return _manifest_dict(
-            self.camera, self.cam_from_lidar, self.lidar, ifc, self.frames, self.poses, self.source
-        )
 
 
 # --------------------------------------------------------------------------- reading
@@ -402,7 +410,9 @@ def read_sequence(path: str | PathLike[str]) -> Sequence:
     if not root.is_dir():
         raise SequenceError("not a directory", root)
     if not manifest_path.is_file():
-        raise SequenceError("no manifest.json: not a sequence directory (or unfinished)", manifest_path)
+        raise SequenceError(
+            "no manifest.json: not a sequence directory (or unfinished)", manifest_path
+        )
     try:
         doc = json.loads(manifest_path.read_text(encoding="utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
@@ -476,7 +486,8 @@ def _read_frame_trajectory(
     if (diff > TIMESTAMP_TOLERANCE_S).any():
         i = int(np.argmax(diff))
         raise SequenceError(
-            f"{path.name}: pose {i} has timestamp {traj.timestamps[i]!r}, frame {i} has {timestamps[i]!r}",
+            f"{path.name}: pose {i} has timestamp {traj.timestamps[i]!r}, "
+            f"frame {i} has {timestamps[i]!r}",
             manifest or path,
             field_name,
         )
@@ -507,7 +518,9 @@ def _parse_camera(d: Any, mp: Path) -> Camera:
         if key not in d:
             raise SequenceError("missing required key", mp, f"camera.{key}")
     if d["model"] != "plumb_bob":
-        raise SequenceError(f"only 'plumb_bob' is supported, got {d['model']!r}", mp, "camera.model")
+        raise SequenceError(
+            f"only 'plumb_bob' is supported, got {d['model']!r}", mp, "camera.model"
+        )
     for key in ("width", "height"):
         v = d[key]
         if not isinstance(v, int) or isinstance(v, bool) or v <= 0:
@@ -633,6 +646,8 @@ class SequenceWriter:
         Free-form provenance (JSON-serialisable), e.g. simulator settings and seed.
     overwrite:
         Allow writing into a directory that already holds a ``manifest.json``.
+    png_compression:
+        OpenCV PNG compression level 0-9 for images and labels (None = OpenCV's default).
 
     Examples
     --------
@@ -651,8 +666,10 @@ class SequenceWriter:
         ifc: str | PathLike[str] | None = None,
         source: Mapping[str, Any] | None = None,
         overwrite: bool = False,
+        png_compression: int | None = None,
     ) -> None:
         self.root = Path(root)
+        self.png_compression = png_compression
         self.camera = camera
         pose = np.asarray(cam_from_lidar, dtype=np.float64)
         if pose.shape != (7,) or not np.isfinite(pose).all():
@@ -667,7 +684,8 @@ class SequenceWriter:
         self.source = dict(source or {})
         if (self.root / MANIFEST).exists() and not overwrite:
             raise SequenceError(
-                "already a sequence directory (pass overwrite=True to replace it)", self.root / MANIFEST
+                "already a sequence directory (pass overwrite=True to replace it)",
+                self.root / MANIFEST,
             )
         self.root.mkdir(parents=True, exist_ok=True)
         self.frames: list[FrameInfo] = []
@@ -684,7 +702,7 @@ class SequenceWriter:
         labels: NDArray[np.uint8] | None = None,
         depth: NDArray[np.floating[Any]] | None = None,
     ) -> FrameInfo:
-        """Write one frame's files and remember it for the manifest.
+        """Write one frame's files (see :func:`write_frame`) and remember it for the manifest.
 
         Parameters
         ----------
@@ -699,82 +717,51 @@ class SequenceWriter:
         SequenceError
             On a timestamp out of order, a wrong shape or dtype, or a closed writer.
         """
-        import cv2
+        self._check_next(float(timestamp))
+        info = write_frame(
+            self.root,
+            len(self.frames),
+            timestamp,
+            self.camera,
+            image,
+            lidar,
+            labels,
+            depth,
+            png_compression=self.png_compression,
+        )
+        self.frames.append(info)
+        return info
 
+    def register_frame(self, info: FrameInfo) -> None:
+        """Record a frame whose files were written elsewhere, e.g. by :func:`write_frame` in a
+        worker process. Frames must be registered in order: ``info.index == len(frames)``.
+        """
+        if info.index != len(self.frames):
+            raise SequenceError(
+                f"frame {info.index} registered, expected frame {len(self.frames)}",
+                self.root,
+                f"frames[{info.index}]",
+            )
+        self._check_next(info.timestamp)
+        for key in ("image", "lidar", "labels", "depth"):
+            rel = getattr(info, key)
+            if rel is not None:
+                _relative_file(rel, self.root, self.root, f"frames[{info.index}].{key}")
+        self.frames.append(info)
+
+    def _check_next(self, t: float) -> None:
         if self._closed:
             raise SequenceError("the writer is closed", self.root)
-        i = len(self.frames)
-        where = f"frames[{i}]"
-        t = float(timestamp)
+        where = f"frames[{len(self.frames)}].timestamp"
         if not math.isfinite(t):
-            raise SequenceError(f"timestamp must be finite, got {timestamp!r}", self.root, f"{where}.timestamp")
+            raise SequenceError(f"timestamp must be finite, got {t!r}", self.root, where)
         if self.frames and t <= self.frames[-1].timestamp:
             raise SequenceError(
                 f"timestamp {t!r} does not follow {self.frames[-1].timestamp!r}: frames must be "
                 "added in strictly increasing time order",
                 self.root,
-                f"{where}.timestamp",
+                where,
             )
-        hw = (self.camera.height, self.camera.width)
-        img = np.asarray(image)
-        if img.dtype != np.uint8 or img.shape != hw + (3,):
-            raise SequenceError(
-                f"expected a {hw + (3,)} uint8 RGB image, got {img.shape} {img.dtype}",
-                self.root,
-                f"{where}.image",
-            )
-        pts = np.asarray(lidar)
-        if pts.ndim != 2 or pts.shape[1] != 4 or not np.issubdtype(pts.dtype, np.floating):
-            raise SequenceError(
-                f"expected (M, 4) float x y z intensity, got {pts.shape} {pts.dtype}",
-                self.root,
-                f"{where}.lidar",
-            )
-        lab = None
-        if labels is not None:
-            lab = np.asarray(labels)
-            if lab.dtype != np.uint8 or lab.shape != hw:
-                raise SequenceError(
-                    f"expected a {hw} uint8 label image, got {lab.shape} {lab.dtype}",
-                    self.root,
-                    f"{where}.labels",
-                )
-            if lab.size and int(lab.max()) > max(Label):
-                raise SequenceError(
-                    f"label id {int(lab.max())} is not a bimcap.labels.Label", self.root, f"{where}.labels"
-                )
-        dep = None
-        if depth is not None:
-            dep = np.asarray(depth)
-            if not np.issubdtype(dep.dtype, np.floating) or dep.shape != hw:
-                raise SequenceError(
-                    f"expected a {hw} float depth image, got {dep.shape} {dep.dtype}",
-                    self.root,
-                    f"{where}.depth",
-                )
-            dep = dep.astype(np.float32)
-            if not np.isfinite(dep).all() or (dep < 0).any():
-                raise SequenceError("depth must be finite and >= 0", self.root, f"{where}.depth")
-
-        name = f"{i:06d}"
-        info = FrameInfo(
-            i,
-            t,
-            f"images/{name}.png",
-            f"lidar/{name}.bin",
-            None if lab is None else f"labels/{name}.png",
-            None if dep is None else f"depth/{name}.npy",
-        )
-        atomic_write_bytes(self.root / info.image, _encode_png(cv2, img[:, :, ::-1]))
-        atomic_write_bytes(self.root / info.lidar, pts.astype(_LIDAR_DTYPE).tobytes())
-        if lab is not None and info.labels is not None:
-            atomic_write_bytes(self.root / info.labels, _encode_png(cv2, lab))
-        if dep is not None and info.depth is not None:
-            buf = io.BytesIO()
-            np.save(buf, dep, allow_pickle=False)
-            atomic_write_bytes(self.root / info.depth, buf.getvalue())
-        self.frames.append(info)
-        return info
 
     # ------------------------------------------------------------------ poses
     def add_trajectory(self, name: str, world_from_cam: Trajectory | ArrayLike) -> None:
@@ -820,7 +807,13 @@ class SequenceWriter:
             write_tum(self.root / rel, Trajectory(timestamps, poses), header="world_from_cam")
             poses_map[name] = rel
         doc = _manifest_dict(
-            self.camera, self.cam_from_lidar, self.lidar, self.ifc, self.frames, poses_map, self.source
+            self.camera,
+            self.cam_from_lidar,
+            self.lidar,
+            self.ifc,
+            self.frames,
+            poses_map,
+            self.source,
         )
         atomic_write_json(self.root / MANIFEST, doc)
         self._closed = True
@@ -841,8 +834,102 @@ class SequenceWriter:
             self._closed = True
 
 
-def _encode_png(cv2: Any, array: NDArray[np.uint8]) -> bytes:
-    ok, buf = cv2.imencode(".png", np.ascontiguousarray(array))
+def frame_info(
+    index: int, timestamp: float, labels: bool = False, depth: bool = False
+) -> FrameInfo:
+    """The standard file names of frame ``index`` (``images/NNNNNN.png`` etc.)."""
+    name = f"{index:06d}"
+    return FrameInfo(
+        index,
+        float(timestamp),
+        f"images/{name}.png",
+        f"lidar/{name}.bin",
+        f"labels/{name}.png" if labels else None,
+        f"depth/{name}.npy" if depth else None,
+    )
+
+
+def write_frame(
+    root: str | PathLike[str],
+    index: int,
+    timestamp: float,
+    camera: Camera,
+    image: NDArray[np.uint8],
+    lidar: ArrayLike,
+    labels: NDArray[np.uint8] | None = None,
+    depth: NDArray[np.floating[Any]] | None = None,
+    png_compression: int | None = None,
+) -> FrameInfo:
+    """Check and write the files of frame ``index`` atomically; return its :class:`FrameInfo`.
+
+    Stateless (safe in worker processes); :meth:`SequenceWriter.register_frame` then adds the
+    returned info in order. Arguments as in :meth:`SequenceWriter.add_frame`; ``png_compression``
+    is OpenCV's PNG level 0-9 (None = OpenCV's default).
+
+    Raises
+    ------
+    SequenceError
+        On a wrong shape, dtype or value (naming ``frames[index].<file>``).
+    """
+    import cv2
+
+    out = Path(root)
+    where = f"frames[{index}]"
+    hw = (camera.height, camera.width)
+    img = np.asarray(image)
+    if img.dtype != np.uint8 or img.shape != (*hw, 3):
+        raise SequenceError(
+            f"expected a {(*hw, 3)} uint8 RGB image, got {img.shape} {img.dtype}",
+            out,
+            f"{where}.image",
+        )
+    pts = np.asarray(lidar)
+    if pts.ndim != 2 or pts.shape[1] != 4 or not np.issubdtype(pts.dtype, np.floating):
+        raise SequenceError(
+            f"expected (M, 4) float x y z intensity, got {pts.shape} {pts.dtype}",
+            out,
+            f"{where}.lidar",
+        )
+    lab = None
+    if labels is not None:
+        lab = np.asarray(labels)
+        if lab.dtype != np.uint8 or lab.shape != hw:
+            raise SequenceError(
+                f"expected a {hw} uint8 label image, got {lab.shape} {lab.dtype}",
+                out,
+                f"{where}.labels",
+            )
+        if lab.size and int(lab.max()) > max(Label):
+            raise SequenceError(
+                f"label id {int(lab.max())} is not a bimcap.labels.Label", out, f"{where}.labels"
+            )
+    dep = None
+    if depth is not None:
+        dep = np.asarray(depth)
+        if not np.issubdtype(dep.dtype, np.floating) or dep.shape != hw:
+            raise SequenceError(
+                f"expected a {hw} float depth image, got {dep.shape} {dep.dtype}",
+                out,
+                f"{where}.depth",
+            )
+        dep = dep.astype(np.float32)
+        if not np.isfinite(dep).all() or (dep < 0).any():
+            raise SequenceError("depth must be finite and >= 0", out, f"{where}.depth")
+    params = [] if png_compression is None else [cv2.IMWRITE_PNG_COMPRESSION, int(png_compression)]
+    info = frame_info(index, timestamp, lab is not None, dep is not None)
+    atomic_write_bytes(out / info.image, _encode_png(cv2, img[:, :, ::-1], params))
+    atomic_write_bytes(out / info.lidar, pts.astype(_LIDAR_DTYPE).tobytes())
+    if lab is not None and info.labels is not None:
+        atomic_write_bytes(out / info.labels, _encode_png(cv2, lab, params))
+    if dep is not None and info.depth is not None:
+        buf = io.BytesIO()
+        np.save(buf, dep, allow_pickle=False)
+        atomic_write_bytes(out / info.depth, buf.getvalue())
+    return info
+
+
+def _encode_png(cv2: Any, array: NDArray[np.uint8], params: list[int] | None = None) -> bytes:
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(array), params or [])
     if not ok:
         raise SequenceError("PNG encoding failed")
     return bytes(buf.tobytes())
@@ -874,9 +961,10 @@ def add_trajectory(
         raise SequenceError("refusing to overwrite the ground truth", target, "poses.gt")
     if target.exists() and not overwrite:
         raise SequenceError("already exists (use overwrite / --force)", target, f"poses.{name}")
-    if len(trajectory) != len(s.frames) or (
-        np.abs(trajectory.timestamps - s.timestamps) > TIMESTAMP_TOLERANCE_S
-    ).any():
+    if (
+        len(trajectory) != len(s.frames)
+        or (np.abs(trajectory.timestamps - s.timestamps) > TIMESTAMP_TOLERANCE_S).any()
+    ):
         raise SequenceError(
             f"needs one pose per frame with the frames' timestamps ({len(s.frames)} frames, "
             f"{len(trajectory)} poses)",

@@ -1,4 +1,4 @@
-"""Map-quality metrics of DESIGN §4: MME, MPV (no ground truth needed) and NND (against a reference).
+"""Map-quality metrics of DESIGN §4: MME, MPV (no ground truth needed) and NND (needs a reference).
 
 MME and MPV reproduce the ``map-metrics`` 0.0.5 package (Skoltech) to 1e-9:
 
@@ -7,17 +7,19 @@ MME and MPV reproduce the ``map-metrics`` 0.0.5 package (Skoltech) to 1e-9:
   distance ``<= radius``); the point is used if the count is **strictly greater** than
   ``min_neighbours``;
 - Σ is the unbiased (N − 1) covariance of those neighbours (``np.cov``);
-- MME = mean over used points with ``det(2πeΣ) > 0`` of ``½ ln det(2πeΣ)`` (nats; lower is sharper);
+- MME = mean over used points with ``det(2πeΣ) > 0`` of ``½ ln det(2πeΣ)`` (nats; lower is
+  sharper);
 - MPV = mean over used points of the smallest eigenvalue of Σ (m²).
 
 Covariances are computed in batches relative to each query point (better conditioned than raw
 sums of squares), with a scipy ``cKDTree`` for the radius search; memory is bounded by batching
 about two million neighbour pairs at a time.
 
-NND follows ConSLAM's ``constrained_RMSE`` idea: distances from each map point to its nearest
-neighbour in the reference cloud, with a cut-off. By default (:attr:`CutoffMode.EXCLUDE`) points
-farther than the cut-off are left out of the mean (they are counted and reported as
-``n_beyond_cutoff``); :attr:`CutoffMode.CLAMP` counts them as the cut-off instead.
+NND follows ConSLAM's ``tools/constrained_RMSE``: distances from each map point to its nearest
+neighbour in the reference cloud; by default (:attr:`CutoffMode.EXCLUDE`, ConSLAM's rule) points at
+a distance >= the cut-off are left out (counted as ``n_beyond_cutoff``). NND is the mean of the
+kept distances; their RMS (ConSLAM's number) is reported beside it. :attr:`CutoffMode.CLAMP`
+counts far points as the cut-off instead.
 """
 
 from __future__ import annotations
@@ -63,8 +65,8 @@ class MapMetrics:
     mpv: mean plane variance, m².
     radius_m, min_neighbours: the neighbourhood parameters (count must be > min_neighbours).
     n_points: points in the map; n_used_mpv / n_used_mme: points that entered each mean.
-    nnd_m, nnd_reference, nnd_cutoff_m, nnd_cutoff_mode, n_beyond_cutoff: NND and how it was taken
-    (``None`` when no reference was given).
+    nnd_m, nnd_rmse_m, nnd_reference, nnd_cutoff_m, nnd_cutoff_mode, n_beyond_cutoff: NND (mean and
+    RMS distance) and how it was taken (``None`` when no reference was given).
     """
 
     mme: float
@@ -75,6 +77,7 @@ class MapMetrics:
     n_used_mpv: int
     n_used_mme: int
     nnd_m: float | None = None
+    nnd_rmse_m: float | None = None
     nnd_reference: str | None = None
     nnd_cutoff_m: float | None = None
     nnd_cutoff_mode: CutoffMode | None = None
@@ -93,6 +96,7 @@ class MapMetrics:
             "n_used_mpv": self.n_used_mpv,
             "n_used_mme": self.n_used_mme,
             "nnd_m": num(self.nnd_m),
+            "nnd_rmse_m": num(self.nnd_rmse_m),
             "nnd_reference": self.nnd_reference,
             "nnd_cutoff_m": self.nnd_cutoff_m,
             "nnd_cutoff_mode": None if self.nnd_cutoff_mode is None else self.nnd_cutoff_mode.value,
@@ -102,16 +106,19 @@ class MapMetrics:
     def format_table(self) -> str:
         """A plain-text table for the terminal."""
         lines = [
-            f"map: {self.n_points} points, radius {self.radius_m:g} m, "
-            f"more than {self.min_neighbours} neighbours (unbiased covariance)",
+            (
+                f"map: {self.n_points} points, radius {self.radius_m:g} m, "
+                f"more than {self.min_neighbours} neighbours (unbiased covariance)"
+            ),
             f"{'MME [nats]':<18}{self.mme:>12.4f}   ({self.n_used_mme} points)",
             f"{'MPV [m^2]':<18}{self.mpv:>12.6f}   ({self.n_used_mpv} points)",
         ]
         if self.nnd_m is not None:
+            mode = self.nnd_cutoff_mode.value if self.nnd_cutoff_mode else "?"
             lines.append(
-                f"{'NND [m]':<18}{self.nnd_m:>12.4f}   (reference {self.nnd_reference}, cut-off "
-                f"{self.nnd_cutoff_m:g} m, {self.nnd_cutoff_mode.value if self.nnd_cutoff_mode else ''}"
-                f", {self.n_beyond_cutoff} points beyond)"
+                f"{'NND [m]':<18}{self.nnd_m:>12.4f}   (RMS {self.nnd_rmse_m:.4f}; reference "
+                f"{self.nnd_reference}, cut-off {self.nnd_cutoff_m:g} m, {mode}, "
+                f"{self.n_beyond_cutoff} points at or beyond it)"
             )
         return "\n".join(lines)
 
@@ -168,30 +175,31 @@ def neighbourhood_covariances(
     if not radius > 0:
         raise EvaluationError(f"radius must be positive, got {radius}")
     tree = cKDTree(pts)
-    counts = tree.query_ball_point(pts, radius, return_length=True).astype(np.int64)
-    keep = np.flatnonzero((counts > min_neighbours) & (counts >= 2))
-    covs = np.empty((len(keep), 3, 3))
-    start = 0
-    while start < len(keep):
-        # grow the batch until it holds about _CHUNK_PAIRS neighbour pairs
-        csum = np.cumsum(counts[keep[start:]])
-        stop = start + max(1, int(np.searchsorted(csum, _CHUNK_PAIRS)))
-        q = keep[start:stop]
-        # all (query, neighbour) pairs of this batch, self pairs included, in C
+    kept: list[NDArray[np.int64]] = []
+    cov_parts: list[F64] = []
+    start, batch = 0, 4096
+    while start < len(pts):
+        q = np.arange(start, min(len(pts), start + batch))
+        # all (query, neighbour) pairs of this batch, self pairs included, computed in C
         pairs = cKDTree(pts[q]).sparse_distance_matrix(tree, radius, output_type="ndarray")
-        owner = pairs["i"]
+        owner = np.ascontiguousarray(pairs["i"])
         d = pts[pairs["j"]] - pts[q][owner]  # offsets from the query point: small numbers
-        n = np.bincount(owner, minlength=len(q)).astype(np.float64)
+        n = np.bincount(owner, minlength=len(q))
         s1 = np.stack([np.bincount(owner, d[:, a], len(q)) for a in range(3)], axis=1)
         s2 = np.empty((len(q), 3, 3))
         for a in range(3):
             for b in range(a, 3):
                 s2[:, a, b] = s2[:, b, a] = np.bincount(owner, d[:, a] * d[:, b], len(q))
-        mean = s1 / n[:, None]
-        covs[start:stop] = (s2 - n[:, None, None] * mean[:, :, None] * mean[:, None, :]) / (
-            n[:, None, None] - 1.0
-        )
-        start = stop
+        use = (n > min_neighbours) & (n >= 2)
+        nf = n[use].astype(np.float64)[:, None, None]
+        mean = s1[use] / nf[:, :, 0]
+        cov_parts.append((s2[use] - nf * mean[:, :, None] * mean[:, None, :]) / (nf - 1.0))
+        kept.append(q[use])
+        start += len(q)
+        # size the next batch to about _CHUNK_PAIRS neighbour pairs
+        batch = max(1, int(_CHUNK_PAIRS * len(q) / max(len(pairs), 1)))
+    keep = np.concatenate(kept) if kept else np.zeros(0, dtype=np.int64)
+    covs = np.concatenate(cov_parts) if cov_parts else np.zeros((0, 3, 3))
     return keep.astype(np.int64), covs
 
 
@@ -228,26 +236,44 @@ def map_metrics(
     )
 
 
+@dataclass(frozen=True)
+class NearestNeighbourDistance:
+    """NND of a map against a reference cloud.
+
+    Attributes
+    ----------
+    mean_m: mean nearest-neighbour distance over the counted points, metres (``nan`` if none).
+    rmse_m: root mean square of the same distances, metres: ConSLAM's ``constrained_RMSE`` when
+        the mode is EXCLUDE.
+    n_beyond_cutoff: points whose distance is >= the cut-off.
+    n_points: points of the map.
+    """
+
+    mean_m: float
+    rmse_m: float
+    n_beyond_cutoff: int
+    n_points: int
+
+
 def nearest_neighbour_distance(
     points: ArrayLike,
     reference: ArrayLike,
     cutoff: float = DEFAULT_NND_CUTOFF,
     mode: CutoffMode | str = CutoffMode.EXCLUDE,
-) -> tuple[float, int]:
-    """NND: mean distance from each map point to its nearest reference point, with a cut-off.
+) -> NearestNeighbourDistance:
+    """NND: distance from each map point to its nearest reference point, with a cut-off.
+
+    ConSLAM's ``tools/constrained_RMSE`` ignores nearest neighbours at a distance >= the threshold
+    (0.3 m) and reports ``sqrt(mean d²)`` over the rest; EXCLUDE mode does the same selection and
+    reports both the mean (DESIGN §4's NND) and that RMSE.
 
     Parameters
     ----------
     points: (P, 3) map points, metres.
     reference: (R, 3) reference cloud (the map built with ground-truth poses, or the BIM cloud).
     cutoff: metres (> 0).
-    mode: :class:`CutoffMode`: EXCLUDE drops points beyond the cut-off from the mean, CLAMP counts
-        them as ``cutoff``.
-
-    Returns
-    -------
-    The mean distance in metres (``nan`` if every point is beyond the cut-off in EXCLUDE mode) and
-    the number of points beyond the cut-off.
+    mode: :class:`CutoffMode`: EXCLUDE drops points with ``d >= cutoff``; CLAMP counts them as
+        ``cutoff``.
     """
     pts = _as_points(points, "points")
     ref = _as_points(reference, "reference")
@@ -256,11 +282,19 @@ def nearest_neighbour_distance(
     if not cutoff > 0:
         raise EvaluationError(f"cutoff must be positive, got {cutoff}")
     dist, _ = cKDTree(ref).query(pts, k=1)
-    beyond = dist > cutoff
+    beyond = dist >= cutoff
     if CutoffMode(mode) is CutoffMode.CLAMP:
-        return float(np.mean(np.minimum(dist, cutoff))), int(beyond.sum())
-    inside = dist[~beyond]
-    return (float(np.mean(inside)) if inside.size else float("nan")), int(beyond.sum())
+        used = np.minimum(dist, cutoff)
+    else:
+        used = dist[~beyond]
+    if used.size == 0:
+        return NearestNeighbourDistance(float("nan"), float("nan"), int(beyond.sum()), len(pts))
+    return NearestNeighbourDistance(
+        mean_m=float(np.mean(used)),
+        rmse_m=float(np.sqrt(np.mean(used**2))),
+        n_beyond_cutoff=int(beyond.sum()),
+        n_points=len(pts),
+    )
 
 
 def map_metrics_with_reference(
@@ -274,7 +308,7 @@ def map_metrics_with_reference(
 ) -> MapMetrics:
     """MME, MPV and NND (against ``reference``, named ``reference_name`` in the output)."""
     m = map_metrics(points, radius, min_neighbours)
-    nnd, beyond = nearest_neighbour_distance(points, reference, cutoff, mode)
+    nnd = nearest_neighbour_distance(points, reference, cutoff, mode)
     return MapMetrics(
         mme=m.mme,
         mpv=m.mpv,
@@ -283,11 +317,12 @@ def map_metrics_with_reference(
         n_points=m.n_points,
         n_used_mpv=m.n_used_mpv,
         n_used_mme=m.n_used_mme,
-        nnd_m=nnd,
+        nnd_m=nnd.mean_m,
+        nnd_rmse_m=nnd.rmse_m,
         nnd_reference=reference_name,
         nnd_cutoff_m=float(cutoff),
         nnd_cutoff_mode=CutoffMode(mode),
-        n_beyond_cutoff=beyond,
+        n_beyond_cutoff=nnd.n_beyond_cutoff,
     )
 
 
@@ -307,7 +342,7 @@ def read_ply_points(path: str | PathLike[str]) -> F64:
             raise EvaluationError("not a PLY file (no 'ply' magic)", p)
     import open3d as o3d  # heavy; only here
 
-    cloud = o3d.io.read_point_cloud(str(p), format="ply")
+    cloud = o3d.io.read_point_cloud(p, format="ply")
     pts = np.asarray(cloud.points, dtype=np.float64)
     if pts.size == 0:
         raise EvaluationError("no points could be read", p)

@@ -128,8 +128,10 @@ class TrajectoryMetrics:
         """A plain-text table for the terminal."""
         p, r = self.ate_pos_m, self.ate_rot_deg
         lines = [
-            f"trajectory: {self.n_matched} matched poses (est {self.n_est}, gt {self.n_gt}, "
-            f"|dt| <= {self.max_dt_s:g} s), alignment: {self.align.value}",
+            (
+                f"trajectory: {self.n_matched} matched poses (est {self.n_est}, gt {self.n_gt}, "
+                f"|dt| <= {self.max_dt_s:g} s), alignment: {self.align.value}"
+            ),
             f"{'metric':<18}{'rmse':>12}{'mean':>12}{'median':>12}{'max':>12}",
             f"{'ATE_pos [m]':<18}{p.rmse:>12.4f}{p.mean:>12.4f}{p.median:>12.4f}{p.max:>12.4f}",
             f"{'ATE_rot [deg]':<18}{r.rmse:>12.4f}{r.mean:>12.4f}{r.median:>12.4f}{r.max:>12.4f}",
@@ -193,7 +195,9 @@ def associate(
     return (idx_second, idx_first) if swap else (idx_first, idx_second)
 
 
-def frame_errors(est_world_from_cam: ArrayLike, gt_world_from_cam: ArrayLike) -> tuple[F64, F64, F64]:
+def frame_errors(
+    est_world_from_cam: ArrayLike, gt_world_from_cam: ArrayLike
+) -> tuple[F64, F64, F64]:
     """Per-frame errors of matched poses (no alignment).
 
     Parameters
@@ -246,7 +250,11 @@ def trajectory_metrics(
         sim = umeyama_alignment(est[:, :3], gt[:, :3], with_scale=mode is AlignMode.SIM3)
         est = sim.apply_poses(est)
     trans, rot, ypr = frame_errors(est, gt)
-    ts = np.arange(len(est), dtype=np.float64) if timestamps is None else np.asarray(timestamps, dtype=np.float64)
+    ts = (
+        np.arange(len(est), dtype=np.float64)
+        if timestamps is None
+        else np.asarray(timestamps, dtype=np.float64)
+    )
     ypr_rmse = np.sqrt(np.mean(ypr**2, axis=0))
     return TrajectoryMetrics(
         ate_pos_m=ErrorStats.of(trans),

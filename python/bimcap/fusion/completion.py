@@ -3,12 +3,15 @@
 Methods (:class:`CompletionMethod`):
 
 - ``LINEAR``: barycentric interpolation over a Delaunay triangulation of the sparse returns
-  (sub-pixel positions); triangles with an edge longer than ``max_edge_px`` or a depth ratio
-  ``z_max / z_min > max_depth_ratio`` (they bridge a depth edge) leave their pixels at 0.
+  (sub-pixel positions), of inverse depth by default (exact for a plane seen through a pinhole);
+  triangles with an edge longer than ``max_edge_px``, a depth ratio ``z_max / z_min >
+  max_depth_ratio`` (they bridge a depth edge) or an area under 1 px² leave their pixels at 0.
 - ``CLASSICAL``: CPU morphology in the spirit of Ku et al. 2018 ("In Defense of Classical Image
-  Processing"): invert depth (so that dilation prefers near returns), diamond-kernel dilation,
-  morphological close, small hole fill, optional column-wise extrapolation, large hole fill,
-  median blur, bilateral or Gaussian blur, re-invert. Runs at ``work_scale`` of the image
+  Processing"): invert depth (so that dilation prefers near returns), diamond-kernel dilation
+  (joins the returns along each ring), column-wise interpolation of the gaps between rings in
+  1/z (our addition, see :class:`ClassicalOptions`), morphological close, small hole fill,
+  optional column-wise extrapolation, large hole fill, median blur, bilateral or Gaussian blur,
+  re-invert. Runs at ``work_scale`` of the image
   (the sparse map is min-pooled down, the result resized up; stated in the bench table).
 - ``ONNX``: a user-supplied network (CompletionFormer-like: RGB + sparse depth in, dense depth
   out) through ONNX Runtime, see :mod:`bimcap.fusion.onnx_completion`.
@@ -70,8 +73,8 @@ class ClassicalOptions:
     max_depth_m: inversion constant (``max_depth - z``), larger than any depth.
     dilation_size: size of the diamond kernel of the first dilation.
     close_size, small_fill_size, large_fill_size: full kernels of close / small and large hole fill.
-    vertical_interpolation: before Ku's large fill, fill the gaps between LiDAR rings column by
-        column, linearly in inverse depth (gaps <= ``max_gap_px`` rows whose end depths differ by
+    vertical_interpolation: right after the first dilation, fill the gaps between LiDAR rings
+        column by column, linearly in inverse depth (gaps <= ``max_gap_px`` rows whose end depths differ by
         a ratio <= ``max_gap_depth_ratio``). Not in Ku et al. (KITTI's 64 rings leave small
         gaps); for 16-32 ring LiDARs it is what lets the method beat nearest-neighbour filling.
     extrapolate: extend each column's top-most and bottom-most values to the image border.
@@ -207,7 +210,9 @@ def complete_linear(sparse: SparseDepth | ArrayLike, options: LinearOptions | No
     )
     zt = z[simp]
     ratio = zt.max(1) / zt.min(1)
-    good = (edge <= opts.max_edge_px) & (ratio <= opts.max_depth_ratio)
+    e1, e2 = pb - pa, pc - pa
+    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]  # twice the signed area, px²
+    good = (edge <= opts.max_edge_px) & (ratio <= opts.max_depth_ratio) & (np.abs(det) > 2.0)
     # rasterise triangle ids (cv2 fill in a loop over kept triangles is far faster than
     # Delaunay.find_simplex on every pixel); id 0 = none
     tri_id = np.zeros((h, w), dtype=np.int32)
@@ -217,18 +222,24 @@ def complete_linear(sparse: SparseDepth | ArrayLike, options: LinearOptions | No
         cv2.fillConvexPoly(tri_id, poly, int(k) + 1, lineType=cv2.LINE_8, shift=4)
     rows, cols = np.nonzero(tri_id)
     k = tri_id[rows, cols] - 1
-    # barycentric coordinates through Qhull's affine transforms
-    trans = tri.transform[k]
-    q = np.stack([cols, rows], 1).astype(np.float64)
-    b01 = np.einsum("nij,nj->ni", trans[:, :2, :], q - trans[:, 2, :])
-    bary = np.concatenate([b01, 1.0 - b01.sum(1, keepdims=True)], 1)
-    bary = np.clip(bary, 0.0, 1.0)  # pixel centres just outside a triangle's exact edge
-    bary /= bary.sum(1, keepdims=True)
+    # per triangle, the affine function f(u, v) = a u + b v + c through its three corners, with
+    # f = 1/z (exact for a plane seen through a pinhole) or f = z; one gather per pixel. Pixel
+    # centres up to half a pixel outside their rasterised triangle are extrapolated (exact for
+    # a plane); slivers (area < 1 px²) were dropped above, so this stays well conditioned.
+    gi = good_idx
+    mat = np.ones((len(gi), 3, 3))
+    mat[:, :, :2] = np.stack([pa[gi], pb[gi], pc[gi]], 1)
+    vals = 1.0 / zt[gi] if opts.inverse_depth else zt[gi]
+    coef_good = np.linalg.solve(mat, vals[:, :, None])[:, :, 0]
+    coef = np.zeros((len(simp), 3))
+    coef[gi] = coef_good
+    ck = coef[k]
+    f = ck[:, 0] * cols + ck[:, 1] * rows + ck[:, 2]
     out = np.zeros((h, w), dtype=np.float32)
     if opts.inverse_depth:
-        out[rows, cols] = 1.0 / (bary / zt[k]).sum(1)
+        out[rows, cols] = np.where(f > 0, 1.0 / np.maximum(f, 1e-12), 0.0)
     else:
-        out[rows, cols] = (bary * zt[k]).sum(1)
+        out[rows, cols] = np.maximum(f, 0.0)
     return out
 
 
@@ -290,14 +301,14 @@ def complete_classical(sparse: SparseDepth | ArrayLike, options: ClassicalOption
     valid = d > 0.1
     d[valid] = opts.max_depth_m - d[valid]
     d = cv2.dilate(d, _diamond(opts.dilation_size))
+    if opts.vertical_interpolation:
+        d = _fill_vertical_gaps(d, opts)
     if opts.close_size > 1:
         d = cv2.morphologyEx(d, cv2.MORPH_CLOSE, np.ones((opts.close_size,) * 2, np.uint8))
     if opts.small_fill_size > 1:
         empty = d < 0.1
         dil = cv2.dilate(d, np.ones((opts.small_fill_size,) * 2, np.uint8))
         d[empty] = dil[empty]
-    if opts.vertical_interpolation:
-        d = _fill_vertical_gaps(d, opts)
     if opts.extrapolate:
         d = _extrapolate_columns(d)
     if opts.large_fill_size > 1:

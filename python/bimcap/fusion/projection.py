@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import Enum
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -157,6 +158,19 @@ def _pose_rt(pose: ArrayLike, name: str) -> tuple[F64, F64]:
     return quat_to_rotmat(p[3:]), p[:3]
 
 
+@lru_cache(maxsize=16)
+def _monotonic_radius(camera: Camera) -> float:
+    """Largest undistorted radius up to which the radial model ``r·(1 + k1 r² + k2 r⁴ + k3 r⁶)``
+    still grows; beyond it the polynomial folds points back toward the centre (∞ if never)."""
+    k1, k2, _, _, k3 = camera.dist
+    r = np.linspace(0.0, 5.0, 50001)
+    r2 = r * r
+    rd = r * (1.0 + r2 * (k1 + r2 * (k2 + r2 * k3)))
+    falling = np.flatnonzero(np.diff(rd) <= 0)
+    return float(r[falling[0]]) if len(falling) else float("inf")
+
+
+@lru_cache(maxsize=16)
 def _fov_bounds(camera: Camera) -> tuple[float, float, float, float]:
     """Normalised (x, y) bounds of the raw image's field of view (undistorted border rays)."""
     w, h = camera.width, camera.height
@@ -191,8 +205,8 @@ def project_lidar(
 
     Steps: transform, keep ``min < z < max``, keep points inside the camera's field of view (only
     those are used: the normalised coordinates must lie within the undistorted raw image's
-    bounds, so that no point outside the FoV can wrap into the image through the distortion
-    polynomial), round to the nearest pixel, z-buffer (nearest return per pixel), parallax
+    bounds and inside the radius up to which the distortion polynomial is monotonic, so that no
+    point outside the FoV can wrap into the image through the polynomial), round to the nearest pixel, z-buffer (nearest return per pixel), parallax
     occlusion test (module docstring).
 
     Raises
@@ -226,7 +240,9 @@ def project_lidar(
     xy = p_in_cam[:, :2] / z[:, None]
     if distort and camera.is_distorted:
         x0, x1, y0, y1 = _fov_bounds(camera)
+        r_max = _monotonic_radius(camera)
         in_fov = (xy[:, 0] >= x0) & (xy[:, 0] <= x1) & (xy[:, 1] >= y0) & (xy[:, 1] <= y1)
+        in_fov &= (xy * xy).sum(1) < r_max * r_max
         index, xy, z = index[in_fov], xy[in_fov], z[in_fov]
         xy = camera.distort_normalized(xy)
     uv = np.stack([camera.fx * xy[:, 0] + camera.cx, camera.fy * xy[:, 1] + camera.cy], axis=1)
