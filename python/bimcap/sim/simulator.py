@@ -19,7 +19,6 @@ the same seed and configuration give byte-identical files whatever the number of
 
 from __future__ import annotations
 
-import io
 import os
 import time
 from collections.abc import Sequence
@@ -32,15 +31,15 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from bimcap.dataset import MANIFEST, FrameInfo, LidarInfo, Sequence, SequenceWriter, read_sequence
+from bimcap.dataset import MANIFEST, FrameInfo, LidarInfo, Sequence, SequenceWriter, write_frame
 from bimcap.geometry.camera import Camera
 from bimcap.geometry.poses import compose, matrix_to_pose
-from bimcap.geometry.trajectory import Trajectory, write_tum
-from bimcap.io.atomic import atomic_write_bytes, atomic_write_json, check_not_input
+from bimcap.geometry.trajectory import Trajectory
+from bimcap.io.atomic import check_not_input
 from bimcap.labels import Label
 from bimcap.sim.clutter import ClutterObject, box_mesh, place_clutter
 from bimcap.sim.lidar import LidarConfig, LidarSimulator
-from bimcap.sim.render import MeshPart, Renderer, RenderedFrame, ShadingConfig, SimError, World
+from bimcap.sim.render import MeshPart, Renderer, ShadingConfig, SimError, World
 from bimcap.sim.texture import TextureBank
 from bimcap.sim.walk import FreeSpace, Walk, WalkConfig, plan_walk
 
@@ -302,66 +301,17 @@ def sidecar_free_space(ifc: str | PathLike[str], storey: int = 0
 
 
 # ------------------------------------------------------------------------------- frame writing
-def frame_names(i: int) -> dict[str, str]:
-    """Relative file names of frame ``i`` in a sequence directory."""
-    return {
-        "image": f"images/{i:06d}.png",
-        "lidar": f"lidar/{i:06d}.bin",
-        "labels": f"labels/{i:06d}.png",
-        "depth": f"depth/{i:06d}.npy",
-    }
-
-
-def _png_bytes(img: NDArray[np.uint8], compression: int) -> bytes:
-    import cv2
-
-    arr = img[:, :, ::-1] if img.ndim == 3 else img  # OpenCV writes BGR
-    params = [cv2.IMWRITE_PNG_COMPRESSION, compression]
-    ok, buf = cv2.imencode(".png", np.ascontiguousarray(arr), params)
-    if not ok:
-        raise SimError("PNG encoding failed")
-    return buf.tobytes()
-
-
-def _npy_bytes(arr: NDArray[Any]) -> bytes:
-    bio = io.BytesIO()
-    np.save(bio, arr, allow_pickle=False)
-    return bio.getvalue()
-
-
-def _write_frame(out: Path, i: int, frame: RenderedFrame, scan: NDArray[np.float32] | None,
-                 cfg: SimulatorConfig) -> None:
-    """Write frame ``i``'s files atomically (one small function: the sequence writer's job)."""
-    names = frame_names(i)
-    atomic_write_bytes(out / names["image"], _png_bytes(frame.rgb, cfg.png_compression))
-    if cfg.write_labels:
-        atomic_write_bytes(out / names["labels"], _png_bytes(frame.labels, cfg.png_compression))
-    if cfg.write_depth:
-        atomic_write_bytes(out / names["depth"], _npy_bytes(frame.depth))
-    if scan is not None:
-        atomic_write_bytes(out / names["lidar"], np.ascontiguousarray(scan, "<f4").tobytes())
-
-
-def _finish_sequence(out: Path, cfg: SimulatorConfig, timestamps: F64, world_from_cam: F64,
-                     ifc_ref: str | None, source: dict[str, Any]) -> Sequence:
-    """Write ``poses/gt.tum`` and then the manifest (last, atomically); read the sequence back.
-
-    The frame files were written by the render workers with :func:`frame_names`; the manifest is
-    :class:`bimcap.dataset.SequenceWriter`'s, so the schema is the dataset module's.
-    """
-    if cfg.lidar is None:  # the format requires a scan per frame: write empty ones
-        for i in range(len(timestamps)):
-            atomic_write_bytes(out / frame_names(i)["lidar"], b"")
+def _finish_sequence(out: Path, cfg: SimulatorConfig, frames: list[FrameInfo],
+                     world_from_cam: F64, ifc_ref: str | None, source: dict[str, Any]) -> Sequence:
+    """Register the frames (written by the render workers with :func:`bimcap.dataset.write_frame`)
+    with a :class:`bimcap.dataset.SequenceWriter`, which writes ``poses/gt.tum`` and the manifest
+    last, and returns the sequence read back."""
     lidar = LidarInfo.from_dict((cfg.lidar or LidarConfig()).to_dict())
     writer = SequenceWriter(out, cfg.camera, np.asarray(cfg.cam_from_lidar), lidar=lidar,
                             ifc=ifc_ref, source=source, overwrite=True)
-    for i, ts in enumerate(timestamps):
-        names = frame_names(i)
-        writer.register_frame(FrameInfo(
-            i, float(ts), names["image"], names["lidar"],
-            names["labels"] if cfg.write_labels else None,
-            names["depth"] if cfg.write_depth else None,
-        ))
+    for info in frames:
+        writer.register_frame(info)
+    timestamps = np.array([f.timestamp for f in frames])
     writer.add_trajectory("gt", Trajectory(timestamps, world_from_cam))
     return writer.close()
 
@@ -387,9 +337,9 @@ def _init_worker(job: _RenderJob) -> None:
     )
 
 
-def _render_one(args: tuple[int, F64]) -> dict[str, float]:
-    """Render, scan and write frame ``i``; returns wall seconds per stage and CPU seconds."""
-    i, world_from_cam = args
+def _render_one(args: tuple[int, float, F64]) -> tuple[FrameInfo, dict[str, float]]:
+    """Render, scan and write frame ``i``; returns its info, wall and CPU seconds per stage."""
+    i, timestamp, world_from_cam = args
     job: _RenderJob = _WORKER["job"]
     cfg = job.config
     timings: dict[str, float] = {}
@@ -398,7 +348,7 @@ def _render_one(args: tuple[int, F64]) -> dict[str, float]:
         world_from_cam, np.random.default_rng([job.seed, 101, i]), cfg.threads_per_worker, timings
     )
     c1 = time.process_time()
-    scan = None
+    scan = np.zeros((0, 4), np.float32)  # no LiDAR: the format still wants a (0, 4) scan
     t0 = time.perf_counter()
     if _WORKER["lidar"] is not None:
         world_from_lidar = compose(world_from_cam, np.asarray(cfg.cam_from_lidar))
@@ -407,14 +357,19 @@ def _render_one(args: tuple[int, F64]) -> dict[str, float]:
         )
     t1 = time.perf_counter()
     c2 = time.process_time()
-    _write_frame(job.out_dir, i, frame, scan, cfg)
+    info = write_frame(
+        job.out_dir, i, timestamp, cfg.camera, frame.rgb, scan,
+        frame.labels if cfg.write_labels else None,
+        frame.depth if cfg.write_depth else None,
+        png_compression=cfg.png_compression,
+    )
     c3 = time.process_time()
     timings["lidar"] = t1 - t0
     timings["write"] = time.perf_counter() - t1
     timings["cpu_image"] = c1 - c0
     timings["cpu_lidar"] = c2 - c1
     timings["cpu_write"] = c3 - c2
-    return timings
+    return info, timings
 
 
 # ---------------------------------------------------------------------------------- simulation
@@ -486,7 +441,7 @@ def simulate_world(
     t0 = time.perf_counter()
     out.mkdir(parents=True, exist_ok=True)
     job = _RenderJob(world, textures, cfg, out, seed)
-    tasks = [(i, world_from_cam[i]) for i in range(cfg.frames)]
+    tasks = [(i, float(timestamps[i]), world_from_cam[i]) for i in range(cfg.frames)]
     workers = cfg.workers or (os.cpu_count() or 1)
     workers = min(workers, cfg.frames)
     stage: dict[str, float] = {}
@@ -501,7 +456,7 @@ def simulate_world(
         with ProcessPoolExecutor(workers, mp.get_context("spawn"), _init_worker, (job,)) as pool:
             chunk = max(1, cfg.frames // (4 * workers))
             results = list(pool.map(_render_one, tasks, chunksize=chunk))
-    for r in results:
+    for _, r in results:
         for k, v in r.items():
             stage[k] = stage.get(k, 0.0) + v
     timings["render_wall"] = time.perf_counter() - t0
@@ -513,7 +468,7 @@ def simulate_world(
     if ifc_path is not None:
         ifc_ref = os.path.relpath(Path(ifc_path).resolve(), out.resolve())
     sequence = _finish_sequence(
-        out, cfg, timestamps, world_from_cam, ifc_ref,
+        out, cfg, [info for info, _ in results], world_from_cam, ifc_ref,
         {
             "generator": "bimcap simulate",
             "seed": seed,
