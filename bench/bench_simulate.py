@@ -19,6 +19,33 @@ import tempfile
 import time
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+def write_pictures(seq: Any, i: int, folder: Path) -> None:
+    """RGB, label colours and the LiDAR scan projected with the manifest's calibration (colour =
+    depth, blue near → red 8 m), side by side, as ``folder/frame_NNNNNN.png``."""
+    import cv2
+
+    from bimcap.geometry.poses import transform_points
+    from bimcap.labels import LABEL_COLORS
+
+    rgb = seq.load_image(i)
+    lab = LABEL_COLORS[seq.load_labels(i)]
+    pts = seq.load_lidar(i)
+    p_cam = transform_points(seq.cam_from_lidar, pts[:, :3].astype(np.float64))
+    uv, front = seq.camera.project(p_cam)
+    ok = front & seq.camera.in_image(uv)
+    overlay = rgb.copy()
+    z8 = np.clip(p_cam[ok, 2] / 8.0 * 255.0, 0, 255).astype(np.uint8).reshape(-1, 1)
+    colours = cv2.applyColorMap(z8, cv2.COLORMAP_JET).reshape(-1, 3)[:, ::-1]
+    for (u, v), c in zip(np.rint(uv[ok]).astype(int), colours):
+        cv2.circle(overlay, (int(u), int(v)), 2, tuple(int(x) for x in c), -1)
+    folder.mkdir(parents=True, exist_ok=True)
+    strip = np.concatenate([rgb, lab, overlay], axis=1)
+    cv2.imwrite(str(folder / f"frame_{i:06d}.png"), strip[:, :, ::-1])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -30,6 +57,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=None, help="work folder (default: a temp dir)")
     ap.add_argument("--keep", action="store_true", help="keep the sequence")
+    ap.add_argument("--pictures", type=Path, default=None,
+                    help="write RGB / label / LiDAR-overlay PNGs of a few frames into this folder")
     args = ap.parse_args(argv)
 
     from bimcap.sim.building import as_built, generate_building
@@ -94,6 +123,10 @@ def main(argv: list[str] | None = None) -> int:
           f"{cpu_total:.1f} s / 2 = {est:.1f} s -> {per200:.1f} s per 200 frames (target < 60 s)")
     size = sum(p.stat().st_size for p in seq_dir.rglob("*") if p.is_file())
     print(f"sequence size: {size / 1e6:.1f} MB in {seq_dir}")
+    if args.pictures is not None:
+        for i in np.linspace(0, args.frames - 1, 4).astype(int):
+            write_pictures(res.sequence, int(i), args.pictures)
+        print(f"pictures in {args.pictures}")
     if not args.keep and args.out is None:
         shutil.rmtree(work)
     return 0
