@@ -316,3 +316,29 @@ def test_worker_processes_do_not_change_the_files(tmp_path: Path, building) -> N
             for p in sorted(out.rglob("*")) if p.is_file()
         })
     assert digests[0] == digests[1]
+
+
+def test_clutter_stays_off_the_path_and_is_labelled(building) -> None:
+    from scipy.spatial import cKDTree
+
+    from bimcap.sim.clutter import place_clutter
+
+    parts, polys, doors = building
+    world = World.from_parts(parts)
+    free = FreeSpace.from_polygons(world, polys, 0.0, doors)
+    walk = plan_walk(free, 30.0, np.random.default_rng(2))
+    placed = place_clutter(free, walk.path_xy, np.random.default_rng(3), density_per_m2=0.15)
+    assert len(placed) >= 5
+    tree = cKDTree(walk.path_xy)
+    for obj in placed:
+        assert obj.part.label == Label.CLUTTER
+        # every vertex of the object is clear of the walking path by its margin
+        d, _ = tree.query(obj.part.vertices[:, :2])
+        assert d.min() >= 0.5
+        assert obj.part.vertices[:, 2].min() == pytest.approx(0.0)  # stands on the floor
+    # pairwise separation
+    centres = np.array([o.center_xy for o in placed])
+    radii = np.array([o.radius for o in placed])
+    dist = np.linalg.norm(centres[:, None] - centres[None], axis=-1)
+    np.fill_diagonal(dist, np.inf)
+    assert (dist >= radii[:, None] + radii[None] + 0.2 - 1e-9).all()

@@ -13,8 +13,9 @@ z axis is the camera's −y axis (up when the camera is level) and its x axis th
 (forward), so the VLP-16's ±15° fan is centred on the horizon.
 
 Determinism: everything random derives from ``seed`` through ``numpy.random.default_rng`` with a
-fixed key per use (walk, clutter, textures, frame ``i`` image noise, frame ``i`` LiDAR noise), so
-the same seed and configuration give byte-identical files whatever the number of worker processes.
+fixed key per use (walk, clutter, element texture offsets, frame ``i`` image noise, frame ``i``
+LiDAR noise; the texture tiles come from ``config.texture_seed``), so the same seed and
+configuration give byte-identical files whatever the number of worker processes.
 """
 
 from __future__ import annotations
