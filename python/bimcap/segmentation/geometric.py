@@ -31,8 +31,9 @@ IoU reported by the bench includes what this costs.
    taller than ``column_min_height_m``, narrower than ``column_max_width_m`` and protruding is
    a column (a round column's normals turn continuously, so no plane takes it, but it is tall
    and thin). Walls and columns reach the ceiling: a vertical region whose top stays more than
-   ``top_gap_m`` below the fitted ceiling (below the camera when no ceiling is seen), and that
-   is not cut by the image's top, is clutter (crates, tables, cabinets' sides).
+   ``top_gap_m`` below the fitted ceiling (when no ceiling is seen: below
+   ``top_without_ceiling_m`` relative to the camera, i.e. about 1.1 m above the floor for a
+   hand-held camera), and that is not cut by the image's top, is clutter (crates, tables).
 4. Everything else with depth is clutter; no depth is unknown. Pixels left undecided (no normal
    at depth edges, blended normals along creases) take the label of the planar region within
    ``crease_px`` whose plane they lie on (the nearest such plane).
@@ -76,12 +77,14 @@ class GeometricOptions:
     min_plane_fraction: float = 0.004
     min_region_fraction: float = 0.002
     column_max_width_m: float = 1.2
+    column_min_width_m: float = 0.0
     column_min_height_m: float = 1.0
     protrusion_px: int = 24
     protrusion_min_rows: float = 0.6
     crease_px: int = 8
     protrusion_sides: int = 2
     top_gap_m: float = 0.4
+    top_without_ceiling_m: float = -0.4
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -282,8 +285,8 @@ def _classify_vertical_region(
     t /= np.linalg.norm(t)
     s = pts[region] @ t
     width = float(np.percentile(s, 98) - np.percentile(s, 2))
-    if width >= opts.column_max_width_m:
-        return Label.WALL
+    if width >= opts.column_max_width_m or width < opts.column_min_width_m:
+        return Label.WALL  # too wide, or as thin as a doorway's reveal (a wall's thickness)
     return Label.COLUMN if _protrudes(region, pts, plane, opts) else Label.WALL
 
 
@@ -386,7 +389,7 @@ def segment_geometric(
     if Label.CEILING in chosen:
         top_needed = float(np.median(pts[chosen[Label.CEILING]] @ up_ref)) - opts.top_gap_m
     else:
-        top_needed = 0.0
+        top_needed = opts.top_without_ceiling_m
     sin_v = np.sin(np.deg2rad(opts.vertical_angle_deg))
     vert = nok & ~assigned & (np.abs(nrm @ up_ref) < sin_v)
     remaining = vert.copy()
@@ -400,12 +403,15 @@ def segment_geometric(
         if inl.sum() < min_plane:
             break
         remaining &= ~inl
+        # whether the plane reaches the ceiling is judged on all its inliers: noise may split a
+        # wall into an upper and a lower region, and the lower one is no crate
+        plane_reaches = _reaches_up(inl, pts, up_ref, top_needed, opts)
         n_comp, comp, stats, _ = cv2.connectedComponentsWithStats(inl.astype(np.uint8), connectivity=8)
         for c in range(1, n_comp):
             if stats[c, cv2.CC_STAT_AREA] < min_region:
                 continue
             region = comp == c
-            lab = _classify_vertical_region(region, pts, plane, up_ref, top_needed, opts)
+            lab = _classify_vertical_region(region, pts, plane, up_ref, top_needed if not plane_reaches else -np.inf, opts)
             labels[region] = int(lab)
             assigned |= region
             region_id[region] = len(regions)
