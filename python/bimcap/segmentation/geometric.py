@@ -18,7 +18,9 @@ IoU reported by the bench includes what this costs.
    Pixels within ``plane_threshold(z)`` of the plane whose normal agrees are labelled. Because
    labelling uses the fitted plane rather than heights from the pose, a pitch error of several
    degrees in the initial pose only tilts the candidate cone, not the result; the floor's (or
-   ceiling's) fitted normal then replaces the pose's up vector for the walls.
+   ceiling's) fitted normal then replaces the pose's up vector for the walls, unless it is more
+   than ``max_up_correction_deg`` (10°) away from it (then the fit, not the pose, is suspect:
+   badly completed floor depth).
 3. **Walls and columns.** Candidates: normal within ``vertical_angle_deg`` of horizontal. Vertical
    planes are extracted one at a time by RANSAC with one-point hypotheses (a point and its
    normal made horizontal), refitted by a 2-D line fit in the horizontal plane. Each plane's
@@ -85,6 +87,7 @@ class GeometricOptions:
     protrusion_sides: int = 2
     top_gap_m: float = 0.4
     top_without_ceiling_m: float = -0.4
+    max_up_correction_deg: float = 10.0
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -382,6 +385,8 @@ def segment_geometric(
     else:
         up_ref = up
     up_ref = up_ref / np.linalg.norm(up_ref)
+    if up_ref @ up < np.cos(np.deg2rad(opts.max_up_correction_deg)):
+        up_ref = up  # a fitted floor this far from the pose's up is more likely wrong than the pose
 
     # ---- walls and columns (planar); they must reach up to near the ceiling (or above the
     # camera when no ceiling is seen), which tells them from crates and tables
