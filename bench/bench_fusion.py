@@ -128,6 +128,9 @@ def main() -> None:
     def depth_acc(preds: list[np.ndarray], valid: list[np.ndarray] | None = None) -> str:
         errs = [depth_errors(p, f.depth, None if valid is None else v) for p, f, v in
                 zip(preds, frames, valid or [None] * len(preds))]
+        errs = [e for e in errs if e.n > 0]
+        if not errs:
+            return "no pixels"
         n = np.array([e.n for e in errs], float)
         mae = float(np.average([e.mae for e in errs], weights=n))
         rmse = float(np.sqrt(np.average([e.rmse**2 for e in errs], weights=n)))

@@ -1,18 +1,18 @@
-"""The fusion and segmentation providers inside the real front-end runner, on a sequence written
-with bimcap.dataset from the box-room scene (raw distorted camera, LiDAR scans, GT poses)."""
+"""Fusion and segmentation inside the real front-end runner (through bimcap.frontend.providers),
+on a sequence written with bimcap.dataset from the box-room scene (raw distorted camera, LiDAR
+scans, GT poses)."""
 
 from __future__ import annotations
 
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
-from bimcap.fusion.providers import LidarDepthProvider, PlanarSmoothingRefiner
+from bimcap.fusion import CompletionMethod, CompletionOptions
 from bimcap.fusion.synthetic import BoxRoom, SpinningLidar, default_camera, render_default_frames
 from bimcap.geometry import transform_points
-from bimcap.segmentation.frontend_providers import GeometricLabelProvider
+from bimcap.segmentation.geometric import GeometricSegmenter
 
 
 @pytest.fixture(scope="module")
@@ -32,14 +32,14 @@ def sequence_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def test_runner_with_lidar_depth_and_geometric_labels(sequence_dir: Path) -> None:
     from bimcap.dataset import read_sequence
+    from bimcap.frontend.providers import LidarDepthProvider, PlanarDepthRefiner, SegmenterLabelProvider
     from bimcap.frontend.runner import run_frontend
 
     seq = read_sequence(sequence_dir)
     gt = seq.trajectory("gt").poses
-    res = run_frontend(
-        seq, None, gt, LidarDepthProvider(), GeometricLabelProvider(),
-        workers=1, progress=False, depth_refiner=PlanarSmoothingRefiner(),
-    )
+    depth = LidarDepthProvider(completion=CompletionOptions(CompletionMethod.CLASSICAL))
+    labels = SegmenterLabelProvider(GeometricSegmenter(), uses_pose=True)
+    res = run_frontend(seq, None, gt, depth, labels, workers=1, progress=False, depth_refiner=PlanarDepthRefiner())
     room = BoxRoom()
     assert len(res.floor_frame) > 100 and len(res.wall_frame) > 100
     floor_w = transform_points(gt[res.floor_frame], res.floor_p_in_cam)
@@ -55,18 +55,3 @@ def test_runner_with_lidar_depth_and_geometric_labels(sequence_dir: Path) -> Non
         lo = np.array(room.column_center) - np.array(room.column_half) - 0.1
         hi = np.array(room.column_center) + np.array(room.column_half) + 0.1
         assert np.mean(((col_w[:, :2] > lo) & (col_w[:, :2] < hi)).all(1)) > 0.9
-
-
-def test_providers_with_a_plain_context() -> None:
-    f = render_default_frames(1, camera=default_camera(258, 193), seed=3)[0]
-    seq = SimpleNamespace(load_lidar=lambda i: f.points_in_lidar, cam_from_lidar=f.cam_from_lidar)
-    ctx = SimpleNamespace(sequence=seq, index=0, pinhole=f.camera, image=f.image, depth=None, world_from_cam=f.world_from_cam)
-    ctx.depth = LidarDepthProvider()(ctx)
-    assert ctx.depth.shape == f.depth.shape and (ctx.depth > 0).mean() > 0.95
-    labels = GeometricLabelProvider()(ctx)
-    assert labels.shape == f.labels.shape and np.mean(labels == f.labels) > 0.8
-    refined = PlanarSmoothingRefiner()(ctx, labels)
-    assert refined.shape == f.depth.shape
-    assert GeometricLabelProvider.uses_pose
-    assert "LidarDepthProvider" in LidarDepthProvider().cache_token
-

@@ -46,7 +46,7 @@ def _tilt(pose: np.ndarray, pitch_deg: float) -> np.ndarray:
     return out
 
 
-@pytest.mark.parametrize("pitch_error_deg", [0.0, 4.0, -4.0])
+@pytest.mark.parametrize("pitch_error_deg", [0.0, 4.0, -8.0])
 def test_iou_on_ground_truth_depth(pitch_error_deg: float) -> None:
     fs = frames(4, 516, 386, 7) + frames(3)
     preds = [segment_geometric(f.depth, f.camera, _tilt(f.world_from_cam, pitch_error_deg)) for f in fs]

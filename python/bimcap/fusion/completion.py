@@ -78,6 +78,10 @@ class ClassicalOptions:
         a ratio <= ``max_gap_depth_ratio``). Not in Ku et al. (KITTI's 64 rings leave small
         gaps); for 16-32 ring LiDARs it is what lets the method beat nearest-neighbour filling.
     extrapolate: extend each column's top-most and bottom-most values to the image border.
+    max_fill_distance_px: pixels (of the full image) farther than this from every LiDAR return
+        stay 0 (unknown): where a narrow-FoV LiDAR (VLP-16: ±15°) sees nothing, the fills would
+        only smear the nearest ring's depth (wrong depth is worse than none downstream). None
+        keeps Ku's fill-everything behaviour.
     median_size: 3 or 5 (cv2 on float32); 0 disables it.
     blur: final blur (bilateral sigma_space 2, sigma_color 1.5 m of inverted depth, as Ku).
     """
@@ -92,6 +96,7 @@ class ClassicalOptions:
     max_gap_px: int = 40
     max_gap_depth_ratio: float = 1.3
     extrapolate: bool = False
+    max_fill_distance_px: float | None = 48.0
     median_size: int = 5
     blur: BlurType = BlurType.BILATERAL
 
@@ -298,6 +303,7 @@ def complete_classical(sparse: SparseDepth | ArrayLike, options: ClassicalOption
     else:
         d = depth.copy()
     d = d.astype(np.float32)
+    sparse_work = d.copy()
     valid = d > 0.1
     d[valid] = opts.max_depth_m - d[valid]
     d = cv2.dilate(d, _diamond(opts.dilation_size))
@@ -326,6 +332,11 @@ def complete_classical(sparse: SparseDepth | ArrayLike, options: ClassicalOption
     out = np.zeros_like(d)
     out[valid] = opts.max_depth_m - d[valid]
     out[out < 0] = 0.0
+    if opts.max_fill_distance_px is not None:
+        scale = d.shape[1] / depth.shape[1]
+        seen = (sparse_work > 0).astype(np.uint8)
+        dist = cv2.distanceTransform(1 - seen, cv2.DIST_L2, 3)
+        out[dist > opts.max_fill_distance_px * scale] = 0.0
     return _resize_to(out.astype(np.float32), depth.shape)
 
 

@@ -18,7 +18,9 @@ IoU reported by the bench includes what this costs.
    Pixels within ``plane_threshold(z)`` of the plane whose normal agrees are labelled. Because
    labelling uses the fitted plane rather than heights from the pose, a pitch error of several
    degrees in the initial pose only tilts the candidate cone, not the result; the floor's (or
-   ceiling's) fitted normal then replaces the pose's up vector for the walls.
+   ceiling's) fitted normal then replaces the pose's up vector for the walls, unless it is more
+   than ``max_up_correction_deg`` (10°) away from it (then the fit, not the pose, is suspect:
+   badly completed floor depth).
 3. **Walls and columns.** Candidates: normal within ``vertical_angle_deg`` of horizontal. Vertical
    planes are extracted one at a time by RANSAC with one-point hypotheses (a point and its
    normal made horizontal), refitted by a 2-D line fit in the horizontal plane. Each plane's
@@ -31,8 +33,9 @@ IoU reported by the bench includes what this costs.
    taller than ``column_min_height_m``, narrower than ``column_max_width_m`` and protruding is
    a column (a round column's normals turn continuously, so no plane takes it, but it is tall
    and thin). Walls and columns reach the ceiling: a vertical region whose top stays more than
-   ``top_gap_m`` below the fitted ceiling (below the camera when no ceiling is seen), and that
-   is not cut by the image's top, is clutter (crates, tables, cabinets' sides).
+   ``top_gap_m`` below the fitted ceiling (when no ceiling is seen: below
+   ``top_without_ceiling_m`` relative to the camera, i.e. about 1.1 m above the floor for a
+   hand-held camera), and that is not cut by the image's top, is clutter (crates, tables).
 4. Everything else with depth is clutter; no depth is unknown. Pixels left undecided (no normal
    at depth edges, blended normals along creases) take the label of the planar region within
    ``crease_px`` whose plane they lie on (the nearest such plane).
@@ -76,12 +79,15 @@ class GeometricOptions:
     min_plane_fraction: float = 0.004
     min_region_fraction: float = 0.002
     column_max_width_m: float = 1.2
+    column_min_width_m: float = 0.0
     column_min_height_m: float = 1.0
     protrusion_px: int = 24
     protrusion_min_rows: float = 0.6
     crease_px: int = 8
     protrusion_sides: int = 2
     top_gap_m: float = 0.4
+    top_without_ceiling_m: float = -0.4
+    max_up_correction_deg: float = 10.0
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -282,8 +288,8 @@ def _classify_vertical_region(
     t /= np.linalg.norm(t)
     s = pts[region] @ t
     width = float(np.percentile(s, 98) - np.percentile(s, 2))
-    if width >= opts.column_max_width_m:
-        return Label.WALL
+    if width >= opts.column_max_width_m or width < opts.column_min_width_m:
+        return Label.WALL  # too wide, or as thin as a doorway's reveal (a wall's thickness)
     return Label.COLUMN if _protrudes(region, pts, plane, opts) else Label.WALL
 
 
@@ -379,6 +385,8 @@ def segment_geometric(
     else:
         up_ref = up
     up_ref = up_ref / np.linalg.norm(up_ref)
+    if up_ref @ up < np.cos(np.deg2rad(opts.max_up_correction_deg)):
+        up_ref = up  # a fitted floor this far from the pose's up is more likely wrong than the pose
 
     # ---- walls and columns (planar); they must reach up to near the ceiling (or above the
     # camera when no ceiling is seen), which tells them from crates and tables
@@ -386,7 +394,7 @@ def segment_geometric(
     if Label.CEILING in chosen:
         top_needed = float(np.median(pts[chosen[Label.CEILING]] @ up_ref)) - opts.top_gap_m
     else:
-        top_needed = 0.0
+        top_needed = opts.top_without_ceiling_m
     sin_v = np.sin(np.deg2rad(opts.vertical_angle_deg))
     vert = nok & ~assigned & (np.abs(nrm @ up_ref) < sin_v)
     remaining = vert.copy()
@@ -400,12 +408,15 @@ def segment_geometric(
         if inl.sum() < min_plane:
             break
         remaining &= ~inl
+        # whether the plane reaches the ceiling is judged on all its inliers: noise may split a
+        # wall into an upper and a lower region, and the lower one is no crate
+        plane_reaches = _reaches_up(inl, pts, up_ref, top_needed, opts)
         n_comp, comp, stats, _ = cv2.connectedComponentsWithStats(inl.astype(np.uint8), connectivity=8)
         for c in range(1, n_comp):
             if stats[c, cv2.CC_STAT_AREA] < min_region:
                 continue
             region = comp == c
-            lab = _classify_vertical_region(region, pts, plane, up_ref, top_needed, opts)
+            lab = _classify_vertical_region(region, pts, plane, up_ref, top_needed if not plane_reaches else -np.inf, opts)
             labels[region] = int(lab)
             assigned |= region
             region_id[region] = len(regions)
