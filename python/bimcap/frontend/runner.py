@@ -92,8 +92,9 @@ class SequenceLike(Protocol):
 
     ``camera`` is the raw (distorted) camera; ``load_image(i)`` returns (H, W, 3) uint8 RGB of the
     raw image; ``frames[i]`` names frame i's files (attributes ``image``, ``lidar``, ``labels``,
-    ``depth``, relative to the sequence directory ``root``/``path``) or the sequence offers
-    ``frame_files(i)``; these files key the cache.
+    ``depth``, relative to the sequence directory ``root``/``path``); these files key the cache.
+    The ground-truth providers also use ``load_depth(i)`` / ``load_labels(i)``, the LiDAR one
+    ``load_lidar(i)`` and ``cam_from_lidar``.
     """
 
     camera: Camera
