@@ -328,3 +328,24 @@ def test_on_a_simulated_sequence(tmp_path: Path) -> None:
     assert np.median(np.linalg.norm(pa - pb, axis=1)) < 0.03
     floor = transform_points(gt.poses[res.floor_frame], res.floor_p_in_cam)
     assert len(floor) > 0
+
+
+def test_arrays_pass_the_solvers_validation(seq: SceneSequence, result: FrontendResult) -> None:
+    """Oracle: bimcap.optimize.Problem (the solver side's own checks) accepts the arrays."""
+    try:
+        from bimcap.optimize import Problem
+    except ImportError:
+        pytest.skip("bimcap.optimize.Problem not available")
+    arrays = result.to_problem_arrays()
+    n = result.num_frames
+    arrays.update(
+        poses=seq.gt,
+        timestamps=np.arange(n, dtype=np.float64),
+        pose_fixed=np.zeros(n, np.int32),
+        floor_plane=np.zeros(len(result.floor_frame), np.int32),
+        ceiling_plane=np.zeros(len(result.ceiling_frame), np.int32),
+        planes=np.array([[0.0, 0.0, 1.0, 0.0], [0.0, 0.0, -1.0, 2.8]]),
+    )
+    problem = Problem.from_arrays(arrays)
+    assert np.array_equal(problem.match_uv, result.match_uv)
+    assert np.array_equal(problem.track_obs_point, result.track_obs_point)
