@@ -8,6 +8,9 @@ convolution), not CompletionFormer: they time the adapter and show the plumbing,
 model's accuracy.
 
 Usage: PYTHONPATH=python python bench/bench_fusion.py [--frames 4] [--lidar-channels 32]
+       PYTHONPATH=python python bench/bench_fusion.py --sequence SEQ_DIR [--frames 8]
+With ``--sequence`` the frames come from a bimcap sequence directory (e.g. the simulator's):
+raw images are undistorted (bilinear), ground-truth depth and labels (nearest), poses ``gt``.
 """
 
 from __future__ import annotations
@@ -44,6 +47,34 @@ def _timed(fn: Callable[[], Any], repeat: int = 1) -> tuple[Any, float, float]:
     return out, best_cpu, best_wall
 
 
+def _sequence_frames(root: Path, n: int) -> list[Any]:
+    """Up to ``n`` evenly spread frames of a sequence, in undistorted pinhole pixels."""
+    from types import SimpleNamespace
+
+    from bimcap.dataset import read_sequence
+    from bimcap.fusion import undistort_image
+
+    seq = read_sequence(root)
+    gt = seq.trajectory("gt").poses
+    raw = seq.camera
+    out = []
+    for i in np.unique(np.linspace(0, len(seq.frames) - 1, n).round().astype(int)):
+        depth, labels = seq.load_depth(int(i)), seq.load_labels(int(i))
+        if depth is None or labels is None:
+            raise SystemExit(f"frame {i} has no ground-truth depth/labels")
+        out.append(SimpleNamespace(
+            image=undistort_image(seq.load_image(int(i)), raw),
+            depth=undistort_image(np.asarray(depth, np.float32), raw, nearest=True),
+            labels=undistort_image(np.asarray(labels, np.uint8), raw, nearest=True),
+            points_in_lidar=np.asarray(seq.load_lidar(int(i)))[:, :3],
+            cam_from_lidar=seq.cam_from_lidar,
+            camera=raw.pinhole(),
+            world_from_cam=gt[int(i)],
+            lidar_model=getattr(seq.lidar, "model", "?"),
+        ))
+    return out
+
+
 def main() -> None:
     import cv2
 
@@ -71,12 +102,19 @@ def main() -> None:
     ap.add_argument("--lidar-channels", type=int, default=32)
     ap.add_argument("--lidar-vfov", type=float, default=25.0, help="± vertical FoV, degrees")
     ap.add_argument("--repeat", type=int, default=3, help="best of N per frame")
+    ap.add_argument("--sequence", type=Path, default=None, help="a bimcap sequence directory")
     args = ap.parse_args()
     cv2.setNumThreads(1)
 
-    cam = default_camera(1032, 772)
-    lidar = SpinningLidar(args.lidar_channels, (-args.lidar_vfov, args.lidar_vfov))
-    frames = render_default_frames(args.frames, camera=cam, lidar=lidar, seed=0)
+    if args.sequence is not None:
+        frames = _sequence_frames(args.sequence, args.frames)
+        cam = frames[0].camera
+        where = f"sequence {args.sequence} (LiDAR {frames[0].lidar_model})"
+    else:
+        cam = default_camera(1032, 772)
+        lidar = SpinningLidar(args.lidar_channels, (-args.lidar_vfov, args.lidar_vfov))
+        frames = render_default_frames(args.frames, camera=cam, lidar=lidar, seed=0)
+        where = f"box room, LiDAR {args.lidar_channels} rings ±{args.lidar_vfov:g}°, 0.2° azimuth"
     tmp = Path(tempfile.mkdtemp())
     nconv = completion_normalized_conv(tmp / "nconv.onnx", 9)
 
@@ -168,9 +206,8 @@ def main() -> None:
     record("CHAIN projection + CLASSICAL + segmenter", t, "")
     chain_cpu = rows[-1][1]
 
-    print(f"bimcap fusion bench: {args.frames} frames {cam.width}x{cam.height}, LiDAR {args.lidar_channels} rings "
-          f"±{args.lidar_vfov:g}°, 0.2° azimuth; one thread; best of {args.repeat} per frame, median over frames; "
-          f"load average {os.getloadavg()[0]:.1f}")
+    print(f"bimcap fusion bench: {len(frames)} frames {cam.width}x{cam.height}, {where}; one thread; "
+          f"best of {args.repeat} per frame, median over frames; load average {os.getloadavg()[0]:.1f}")
     print(f"{'step':44s} {'cpu ms':>8s} {'wall ms':>8s}  accuracy")
     for name, cpu, wall, acc in rows:
         print(f"{name:44s} {cpu:8.1f} {wall:8.1f}  {acc}")

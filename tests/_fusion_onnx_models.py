@@ -23,13 +23,15 @@ def _save(graph, path: Path) -> Path:  # type: ignore[no-untyped-def]
 
 
 def completion_identity(path: Path, rgb_name: str = "rgb", depth_name: str = "depth",
-                        depth_channels: int = 1, hw: tuple[int | str, int | str] = ("H", "W")) -> Path:
+                        depth_channels: int = 1, hw: tuple[int | str, int | str] = ("H", "W"),
+                        depth_rank3: bool = False) -> Path:
     """out = depth + 0 · mean(rgb): returns its depth input (uses both inputs)."""
     from onnx import TensorProto, helper
 
     h, w = hw
     rgb = helper.make_tensor_value_info(rgb_name, TensorProto.FLOAT, [1, 3, h, w])
-    dep = helper.make_tensor_value_info(depth_name, TensorProto.FLOAT, [1, depth_channels, h, w])
+    dshape = [1, h, w] if depth_rank3 else [1, depth_channels, h, w]
+    dep = helper.make_tensor_value_info(depth_name, TensorProto.FLOAT, dshape)
     out = helper.make_tensor_value_info("dense", TensorProto.FLOAT, [1, 1, h, w])
     zero = helper.make_tensor("zero", TensorProto.FLOAT, [], [0.0])
     nodes = [

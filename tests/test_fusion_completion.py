@@ -43,6 +43,7 @@ def models(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
         "bad_name": completion_identity(d / "bad_name.onnx", rgb_name="image"),
         "bad_channels": completion_identity(d / "bad_channels.onnx", depth_channels=3),
         "fixed": completion_identity(d / "fixed.onnx", hw=(64, 64)),
+        "rank3": completion_identity(d / "rank3.onnx", depth_rank3=True),
     }
 
 
@@ -123,6 +124,8 @@ def test_onnx_bad_models_give_clear_errors(sparse_frames, models, tmp_path: Path
         run(models["bad_name"])
     with pytest.raises(OnnxModelError, match="3 channels, expected 1"):
         run(models["bad_channels"])
+    with pytest.raises(OnnxModelError, match="rank 3, expected 4"):
+        run(models["rank3"])
     with pytest.raises(OnnxModelError, match="fixed at"):
         run(models["fixed"], input_size=(128, 128))
     assert np.isfinite(complete_depth(sp, CompletionOptions(CompletionMethod.ONNX, onnx=OnnxCompletionOptions(models["fixed"])), f.image)).all()

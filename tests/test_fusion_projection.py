@@ -127,6 +127,19 @@ def test_undistort_image_matches_a_pinhole_rendering() -> None:
     assert np.mean(raw.labels == pin.labels) < np.mean(und[inside] == pin.labels[inside])
 
 
+def test_undistortion_maps_agree_with_the_camera_model() -> None:
+    # the maps from cv2.initUndistortRectifyMap must send each pinhole pixel to the raw pixel that
+    # Camera.project (the project's reference distortion) gives for the same ray
+    from bimcap.fusion.projection import undistort_maps
+
+    cam = default_camera(320, 240, distorted=True)
+    map_x, map_y = undistort_maps(cam)
+    rays = cam.pinhole().rays(cam.pixel_grid(), distorted=False)
+    uv, _ = cam.project(rays, distort=True)
+    np.testing.assert_allclose(map_x.ravel(), uv[:, 0], atol=1e-3)
+    np.testing.assert_allclose(map_y.ravel(), uv[:, 1], atol=1e-3)
+
+
 def test_pair_by_timestamp() -> None:
     img = [0.0, 0.1, 0.2, 0.3, 0.5]
     scans = [0.012, 0.098, 0.31, 0.33, 0.9]

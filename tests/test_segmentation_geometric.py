@@ -11,16 +11,32 @@ from bimcap.labels import Label
 from bimcap.segmentation import FrameInput, SegmentationInputError, iou_per_class
 from bimcap.segmentation.geometric import GeometricSegmenter, segment_geometric
 
-# Required IoU on the box-room frames, pooled over frames (pixels of all frames together); measured
-# 0.98 floor, 0.99 wall, 0.81 ceiling, 0.98 column (the same with ±4° pitch error). Floor and walls
+# Required IoU on the box-room frames, pooled over frames (pixels of all frames together; columns
+# cut by the image border ignored, see _ignore_border_columns); measured 0.98 floor, 0.99 wall,
+# 0.81 ceiling, 0.98 column (the same with pitch errors up to ±12°). Floor and walls
 # are large planes that the method models exactly: only the low-resolution work and crease pixels
 # cost IoU. The ceiling is seen as thin slivers at the top of these images, where a pixel or two
 # of border error is a large share. Columns are decided by width and protrusion.
 REQUIRED = {Label.FLOOR: 0.95, Label.WALL: 0.95, Label.CEILING: 0.75, Label.COLUMN: 0.9}
 
 
+def _ignore_border_columns(gt: np.ndarray) -> np.ndarray:
+    """GT with columns cut by the image's left/right border set to UNKNOWN (ignored by the IoU):
+    by design the segmenter calls a narrow region cut by the border a wall (a wall seen between
+    the border and a doorway looks the same, and walls are far more common)."""
+    import cv2
+
+    out = gt.copy()
+    n, comp = cv2.connectedComponents((gt == Label.COLUMN).astype(np.uint8))
+    for c in range(1, n):
+        m = comp == c
+        if m[:, :3].any() or m[:, -3:].any():
+            out[m] = Label.UNKNOWN
+    return out
+
+
 def _pooled_iou(preds: list[np.ndarray], gts: list[np.ndarray]) -> dict[Label, float]:
-    return iou_per_class(np.concatenate(preds, 0), np.concatenate(gts, 0))
+    return iou_per_class(np.concatenate(preds, 0), np.concatenate([_ignore_border_columns(g) for g in gts], 0))
 
 
 def _tilt(pose: np.ndarray, pitch_deg: float) -> np.ndarray:
@@ -66,3 +82,40 @@ def test_no_depth_is_unknown_and_bad_inputs() -> None:
         segment_geometric(d, f.camera, np.zeros(6))
     with pytest.raises(SegmentationInputError, match="needs dense depth"):
         GeometricSegmenter().segment(FrameInput(f.camera))
+
+
+def test_column_cut_by_the_image_border_is_a_wall() -> None:
+    # the documented prior: one visible side cannot tell a column from a wall end at a doorway
+    fs = frames(3)
+    f = fs[0]
+    lab = segment_geometric(f.depth, f.camera, f.world_from_cam)
+    gt_ignored = _ignore_border_columns(f.labels)
+    cut = (f.labels == Label.COLUMN) & (gt_ignored == Label.UNKNOWN)
+    assert cut.sum() > 1000  # this frame has one
+    assert np.mean(lab[cut] == Label.WALL) > 0.9
+
+
+def test_round_column() -> None:
+    # a cylinder: no plane takes it whole; the tall, narrow, protruding left-over rule does
+    from bimcap.fusion.synthetic import BoxRoom, default_camera, render_default_frames
+
+    room = BoxRoom(round_column=True, column_half=(0.3, 0.3))
+    fs = render_default_frames(4, camera=default_camera(516, 386), room=room)
+    preds = [segment_geometric(f.depth, f.camera, f.world_from_cam) for f in fs]
+    iou = _pooled_iou(preds, [f.labels for f in fs])
+    assert iou[Label.COLUMN] >= 0.8 and iou[Label.WALL] >= 0.9, iou
+
+
+def test_clutter_is_not_taken_for_columns_or_walls() -> None:
+    # crates and a table-high box on the floor: narrow, protruding vertical faces like a column's,
+    # but they do not reach the ceiling
+    from bimcap.fusion.synthetic import BoxRoom, default_camera, render_default_frames
+
+    room = BoxRoom(clutter=((3.0, 1.2, 0.0, 3.8, 1.8, 0.8), (4.0, 2.8, 0.0, 4.5, 3.3, 0.5), (6.5, 3.5, 0.0, 7.2, 4.5, 1.1)))
+    fs = render_default_frames(4, camera=default_camera(516, 386), room=room)
+    preds = [segment_geometric(f.depth, f.camera, f.world_from_cam) for f in fs]
+    gt = np.concatenate([_ignore_border_columns(f.labels) for f in fs])
+    pred = np.concatenate(preds)
+    iou = iou_per_class(pred, gt)
+    assert iou[Label.CLUTTER] >= 0.9 and iou[Label.COLUMN] >= 0.9 and iou[Label.FLOOR] >= 0.9, iou
+    assert np.mean(pred[gt == Label.CLUTTER] == Label.COLUMN) < 0.01

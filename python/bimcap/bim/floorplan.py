@@ -18,6 +18,9 @@ Per storey (DESIGN §1 step 2):
 6. **Merge** collinear pieces of one class (directions within ``merge_angle_deg``, offsets within
    ``merge_offset_m``, overlapping or closer than ``gap_m``), then refine once more.
 
+Columns take another route after step 3 (:func:`column_outlines`): each blob's band points are
+wrapped in their convex hull, whose sides are the column's outline segments (class COLUMN).
+
 The exact slice at the cut height is kept as the second opinion
 (:func:`bimcap.bim.slicing.agreement`).
 """
@@ -32,7 +35,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from bimcap.bim.ingest import BimModel, concatenate_meshes
-from bimcap.bim.slicing import Agreement, agreement, sample_segments, slice_band, slice_mesh
+from bimcap.bim.slicing import (
+    Agreement,
+    agreement,
+    sample_segments,
+    slice_band,
+    slice_mesh,
+    thin_points,
+)
 from bimcap.labels import Label
 
 #: The classes a floor plan carries, in drawing order.
@@ -227,14 +237,24 @@ def clean(img: NDArray[np.uint8], min_component_px: int) -> NDArray[np.uint8]:
     return out
 
 
-def detect(img: NDArray[np.uint8], method: Vectorizer) -> NDArray[np.float64]:
-    """Rough segments ``(S, 4)`` in pixel coordinates ``u1 v1 u2 v2`` (pixel centres integer)."""
+def detect(img: NDArray[np.uint8], method: Vectorizer, fine: bool = False) -> NDArray[np.float64]:
+    """Rough segments ``(S, 4)`` in pixel coordinates ``u1 v1 u2 v2`` (pixel centres integer).
+
+    ``fine`` selects the settings of the second round, run on the pixels that the first round's
+    segments do not explain (short wall ends, jambs): Hough accepts shorter, weaker lines.
+    """
     import cv2
 
     if not img.any():
         return np.zeros((0, 4))
     if method == Vectorizer.HOUGH:
-        lines = cv2.HoughLinesP(img, 1, np.pi / 720, threshold=6, minLineLength=3, maxLineGap=2)
+        cv2.setRNGSeed(0)  # HoughLinesP is randomised: fix its draw order for reproducible plans
+        if fine:
+            lines = cv2.HoughLinesP(img, 1, np.pi / 720, threshold=3, minLineLength=2,
+                                    maxLineGap=1)
+        else:
+            lines = cv2.HoughLinesP(img, 1, np.pi / 720, threshold=10, minLineLength=5,
+                                    maxLineGap=2)
         return np.zeros((0, 4)) if lines is None else lines.reshape(-1, 4).astype(np.float64)
     if method == Vectorizer.LSD:
         lsd = cv2.createLineSegmentDetector(cv2.LSD_REFINE_STD)
@@ -275,6 +295,21 @@ def _runs(t: NDArray[np.float64], gap: float) -> list[tuple[float, float]]:
     return [(float(t[a]), float(t[b])) for a, b in zip(starts, ends)]
 
 
+def _faces_in_window(off: NDArray[np.float64], bin_m: float) -> list[float]:
+    """Offsets of the faces among point offsets from a rough line: peaks of a histogram with
+    ``bin_m`` bins that hold at least a quarter of the largest peak (and 3 points)."""
+    bins = np.round(off / bin_m).astype(np.int64)
+    vals, counts = np.unique(bins, return_counts=True)
+    if len(vals) == 0:
+        return []
+    full = np.zeros(vals[-1] - vals[0] + 3, dtype=np.int64)
+    full[vals - vals[0] + 1] = counts
+    peak = (full[1:-1] >= full[:-2]) & (full[1:-1] > full[2:])
+    strong = full[1:-1] >= max(3, 0.25 * full.max())
+    idx = np.nonzero(peak & strong)[0]
+    return [float((i + vals[0]) * bin_m) for i in idx]
+
+
 def refine(
     rough: NDArray[np.float64],
     pts: NDArray[np.float64],
@@ -282,9 +317,15 @@ def refine(
     res: float,
     opts: FloorPlanOptions,
 ) -> NDArray[np.float64]:
-    """Snap rough segments (S, 4) metres onto the face points ``pts`` (P, 2); (S', 4) metres."""
+    """Snap rough segments (S, 4) metres onto the face points ``pts`` (P, 2); (S', 4) metres.
+
+    Every face within 1.5 cells of a rough segment (both faces of a thin wall, say) is fitted on
+    its own: offsets from the rough line are histogrammed in ``fit_tol_m`` bins, each strong peak
+    is a face, its points are fitted by total least squares, refitted on the points within
+    ``fit_tol_m`` of that line, projected, and split at gaps longer than ``gap_m``.
+    """
     out = []
-    search = 0.75 * res
+    search = 1.5 * res
     for seg in rough:
         a, b = seg[:2], seg[2:]
         length = float(np.hypot(*(b - a)))
@@ -292,7 +333,7 @@ def refine(
             continue
         d = (b - a) / length
         n = np.array([-d[1], d[0]])
-        idx = tree.query_ball_point((a + b) / 2, length / 2 + 2 * res)
+        idx = np.asarray(tree.query_ball_point((a + b) / 2, length / 2 + 2 * res), dtype=np.int64)
         if len(idx) < 3:
             continue
         q = pts[idx] - a
@@ -301,78 +342,87 @@ def refine(
         sel = (np.abs(off) <= search) & (t >= -res) & (t <= length + res)
         if sel.sum() < 3:
             continue
-        # The dominant face: the most populated offset bin (two faces of a thin wall, or a
-        # perpendicular face at a corner, must not pull the fit between them).
-        o = off[sel]
-        bins = np.round(o / opts.fit_tol_m).astype(np.int64)
-        vals, counts = np.unique(bins, return_counts=True)
-        mode = vals[np.argmax(counts)]
-        face = np.abs(o - mode * opts.fit_tol_m) <= 2 * opts.fit_tol_m
-        cand = pts[np.asarray(idx)[sel][face]]
-        if len(cand) < 3:
-            continue
-        c, u = _fit_line(cand)
-        # Refit once on the points close to the fitted line, over the rough segment's extent.
-        q2 = pts[idx] - c
-        nn = np.array([-u[1], u[0]])
-        t2 = q2 @ u
-        ta, tb = sorted(((a - c) @ u, (b - c) @ u))
-        keep = (np.abs(q2 @ nn) <= opts.fit_tol_m) & (t2 >= ta - res) & (t2 <= tb + res)
-        if keep.sum() < 3:
-            continue
-        c, u = _fit_line(pts[idx][keep])
-        t3 = (pts[idx][keep] - c) @ u
-        for lo, hi in _runs(t3, opts.gap_m):
-            if hi - lo >= opts.min_length_m:
-                out.append(np.concatenate([c + lo * u, c + hi * u]))
+        local = pts[idx[sel]]
+        for face_off in _faces_in_window(off[sel], opts.fit_tol_m):
+            cand = local[np.abs(off[sel] - face_off) <= 2 * opts.fit_tol_m]
+            if len(cand) < 3:
+                continue
+            c, u = _fit_line(cand)
+            # Refit on the points close to the fitted line, over the rough segment's extent.
+            nn = np.array([-u[1], u[0]])
+            q2 = pts[idx] - c
+            t2 = q2 @ u
+            ta, tb = sorted(((a - c) @ u, (b - c) @ u))
+            keep = (np.abs(q2 @ nn) <= opts.fit_tol_m) & (t2 >= ta - res) & (t2 <= tb + res)
+            if keep.sum() < 3:
+                continue
+            c, u = _fit_line(pts[idx[keep]])
+            t3 = (pts[idx[keep]] - c) @ u
+            for lo, hi in _runs(t3, opts.gap_m):
+                if hi - lo >= opts.min_length_m:
+                    out.append(np.concatenate([c + lo * u, c + hi * u]))
     return np.asarray(out, dtype=np.float64).reshape(-1, 4)
 
 
 def merge_collinear(segs: NDArray[np.float64], opts: FloorPlanOptions) -> NDArray[np.float64]:
     """Merge collinear overlapping (or nearly touching) segments (S, 4) metres into (S', 4).
 
-    Greedy, longest first: a segment joins an existing one when their directions differ by less
-    than ``merge_angle_deg``, both its endpoints lie within ``merge_offset_m`` of the other's line,
-    and their extents along it overlap or leave a gap below ``gap_m``.
+    Greedy, longest first: a segment joins a kept one when their directions differ by less than
+    ``merge_angle_deg``, both its endpoints lie within ``merge_offset_m`` of the kept one's line,
+    and their extents along it overlap or leave a gap below ``gap_m``; the kept line (the longer
+    segment's, an exact fit already) is extended over the union.
     """
     if len(segs) == 0:
         return segs
     length = np.hypot(segs[:, 2] - segs[:, 0], segs[:, 3] - segs[:, 1])
-    order = np.argsort(-length)
+    order = np.argsort(-length, kind="stable")
     cos_tol = np.cos(np.deg2rad(opts.merge_angle_deg))
-    kept_c: list[NDArray[np.float64]] = []  # point on line
-    kept_u: list[NDArray[np.float64]] = []  # direction
-    kept_iv: list[list[float]] = []  # [t0, t1]
+    n = len(segs)
+    C = np.empty((n, 2))  # a point on each kept line
+    U = np.empty((n, 2))  # its unit direction
+    iv = np.empty((n, 2))  # its extent [t0, t1] along U from C
+    k = 0
     for i in order:
         a, b = segs[i, :2], segs[i, 2:]
         u = (b - a) / max(length[i], 1e-12)
-        joined = False
-        if kept_c:
-            C = np.asarray(kept_c)
-            U = np.asarray(kept_u)
-            N = np.stack([-U[:, 1], U[:, 0]], axis=1)
-            par = np.abs(U @ u) >= cos_tol
-            off_a = np.abs(((a - C) * N).sum(1))
-            off_b = np.abs(((b - C) * N).sum(1))
-            ta = ((a - C) * U).sum(1)
-            tb = ((b - C) * U).sum(1)
-            lo = np.minimum(ta, tb)
-            hi = np.maximum(ta, tb)
-            iv = np.asarray(kept_iv)
-            near = (lo <= iv[:, 1] + opts.gap_m) & (hi >= iv[:, 0] - opts.gap_m)
-            ok = par & (off_a <= opts.merge_offset_m) & (off_b <= opts.merge_offset_m) & near
-            if ok.any():
-                k = int(np.nonzero(ok)[0][0])
-                kept_iv[k] = [min(kept_iv[k][0], lo[k]), max(kept_iv[k][1], hi[k])]
-                joined = True
-        if not joined:
-            kept_c.append(a.copy())
-            kept_u.append(u)
-            kept_iv.append([0.0, float(length[i])])
-    out = [
-        np.concatenate([c + iv[0] * u, c + iv[1] * u]) for c, u, iv in zip(kept_c, kept_u, kept_iv)
-    ]
-    return np.asarray(out, dtype=np.float64).reshape(-1, 4)
+        if k:
+            Ck, Uk = C[:k], U[:k]
+            par = np.abs(Uk @ u) >= cos_tol
+            cand = np.nonzero(par)[0]
+            if len(cand):
+                Cc, Uc = Ck[cand], Uk[cand]
+                da, db = a - Cc, b - Cc
+                off_a = np.abs(da[:, 0] * Uc[:, 1] - da[:, 1] * Uc[:, 0])
+                off_b = np.abs(db[:, 0] * Uc[:, 1] - db[:, 1] * Uc[:, 0])
+                ta = (da * Uc).sum(1)
+                tb = (db * Uc).sum(1)
+                lo, hi = np.minimum(ta, tb), np.maximum(ta, tb)
+                ivc = iv[cand]
+                ok = ((off_a <= opts.merge_offset_m) & (off_b <= opts.merge_offset_m)
+                      & (lo <= ivc[:, 1] + opts.gap_m) & (hi >= ivc[:, 0] - opts.gap_m))
+                if ok.any():
+                    j = int(np.argmax(ok))
+                    kk = cand[j]
+                    iv[kk, 0] = min(iv[kk, 0], lo[j])
+                    iv[kk, 1] = max(iv[kk, 1], hi[j])
+                    continue
+        C[k], U[k], iv[k] = a, u, (0.0, length[i])
+        k += 1
+    out = np.concatenate([C[:k] + iv[:k, :1] * U[:k], C[:k] + iv[:k, 1:] * U[:k]], axis=1)
+    return out
+
+
+def explained(
+    pts: NDArray[np.float64], segs: NDArray[np.float64], tol: float
+) -> NDArray[np.bool_]:
+    """(P,) True where a point (P, 2) lies within ``tol`` metres of a segment (S, 4)."""
+    from scipy.spatial import cKDTree
+
+    if len(segs) == 0 or len(pts) == 0:
+        return np.zeros(len(pts), dtype=bool)
+    samples, _ = sample_segments(segs, tol / 2)
+    dist, _ = cKDTree(samples).query(pts, k=1, distance_upper_bound=2 * tol)
+    return dist <= tol
 
 
 def vectorize(
@@ -397,13 +447,67 @@ def vectorize(
     img = clean(rasterize(pts, origin, res, shape), opts.min_component_px)
     if len(pts) < 3:
         return np.zeros((0, 4)), img
-    px = detect(img, opts.vectorizer)
-    rough = origin[[0, 1, 0, 1]] + (px + 0.5) * res
     tree = cKDTree(pts)
-    segs = merge_collinear(refine(rough, pts, tree, res, opts), opts)
-    segs = merge_collinear(refine(segs, pts, tree, res, opts), opts)
+    found = []
+    residual = img
+    for fine in (False, True):
+        px = detect(residual, opts.vectorizer, fine)
+        rough = origin[[0, 1, 0, 1]] + (px + 0.5) * res
+        found.append(refine(rough, pts, tree, res, opts))
+        if not fine:
+            # Second round on what the first did not explain.
+            done = np.concatenate(found)
+            left = pts[~explained(pts, done, 2 * opts.fit_tol_m)]
+            residual = clean(rasterize(left, origin, res, shape), opts.min_component_px)
+    segs = merge_collinear(np.concatenate(found), opts)
     length = np.hypot(segs[:, 2] - segs[:, 0], segs[:, 3] - segs[:, 1])
     return segs[length >= opts.min_length_m], img
+
+
+def column_outlines(
+    pts: NDArray[np.float64],
+    origin: NDArray[np.float64],
+    shape: tuple[int, int],
+    opts: FloorPlanOptions,
+) -> tuple[NDArray[np.float64], NDArray[np.uint8]]:
+    """Column outlines: one convex polygon per connected blob of the column image.
+
+    Columns are small and (nearly always) convex, rectangular or round: line detectors find only
+    a few pixels per side, so each blob's band points are wrapped in their convex hull, simplified
+    to ``fit_tol_m`` (a round column of radius r becomes a polygon whose sides deviate from the
+    circle by at most that much), and its sides become the segments.
+
+    Returns
+    -------
+    segments (S, 4) metres and the cleaned (H, W) uint8 occupancy image.
+    """
+    import cv2
+    import shapely
+
+    res = opts.resolution_m
+    img = clean(rasterize(pts, origin, res, shape), opts.min_component_px)
+    if len(pts) < 3:
+        return np.zeros((0, 4)), img
+    # Blobs of the dilated image, so that the two faces of a hollow outline stay one blob.
+    n, lab = cv2.connectedComponents(cv2.dilate(img, np.ones((3, 3), np.uint8)), connectivity=8)
+    col = np.floor((pts[:, 0] - origin[0]) / res).astype(np.int64)
+    row = np.floor((pts[:, 1] - origin[1]) / res).astype(np.int64)
+    ok = (col >= 0) & (col < shape[1]) & (row >= 0) & (row < shape[0])
+    blob = np.zeros(len(pts), dtype=np.int64)
+    blob[ok] = lab[row[ok], col[ok]]
+    out = []
+    for k in range(1, n):
+        p = pts[blob == k]
+        if len(p) < 3:
+            continue
+        hull = shapely.MultiPoint(p).convex_hull.simplify(opts.fit_tol_m)
+        if hull.geom_type != "Polygon":
+            continue
+        ring = np.asarray(hull.exterior.coords)
+        out.append(np.concatenate([ring[:-1], ring[1:]], axis=1))
+    segs = np.concatenate(out) if out else np.zeros((0, 4))
+    length = np.hypot(segs[:, 2] - segs[:, 0], segs[:, 3] - segs[:, 1])
+    return segs[length > 1e-6], img
 
 
 # --------------------------------------------------------------------------- per storey
@@ -447,8 +551,12 @@ def storey_plan(
         band = np.concatenate(band_slices) if band_slices else np.zeros((0, 4))
         exact[cls] = slice_mesh(v, f, zc)
         exact_band[cls] = band
-        pts, _ = sample_segments(band, opts.resolution_m / 4)
-        segs, img = vectorize(pts, origin, shape, opts)
+        # The band's slices repeat each vertical face: keep one point per res/8 square.
+        pts = thin_points(sample_segments(band, opts.resolution_m / 4)[0], opts.resolution_m / 8)
+        if cls == Label.COLUMN:
+            segs, img = column_outlines(pts, origin, shape, opts)
+        else:
+            segs, img = vectorize(pts, origin, shape, opts)
         images[cls] = img
         segs_all.append(segs)
         cls_all.append(np.full(len(segs), int(cls), dtype=np.int32))

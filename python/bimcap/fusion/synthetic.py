@@ -36,6 +36,9 @@ class BoxRoom:
     height: float = 2.8
     column_center: tuple[float, float] = (5.0, 2.2)
     column_half: tuple[float, float] = (0.25, 0.25)
+    round_column: bool = False  #: a cylinder of radius ``column_half[0]`` instead of a box
+    #: boxes ``(x0, y0, z0, x1, y1, z1)`` not in the BIM (tables, crates), labelled CLUTTER
+    clutter: tuple[tuple[float, float, float, float, float, float], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -98,13 +101,21 @@ class BoxRoomScene:
             (Label.WALL, np.array([0.0, -t, 0.0]), np.array([r.size_x, 0.0, r.height])),
             (Label.WALL, np.array([0.0, r.size_y, 0.0]), np.array([r.size_x, r.size_y + t, r.height])),
         ]
+        for box in r.clutter:
+            parts.append((Label.CLUTTER, np.array(box[:3], dtype=np.float64), np.array(box[3:], dtype=np.float64)))
         cx, cy = r.column_center
         hx, hy = r.column_half
-        parts.append((Label.COLUMN, np.array([cx - hx, cy - hy, 0.0]), np.array([cx + hx, cy + hy, r.height])))
+        if not r.round_column:
+            parts.append((Label.COLUMN, np.array([cx - hx, cy - hy, 0.0]), np.array([cx + hx, cy + hy, r.height])))
         self._scene = o3d.t.geometry.RaycastingScene()
         ids = []
         for _, lo, hi in parts:
             ids.append(self._scene.add_triangles(_box_mesh(lo, hi)))
+        if r.round_column:
+            cyl = o3d.geometry.TriangleMesh.create_cylinder(radius=hx, height=r.height, resolution=64, split=4)
+            cyl.translate(np.array([cx, cy, r.height / 2.0]))
+            ids.append(self._scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(cyl)))
+            parts.append((Label.COLUMN, np.zeros(3), np.zeros(3)))
         lut = np.zeros(max(ids) + 2, dtype=np.uint8)
         for (label, _, _), gid in zip(parts, ids):
             lut[gid] = int(label)
@@ -215,10 +226,12 @@ def render_default_frames(
     camera: Camera | None = None,
     lidar: SpinningLidar | None = None,
     seed: int = 0,
+    room: BoxRoom | None = None,
 ) -> list[SyntheticFrame]:
-    """``n`` frames from varied handheld-like poses in the default room (deterministic)."""
+    """``n`` frames from varied handheld-like poses in the room (default :class:`BoxRoom`;
+    deterministic)."""
     rng = np.random.default_rng(seed)
-    scene = BoxRoomScene()
+    scene = BoxRoomScene(room)
     cam = camera or default_camera()
     frames = []
     for i in range(n):

@@ -167,14 +167,23 @@ def _normalise(name: str, value: ArrayLike) -> NDArray[Any]:
     return np.ascontiguousarray(arr, dtype=dtype)
 
 
-def validate_arrays(a: dict[str, NDArray[Any]], path: str | PathLike[str] | None = None) -> None:
+def validate_arrays(
+    a: dict[str, NDArray[Any]],
+    path: str | PathLike[str] | None = None,
+    error: type[SolverInputError] = SolverInputError,
+) -> None:
     """The checks of the C++ ``ValidateProblem``, in Python, naming the field.
 
-    ``a`` must hold every name of :data:`FIELDS` with the right dtype and column count.
+    ``a`` must hold every name of :data:`FIELDS` with the right dtype and column count; the
+    first problem raises ``error(message, path, field)``.
     """
+    with np.errstate(all="ignore"):  # huge values from a corrupt file must not warn
+        _validate(a, path, error)
 
+
+def _validate(a: dict[str, NDArray[Any]], path: str | PathLike[str] | None, error: type[SolverInputError]) -> None:
     def fail(name: str, message: str) -> None:
-        raise SolverInputError(message, path, name)
+        raise error(message, path, name)
 
     def rows(name: str, expected: int) -> None:
         if a[name].shape[0] != expected:

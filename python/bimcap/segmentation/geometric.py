@@ -28,8 +28,11 @@ IoU reported by the bench includes what this costs.
    narrow), and protrudes (on both sides the surface next to it is not in front of it: a wall
    piece next to a column has the column in front of it on one side). Otherwise it is a wall.
    Curved columns: left-over vertical-normal pixels that no plane takes form regions; a region
-   taller than ``column_min_height_m`` and narrower than ``column_max_width_m`` is a column
-   (a round column's normals turn continuously, so no plane takes it, but it is tall and thin).
+   taller than ``column_min_height_m``, narrower than ``column_max_width_m`` and protruding is
+   a column (a round column's normals turn continuously, so no plane takes it, but it is tall
+   and thin). Walls and columns reach the ceiling: a vertical region whose top stays more than
+   ``top_gap_m`` below the fitted ceiling (below the camera when no ceiling is seen), and that
+   is not cut by the image's top, is clutter (crates, tables, cabinets' sides).
 4. Everything else with depth is clutter; no depth is unknown. Pixels left undecided (no normal
    at depth edges, blended normals along creases) take the label of the planar region within
    ``crease_px`` whose plane they lie on (the nearest such plane).
@@ -37,7 +40,7 @@ IoU reported by the bench includes what this costs.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -74,9 +77,11 @@ class GeometricOptions:
     min_region_fraction: float = 0.002
     column_max_width_m: float = 1.2
     column_min_height_m: float = 1.0
-    protrusion_px: int = 8
+    protrusion_px: int = 24
     protrusion_min_rows: float = 0.6
     crease_px: int = 8
+    protrusion_sides: int = 2
+    top_gap_m: float = 0.4
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -219,7 +224,10 @@ def _protrudes(region: B, pts: F64, plane: _Plane, opts: GeometricOptions) -> bo
     the other face of a convex corner: a column). A concave corner (a room corner: the adjacent
     wall is in front of the extension) or an occluder fails. Needs ``protrusion_min_rows`` of
     the decided rows to pass on every decided side (a side is undecided at the image border or
-    when fewer than 20 % of the rows find an off-plane pixel), and at least one decided side.
+    when fewer than 20 % of the rows find an off-plane pixel), and ``protrusion_sides`` decided
+    sides (default 2: a wall seen between the image border and a doorway protrudes on its one
+    visible side just as a column does; walls being far more common, a region cut by the image
+    border stays a wall).
     """
     rows = np.flatnonzero(region.any(1))
     w = region.shape[1]
@@ -249,10 +257,22 @@ def _protrudes(region: B, pts: F64, plane: _Plane, opts: GeometricOptions) -> bo
         sides += 1
         if behind[decided].mean() < opts.protrusion_min_rows:
             return False
-    return sides > 0
+    return sides >= opts.protrusion_sides
 
 
-def _classify_vertical_region(region: B, pts: F64, plane: _Plane, up: F64, opts: GeometricOptions) -> Label:
+def _reaches_up(region: B, pts: F64, up: F64, top_needed: float, opts: GeometricOptions) -> bool:
+    """Does the region reach ``top_needed`` metres above the camera (or the image's top rows)?"""
+    rows = np.flatnonzero(region.any(1))
+    if rows[0] <= opts.normal_step_px + 1:
+        return True
+    return float(np.percentile(pts[region] @ up, 98)) >= top_needed
+
+
+def _classify_vertical_region(
+    region: B, pts: F64, plane: _Plane, up: F64, top_needed: float, opts: GeometricOptions
+) -> Label:
+    if not _reaches_up(region, pts, up, top_needed, opts):
+        return Label.CLUTTER  # walls and columns reach the ceiling; crates and tables do not
     cols = np.flatnonzero(region.any(0))
     w = region.shape[1]
     margin = opts.normal_step_px + 1
@@ -319,6 +339,7 @@ def segment_geometric(
     assigned = np.zeros((h, w), dtype=bool)
     planes: dict[Label, _Plane] = {}
     regions: list[tuple[Label, _Plane]] = []  # planar regions: label and plane
+    chosen: dict[Label, B] = {}  # the floor's / ceiling's pixels
     region_id = np.full((h, w), -1, dtype=np.int32)
     for label, sign, cand in (
         (Label.FLOOR, 1.0, nok & (cos_up > cos_h) & (height < -opts.floor_min_drop_m)),
@@ -343,6 +364,7 @@ def segment_geometric(
             continue
         found.sort(key=lambda x: sign * x[0])  # floor: lowest first; ceiling: highest first
         _, plane, inl = found[0]
+        chosen[label] = inl
         labels[inl] = int(label)
         assigned |= inl
         planes[label] = plane
@@ -358,7 +380,13 @@ def segment_geometric(
         up_ref = up
     up_ref = up_ref / np.linalg.norm(up_ref)
 
-    # ---- walls and columns (planar)
+    # ---- walls and columns (planar); they must reach up to near the ceiling (or above the
+    # camera when no ceiling is seen), which tells them from crates and tables
+    # (heights along the refined up: the pose's up may be off by a few degrees)
+    if Label.CEILING in chosen:
+        top_needed = float(np.median(pts[chosen[Label.CEILING]] @ up_ref)) - opts.top_gap_m
+    else:
+        top_needed = 0.0
     sin_v = np.sin(np.deg2rad(opts.vertical_angle_deg))
     vert = nok & ~assigned & (np.abs(nrm @ up_ref) < sin_v)
     remaining = vert.copy()
@@ -377,7 +405,7 @@ def segment_geometric(
             if stats[c, cv2.CC_STAT_AREA] < min_region:
                 continue
             region = comp == c
-            lab = _classify_vertical_region(region, pts, plane, up_ref, opts)
+            lab = _classify_vertical_region(region, pts, plane, up_ref, top_needed, opts)
             labels[region] = int(lab)
             assigned |= region
             region_id[region] = len(regions)
@@ -395,7 +423,7 @@ def segment_geometric(
         hc = horiz - horiz.mean(0)
         extent = 2.0 * np.sqrt(max(np.linalg.eigvalsh(hc.T @ hc / len(hc))[-1], 0.0)) * 1.73  # ≈ full width of a uniform spread
         tall = np.percentile(hgt, 98) - np.percentile(hgt, 2)
-        if extent < opts.column_max_width_m and tall > opts.column_min_height_m:
+        if extent < opts.column_max_width_m and tall > opts.column_min_height_m and _reaches_up(region, pts, up_ref, top_needed, opts):
             # a round column stands out of its surroundings; a crease between walls does not
             e1 = np.cross(up_ref, np.array([0.0, 0.0, 1.0]))
             e1 = e1 / max(np.linalg.norm(e1), 1e-12) if np.linalg.norm(e1) > 1e-6 else np.array([1.0, 0.0, 0.0])
@@ -408,7 +436,8 @@ def segment_geometric(
             centroid = p.mean(0)
             if normal @ centroid > 0:
                 normal = -normal
-            if not _protrudes(region, pts, _Plane(normal, float(-normal @ centroid)), opts):
+            # one protruding side is enough here: a curved region is no wall end
+            if not _protrudes(region, pts, _Plane(normal, float(-normal @ centroid)), replace(opts, protrusion_sides=1)):
                 continue
             labels[region] = int(Label.COLUMN)
             assigned |= region

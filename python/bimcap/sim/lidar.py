@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from bimcap.geometry.poses import quat_to_rotmat
-from bimcap.sim.render import World
+from bimcap.sim.render import World, rotate_rows
 from bimcap.sim.texture import REFLECTIVITY
 
 F64 = NDArray[np.float64]
@@ -93,7 +93,7 @@ class LidarSimulator:
         cfg = self.config
         pose = np.asarray(world_from_lidar, np.float64)
         r_wl = quat_to_rotmat(pose[3:7]).astype(np.float32)
-        dirs_w = self.dirs_in_lidar @ r_wl.T
+        dirs_w = rotate_rows(self.dirs_in_lidar, r_wl)
         hit = self.world.cast(np.broadcast_to(pose[:3], dirs_w.shape), dirs_w, nthreads)
         rng_true = hit["t_hit"]
         n = len(rng_true)

@@ -157,13 +157,17 @@ class SimulationResult:
     world_from_cam: (N, 7) ground-truth camera poses, TUM order.
     timestamps: (N,) seconds.
     clutter: the placed clutter objects.
-    timings: seconds per stage (wall clock; not written to disk, which stays deterministic).
+    world_triangles: triangles in the rendered world (as-built meshes + clutter).
+    timings: seconds per stage (not written to disk, which stays deterministic): wall clock of
+        the main stages, ``sum_*`` wall seconds summed over render workers, ``cpu_*`` CPU seconds
+        (``time.process_time``) summed over render workers (``image``, ``lidar``, ``write``).
     """
 
     sequence: Sequence
     world_from_cam: F64
     timestamps: F64
     clutter: list[ClutterObject]
+    world_triangles: int
     timings: dict[str, float]
 
     def to_dict(self) -> dict[str, Any]:
@@ -387,13 +391,16 @@ def _init_worker(job: _RenderJob) -> None:
 
 
 def _render_one(args: tuple[int, F64]) -> dict[str, float]:
+    """Render, scan and write frame ``i``; returns wall seconds per stage and CPU seconds."""
     i, world_from_cam = args
     job: _RenderJob = _WORKER["job"]
     cfg = job.config
     timings: dict[str, float] = {}
+    c0 = time.process_time()
     frame = _WORKER["renderer"].render(
         world_from_cam, np.random.default_rng([job.seed, 101, i]), cfg.threads_per_worker, timings
     )
+    c1 = time.process_time()
     scan = None
     t0 = time.perf_counter()
     if _WORKER["lidar"] is not None:
@@ -402,9 +409,14 @@ def _render_one(args: tuple[int, F64]) -> dict[str, float]:
             world_from_lidar, np.random.default_rng([job.seed, 202, i]), cfg.threads_per_worker
         )
     t1 = time.perf_counter()
+    c2 = time.process_time()
     _write_frame(job.out_dir, i, frame, scan, cfg)
+    c3 = time.process_time()
     timings["lidar"] = t1 - t0
     timings["write"] = time.perf_counter() - t1
+    timings["cpu_image"] = c1 - c0
+    timings["cpu_lidar"] = c2 - c1
+    timings["cpu_write"] = c3 - c2
     return timings
 
 
@@ -495,7 +507,8 @@ def simulate_world(
         for k, v in r.items():
             stage[k] = stage.get(k, 0.0) + v
     timings["render_wall"] = time.perf_counter() - t0
-    timings.update({f"cpu_{k}": v for k, v in stage.items()})
+    # summed over workers: "sum_<stage>" wall seconds inside workers, "cpu_<stage>" CPU seconds
+    timings.update({k if k.startswith("cpu_") else f"sum_{k}": v for k, v in stage.items()})
 
     t0 = time.perf_counter()
     ifc_ref = None
@@ -514,7 +527,7 @@ def simulate_world(
         },
     )
     timings["manifest"] = time.perf_counter() - t0
-    return SimulationResult(sequence, world_from_cam, timestamps, placed, timings)
+    return SimulationResult(sequence, world_from_cam, timestamps, placed, world.n_triangles, timings)
 
 
 def simulate(

@@ -33,6 +33,8 @@ TEXEL_M = 0.004
 #: Texel size of the coarse grime modulation tile (256 texels → 51.2 m period).
 GRIME_TEXELS = 256
 GRIME_TEXEL_M = 0.2
+#: Period of the grime tile (a multiple of the albedo tile's 4.096 m period is not needed).
+GRIME_PERIOD_M = GRIME_TEXELS * GRIME_TEXEL_M
 
 
 class Material(IntEnum):
@@ -176,18 +178,23 @@ def _mip_chain(tile: F32, levels: int) -> list[F32]:
 
 @dataclass
 class TextureBank:
-    """Baked albedo atlases, one per mip level.
+    """Baked albedo tiles of every :class:`Material` with their mip chains, in one atlas.
 
     Attributes
     ----------
-    atlases: per mip level ``l`` a (M·(n_l+1), n_l+1, 3) uint8 image: the M material tiles of
-        side ``n_l = TILE_TEXELS / 2^l`` stacked vertically, each padded with one wrapped row and
-        column so that bilinear filtering across the period edge needs no special case.
+    atlas: (rows, cols, 3) uint8 image holding, for every material ``m`` and mip level ``l``,
+        the tile of side ``n_l = TILE_TEXELS / 2^l`` padded with one wrapped row and column (so
+        bilinear filtering across the period edge needs no special case). Level 0 tiles are
+        stacked in the first column, the coarser levels of each material in a second column.
+    origin_x: (levels,) float32 atlas column of texel (0, 0) of level ``l``.
+    origin_y: (materials, levels) float32 atlas row of texel (0, 0) of material ``m``, level ``l``.
     grime: (GRIME_TEXELS+1, GRIME_TEXELS+1) float32 multiplicative modulation around 1.
     seed: the seed the bank was baked from.
     """
 
-    atlases: list[NDArray[np.uint8]]
+    atlas: NDArray[np.uint8]
+    origin_x: F32
+    origin_y: F32
     grime: F32
     seed: int
 
@@ -206,19 +213,33 @@ class TextureBank:
         for m in Material:
             rng = np.random.default_rng([seed, 7919, int(m)])
             chains.append(_mip_chain(_bake_material(m, rng, n), levels))
-        atlases = []
-        for lev in range(levels):
-            padded = [np.pad(ch[lev], ((0, 1), (0, 1), (0, 0)), mode="wrap") for ch in chains]
-            atlas = np.concatenate(padded, axis=0)
-            atlases.append(np.clip(np.rint(atlas * 255.0), 0, 255).astype(np.uint8))
+        n_mat = len(chains)
+        coarse_h = sum((n >> lev) + 1 for lev in range(1, levels))
+        block_h = max(n + 1, coarse_h)
+        atlas = np.zeros((n_mat * block_h, (n + 1) + (n // 2 + 1), 3), np.float32)
+        origin_x = np.array([0.0] + [n + 1.0] * (levels - 1), np.float32)
+        origin_y = np.zeros((n_mat, levels), np.float32)
+        for m, chain in enumerate(chains):
+            y = m * block_h
+            for lev in range(levels):
+                tile = np.pad(chain[lev], ((0, 1), (0, 1), (0, 0)), mode="wrap")
+                side = tile.shape[0]
+                x0 = int(origin_x[lev])
+                atlas[y : y + side, x0 : x0 + side] = tile
+                origin_y[m, lev] = y
+                if lev > 0:
+                    y += side
+                else:
+                    y = m * block_h  # the coarse column starts at the block's top
         grime_rng = np.random.default_rng([seed, 104729])
         g = 1.0 + 0.12 * np.tanh(fractal_noise(grime_rng, GRIME_TEXELS, base_cells=4, octaves=5))
         grime = np.pad(g, ((0, 1), (0, 1)), mode="wrap").astype(np.float32)
-        return cls(atlases, grime, seed)
+        atlas8 = np.clip(np.rint(atlas * 255.0), 0, 255).astype(np.uint8)
+        return cls(atlas8, origin_x, origin_y, grime, seed)
 
     @property
     def levels(self) -> int:
-        return len(self.atlases)
+        return len(self.origin_x)
 
     def sample(
         self,
@@ -226,11 +247,12 @@ class TextureBank:
         material: NDArray[np.integer],
         footprint_m: NDArray[np.floating],
     ) -> F32:
-        """Albedo at surface coordinates.
+        """Albedo at surface coordinates, trilinearly filtered (two mip levels blended).
 
         Parameters
         ----------
-        st_m: (M, 2) surface coordinates ``(s, t)`` in metres (already element-offset).
+        st_m: (M, 2) surface coordinates ``(s, t)`` in metres (already element-offset; float32 is
+            exact enough when they stay below ~100 m).
         material: (M,) :class:`Material` ids.
         footprint_m: (M,) size of one pixel on the surface in metres (selects the mip level).
 
@@ -239,33 +261,39 @@ class TextureBank:
         (M, 3) float32 albedo in [0, 1].
         """
         m = len(st_m)
-        out = np.zeros((m, 3), dtype=np.float32)
         if m == 0:
-            return out
+            return np.zeros((0, 3), np.float32)
         fp = np.maximum(np.asarray(footprint_m, np.float32), np.float32(1e-9))
-        lod = np.clip(np.log2(fp * np.float32(1.0 / TEXEL_M)), 0.0, self.levels - 1.0)
-        l0 = np.minimum(lod.astype(np.int8), self.levels - 2)
-        frac = lod - l0
-        # level-0 texel coordinates reduced modulo the period (every level's period divides it)
-        texel = np.mod(st_m * (1.0 / TEXEL_M), float(TILE_TEXELS)).astype(np.float32)
-        mat = np.asarray(material, np.int64)
-        counts = np.bincount(l0, minlength=self.levels)
-        for lev in np.flatnonzero(counts):
-            sel = slice(None) if counts[lev] == m else np.flatnonzero(l0 == lev)
-            acc = np.zeros((int(counts[lev]), 3), dtype=np.float32)
-            for k, weight in ((lev, 1.0 - frac[sel]), (lev + 1, frac[sel])):
-                side = TILE_TEXELS >> int(k)
-                # texel centres sit at integer+0.5: shift by -0.5 so cv2's integer grid matches
-                xy = np.mod(texel[sel] * np.float32(1.0 / (1 << int(k))) - 0.5, side)
-                map_x = xy[:, 0]
-                map_y = xy[:, 1] + mat[sel] * (side + 1)
-                vals = _remap_points(self.atlases[int(k)], map_x, map_y)
-                acc += weight[:, None] * vals.astype(np.float32)
-            out[sel] = acc
-        out *= 1.0 / 255.0
-        g = np.mod(st_m * (1.0 / GRIME_TEXEL_M), float(GRIME_TEXELS)).astype(np.float32)
-        grime = _remap_points(self.grime, g[:, 0], g[:, 1]).reshape(-1)
-        out *= grime[:, None]
+        lod = np.log2(fp * np.float32(1.0 / TEXEL_M))
+        np.clip(lod, 0.0, self.levels - 1.0, out=lod)
+        l0 = np.minimum(lod.astype(np.int32), self.levels - 2)
+        frac = (lod - l0)[:, None]
+        # level-0 texel coordinates in 24.8 fixed point: level l is a right shift by l, the
+        # wrap into the tile period a bit mask (periods are powers of two), negatives included
+        fixed = (np.asarray(st_m, np.float32) * np.float32(256.0 / TEXEL_M)).astype(np.int32)
+        mat = np.asarray(material, np.int32)
+        masks = ((TILE_TEXELS >> np.arange(self.levels)) * 256 - 1).astype(np.int32)
+        flat_origin_y = self.origin_y.reshape(-1)
+        out = None
+        for lev in (l0, l0 + 1):
+            # texel centres sit at integer + 0.5: shift by half a texel so cv2's grid matches
+            q = np.right_shift(fixed, lev[:, None])
+            q -= 128
+            q &= masks[lev][:, None]
+            xy = q.astype(np.float32)
+            xy *= np.float32(1.0 / 256.0)
+            xy[:, 0] += self.origin_x[lev]
+            xy[:, 1] += flat_origin_y[mat * self.levels + lev]
+            vals = _remap_points(self.atlas, xy[:, 0], xy[:, 1]).astype(np.float32)
+            if out is None:
+                out = vals * (1.0 - frac)
+            else:
+                vals *= frac
+                out += vals
+        assert out is not None
+        g = np.mod(np.asarray(st_m, np.float32) * np.float32(1.0 / GRIME_TEXEL_M), np.float32(GRIME_TEXELS))
+        grime = _remap_points(self.grime, g[:, 0], g[:, 1]).reshape(-1, 1)
+        out *= grime * np.float32(1.0 / 255.0)
         return out
 
 
