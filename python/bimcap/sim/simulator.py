@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from bimcap.dataset import MANIFEST, FrameInfo, LidarInfo, Sequence, read_sequence
+from bimcap.dataset import MANIFEST, FrameInfo, LidarInfo, Sequence, SequenceWriter, read_sequence
 from bimcap.geometry.camera import Camera
 from bimcap.geometry.poses import compose, matrix_to_pose
 from bimcap.geometry.trajectory import Trajectory, write_tum
@@ -345,28 +345,23 @@ def _finish_sequence(out: Path, cfg: SimulatorConfig, timestamps: F64, world_fro
     """Write ``poses/gt.tum`` and then the manifest (last, atomically); read the sequence back.
 
     The frame files were written by the render workers with :func:`frame_names`; the manifest is
-    :meth:`bimcap.dataset.Sequence.to_manifest`'s, so the schema is the dataset module's.
+    :class:`bimcap.dataset.SequenceWriter`'s, so the schema is the dataset module's.
     """
     if cfg.lidar is None:  # the format requires a scan per frame: write empty ones
         for i in range(len(timestamps)):
             atomic_write_bytes(out / frame_names(i)["lidar"], b"")
-    write_tum(out / "poses" / "gt.tum", Trajectory(timestamps, world_from_cam),
-              header="world_from_cam ground truth (bimcap simulate)")
-    frames = []
+    lidar = LidarInfo.from_dict((cfg.lidar or LidarConfig()).to_dict())
+    writer = SequenceWriter(out, cfg.camera, np.asarray(cfg.cam_from_lidar), lidar=lidar,
+                            ifc=ifc_ref, source=source, overwrite=True)
     for i, ts in enumerate(timestamps):
         names = frame_names(i)
-        frames.append(FrameInfo(
+        writer.register_frame(FrameInfo(
             i, float(ts), names["image"], names["lidar"],
             names["labels"] if cfg.write_labels else None,
             names["depth"] if cfg.write_depth else None,
         ))
-    lidar = LidarInfo.from_dict((cfg.lidar or LidarConfig()).to_dict())
-    seq = Sequence(out, cfg.camera, np.asarray(cfg.cam_from_lidar), lidar, frames, None,
-                   {"gt": "poses/gt.tum"}, source)
-    doc = seq.to_manifest()
-    doc["ifc"] = ifc_ref
-    atomic_write_json(out / MANIFEST, doc)
-    return read_sequence(out)
+    writer.add_trajectory("gt", Trajectory(timestamps, world_from_cam))
+    return writer.close()
 
 
 # ----------------------------------------------------------------------------- frame rendering
