@@ -349,3 +349,15 @@ def test_arrays_pass_the_solvers_validation(seq: SceneSequence, result: Frontend
     problem = Problem.from_arrays(arrays)
     assert np.array_equal(problem.match_uv, result.match_uv)
     assert np.array_equal(problem.track_obs_point, result.track_obs_point)
+
+
+def test_a_blank_frame_gives_no_features_and_no_error(seq: SceneSequence, tmp_path: Path) -> None:
+    import cv2
+
+    bad = _copy_seq(seq, tmp_path / "s")
+    cv2.imwrite(str(bad.root / bad.frames[1].image), np.zeros((240, 320, 3), np.uint8))
+    r = run_frontend(bad, CONFIG, bad.gt, DEPTH, LABELS, workers=1, progress=False)
+    assert r.frame_stats[1].num_keypoints == 0
+    assert not (r.match_frames == 1).any() and not (r.track_obs_frame == 1).any()
+    assert (r.match_frames == 2).any()
+    assert (r.wall_frame == 1).any()  # depth and labels still give semantic samples
