@@ -58,6 +58,19 @@ def test_keypoints_use_pixel_centre_convention(backend: SiftBackend, tol: float)
         assert d.min() < tol, (c, feats.uv)
 
 
+def test_downscaled_extraction_maps_back_to_full_resolution() -> None:
+    centres = [(100.0, 60.0), (300.5, 180.25)]
+    img = _blob_image(centres, shape=(300, 400))
+    feats = extract_sift(img, SiftOptions(max_image_size=200))
+    for c in centres:
+        d = np.linalg.norm(feats.uv - np.array(c), axis=1)
+        assert d.min() < 0.15, (c, feats.uv)
+    full = extract_sift(img)
+    assert np.median(feats.scale) == pytest.approx(np.median(full.scale), rel=0.2)
+    with pytest.raises(FeatureError):
+        SiftOptions(max_image_size=4)
+
+
 def test_features_shapes_and_dtypes(shifted_pair: tuple) -> None:
     a, _, _ = shifted_pair
     f = extract_sift(np.stack([a, a, a], axis=-1), SiftOptions(max_num_features=500))

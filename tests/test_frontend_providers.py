@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from _frontend_scene import SceneSequence, default_poses
+from _frontend_scene import TEST_CAMERA, SceneSequence, default_poses
 
 from bimcap.frontend import FrontendConfig, GroundTruthDepthProvider, GroundTruthLabelProvider, run_frontend
 from bimcap.frontend.providers import LidarDepthProvider, PlanarDepthRefiner, SegmenterLabelProvider
@@ -58,3 +58,22 @@ def test_lidar_keypoint_depths_match_ground_truth(seq: SceneSequence) -> None:
     assert both.mean() > 0.8
     rel = np.abs(li.match_depth[both] - gt.match_depth[both]) / gt.match_depth[both]
     assert np.median(rel) < 0.01
+
+
+def test_lidar_depth_only_where_the_lidar_supports_it(seq: SceneSequence) -> None:
+    """Pixels far from every LiDAR return get no depth (classical methods extrapolate there)."""
+    import cv2
+
+    from bimcap.frontend.runner import FrameContext, Undistorter
+    from bimcap.fusion import project_lidar
+
+    und = Undistorter(TEST_CAMERA)
+    ctx = FrameContext(seq, 0, TEST_CAMERA, und.pinhole, und.image(seq.load_image(0)), und, seq.gt[0])
+    sparse = project_lidar(seq.load_lidar(0), seq.cam_from_lidar, TEST_CAMERA, distort=False)
+    dist = cv2.distanceTransform((sparse.depth <= 0).astype(np.uint8), cv2.DIST_L2, 5)
+    radius = 0.01 * np.hypot(320, 240)
+    masked = LidarDepthProvider(support_radius=0.01)(ctx)
+    full = LidarDepthProvider(support_radius=None)(ctx)
+    assert (dist > radius).any() and (masked[dist > radius] == 0).all()
+    near = dist <= radius
+    assert np.array_equal(masked[near], full[near])

@@ -328,3 +328,36 @@ def test_on_a_simulated_sequence(tmp_path: Path) -> None:
     assert np.median(np.linalg.norm(pa - pb, axis=1)) < 0.03
     floor = transform_points(gt.poses[res.floor_frame], res.floor_p_in_cam)
     assert len(floor) > 0
+
+
+def test_arrays_pass_the_solvers_validation(seq: SceneSequence, result: FrontendResult) -> None:
+    """Oracle: bimcap.optimize.Problem (the solver side's own checks) accepts the arrays."""
+    try:
+        from bimcap.optimize import Problem
+    except ImportError:
+        pytest.skip("bimcap.optimize.Problem not available")
+    arrays = result.to_problem_arrays()
+    n = result.num_frames
+    arrays.update(
+        poses=seq.gt,
+        timestamps=np.arange(n, dtype=np.float64),
+        pose_fixed=np.zeros(n, np.int32),
+        floor_plane=np.zeros(len(result.floor_frame), np.int32),
+        ceiling_plane=np.zeros(len(result.ceiling_frame), np.int32),
+        planes=np.array([[0.0, 0.0, 1.0, 0.0], [0.0, 0.0, -1.0, 2.8]]),
+    )
+    problem = Problem.from_arrays(arrays)
+    assert np.array_equal(problem.match_uv, result.match_uv)
+    assert np.array_equal(problem.track_obs_point, result.track_obs_point)
+
+
+def test_a_blank_frame_gives_no_features_and_no_error(seq: SceneSequence, tmp_path: Path) -> None:
+    import cv2
+
+    bad = _copy_seq(seq, tmp_path / "s")
+    cv2.imwrite(str(bad.root / bad.frames[1].image), np.zeros((240, 320, 3), np.uint8))
+    r = run_frontend(bad, CONFIG, bad.gt, DEPTH, LABELS, workers=1, progress=False)
+    assert r.frame_stats[1].num_keypoints == 0
+    assert not (r.match_frames == 1).any() and not (r.track_obs_frame == 1).any()
+    assert (r.match_frames == 2).any()
+    assert (r.wall_frame == 1).any()  # depth and labels still give semantic samples

@@ -32,14 +32,24 @@ if TYPE_CHECKING:  # the fusion / segmentation stages are imported only when use
 class LidarDepthProvider:
     """Dense depth from the frame's LiDAR scan: projection, then completion.
 
+    The classical methods (linear, classical) fill the whole image, also far from any LiDAR
+    return (above and below a VLP-16's ±15° band, where their depth is an extrapolation). For
+    them, pixels further than ``support_radius`` × the image diagonal from the nearest projected
+    return are set to 0 (unknown), so that no keypoint depth or semantic sample comes from
+    there. The learned methods (ONNX, hybrid) are trusted everywhere: predicting depth beyond the
+    LiDAR's coverage is what the paper uses CompletionFormer for.
+
     Attributes
     ----------
     projection: ``bimcap.fusion.ProjectionOptions`` (None: defaults).
     completion: ``bimcap.fusion.CompletionOptions`` (None: linear interpolation).
+    support_radius: fraction of the image diagonal (0.03: 39 px at 1032×772, more than half the
+        2° ring spacing of a VLP-16 there); None keeps the completed depth everywhere.
     """
 
     projection: ProjectionOptions | None = None
     completion: CompletionOptions | None = None
+    support_radius: float | None = 0.03
 
     def __call__(self, ctx: FrameContext) -> NDArray[np.float32]:
         from bimcap.fusion import complete_depth, project_lidar
@@ -51,7 +61,16 @@ class LidarDepthProvider:
             )
         scan = seq.load_lidar(ctx.index)
         sparse = project_lidar(scan, seq.cam_from_lidar, ctx.camera, self.projection, distort=False)
-        return np.asarray(complete_depth(sparse, self.completion, image=ctx.image), np.float32)
+        dense = np.array(complete_depth(sparse, self.completion, image=ctx.image), np.float32)
+        method = getattr(self.completion, "method", None)
+        learned = method is not None and method.name in ("ONNX", "HYBRID")
+        if self.support_radius is not None and not learned:
+            import cv2
+
+            h, w = dense.shape
+            far = cv2.distanceTransform((sparse.depth <= 0).astype(np.uint8), cv2.DIST_L2, 5)
+            dense[far > self.support_radius * float(np.hypot(w, h))] = 0.0
+        return dense
 
 
 def _frame_stem(ctx: FrameContext) -> str | None:

@@ -35,6 +35,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import asdict, dataclass, field
 from os import PathLike
 from pathlib import Path
@@ -92,8 +93,9 @@ class SequenceLike(Protocol):
 
     ``camera`` is the raw (distorted) camera; ``load_image(i)`` returns (H, W, 3) uint8 RGB of the
     raw image; ``frames[i]`` names frame i's files (attributes ``image``, ``lidar``, ``labels``,
-    ``depth``, relative to the sequence directory ``root``/``path``) or the sequence offers
-    ``frame_files(i)``; these files key the cache.
+    ``depth``, relative to the sequence directory ``root``/``path``); these files key the cache.
+    The ground-truth providers also use ``load_depth(i)`` / ``load_labels(i)``, the LiDAR one
+    ``load_lidar(i)`` and ``cam_from_lidar``.
     """
 
     camera: Camera
@@ -729,7 +731,9 @@ def run_frontend(
         frame (for the distance filter, the initial landmarks, and providers that use the pose).
     depth_provider, label_provider: dense depth and labels per frame (see the module doc).
     cache_dir: folder of the cache; None disables caching.
-    workers: processes (default ``os.cpu_count()``); 1 runs everything in this process.
+    workers: processes (default ``os.cpu_count()``); 1 runs everything in this process. Workers
+        are started with ``spawn``: a script that calls this must do so under
+        ``if __name__ == "__main__":``.
     progress: draw a progress bar on stderr.
     depth_refiner: optional ``refiner(ctx, labels) -> depth`` run after the labels.
     maps_dir: if given, each frame's final undistorted depth (``depth/NNNNNN.npy``, float32
@@ -878,7 +882,15 @@ def run_frontend(
             done, _ = wait(list(in_flight), return_when=FIRST_COMPLETED)
             for fut in done:
                 kind, n = in_flight.pop(fut)
-                res = fut.result()
+                try:
+                    res = fut.result()
+                except BrokenProcessPool as exc:
+                    raise FrontendError(
+                        f"a worker process died while computing {kind} {pairs[n] if kind == 'pair' else n} "
+                        "(out of memory, or a script that calls run_frontend without an "
+                        "`if __name__ == '__main__':` guard, which the spawn start method needs); "
+                        "run with workers=1 to see the error"
+                    ) from exc
                 bar.step()
                 if kind == "frame":
                     i = n
