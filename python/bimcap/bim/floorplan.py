@@ -1,0 +1,594 @@
+"""The vectorized semantic floor plan: wall and column outlines as segments in metres.
+
+Per storey (DESIGN §1 step 2):
+
+1. **Cut** the wall and column meshes in a horizontal band, by default ±0.2 m around 1.2 m above
+   the storey elevation (above usual window sills, below door heads), by slicing them exactly at
+   ``n_levels`` evenly spaced heights and sampling the slice outlines every ``resolution/4``:
+   a dense, uniformly sampled point set on the element surfaces inside the band.
+2. **Rasterise** each class into an occupancy image (default 0.05 m cells) whose pixel
+   ``(col, row)`` covers ``x ∈ [ox + col·r, ox + (col+1)·r)``, ``y ∈ [oy + row·r, oy + (row+1)·r)``
+   (``origin = (ox, oy)``, ``r`` = resolution; row index grows with y).
+3. **Clean**: connected components smaller than ``min_component_px`` are removed (specks).
+4. **Detect** rough segments with one of :class:`Vectorizer` (probabilistic Hough, OpenCV's LSD,
+   or contour polygon approximation).
+5. **Refine** each rough segment against the band points: the dominant face within 0.75 cell is
+   fitted by total least squares, its points within ``fit_tol_m`` are projected on the line and
+   split where they leave a gap longer than ``gap_m`` (door openings stay open).
+6. **Merge** collinear pieces of one class (directions within ``merge_angle_deg``, offsets within
+   ``merge_offset_m``, overlapping or closer than ``gap_m``), then refine once more.
+
+Columns take another route after step 3 (:func:`column_outlines`): each blob's band points are
+wrapped in their convex hull, whose sides are the column's outline segments (class COLUMN).
+
+The exact slice at the cut height is kept as the second opinion
+(:func:`bimcap.bim.slicing.agreement`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from enum import Enum
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from bimcap.bim.ingest import BimModel, concatenate_meshes
+from bimcap.bim.slicing import (
+    Agreement,
+    agreement,
+    sample_segments,
+    slice_band,
+    slice_mesh,
+    thin_points,
+)
+from bimcap.labels import Label
+
+#: The classes a floor plan carries, in drawing order.
+PLAN_CLASSES: tuple[Label, ...] = (Label.WALL, Label.COLUMN)
+
+
+class Vectorizer(str, Enum):
+    """Rough line detector run on the occupancy image."""
+
+    HOUGH = "hough"  #: cv2.HoughLinesP
+    LSD = "lsd"  #: cv2.createLineSegmentDetector
+    CONTOUR = "contour"  #: cv2.findContours + cv2.approxPolyDP
+
+
+@dataclass(frozen=True)
+class FloorPlanOptions:
+    """How the floor plan is cut, rasterised and vectorized (lengths in metres).
+
+    Attributes
+    ----------
+    cut_height_m: height of the cut above the storey elevation.
+    half_band_m: half-height of the band around the cut.
+    resolution_m: raster cell size.
+    n_levels: slices through the band (sampling heights).
+    vectorizer: rough detector.
+    min_component_px: smaller connected components are specks and removed.
+    fit_tol_m: points within this distance of a fitted line belong to it.
+    gap_m: a segment is split where its points leave a longer gap; pieces closer than this merge.
+    min_length_m: shorter final segments are dropped.
+    merge_angle_deg, merge_offset_m: collinearity tolerances for merging.
+    margin_m: raster margin around the model's walls and columns.
+    """
+
+    cut_height_m: float = 1.2
+    half_band_m: float = 0.2
+    resolution_m: float = 0.05
+    n_levels: int = 9
+    vectorizer: Vectorizer = Vectorizer.HOUGH
+    min_component_px: int = 3
+    fit_tol_m: float = 0.005
+    gap_m: float = 0.10
+    min_length_m: float = 0.03
+    merge_angle_deg: float = 1.0
+    merge_offset_m: float = 0.01
+    margin_m: float = 0.5
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["vectorizer"] = self.vectorizer.value
+        return d
+
+
+@dataclass
+class StoreyPlan:
+    """The floor plan of one storey.
+
+    Attributes
+    ----------
+    storey: storey name. elevation_m: its elevation.
+    band: (2,) z range of the cut band in metres. z_range: (2,) z range the segments apply to
+        (storey elevation to the next storey's).
+    segments: (S, 4) ``x1 y1 x2 y2`` metres. segment_class: (S,) int32 Label ids (1 wall, 4 column).
+    exact: class → (K, 4) exact slice at the cut height. exact_band: class → union over the band.
+    agreement: class name (and ``"all"``) → coverage / precision against the exact slice.
+    images: class → (H, W) uint8 occupancy image (255 = occupied).
+    """
+
+    storey: str
+    elevation_m: float
+    band: NDArray[np.float64]
+    z_range: NDArray[np.float64]
+    segments: NDArray[np.float64]
+    segment_class: NDArray[np.int32]
+    exact: dict[Label, NDArray[np.float64]] = field(default_factory=dict)
+    exact_band: dict[Label, NDArray[np.float64]] = field(default_factory=dict)
+    agreement: dict[str, Agreement] = field(default_factory=dict)
+    images: dict[Label, NDArray[np.uint8]] = field(default_factory=dict)
+
+    def lengths(self) -> dict[str, float]:
+        """Total segment length per class name, metres."""
+        seg_len = np.hypot(self.segments[:, 2] - self.segments[:, 0],
+                           self.segments[:, 3] - self.segments[:, 1])
+        return {c.name.lower(): float(seg_len[self.segment_class == c].sum()) for c in PLAN_CLASSES}
+
+
+@dataclass
+class FloorPlan:
+    """The vectorized floor plan of every storey that has walls or columns in its band.
+
+    Attributes
+    ----------
+    storeys: per-storey plans. resolution_m: raster cell size. origin: (2,) world xy of the corner
+    of pixel (0, 0). shape: (H, W) of the occupancy images. options: the options used.
+    """
+
+    storeys: list[StoreyPlan]
+    resolution_m: float
+    origin: NDArray[np.float64]
+    shape: tuple[int, int]
+    options: FloorPlanOptions
+
+    @property
+    def segments(self) -> NDArray[np.float64]:
+        """(S, 4) all storeys' segments."""
+        return _cat([s.segments for s in self.storeys], (0, 4), np.float64)
+
+    @property
+    def segment_class(self) -> NDArray[np.int32]:
+        return _cat([s.segment_class for s in self.storeys], (0,), np.int32)
+
+    @property
+    def segment_z(self) -> NDArray[np.float64]:
+        """(S, 2) the z range each segment applies to (its storey's)."""
+        return _cat(
+            [np.repeat(s.z_range[None], len(s.segments), axis=0) for s in self.storeys],
+            (0, 2),
+            np.float64,
+        )
+
+    @property
+    def segment_storey(self) -> list[str]:
+        return [s.storey for s in self.storeys for _ in range(len(s.segments))]
+
+    def to_dict(self) -> dict[str, Any]:
+        """The floor-plan JSON (DESIGN §3): segments with class and storey, band, resolution,
+        origin, plus each storey's coverage / precision."""
+        segs = []
+        for s in self.storeys:
+            for seg, c in zip(s.segments, s.segment_class):
+                segs.append({
+                    "x1": float(seg[0]), "y1": float(seg[1]),
+                    "x2": float(seg[2]), "y2": float(seg[3]),
+                    "class": Label(int(c)).name.lower(), "storey": s.storey,
+                })
+        return {
+            "format": "bimcap-floorplan",
+            "version": 1,
+            "units": "m",
+            "resolution_m": self.resolution_m,
+            "origin": [float(v) for v in self.origin],
+            "origin_meaning": "world xy of the corner of pixel (col 0, row 0); rows grow with y",
+            "image_shape": list(self.shape),
+            "options": self.options.to_dict(),
+            "storeys": [
+                {
+                    "storey": s.storey,
+                    "elevation_m": s.elevation_m,
+                    "band": [float(v) for v in s.band],
+                    "z_range": [float(v) for v in s.z_range],
+                    "segment_count": int(len(s.segments)),
+                    "length_m": s.lengths(),
+                    "agreement": {k: a.to_dict() for k, a in s.agreement.items()},
+                }
+                for s in self.storeys
+            ],
+            "segments": segs,
+        }
+
+
+def _cat(parts: list[NDArray[Any]], empty: tuple[int, ...], dtype: Any) -> NDArray[Any]:
+    parts = [p for p in parts if len(p)]
+    return np.concatenate(parts).astype(dtype) if parts else np.zeros(empty, dtype=dtype)
+
+
+# --------------------------------------------------------------------------- raster
+
+
+def rasterize(
+    pts: NDArray[np.float64], origin: NDArray[np.float64], res: float, shape: tuple[int, int]
+) -> NDArray[np.uint8]:
+    """(H, W) uint8 occupancy image of xy points (P, 2) metres; 255 where a point falls."""
+    img = np.zeros(shape, dtype=np.uint8)
+    if len(pts) == 0:
+        return img
+    col = np.floor((pts[:, 0] - origin[0]) / res).astype(np.int64)
+    row = np.floor((pts[:, 1] - origin[1]) / res).astype(np.int64)
+    ok = (col >= 0) & (col < shape[1]) & (row >= 0) & (row < shape[0])
+    img[row[ok], col[ok]] = 255
+    return img
+
+
+def clean(img: NDArray[np.uint8], min_component_px: int) -> NDArray[np.uint8]:
+    """Remove 8-connected components smaller than ``min_component_px`` pixels."""
+    import cv2
+
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(img, connectivity=8)
+    small = np.nonzero(stats[:, cv2.CC_STAT_AREA] < min_component_px)[0]
+    small = small[small != 0]
+    out = img.copy()
+    if len(small):
+        out[np.isin(lab, small)] = 0
+    return out
+
+
+def detect(img: NDArray[np.uint8], method: Vectorizer, fine: bool = False) -> NDArray[np.float64]:
+    """Rough segments ``(S, 4)`` in pixel coordinates ``u1 v1 u2 v2`` (pixel centres integer).
+
+    ``fine`` selects the settings of the second round, run on the pixels that the first round's
+    segments do not explain (short wall ends, jambs): Hough accepts shorter, weaker lines.
+    """
+    import cv2
+
+    if not img.any():
+        return np.zeros((0, 4))
+    if method == Vectorizer.HOUGH:
+        cv2.setRNGSeed(0)  # HoughLinesP is randomised: fix its draw order for reproducible plans
+        if fine:
+            lines = cv2.HoughLinesP(img, 1, np.pi / 720, threshold=3, minLineLength=2,
+                                    maxLineGap=1)
+        else:
+            lines = cv2.HoughLinesP(img, 1, np.pi / 720, threshold=10, minLineLength=5,
+                                    maxLineGap=2)
+        return np.zeros((0, 4)) if lines is None else lines.reshape(-1, 4).astype(np.float64)
+    if method == Vectorizer.LSD:
+        lsd = cv2.createLineSegmentDetector(cv2.LSD_REFINE_STD)
+        blurred = cv2.GaussianBlur(cv2.dilate(img, np.ones((3, 3), np.uint8)), (3, 3), 0)
+        lines = lsd.detect(blurred)[0]
+        return np.zeros((0, 4)) if lines is None else lines.reshape(-1, 4).astype(np.float64)
+    if method == Vectorizer.CONTOUR:
+        contours, _ = cv2.findContours(img, cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
+        segs = []
+        for c in contours:
+            poly = cv2.approxPolyDP(c, 1.0, True).reshape(-1, 2).astype(np.float64)
+            if len(poly) < 2:
+                continue
+            nxt = np.roll(poly, -1, axis=0)
+            segs.append(np.concatenate([poly, nxt], axis=1))
+        return np.concatenate(segs) if segs else np.zeros((0, 4))
+    raise ValueError(f"unknown vectorizer {method!r}")
+
+
+# --------------------------------------------------------------------------- refine / merge
+
+
+def _fit_line(p: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Total least squares line through (P, 2) points: (centroid, unit direction)."""
+    c = p.mean(axis=0)
+    _, _, vt = np.linalg.svd(p - c, full_matrices=False)
+    return c, vt[0]
+
+
+def _runs(t: NDArray[np.float64], gap: float) -> list[tuple[float, float]]:
+    """[start, end] intervals of sorted positions ``t`` split where consecutive gaps exceed gap."""
+    if len(t) == 0:
+        return []
+    t = np.sort(t)
+    cut = np.nonzero(np.diff(t) > gap)[0]
+    starts = np.concatenate([[0], cut + 1])
+    ends = np.concatenate([cut, [len(t) - 1]])
+    return [(float(t[a]), float(t[b])) for a, b in zip(starts, ends)]
+
+
+def _faces_in_window(off: NDArray[np.float64], bin_m: float) -> list[float]:
+    """Offsets of the faces among point offsets from a rough line: peaks of a histogram with
+    ``bin_m`` bins that hold at least a quarter of the largest peak (and 3 points)."""
+    bins = np.round(off / bin_m).astype(np.int64)
+    vals, counts = np.unique(bins, return_counts=True)
+    if len(vals) == 0:
+        return []
+    full = np.zeros(vals[-1] - vals[0] + 3, dtype=np.int64)
+    full[vals - vals[0] + 1] = counts
+    peak = (full[1:-1] >= full[:-2]) & (full[1:-1] > full[2:])
+    strong = full[1:-1] >= max(3, 0.25 * full.max())
+    idx = np.nonzero(peak & strong)[0]
+    return [float((i + vals[0]) * bin_m) for i in idx]
+
+
+def refine(
+    rough: NDArray[np.float64],
+    pts: NDArray[np.float64],
+    tree: Any,
+    res: float,
+    opts: FloorPlanOptions,
+) -> NDArray[np.float64]:
+    """Snap rough segments (S, 4) metres onto the face points ``pts`` (P, 2); (S', 4) metres.
+
+    Every face within 1.5 cells of a rough segment (both faces of a thin wall, say) is fitted on
+    its own: offsets from the rough line are histogrammed in ``fit_tol_m`` bins, each strong peak
+    is a face, its points are fitted by total least squares, refitted on the points within
+    ``fit_tol_m`` of that line, projected, and split at gaps longer than ``gap_m``.
+    """
+    out = []
+    search = 1.5 * res
+    for seg in rough:
+        a, b = seg[:2], seg[2:]
+        length = float(np.hypot(*(b - a)))
+        if length < 1e-6:
+            continue
+        d = (b - a) / length
+        n = np.array([-d[1], d[0]])
+        idx = np.asarray(tree.query_ball_point((a + b) / 2, length / 2 + 2 * res), dtype=np.int64)
+        if len(idx) < 3:
+            continue
+        q = pts[idx] - a
+        t = q @ d
+        off = q @ n
+        sel = (np.abs(off) <= search) & (t >= -res) & (t <= length + res)
+        if sel.sum() < 3:
+            continue
+        local = pts[idx[sel]]
+        for face_off in _faces_in_window(off[sel], opts.fit_tol_m):
+            cand = local[np.abs(off[sel] - face_off) <= 2 * opts.fit_tol_m]
+            if len(cand) < 3:
+                continue
+            c, u = _fit_line(cand)
+            # Refit on the points close to the fitted line, over the rough segment's extent.
+            nn = np.array([-u[1], u[0]])
+            q2 = pts[idx] - c
+            t2 = q2 @ u
+            ta, tb = sorted(((a - c) @ u, (b - c) @ u))
+            keep = (np.abs(q2 @ nn) <= opts.fit_tol_m) & (t2 >= ta - res) & (t2 <= tb + res)
+            if keep.sum() < 3:
+                continue
+            c, u = _fit_line(pts[idx[keep]])
+            t3 = (pts[idx[keep]] - c) @ u
+            for lo, hi in _runs(t3, opts.gap_m):
+                if hi - lo >= opts.min_length_m:
+                    out.append(np.concatenate([c + lo * u, c + hi * u]))
+    return np.asarray(out, dtype=np.float64).reshape(-1, 4)
+
+
+def merge_collinear(segs: NDArray[np.float64], opts: FloorPlanOptions) -> NDArray[np.float64]:
+    """Merge collinear overlapping (or nearly touching) segments (S, 4) metres into (S', 4).
+
+    Greedy, longest first: a segment joins a kept one when their directions differ by less than
+    ``merge_angle_deg``, both its endpoints lie within ``merge_offset_m`` of the kept one's line,
+    and their extents along it overlap or leave a gap below ``gap_m``; the kept line (the longer
+    segment's, an exact fit already) is extended over the union.
+    """
+    if len(segs) == 0:
+        return segs
+    length = np.hypot(segs[:, 2] - segs[:, 0], segs[:, 3] - segs[:, 1])
+    order = np.argsort(-length, kind="stable")
+    cos_tol = np.cos(np.deg2rad(opts.merge_angle_deg))
+    n = len(segs)
+    C = np.empty((n, 2))  # a point on each kept line
+    U = np.empty((n, 2))  # its unit direction
+    iv = np.empty((n, 2))  # its extent [t0, t1] along U from C
+    k = 0
+    for i in order:
+        a, b = segs[i, :2], segs[i, 2:]
+        u = (b - a) / max(length[i], 1e-12)
+        if k:
+            Ck, Uk = C[:k], U[:k]
+            par = np.abs(Uk @ u) >= cos_tol
+            cand = np.nonzero(par)[0]
+            if len(cand):
+                Cc, Uc = Ck[cand], Uk[cand]
+                da, db = a - Cc, b - Cc
+                off_a = np.abs(da[:, 0] * Uc[:, 1] - da[:, 1] * Uc[:, 0])
+                off_b = np.abs(db[:, 0] * Uc[:, 1] - db[:, 1] * Uc[:, 0])
+                ta = (da * Uc).sum(1)
+                tb = (db * Uc).sum(1)
+                lo, hi = np.minimum(ta, tb), np.maximum(ta, tb)
+                ivc = iv[cand]
+                ok = ((off_a <= opts.merge_offset_m) & (off_b <= opts.merge_offset_m)
+                      & (lo <= ivc[:, 1] + opts.gap_m) & (hi >= ivc[:, 0] - opts.gap_m))
+                if ok.any():
+                    j = int(np.argmax(ok))
+                    kk = cand[j]
+                    iv[kk, 0] = min(iv[kk, 0], lo[j])
+                    iv[kk, 1] = max(iv[kk, 1], hi[j])
+                    continue
+        C[k], U[k], iv[k] = a, u, (0.0, length[i])
+        k += 1
+    out = np.concatenate([C[:k] + iv[:k, :1] * U[:k], C[:k] + iv[:k, 1:] * U[:k]], axis=1)
+    return out
+
+
+def explained(
+    pts: NDArray[np.float64], segs: NDArray[np.float64], tol: float
+) -> NDArray[np.bool_]:
+    """(P,) True where a point (P, 2) lies within ``tol`` metres of a segment (S, 4)."""
+    from scipy.spatial import cKDTree
+
+    if len(segs) == 0 or len(pts) == 0:
+        return np.zeros(len(pts), dtype=bool)
+    samples, _ = sample_segments(segs, tol / 2)
+    dist, _ = cKDTree(samples).query(pts, k=1, distance_upper_bound=2 * tol)
+    return dist <= tol
+
+
+def vectorize(
+    pts: NDArray[np.float64],
+    origin: NDArray[np.float64],
+    shape: tuple[int, int],
+    opts: FloorPlanOptions,
+) -> tuple[NDArray[np.float64], NDArray[np.uint8]]:
+    """Occupancy image → detected, refined, merged segments.
+
+    Parameters
+    ----------
+    pts: (P, 2) band points of one class, metres. origin: (2,) raster origin. shape: (H, W).
+
+    Returns
+    -------
+    segments (S, 4) metres, and the cleaned (H, W) uint8 occupancy image.
+    """
+    from scipy.spatial import cKDTree
+
+    res = opts.resolution_m
+    img = clean(rasterize(pts, origin, res, shape), opts.min_component_px)
+    if len(pts) < 3:
+        return np.zeros((0, 4)), img
+    tree = cKDTree(pts)
+    found = []
+    residual = img
+    for fine in (False, True):
+        px = detect(residual, opts.vectorizer, fine)
+        rough = origin[[0, 1, 0, 1]] + (px + 0.5) * res
+        found.append(refine(rough, pts, tree, res, opts))
+        if not fine:
+            # Second round on what the first did not explain.
+            done = np.concatenate(found)
+            left = pts[~explained(pts, done, 2 * opts.fit_tol_m)]
+            residual = clean(rasterize(left, origin, res, shape), opts.min_component_px)
+    segs = merge_collinear(np.concatenate(found), opts)
+    length = np.hypot(segs[:, 2] - segs[:, 0], segs[:, 3] - segs[:, 1])
+    return segs[length >= opts.min_length_m], img
+
+
+def column_outlines(
+    pts: NDArray[np.float64],
+    origin: NDArray[np.float64],
+    shape: tuple[int, int],
+    opts: FloorPlanOptions,
+) -> tuple[NDArray[np.float64], NDArray[np.uint8]]:
+    """Column outlines: one convex polygon per connected blob of the column image.
+
+    Columns are small and (nearly always) convex, rectangular or round: line detectors find only
+    a few pixels per side, so each blob's band points are wrapped in their convex hull, simplified
+    to ``fit_tol_m`` (a round column of radius r becomes a polygon whose sides deviate from the
+    circle by at most that much), and its sides become the segments.
+
+    Returns
+    -------
+    segments (S, 4) metres and the cleaned (H, W) uint8 occupancy image.
+    """
+    import cv2
+    import shapely
+
+    res = opts.resolution_m
+    img = clean(rasterize(pts, origin, res, shape), opts.min_component_px)
+    if len(pts) < 3:
+        return np.zeros((0, 4)), img
+    # Blobs of the dilated image, so that the two faces of a hollow outline stay one blob.
+    n, lab = cv2.connectedComponents(cv2.dilate(img, np.ones((3, 3), np.uint8)), connectivity=8)
+    col = np.floor((pts[:, 0] - origin[0]) / res).astype(np.int64)
+    row = np.floor((pts[:, 1] - origin[1]) / res).astype(np.int64)
+    ok = (col >= 0) & (col < shape[1]) & (row >= 0) & (row < shape[0])
+    blob = np.zeros(len(pts), dtype=np.int64)
+    blob[ok] = lab[row[ok], col[ok]]
+    out = []
+    for k in range(1, n):
+        p = pts[blob == k]
+        if len(p) < 3:
+            continue
+        hull = shapely.MultiPoint(p).convex_hull.simplify(opts.fit_tol_m)
+        if hull.geom_type != "Polygon":
+            continue
+        ring = np.asarray(hull.exterior.coords)
+        out.append(np.concatenate([ring[:-1], ring[1:]], axis=1))
+    segs = np.concatenate(out) if out else np.zeros((0, 4))
+    length = np.hypot(segs[:, 2] - segs[:, 0], segs[:, 3] - segs[:, 1])
+    return segs[length > 1e-6], img
+
+
+# --------------------------------------------------------------------------- per storey
+
+
+def raster_frame(
+    model: BimModel, opts: FloorPlanOptions
+) -> tuple[NDArray[np.float64], tuple[int, int]]:
+    """Origin (2,) and image shape (H, W) covering every wall and column, plus a margin."""
+    elems = model.by_label(*PLAN_CLASSES)
+    xy = np.concatenate([e.vertices[:, :2] for e in elems]) if elems else np.zeros((1, 2))
+    res = opts.resolution_m
+    lo = np.floor((xy.min(axis=0) - opts.margin_m) / res) * res
+    hi = xy.max(axis=0) + opts.margin_m
+    w, h = np.ceil((hi - lo) / res).astype(int) + 1
+    return lo.astype(np.float64), (int(h), int(w))
+
+
+def storey_plan(
+    model: BimModel,
+    index: int,
+    origin: NDArray[np.float64],
+    shape: tuple[int, int],
+    opts: FloorPlanOptions,
+) -> StoreyPlan:
+    """The floor plan of storey ``model.storeys[index]`` (see the module docstring)."""
+    st = model.storeys[index]
+    zc = st.elevation_m + opts.cut_height_m
+    lo, hi = zc - opts.half_band_m, zc + opts.half_band_m
+    if index + 1 < len(model.storeys):
+        top = model.storeys[index + 1].elevation_m
+    else:
+        tops = [e.zmax for e in model.by_label(Label.WALL)]
+        top = max([st.elevation_m + 3.0] + tops)
+    segs_all, cls_all = [], []
+    exact, exact_band, images, agree = {}, {}, {}, {}
+    for cls in PLAN_CLASSES:
+        elems = [e for e in model.by_label(cls) if e.zmax >= lo and e.zmin <= hi]
+        v, f = concatenate_meshes(elems)
+        band_slices = slice_band(v, f, lo, hi, opts.n_levels)
+        band = np.concatenate(band_slices) if band_slices else np.zeros((0, 4))
+        exact[cls] = slice_mesh(v, f, zc)
+        exact_band[cls] = band
+        # The band's slices repeat each vertical face: keep one point per res/8 square.
+        pts = thin_points(sample_segments(band, opts.resolution_m / 4)[0], opts.resolution_m / 8)
+        if cls == Label.COLUMN:
+            segs, img = column_outlines(pts, origin, shape, opts)
+        else:
+            segs, img = vectorize(pts, origin, shape, opts)
+        images[cls] = img
+        segs_all.append(segs)
+        cls_all.append(np.full(len(segs), int(cls), dtype=np.int32))
+        agree[cls.name.lower()] = agreement(exact[cls], band, segs, opts.resolution_m)
+    segments = _cat(segs_all, (0, 4), np.float64)
+    agree["all"] = agreement(
+        _cat(list(exact.values()), (0, 4), np.float64),
+        _cat(list(exact_band.values()), (0, 4), np.float64),
+        segments,
+        opts.resolution_m,
+    )
+    return StoreyPlan(
+        storey=st.name,
+        elevation_m=st.elevation_m,
+        band=np.array([lo, hi]),
+        z_range=np.array([st.elevation_m, top]),
+        segments=segments,
+        segment_class=_cat(cls_all, (0,), np.int32),
+        exact=exact,
+        exact_band=exact_band,
+        agreement=agree,
+        images=images,
+    )
+
+
+def build_floor_plan(model: BimModel, opts: FloorPlanOptions | None = None) -> FloorPlan:
+    """Floor plans of all storeys whose band cuts at least one wall or column."""
+    opts = opts or FloorPlanOptions()
+    origin, shape = raster_frame(model, opts)
+    plans = []
+    for i in range(len(model.storeys)):
+        sp = storey_plan(model, i, origin, shape, opts)
+        if any(len(x) for x in sp.exact_band.values()):
+            plans.append(sp)
+    return FloorPlan(plans, opts.resolution_m, origin, shape, opts)
