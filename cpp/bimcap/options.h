@@ -69,9 +69,9 @@ struct SolverOptions {
 
   // Ceres.
   int max_iterations = 100;
-  double function_tolerance = 1e-8;
-  double gradient_tolerance = 1e-12;
-  double parameter_tolerance = 1e-10;
+  double function_tolerance = 1e-6;
+  double gradient_tolerance = 1e-10;
+  double parameter_tolerance = 1e-8;
   double max_time_s = 1e6;
   int num_threads = 2;
   LinearSolver linear_solver = LinearSolver::kAuto;

@@ -39,11 +39,14 @@ std::vector<double> Evaluate(const ceres::CostFunction& cost, const std::vector<
 
 // The (ambient) Jacobians of `cost` agree with finite differences, twice:
 //  1. ceres::GradientChecker (forward differences): its verdict is purely relative, which flags
-//     structural zeros (1e-16 against 0), and on the reprojection functor its forward differences
-//     were seen 1 % off the analytic value at some poses (independent of the step size), so it
-//     gets a loose tolerance here;
+//     structural zeros (1e-16 against 0), so the entries are compared here with a loose
+//     tolerance. With Debian's Ceres 2.1 its numeric Jacobians of the two-frame reprojection (at
+//     some poses) and of the segment distance past a segment end were seen far off (1 % to 4×,
+//     independent of the step size) where central differences and pycolmap agree with the
+//     autodiff values to 1e-8; for those two `trust_checker` is false and only (2) is asserted.
 //  2. central differences computed here with h = 1e-6 · max(1, |x|): a tight tolerance.
-void ExpectGradientsMatch(const ceres::CostFunction& cost, const std::vector<const double*>& blocks) {
+void ExpectGradientsMatch(const ceres::CostFunction& cost, const std::vector<const double*>& blocks,
+                          bool trust_checker = true) {
   const std::vector<const ceres::Manifold*> ambient(blocks.size(), nullptr);
   ceres::GradientChecker checker(&cost, &ambient, ceres::NumericDiffOptions());
   ceres::GradientChecker::ProbeResults results;
@@ -75,8 +78,10 @@ void ExpectGradientsMatch(const ceres::CostFunction& cost, const std::vector<con
         const double central = (plus[r] - minus[r]) / (2 * h);
         EXPECT_NEAR(user(r, c), central, 1e-6 * std::max(1.0, std::abs(central)))
             << "central differences, block " << b << " (" << r << ", " << c << ")";
-        EXPECT_NEAR(user(r, c), forward(r, c), 2e-2 * std::max(1.0, std::abs(forward(r, c))))
-            << "GradientChecker, block " << b << " (" << r << ", " << c << ")";
+        if (trust_checker) {
+          EXPECT_NEAR(user(r, c), forward(r, c), 2e-2 * std::max(1.0, std::abs(forward(r, c))))
+              << "GradientChecker, block " << b << " (" << r << ", " << c << ")";
+        }
       }
     }
   }
@@ -157,9 +162,11 @@ TEST(PointToSegment, HandValues) {
   // Inside: signed perpendicular distance, positive on the left of a→b.
   EXPECT_NEAR(PointToSegmentDistance2D(1.0, 0.5, seg), 0.5, 1e-12);
   EXPECT_NEAR(PointToSegmentDistance2D(3.0, -0.25, seg), -0.25, 1e-12);
-  // Past the ends: Euclidean distance to the end point.
+  // Past the ends: Euclidean distance to the end point, with the side's sign.
   EXPECT_NEAR(PointToSegmentDistance2D(7.0, 4.0, seg), 5.0, 1e-12);
-  EXPECT_NEAR(PointToSegmentDistance2D(-3.0, -4.0, seg), 5.0, 1e-12);
+  EXPECT_NEAR(PointToSegmentDistance2D(-3.0, -4.0, seg), -5.0, 1e-12);
+  // Continuous where the pieces meet.
+  EXPECT_NEAR(PointToSegmentDistance2D(4.0 + 1e-9, -0.5, seg), -0.5, 1e-8);
   // Degenerate segment.
   EXPECT_NEAR(PointToSegmentDistance2D(3.0, 4.0, Eigen::Vector4d(0, 0, 0, 0)), 5.0, 1e-12);
 
@@ -203,7 +210,7 @@ TEST_F(GradientTest, AllFunctors) {
       where << "| ";
       for (double v : b_front) where << v << " ";
       SCOPED_TRACE("c2 at " + where.str());
-      ExpectGradientsMatch(*c2, {a.data(), b_front.data()});
+      ExpectGradientsMatch(*c2, {a.data(), b_front.data()}, /*trust_checker=*/false);
     }
     std::unique_ptr<ceres::CostFunction> c3(
         LandmarkReprojectionCostFunctor::Create({300, 200}, {500, 480, 320, 240}, 1.0));
@@ -232,7 +239,7 @@ TEST_F(GradientTest, AllFunctors) {
       std::unique_ptr<ceres::CostFunction> c7(PointToSegmentCostFunctor::Create(p_a, seg, 1.0));
       {
       SCOPED_TRACE(seg[0] < world.x() ? "c7 interior" : "c7 past the end");
-      ExpectGradientsMatch(*c7, {a.data()});
+      ExpectGradientsMatch(*c7, {a.data()}, /*trust_checker=*/false);
     }
     }
   }

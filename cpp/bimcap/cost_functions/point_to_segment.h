@@ -12,11 +12,13 @@
 namespace bimcap {
 
 // Distance in the floor plane (xy) from point q to the segment a→b, written so that it stays
-// differentiable: where q projects inside the segment it is the *signed* perpendicular distance
-//   ((b − a) × (q − a)) / |b − a|      (positive on the left of a→b)
+// continuous and differentiable almost everywhere. Where q projects inside the segment it is the
+// *signed* perpendicular distance
+//   c = ((b − a) × (q − a)) / |b − a|      (positive on the left of a→b)
 // whose square is the squared distance but whose derivative exists on the segment itself; past
-// an end it is the Euclidean distance to that end point. Degenerate segments (a = b) use the
-// distance to a.
+// an end it is the Euclidean distance to that end point carrying the sign of c, so that the
+// residual does not jump where the two pieces meet. Degenerate segments (a = b) use the distance
+// to a.
 template <typename T>
 T PointToSegmentDistance2D(const T& qx, const T& qy, const Eigen::Vector4d& segment) {
   using std::sqrt;
@@ -24,19 +26,16 @@ T PointToSegmentDistance2D(const T& qx, const T& qy, const Eigen::Vector4d& segm
   const double dx = segment[2] - ax, dy = segment[3] - ay;
   const double length2 = dx * dx + dy * dy;
   const T ex = qx - T(ax), ey = qy - T(ay);
-  if (length2 > 1e-18) {
-    const T along = (ex * dx + ey * dy) / length2;  // 0 at a, 1 at b
-    if (along >= T(0.0) && along <= T(1.0)) {
-      return (T(dx) * ey - T(dy) * ex) / std::sqrt(length2);
-    }
-    if (along > T(1.0)) {
-      const T fx = qx - T(segment[2]), fy = qy - T(segment[3]);
-      const T d2 = fx * fx + fy * fy;
-      return d2 > T(0.0) ? sqrt(d2) : T(0.0);
-    }
-  }
-  const T d2 = ex * ex + ey * ey;
-  return d2 > T(0.0) ? sqrt(d2) : T(0.0);
+  auto norm = [](const T& x, const T& y) {
+    const T d2 = x * x + y * y;
+    return d2 > T(0.0) ? T(sqrt(d2)) : T(0.0);
+  };
+  if (length2 <= 1e-18) return norm(ex, ey);
+  const T cross = (T(dx) * ey - T(dy) * ex) / std::sqrt(length2);
+  const T along = (ex * dx + ey * dy) / length2;  // 0 at a, 1 at b
+  if (along >= T(0.0) && along <= T(1.0)) return cross;
+  const T end = along > T(1.0) ? norm(qx - T(segment[2]), qy - T(segment[3])) : norm(ex, ey);
+  return cross < T(0.0) ? T(-end) : end;
 }
 
 // A wall (column) point seen in the camera, mapped to the world and projected onto the floor

@@ -120,9 +120,9 @@ class SolverOptions:
     #: W / Co: at most this many Ceres runs, re-associating in between.
     outer_iterations: int = 5
     max_iterations: int = 100
-    function_tolerance: float = 1e-8
-    gradient_tolerance: float = 1e-12
-    parameter_tolerance: float = 1e-10
+    function_tolerance: float = 1e-6
+    gradient_tolerance: float = 1e-10
+    parameter_tolerance: float = 1e-8
     max_time_s: float = 1e6
     num_threads: int = 2
     linear_solver: LinearSolver = LinearSolver.AUTO
