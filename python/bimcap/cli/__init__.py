@@ -15,8 +15,20 @@ from collections.abc import Sequence
 from bimcap import __version__
 from bimcap.errors import BimcapError
 
-#: Sub-command modules, in the order ``bimcap --help`` lists them.
-COMMANDS: tuple[str, ...] = ("bim",)
+#: Sub-command modules, in the order ``bimcap --help`` lists them. A name whose module is not
+#: part of this build is skipped (any other import error is raised).
+COMMANDS: tuple[str, ...] = (
+    "demo",
+    "refine",
+    "evaluate",
+    "experiment",
+    "generate_building",
+    "bim",
+    "simulate",
+    "drift",
+    "import_conslam",
+    "solve_demo",
+)
 
 EXIT_BAD_INPUT = 2
 EXIT_SOLVE_FAILED = 3
@@ -31,7 +43,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMANDS:
-        importlib.import_module(f"bimcap.cli.{name}").register(sub)
+        try:
+            module = importlib.import_module(f"bimcap.cli.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name == f"bimcap.cli.{name}":
+                continue
+            raise
+        module.register(sub)
     return parser
 
 

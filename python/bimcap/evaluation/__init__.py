@@ -1,1 +1,17 @@
-"""Metrics (ATE, yaw/pitch/roll, MME, MPV, NND) and plots."""
+"""Metrics (ATE, yaw/pitch/roll, MME, MPV, NND) and plots (DESIGN §4).
+
+Modules (imported explicitly; nothing heavy is imported here):
+
+- :mod:`bimcap.evaluation.metrics`: ``evaluate_trajectory(est, gt, align, max_dt)`` on
+  :class:`~bimcap.geometry.trajectory.Trajectory` objects, ``trajectory_metrics(est, gt, align)``
+  on matched (N, 7) arrays, ``associate``, ``frame_errors``, ``AlignMode``,
+  ``TrajectoryMetrics`` / ``ErrorStats`` / ``FrameErrors``. ATE equals evo's ``APE``.
+- :mod:`bimcap.evaluation.map_metrics`: ``aggregate_map(scans, world_from_sensor)``,
+  ``map_metrics(points, radius, min_neighbours)`` (MME/MPV equal to the map-metrics package),
+  ``nearest_neighbour_distance``, ``map_metrics_with_reference``, ``read_ply_points``,
+  ``MapMetrics``, ``CutoffMode``.
+- :mod:`bimcap.evaluation.alignment`: ``umeyama_alignment`` (evo's SE(3)/Sim(3)), ``Similarity``.
+- :mod:`bimcap.evaluation.plots`: ``plot_trajectories_on_plan``, ``plot_errors_per_frame``,
+  ``plot_side_view``, ``plot_term_costs`` (matplotlib Agg; atomic PNG writes).
+- :mod:`bimcap.evaluation.errors`: ``EvaluationError``.
+"""

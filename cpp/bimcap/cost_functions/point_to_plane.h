@@ -1,0 +1,74 @@
+// F / Ce, point-to-plane.
+#ifndef BIMCAP_COST_FUNCTIONS_POINT_TO_PLANE_H_
+#define BIMCAP_COST_FUNCTIONS_POINT_TO_PLANE_H_
+
+#include <Eigen/Core>
+#include <ceres/autodiff_cost_function.h>
+
+#include "bimcap/pose.h"
+
+namespace bimcap {
+
+// BIM mode: a floor (ceiling) point seen in the camera, mapped to the world, has a signed
+// distance to its fixed BIM plane [n, d] (unit n, n·p + d = 0 on the plane):
+//
+//   r = s · ( n · (R p_in_cam + t) + d )                                          (1 residual, m)
+//
+// Parameter blocks:
+//   world_from_cam [7]: tx ty tz qx qy qz qw
+struct PointToPlaneCostFunctor {
+  PointToPlaneCostFunctor(const Eigen::Vector3d& p_in_cam, const Eigen::Vector4d& plane,
+                          double sqrt_weight)
+      : p_in_cam(p_in_cam), plane(plane), sqrt_weight(sqrt_weight) {}
+
+  static ceres::CostFunction* Create(const Eigen::Vector3d& p_in_cam, const Eigen::Vector4d& plane,
+                                     double sqrt_weight) {
+    return new ceres::AutoDiffCostFunction<PointToPlaneCostFunctor, 1, kPoseSize>(
+        new PointToPlaneCostFunctor(p_in_cam, plane, sqrt_weight));
+  }
+
+  template <typename T>
+  bool operator()(const T* const world_from_cam, T* residuals) const {
+    const Eigen::Matrix<T, 3, 1> p_in_world = CamToWorld(world_from_cam, p_in_cam.cast<T>().eval());
+    residuals[0] =
+        T(sqrt_weight) * (plane.head<3>().cast<T>().dot(p_in_world) + T(plane[3]));
+    return true;
+  }
+
+  const Eigen::Vector3d p_in_cam;
+  const Eigen::Vector4d plane;
+  const double sqrt_weight;
+};
+
+// FACaP mode: the plane is a variable shared by all points of the term (flatness only; the
+// scan's own floor fixes no absolute height):
+//
+//   r = s · ( n · (R p_in_cam + t) + d ),   [n, d] on SphereManifold<3> × EuclideanManifold<1>
+//
+// Parameter blocks:
+//   world_from_cam [7]: tx ty tz qx qy qz qw
+//   plane [4]:          nx ny nz d (unit normal kept by the manifold)
+struct PointToVariablePlaneCostFunctor {
+  PointToVariablePlaneCostFunctor(const Eigen::Vector3d& p_in_cam, double sqrt_weight)
+      : p_in_cam(p_in_cam), sqrt_weight(sqrt_weight) {}
+
+  static ceres::CostFunction* Create(const Eigen::Vector3d& p_in_cam, double sqrt_weight) {
+    return new ceres::AutoDiffCostFunction<PointToVariablePlaneCostFunctor, 1, kPoseSize, 4>(
+        new PointToVariablePlaneCostFunctor(p_in_cam, sqrt_weight));
+  }
+
+  template <typename T>
+  bool operator()(const T* const world_from_cam, const T* const plane, T* residuals) const {
+    const Eigen::Matrix<T, 3, 1> p_in_world = CamToWorld(world_from_cam, p_in_cam.cast<T>().eval());
+    const Eigen::Map<const Eigen::Matrix<T, 3, 1>> normal(plane);
+    residuals[0] = T(sqrt_weight) * (normal.dot(p_in_world) + plane[3]);
+    return true;
+  }
+
+  const Eigen::Vector3d p_in_cam;
+  const double sqrt_weight;
+};
+
+}  // namespace bimcap
+
+#endif  // BIMCAP_COST_FUNCTIONS_POINT_TO_PLANE_H_

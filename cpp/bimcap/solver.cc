@@ -1,0 +1,379 @@
+#include "bimcap/solver.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <cmath>
+#include <memory>
+#include <sstream>
+
+#include <ceres/covariance.h>
+#include <ceres/solver.h>
+
+#include "bimcap/builder.h"
+
+namespace bimcap {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+ceres::LinearSolverType ChooseLinearSolver(const SolverOptions& options, bool landmarks) {
+  switch (options.linear_solver) {
+    case LinearSolver::kDenseQr: return ceres::DENSE_QR;
+    case LinearSolver::kDenseNormalCholesky: return ceres::DENSE_NORMAL_CHOLESKY;
+    case LinearSolver::kSparseNormalCholesky: return ceres::SPARSE_NORMAL_CHOLESKY;
+    case LinearSolver::kDenseSchur: return ceres::DENSE_SCHUR;
+    case LinearSolver::kSparseSchur: return ceres::SPARSE_SCHUR;
+    case LinearSolver::kIterativeSchur: return ceres::ITERATIVE_SCHUR;
+    case LinearSolver::kAuto:
+    default: return landmarks ? ceres::SPARSE_SCHUR : ceres::SPARSE_NORMAL_CHOLESKY;
+  }
+}
+
+struct TermCosts {
+  double cost = 0.0;    // with loss
+  double sq_sum = 0.0;  // Σ ‖r‖² of the raw residuals
+};
+
+// Per-term cost (with the loss) and raw squared sum (without it, divided by s²).
+std::array<TermCosts, kNumTerms> EvaluateTerms(ProblemBuilder& builder) {
+  std::array<TermCosts, kNumTerms> out;
+  for (int t = 0; t < kNumTerms; ++t) {
+    const TermBlocks& term = builder.terms()[t];
+    if (!term.active || term.ids.empty()) continue;
+    ceres::Problem::EvaluateOptions eval;
+    eval.residual_blocks = term.ids;
+    eval.apply_loss_function = true;
+    builder.problem().Evaluate(eval, &out[t].cost, nullptr, nullptr, nullptr);
+    eval.apply_loss_function = false;
+    double plain = 0.0;
+    builder.problem().Evaluate(eval, &plain, nullptr, nullptr, nullptr);
+    out[t].sq_sum = 2.0 * plain / (term.sqrt_weight * term.sqrt_weight);
+  }
+  return out;
+}
+
+void Record(const std::array<TermCosts, kNumTerms>& costs, const ProblemBuilder& builder,
+            const SolverOptions& options, bool initial, Summary* summary) {
+  double total = 0.0, paper = 0.0;
+  for (int t = 0; t < kNumTerms; ++t) {
+    const TermBlocks& blocks = builder.terms()[t];
+    TermSummary& ts = summary->terms[t];
+    const double n = static_cast<double>(blocks.num_residual_blocks);
+    const double rms =
+        blocks.active && n > 0 ? std::sqrt(costs[t].sq_sum / (n * blocks.residual_size)) : 0.0;
+    const double share =
+        blocks.active && n > 0 ? options.term(t).paper_weight * costs[t].sq_sum / n : 0.0;
+    total += costs[t].cost;
+    paper += share;
+    if (initial) {
+      ts.initial_cost = costs[t].cost;
+      ts.initial_rms = rms;
+      ts.initial_paper_objective = share;
+    } else {
+      ts.final_cost = costs[t].cost;
+      ts.final_rms = rms;
+      ts.final_paper_objective = share;
+      ts.active = blocks.active;
+      ts.num_residual_blocks = blocks.num_residual_blocks;
+      ts.num_residuals = blocks.num_residual_blocks * blocks.residual_size;
+      ts.num_skipped = blocks.num_skipped;
+      ts.sqrt_weight = blocks.sqrt_weight;
+    }
+  }
+  if (initial) {
+    summary->initial_cost = total;
+    summary->initial_paper_objective = paper;
+  } else {
+    summary->final_cost = total;
+    summary->final_paper_objective = paper;
+  }
+}
+
+void NormalizeQuaternions(std::vector<double>* poses) {
+  for (size_t i = 0; i + kPoseSize <= poses->size(); i += kPoseSize) {
+    double* q = poses->data() + i + 3;
+    const double norm = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+    for (int k = 0; k < 4; ++k) q[k] /= norm;
+  }
+}
+
+void ComputeCovariance(ProblemBuilder& builder, const ProblemData& data, const SolverOptions& options,
+                       SolverState* state, SolveResult* result) {
+  Summary& summary = result->summary;
+  summary.covariance_requested = true;
+  ceres::Covariance::Options cov_options;
+  cov_options.num_threads = options.num_threads;
+  cov_options.algorithm_type = ceres::SPARSE_QR;
+  ceres::Covariance covariance(cov_options);
+  std::vector<std::pair<const double*, const double*>> blocks;
+  const int64_t n = data.num_poses();
+  for (int64_t i = 0; i < n; ++i) {
+    const double* pose = state->poses.data() + kPoseSize * i;
+    if (builder.problem().HasParameterBlock(pose) && data.pose_fixed(i) == 0) {
+      blocks.emplace_back(pose, pose);
+    }
+  }
+  result->covariance.assign(n * 36, 0.0);
+  if (blocks.empty()) {
+    summary.covariance_ok = true;
+    summary.covariance_message = "no free poses";
+    return;
+  }
+  if (!covariance.Compute(blocks, &builder.problem())) {
+    summary.covariance_ok = false;
+    summary.covariance_message =
+        "ceres::Covariance failed (rank-deficient: is the gauge fixed? see pose_fixed)";
+    result->covariance.clear();
+    return;
+  }
+  const int tangent = builder.problem().ParameterBlockTangentSize(blocks.front().first);
+  std::vector<double> block(tangent * tangent);
+  for (int64_t i = 0; i < n; ++i) {
+    const double* pose = state->poses.data() + kPoseSize * i;
+    if (!(builder.problem().HasParameterBlock(pose) && data.pose_fixed(i) == 0)) continue;
+    covariance.GetCovarianceBlockInTangentSpace(pose, pose, block.data());
+    double* out = result->covariance.data() + 36 * i;
+    if (tangent == 6) {
+      for (int k = 0; k < 36; ++k) out[k] = block[k];
+    } else {
+      // Rotation- or translation-only: place the 3×3 block at its place in [δt, δθ].
+      const int offset = options.refine_mode == RefineMode::kRotation ? 3 : 0;
+      for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 3; ++c) out[(offset + r) * 6 + offset + c] = block[r * 3 + c];
+    }
+  }
+  summary.covariance_ok = true;
+}
+
+}  // namespace
+
+SolveResult Solve(const ProblemData& data, const SolverOptions& options) {
+  const auto start = Clock::now();
+  ValidateProblem(data);
+  options.Check();
+
+  SolverState state;
+  state.poses.assign(data.poses.data, data.poses.data + data.poses.rows * kPoseSize);
+  NormalizeQuaternions(&state.poses);
+  if (data.track_points.rows > 0) {
+    state.track_points.assign(data.track_points.data,
+                              data.track_points.data + data.track_points.rows * 3);
+  }
+
+  SolveResult result;
+  Summary& summary = result.summary;
+  summary.num_poses = data.num_poses();
+  summary.terms.resize(kNumTerms);
+  for (int t = 0; t < kNumTerms; ++t) {
+    summary.terms[t].name = TermName(t);
+    summary.terms[t].paper_weight = options.term(t).paper_weight;
+  }
+
+  ProblemBuilder builder(data, options, &state);
+  if (options.plane_mode == PlaneMode::kFacap) builder.InitFacapPlanes();
+
+  // W / Co association with a spatial index per class.
+  const bool use_wall = options.wall.enabled && data.wall_frame.rows > 0;
+  const bool use_column = options.column.enabled && data.column_frame.rows > 0;
+  std::unique_ptr<SegmentIndex> wall_index, column_index;
+  if (use_wall) {
+    wall_index = std::make_unique<SegmentIndex>(data.segments, data.segment_class, data.segment_z,
+                                                kLabelWall, options.association_gate);
+    summary.association.push_back({"W", wall_index->num_segments(), {}, {}});
+  }
+  if (use_column) {
+    column_index = std::make_unique<SegmentIndex>(data.segments, data.segment_class,
+                                                  data.segment_z, kLabelColumn,
+                                                  options.association_gate);
+    summary.association.push_back({"Co", column_index->num_segments(), {}, {}});
+  }
+  // Returns whether any association changed.
+  auto associate = [&](bool initial) {
+    bool changed = false;
+    size_t slot = 0;
+    if (use_wall) {
+      AssociationStats stats;
+      state.wall_segment = AssociatePoints(*wall_index, data.wall_frame, data.wall_p_in_cam,
+                                           state.poses.data(), state.wall_segment, &stats);
+      (initial ? summary.association[slot].initial : summary.association[slot].final) = stats;
+      changed = changed || stats.num_changed > 0;
+      ++slot;
+    }
+    if (use_column) {
+      AssociationStats stats;
+      state.column_segment = AssociatePoints(*column_index, data.column_frame,
+                                             data.column_p_in_cam, state.poses.data(),
+                                             state.column_segment, &stats);
+      (initial ? summary.association[slot].initial : summary.association[slot].final) = stats;
+      changed = changed || stats.num_changed > 0;
+    }
+    return changed;
+  };
+
+  associate(true);
+  for (auto& a : summary.association) a.final = a.initial;
+  builder.Build();
+  Record(EvaluateTerms(builder), builder, options, true, &summary);
+
+  ceres::Solver::Options solver_options;
+  solver_options.max_num_iterations = options.max_iterations;
+  solver_options.function_tolerance = options.function_tolerance;
+  solver_options.gradient_tolerance = options.gradient_tolerance;
+  solver_options.parameter_tolerance = options.parameter_tolerance;
+  solver_options.num_threads = options.num_threads;
+  solver_options.minimizer_progress_to_stdout = options.verbose;
+  solver_options.logging_type = options.verbose ? ceres::PER_MINIMIZER_ITERATION : ceres::SILENT;
+
+  summary.success = true;
+  const bool reassociate = use_wall || use_column;
+  double remaining_time = options.max_time_s;
+  for (int round = 0; round < options.outer_iterations; ++round) {
+    if (round > 0) builder.Build();
+    solver_options.linear_solver_type = ChooseLinearSolver(options, builder.has_landmarks());
+    solver_options.linear_solver_ordering = builder.has_landmarks() ? builder.ordering() : nullptr;
+    solver_options.max_solver_time_in_seconds = std::max(remaining_time, 1e-3);
+    ceres::Solver::Summary ceres_summary;
+    if (builder.problem().NumResidualBlocks() > 0) {
+      ceres::Solve(solver_options, &builder.problem(), &ceres_summary);
+      summary.iterations += std::max(0, static_cast<int>(ceres_summary.iterations.size()) - 1);
+      summary.ceres_time_s += ceres_summary.total_time_in_seconds;
+      remaining_time -= ceres_summary.total_time_in_seconds;
+      summary.termination = ceres::TerminationTypeToString(ceres_summary.termination_type);
+      summary.message = ceres_summary.message;
+      summary.linear_solver = ceres::LinearSolverTypeToString(solver_options.linear_solver_type);
+      if (!ceres_summary.IsSolutionUsable()) {
+        summary.success = false;
+        ++summary.outer_iterations;
+        break;
+      }
+    } else {
+      summary.termination = "NO_RESIDUALS";
+      summary.message = "no residual block: nothing to solve";
+    }
+    ++summary.outer_iterations;
+    NormalizeQuaternions(&state.poses);
+    if (!reassociate || !associate(false) || remaining_time <= 0) break;
+  }
+
+  // Final costs on the final association.
+  builder.Build();
+  Record(EvaluateTerms(builder), builder, options, false, &summary);
+  summary.num_free_poses = builder.num_free_poses();
+  for (const TermSummary& t : summary.terms) {
+    summary.num_residual_blocks += t.num_residual_blocks;
+    summary.num_residuals += t.num_residuals;
+  }
+
+  if (options.compute_covariance && summary.success) {
+    ComputeCovariance(builder, data, options, &state, &result);
+  }
+
+  result.poses = std::move(state.poses);
+  result.track_points = std::move(state.track_points);
+  result.wall_segment = std::move(state.wall_segment);
+  result.column_segment = std::move(state.column_segment);
+  if (options.plane_mode == PlaneMode::kFacap) {
+    result.planes.assign(state.facap_planes.begin(), state.facap_planes.end());
+    result.num_planes = 2;
+  } else {
+    result.planes.assign(data.planes.data, data.planes.data + data.planes.rows * 4);
+    result.num_planes = data.planes.rows;
+  }
+  summary.time_s = std::chrono::duration<double>(Clock::now() - start).count();
+  return result;
+}
+
+namespace {
+
+std::string JsonNumber(double v) {
+  if (!std::isfinite(v)) return "null";
+  std::ostringstream s;
+  s.precision(17);
+  s << v;
+  return s.str();
+}
+
+std::string JsonString(const std::string& v) {
+  std::string out = "\"";
+  for (const char c : v) {
+    switch (c) {
+      case '"': out += "\\\""; break;
+      case '\\': out += "\\\\"; break;
+      case '\n': out += "\\n"; break;
+      case '\t': out += "\\t"; break;
+      default:
+        if (static_cast<unsigned char>(c) < 0x20) {
+          char buf[8];
+          std::snprintf(buf, sizeof(buf), "\\u%04x", c);
+          out += buf;
+        } else {
+          out += c;
+        }
+    }
+  }
+  return out + "\"";
+}
+
+std::string JsonStats(const AssociationStats& s) {
+  std::ostringstream o;
+  o << "{\"num_points\": " << s.num_points << ", \"num_associated\": " << s.num_associated
+    << ", \"num_rejected\": " << s.num_rejected << ", \"num_changed\": " << s.num_changed
+    << ", \"mean_distance\": " << JsonNumber(s.mean_distance) << "}";
+  return o.str();
+}
+
+}  // namespace
+
+std::string SummaryToJson(const Summary& s) {
+  std::ostringstream o;
+  o << "{\n";
+  o << "  \"success\": " << (s.success ? "true" : "false") << ",\n";
+  o << "  \"termination\": " << JsonString(s.termination) << ",\n";
+  o << "  \"message\": " << JsonString(s.message) << ",\n";
+  o << "  \"linear_solver\": " << JsonString(s.linear_solver) << ",\n";
+  o << "  \"iterations\": " << s.iterations << ",\n";
+  o << "  \"outer_iterations\": " << s.outer_iterations << ",\n";
+  o << "  \"time_s\": " << JsonNumber(s.time_s) << ",\n";
+  o << "  \"ceres_time_s\": " << JsonNumber(s.ceres_time_s) << ",\n";
+  o << "  \"initial_cost\": " << JsonNumber(s.initial_cost) << ",\n";
+  o << "  \"final_cost\": " << JsonNumber(s.final_cost) << ",\n";
+  o << "  \"initial_paper_objective\": " << JsonNumber(s.initial_paper_objective) << ",\n";
+  o << "  \"final_paper_objective\": " << JsonNumber(s.final_paper_objective) << ",\n";
+  o << "  \"num_poses\": " << s.num_poses << ",\n";
+  o << "  \"num_free_poses\": " << s.num_free_poses << ",\n";
+  o << "  \"num_residual_blocks\": " << s.num_residual_blocks << ",\n";
+  o << "  \"num_residuals\": " << s.num_residuals << ",\n";
+  o << "  \"terms\": [";
+  for (size_t i = 0; i < s.terms.size(); ++i) {
+    const TermSummary& t = s.terms[i];
+    o << (i ? ",\n" : "\n") << "    {\"name\": " << JsonString(t.name)
+      << ", \"active\": " << (t.active ? "true" : "false")
+      << ", \"num_residual_blocks\": " << t.num_residual_blocks
+      << ", \"num_residuals\": " << t.num_residuals << ", \"num_skipped\": " << t.num_skipped
+      << ", \"sqrt_weight\": " << JsonNumber(t.sqrt_weight)
+      << ", \"paper_weight\": " << JsonNumber(t.paper_weight)
+      << ", \"initial_cost\": " << JsonNumber(t.initial_cost)
+      << ", \"final_cost\": " << JsonNumber(t.final_cost)
+      << ", \"initial_rms\": " << JsonNumber(t.initial_rms)
+      << ", \"final_rms\": " << JsonNumber(t.final_rms)
+      << ", \"initial_paper_objective\": " << JsonNumber(t.initial_paper_objective)
+      << ", \"final_paper_objective\": " << JsonNumber(t.final_paper_objective) << "}";
+  }
+  o << "\n  ],\n";
+  o << "  \"association\": [";
+  for (size_t i = 0; i < s.association.size(); ++i) {
+    const AssociationSummary& a = s.association[i];
+    o << (i ? ",\n" : "\n") << "    {\"name\": " << JsonString(a.name)
+      << ", \"num_segments\": " << a.num_segments << ", \"initial\": " << JsonStats(a.initial)
+      << ", \"final\": " << JsonStats(a.final) << "}";
+  }
+  o << "\n  ],\n";
+  o << "  \"covariance_requested\": " << (s.covariance_requested ? "true" : "false") << ",\n";
+  o << "  \"covariance_ok\": " << (s.covariance_ok ? "true" : "false") << ",\n";
+  o << "  \"covariance_message\": " << JsonString(s.covariance_message) << "\n";
+  o << "}\n";
+  return o.str();
+}
+
+}  // namespace bimcap

@@ -1,0 +1,233 @@
+// Drift → solve → recover, per term alone and all together; the paper-mode objective equals the
+// peers' formula evaluated directly; gauge, refine modes, covariance, input errors.
+#include <algorithm>
+#include <cmath>
+
+#include <Eigen/Eigenvalues>
+#include <Eigen/Geometry>
+#include <gtest/gtest.h>
+
+#include "bimcap/cost_functions/point_to_segment.h"
+#include "bimcap/solver.h"
+#include "test_problems.h"
+
+namespace bimcap {
+namespace {
+
+using testing::MakeTestProblem;
+using testing::OwnedProblem;
+using testing::PoseErrors;
+
+SolverOptions OnlyTerms(std::initializer_list<int> terms) {
+  SolverOptions o;
+  for (int t = 0; t < kNumTerms; ++t) o.term(t).enabled = false;
+  for (int t : terms) o.term(t).enabled = true;
+  return o;
+}
+
+Eigen::Vector3d Translation(const std::vector<double>& poses, int i) {
+  return Eigen::Vector3d(poses[7 * i], poses[7 * i + 1], poses[7 * i + 2]);
+}
+Eigen::Quaterniond Rotation(const std::vector<double>& poses, int i) {
+  return Eigen::Quaterniond(poses[7 * i + 6], poses[7 * i + 3], poses[7 * i + 4], poses[7 * i + 5]);
+}
+
+// RMS errors of the parts a term observes: z and tilt (F / Ce), xy and yaw (W / Co).
+void PartialErrors(const std::vector<double>& est, const std::vector<double>& gt, double* z, double* tilt_deg,
+                   double* xy, double* yaw_deg) {
+  const int n = static_cast<int>(gt.size() / 7);
+  double sz = 0, st = 0, sxy = 0, syaw = 0;
+  for (int i = 0; i < n; ++i) {
+    const Eigen::Vector3d d = Translation(est, i) - Translation(gt, i);
+    sz += d.z() * d.z();
+    sxy += d.head<2>().squaredNorm();
+    const Eigen::Matrix3d e = (Rotation(est, i) * Rotation(gt, i).conjugate()).toRotationMatrix();
+    const double tilt = std::acos(std::clamp(e(2, 2), -1.0, 1.0)) * 180 / M_PI;  // where world z goes
+    const double yaw = std::atan2(e(1, 0), e(0, 0)) * 180 / M_PI;
+    st += tilt * tilt;
+    syaw += yaw * yaw;
+  }
+  *z = std::sqrt(sz / n);
+  *tilt_deg = std::sqrt(st / n);
+  *xy = std::sqrt(sxy / n);
+  *yaw_deg = std::sqrt(syaw / n);
+}
+
+class SolverTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    problem = MakeTestProblem();
+    PoseErrors(problem.poses, problem.gt_poses, &init_t, &init_r);
+    ASSERT_GT(init_t, 0.05);
+    ASSERT_GT(init_r, 0.5);
+  }
+  OwnedProblem problem;
+  double init_t = 0, init_r = 0;
+};
+
+TEST_F(SolverTest, AllTermsRecoverTheTruth) {
+  const SolveResult r = Solve(problem.View(), SolverOptions());
+  ASSERT_TRUE(r.summary.success) << r.summary.message;
+  double t, rot;
+  PoseErrors(r.poses, problem.gt_poses, &t, &rot);
+  EXPECT_LT(t, 0.01) << "from " << init_t;
+  EXPECT_LT(rot, 0.1) << "from " << init_r;
+  EXPECT_LT(r.summary.final_cost, r.summary.initial_cost);
+  EXPECT_GE(r.summary.outer_iterations, 1);
+  ASSERT_EQ(r.summary.association.size(), 2u);
+  EXPECT_EQ(r.summary.association[0].final.num_rejected, 0);
+  // Fixed frame 0 did not move.
+  for (int k = 0; k < 7; ++k) EXPECT_EQ(r.poses[k], problem.poses[k]);
+}
+
+TEST_F(SolverTest, GeometricAloneRecoversRelativeMotion) {
+  for (GeometricMode mode : {GeometricMode::kPoint, GeometricMode::kReprojection, GeometricMode::kLandmark}) {
+    SolverOptions o = OnlyTerms({kTermG, kTermDepth});
+    o.geometric_mode = mode;
+    const SolveResult r = Solve(problem.View(), o);
+    ASSERT_TRUE(r.summary.success);
+    double t, rot;
+    PoseErrors(r.poses, problem.gt_poses, &t, &rot);
+    // Frame 0 is fixed at the truth, so chaining the matches recovers the rest up to noise drift.
+    EXPECT_LT(t, 0.03) << static_cast<int>(mode);
+    EXPECT_LT(rot, 0.5) << static_cast<int>(mode);
+  }
+}
+
+TEST_F(SolverTest, FloorAloneFixesHeightAndTilt) {
+  for (int term : {kTermF, kTermCe}) {
+    const SolveResult r = Solve(problem.View(), OnlyTerms({term}));
+    double z0, tilt0, xy0, yaw0, z, tilt, xy, yaw;
+    PartialErrors(problem.poses, problem.gt_poses, &z0, &tilt0, &xy0, &yaw0);
+    PartialErrors(r.poses, problem.gt_poses, &z, &tilt, &xy, &yaw);
+    EXPECT_LT(z, 0.02) << TermName(term) << " from " << z0;
+    EXPECT_LT(z, 0.5 * z0) << TermName(term);
+    EXPECT_LT(tilt, 0.3) << TermName(term);
+  }
+}
+
+TEST_F(SolverTest, WallAloneFixesPlanPositionAndYaw) {
+  const SolveResult r = Solve(problem.View(), OnlyTerms({kTermW}));
+  double z, tilt, xy0, yaw0, xy, yaw;
+  PartialErrors(problem.poses, problem.gt_poses, &z, &tilt, &xy0, &yaw0);
+  PartialErrors(r.poses, problem.gt_poses, &z, &tilt, &xy, &yaw);
+  EXPECT_LT(xy, 0.02) << "from " << xy0;
+  EXPECT_LT(yaw, 0.3) << "from " << yaw0;
+  EXPECT_GE(r.summary.outer_iterations, 1);
+}
+
+TEST_F(SolverTest, ColumnAloneReducesItsResiduals) {
+  const SolveResult r = Solve(problem.View(), OnlyTerms({kTermCo}));
+  const TermSummary& co = r.summary.terms[kTermCo];
+  ASSERT_TRUE(co.active);
+  EXPECT_LT(co.final_rms, 0.5 * co.initial_rms);
+  EXPECT_LT(co.final_rms, 0.02);
+}
+
+// Σ over terms of λ · mean ‖r‖², computed here from the refined poses without the functors.
+double PaperObjective(const OwnedProblem& p, const std::vector<double>& poses, const SolveResult& r) {
+  auto world = [&](int frame, const double* c) {
+    return Eigen::Vector3d(Rotation(poses, frame) * Eigen::Vector3d(c[0], c[1], c[2]) + Translation(poses, frame));
+  };
+  double g = 0;
+  const double* k = p.cameras.data();
+  const size_t m = p.match_frames.size() / 2;
+  for (size_t i = 0; i < m; ++i) {
+    const double* uv = &p.match_uv[4 * i];
+    const double da = p.match_depth[2 * i], db = p.match_depth[2 * i + 1];
+    const double ca[3] = {(uv[0] - k[2]) / k[0] * da, (uv[1] - k[3]) / k[1] * da, da};
+    const double cb[3] = {(uv[2] - k[2]) / k[0] * db, (uv[3] - k[3]) / k[1] * db, db};
+    g += (world(p.match_frames[2 * i], ca) - world(p.match_frames[2 * i + 1], cb)).squaredNorm();
+  }
+  double f = 0;
+  for (size_t i = 0; i < p.floor_frame.size(); ++i) {
+    const double* pl = &p.planes[4 * p.floor_plane[i]];
+    const double d = Eigen::Vector3d(pl[0], pl[1], pl[2]).dot(world(p.floor_frame[i], &p.floor_p_in_cam[3 * i])) + pl[3];
+    f += d * d;
+  }
+  double ce = 0;
+  for (size_t i = 0; i < p.ceiling_frame.size(); ++i) {
+    const double* pl = &p.planes[4 * p.ceiling_plane[i]];
+    const double d = Eigen::Vector3d(pl[0], pl[1], pl[2]).dot(world(p.ceiling_frame[i], &p.ceiling_p_in_cam[3 * i])) + pl[3];
+    ce += d * d;
+  }
+  double w = 0;
+  int nw = 0;
+  for (size_t i = 0; i < p.wall_frame.size(); ++i) {
+    const int s = r.wall_segment[i];
+    if (s < 0) continue;
+    const Eigen::Vector3d q = world(p.wall_frame[i], &p.wall_p_in_cam[3 * i]);
+    const double* seg = &p.segments[4 * s];
+    const double d = PointToSegmentDistance2D(q.x(), q.y(), Eigen::Vector4d(seg[0], seg[1], seg[2], seg[3]));
+    w += d * d;
+    ++nw;
+  }
+  return 1.0 * g / m + 0.02 * f / p.floor_frame.size() + 0.02 * ce / p.ceiling_frame.size() + 0.0007 * w / nw;
+}
+
+TEST_F(SolverTest, PaperObjectiveEqualsThePeersFormula) {
+  SolverOptions o = OnlyTerms({kTermG, kTermF, kTermCe, kTermW});
+  o.weighting = Weighting::kPaper;
+  const SolveResult r = Solve(problem.View(), o);
+  ASSERT_TRUE(r.summary.success);
+  const double direct_final = PaperObjective(problem, r.poses, r);
+  EXPECT_NEAR(r.summary.final_paper_objective, direct_final, 1e-9 * direct_final);
+  // Ceres minimises ½ Σ ‖s r‖² with s² = λ / N: its cost is half the paper's objective.
+  EXPECT_NEAR(r.summary.final_cost, 0.5 * direct_final, 1e-9 * direct_final);
+  EXPECT_LT(r.summary.final_paper_objective, r.summary.initial_paper_objective);
+  // Hand check of the per-term weights: s = sqrt(λ / N).
+  EXPECT_NEAR(r.summary.terms[kTermF].sqrt_weight, std::sqrt(0.02 / problem.floor_frame.size()), 1e-15);
+}
+
+TEST_F(SolverTest, RefineModesHoldTheirPart) {
+  SolverOptions o;
+  o.refine_mode = RefineMode::kRotation;
+  SolveResult r = Solve(problem.View(), o);
+  for (size_t i = 0; i < problem.poses.size() / 7; ++i)
+    for (int k = 0; k < 3; ++k) EXPECT_EQ(r.poses[7 * i + k], problem.poses[7 * i + k]);
+  o.refine_mode = RefineMode::kTranslation;
+  r = Solve(problem.View(), o);
+  for (size_t i = 0; i < problem.poses.size() / 7; ++i)
+    for (int k = 3; k < 7; ++k) EXPECT_NEAR(r.poses[7 * i + k], problem.poses[7 * i + k], 1e-12);
+}
+
+TEST_F(SolverTest, FacapPlanesAreFittedAndRefined) {
+  SolverOptions o = OnlyTerms({kTermG, kTermF, kTermCe});
+  o.plane_mode = PlaneMode::kFacap;
+  const SolveResult r = Solve(problem.View(), o);
+  ASSERT_TRUE(r.summary.success);
+  ASSERT_EQ(r.num_planes, 2);
+  EXPECT_NEAR(Eigen::Vector3d(r.planes[0], r.planes[1], r.planes[2]).norm(), 1.0, 1e-9);
+  EXPECT_GT(r.planes[2], 0.99);  // the floor is horizontal after refinement
+  EXPECT_LT(r.summary.terms[kTermF].final_rms, 0.02);
+}
+
+TEST_F(SolverTest, CovarianceIsSymmetricPositive) {
+  SolverOptions o;
+  o.compute_covariance = true;
+  const SolveResult r = Solve(problem.View(), o);
+  ASSERT_TRUE(r.summary.covariance_ok) << r.summary.covariance_message;
+  ASSERT_EQ(r.covariance.size(), problem.poses.size() / 7 * 36);
+  for (int k = 0; k < 36; ++k) EXPECT_EQ(r.covariance[k], 0.0);  // frame 0 is fixed
+  const Eigen::Map<const Eigen::Matrix<double, 6, 6, Eigen::RowMajor>> c(r.covariance.data() + 36 * 5);
+  EXPECT_NEAR((c - c.transpose()).norm(), 0.0, 1e-12);
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> eig(c);
+  EXPECT_GT(eig.eigenvalues().minCoeff(), 0.0);
+}
+
+TEST_F(SolverTest, InvalidInputThrowsNamingTheField) {
+  OwnedProblem p = problem;
+  p.floor_plane[3] = 5;
+  try {
+    Solve(p.View(), SolverOptions());
+    FAIL();
+  } catch (const ProblemError& e) {
+    EXPECT_EQ(e.field(), "floor_plane");
+  }
+  SolverOptions o;
+  o.association_gate = -1;
+  EXPECT_THROW(Solve(problem.View(), o), OptionsError);
+}
+
+}  // namespace
+}  // namespace bimcap

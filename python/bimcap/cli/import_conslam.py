@@ -1,0 +1,99 @@
+"""``bimcap import-conslam``: turn a ConSLAM ROS1 bag (+ ground truth) into a sequence directory."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+
+def register(subparsers: Any) -> None:
+    p = subparsers.add_parser(
+        "import-conslam",
+        help="import a ConSLAM ROS1 bag (RGB, VLP-16, camera_info, GT poses) as a sequence",
+        description="Read pp_rgb/synced2points, pp_points/synced2rgb and pp_rgb/camera_info with "
+        "rosbags (no ROS needed), pair images and scans by nearest header stamp, attach ground "
+        "truth (LiDAR poses converted to camera poses with the LiDAR->camera extrinsic) and write "
+        "a sequence directory.",
+    )
+    p.add_argument("bag", type=Path, metavar="BAG", help="the ROS1 .bag file")
+    p.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        required=True,
+        metavar="SEQ",
+        help="sequence directory to write",
+    )
+    p.add_argument(
+        "--gt",
+        type=Path,
+        default=None,
+        metavar="DIR_OR_TUM",
+        help="ground truth: folder of <microseconds>.txt 4x4 files, or a TUM file",
+    )
+    p.add_argument(
+        "--gt-frame",
+        choices=("lidar", "camera"),
+        default="lidar",
+        help="the sensor the GT poses describe (default lidar, as ConSLAM ships them)",
+    )
+    p.add_argument(
+        "--tolerance",
+        type=float,
+        default=0.05,
+        metavar="S",
+        help="max image/scan time difference of a pair (default 0.05 s)",
+    )
+    p.add_argument(
+        "--gt-tolerance",
+        type=float,
+        default=0.05,
+        metavar="S",
+        help="max scan/GT time difference (default 0.05 s)",
+    )
+    p.add_argument("--ifc", type=Path, default=None, help="IFC file to record in the manifest")
+    p.add_argument("--stride", type=int, default=1, help="keep every N-th frame (default 1)")
+    p.add_argument("--max-frames", type=int, default=None, help="keep at most N frames")
+    p.add_argument(
+        "--png-compression",
+        type=int,
+        default=None,
+        choices=range(10),
+        metavar="0-9",
+        help="PNG compression level of the images (default: OpenCV's)",
+    )
+    p.add_argument("--force", action="store_true", help="replace an existing sequence at -o")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from bimcap.dataset.conslam import GtFrame, import_conslam
+    from bimcap.io.atomic import check_not_input
+
+    inputs = [args.bag] + ([args.gt] if args.gt is not None else [])
+    check_not_input(args.output, inputs)
+    result = import_conslam(
+        args.bag,
+        args.output,
+        args.gt,
+        gt_frame=GtFrame(args.gt_frame),
+        tolerance_s=args.tolerance,
+        gt_tolerance_s=args.gt_tolerance,
+        ifc=args.ifc,
+        stride=args.stride,
+        max_frames=args.max_frames,
+        overwrite=args.force,
+        png_compression=args.png_compression,
+    )
+    seq = result.sequence
+    print(
+        f"{seq.root}: {result.n_frames} frames from {result.n_images} images / {result.n_scans} "
+        f"scans ({result.n_pairs} pairs, max |dt| {result.max_pair_dt_s * 1e3:.1f} ms; "
+        f"{result.n_without_gt} without ground truth)"
+    )
+    print(
+        f"  camera {seq.camera.width}x{seq.camera.height} from {result.camera_source}; "
+        f"trajectories: {', '.join(seq.poses) or 'none'}"
+    )
+    return 0

@@ -1,0 +1,83 @@
+"""``bimcap refine SEQUENCE --ifc MODEL.ifc --init poses.tum -o OUT/``."""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from typing import Any
+
+from bimcap.pipeline.config import DepthSource, LabelSource, Method, RefineConfig
+
+
+def add_config_arguments(p: argparse.ArgumentParser) -> None:
+    """The flags shared by ``refine`` and ``demo`` (each overrides the config file)."""
+    g = p.add_argument_group("method (flags override --config)")
+    g.add_argument("--config", metavar="FILE.toml", help="settings file (see bimcap.pipeline.config)")
+    g.add_argument("--method", choices=[m.value for m in Method], help="bimcap (default) or facap")
+    g.add_argument("--terms", help="terms to use, e.g. G+F+W+Co+Ce (default: the method's full set)")
+    g.add_argument("--weighting", choices=["robust", "paper"],
+                   help="robust: noise scales + robust losses; paper: the peers' means (FACaP default)")
+    g.add_argument("--loss", choices=["huber", "cauchy", "soft_l1", "arctan", "tukey", "none"])
+    g.add_argument("--geometric", dest="geometric_mode", choices=["point", "reprojection", "landmark"],
+                   help="the G term's residual")
+    g.add_argument("--completion", choices=[d.value for d in DepthSource], help="dense depth source")
+    g.add_argument("--completion-model", metavar="MODEL.onnx", help="for --completion onnx/hybrid")
+    g.add_argument("--segmentation", choices=[s.value for s in LabelSource], help="label source")
+    g.add_argument("--segmentation-model", metavar="MODEL.onnx", help="for --segmentation onnx")
+    g.add_argument("--labels-dir", metavar="DIR", help="for --segmentation disk")
+    g.add_argument("--coarse", action=argparse.BooleanOptionalAction, default=None,
+                   help="coarse registration to the floor plan before the bundle adjustment")
+    g.add_argument("--rotation-first", action=argparse.BooleanOptionalAction, default=None,
+                   help="refine rotations first, then everything")
+    g.add_argument("--window", type=int, help="match each frame with its next N frames")
+    g.add_argument("--workers", type=int, help="front-end processes (default: all cores)")
+
+
+def config_from_args(args: argparse.Namespace) -> RefineConfig:
+    keys = ("method", "terms", "weighting", "loss", "geometric_mode", "completion",
+            "completion_model", "segmentation", "segmentation_model", "labels_dir", "coarse",
+            "rotation_first", "window", "workers")
+    overrides: dict[str, Any] = {k: getattr(args, k) for k in keys if getattr(args, k, None) is not None}
+    if args.config:
+        return RefineConfig.from_toml(args.config, **overrides)
+    return RefineConfig(**overrides)
+
+
+def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = sub.add_parser(
+        "refine",
+        help="refine a sequence's trajectory against the BIM",
+        description=(
+            "Refine the initial trajectory of a sequence directory against the building's IFC: "
+            "BIM reference, front end (depth, labels, matches), Ceres bundle adjustment. Writes "
+            "refined.tum, summary.json, result.json, map_before/after.ply and report.html into OUT."
+        ),
+    )
+    p.add_argument("sequence", help="sequence directory (bimcap simulate / import-conslam)")
+    p.add_argument("-o", "--out", required=True, help="output directory")
+    p.add_argument("--ifc", help="the BIM (default: the sequence manifest's ifc)")
+    p.add_argument("--init", help="initial poses, TUM (default: SEQUENCE/poses/init.tum)")
+    p.add_argument("--gt", help="ground truth TUM for metrics (default: SEQUENCE/poses/gt.tum if any)")
+    p.add_argument("--no-report", action="store_true", help="skip the HTML report")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    add_config_arguments(p)
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from bimcap.pipeline.refine import refine, summary_table
+
+    cfg = config_from_args(args)
+    result = refine(args.sequence, args.out, cfg, ifc=args.ifc, init=args.init, gt=args.gt,
+                    report=not args.no_report, quiet=args.quiet)
+    print(result.outcome.summary.table())
+    if result.metrics_after is not None:
+        print(summary_table({"initial": result.metrics_before, "refined": result.metrics_after}))
+    print(f"wrote {result.out_dir}/refined.tum" + (
+        f" and {result.out_dir}/{result.files['report']}" if "report" in result.files else ""))
+    return 0
+
+
+def command_line(argv: list[str] | None = None) -> str:
+    return "bimcap " + " ".join(shlex.quote(a) for a in (argv or sys.argv[1:]))

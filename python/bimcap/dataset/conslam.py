@@ -1,0 +1,673 @@
+"""Import a ConSLAM recording (ROS1 bag + ground-truth poses) into a sequence directory.
+
+ConSLAM (Trzeciak et al.) ships ROS1 bags with the topics
+
+- ``pp_rgb/synced2points``: ``sensor_msgs/Image``, rgb8, 2064×1544, raw (distorted);
+- ``pp_points/synced2rgb``: ``sensor_msgs/PointCloud2`` from a VLP-16, fields x/y/z/intensity;
+- ``pp_rgb/camera_info``: ``sensor_msgs/CameraInfo`` (plumb_bob),
+
+(with or without a leading ``/``) and ground-truth LiDAR poses (``world_from_lidar``) as one
+4×4 text file per scan, named by the scan's timestamp in microseconds; the BIM-frame poses of
+sessions 2–5 come as TUM files. The bag is read with ``rosbags`` (no ROS install).
+
+What the importer does:
+
+1. a first pass reads only the header stamps (the first bytes of every ROS1 message with a
+   ``std_msgs/Header``) of images and scans;
+2. each image is paired with the scan nearest in time, if within ``tolerance_s``; a scan is
+   used at most once;
+3. with ground truth, each pair gets the ground-truth pose nearest to the *scan's* stamp within
+   ``gt_tolerance_s`` (pairs without one are dropped), converted to the camera::
+
+       world_from_cam = world_from_lidar ∘ lidar_from_cam = world_from_lidar ∘ cam_from_lidar⁻¹
+
+   (``gt_frame=GtFrame.CAMERA`` takes the poses as camera poses already);
+4. a second pass decodes the chosen messages and writes frames with
+   :class:`~bimcap.dataset.SequenceWriter`, timestamped by the image's header stamp.
+
+The camera comes from the first ``camera_info`` message when it has a plumb_bob calibration,
+else ConSLAM's published calibration (:data:`CONSLAM_CAMERA`, scaled if the images are smaller by
+the same factor in both axes). The LiDAR→camera extrinsic is ConSLAM's
+(:data:`CONSLAM_CAM_FROM_LIDAR`) unless another is given.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from enum import Enum
+from os import PathLike
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from bimcap.dataset.sequence import MANIFEST, VLP16, Sequence, SequenceError, SequenceWriter
+from bimcap.geometry.camera import Camera
+from bimcap.geometry.poses import compose, invert, matrix_to_pose
+from bimcap.geometry.trajectory import Trajectory, TrajectoryError, read_tum
+
+F64 = NDArray[np.float64]
+
+TOPIC_IMAGE = "pp_rgb/synced2points"
+TOPIC_POINTS = "pp_points/synced2rgb"
+TOPIC_CAMERA_INFO = "pp_rgb/camera_info"
+
+#: ConSLAM's RGB camera (DESIGN §3): 2064×1544, plumb_bob.
+CONSLAM_CAMERA = Camera(
+    2064,
+    1544,
+    2351.85909,
+    2353.56734,
+    1017.24032,
+    788.70774,
+    (-0.054366, 0.118389, 0.001781, -0.003908, 0.0),
+)
+
+#: ConSLAM's LiDAR→camera extrinsic as published, (3, 4) ``[R | t]`` mapping LiDAR points into the
+#: RGB optical frame.
+CONSLAM_CAM_FROM_LIDAR_MATRIX: F64 = np.array(
+    [
+        [0.05758374, -0.99833897, -0.00184651, -0.0081025],
+        [-0.0017837, 0.0017467, -0.99999688, -0.0631593],
+        [0.99833909, 0.05758685, -0.00168015, -0.0215235],
+    ]
+)
+
+#: The same as a TUM-order pose; the rotation is the nearest orthonormal matrix to the published
+#: one (which is orthonormal to ~1e-8).
+CONSLAM_CAM_FROM_LIDAR: F64 = matrix_to_pose(CONSLAM_CAM_FROM_LIDAR_MATRIX)
+
+
+class ConslamError(SequenceError):
+    """A ConSLAM bag or ground-truth input that cannot be imported (names file and field)."""
+
+
+class GtFrame(str, Enum):
+    """Which sensor the ground-truth poses describe."""
+
+    LIDAR = "lidar"  # world_from_lidar (ConSLAM's per-scan 4×4 files and SLAM2REF TUM output)
+    CAMERA = "camera"  # world_from_cam already
+
+
+@dataclass
+class ConslamImportResult:
+    """What an import did.
+
+    Attributes
+    ----------
+    sequence: the written sequence.
+    n_images, n_scans: messages found on the image and point-cloud topics.
+    n_pairs: image/scan pairs within the tolerance.
+    n_without_gt: pairs dropped for lack of a ground-truth pose.
+    n_frames: frames written.
+    camera_source: ``"camera_info"`` or ``"conslam_default"``.
+    max_pair_dt_s: largest |t_image − t_scan| among the written frames, seconds.
+    max_gt_dt_s: largest |t_scan − t_gt| among the written frames, seconds (0 without GT).
+    """
+
+    sequence: Sequence
+    n_images: int
+    n_scans: int
+    n_pairs: int
+    n_without_gt: int
+    n_frames: int
+    camera_source: str
+    max_pair_dt_s: float
+    max_gt_dt_s: float = 0.0
+    topics: dict[str, str] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "sequence": str(self.sequence.root),
+            "n_images": self.n_images,
+            "n_scans": self.n_scans,
+            "n_pairs": self.n_pairs,
+            "n_without_gt": self.n_without_gt,
+            "n_frames": self.n_frames,
+            "camera_source": self.camera_source,
+            "max_pair_dt_s": self.max_pair_dt_s,
+            "max_gt_dt_s": self.max_gt_dt_s,
+            "topics": dict(self.topics),
+        }
+
+
+# --------------------------------------------------------------------------- ground truth
+def _gt_file_stamp(f: Path) -> float | None:
+    """Seconds from ``<microseconds>.txt`` (or ``<seconds>.<fraction>.txt``), else None."""
+    stem = f.stem
+    if stem.isdigit():
+        return int(stem) * 1e-6
+    whole, dot, frac = stem.partition(".")
+    if dot and whole.isdigit() and frac.isdigit():
+        return float(stem)
+    return None
+
+
+def read_gt_folder(path: str | PathLike[str]) -> Trajectory:
+    """Read ConSLAM ground truth: one text file per scan, ``<microseconds>.txt``, a 4×4 matrix.
+
+    Returns the ``world_from_lidar`` poses, timestamps in seconds, sorted by time. A file may
+    hold 16 numbers (4×4) or 12 (the top 3×4); the last row of a 4×4 must be ``0 0 0 1``.
+    A name ``<digits>.<digits>.txt`` is read as seconds instead. Other files are ignored. The
+    rotation is orthonormalised (nearest rotation) after checking it is one to 1e-3.
+    """
+    root = Path(path)
+    if not root.is_dir():
+        raise ConslamError("not a directory", root)
+    stamps: list[float] = []
+    mats: list[F64] = []
+    for f in sorted(root.iterdir()):
+        stamp = _gt_file_stamp(f)
+        if stamp is None or not f.is_file():
+            continue
+        try:
+            vals = np.array(
+                f.read_text(encoding="utf-8").replace(",", " ").split(), dtype=np.float64
+            )
+        except ValueError as exc:
+            raise ConslamError(f"not a matrix of numbers ({exc})", f) from None
+        if vals.size not in (12, 16):
+            raise ConslamError(f"expected a 4x4 (or 3x4) matrix, got {vals.size} numbers", f)
+        m = np.eye(4)
+        m[: vals.size // 4] = vals.reshape(-1, 4)
+        if not np.isfinite(m).all():
+            raise ConslamError("matrix is not finite", f)
+        if vals.size == 16 and not np.allclose(m[3], [0, 0, 0, 1], atol=1e-9):
+            raise ConslamError(f"last row must be 0 0 0 1, got {m[3].tolist()}", f)
+        r = m[:3, :3]
+        if not np.allclose(r @ r.T, np.eye(3), atol=1e-3) or np.linalg.det(r) < 0:
+            raise ConslamError("the 3x3 block is not a rotation", f)
+        stamps.append(stamp)
+        mats.append(m)
+    if not mats:
+        raise ConslamError("no ground-truth files named <microseconds>.txt", root)
+    order = np.argsort(stamps, kind="stable")
+    try:
+        return Trajectory(np.asarray(stamps)[order], matrix_to_pose(np.asarray(mats)[order]))
+    except TrajectoryError as exc:
+        raise ConslamError(str(exc), root) from None
+
+
+def read_gt(path: str | PathLike[str]) -> Trajectory:
+    """Ground truth from a folder of 4×4 text files (:func:`read_gt_folder`) or a TUM file."""
+    p = Path(path)
+    if p.is_dir():
+        return read_gt_folder(p)
+    try:
+        return read_tum(p)
+    except TrajectoryError as exc:
+        raise ConslamError(str(exc), p, "gt") from None
+
+
+def lidar_to_camera_poses(world_from_lidar: ArrayLike, cam_from_lidar: ArrayLike) -> F64:
+    """``world_from_cam = world_from_lidar ∘ cam_from_lidar⁻¹`` for (N, 7) or (7,) poses."""
+    return compose(world_from_lidar, invert(cam_from_lidar))
+
+
+# --------------------------------------------------------------------------- ROS decoding
+_POINTFIELD_DTYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
+
+
+def _header_stamp(raw: bytes | memoryview) -> float:
+    """Header stamp (s) of a ROS1-serialised message that starts with ``std_msgs/Header``."""
+    sec, nsec = struct.unpack_from("<II", raw, 4)
+    return sec + nsec * 1e-9
+
+
+def _stamp(msg: Any) -> float:
+    return float(msg.header.stamp.sec) + float(msg.header.stamp.nanosec) * 1e-9
+
+
+def decode_image(msg: Any) -> NDArray[np.uint8]:
+    """A ``sensor_msgs/Image`` (rgb8, bgr8 or mono8) as (H, W, 3) uint8 RGB; row padding removed."""
+    h, w, step, enc = int(msg.height), int(msg.width), int(msg.step), str(msg.encoding)
+    channels = {"rgb8": 3, "bgr8": 3, "mono8": 1}.get(enc)
+    if channels is None:
+        raise ConslamError(
+            f"unsupported image encoding {enc!r} (rgb8, bgr8, mono8)", field="encoding"
+        )
+    data = np.asarray(msg.data, dtype=np.uint8)
+    if step < w * channels or data.size < h * step:
+        raise ConslamError(
+            f"image data of {data.size} bytes too small for {w}x{h} {enc} with step {step}",
+            field="data",
+        )
+    img = data[: h * step].reshape(h, step)[:, : w * channels].reshape(h, w, channels)
+    if enc == "bgr8":
+        img = img[:, :, ::-1]
+    elif enc == "mono8":
+        img = np.repeat(img, 3, axis=2)
+    return np.ascontiguousarray(img)
+
+
+def decode_pointcloud(msg: Any) -> NDArray[np.float32]:
+    """A ``sensor_msgs/PointCloud2`` as (M, 4) float32 ``x y z intensity``.
+
+    Fields are read at their declared offsets and types (any numeric type, either endianness),
+    honouring ``point_step`` and ``row_step``; intensity is 0 if the cloud has none. Points with
+    a non-finite coordinate (no return) are dropped.
+    """
+    fields = {str(f.name): f for f in msg.fields}
+    for name in ("x", "y", "z"):
+        if name not in fields:
+            raise ConslamError(f"point cloud has no field {name!r}", field="fields")
+    order = ">" if msg.is_bigendian else "<"
+    names, formats, offsets = [], [], []
+    for name in ("x", "y", "z", "intensity"):
+        f = fields.get(name)
+        if f is None:
+            continue
+        if int(f.datatype) not in _POINTFIELD_DTYPES:
+            raise ConslamError(f"field {name!r} has unknown datatype {f.datatype}", field="fields")
+        names.append(name)
+        formats.append(order + _POINTFIELD_DTYPES[int(f.datatype)])
+        offsets.append(int(f.offset))
+    step, h, w = int(msg.point_step), int(msg.height), int(msg.width)
+    dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": step})
+    if any(o + dtype.fields[n][0].itemsize > step for n, o in zip(names, offsets, strict=True)):
+        raise ConslamError("a field lies outside point_step", field="point_step")
+    data = np.asarray(msg.data, dtype=np.uint8)
+    row_step = int(msg.row_step)
+    if row_step < w * step or data.size < h * row_step:
+        raise ConslamError(
+            f"cloud data of {data.size} bytes too small for {h}x{w} points "
+            f"(point_step {step}, row_step {row_step})",
+            field="data",
+        )
+    rows = data[: h * row_step].reshape(h, row_step)[:, : w * step]
+    pts = np.frombuffer(np.ascontiguousarray(rows).tobytes(), dtype=dtype)
+    out = np.zeros((len(pts), 4), dtype=np.float32)
+    for k, name in enumerate(("x", "y", "z", "intensity")):
+        if name in names:
+            out[:, k] = pts[name].astype(np.float32)
+    return out[np.isfinite(out[:, :3]).all(axis=1)]
+
+
+def camera_from_info(msg: Any) -> Camera | None:
+    """The camera of a ``sensor_msgs/CameraInfo``, or None if uncalibrated / not plumb_bob."""
+    k = np.asarray(msg.K, dtype=np.float64).reshape(-1)
+    d = np.asarray(msg.D, dtype=np.float64).reshape(-1)
+    model = str(msg.distortion_model)
+    if k.size != 9 or k[0] <= 0 or k[4] <= 0 or not np.isfinite(k).all():
+        return None
+    if model not in ("plumb_bob", "") or d.size > 5:
+        return None
+    dist = np.zeros(5)
+    dist[: d.size] = d
+    return Camera(int(msg.width), int(msg.height), k[0], k[4], k[2], k[5], tuple(dist))  # type: ignore[arg-type]
+
+
+# --------------------------------------------------------------------------- pairing
+def pair_nearest(
+    t_a: ArrayLike, t_b: ArrayLike, tolerance_s: float
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Pair each ``t_a`` with the nearest ``t_b`` within ``tolerance_s``, each b used once.
+
+    Pairs are accepted greedily by increasing |Δt|, so a b closer to another a goes there.
+
+    Returns
+    -------
+    (K,) indices into ``t_a`` (increasing) and (K,) indices into ``t_b``.
+    """
+    a = np.asarray(t_a, dtype=np.float64)
+    b = np.asarray(t_b, dtype=np.float64)
+    if len(a) == 0 or len(b) == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    order_b = np.argsort(b, kind="stable")
+    bs = b[order_b]
+    pos = np.searchsorted(bs, a)
+    cands: list[tuple[float, int, int]] = []
+    for i, p in enumerate(pos):
+        for j in (p - 1, p):
+            if 0 <= j < len(bs):
+                dt = abs(a[i] - bs[j])
+                if dt <= tolerance_s:
+                    cands.append((dt, i, int(order_b[j])))
+    cands.sort()
+    used_a: set[int] = set()
+    used_b: set[int] = set()
+    pairs: list[tuple[int, int]] = []
+    for _, i, j in cands:
+        if i not in used_a and j not in used_b:
+            used_a.add(i)
+            used_b.add(j)
+            pairs.append((i, j))
+    pairs.sort()
+    ia = np.array([p[0] for p in pairs], dtype=np.int64)
+    ib = np.array([p[1] for p in pairs], dtype=np.int64)
+    return ia, ib
+
+
+def _nearest(t_query: F64, t_ref: F64) -> tuple[NDArray[np.int64], F64]:
+    """Index of the nearest ``t_ref`` (sorted) for each query, and |Δt|."""
+    pos = np.clip(np.searchsorted(t_ref, t_query), 1, max(len(t_ref) - 1, 1))
+    lo = np.maximum(pos - 1, 0)
+    hi = np.minimum(pos, len(t_ref) - 1)
+    pick = np.where(np.abs(t_query - t_ref[lo]) <= np.abs(t_query - t_ref[hi]), lo, hi)
+    return pick.astype(np.int64), np.abs(t_query - t_ref[pick])
+
+
+# --------------------------------------------------------------------------- the importer
+def _times(stamps: list[tuple[float, float]]) -> F64:
+    """Header stamps (s); a topic whose header stamps are unset (0) uses the bag record times."""
+    arr = np.asarray(stamps, dtype=np.float64).reshape(-1, 2)
+    if len(arr) and (arr[:, 0] == 0.0).any():
+        return arr[:, 1].copy()
+    return arr[:, 0].copy()
+
+
+def _norm_topic(topic: str) -> str:
+    return topic.lstrip("/")
+
+
+def import_conslam(
+    bag: str | PathLike[str],
+    output: str | PathLike[str],
+    gt: str | PathLike[str] | Trajectory | None = None,
+    *,
+    gt_frame: GtFrame = GtFrame.LIDAR,
+    tolerance_s: float = 0.05,
+    gt_tolerance_s: float = 0.05,
+    cam_from_lidar: ArrayLike | None = None,
+    camera: Camera | None = None,
+    ifc: str | PathLike[str] | None = None,
+    stride: int = 1,
+    max_frames: int | None = None,
+    overwrite: bool = False,
+    png_compression: int | None = None,
+) -> ConslamImportResult:
+    """Import a ConSLAM ROS1 bag (and its ground truth) as a sequence directory.
+
+    Parameters
+    ----------
+    bag: the ``.bag`` file.
+    output: the sequence directory to write.
+    gt: ground truth — a folder of ``<microseconds>.txt`` 4×4 files, a TUM file, or a
+        :class:`Trajectory`; None for no ground truth.
+    gt_frame: whether ``gt`` holds LiDAR poses (ConSLAM's; converted) or camera poses.
+    tolerance_s: largest |t_image − t_scan| of a pair, seconds.
+    gt_tolerance_s: largest |t_scan − t_gt| for a frame's ground truth, seconds.
+    cam_from_lidar: (7,) extrinsic, default :data:`CONSLAM_CAM_FROM_LIDAR`.
+    camera: force this camera (else camera_info, else ConSLAM's calibration).
+    ifc: IFC path to record in the manifest.
+    stride: keep every ``stride``-th frame (after pairing and GT matching).
+    max_frames: keep at most this many frames.
+    overwrite: allow replacing an existing sequence at ``output``.
+    png_compression: OpenCV PNG level 0-9 of the written images (None = OpenCV's default);
+        at 2064×1544, PNG encoding dominates the import time.
+
+    Raises
+    ------
+    ConslamError
+        If the bag lacks a topic, no pair or no GT match is found, a message cannot be decoded,
+        or the camera does not fit the images.
+    """
+    from rosbags.rosbag1 import Reader, ReaderError
+    from rosbags.typesys import Stores, get_typestore
+
+    bag_path = Path(bag)
+    if not bag_path.is_file():
+        raise ConslamError("no such bag file", bag_path)
+    if stride < 1:
+        raise ConslamError(f"stride must be >= 1, got {stride}", field="stride")
+    if max_frames is not None and max_frames < 1:
+        raise ConslamError(f"max_frames must be >= 1, got {max_frames}", field="max_frames")
+    if (Path(output) / MANIFEST).exists() and not overwrite:
+        raise ConslamError("already a sequence directory (use overwrite / --force)", output)
+    extrinsic = (
+        CONSLAM_CAM_FROM_LIDAR if cam_from_lidar is None else np.asarray(cam_from_lidar, float)
+    )
+    typestore = get_typestore(Stores.ROS1_NOETIC)
+
+    gt_traj: Trajectory | None = None
+    gt_label: str | None = None
+    if isinstance(gt, Trajectory):
+        gt_traj, gt_label = gt, "<in memory>"
+    elif gt is not None:
+        gt_traj, gt_label = read_gt(gt), str(gt)
+
+    source = {
+        "importer": "bimcap.dataset.conslam",
+        "bag": str(bag_path.resolve()),
+        "gt": gt_label,
+        "gt_frame": gt_frame.value if gt_traj is not None else None,
+        "topics": [TOPIC_IMAGE, TOPIC_POINTS, TOPIC_CAMERA_INFO],
+        "tolerance_s": tolerance_s,
+        "gt_tolerance_s": gt_tolerance_s,
+        "stride": stride,
+        "timestamps": "image header stamps (bag time where zero)",
+    }
+    writer: SequenceWriter | None = None
+    cam_source = "given"
+    try:
+        with Reader(bag_path) as reader:
+            by_topic = {_norm_topic(c.topic): c for c in reader.connections}
+            for topic in (TOPIC_IMAGE, TOPIC_POINTS):
+                if topic not in by_topic:
+                    raise ConslamError(
+                        f"topic {topic!r} not in bag (has {sorted(by_topic)})", bag_path, "topics"
+                    )
+            con_img, con_pts = by_topic[TOPIC_IMAGE], by_topic[TOPIC_POINTS]
+            con_info = by_topic.get(TOPIC_CAMERA_INFO)
+            ti, tp, info_camera = _read_stamps(reader, typestore, con_img, con_pts, con_info)
+            plan = _plan_frames(
+                ti, tp, tolerance_s, gt_traj, gt_tolerance_s, stride, max_frames, bag_path, gt_label
+            )
+            world_from_cam = None
+            if plan.world_from_gt is not None:
+                world_from_cam = (
+                    lidar_to_camera_poses(plan.world_from_gt, extrinsic)
+                    if gt_frame is GtFrame.LIDAR
+                    else plan.world_from_gt
+                )
+            for k, image, cloud in _stream_frames(
+                reader, typestore, con_img, con_pts, plan, bag_path
+            ):
+                if writer is None:
+                    cam, cam_source = _choose_camera(camera, info_camera, image.shape, bag_path)
+                    writer = SequenceWriter(
+                        output,
+                        cam,
+                        extrinsic,
+                        lidar=VLP16,
+                        ifc=ifc,
+                        source={**source, "camera_source": cam_source},
+                        overwrite=overwrite,
+                        png_compression=png_compression,
+                    )
+                writer.add_frame(float(ti[plan.image_index[k]]), image, cloud)
+    except ReaderError as exc:
+        raise ConslamError(f"cannot read the bag ({exc})", bag_path) from None
+    n_planned = len(plan.image_index)
+    if writer is None or len(writer.frames) != n_planned:
+        done = 0 if writer is None else len(writer.frames)
+        raise ConslamError(f"only {done} of {n_planned} frames could be assembled", bag_path)
+    if world_from_cam is not None:
+        writer.add_trajectory("gt", world_from_cam)
+    seq = writer.close()
+    return ConslamImportResult(
+        sequence=seq,
+        n_images=len(ti),
+        n_scans=len(tp),
+        n_pairs=plan.n_pairs,
+        n_without_gt=plan.n_without_gt,
+        n_frames=len(seq),
+        camera_source=cam_source,
+        max_pair_dt_s=plan.max_pair_dt_s,
+        max_gt_dt_s=plan.max_gt_dt_s,
+        topics={
+            "image": con_img.topic,
+            "points": con_pts.topic,
+            "camera_info": con_info.topic if con_info is not None else "",
+        },
+    )
+
+
+@dataclass(frozen=True)
+class _FramePlan:
+    """Which messages become frames, in writing order.
+
+    image_index, scan_index: (K,) message indices (per topic, in bag order) of each frame.
+    world_from_gt: (K, 7) ground-truth poses at the frames' scans (sensor of the GT), or None.
+    """
+
+    image_index: NDArray[np.int64]
+    scan_index: NDArray[np.int64]
+    world_from_gt: F64 | None
+    n_pairs: int
+    n_without_gt: int
+    max_pair_dt_s: float
+    max_gt_dt_s: float
+
+
+def _read_stamps(
+    reader: Any, typestore: Any, con_img: Any, con_pts: Any, con_info: Any | None
+) -> tuple[F64, F64, Camera | None]:
+    """Pass 1: image and scan stamps (header bytes only) and the first camera_info's camera."""
+    stamps: dict[int, list[tuple[float, float]]] = {con_img.id: [], con_pts.id: []}
+    info_camera: Camera | None = None
+    wanted = [con_img, con_pts] + ([con_info] if con_info is not None else [])
+    for con, bag_ns, raw in reader.messages(connections=wanted):
+        if con.id in stamps:
+            stamps[con.id].append((_header_stamp(raw), bag_ns * 1e-9))
+        elif info_camera is None:
+            info_camera = camera_from_info(typestore.deserialize_ros1(raw, con.msgtype))
+    return _times(stamps[con_img.id]), _times(stamps[con_pts.id]), info_camera
+
+
+def _plan_frames(
+    ti: F64,
+    tp: F64,
+    tolerance_s: float,
+    gt: Trajectory | None,
+    gt_tolerance_s: float,
+    stride: int,
+    max_frames: int | None,
+    bag: Path,
+    gt_label: str | None,
+) -> _FramePlan:
+    """Pair images with scans, attach ground truth, thin out; frames in increasing image time."""
+    ia, ib = pair_nearest(ti, tp, tolerance_s)
+    order = np.argsort(ti[ia], kind="stable")
+    ia, ib = ia[order], ib[order]
+    fresh = np.concatenate([np.ones(min(len(ia), 1), bool), np.diff(ti[ia]) > 0])
+    ia, ib = ia[fresh], ib[fresh]  # equal image stamps: keep the first
+    n_pairs = len(ia)
+    if n_pairs == 0:
+        raise ConslamError(
+            f"no image/scan pair within {tolerance_s} s ({len(ti)} images, {len(tp)} scans)",
+            bag,
+            "timestamps",
+        )
+    world_from_gt: F64 | None = None
+    n_without_gt = 0
+    max_gt_dt = 0.0
+    if gt is not None:
+        gi, gdt = _nearest(tp[ib], gt.timestamps)
+        keep = gdt <= gt_tolerance_s
+        n_without_gt = int((~keep).sum())
+        if not keep.any():
+            raise ConslamError(
+                f"no frame has a ground-truth pose within {gt_tolerance_s} s",
+                gt_label,
+                "timestamps",
+            )
+        ia, ib, gi, gdt = ia[keep], ib[keep], gi[keep], gdt[keep]
+        world_from_gt = gt.poses[gi]
+        max_gt_dt = float(gdt.max())
+    sel = np.arange(0, len(ia), stride)[:max_frames]
+    ia, ib = ia[sel], ib[sel]
+    return _FramePlan(
+        image_index=ia,
+        scan_index=ib,
+        world_from_gt=None if world_from_gt is None else world_from_gt[sel],
+        n_pairs=n_pairs,
+        n_without_gt=n_without_gt,
+        max_pair_dt_s=float(np.abs(ti[ia] - tp[ib]).max()),
+        max_gt_dt_s=max_gt_dt,
+    )
+
+
+def _stream_frames(
+    reader: Any, typestore: Any, con_img: Any, con_pts: Any, plan: _FramePlan, bag: Path
+) -> Iterator[tuple[int, NDArray[np.uint8], NDArray[np.float32]]]:
+    """Pass 2: decode only the planned messages; yield ``(k, rgb, scan)`` in frame order k.
+
+    Images and scans arrive interleaved; a frame is yielded as soon as both halves (and every
+    earlier frame) are there, so only a few frames are ever held in memory.
+    """
+    slot = {
+        con_img.id: {int(i): k for k, i in enumerate(plan.image_index)},
+        con_pts.id: {int(j): k for k, j in enumerate(plan.scan_index)},
+    }
+    count = {con_img.id: 0, con_pts.id: 0}
+    images: dict[int, NDArray[np.uint8]] = {}
+    clouds: dict[int, NDArray[np.float32]] = {}
+    next_k = 0
+    for con, _, raw in reader.messages(connections=[con_img, con_pts]):
+        n = count[con.id]
+        count[con.id] = n + 1
+        k = slot[con.id].get(n)
+        if k is None:
+            continue
+        msg = typestore.deserialize_ros1(raw, con.msgtype)
+        try:
+            if con.id == con_img.id:
+                images[k] = decode_image(msg)
+            else:
+                clouds[k] = decode_pointcloud(msg)
+        except ConslamError as exc:
+            raise ConslamError(str(exc), bag, f"{con.topic}[{n}]") from None
+        while next_k in images and next_k in clouds:
+            yield next_k, images.pop(next_k), clouds.pop(next_k)
+            next_k += 1
+
+
+def _choose_camera(
+    forced: Camera | None, from_info: Camera | None, shape: tuple[int, ...], bag: Path
+) -> tuple[Camera, str]:
+    h, w = int(shape[0]), int(shape[1])
+    if forced is not None:
+        cam, source = forced, "given"
+    elif from_info is not None:
+        cam, source = from_info, "camera_info"
+    else:
+        cam, source = CONSLAM_CAMERA, "conslam_default"
+        if (w, h) != (cam.width, cam.height):
+            fx, fy = w / cam.width, h / cam.height
+            if not math.isclose(fx, fy, rel_tol=2e-3):
+                raise ConslamError(
+                    f"images are {w}x{h}, not a scaled {cam.width}x{cam.height}: give the camera",
+                    bag,
+                    "camera",
+                )
+            cam = Camera(
+                w,
+                h,
+                cam.fx * fx,
+                cam.fy * fy,
+                (cam.cx + 0.5) * fx - 0.5,
+                (cam.cy + 0.5) * fy - 0.5,
+                cam.dist,
+            )
+            source = f"conslam_default scaled x{fx:.6g}"
+    if (w, h) != (cam.width, cam.height):
+        raise ConslamError(
+            f"images are {w}x{h} but the camera ({source}) is {cam.width}x{cam.height}",
+            bag,
+            "camera",
+        )
+    return cam, source
+
+
+def iter_topics(bag: str | PathLike[str]) -> Iterator[tuple[str, str, int]]:
+    """(topic, message type, count) of every connection in a bag (for ``--list``)."""
+    from rosbags.rosbag1 import Reader
+
+    with Reader(Path(bag)) as reader:
+        for c in reader.connections:
+            yield c.topic, c.msgtype, c.msgcount

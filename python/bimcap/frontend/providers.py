@@ -1,0 +1,112 @@
+"""Adapters that plug the fusion and segmentation stages into :func:`run_frontend`.
+
+* :class:`LidarDepthProvider`: the frame's LiDAR scan → ``bimcap.fusion.project_lidar`` (pinhole
+  pixels of ``camera.pinhole()``, ``distort=False``: the front end's convention) →
+  ``bimcap.fusion.complete_depth`` (linear, classical, ONNX or the paper's hybrid).
+* :class:`SegmenterLabelProvider`: any ``bimcap.segmentation`` provider (``segment(FrameInput)``:
+  label images from disk, an ONNX model, the no-weights geometric segmenter).
+* :class:`PlanarDepthRefiner`: ``bimcap.fusion.smooth_planar_regions`` on floor / ceiling, run
+  after the labels (the paper's smoothing).
+
+The ground-truth providers for simulated sequences are
+:class:`bimcap.frontend.runner.GroundTruthDepthProvider` and ``GroundTruthLabelProvider``.
+All are frozen dataclasses (picklable, and their ``repr`` keys the cache).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from bimcap.frontend.runner import FrameContext, FrontendInputError
+
+if TYPE_CHECKING:  # the fusion / segmentation stages are imported only when used
+    from bimcap.fusion import CompletionOptions, PlanarSmoothingOptions, ProjectionOptions
+
+
+@dataclass(frozen=True)
+class LidarDepthProvider:
+    """Dense depth from the frame's LiDAR scan: projection, then completion.
+
+    Attributes
+    ----------
+    projection: ``bimcap.fusion.ProjectionOptions`` (None: defaults).
+    completion: ``bimcap.fusion.CompletionOptions`` (None: linear interpolation).
+    """
+
+    projection: ProjectionOptions | None = None
+    completion: CompletionOptions | None = None
+
+    def __call__(self, ctx: FrameContext) -> NDArray[np.float32]:
+        from bimcap.fusion import complete_depth, project_lidar
+
+        seq = ctx.sequence
+        if not hasattr(seq, "load_lidar") or not hasattr(seq, "cam_from_lidar"):
+            raise FrontendInputError(
+                "the sequence has no LiDAR (load_lidar / cam_from_lidar)", None, "lidar"
+            )
+        scan = seq.load_lidar(ctx.index)
+        sparse = project_lidar(scan, seq.cam_from_lidar, ctx.camera, self.projection, distort=False)
+        return np.asarray(complete_depth(sparse, self.completion, image=ctx.image), np.float32)
+
+
+def _frame_stem(ctx: FrameContext) -> str | None:
+    frame = ctx.sequence.frames[ctx.index]
+    image = frame.get("image") if isinstance(frame, dict) else getattr(frame, "image", None)
+    return None if image is None else Path(str(image)).stem
+
+
+@dataclass(frozen=True)
+class SegmenterLabelProvider:
+    """Labels from a ``bimcap.segmentation`` provider.
+
+    Attributes
+    ----------
+    segmenter: an object with ``segment(FrameInput) -> (H, W) uint8``.
+    uses_pose: whether its labels depend on the initial pose (True for the geometric segmenter,
+        which takes gravity from it; then a new initial trajectory re-segments). Keys the cache.
+    """
+
+    segmenter: Any
+    uses_pose: bool = True
+
+    def __call__(self, ctx: FrameContext) -> NDArray[np.uint8]:
+        from bimcap.segmentation import FrameInput
+
+        frame = FrameInput(
+            camera=ctx.pinhole,
+            image=ctx.image,
+            depth=ctx.depth,
+            world_from_cam=ctx.world_from_cam,
+            stem=_frame_stem(ctx),
+            index=ctx.index,
+        )
+        return np.asarray(self.segmenter.segment(frame), dtype=np.uint8)
+
+
+@dataclass(frozen=True)
+class PlanarDepthRefiner:
+    """Smooth the dense depth inside floor and ceiling regions once the labels are known.
+
+    Attributes
+    ----------
+    options: ``bimcap.fusion.PlanarSmoothingOptions`` (None: defaults).
+    seed: RANSAC seed.
+    """
+
+    options: PlanarSmoothingOptions | None = None
+    seed: int = 0
+
+    def __call__(self, ctx: FrameContext, labels: NDArray[np.integer]) -> NDArray[np.float32]:
+        from bimcap.fusion import smooth_planar_regions
+
+        if ctx.depth is None:
+            raise FrontendInputError("no depth to refine", None, f"frames[{ctx.index}].depth")
+        return np.asarray(
+            smooth_planar_regions(ctx.depth, labels, ctx.pinhole, self.options, seed=self.seed),
+            np.float32,
+        )

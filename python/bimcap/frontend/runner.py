@@ -1,0 +1,1001 @@
+"""The front end over a whole sequence: per-frame work in parallel, cached, then assembly.
+
+Per frame (in worker processes): load the raw image, undistort it to ``camera.pinhole()`` (same
+K, no distortion; the undistortion map is computed with :class:`bimcap.geometry.Camera` itself,
+the reference for the distortion model), get dense depth and labels from the pluggable providers
+(in the undistorted image), extract SIFT, look up each keypoint's depth, subsample the labelled
+pixels. Per pair of frames within the window: match descriptors and verify geometrically.
+In the main process: tracks, the peers' filters, initial landmarks and the solver's arrays
+(:class:`FrontendResult`).
+
+Providers are callables ``provider(ctx: FrameContext) -> (H, W) array`` in undistorted pinhole
+pixels: depth float32 metres (0 = unknown), labels uint8 :class:`bimcap.labels.Label` ids. The
+depth provider runs first; the label provider sees its result in ``ctx.depth``; an optional
+``depth_refiner(ctx, labels) -> depth`` runs last (the paper's floor/ceiling smoothing). They must
+be picklable (module-level classes or dataclasses) to run in worker processes.
+
+Cache: three kinds of entries, so that a change redoes only what depends on it.
+``features`` (SIFT) depend on the image file, the camera and the SIFT settings; ``pair`` entries
+on the two frames' feature keys and the matching settings; ``frame`` entries (depth, labels →
+keypoint depths, semantic samples) on all of the frame's files, the providers, the look-up and
+sampling settings, and the frame's initial pose if a provider declares ``uses_pose = True`` (the
+no-weights segmenter takes gravity from it). A provider may define ``cache_token`` (a string that
+changes whenever its output would); otherwise its class name and ``repr`` are used, which for a
+dataclass includes its settings. The match filters, tracks and landmarks are recomputed on every
+run (they are cheap and depend on the initial poses).
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+import os
+import sys
+import time
+from collections import deque
+from collections.abc import Callable, Sequence
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from dataclasses import asdict, dataclass, field
+from os import PathLike
+from pathlib import Path
+from typing import Any, Protocol, TypeVar, runtime_checkable
+
+import numpy as np
+from numpy.typing import NDArray
+
+from bimcap.errors import BimcapError, InputError
+from bimcap.features.matching import MatchOptions, PairMatches, match_pair, sequential_pairs
+from bimcap.features.sift import Features, SiftOptions, extract_sift
+from bimcap.features.tracks import (
+    DepthLookupOptions,
+    MatchFilterOptions,
+    assemble_match_observations,
+    build_tracks,
+    consistent_track_observations,
+    lookup_depth,
+    triangulate_tracks,
+)
+from bimcap.frontend.cache import ResultCache, frame_cache_key, stable_hash
+from bimcap.frontend.semantic_map import (
+    SEMANTIC_CLASSES,
+    SemanticMap,
+    SemanticSamplingOptions,
+    build_semantic_map,
+    sample_semantic_points,
+    write_semantic_ply,
+)
+from bimcap.geometry.camera import Camera
+from bimcap.geometry.trajectory import Trajectory, validate_poses
+from bimcap.io.atomic import atomic_write_bytes
+from bimcap.labels import Label
+
+F64 = NDArray[np.float64]
+I32 = NDArray[np.int32]
+T = TypeVar("T")
+
+#: Version of the .npz layout written by :meth:`FrontendResult.save`.
+RESULT_FORMAT_VERSION = 1
+
+
+class FrontendError(BimcapError):
+    """The front end cannot run (a provider failed, an option is invalid)."""
+
+
+class FrontendInputError(FrontendError, InputError):
+    """Bad input to the front end: a missing frame, an image or map of the wrong size."""
+
+
+# --------------------------------------------------------------------------- sequence & context
+@runtime_checkable
+class SequenceLike(Protocol):
+    """What the front end needs of a sequence (``bimcap.dataset.Sequence`` provides it).
+
+    ``camera`` is the raw (distorted) camera; ``load_image(i)`` returns (H, W, 3) uint8 RGB of the
+    raw image; ``frames[i]`` names frame i's files (attributes ``image``, ``lidar``, ``labels``,
+    ``depth``, relative to the sequence directory ``root``/``path``) or the sequence offers
+    ``frame_files(i)``; these files key the cache.
+    """
+
+    camera: Camera
+
+    @property
+    def frames(self) -> Sequence[Any]: ...
+
+    def load_image(self, index: int) -> NDArray[np.uint8]: ...
+
+
+class Undistorter:
+    """Resamples raw images and maps into the undistorted pinhole image of the same K.
+
+    The map sends each pinhole pixel to the raw pixel that sees the same ray, computed with
+    :meth:`Camera.project` (the project's reference distortion model), and is applied with
+    ``cv2.remap`` (bilinear for images, nearest for depth and labels, which must not be blended
+    across edges).
+    """
+
+    def __init__(self, camera: Camera) -> None:
+        self.camera = camera
+        self.pinhole = camera.pinhole()
+        self._map: tuple[NDArray[np.float32], NDArray[np.float32]] | None = None
+        if camera.is_distorted:
+            rays = self.pinhole.rays(self.pinhole.pixel_grid(), distorted=False)
+            uv_raw, _ = camera.project(rays, distort=True)
+            shape = (camera.height, camera.width)
+            self._map = (
+                uv_raw[:, 0].reshape(shape).astype(np.float32),
+                uv_raw[:, 1].reshape(shape).astype(np.float32),
+            )
+
+    def _remap(self, arr: NDArray[Any], nearest: bool) -> NDArray[Any]:
+        if self._map is None:
+            return np.array(arr, copy=True)
+        import cv2
+
+        interp = cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR
+        return cv2.remap(
+            arr, self._map[0], self._map[1], interp, borderMode=cv2.BORDER_CONSTANT, borderValue=0
+        )
+
+    def image(self, image: NDArray[np.uint8]) -> NDArray[np.uint8]:
+        """(H, W, 3) or (H, W) uint8 raw image → undistorted (bilinear; black outside)."""
+        return self._remap(np.ascontiguousarray(image), nearest=False)
+
+    def nearest(self, arr: NDArray[Any]) -> NDArray[Any]:
+        """(H, W) depth or label map of the raw image → undistorted (nearest; 0 outside)."""
+        a = np.ascontiguousarray(arr)
+        if a.dtype == np.float64:
+            a = a.astype(np.float32)
+        return self._remap(a, nearest=True)
+
+
+_UNDISTORTERS: dict[Camera, Undistorter] = {}
+
+
+def get_undistorter(camera: Camera) -> Undistorter:
+    """A per-process cached :class:`Undistorter` for ``camera``."""
+    und = _UNDISTORTERS.get(camera)
+    if und is None:
+        und = _UNDISTORTERS[camera] = Undistorter(camera)
+    return und
+
+
+@dataclass
+class FrameContext:
+    """What a depth or label provider gets for one frame.
+
+    Attributes
+    ----------
+    sequence: the sequence (load the frame's LiDAR, labels, depth ... from it).
+    index: frame index.
+    camera: the raw (distorted) camera.
+    pinhole: the undistorted camera every output is in.
+    image: (H, W, 3) uint8 undistorted RGB image.
+    undistorter: resamples raw-image maps into the pinhole image.
+    world_from_cam: (7,) TUM-order initial pose of the frame.
+    depth: (H, W) float32 dense depth once the depth provider has run (None before).
+    """
+
+    sequence: Any
+    index: int
+    camera: Camera
+    pinhole: Camera
+    image: NDArray[np.uint8]
+    undistorter: Undistorter
+    world_from_cam: NDArray[np.float64]
+    depth: NDArray[np.float32] | None = None
+
+
+class DepthProvider(Protocol):
+    """``provider(ctx) -> (H, W) float32`` z-depth in metres (0 = unknown), pinhole pixels."""
+
+    def __call__(self, ctx: FrameContext) -> NDArray[np.floating]: ...
+
+
+class LabelProvider(Protocol):
+    """``provider(ctx) -> (H, W) uint8`` :class:`bimcap.labels.Label` ids, pinhole pixels."""
+
+    def __call__(self, ctx: FrameContext) -> NDArray[np.integer]: ...
+
+
+class DepthRefiner(Protocol):
+    """``refiner(ctx, labels) -> (H, W) float32`` depth refined with the labels (``ctx.depth``)."""
+
+    def __call__(self, ctx: FrameContext, labels: NDArray[np.integer]) -> NDArray[np.floating]: ...
+
+
+@dataclass(frozen=True)
+class GroundTruthDepthProvider:
+    """Depth from the sequence's ``depth/`` files (simulator ground truth), undistorted."""
+
+    def __call__(self, ctx: FrameContext) -> NDArray[np.float32]:
+        loaded = ctx.sequence.load_depth(ctx.index)
+        if loaded is None:
+            raise FrontendInputError(
+                f"frame {ctx.index} has no ground-truth depth file", None, f"frames[{ctx.index}].depth"
+            )
+        raw = np.asarray(loaded, dtype=np.float32)
+        _check_map(raw, ctx.camera, ctx.index, "depth")
+        return ctx.undistorter.nearest(raw)
+
+
+@dataclass(frozen=True)
+class GroundTruthLabelProvider:
+    """Labels from the sequence's ``labels/`` files (simulator ground truth), undistorted."""
+
+    def __call__(self, ctx: FrameContext) -> NDArray[np.uint8]:
+        loaded = ctx.sequence.load_labels(ctx.index)
+        if loaded is None:
+            raise FrontendInputError(
+                f"frame {ctx.index} has no label image", None, f"frames[{ctx.index}].labels"
+            )
+        raw = np.asarray(loaded)
+        _check_map(raw, ctx.camera, ctx.index, "labels")
+        return ctx.undistorter.nearest(raw.astype(np.uint8))
+
+
+def _check_map(arr: NDArray[Any], camera: Camera, index: int, what: str, path: object = None) -> None:
+    if arr.shape[:2] != (camera.height, camera.width) or arr.ndim != 2:
+        raise FrontendInputError(
+            f"frame {index}: {what} has shape {arr.shape}, the camera is "
+            f"{camera.width}x{camera.height} (expected ({camera.height}, {camera.width}))",
+            path,  # type: ignore[arg-type]
+            f"frames[{index}].{what}",
+        )
+
+
+def provider_token(provider: object) -> str:
+    """The cache token of a provider: its ``cache_token`` or class name + ``repr``."""
+    tok = getattr(provider, "cache_token", None)
+    if tok is not None:
+        return str(tok() if callable(tok) else tok)
+    cls = type(provider)
+    return f"{cls.__module__}.{cls.__qualname__}:{provider!r}"
+
+
+def uses_pose(provider: object) -> bool:
+    """True if the provider's output depends on the frame's initial pose (``uses_pose``)."""
+    return bool(getattr(provider, "uses_pose", False))
+
+
+def frame_input_files(sequence: Any, index: int) -> dict[str, Path]:
+    """The files frame ``index`` is computed from, by role (they key the cache).
+
+    The ``image``, ``lidar``, ``labels`` and ``depth`` entries of ``sequence.frames[index]``
+    (attributes or dict keys) that are not None, resolved against the sequence directory
+    (``sequence.root`` or ``sequence.path``) when relative.
+    """
+    frame = sequence.frames[index]
+    root = None
+    for name in ("root", "path", "directory"):
+        val = getattr(sequence, name, None)
+        if isinstance(val, (str, PathLike)):
+            root = Path(val)
+            break
+    out: dict[str, Path] = {}
+    for attr in ("image", "lidar", "labels", "depth"):
+        val = frame.get(attr) if isinstance(frame, dict) else getattr(frame, attr, None)
+        if val is None:
+            continue
+        p = Path(val)
+        if not p.is_absolute() and root is not None:
+            p = root / p
+        out[attr] = p
+    if "image" not in out:
+        raise FrontendError(
+            f"cannot tell which image file frame {index} comes from (frames[{index}].image); "
+            "run without a cache directory"
+        )
+    return out
+
+
+# --------------------------------------------------------------------------- config & result
+@dataclass(frozen=True)
+class FrontendConfig:
+    """Settings of the whole front end.
+
+    Attributes
+    ----------
+    sift: feature extraction.
+    match: descriptor matching and geometric verification of one pair.
+    window: match each frame with the next ``window`` frames.
+    filters: the peers' filters on pairwise matches (gap, initial 3-D distance, depth).
+    depth_lookup: validity check of keypoint depths.
+    sampling: subsampling of labelled pixels into semantic samples.
+    min_track_length: observations per track (>= 2).
+    """
+
+    sift: SiftOptions = field(default_factory=SiftOptions)
+    match: MatchOptions = field(default_factory=MatchOptions)
+    window: int = 5
+    filters: MatchFilterOptions = field(default_factory=MatchFilterOptions)
+    depth_lookup: DepthLookupOptions = field(default_factory=DepthLookupOptions)
+    sampling: SemanticSamplingOptions = field(default_factory=SemanticSamplingOptions)
+    min_track_length: int = 2
+
+    def __post_init__(self) -> None:
+        if self.window < 1:
+            raise FrontendError(f"window must be >= 1, got {self.window}")
+        if self.min_track_length < 2:
+            raise FrontendError(f"min_track_length must be >= 2, got {self.min_track_length}")
+
+    def to_dict(self) -> dict[str, object]:
+        return {
+            "sift": self.sift.to_dict(),
+            "match": self.match.to_dict(),
+            "window": self.window,
+            "filters": self.filters.to_dict(),
+            "depth_lookup": self.depth_lookup.to_dict(),
+            "sampling": self.sampling.to_dict(),
+            "min_track_length": self.min_track_length,
+        }
+
+
+@dataclass
+class FrameStats:
+    """Per-frame numbers: keypoints, keypoints with depth, semantic samples, the frame's total
+    time and its SIFT time (0 when the features came from the cache), cache hit."""
+
+    index: int
+    num_keypoints: int
+    num_keypoints_with_depth: int
+    num_floor: int
+    num_ceiling: int
+    num_wall: int
+    num_column: int
+    time_s: float
+    sift_time_s: float
+    cached: bool
+
+
+@dataclass
+class PairStats:
+    """Per-pair numbers: putative and verified matches, the verified model, cache hit."""
+
+    frame_a: int
+    frame_b: int
+    num_putative: int
+    num_verified: int
+    model: str
+    time_s: float
+    cached: bool
+
+
+@dataclass
+class RunStats:
+    """What one run did: what it computed rather than took from the cache.
+
+    ``features_computed``: frames whose SIFT ran; ``frames_computed``: frames whose depth,
+    labels, keypoint depths and samples were computed; ``pairs_computed``: pairs matched.
+    """
+
+    features_computed: int = 0
+    frames_computed: int = 0
+    pairs_computed: int = 0
+    wall_time_s: float = 0.0
+    workers: int = 1
+
+
+#: The solver's observation arrays the front end fills (docs/architecture.md), name → dtype.
+OBSERVATION_ARRAYS: dict[str, type] = {
+    "match_frames": np.int32,
+    "match_uv": np.float64,
+    "match_depth": np.float64,
+    "track_obs_frame": np.int32,
+    "track_obs_point": np.int32,
+    "track_obs_uv": np.float64,
+    "track_obs_depth": np.float64,
+    "track_points": np.float64,
+    **{f"{p}_frame": np.int32 for p in SEMANTIC_CLASSES.values()},
+    **{f"{p}_p_in_cam": np.float64 for p in SEMANTIC_CLASSES.values()},
+}
+
+
+@dataclass
+class FrontendResult:
+    """The front end's output for one sequence, in undistorted pinhole pixels of ``camera``.
+
+    Attributes
+    ----------
+    camera: the pinhole camera (``raw_camera.pinhole()``) all pixels refer to.
+    num_frames: N.
+    match_frames (M, 2) int32, match_uv (M, 4) ``[ua, va, ub, vb]``, match_depth (M, 2) metres.
+    track_obs_frame (K,) int32, track_obs_point (K,) int32, track_obs_uv (K, 2),
+    track_obs_depth (K,) metres (0 = none), track_points (P, 3) world, from the initial poses.
+    floor_frame (F,) int32, floor_p_in_cam (F, 3) metres; likewise ceiling_*, wall_*, column_*.
+    frame_stats, pair_stats, run: statistics; config: the settings as a dict.
+    """
+
+    camera: Camera
+    num_frames: int
+    match_frames: I32
+    match_uv: F64
+    match_depth: F64
+    track_obs_frame: I32
+    track_obs_point: I32
+    track_obs_uv: F64
+    track_obs_depth: F64
+    track_points: F64
+    floor_frame: I32
+    floor_p_in_cam: F64
+    ceiling_frame: I32
+    ceiling_p_in_cam: F64
+    wall_frame: I32
+    wall_p_in_cam: F64
+    column_frame: I32
+    column_p_in_cam: F64
+    frame_stats: list[FrameStats] = field(default_factory=list)
+    pair_stats: list[PairStats] = field(default_factory=list)
+    run: RunStats = field(default_factory=RunStats)
+    config: dict[str, object] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for name, dtype in OBSERVATION_ARRAYS.items():
+            setattr(self, name, np.ascontiguousarray(getattr(self, name), dtype=dtype))
+
+    def to_problem_arrays(self) -> dict[str, NDArray[Any]]:
+        """The solver's arrays by their names: the observations plus ``cameras (1, 4)`` and
+        ``frame_camera (N,) int32`` (every frame uses the one pinhole camera)."""
+        out: dict[str, NDArray[Any]] = {n: getattr(self, n) for n in OBSERVATION_ARRAYS}
+        out["cameras"] = self.camera.intrinsics.reshape(1, 4).copy()
+        out["frame_camera"] = np.zeros(self.num_frames, np.int32)
+        return out
+
+    def semantic_samples(self) -> dict[Label, tuple[I32, F64]]:
+        """Per class ``(frame (n,), p_in_cam (n, 3))``."""
+        return {
+            lab: (getattr(self, f"{p}_frame"), getattr(self, f"{p}_p_in_cam"))
+            for lab, p in SEMANTIC_CLASSES.items()
+        }
+
+    def semantic_map(self, world_from_cam: F64) -> SemanticMap:
+        """The semantic samples moved into the world with ``world_from_cam`` (N, 7)."""
+        return build_semantic_map(self.semantic_samples(), np.asarray(world_from_cam))
+
+    def write_semantic_map(self, path: str | PathLike[str], world_from_cam: F64) -> SemanticMap:
+        """Write the semantic map under ``world_from_cam`` as a labelled PLY (atomically)."""
+        smap = self.semantic_map(world_from_cam)
+        write_semantic_ply(path, smap.points, smap.labels)
+        return smap
+
+    def to_dict(self) -> dict[str, object]:
+        """Summary for JSON: counts, per-frame and per-pair statistics, settings."""
+        return {
+            "camera": self.camera.to_dict(),
+            "num_frames": self.num_frames,
+            "num_matches": int(len(self.match_frames)),
+            "num_track_points": int(len(self.track_points)),
+            "num_track_observations": int(len(self.track_obs_frame)),
+            **{f"num_{p}": int(len(getattr(self, f"{p}_frame"))) for p in SEMANTIC_CLASSES.values()},
+            "run": asdict(self.run),
+            "frame_stats": [asdict(s) for s in self.frame_stats],
+            "pair_stats": [asdict(s) for s in self.pair_stats],
+            "config": self.config,
+        }
+
+    def save(self, path: str | PathLike[str]) -> None:
+        """Write all arrays and the statistics to one ``.npz`` file, atomically."""
+        import io
+
+        meta = {
+            "format": "bimcap-frontend",
+            "version": RESULT_FORMAT_VERSION,
+            **self.to_dict(),
+        }
+        arrays = {n: getattr(self, n) for n in OBSERVATION_ARRAYS}
+        buf = io.BytesIO()
+        np.savez(buf, meta_json=np.array(json.dumps(meta)), **arrays)
+        atomic_write_bytes(os.fspath(path), buf.getvalue())
+
+    @classmethod
+    def load(cls, path: str | PathLike[str]) -> FrontendResult:
+        """Read a file written by :meth:`save`; raises :class:`FrontendInputError` if malformed."""
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                data = {k: z[k] for k in z.files}
+        except (OSError, ValueError, EOFError) as exc:
+            raise FrontendInputError(f"cannot read front-end result: {exc}", path) from None
+        if "meta_json" not in data:
+            raise FrontendInputError("not a bimcap front-end result", path, "meta_json")
+        meta = json.loads(str(data["meta_json"]))
+        if meta.get("format") != "bimcap-frontend" or meta.get("version") != RESULT_FORMAT_VERSION:
+            raise FrontendInputError(
+                f"unsupported format {meta.get('format')!r} version {meta.get('version')!r}",
+                path,
+                "meta_json",
+            )
+        missing = [n for n in OBSERVATION_ARRAYS if n not in data]
+        if missing:
+            raise FrontendInputError(f"missing arrays {missing}", path)
+        return cls(
+            camera=Camera.from_dict(meta["camera"]),
+            num_frames=int(meta["num_frames"]),
+            **{n: data[n] for n in OBSERVATION_ARRAYS},
+            frame_stats=[FrameStats(**s) for s in meta["frame_stats"]],
+            pair_stats=[PairStats(**s) for s in meta["pair_stats"]],
+            run=RunStats(**meta["run"]),
+            config=meta["config"],
+        )
+
+
+# --------------------------------------------------------------------------- per-frame work
+@dataclass
+class _RunShared:
+    """What every frame job of one run shares; sent once to each worker (pool initializer)."""
+
+    sequence: Any
+    config: FrontendConfig
+    depth_provider: Any
+    label_provider: Any
+    depth_refiner: Any
+
+
+#: The run's shared state inside a worker process (set by :func:`_init_worker`).
+_SHARED: _RunShared | None = None
+
+
+def _init_worker(shared: _RunShared) -> None:
+    global _SHARED
+    _SHARED = shared
+
+
+@dataclass
+class _FrameJob:
+    index: int
+    world_from_cam: F64
+    features: dict[str, NDArray[Any]] | None  # cached SIFT of this frame, or None to extract
+    maps_dir: Path | None = None  # write the frame's undistorted depth and labels here
+
+
+def map_paths(maps_dir: str | PathLike[str], index: int) -> tuple[Path, Path]:
+    """``(depth .npy, labels .png)`` written for frame ``index`` under ``maps_dir``."""
+    root = Path(maps_dir)
+    return root / "depth" / f"{index:06d}.npy", root / "labels" / f"{index:06d}.png"
+
+
+def _write_maps(maps_dir: Path, index: int, depth: NDArray[np.float32], labels: NDArray[Any]) -> None:
+    import io
+
+    import cv2
+
+    depth_path, label_path = map_paths(maps_dir, index)
+    buf = io.BytesIO()
+    np.save(buf, np.ascontiguousarray(depth, dtype=np.float32))
+    atomic_write_bytes(depth_path, buf.getvalue())
+    ok, png = cv2.imencode(".png", np.ascontiguousarray(labels, dtype=np.uint8))
+    if not ok:  # pragma: no cover - cv2 encodes any uint8 image
+        raise FrontendError(f"cannot encode the labels of frame {index}")
+    atomic_write_bytes(label_path, png.tobytes())
+
+
+def _load_raw_image(sequence: Any, index: int, camera: Camera) -> NDArray[np.uint8]:
+    try:
+        img = np.asarray(sequence.load_image(index))
+    except InputError:
+        raise
+    except (OSError, IndexError, KeyError) as exc:
+        raise FrontendInputError(
+            f"cannot load image of frame {index}: {exc}", None, f"frames[{index}].image"
+        ) from None
+    if img.ndim == 2:
+        img = np.repeat(img[:, :, None], 3, axis=2)
+    if img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] != 3:
+        raise FrontendInputError(
+            f"frame {index}: expected an 8-bit RGB image, got {img.dtype} {img.shape}",
+            None,
+            f"frames[{index}].image",
+        )
+    if img.shape[:2] != (camera.height, camera.width):
+        raise FrontendInputError(
+            f"frame {index}: image is {img.shape[1]}x{img.shape[0]}, the camera is "
+            f"{camera.width}x{camera.height}",
+            None,
+            f"frames[{index}].image",
+        )
+    return img
+
+
+FEATURE_ARRAYS = ("uv", "scale", "orientation", "descriptors")
+
+
+def compute_frame(job: _FrameJob) -> dict[str, NDArray[Any]]:
+    """All per-frame work for one frame.
+
+    Returns the SIFT arrays (``uv, scale, orientation, descriptors``; extracted unless
+    ``job.features`` holds them), the keypoint depths ``depth``, the semantic samples
+    ``<class>_p_in_cam`` and the timings ``time_s`` / ``sift_time_s``.
+    """
+    t0 = time.perf_counter()
+    shared = _SHARED
+    if shared is None:  # pragma: no cover - set by run_frontend / the pool initializer
+        raise FrontendError("compute_frame called outside run_frontend")
+    seq, i, cfg = shared.sequence, job.index, shared.config
+    camera: Camera = seq.camera
+    und = get_undistorter(camera)
+    image = und.image(_load_raw_image(seq, i, camera))
+    ctx = FrameContext(seq, i, camera, und.pinhole, image, und, np.asarray(job.world_from_cam))
+    depth = np.asarray(shared.depth_provider(ctx), dtype=np.float32)
+    _check_map(depth, und.pinhole, i, "depth (from the depth provider)")
+    depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0).astype(np.float32)
+    ctx.depth = depth
+    labels = np.asarray(shared.label_provider(ctx))
+    _check_map(labels, und.pinhole, i, "labels (from the label provider)")
+    if shared.depth_refiner is not None:
+        depth = np.asarray(shared.depth_refiner(ctx, labels), dtype=np.float32)
+        _check_map(depth, und.pinhole, i, "depth (from the depth refiner)")
+        depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0).astype(np.float32)
+        ctx.depth = depth
+    if job.maps_dir is not None:
+        _write_maps(job.maps_dir, i, depth, labels)
+    t1 = time.perf_counter()
+    if job.features is None:
+        f = extract_sift(image, cfg.sift)
+        feats = {"uv": f.uv, "scale": f.scale, "orientation": f.orientation, "descriptors": f.descriptors}
+        sift_time = time.perf_counter() - t1
+    else:
+        feats = {k: job.features[k] for k in FEATURE_ARRAYS}
+        sift_time = 0.0
+    kp_depth = lookup_depth(depth, np.asarray(feats["uv"]), cfg.depth_lookup)
+    samples = sample_semantic_points(labels, depth, und.pinhole, i, cfg.sampling)
+    out: dict[str, NDArray[Any]] = {**feats, "depth": kp_depth}
+    for lab, prefix in SEMANTIC_CLASSES.items():
+        out[f"{prefix}_p_in_cam"] = samples[lab]
+    out["sift_time_s"] = np.array(sift_time)
+    out["time_s"] = np.array(time.perf_counter() - t0)
+    return out
+
+
+@dataclass
+class _PairJob:
+    feats_a: Features
+    feats_b: Features
+    camera: Camera
+    frame_a: int
+    frame_b: int
+    options: MatchOptions
+
+
+def compute_pair(job: _PairJob) -> dict[str, NDArray[Any]]:
+    """Match and verify one pair; returns the arrays that the cache stores."""
+    t0 = time.perf_counter()
+    pm = match_pair(job.feats_a, job.feats_b, job.camera, job.frame_a, job.frame_b, job.options)
+    return {
+        "idx": pm.idx,
+        "num_putative": np.array(pm.num_putative),
+        "model": np.array(pm.model),
+        "time_s": np.array(time.perf_counter() - t0),
+    }
+
+
+def _features_of(arrays: dict[str, NDArray[Any]]) -> Features:
+    return Features(arrays["uv"], arrays["scale"], arrays["orientation"], arrays["descriptors"])
+
+
+# --------------------------------------------------------------------------- progress & pool
+class _Progress:
+    """A one-line progress bar on stderr (no dependency)."""
+
+    def __init__(self, total: int, label: str, enabled: bool) -> None:
+        self.total, self.label, self.enabled = total, label, enabled and total > 0
+        self.done = 0
+        self.t0 = time.perf_counter()
+
+    def step(self, n: int = 1) -> None:
+        self.done += n
+        if not self.enabled:
+            return
+        frac = self.done / self.total
+        bar = "#" * int(30 * frac)
+        rate = self.done / max(time.perf_counter() - self.t0, 1e-9)
+        sys.stderr.write(
+            f"\r{self.label:>8} [{bar:<30}] {self.done}/{self.total} {rate:6.2f}/s"
+        )
+        if self.done >= self.total:
+            sys.stderr.write("\n")
+        sys.stderr.flush()
+
+
+def _submit(pool: ProcessPoolExecutor | None, fn: Callable[[Any], T], job: Any) -> Future[T]:
+    """``fn(job)`` in the pool, or run now in this process as an already finished future."""
+    if pool is not None:
+        return pool.submit(fn, job)
+    fut: Future[T] = Future()
+    try:
+        fut.set_result(fn(job))
+    except BaseException as exc:  # re-raised by fut.result() in the caller, like the pool does
+        fut.set_exception(exc)
+    return fut
+
+
+# --------------------------------------------------------------------------- the runner
+def run_frontend(
+    sequence: SequenceLike,
+    config: FrontendConfig | None,
+    init_traj: Trajectory | F64,
+    depth_provider: DepthProvider,
+    label_provider: LabelProvider,
+    cache_dir: str | PathLike[str] | None = None,
+    workers: int | None = None,
+    progress: bool = True,
+    depth_refiner: DepthRefiner | None = None,
+    maps_dir: str | PathLike[str] | None = None,
+) -> FrontendResult:
+    """Run the front end over a whole sequence.
+
+    Parameters
+    ----------
+    sequence: the sequence (raw camera, frames, images).
+    config: settings; None for the defaults.
+    init_traj: initial ``world_from_cam`` poses, a Trajectory or (N, 7) TUM-order array, one per
+        frame (for the distance filter, the initial landmarks, and providers that use the pose).
+    depth_provider, label_provider: dense depth and labels per frame (see the module doc).
+    cache_dir: folder of the cache; None disables caching.
+    workers: processes (default ``os.cpu_count()``); 1 runs everything in this process.
+    progress: draw a progress bar on stderr.
+    depth_refiner: optional ``refiner(ctx, labels) -> depth`` run after the labels.
+    maps_dir: if given, each frame's final undistorted depth (``depth/NNNNNN.npy``, float32
+        metres) and labels (``labels/NNNNNN.png``) are written there (atomically; see
+        :func:`map_paths`); a cached frame whose maps are missing is recomputed.
+
+    Returns
+    -------
+    FrontendResult in the pinhole camera ``sequence.camera.pinhole()``.
+
+    Raises
+    ------
+    FrontendInputError
+        A missing or unreadable frame, an image or map whose size does not match the camera,
+        initial poses that do not match the frames.
+    """
+    t_start = time.perf_counter()
+    cfg = config or FrontendConfig()
+    camera: Camera = sequence.camera
+    pinhole = camera.pinhole()
+    num = len(sequence.frames)
+    if num == 0:
+        raise FrontendInputError("the sequence has no frames", None, "frames")
+    init = np.asarray(
+        init_traj.poses if isinstance(init_traj, Trajectory) else init_traj, dtype=np.float64
+    )
+    validate_poses(init, field="init_traj")
+    if len(init) != num:
+        raise FrontendInputError(f"{len(init)} initial poses for {num} frames", None, "init_traj")
+    nworkers = int(workers if workers is not None else (os.cpu_count() or 1))
+    if nworkers < 1:
+        raise FrontendError(f"workers must be >= 1, got {workers}")
+    cache = ResultCache(cache_dir)
+    run = RunStats(workers=nworkers)
+    providers = (depth_provider, label_provider, depth_refiner)
+    pose_dependent = any(uses_pose(p) for p in providers if p is not None)
+
+    # ---------------------------------------------------------------- cache keys
+    feat_keys: list[str] = []
+    frame_keys: list[str] = []
+    if cache.enabled:
+        feat_settings = {"camera": camera.to_dict(), "sift": cfg.sift.to_dict()}
+        frame_settings = {
+            "depth_lookup": cfg.depth_lookup.to_dict(),
+            "sampling": cfg.sampling.to_dict(),
+            "depth_provider": provider_token(depth_provider),
+            "label_provider": provider_token(label_provider),
+            "depth_refiner": None if depth_refiner is None else provider_token(depth_refiner),
+        }
+        for i in range(num):
+            files = frame_input_files(sequence, i)
+            fk = frame_cache_key([files["image"]], feat_settings)
+            feat_keys.append(fk)
+            extra: dict[str, object] = {"index": i, "features": fk}
+            if pose_dependent:
+                extra["world_from_cam"] = [float(x) for x in init[i]]
+            frame_keys.append(frame_cache_key(list(files.values()), {**frame_settings, **extra}))
+
+    frame_data: list[dict[str, NDArray[Any]] | None] = [None] * num
+    frame_cached = [False] * num
+    cached_feats: list[dict[str, NDArray[Any]] | None] = [None] * num
+    todo: list[int] = []
+    for i in range(num):
+        if cache.enabled:
+            hit = cache.get("frame", frame_keys[i])
+            feats_hit = cache.get("features", feat_keys[i])
+            maps_there = maps_dir is None or all(p.is_file() for p in map_paths(maps_dir, i))
+            if hit is not None and feats_hit is not None and maps_there:
+                frame_data[i] = {**hit, **feats_hit}
+                frame_cached[i] = True
+                continue
+            cached_feats[i] = feats_hit
+        todo.append(i)
+
+    # ---------------------------------------------------------------- pairs in the cache
+    pairs = sequential_pairs(num, cfg.window)
+    pair_settings = {"camera": camera.to_dict(), "match": cfg.match.to_dict()}
+    pair_results: list[dict[str, NDArray[Any]] | None] = [None] * len(pairs)
+    pair_cached = [False] * len(pairs)
+    pair_keys: list[str] = []
+    pairs_of_frame: list[list[int]] = [[] for _ in range(num)]
+    for k, (a, b) in enumerate(pairs):
+        if cache.enabled:
+            key = stable_hash({"a": feat_keys[a], "b": feat_keys[b], **pair_settings})
+            pair_keys.append(key)
+            hit = cache.get("pair", key)
+            if hit is not None:
+                pair_results[k], pair_cached[k] = hit, True
+                continue
+        pairs_of_frame[a].append(k)
+        pairs_of_frame[b].append(k)
+    pairs_left = [len(p) for p in pairs_of_frame]
+    num_pair_jobs = sum(not c for c in pair_cached)
+
+    shared = _RunShared(sequence, cfg, depth_provider, label_provider, depth_refiner)
+    pool: ProcessPoolExecutor | None = None
+    if nworkers > 1 and len(todo) + num_pair_jobs > 1:
+        # spawn, not fork: forking a process whose BLAS / pycolmap threads are running can
+        # deadlock. The sequence and providers travel once per worker, not once per job.
+        pool = ProcessPoolExecutor(
+            max_workers=min(nworkers, len(todo) + num_pair_jobs),
+            mp_context=multiprocessing.get_context("spawn"),
+            initializer=_init_worker,
+            initargs=(shared,),
+        )
+    global _SHARED
+    previous, _SHARED = _SHARED, shared  # for jobs run inline in this process
+
+    # Frames and pairs share one queue: a pair is submitted as soon as both of its frames have
+    # features (pairs first, so that descriptors can be released early: a frame keeps only
+    # keypoints, depths and samples once all of its pairs are matched). At most 2 × workers jobs
+    # are in flight, so that finished frames do not wait behind the whole frame list.
+    ready = [d is not None for d in frame_data]
+    frame_queue = deque(todo)
+    pair_queue: deque[int] = deque(
+        k for k, (a, b) in enumerate(pairs) if not pair_cached[k] and ready[a] and ready[b]
+    )
+
+    def release(i: int) -> None:
+        d = frame_data[i]
+        if d is not None and ready[i] and pairs_left[i] == 0:
+            for name in ("descriptors", "scale", "orientation"):
+                d.pop(name, None)
+
+    for i in range(num):
+        release(i)
+    bar = _Progress(len(todo) + num_pair_jobs, "frontend", progress)
+    limit = 1 if pool is None else 2 * nworkers
+    in_flight: dict[Future[dict[str, NDArray[Any]]], tuple[str, int]] = {}
+    try:
+        while frame_queue or pair_queue or in_flight:
+            while len(in_flight) < limit and (pair_queue or frame_queue):
+                if pair_queue:
+                    k = pair_queue.popleft()
+                    a, b = pairs[k]
+                    fa, fb = frame_data[a], frame_data[b]
+                    assert fa is not None and fb is not None
+                    pjob = _PairJob(_features_of(fa), _features_of(fb), pinhole, a, b, cfg.match)
+                    in_flight[_submit(pool, compute_pair, pjob)] = ("pair", k)
+                else:
+                    i = frame_queue.popleft()
+                    fjob = _FrameJob(
+                        i, init[i], cached_feats[i], None if maps_dir is None else Path(maps_dir)
+                    )
+                    in_flight[_submit(pool, compute_frame, fjob)] = ("frame", i)
+            done, _ = wait(list(in_flight), return_when=FIRST_COMPLETED)
+            for fut in done:
+                kind, n = in_flight.pop(fut)
+                res = fut.result()
+                bar.step()
+                if kind == "frame":
+                    i = n
+                    frame_data[i] = res
+                    ready[i] = True
+                    run.frames_computed += 1
+                    if cached_feats[i] is None:
+                        run.features_computed += 1
+                    if cache.enabled:
+                        if cached_feats[i] is None:
+                            cache.put("features", feat_keys[i], {k2: res[k2] for k2 in FEATURE_ARRAYS})
+                        cache.put(
+                            "frame", frame_keys[i],
+                            {k2: v for k2, v in res.items() if k2 not in FEATURE_ARRAYS},
+                        )
+                    cached_feats[i] = None  # not needed any more
+                    for k in pairs_of_frame[i]:
+                        a, b = pairs[k]
+                        if ready[a] and ready[b]:
+                            pair_queue.append(k)
+                    release(i)
+                else:
+                    k = n
+                    pair_results[k] = res
+                    run.pairs_computed += 1
+                    if cache.enabled:
+                        cache.put("pair", pair_keys[k], res)
+                    for f in pairs[k]:
+                        pairs_left[f] -= 1
+                        release(f)
+    finally:
+        _SHARED = previous
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
+    frames_ok = [d for d in frame_data if d is not None]
+
+    pair_list: list[PairMatches] = []
+    pair_stats: list[PairStats] = []
+    for k, ((a, b), r) in enumerate(zip(pairs, pair_results)):
+        assert r is not None
+        pm = PairMatches(
+            a, b, np.asarray(r["idx"], np.int32).reshape(-1, 2), int(r["num_putative"]), str(r["model"])
+        )
+        pair_list.append(pm)
+        pair_stats.append(
+            PairStats(a, b, pm.num_putative, len(pm.idx), pm.model, float(r["time_s"]), pair_cached[k])
+        )
+    result = _assemble(cfg, pinhole, init, frames_ok, pair_list)
+    result.frame_stats = [
+        FrameStats(
+            index=i,
+            num_keypoints=int(len(d["uv"])),
+            num_keypoints_with_depth=int((d["depth"] > 0).sum()),
+            **{f"num_{p}": int(len(d[f"{p}_p_in_cam"])) for p in SEMANTIC_CLASSES.values()},
+            time_s=float(d["time_s"]),
+            sift_time_s=float(d["sift_time_s"]),
+            cached=frame_cached[i],
+        )
+        for i, d in enumerate(frames_ok)
+    ]
+    result.pair_stats = pair_stats
+    run.wall_time_s = time.perf_counter() - t_start
+    result.run = run
+    return result
+
+
+def _assemble(
+    cfg: FrontendConfig,
+    pinhole: Camera,
+    init: F64,
+    frames: list[dict[str, NDArray[Any]]],
+    pairs: list[PairMatches],
+) -> FrontendResult:
+    """Flatten per-frame and per-pair results into the solver's arrays."""
+    uvs = [np.asarray(d["uv"], np.float64).reshape(-1, 2) for d in frames]
+    depths = [np.asarray(d["depth"], np.float64).reshape(-1) for d in frames]
+    obs = assemble_match_observations(pairs, uvs, depths, pinhole, init, cfg.filters)
+    tracks = build_tracks([len(u) for u in uvs], pairs, cfg.min_track_length)
+    t_uv = np.zeros((len(tracks.obs_frame), 2))
+    t_depth = np.zeros(len(tracks.obs_frame))
+    for f in np.unique(tracks.obs_frame):
+        sel = tracks.obs_frame == f
+        t_uv[sel] = uvs[f][tracks.obs_keypoint[sel]]
+        t_depth[sel] = depths[f][tracks.obs_keypoint[sel]]
+    t_frame, t_point = tracks.obs_frame, tracks.obs_point
+    if cfg.filters.max_initial_distance_m is not None and len(t_point):
+        # The pairwise distance filter's analogue: drop observations far from their track.
+        keep = consistent_track_observations(
+            t_frame, t_point, t_uv, t_depth, pinhole, init, cfg.filters.max_initial_distance_m
+        )
+        keep &= np.bincount(t_point[keep], minlength=tracks.num_points)[t_point] >= cfg.min_track_length
+        _, t_point = np.unique(t_point[keep], return_inverse=True)
+        t_point = t_point.astype(np.int32).reshape(-1)
+        t_frame, t_uv, t_depth = t_frame[keep], t_uv[keep], t_depth[keep]
+    points, valid = triangulate_tracks(t_frame, t_point, t_uv, t_depth, pinhole, init)
+    # Drop landmarks without a usable initial position and renumber the rest.
+    keep_obs = valid[t_point] if len(valid) else np.zeros(0, bool)
+    new_id = np.cumsum(valid) - 1
+    sem: dict[str, NDArray[Any]] = {}
+    for prefix in SEMANTIC_CLASSES.values():
+        pts = [np.asarray(d[f"{prefix}_p_in_cam"], np.float64).reshape(-1, 3) for d in frames]
+        sem[f"{prefix}_frame"] = np.concatenate(
+            [np.full(len(p), i, np.int32) for i, p in enumerate(pts)]
+        ) if pts else np.zeros(0, np.int32)
+        sem[f"{prefix}_p_in_cam"] = np.concatenate(pts) if pts else np.zeros((0, 3))
+    return FrontendResult(
+        camera=pinhole,
+        num_frames=len(frames),
+        match_frames=obs.match_frames,
+        match_uv=obs.match_uv,
+        match_depth=obs.match_depth,
+        track_obs_frame=t_frame[keep_obs],
+        track_obs_point=new_id[t_point[keep_obs]] if len(valid) else np.zeros(0, np.int32),
+        track_obs_uv=t_uv[keep_obs],
+        track_obs_depth=t_depth[keep_obs],
+        track_points=points[valid],
+        config=cfg.to_dict(),
+        **sem,
+    )
+

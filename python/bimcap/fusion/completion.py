@@ -1,0 +1,492 @@
+"""Depth completion: sparse LiDAR depth → dense depth, behind one interface.
+
+Methods (:class:`CompletionMethod`):
+
+- ``LINEAR``: barycentric interpolation over a Delaunay triangulation of the sparse returns
+  (sub-pixel positions), of inverse depth by default (exact for a plane seen through a pinhole);
+  triangles with an edge longer than ``max_edge_px``, a depth ratio ``z_max / z_min >
+  max_depth_ratio`` (they bridge a depth edge) or an area under 1 px² leave their pixels at 0.
+- ``CLASSICAL``: CPU morphology in the spirit of Ku et al. 2018 ("In Defense of Classical Image
+  Processing"): invert depth (so that dilation prefers near returns), diamond-kernel dilation
+  (joins the returns along each ring), column-wise interpolation of the gaps between rings in
+  1/z (our addition, see :class:`ClassicalOptions`), morphological close, small hole fill,
+  optional column-wise extrapolation, large hole fill, median blur, bilateral or Gaussian blur,
+  re-invert. Runs at ``work_scale`` of the image
+  (the sparse map is min-pooled down, the result resized up; stated in the bench table).
+- ``ONNX``: a user-supplied network (CompletionFormer-like: RGB + sparse depth in, dense depth
+  out) through ONNX Runtime, see :mod:`bimcap.fusion.onnx_completion`.
+- ``HYBRID``: the paper's: ``LINEAR`` first, then the network with the interpolated depth as its
+  depth input.
+
+:func:`fill_nearest` (nearest-neighbour filling) is the baseline every method must beat.
+:func:`smooth_planar_regions` smooths depth inside floor/ceiling labels.
+All depth maps are float32 metres, 0 = unknown, in undistorted pinhole pixels.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import Enum
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from bimcap.fusion.projection import FusionInputError, SparseDepth
+from bimcap.geometry import Camera
+from bimcap.labels import Label
+
+if TYPE_CHECKING:
+    from bimcap.fusion.onnx_completion import OnnxCompletionOptions
+
+F64 = NDArray[np.float64]
+F32 = NDArray[np.float32]
+
+
+class CompletionMethod(Enum):
+    LINEAR = "linear"
+    CLASSICAL = "classical"
+    ONNX = "onnx"
+    HYBRID = "hybrid"
+
+
+class BlurType(Enum):
+    BILATERAL = "bilateral"
+    GAUSSIAN = "gaussian"
+    NONE = "none"
+
+
+@dataclass(frozen=True)
+class LinearOptions:
+    """LINEAR: mask triangles with an edge > ``max_edge_px`` or ``z_max/z_min > max_depth_ratio``."""
+
+    max_edge_px: float = 80.0
+    max_depth_ratio: float = 1.5
+    inverse_depth: bool = True  #: interpolate 1/z (exact for planes through a pinhole) or z
+
+
+@dataclass(frozen=True)
+class ClassicalOptions:
+    """CLASSICAL (Ku et al. 2018). Kernel sizes are in pixels of the working resolution.
+
+    work_scale: resolution factor of the work (1 = full; 0.5 halves both sides).
+    max_depth_m: inversion constant (``max_depth - z``), larger than any depth.
+    dilation_size: size of the diamond kernel of the first dilation.
+    close_size, small_fill_size, large_fill_size: full kernels of close / small and large hole fill.
+    vertical_interpolation: right after the first dilation, fill the gaps between LiDAR rings
+        column by column, linearly in inverse depth (gaps <= ``max_gap_px`` rows whose end depths differ by
+        a ratio <= ``max_gap_depth_ratio``). Not in Ku et al. (KITTI's 64 rings leave small
+        gaps); for 16-32 ring LiDARs it is what lets the method beat nearest-neighbour filling.
+    extrapolate: extend each column's top-most and bottom-most values to the image border.
+    median_size: 3 or 5 (cv2 on float32); 0 disables it.
+    blur: final blur (bilateral sigma_space 2, sigma_color 1.5 m of inverted depth, as Ku).
+    """
+
+    work_scale: float = 0.5
+    max_depth_m: float = 100.0
+    dilation_size: int = 5
+    close_size: int = 5
+    small_fill_size: int = 7
+    large_fill_size: int = 31
+    vertical_interpolation: bool = True
+    max_gap_px: int = 40
+    max_gap_depth_ratio: float = 1.3
+    extrapolate: bool = False
+    median_size: int = 5
+    blur: BlurType = BlurType.BILATERAL
+
+    def __post_init__(self) -> None:
+        if not 0.05 <= self.work_scale <= 1.0:
+            raise FusionInputError("work_scale must be in [0.05, 1]", field="work_scale")
+        if self.median_size not in (0, 3, 5):
+            raise FusionInputError("median_size must be 0, 3 or 5", field="median_size")
+
+
+@dataclass(frozen=True)
+class CompletionOptions:
+    """Settings of :func:`complete_depth`; ``onnx`` is required for ONNX and HYBRID."""
+
+    method: CompletionMethod = CompletionMethod.LINEAR
+    linear: LinearOptions = field(default_factory=LinearOptions)
+    classical: ClassicalOptions = field(default_factory=ClassicalOptions)
+    onnx: OnnxCompletionOptions | None = None
+
+
+# ----------------------------------------------------------------------------- helpers
+def _sparse_arrays(sparse: SparseDepth | ArrayLike) -> tuple[F32, F64, F64]:
+    """(depth (H, W), uv (K, 2), z (K,)) from a SparseDepth or an (H, W) sparse map."""
+    if isinstance(sparse, SparseDepth):
+        return sparse.depth, sparse.uv, sparse.z
+    depth = np.asarray(sparse, dtype=np.float32)
+    if depth.ndim != 2:
+        raise FusionInputError(f"sparse depth must be (H, W), got {depth.shape}", field="sparse_depth")
+    if not np.isfinite(depth).all() or (depth < 0).any():
+        raise FusionInputError("sparse depth must be finite and >= 0", field="sparse_depth")
+    rows, cols = np.nonzero(depth > 0)
+    return depth, np.stack([cols, rows], 1).astype(np.float64), depth[rows, cols].astype(np.float64)
+
+
+def _require_points(z: F64, need: int = 1) -> None:
+    if len(z) < need:
+        raise FusionInputError(f"sparse depth has {len(z)} returns, need at least {need}", field="sparse_depth")
+
+
+def scatter_nearest(uv: F64, z: F64, shape: tuple[int, int]) -> tuple[F32, NDArray[np.int64]]:
+    """Depth map (h, w) with each return at its nearest pixel, the nearest return kept per pixel.
+
+    Returns (depth (h, w) float32, indices (K',) of the kept returns)."""
+    h, w = shape
+    col = np.clip(np.rint(uv[:, 0]).astype(np.int64), 0, w - 1)
+    row = np.clip(np.rint(uv[:, 1]).astype(np.int64), 0, h - 1)
+    lin = row * w + col
+    order = np.lexsort((z, lin))
+    ls = lin[order]
+    first = np.ones(len(order), dtype=bool)
+    first[1:] = ls[1:] != ls[:-1]
+    keep = order[first]
+    out = np.zeros(h * w, dtype=np.float32)
+    out[lin[keep]] = z[keep]
+    return out.reshape(h, w), keep
+
+
+def resize_sparse(uv: F64, z: F64, shape: tuple[int, int], new_shape: tuple[int, int]) -> tuple[F32, F64, F64]:
+    """Move sparse returns (pixel-centre convention) from ``shape`` to a grid of ``new_shape``
+    without losing any to interpolation: (depth (h, w) float32, uv (K', 2), z (K',))."""
+    sy, sx = new_shape[0] / shape[0], new_shape[1] / shape[1]
+    uv_s = np.stack([(uv[:, 0] + 0.5) * sx - 0.5, (uv[:, 1] + 0.5) * sy - 0.5], 1)
+    depth, keep = scatter_nearest(uv_s, z, new_shape)
+    return depth, uv_s[keep], z[keep]
+
+
+def downsample_sparse(uv: F64, z: F64, shape: tuple[int, int], scale: float) -> tuple[F32, F64, F64]:
+    """:func:`resize_sparse` to ``round(scale × shape)``."""
+    new_shape = (max(1, int(round(shape[0] * scale))), max(1, int(round(shape[1] * scale))))
+    return resize_sparse(uv, z, shape, new_shape)
+
+
+def _resize_to(depth: F32, shape: tuple[int, int]) -> F32:
+    import cv2
+
+    if depth.shape == shape:
+        return depth
+    # linear resize of depth with holes would blend 0 into values: resize values and mask apart
+    valid = (depth > 0).astype(np.float32)
+    num = cv2.resize(depth * valid, (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR)
+    den = cv2.resize(valid, (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR)
+    out = np.where(den > 0.5, num / np.maximum(den, 1e-6), 0.0).astype(np.float32)
+    return out
+
+
+# ----------------------------------------------------------------------------- baseline
+def fill_nearest(sparse: SparseDepth | ArrayLike) -> F32:
+    """Nearest-neighbour filling (the baseline): every pixel takes the nearest return's depth."""
+    from scipy import ndimage
+
+    depth, _, z = _sparse_arrays(sparse)
+    _require_points(z)
+    _, idx = ndimage.distance_transform_edt(depth <= 0, return_indices=True)
+    return depth[idx[0], idx[1]].astype(np.float32)
+
+
+# ----------------------------------------------------------------------------- linear
+def complete_linear(sparse: SparseDepth | ArrayLike, options: LinearOptions | None = None) -> F32:
+    """LINEAR: Delaunay barycentric interpolation (module docstring). Pixels outside the hull or in
+    masked triangles stay 0."""
+    import cv2
+    from scipy.spatial import Delaunay, QhullError
+
+    opts = options or LinearOptions()
+    depth, uv, z = _sparse_arrays(sparse)
+    _require_points(z, 3)
+    h, w = depth.shape
+    try:
+        tri = Delaunay(uv)
+    except QhullError as exc:
+        raise FusionInputError(f"cannot triangulate the sparse returns: {exc}", field="sparse_depth") from None
+    simp = tri.simplices
+    pa, pb, pc = uv[simp[:, 0]], uv[simp[:, 1]], uv[simp[:, 2]]
+    edge = np.maximum.reduce(
+        [np.linalg.norm(pa - pb, axis=1), np.linalg.norm(pb - pc, axis=1), np.linalg.norm(pc - pa, axis=1)]
+    )
+    zt = z[simp]
+    ratio = zt.max(1) / zt.min(1)
+    e1, e2 = pb - pa, pc - pa
+    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]  # twice the signed area, px²
+    good = (edge <= opts.max_edge_px) & (ratio <= opts.max_depth_ratio) & (np.abs(det) > 2.0)
+    # rasterise triangle ids (cv2 fill in a loop over kept triangles is far faster than
+    # Delaunay.find_simplex on every pixel); id 0 = none
+    tri_id = np.zeros((h, w), dtype=np.int32)
+    good_idx = np.flatnonzero(good)
+    corners = np.rint(np.stack([pa, pb, pc], 1)[good_idx] * 16).astype(np.int32)  # 4 fractional bits
+    for k, poly in zip(good_idx, corners):
+        cv2.fillConvexPoly(tri_id, poly, int(k) + 1, lineType=cv2.LINE_8, shift=4)
+    rows, cols = np.nonzero(tri_id)
+    k = tri_id[rows, cols] - 1
+    # per triangle, the affine function f(u, v) = a u + b v + c through its three corners, with
+    # f = 1/z (exact for a plane seen through a pinhole) or f = z; one gather per pixel. Pixel
+    # centres up to half a pixel outside their rasterised triangle are extrapolated (exact for
+    # a plane); slivers (area < 1 px²) were dropped above, so this stays well conditioned.
+    gi = good_idx
+    mat = np.ones((len(gi), 3, 3))
+    mat[:, :, :2] = np.stack([pa[gi], pb[gi], pc[gi]], 1)
+    vals = 1.0 / zt[gi] if opts.inverse_depth else zt[gi]
+    coef_good = np.linalg.solve(mat, vals[:, :, None])[:, :, 0]
+    coef = np.zeros((len(simp), 3))
+    coef[gi] = coef_good
+    ck = coef[k]
+    f = ck[:, 0] * cols + ck[:, 1] * rows + ck[:, 2]
+    out = np.zeros((h, w), dtype=np.float32)
+    if opts.inverse_depth:
+        out[rows, cols] = np.where(f > 0, 1.0 / np.maximum(f, 1e-12), 0.0)
+    else:
+        out[rows, cols] = np.maximum(f, 0.0)
+    return out
+
+
+# ----------------------------------------------------------------------------- classical
+def _diamond(size: int) -> NDArray[np.uint8]:
+    r = size // 2
+    yy, xx = np.mgrid[-r : r + 1, -r : r + 1]
+    return (np.abs(xx) + np.abs(yy) <= r).astype(np.uint8)
+
+
+def _extrapolate_columns(d: F32) -> F32:
+    """Extend each column's top-most and bottom-most values to the image border (Ku's step)."""
+    present = d > 0.1
+    cols = np.arange(d.shape[1])
+    any_col = present.any(0)
+    top = np.argmax(present, axis=0)
+    bottom = d.shape[0] - 1 - np.argmax(present[::-1], axis=0)
+    rr = np.arange(d.shape[0])[:, None]
+    out = np.where((rr < top) & any_col, d[top, cols], d)
+    return np.where((rr > bottom) & any_col, d[bottom, cols], out).astype(np.float32)
+
+
+def _fill_vertical_gaps(d_inv: F32, opts: ClassicalOptions) -> F32:
+    """Fill the gaps between LiDAR rings column by column, linearly in inverse depth (exact for a
+    plane seen through a pinhole), where the gap is at most ``max_gap_px`` rows and the depths
+    above and below differ by a ratio of at most ``max_gap_depth_ratio`` (else it is a depth edge
+    and Ku's foreground-preferring dilation fills it). Works on the inverted map ``max - z``."""
+    h = d_inv.shape[0]
+    valid = d_inv > 0.1
+    rows = np.arange(h)[:, None]
+    above = np.maximum.accumulate(np.where(valid, rows, -1), axis=0)
+    below = np.minimum.accumulate(np.where(valid, rows, h)[::-1], axis=0)[::-1]
+    hole = ~valid & (above >= 0) & (below < h) & ((below - above) <= opts.max_gap_px)
+    r, c = np.nonzero(hole)
+    a, b = above[r, c], below[r, c]
+    za = opts.max_depth_m - d_inv[a, c]
+    zb = opts.max_depth_m - d_inv[b, c]
+    ok = np.maximum(za, zb) <= opts.max_gap_depth_ratio * np.minimum(za, zb)
+    r, c, a, b, za, zb = r[ok], c[ok], a[ok], b[ok], za[ok], zb[ok]
+    t = (r - a) / (b - a)
+    z = 1.0 / ((1.0 - t) / za + t / zb)
+    out = d_inv.copy()
+    out[r, c] = (opts.max_depth_m - z).astype(np.float32)
+    return out
+
+
+def complete_classical(sparse: SparseDepth | ArrayLike, options: ClassicalOptions | None = None) -> F32:
+    """CLASSICAL: Ku et al. 2018's fill-in-fast pipeline (module docstring) at ``work_scale``."""
+    import cv2
+
+    opts = options or ClassicalOptions()
+    depth, uv, z = _sparse_arrays(sparse)
+    _require_points(z)
+    if opts.work_scale < 1.0:
+        d, _, _ = downsample_sparse(uv, z, depth.shape, opts.work_scale)
+    else:
+        d = depth.copy()
+    d = d.astype(np.float32)
+    valid = d > 0.1
+    d[valid] = opts.max_depth_m - d[valid]
+    d = cv2.dilate(d, _diamond(opts.dilation_size))
+    if opts.vertical_interpolation:
+        d = _fill_vertical_gaps(d, opts)
+    if opts.close_size > 1:
+        d = cv2.morphologyEx(d, cv2.MORPH_CLOSE, np.ones((opts.close_size,) * 2, np.uint8))
+    if opts.small_fill_size > 1:
+        empty = d < 0.1
+        dil = cv2.dilate(d, np.ones((opts.small_fill_size,) * 2, np.uint8))
+        d[empty] = dil[empty]
+    if opts.extrapolate:
+        d = _extrapolate_columns(d)
+    if opts.large_fill_size > 1:
+        empty = d < 0.1
+        dil = cv2.dilate(d, np.ones((opts.large_fill_size,) * 2, np.uint8))
+        d[empty] = dil[empty]
+    if opts.median_size:
+        d = cv2.medianBlur(d, opts.median_size)
+    valid = d > 0.1
+    if opts.blur is BlurType.BILATERAL:
+        d = cv2.bilateralFilter(d, 5, 1.5, 2.0)
+    elif opts.blur is BlurType.GAUSSIAN:
+        blurred = cv2.GaussianBlur(d, (5, 5), 0)
+        d[valid] = blurred[valid]
+    out = np.zeros_like(d)
+    out[valid] = opts.max_depth_m - d[valid]
+    out[out < 0] = 0.0
+    return _resize_to(out.astype(np.float32), depth.shape)
+
+
+# ----------------------------------------------------------------------------- dispatcher
+def complete_depth(
+    sparse: SparseDepth | ArrayLike,
+    options: CompletionOptions | None = None,
+    image: ArrayLike | None = None,
+) -> F32:
+    """Complete a sparse depth map with the method chosen in ``options``.
+
+    Parameters
+    ----------
+    sparse: :class:`SparseDepth` from :func:`project_lidar`, or an (H, W) float32 sparse map.
+    options: :class:`CompletionOptions` (``onnx`` required for ONNX and HYBRID).
+    image: (H, W, 3) uint8 RGB undistorted image (ONNX and HYBRID only).
+
+    Returns
+    -------
+    (H, W) float32 depth in metres, 0 where the method gives nothing.
+    """
+    opts = options or CompletionOptions()
+    if opts.method is CompletionMethod.LINEAR:
+        return complete_linear(sparse, opts.linear)
+    if opts.method is CompletionMethod.CLASSICAL:
+        return complete_classical(sparse, opts.classical)
+    from bimcap.fusion.onnx_completion import run_completion_model
+
+    if opts.onnx is None:
+        raise FusionInputError(f"{opts.method.name} needs CompletionOptions.onnx (the model)", field="onnx")
+    if image is None:
+        raise FusionInputError(f"{opts.method.name} needs the RGB image", field="image")
+    depth, _, _ = _sparse_arrays(sparse)
+    if opts.method is CompletionMethod.ONNX:
+        return run_completion_model(np.asarray(image), depth, opts.onnx)
+    interpolated = complete_linear(sparse, opts.linear)
+    return run_completion_model(np.asarray(image), interpolated, opts.onnx)
+
+
+# ----------------------------------------------------------------------------- planar smoothing
+class PlanarSmoothing(Enum):
+    PLANE_FIT = "plane_fit"  #: robust 3-D plane per connected region, depth replaced by the plane's
+    BLUR = "blur"  #: the paper's: normalised Gaussian blur inside the region
+
+
+@dataclass(frozen=True)
+class PlanarSmoothingOptions:
+    """Settings of :func:`smooth_planar_regions`.
+
+    labels: classes smoothed. min_region_px: smaller connected regions are left alone.
+    ransac_threshold_m: inlier distance; ransac_iterations; sample_size: points per region used
+    for the fit. max_change_rel: pixels whose depth would change by more than this fraction keep
+    their depth (a labelling error should not drag depth onto the plane). blur_sigma_px: BLUR.
+    """
+
+    mode: PlanarSmoothing = PlanarSmoothing.PLANE_FIT
+    labels: tuple[Label, ...] = (Label.FLOOR, Label.CEILING)
+    min_region_px: int = 500
+    ransac_threshold_m: float = 0.03
+    ransac_iterations: int = 64
+    sample_size: int = 3000
+    max_change_rel: float = 0.15
+    blur_sigma_px: float = 5.0
+
+
+def fit_plane_ransac(
+    points: F64, threshold: float, iterations: int, rng: np.random.Generator
+) -> tuple[F64, NDArray[np.bool_]] | None:
+    """Robust plane ``n·p + d = 0`` through points (N, 3): 3-point RANSAC then least squares on
+    the inliers. Returns ((4,) plane with unit n, inlier mask) or None (< 3 points)."""
+    n = len(points)
+    if n < 3:
+        return None
+    idx = rng.integers(0, n, size=(iterations, 3))
+    a, b, c = points[idx[:, 0]], points[idx[:, 1]], points[idx[:, 2]]
+    normals = np.cross(b - a, c - a)
+    norm = np.linalg.norm(normals, axis=1)
+    ok = norm > 1e-9
+    if not ok.any():
+        return None
+    normals = normals[ok] / norm[ok, None]
+    d = -(normals * a[ok]).sum(1)
+    dist = np.abs(points @ normals.T + d)  # (N, I)
+    best = int(np.argmax((dist < threshold).sum(0)))
+    inl = dist[:, best] < threshold
+    if inl.sum() < 3:
+        return None
+    p = points[inl]
+    centroid = p.mean(0)
+    _, _, vt = np.linalg.svd(p - centroid, full_matrices=False)
+    nrm = vt[2]
+    plane = np.concatenate([nrm, [-nrm @ centroid]])
+    inl = np.abs(points @ nrm + plane[3]) < threshold
+    return plane, inl
+
+
+def smooth_planar_regions(
+    depth: ArrayLike,
+    labels: ArrayLike,
+    camera: Camera,
+    options: PlanarSmoothingOptions | None = None,
+    seed: int = 0,
+) -> F32:
+    """Smooth dense depth inside floor/ceiling regions.
+
+    Parameters
+    ----------
+    depth: (H, W) float32 metres (0 = unknown), undistorted pinhole pixels of ``camera``.
+    labels: (H, W) uint8 label ids.
+    camera: the pinhole camera of ``depth`` (its distortion is ignored).
+    options: :class:`PlanarSmoothingOptions`; ``PLANE_FIT`` fits, per connected region of each
+        class, a RANSAC plane to the back-projected pixels and replaces their depth by the
+        plane's depth along each pixel ray; ``BLUR`` is the paper's blur (normalised Gaussian,
+        so that nothing outside the region or unknown leaks in).
+    seed: RANSAC seed.
+
+    Returns
+    -------
+    (H, W) float32 smoothed depth (a new array).
+    """
+    import cv2
+
+    opts = options or PlanarSmoothingOptions()
+    d = np.asarray(depth, dtype=np.float32)
+    lab = np.asarray(labels)
+    if d.shape != lab.shape or d.shape != (camera.height, camera.width):
+        raise FusionInputError(
+            f"depth {d.shape}, labels {lab.shape} and camera {camera.height}x{camera.width} differ",
+            field="labels",
+        )
+    out = d.copy()
+    rng = np.random.default_rng(seed)
+    for label in opts.labels:
+        mask = ((lab == int(label)) & (d > 0)).astype(np.uint8)
+        if mask.sum() < opts.min_region_px:
+            continue
+        if opts.mode is PlanarSmoothing.BLUR:
+            m = mask.astype(np.float32)
+            num = cv2.GaussianBlur(d * m, (0, 0), opts.blur_sigma_px)
+            den = cv2.GaussianBlur(m, (0, 0), opts.blur_sigma_px)
+            sel = mask > 0
+            out[sel] = num[sel] / np.maximum(den[sel], 1e-6)
+            continue
+        n_comp, comp = cv2.connectedComponents(mask, connectivity=4)
+        for c in range(1, n_comp):
+            rows, cols = np.nonzero(comp == c)
+            if len(rows) < opts.min_region_px:
+                continue
+            pick = rng.choice(len(rows), size=min(opts.sample_size, len(rows)), replace=False)
+            uv = np.stack([cols[pick], rows[pick]], 1).astype(np.float64)
+            pts = camera.backproject(uv, d[rows[pick], cols[pick]], distorted=False)
+            fit = fit_plane_ransac(pts, opts.ransac_threshold_m, opts.ransac_iterations, rng)
+            if fit is None:
+                continue
+            plane, _ = fit
+            rays = camera.rays(np.stack([cols, rows], 1).astype(np.float64), distorted=False)
+            denom = rays @ plane[:3]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                z_plane = -plane[3] / denom
+            cur = d[rows, cols]
+            ok = np.isfinite(z_plane) & (z_plane > 0) & (np.abs(z_plane - cur) <= opts.max_change_rel * cur)
+            out[rows[ok], cols[ok]] = z_plane[ok].astype(np.float32)
+    return out
+

@@ -1,0 +1,92 @@
+"""``solve(problem, options)``: one call into the C++ Ceres core."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from bimcap.optimize.errors import SolverError, SolverInputError, SolverUnavailableError
+from bimcap.optimize.options import SolverOptions
+from bimcap.optimize.problem import Problem
+from bimcap.optimize.summary import SolveSummary
+
+
+@dataclass
+class SolveResult:
+    """The refined state.
+
+    Attributes
+    ----------
+    poses: (N, 7) refined world_from_cam, TUM order, unit quaternions.
+    summary: what the solve did.
+    planes: (Q, 4) the BIM planes as given; in FACaP plane mode (2, 4) the fitted floor and
+        ceiling planes (a NaN row where a term had no points).
+    track_points: (P, 3) refined landmarks (LANDMARK mode; else the input).
+    wall_segment, column_segment: (W,), (W',) int32 final association (-1 = none).
+    covariance: (N, 6, 6) pose covariance in the tangent space [dt (m), dtheta (rad)], zero for
+        fixed poses; None unless requested and computable.
+    """
+
+    poses: NDArray[np.float64]
+    summary: SolveSummary
+    planes: NDArray[np.float64]
+    track_points: NDArray[np.float64]
+    wall_segment: NDArray[np.int32]
+    column_segment: NDArray[np.int32]
+    covariance: NDArray[np.float64] | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready: the summary and the poses as lists."""
+        return {"summary": self.summary.to_dict(), "poses": self.poses.tolist()}
+
+
+def core() -> Any:
+    """The compiled module ``bimcap._core``; raises SolverUnavailableError if it is not built."""
+    try:
+        from bimcap import _core  # noqa: PLC0415  (compiled, optional at import time)
+    except ImportError as exc:
+        raise SolverUnavailableError(
+            f"bimcap._core is not available ({exc}); install bimcap with pip (it builds the C++ "
+            "core) or run the developer build (cmake -DBIMCAP_PYTHON=ON)"
+        ) from None
+    return _core
+
+
+def solve(problem: Problem, options: SolverOptions | None = None, *, check: bool = True) -> SolveResult:
+    """Refine the poses of ``problem`` with Ceres.
+
+    Parameters
+    ----------
+    problem: the arrays (validated on construction).
+    options: how to solve; the defaults when None (ROBUST weighting, all terms on).
+    check: raise :class:`SolverError` when Ceres reports an unusable solution (else only
+        ``summary.success`` says so).
+
+    Raises
+    ------
+    SolverInputError: an array or option is malformed (names the field).
+    SolverError: the solve failed and ``check`` is set.
+    """
+    opts = options if options is not None else SolverOptions()
+    flat = opts.to_flat()
+    _core = core()
+    try:
+        out = _core.solve(problem.arrays(), flat)
+    except _core.InputError as exc:
+        field, _, message = str(exc).partition(": ")
+        raise SolverInputError(message or str(exc), field=field if message else None) from None
+    summary = SolveSummary.from_dict(out["summary"])
+    if check and not summary.success:
+        raise SolverError(f"solve failed: {summary.termination}: {summary.message}")
+    return SolveResult(
+        poses=out["poses"],
+        summary=summary,
+        planes=out["planes"],
+        track_points=out["track_points"],
+        wall_segment=out["wall_segment"].astype(np.int32),
+        column_segment=out["column_segment"].astype(np.int32),
+        covariance=out["covariance"],
+    )

@@ -1,0 +1,172 @@
+"""What a refinement run does: method, terms, weighting, front-end sources, solver settings.
+
+A :class:`RefineConfig` comes from defaults, a TOML file (``bimcap refine --config run.toml``) or
+command-line flags, in that order of precedence (flags win). The TOML file holds the same keys as
+the dataclass, with ``[solver]`` (``bimcap.optimize.SolverOptions`` fields, terms as tables, e.g.
+``[solver.wall] sigma = 0.03``) and ``[frontend]`` (``window``, ``min_track_length``) tables::
+
+    method = "bimcap"          # or "facap"
+    terms = "G+F+W+Co+Ce"
+    weighting = "robust"       # or "paper"
+    loss = "huber"
+    completion = "classical"   # linear | classical | onnx | hybrid | ground_truth
+    segmentation = "geometric" # geometric | disk | onnx | ground_truth
+    [solver]
+    association_gate = 0.5
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import asdict, dataclass, field, fields, replace
+from enum import Enum
+from os import PathLike
+from pathlib import Path
+from typing import Any
+
+from bimcap.errors import BimcapError, InputError
+
+
+class PipelineError(BimcapError):
+    """A pipeline step failed (the message says which); the CLI exits with status 3."""
+
+    exit_code = 3
+
+
+class ConfigError(InputError):
+    """A configuration file or flag that cannot be used (names the file and the key)."""
+
+
+class Method(str, Enum):
+    """Which method's objective to build."""
+
+    BIMCAP = "bimcap"  #: BIM planes for F/Ce, floor plan for W/Co (this package's method)
+    FACAP = "facap"  #: FACaP: G + a floor plane fitted to the scan + W, the peers' weighting
+
+
+class DepthSource(str, Enum):
+    """Where dense depth comes from."""
+
+    LINEAR = "linear"  #: LiDAR projection + Delaunay interpolation
+    CLASSICAL = "classical"  #: LiDAR projection + Ku et al. 2018 style completion
+    ONNX = "onnx"  #: LiDAR projection + a CompletionFormer-like ONNX model
+    HYBRID = "hybrid"  #: interpolation refined by the ONNX model (the paper's choice)
+    GROUND_TRUTH = "ground_truth"  #: the sequence's depth/ (simulated sequences only)
+
+
+class LabelSource(str, Enum):
+    """Where the semantic labels come from."""
+
+    GEOMETRIC = "geometric"  #: the built-in no-weights segmenter
+    DISK = "disk"  #: label images (or BIMCaP-style masks) from a folder
+    ONNX = "onnx"  #: any ONNX segmentation model with a class map
+    GROUND_TRUTH = "ground_truth"  #: the sequence's labels/ (simulated sequences only)
+
+
+#: The terms of each method's full objective.
+FULL_TERMS = {Method.BIMCAP: "G+F+W+Co+Ce", Method.FACAP: "G+F+W"}
+
+
+@dataclass
+class RefineConfig:
+    """Settings of :func:`bimcap.pipeline.refine.refine`.
+
+    Attributes
+    ----------
+    method: BIMCaP or FACaP (FACaP: PAPER weighting, F plane fitted to the scan, no Co/Ce).
+    terms: the terms switched on, e.g. ``"G+F+W+Co+Ce"`` (None: the method's full set).
+    weighting: ``"robust"`` (noise scales + robust losses) or ``"paper"`` (the peers' means).
+        None: robust for BIMCaP, paper for FACaP.
+    loss: robust loss of every term in robust weighting (``huber``, ``cauchy``, ``soft_l1``,
+        ``arctan``, ``tukey``, ``none``).
+    geometric_mode: ``point`` (FACaP's point error), ``reprojection`` or ``landmark``.
+    completion, completion_model: dense-depth source; the ONNX model path for onnx / hybrid.
+    segmentation, segmentation_model, labels_dir: label source; the ONNX model or label folder.
+    coarse: run the coarse registration before the bundle adjustment (None: automatic).
+    rotation_first: refine rotations first, then everything (the paper's Exp. 3 remedy).
+    window: match each frame with its next ``window`` frames.
+    workers: front-end processes (None: all cores).
+    solver: overrides of ``bimcap.optimize.SolverOptions`` fields (nested dicts for terms).
+    """
+
+    method: Method = Method.BIMCAP
+    terms: str | None = None
+    weighting: str | None = None
+    loss: str = "huber"
+    geometric_mode: str = "point"
+    completion: DepthSource = DepthSource.CLASSICAL
+    completion_model: str | None = None
+    segmentation: LabelSource = LabelSource.GEOMETRIC
+    segmentation_model: str | None = None
+    labels_dir: str | None = None
+    coarse: bool | None = None
+    rotation_first: bool = False
+    window: int = 4
+    workers: int | None = None
+    solver: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        try:
+            self.method = Method(self.method)
+            self.completion = DepthSource(self.completion)
+            self.segmentation = LabelSource(self.segmentation)
+        except ValueError as exc:
+            raise ConfigError(str(exc), field="method/completion/segmentation") from None
+        if self.weighting is not None and self.weighting.lower() not in ("robust", "paper"):
+            raise ConfigError(f"weighting must be robust or paper, got {self.weighting!r}",
+                              field="weighting")
+        if self.completion in (DepthSource.ONNX, DepthSource.HYBRID) and not self.completion_model:
+            raise ConfigError(f"completion {self.completion.value} needs completion_model",
+                              field="completion_model")
+        if self.segmentation is LabelSource.ONNX and not self.segmentation_model:
+            raise ConfigError("segmentation onnx needs segmentation_model",
+                              field="segmentation_model")
+        if self.segmentation is LabelSource.DISK and not self.labels_dir:
+            raise ConfigError("segmentation disk needs labels_dir", field="labels_dir")
+        if self.window < 1:
+            raise ConfigError(f"window must be >= 1, got {self.window}", field="window")
+
+    @property
+    def effective_terms(self) -> str:
+        return self.terms or FULL_TERMS[self.method]
+
+    @property
+    def effective_weighting(self) -> str:
+        if self.weighting:
+            return self.weighting.lower()
+        return "paper" if self.method is Method.FACAP else "robust"
+
+    def with_(self, **changes: Any) -> RefineConfig:
+        """A copy with some fields changed."""
+        return replace(self, **changes)
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["method"] = self.method.value
+        d["completion"] = self.completion.value
+        d["segmentation"] = self.segmentation.value
+        d["effective_terms"] = self.effective_terms
+        d["effective_weighting"] = self.effective_weighting
+        return d
+
+    @classmethod
+    def from_toml(cls, path: str | PathLike[str], **overrides: Any) -> RefineConfig:
+        """Read a TOML file; ``overrides`` (non-None values) win over the file."""
+        p = Path(path)
+        try:
+            data = tomllib.loads(p.read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            raise ConfigError("no such file", p) from None
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+            raise ConfigError(f"not valid TOML: {exc}", p) from None
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ConfigError(f"unknown key(s) {unknown}; known: {sorted(known)}", p, unknown[0])
+        data.update({k: v for k, v in overrides.items() if v is not None})
+        try:
+            return cls(**data)
+        except ConfigError as exc:
+            raise ConfigError(str(exc), p) from None
+        except TypeError as exc:
+            raise ConfigError(str(exc), p) from None

@@ -1,0 +1,520 @@
+"""Refine a sequence's initial trajectory against its BIM: the user's path through every stage.
+
+Three steps, kept apart so that experiments can reuse the expensive ones:
+
+1. :func:`prepare` — the BIM reference of the IFC and the front end over the sequence
+   (dense depth, labels, matches, semantic samples), both cached on disk.
+2. :func:`solve_prepared` — assemble the dense problem (:func:`build_problem`) and solve it with
+   Ceres under the configured method, terms and weighting (cheap; run once per ablation).
+3. :func:`refine` — 1 + 2, then write the refined TUM trajectory, the solver summary, the
+   semantic maps before/after as PLY, metrics against ground truth when there is one, and the
+   report. Nothing given by the user is overwritten.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import sys
+import time
+from dataclasses import dataclass, field
+from os import PathLike
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from bimcap.errors import InputError
+from bimcap.geometry import Trajectory, read_tum, transform_points, write_tum
+from bimcap.io.atomic import atomic_write_json, check_not_input
+from bimcap.labels import Label
+from bimcap.pipeline.config import (
+    DepthSource,
+    LabelSource,
+    Method,
+    PipelineError,
+    RefineConfig,
+)
+
+F64 = NDArray[np.float64]
+
+
+def log(msg: str, quiet: bool = False) -> None:
+    """Progress line on stderr."""
+    if not quiet:
+        print(f"[bimcap] {msg}", file=sys.stderr, flush=True)
+
+
+# ----------------------------------------------------------------------------- step 1: prepare
+@dataclass
+class Prepared:
+    """The expensive, cacheable inputs of a solve.
+
+    Attributes
+    ----------
+    sequence: the sequence (``bimcap.dataset.Sequence``).
+    reference: the BIM reference (``bimcap.bim.BimReference``).
+    frontend: the front end's observations (``bimcap.frontend.FrontendResult``), in the pinhole
+        camera ``sequence.camera.pinhole()``.
+    init: the initial trajectory, one pose per frame.
+    timings: seconds per step.
+    """
+
+    sequence: Any
+    reference: Any
+    frontend: Any
+    init: Trajectory
+    timings: dict[str, float] = field(default_factory=dict)
+
+
+def _fingerprint(path: Path) -> str:
+    h = hashlib.sha1()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()[:16]
+
+
+def bim_reference(ifc_path: str | PathLike[str], cache_dir: str | PathLike[str] | None) -> Any:
+    """The BIM reference of ``ifc_path``, loaded from ``cache_dir`` when it was built from the same
+    file content (and written there otherwise)."""
+    from bimcap.bim import ingest
+    from bimcap.bim.reference import BimReference, build_reference
+
+    ifc = Path(ifc_path)
+    if not ifc.is_file():
+        raise InputError("no such IFC file", ifc)
+    key = _fingerprint(ifc)
+    if cache_dir is not None:
+        cdir = Path(cache_dir)
+        stamp = cdir / "source.sha1"
+        if stamp.is_file() and stamp.read_text().strip() == key:
+            try:
+                return BimReference.load(cdir)
+            except Exception:  # noqa: BLE001  (a damaged cache is rebuilt, never fatal)
+                pass
+    ref = build_reference(ingest.load_model(ifc))
+    if cache_dir is not None:
+        cdir = Path(cache_dir)
+        ref.save(cdir)
+        (cdir / "source.sha1").write_text(key + "\n")
+    return ref
+
+
+def make_providers(config: RefineConfig, sequence: Any) -> tuple[Any, Any, Any]:
+    """The front end's depth provider, label provider and depth refiner for ``config``."""
+    from bimcap.frontend.providers import (
+        LidarDepthProvider,
+        PlanarDepthRefiner,
+        SegmenterLabelProvider,
+    )
+    from bimcap.frontend.runner import GroundTruthDepthProvider, GroundTruthLabelProvider
+    from bimcap.fusion.completion import CompletionMethod, CompletionOptions
+
+    if config.completion is DepthSource.GROUND_TRUTH:
+        if not sequence.has_depth:
+            raise InputError("completion ground_truth needs a sequence with depth/", sequence.root)
+        depth: Any = GroundTruthDepthProvider()
+    else:
+        onnx_opts = None
+        if config.completion in (DepthSource.ONNX, DepthSource.HYBRID):
+            from bimcap.fusion.onnx_completion import OnnxCompletionOptions
+
+            onnx_opts = OnnxCompletionOptions(model_path=str(config.completion_model))
+        method = CompletionMethod[config.completion.name]
+        depth = LidarDepthProvider(completion=CompletionOptions(method=method, onnx=onnx_opts))
+
+    refiner = None
+    if config.segmentation is LabelSource.GROUND_TRUTH:
+        if not sequence.has_labels:
+            raise InputError("segmentation ground_truth needs a sequence with labels/", sequence.root)
+        labels: Any = GroundTruthLabelProvider()
+    elif config.segmentation is LabelSource.GEOMETRIC:
+        from bimcap.segmentation.geometric import GeometricSegmenter
+
+        labels = SegmenterLabelProvider(GeometricSegmenter(), uses_pose=True)
+    elif config.segmentation is LabelSource.DISK:
+        from bimcap.segmentation.disk import DiskLabelProvider, DiskMaskProvider
+
+        d = Path(str(config.labels_dir))
+        if not d.is_dir():
+            raise InputError("no such label directory", d, "labels_dir")
+        has_masks = any(d.glob("*_wall.png"))
+        seg: Any = DiskMaskProvider(d, missing_ok=True) if has_masks else DiskLabelProvider(d)
+        labels = SegmenterLabelProvider(seg, uses_pose=False)
+    else:
+        from bimcap.segmentation.onnx_seg import OnnxSegmentationOptions, OnnxSegmentationProvider
+
+        seg = OnnxSegmentationProvider(OnnxSegmentationOptions(model_path=str(config.segmentation_model)))
+        labels = SegmenterLabelProvider(seg, uses_pose=False)
+    if config.completion is not DepthSource.GROUND_TRUTH:
+        refiner = PlanarDepthRefiner()
+    return depth, labels, refiner
+
+
+def load_initial(sequence: Any, init: str | PathLike[str] | Trajectory | None) -> Trajectory:
+    """The initial trajectory: a TUM file, a Trajectory, or the sequence's ``init`` poses; it must
+    have one pose per frame with the frame's timestamp (within 1 ms)."""
+    if init is None:
+        if not sequence.has_trajectory("init"):
+            raise InputError("no --init given and the sequence has no poses/init.tum", sequence.root)
+        traj = sequence.trajectory("init")
+        where: Any = sequence.trajectory_path("init")
+    elif isinstance(init, Trajectory):
+        traj, where = init, None
+    else:
+        traj, where = read_tum(init), init
+    ts = sequence.timestamps
+    if len(traj) != len(ts):
+        raise InputError(f"{len(traj)} initial poses for {len(ts)} frames", where, "poses")
+    worst = float(np.max(np.abs(traj.timestamps - ts))) if len(ts) else 0.0
+    if worst > 1e-3:
+        raise InputError(f"initial poses' timestamps differ from the frames' by up to {worst:.4f} s",
+                         where, "timestamps")
+    return traj
+
+
+def prepare(
+    sequence: str | PathLike[str] | Any,
+    ifc: str | PathLike[str] | None,
+    init: str | PathLike[str] | Trajectory | None,
+    config: RefineConfig,
+    work_dir: str | PathLike[str],
+    quiet: bool = False,
+) -> Prepared:
+    """Step 1: read the sequence, build (or load) the BIM reference, run (or load) the front end.
+
+    Parameters
+    ----------
+    sequence: a sequence directory or an already-read ``Sequence``.
+    ifc: the BIM; None uses the sequence manifest's ``ifc``.
+    init: initial poses (TUM path or Trajectory); None uses the sequence's ``poses/init.tum``.
+    config: the run's settings (front-end sources, window).
+    work_dir: where the caches live (``bim/``, ``cache/``).
+    """
+    from bimcap.dataset import read_sequence
+    from bimcap.frontend.runner import FrontendConfig, run_frontend
+
+    timings: dict[str, float] = {}
+    seq = read_sequence(sequence) if isinstance(sequence, (str, PathLike)) else sequence
+    ifc_path = Path(ifc) if ifc is not None else seq.ifc_path
+    if ifc_path is None:
+        raise InputError("no --ifc given and the sequence manifest names none", seq.manifest_path, "ifc")
+    traj = load_initial(seq, init)
+    work = Path(work_dir)
+
+    t0 = time.perf_counter()
+    log(f"BIM reference of {ifc_path}", quiet)
+    ref = bim_reference(ifc_path, work / "bim")
+    timings["bim"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    log(f"front end over {len(seq.frames)} frames (depth {config.completion.value}, "
+        f"labels {config.segmentation.value})", quiet)
+    depth, labels, refiner = make_providers(config, seq)
+    fe = run_frontend(
+        seq, FrontendConfig(window=config.window), traj, depth, labels,
+        cache_dir=work / "cache", workers=config.workers, progress=not quiet,
+        depth_refiner=refiner,
+    )
+    timings["frontend"] = time.perf_counter() - t0
+    return Prepared(seq, ref, fe, traj, timings)
+
+
+# ------------------------------------------------------------------------ step 2: solve
+@dataclass
+class ProblemStats:
+    """What :func:`build_problem` kept and dropped."""
+
+    frames: int
+    matches: int
+    floor: int
+    ceiling: int
+    wall: int
+    column: int
+    floor_without_plane: int
+    ceiling_without_plane: int
+
+    def to_dict(self) -> dict[str, int]:
+        return dict(self.__dict__)
+
+
+def build_problem(prepared: Prepared, init_poses: F64 | None = None) -> tuple[Any, ProblemStats]:
+    """Assemble the solver problem from the front end, the BIM reference and the initial poses.
+
+    Floor (ceiling) samples are assigned the BIM floor (ceiling) plane under them at the initial
+    poses (``BimReference.plane_under``); samples over no plane of their kind are dropped and
+    counted. Wall and column samples are associated with floor-plan segments inside the solver,
+    which re-associates them as the poses move.
+    """
+    from bimcap.optimize import Problem
+
+    fe, ref = prepared.frontend, prepared.reference
+    poses = prepared.init.poses if init_poses is None else np.asarray(init_poses, np.float64)
+    arrays = dict(fe.to_problem_arrays())
+    cam = prepared.sequence.camera.pinhole()
+    n = len(poses)
+    dropped = {}
+    for name, kind in (("floor", Label.FLOOR), ("ceiling", Label.CEILING)):
+        frames = np.asarray(arrays.get(f"{name}_frame", np.zeros(0, np.int32)), np.int32)
+        p_cam = np.asarray(arrays.get(f"{name}_p_in_cam", np.zeros((0, 3))), np.float64)
+        if len(frames):
+            p_world = transform_points(poses[frames], p_cam)
+            idx = ref.plane_under(p_world, kind)
+        else:
+            idx = np.zeros(0, np.int32)
+        keep = idx >= 0
+        dropped[name] = int((~keep).sum())
+        arrays[f"{name}_frame"] = frames[keep]
+        arrays[f"{name}_p_in_cam"] = p_cam[keep]
+        arrays[f"{name}_plane"] = idx[keep].astype(np.int32)
+    arrays.update(
+        poses=poses,
+        timestamps=prepared.init.timestamps,
+        pose_fixed=np.zeros(n, np.int32),
+        cameras=cam.intrinsics[None, :],
+        frame_camera=np.zeros(n, np.int32),
+        planes=ref.planes,
+        segments=ref.segments,
+        segment_class=ref.segment_class,
+        segment_z=ref.segment_z,
+    )
+    problem = Problem.from_arrays(arrays)
+    stats = ProblemStats(
+        frames=n,
+        matches=len(arrays.get("match_frames", ())),
+        floor=len(arrays["floor_frame"]),
+        ceiling=len(arrays["ceiling_frame"]),
+        wall=len(arrays.get("wall_frame", ())),
+        column=len(arrays.get("column_frame", ())),
+        floor_without_plane=dropped["floor"],
+        ceiling_without_plane=dropped["ceiling"],
+    )
+    return problem, stats
+
+
+def solver_options(config: RefineConfig) -> Any:
+    """``bimcap.optimize.SolverOptions`` for the configured method, terms, weighting and loss."""
+    from bimcap.optimize import SolverOptions
+    from bimcap.optimize.options import GeometricMode, Loss, PlaneMode, Weighting
+
+    flat: dict[str, str] = {}
+    for key, value in config.solver.items():
+        items = value.items() if isinstance(value, dict) else [(None, value)]
+        for sub, v in items:
+            name = key if sub is None else f"{key}.{sub}"
+            flat[name] = str(v.upper() if isinstance(v, str) else (int(v) if isinstance(v, bool) else v))
+    opts = SolverOptions.from_flat(flat)
+    try:
+        opts.geometric_mode = GeometricMode(config.geometric_mode.upper())
+        loss = Loss(config.loss.upper())
+    except ValueError as exc:
+        raise InputError(str(exc), field="geometric_mode/loss") from None
+    opts.weighting = Weighting(config.effective_weighting.upper())
+    if config.method is Method.FACAP:
+        opts.plane_mode = PlaneMode.FACAP
+    for attr in ("geometric", "floor", "ceiling", "wall", "column"):
+        term = getattr(opts, attr)
+        if "loss" not in (config.solver.get(attr) or {}):
+            term.loss = loss
+    opts = opts.with_terms(config.effective_terms)
+    opts.check()
+    return opts
+
+
+@dataclass
+class SolveOutcome:
+    """The refined trajectory and what the solver reported (one entry per stage)."""
+
+    refined: Trajectory
+    summaries: list[Any]
+    problem_stats: ProblemStats
+    coarse: dict[str, Any] | None
+    seconds: float
+
+    @property
+    def summary(self) -> Any:
+        return self.summaries[-1]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "summaries": [json.loads(s.to_json()) for s in self.summaries],
+            "problem": self.problem_stats.to_dict(),
+            "coarse": self.coarse,
+            "seconds": self.seconds,
+        }
+
+
+def solve_prepared(prepared: Prepared, config: RefineConfig, quiet: bool = False) -> SolveOutcome:
+    """Step 2: build the problem and solve it (with the configured schedule)."""
+    from bimcap.optimize import solve
+    from bimcap.optimize.options import RefineMode
+
+    t0 = time.perf_counter()
+    poses = prepared.init.poses.copy()
+    coarse_info = None
+    if config.coarse:
+        poses, coarse_info = _coarse(prepared, poses, quiet)
+    opts = solver_options(config)
+    stages = [RefineMode.ROTATION, RefineMode.FULL] if config.rotation_first else [opts.refine_mode]
+    summaries = []
+    stats = None
+    for mode in stages:
+        problem, stats = build_problem(prepared, poses)
+        opts.refine_mode = mode
+        log(f"solving {config.method.value} {config.effective_terms} "
+            f"({config.effective_weighting}, {mode.value.lower()}): {stats.to_dict()}", quiet)
+        result = solve(problem, opts, check=False)
+        summaries.append(result.summary)
+        if not result.summary.success:
+            raise PipelineError(f"the solve failed: {result.summary.termination}: "
+                                f"{result.summary.message}")
+        poses = result.poses
+    assert stats is not None
+    refined = Trajectory(prepared.init.timestamps, poses)
+    return SolveOutcome(refined, summaries, stats, coarse_info, time.perf_counter() - t0)
+
+
+def _coarse(prepared: Prepared, poses: F64, quiet: bool) -> tuple[F64, dict[str, Any]]:
+    """Coarse registration of the initial poses to the BIM (``bimcap.registration``)."""
+    from bimcap.registration import coarse_register_prepared
+
+    log("coarse registration to the floor plan", quiet)
+    return coarse_register_prepared(prepared, poses)
+
+
+# ------------------------------------------------------------------------ step 3: the whole run
+@dataclass
+class RefineResult:
+    """Everything one ``bimcap refine`` run produced (paths relative to ``out_dir``)."""
+
+    out_dir: Path
+    config: RefineConfig
+    init: Trajectory
+    refined: Trajectory
+    outcome: SolveOutcome
+    metrics_before: Any = None
+    metrics_after: Any = None
+    map_before: Any = None
+    map_after: Any = None
+    timings: dict[str, float] = field(default_factory=dict)
+    files: dict[str, str] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "config": self.config.to_dict(),
+            "solve": self.outcome.to_dict(),
+            "metrics_before": None if self.metrics_before is None else self.metrics_before.to_dict(),
+            "metrics_after": None if self.metrics_after is None else self.metrics_after.to_dict(),
+            "map_before": None if self.map_before is None else self.map_before.to_dict(),
+            "map_after": None if self.map_after is None else self.map_after.to_dict(),
+            "timings": self.timings,
+            "files": self.files,
+        }
+
+
+def semantic_map_points(prepared: Prepared, poses: F64) -> tuple[F64, NDArray[np.uint8]]:
+    """The front end's semantic samples mapped to the world with ``poses``: (P, 3), (P,) labels."""
+    pts, labs = [], []
+    for label, (frames, p_cam) in prepared.frontend.semantic_samples().items():
+        if len(frames):
+            pts.append(transform_points(poses[frames], p_cam))
+            labs.append(np.full(len(frames), int(label), np.uint8))
+    if not pts:
+        return np.zeros((0, 3)), np.zeros(0, np.uint8)
+    return np.concatenate(pts), np.concatenate(labs)
+
+
+def evaluate_run(
+    prepared: Prepared, est: Trajectory, gt: Trajectory, radius: float = 0.2, min_neighbours: int = 5,
+    nnd_cutoff: float = 0.3,
+) -> tuple[Any, Any]:
+    """Trajectory metrics of ``est`` against ``gt`` and map metrics of the semantic map built with
+    ``est`` (MME/MPV with ``radius``, NND against the map built with the ground truth)."""
+    from bimcap.evaluation.map_metrics import map_metrics_with_reference
+    from bimcap.evaluation.metrics import AlignMode, trajectory_metrics
+
+    tm = trajectory_metrics(est.poses, gt.poses, AlignMode.NONE)
+    pts, _ = semantic_map_points(prepared, est.poses)
+    ref_pts, _ = semantic_map_points(prepared, gt.poses)
+    mm = None
+    if len(pts) > 10:
+        mm = map_metrics_with_reference(
+            pts, ref_pts, "map with ground-truth poses", radius=radius,
+            min_neighbours=min_neighbours, cutoff=nnd_cutoff,
+        )
+    return tm, mm
+
+
+def refine(
+    sequence: str | PathLike[str],
+    out_dir: str | PathLike[str],
+    config: RefineConfig | None = None,
+    ifc: str | PathLike[str] | None = None,
+    init: str | PathLike[str] | None = None,
+    gt: str | PathLike[str] | None = None,
+    report: bool = True,
+    quiet: bool = False,
+) -> RefineResult:
+    """Refine a sequence's trajectory against its BIM and write every output into ``out_dir``.
+
+    Outputs: ``refined.tum``, ``summary.json`` (solver), ``result.json`` (settings, metrics,
+    timings), ``map_before.ply`` / ``map_after.ply`` (semantic maps), ``report.html`` and its
+    figures; caches in ``bim/`` and ``cache/``. Ground truth: ``gt`` or the sequence's
+    ``poses/gt.tum`` when present.
+    """
+    from bimcap.dataset import read_sequence
+
+    cfg = config or RefineConfig()
+    out = Path(out_dir)
+    seq = read_sequence(sequence)
+    inputs = [seq.manifest_path, *(p for p in (ifc, init, gt) if p is not None)]
+    inputs += [seq.trajectory_path(name) for name in seq.poses]
+    for name in ("refined.tum", "summary.json", "result.json", "map_before.ply", "map_after.ply"):
+        check_not_input(out / name, inputs)
+    out.mkdir(parents=True, exist_ok=True)
+    t_start = time.perf_counter()
+    prepared = prepare(seq, ifc, init, cfg, out, quiet)
+    outcome = solve_prepared(prepared, cfg, quiet)
+
+    header = f"bimcap {cfg.method.value} {cfg.effective_terms} refined world_from_cam"
+    write_tum(out / "refined.tum", outcome.refined, header=header)
+    atomic_write_json(out / "summary.json", outcome.to_dict())
+    prepared.frontend.write_semantic_map(out / "map_before.ply", prepared.init.poses)
+    prepared.frontend.write_semantic_map(out / "map_after.ply", outcome.refined.poses)
+
+    result = RefineResult(out, cfg, prepared.init, outcome.refined, outcome,
+                          timings={**prepared.timings, "solve": outcome.seconds})
+    gt_traj = None
+    if gt is not None:
+        gt_traj = read_tum(gt)
+    elif seq.has_trajectory("gt"):
+        gt_traj = seq.trajectory("gt")
+    if gt_traj is not None:
+        result.metrics_before, result.map_before = evaluate_run(prepared, prepared.init, gt_traj)
+        result.metrics_after, result.map_after = evaluate_run(prepared, outcome.refined, gt_traj)
+    result.timings["total"] = time.perf_counter() - t_start
+    result.files = {"refined": "refined.tum", "summary": "summary.json",
+                    "map_before": "map_before.ply", "map_after": "map_after.ply"}
+    if report:
+        from bimcap.pipeline.report import write_refine_report
+
+        result.files["report"] = write_refine_report(result, prepared, gt_traj).name
+    atomic_write_json(out / "result.json", result.to_dict())
+    return result
+
+
+def summary_table(rows: dict[str, Any]) -> str:
+    """A before/after table of trajectory metrics (name → TrajectoryMetrics)."""
+    lines = [f"{'':<10}{'ATE_pos [m]':>13}{'ATE_rot [deg]':>15}{'yaw':>8}{'pitch':>8}{'roll':>8}"]
+    for name, tm in rows.items():
+        lines.append(
+            f"{name:<10}{tm.ate_pos_m.rmse:>13.4f}{tm.ate_rot_deg.rmse:>15.3f}"
+            f"{tm.yaw_rmse_deg:>8.3f}{tm.pitch_rmse_deg:>8.3f}{tm.roll_rmse_deg:>8.3f}"
+        )
+    return "\n".join(lines)
+
+
+def dumps(obj: Any) -> str:
+    return json.dumps(obj, indent=2)

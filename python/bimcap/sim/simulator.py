@@ -1,0 +1,565 @@
+"""The sensor simulator: a handheld camera + VLP-16 rig walking through an (as-built) building.
+
+``simulate(ifc, out_dir, config, seed)`` loads the building's meshes (the as-built IFC if given),
+plans a handheld walk through its free space (:mod:`bimcap.sim.walk`), adds clutter the BIM does
+not have off the walking path (:mod:`bimcap.sim.clutter`), and ray-casts, per frame, a raw RGB
+image with procedural texture, its ground-truth label image and z-depth (:mod:`bimcap.sim.render`)
+and one LiDAR sweep at ConSLAM's LiDAR→camera extrinsic (:mod:`bimcap.sim.lidar`). It writes a
+sequence directory (docs/architecture.md): ``manifest.json``, ``images/``, ``labels/``,
+``depth/``, ``lidar/`` and ``poses/gt.tum`` (``world_from_cam``).
+
+Rig: ``world_from_lidar = world_from_cam ∘ cam_from_lidar``. With ConSLAM's extrinsic the LiDAR's
+z axis is the camera's −y axis (up when the camera is level) and its x axis the camera's z axis
+(forward), so the VLP-16's ±15° fan is centred on the horizon.
+
+Determinism: everything random derives from ``seed`` through ``numpy.random.default_rng`` with a
+fixed key per use (walk, clutter, textures, frame ``i`` image noise, frame ``i`` LiDAR noise), so
+the same seed and configuration give byte-identical files whatever the number of worker processes.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import time
+from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass, field, replace
+from os import PathLike
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from bimcap.dataset import MANIFEST, FrameInfo, LidarInfo, Sequence, SequenceWriter, read_sequence
+from bimcap.geometry.camera import Camera
+from bimcap.geometry.poses import compose, matrix_to_pose
+from bimcap.geometry.trajectory import Trajectory, write_tum
+from bimcap.io.atomic import atomic_write_bytes, atomic_write_json, check_not_input
+from bimcap.labels import Label
+from bimcap.sim.clutter import ClutterObject, box_mesh, place_clutter
+from bimcap.sim.lidar import LidarConfig, LidarSimulator
+from bimcap.sim.render import MeshPart, Renderer, RenderedFrame, ShadingConfig, SimError, World
+from bimcap.sim.texture import TextureBank
+from bimcap.sim.walk import FreeSpace, Walk, WalkConfig, plan_walk
+
+F64 = NDArray[np.float64]
+
+__all__ = [
+    "CONSLAM_CAMERA",
+    "CONSLAM_CAM_FROM_LIDAR",
+    "SimError",
+    "SimulationResult",
+    "SimulatorConfig",
+    "corridor_building",
+    "simulate",
+    "simulate_world",
+]
+
+#: ConSLAM's RGB camera at full resolution (2064×1544, plumb_bob), DESIGN §3.
+CONSLAM_CAMERA = Camera(
+    2064, 1544, 2351.85909, 2353.56734, 1017.24032, 788.70774,
+    (-0.054366, 0.118389, 0.001781, -0.003908, 0.0),
+)
+#: ConSLAM's LiDAR→camera extrinsic (3×4, maps LiDAR points into the RGB optical frame), DESIGN §3.
+CONSLAM_CAM_FROM_LIDAR_3X4 = np.array(
+    [
+        [0.05758374, -0.99833897, -0.00184651, -0.0081025],
+        [-0.0017837, 0.0017467, -0.99999688, -0.0631593],
+        [0.99833909, 0.05758685, -0.00168015, -0.0215235],
+    ]
+)
+#: The same extrinsic as a TUM-order pose ``[tx, ty, tz, qx, qy, qz, qw]`` (rotation re-orthonormalised).
+CONSLAM_CAM_FROM_LIDAR: F64 = matrix_to_pose(CONSLAM_CAM_FROM_LIDAR_3X4)
+
+
+@dataclass(frozen=True)
+class SimulatorConfig:
+    """Everything that shapes a simulated sequence (the seed is passed separately).
+
+    Attributes
+    ----------
+    camera: the raw camera (size, K, plumb_bob); default ConSLAM's scaled by 0.5 → 1032×772.
+    frames: number of frames.
+    fps: camera frame rate (Hz); at ~1 m/s, 3 Hz gives ~70 % overlap between neighbours.
+    lidar: LiDAR model, or None for no LiDAR.
+    cam_from_lidar: (7,) TUM-order extrinsic (default ConSLAM's).
+    walk: the walking model.
+    shading: the photometric model.
+    clutter_density_per_m2: clutter objects per m² of free floor (when clutter is on).
+    remove_doors: drop door leaves (IfcDoor meshes) so that doorways can be walked through.
+    z_floor: storey floor height to walk on; None = the lowest large floor of the model.
+    write_labels, write_depth: write the ground-truth label and depth images.
+    png_compression: zlib level of the PNG files (0–9; 1 is fast).
+    texture_seed: seed of the baked surface textures (element texture offsets follow ``seed``).
+    workers: render processes (1 = in this process; 0 = one per CPU).
+    threads_per_worker: ray-casting threads per process (0 = Open3D's default).
+    """
+
+    camera: Camera = field(default_factory=lambda: CONSLAM_CAMERA.scaled(0.5))
+    frames: int = 200
+    fps: float = 3.0
+    lidar: LidarConfig | None = field(default_factory=LidarConfig)
+    cam_from_lidar: tuple[float, ...] = tuple(float(x) for x in CONSLAM_CAM_FROM_LIDAR)
+    walk: WalkConfig = field(default_factory=WalkConfig)
+    shading: ShadingConfig = field(default_factory=ShadingConfig)
+    clutter_density_per_m2: float = 0.08
+    remove_doors: bool = True
+    z_floor: float | None = None
+    write_labels: bool = True
+    write_depth: bool = True
+    png_compression: int = 1
+    texture_seed: int = 0
+    workers: int = 2
+    threads_per_worker: int = 1
+
+    def __post_init__(self) -> None:
+        if self.frames < 1:
+            raise SimError(f"frames must be >= 1, got {self.frames}")
+        if not (self.fps > 0):
+            raise SimError(f"fps must be > 0, got {self.fps}")
+        if len(self.cam_from_lidar) != 7:
+            raise SimError("cam_from_lidar must have 7 numbers (TUM order)")
+        if not 0 <= self.png_compression <= 9:
+            raise SimError("png_compression must be in 0..9")
+        if self.workers < 0:
+            raise SimError("workers must be >= 0")
+
+    @classmethod
+    def small(cls, **overrides: Any) -> SimulatorConfig:
+        """A fast configuration for tests: 320×239 ConSLAM-like camera, 6 frames, 1 process."""
+        base: dict[str, Any] = dict(
+            camera=CONSLAM_CAMERA.scaled(320 / 2064), frames=6, fps=3.0, workers=1,
+            threads_per_worker=0,
+        )
+        base.update(overrides)
+        return cls(**base)
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["camera"] = self.camera.to_dict()
+        d["lidar"] = None if self.lidar is None else self.lidar.to_dict()
+        d["cam_from_lidar"] = list(self.cam_from_lidar)
+        d["walk"] = self.walk.to_dict()
+        d.pop("workers")
+        d.pop("threads_per_worker")
+        return d
+
+
+@dataclass
+class SimulationResult:
+    """What :func:`simulate_world` produced.
+
+    Attributes
+    ----------
+    sequence: the written sequence, read back and validated by :func:`bimcap.dataset.read_sequence`.
+    world_from_cam: (N, 7) ground-truth camera poses, TUM order.
+    timestamps: (N,) seconds.
+    clutter: the placed clutter objects.
+    world_triangles: triangles in the rendered world (as-built meshes + clutter).
+    timings: seconds per stage (not written to disk, which stays deterministic): wall clock of
+        the main stages, ``sum_*`` wall seconds summed over render workers, ``cpu_*`` CPU seconds
+        (``time.process_time``) summed over render workers (``image``, ``lidar``, ``write``).
+    """
+
+    sequence: Sequence
+    world_from_cam: F64
+    timestamps: F64
+    clutter: list[ClutterObject]
+    world_triangles: int
+    timings: dict[str, float]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "out_dir": str(self.sequence.root),
+            "frames": len(self.timestamps),
+            "clutter": [c.to_dict() for c in self.clutter],
+            "timings": self.timings,
+        }
+
+
+# --------------------------------------------------------------------------------- world input
+def corridor_building(
+    rooms_per_side: int = 2,
+    room_size_m: tuple[float, float] = (4.0, 4.0),
+    corridor_width_m: float = 2.2,
+    height_m: float = 2.8,
+    wall_m: float = 0.2,
+    door_width_m: float = 1.0,
+    door_height_m: float = 2.1,
+) -> tuple[list[MeshPart], list[F64], F64]:
+    """A one-storey corridor with rooms on both sides, as meshes (no IFC needed).
+
+    The corridor runs along +x at y ∈ [−w/2, w/2]; rooms of ``room_size_m`` (x, y) open onto it
+    through doors centred on each room; every room has a corner column and a window panel on its
+    outer wall. Floor top at z = 0, ceiling at ``height_m``.
+
+    Returns
+    -------
+    parts: mesh parts with labels (walls, floor and ceiling slabs, columns, windows).
+    polygons: free-space rectangles (4, 2) — the corridor and the rooms.
+    doors_xy: (D, 2) door centres (on the corridor walls' centre lines).
+    """
+    rw, rd = room_size_m
+    cw, t, hz = corridor_width_m, wall_m, height_m
+    length = rooms_per_side * rw
+    y_in = cw / 2 + t / 2  # corridor wall centre lines
+    y_out = cw / 2 + t + rd + t / 2  # outer wall centre lines
+    parts: list[MeshPart] = []
+    k = 0
+
+    def add(label: Label, lo: Sequence[float], hi: Sequence[float]) -> None:
+        nonlocal k
+        v, f = box_mesh(np.asarray(lo, float), np.asarray(hi, float))
+        parts.append(MeshPart(f"{label.name.lower()}-{k:03d}", label, v, f))
+        k += 1
+
+    x0, x1 = -t / 2, length + t / 2
+    add(Label.FLOOR, (x0, -y_out - t / 2, -0.25), (x1, y_out + t / 2, 0.0))
+    add(Label.CEILING, (x0, -y_out - t / 2, hz), (x1, y_out + t / 2, hz + 0.25))
+    doors = []
+    for side in (-1.0, 1.0):
+        # corridor wall with door gaps and lintels
+        y_lo, y_hi = sorted((side * (y_in - t / 2), side * (y_in + t / 2)))
+        xs = [x0]
+        for i in range(rooms_per_side):
+            xc = (i + 0.5) * rw
+            doors.append((xc, side * y_in))
+            xs += [xc - door_width_m / 2, xc + door_width_m / 2]
+            add(Label.WALL, (xc - door_width_m / 2, y_lo, door_height_m), (xc + door_width_m / 2, y_hi, hz))
+        xs.append(x1)
+        for a, b in zip(xs[0::2], xs[1::2]):
+            add(Label.WALL, (a, y_lo, 0.0), (b, y_hi, hz))
+        # outer wall
+        y_lo, y_hi = sorted((side * (y_out - t / 2), side * (y_out + t / 2)))
+        add(Label.WALL, (x0, y_lo, 0.0), (x1, y_hi, hz))
+        # partitions between rooms (and the end walls on this side)
+        yr_lo, yr_hi = sorted((side * (y_in + t / 2), side * (y_out - t / 2)))
+        for i in range(rooms_per_side + 1):
+            xw = i * rw
+            add(Label.WALL, (xw - t / 2, yr_lo, 0.0), (xw + t / 2, yr_hi, hz))
+        for i in range(rooms_per_side):
+            # a column in the room corner by the outer wall, a window panel on the outer wall
+            cx = i * rw + t / 2
+            cy_lo = yr_lo if side > 0 else yr_hi - 0.35
+            add(Label.COLUMN, (cx, cy_lo if side > 0 else cy_lo, 0.0),
+                (cx + 0.35, (cy_lo + 0.35), hz))
+            xc = (i + 0.5) * rw
+            face = side * (y_out - t / 2)
+            add(Label.WINDOW, (xc - 0.7, min(face, face - side * 0.02), 0.9),
+                (xc + 0.7, max(face, face - side * 0.02), 2.1))
+    # end walls of the corridor
+    add(Label.WALL, (x0, -y_in, 0.0), (t / 2, y_in, hz))
+    add(Label.WALL, (length - t / 2, -y_in, 0.0), (x1, y_in, hz))
+    rect = lambda a, b, c, d: np.array([[a, c], [b, c], [b, d], [a, d]], float)  # noqa: E731
+    polygons = [rect(t / 2, length - t / 2, -cw / 2, cw / 2)]
+    for side in (-1.0, 1.0):
+        y_a, y_b = sorted((side * (y_in + t / 2), side * (y_out - t / 2)))
+        for i in range(rooms_per_side):
+            polygons.append(rect(i * rw + t / 2, (i + 1) * rw - t / 2, y_a, y_b))
+    return parts, polygons, np.asarray(doors, float)
+
+
+def load_ifc_parts(path: str | PathLike[str]) -> list[MeshPart]:
+    """Mesh parts of every element of an IFC (world metres, labels of DESIGN §2).
+
+    Tessellation and classification are :func:`bimcap.bim.load_model`'s; parts are sorted by
+    GUID so that the world (and hence every output byte) does not depend on thread scheduling.
+    """
+    from bimcap.bim import load_model
+
+    model = load_model(Path(path))
+    parts = [
+        MeshPart(e.guid, Label(e.label), np.asarray(e.vertices, np.float64),
+                 np.asarray(e.faces, np.int32))
+        for e in model.elements
+    ]
+    parts.sort(key=lambda q: q.name)
+    return parts
+
+
+def sidecar_free_space(ifc: str | PathLike[str], storey: int = 0
+                       ) -> tuple[list[F64], float] | None:
+    """Free-space polygons and floor height of ``storey`` from a generated building's sidecar.
+
+    Reads ``NAME.truth.json`` next to ``NAME.ifc`` (:func:`bimcap.sim.building.truth_path_for`);
+    returns None when there is none. The polygons are the storey's walkable regions (rooms,
+    corridor, door passages, removed walls), each (4, 2) world xy.
+    """
+    from bimcap.sim.building import truth_path_for
+    from bimcap.sim.building_truth import load_building_truth
+
+    path = truth_path_for(ifc)
+    if not path.is_file():
+        return None
+    truth = load_building_truth(path)
+    for fs in truth.free_space:
+        if fs.storey == storey:
+            return [r.polygon() for r in fs.regions], float(fs.floor_z)
+    raise SimError(f"{path}: no free space for storey {storey}")
+
+
+# ------------------------------------------------------------------------------- frame writing
+def frame_names(i: int) -> dict[str, str]:
+    """Relative file names of frame ``i`` in a sequence directory."""
+    return {
+        "image": f"images/{i:06d}.png",
+        "lidar": f"lidar/{i:06d}.bin",
+        "labels": f"labels/{i:06d}.png",
+        "depth": f"depth/{i:06d}.npy",
+    }
+
+
+def _png_bytes(img: NDArray[np.uint8], compression: int) -> bytes:
+    import cv2
+
+    arr = img[:, :, ::-1] if img.ndim == 3 else img  # OpenCV writes BGR
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(arr), [cv2.IMWRITE_PNG_COMPRESSION, compression])
+    if not ok:
+        raise SimError("PNG encoding failed")
+    return buf.tobytes()
+
+
+def _npy_bytes(arr: NDArray[Any]) -> bytes:
+    bio = io.BytesIO()
+    np.save(bio, arr, allow_pickle=False)
+    return bio.getvalue()
+
+
+def _write_frame(out: Path, i: int, frame: RenderedFrame, scan: NDArray[np.float32] | None,
+                 cfg: SimulatorConfig) -> None:
+    """Write frame ``i``'s files atomically (one small function: the sequence writer's job)."""
+    names = frame_names(i)
+    atomic_write_bytes(out / names["image"], _png_bytes(frame.rgb, cfg.png_compression))
+    if cfg.write_labels:
+        atomic_write_bytes(out / names["labels"], _png_bytes(frame.labels, cfg.png_compression))
+    if cfg.write_depth:
+        atomic_write_bytes(out / names["depth"], _npy_bytes(frame.depth))
+    if scan is not None:
+        atomic_write_bytes(out / names["lidar"], np.ascontiguousarray(scan, "<f4").tobytes())
+
+
+def _finish_sequence(out: Path, cfg: SimulatorConfig, timestamps: F64, world_from_cam: F64,
+                     ifc_ref: str | None, source: dict[str, Any]) -> Sequence:
+    """Write ``poses/gt.tum`` and then the manifest (last, atomically); read the sequence back.
+
+    The frame files were written by the render workers with :func:`frame_names`; the manifest is
+    :class:`bimcap.dataset.SequenceWriter`'s, so the schema is the dataset module's.
+    """
+    if cfg.lidar is None:  # the format requires a scan per frame: write empty ones
+        for i in range(len(timestamps)):
+            atomic_write_bytes(out / frame_names(i)["lidar"], b"")
+    lidar = LidarInfo.from_dict((cfg.lidar or LidarConfig()).to_dict())
+    writer = SequenceWriter(out, cfg.camera, np.asarray(cfg.cam_from_lidar), lidar=lidar,
+                            ifc=ifc_ref, source=source, overwrite=True)
+    for i, ts in enumerate(timestamps):
+        names = frame_names(i)
+        writer.register_frame(FrameInfo(
+            i, float(ts), names["image"], names["lidar"],
+            names["labels"] if cfg.write_labels else None,
+            names["depth"] if cfg.write_depth else None,
+        ))
+    writer.add_trajectory("gt", Trajectory(timestamps, world_from_cam))
+    return writer.close()
+
+
+# ----------------------------------------------------------------------------- frame rendering
+@dataclass
+class _RenderJob:
+    world: World
+    textures: TextureBank
+    config: SimulatorConfig
+    out_dir: Path
+    seed: int
+
+
+_WORKER: dict[str, Any] = {}
+
+
+def _init_worker(job: _RenderJob) -> None:
+    _WORKER["job"] = job
+    _WORKER["renderer"] = Renderer(job.world, job.config.camera, job.textures, job.config.shading)
+    _WORKER["lidar"] = (
+        None if job.config.lidar is None else LidarSimulator(job.world, job.config.lidar)
+    )
+
+
+def _render_one(args: tuple[int, F64]) -> dict[str, float]:
+    """Render, scan and write frame ``i``; returns wall seconds per stage and CPU seconds."""
+    i, world_from_cam = args
+    job: _RenderJob = _WORKER["job"]
+    cfg = job.config
+    timings: dict[str, float] = {}
+    c0 = time.process_time()
+    frame = _WORKER["renderer"].render(
+        world_from_cam, np.random.default_rng([job.seed, 101, i]), cfg.threads_per_worker, timings
+    )
+    c1 = time.process_time()
+    scan = None
+    t0 = time.perf_counter()
+    if _WORKER["lidar"] is not None:
+        world_from_lidar = compose(world_from_cam, np.asarray(cfg.cam_from_lidar))
+        scan = _WORKER["lidar"].scan(
+            world_from_lidar, np.random.default_rng([job.seed, 202, i]), cfg.threads_per_worker
+        )
+    t1 = time.perf_counter()
+    c2 = time.process_time()
+    _write_frame(job.out_dir, i, frame, scan, cfg)
+    c3 = time.process_time()
+    timings["lidar"] = t1 - t0
+    timings["write"] = time.perf_counter() - t1
+    timings["cpu_image"] = c1 - c0
+    timings["cpu_lidar"] = c2 - c1
+    timings["cpu_write"] = c3 - c2
+    return timings
+
+
+# ---------------------------------------------------------------------------------- simulation
+def simulate_world(
+    parts: Sequence[MeshPart],
+    out_dir: str | PathLike[str],
+    config: SimulatorConfig | None = None,
+    seed: int = 0,
+    free_polygons: Sequence[F64] | None = None,
+    doors_xy: F64 | None = None,
+    clutter: bool = True,
+    ifc_path: str | PathLike[str] | None = None,
+    overwrite: bool = False,
+    source: dict[str, Any] | None = None,
+) -> SimulationResult:
+    """Simulate a sequence in a world given as mesh parts (see :func:`simulate` for IFC input).
+
+    Parameters
+    ----------
+    parts: the as-built world's elements.
+    out_dir: the sequence directory to write (created; refused if it holds a manifest unless
+        ``overwrite``).
+    config: simulator settings (default :class:`SimulatorConfig`).
+    seed: the seed of every random choice.
+    free_polygons, doors_xy: free-space polygons (each (K, 2) world xy) and door centres (D, 2);
+        None = derive the free space from the meshes (:meth:`FreeSpace.from_world`).
+    clutter: add clutter objects off the walking path.
+    ifc_path: the BIM the manifest refers to (the design model).
+    source: extra provenance merged into the manifest's ``source`` block.
+    """
+    cfg = config or SimulatorConfig()
+    out = Path(out_dir)
+    if (out / MANIFEST).exists() and not overwrite:
+        raise SimError(f"{out}: already holds a sequence (manifest.json); choose another folder")
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    parts = list(parts)
+    if cfg.remove_doors:
+        parts = [p for p in parts if p.label != Label.DOOR]
+    world = World.from_parts(parts, seed=seed)
+    z_floor = cfg.z_floor
+    if free_polygons is not None:
+        if z_floor is None:
+            from bimcap.sim.walk import detect_floor_height
+
+            z_floor = detect_floor_height(world)
+        free = FreeSpace.from_polygons(world, free_polygons, z_floor, doors_xy,
+                                       resolution=cfg.walk.grid_m)
+    else:
+        free = FreeSpace.from_world(world, z_floor, resolution=cfg.walk.grid_m)
+    timings["free_space"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    timestamps = np.arange(cfg.frames) / cfg.fps
+    walk: Walk = plan_walk(free, float(timestamps[-1]) + 1e-6, np.random.default_rng([seed, 11]),
+                           cfg.walk)
+    world_from_cam = walk.poses(timestamps)
+    timings["walk"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    placed: list[ClutterObject] = []
+    if clutter and cfg.clutter_density_per_m2 > 0:
+        placed = place_clutter(free, walk.path_xy, np.random.default_rng([seed, 12]),
+                               cfg.clutter_density_per_m2)
+        world = World.from_parts(parts + [c.part for c in placed], seed=seed)
+    textures = TextureBank.bake(cfg.texture_seed)
+    timings["world"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    out.mkdir(parents=True, exist_ok=True)
+    job = _RenderJob(world, textures, cfg, out, seed)
+    tasks = [(i, world_from_cam[i]) for i in range(cfg.frames)]
+    workers = cfg.workers or (os.cpu_count() or 1)
+    workers = min(workers, cfg.frames)
+    stage: dict[str, float] = {}
+    if workers <= 1:
+        _init_worker(job)
+        results = [_render_one(t) for t in tasks]
+        _WORKER.clear()
+    else:
+        import multiprocessing as mp
+
+        # spawn, not fork: Open3D's thread pools do not survive a fork
+        with ProcessPoolExecutor(workers, mp.get_context("spawn"), _init_worker, (job,)) as pool:
+            results = list(pool.map(_render_one, tasks, chunksize=max(1, cfg.frames // (4 * workers))))
+    for r in results:
+        for k, v in r.items():
+            stage[k] = stage.get(k, 0.0) + v
+    timings["render_wall"] = time.perf_counter() - t0
+    # summed over workers: "sum_<stage>" wall seconds inside workers, "cpu_<stage>" CPU seconds
+    timings.update({k if k.startswith("cpu_") else f"sum_{k}": v for k, v in stage.items()})
+
+    t0 = time.perf_counter()
+    ifc_ref = None
+    if ifc_path is not None:
+        ifc_ref = os.path.relpath(Path(ifc_path).resolve(), out.resolve())
+    sequence = _finish_sequence(
+        out, cfg, timestamps, world_from_cam, ifc_ref,
+        {
+            "generator": "bimcap simulate",
+            "seed": seed,
+            "config": cfg.to_dict(),
+            "clutter": [c.to_dict() for c in placed],
+            "z_floor": free.z_floor,
+            "free_space": "polygons" if free_polygons is not None else "meshes",
+            **(source or {}),
+        },
+    )
+    timings["manifest"] = time.perf_counter() - t0
+    return SimulationResult(sequence, world_from_cam, timestamps, placed, world.n_triangles, timings)
+
+
+def simulate(
+    ifc_path: str | PathLike[str],
+    out_dir: str | PathLike[str],
+    config: SimulatorConfig | None = None,
+    seed: int = 0,
+    as_built_ifc: str | PathLike[str] | None = None,
+    clutter: bool = True,
+    overwrite: bool = False,
+) -> Sequence:
+    """Simulate a sequence directory for the building ``ifc_path``.
+
+    The sensors see ``as_built_ifc`` if given (the generator's as-built variant), else the design
+    model itself; the manifest's ``ifc`` always names the design model. The walk uses the free
+    space of the generator's JSON sidecar when one sits next to the rendered IFC, else free space
+    derived from the meshes. Returns the written sequence (validated; ``.root`` is ``out_dir``).
+    """
+    ifc = Path(ifc_path)
+    seen = Path(as_built_ifc) if as_built_ifc is not None else ifc
+    out = Path(out_dir)
+    check_not_input(out / "manifest.json", [ifc, seen])
+    parts = load_ifc_parts(seen)
+    cfg = config or SimulatorConfig()
+    sidecar = sidecar_free_space(seen) or sidecar_free_space(ifc)
+    polygons = None
+    if sidecar is not None:
+        polygons, z_floor = sidecar
+        if cfg.z_floor is None:
+            cfg = replace(cfg, z_floor=z_floor)
+    result = simulate_world(
+        parts, out, cfg, seed, polygons, None, clutter, ifc, overwrite,
+        source={"as_built_ifc": None if as_built_ifc is None else str(as_built_ifc)},
+    )
+    return result.sequence
+
+
+def with_frames(config: SimulatorConfig, frames: int) -> SimulatorConfig:
+    """``config`` with another frame count (convenience for the CLI and benchmarks)."""
+    return replace(config, frames=frames)

@@ -1,0 +1,475 @@
+"""A handheld walking trajectory through the free space of one storey.
+
+Planning happens on a 2-D grid over the storey:
+
+1. **Region** (:class:`FreeSpace`): the cells that are inside the walkable space — rasterised from
+   free-space polygons (rooms, corridors, door passages; e.g. the building generator's sidecar),
+   or, for an arbitrary IFC, derived from the meshes (a cell is inside when a ray cast down from
+   1 m above the storey floor hits the floor and a ray cast up hits a roof or ceiling).
+2. **Clearance**: the exact 3-D distance from each cell, at several heights of the walking band,
+   to the nearest triangle of the world (Open3D ``compute_distance``), capped by the distance to
+   the region's border. Cells with clearance below ``min_clearance_m`` are not walkable.
+3. **Tour**: way-points are spread over the well-clear cells (farthest-point sampling); the walker
+   goes from one to the nearest unvisited one (geodesic, Dijkstra on the 8-connected grid with a
+   cost that prefers clearance), so rooms are entered through their doors, until the path is long
+   enough.
+4. **Smoothing and timing**: the grid path is resampled, Gaussian-smoothed (pulled back towards the
+   raw path wherever smoothing would cut a corner into the clearance margin), and walked at
+   ``speed_mps`` (slower in turns, with a slow speed variation).
+5. **Orientation**: yaw looks ahead along the path, plus occasional head turns toward the nearest
+   wall; yaw rate is limited so consecutive frames overlap; pitch and roll sway at the step
+   frequency plus slow drifts; the camera height stays within ``height_range_m``.
+
+Poses are ``world_from_cam`` in the OpenCV optical convention (x right, y down, z forward): with
+yaw ψ (heading in the world xy plane, from +x toward +y), pitch θ (positive = looking up) and roll φ
+(about the optical axis), ``R = R_level(ψ) · Rx(θ) · Rz(φ)`` where ``R_level(ψ)`` has columns
+right = (sin ψ, −cos ψ, 0), down = (0, 0, −1), forward = (cos ψ, sin ψ, 0).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from bimcap.geometry.poses import rotmat_to_quat
+from bimcap.labels import Label
+from bimcap.sim.render import SimError, World
+
+F64 = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class WalkConfig:
+    """Parameters of the handheld walk.
+
+    Attributes
+    ----------
+    speed_mps: nominal walking speed.
+    height_range_m: (min, max) camera height above the storey floor.
+    min_clearance_m: hard minimum distance from the camera path to any surface.
+    preferred_clearance_m: clearance below which the path cost rises (keeps to the middle).
+    grid_m: planning grid cell size.
+    max_yaw_rate_dps: yaw rate limit (degrees per second).
+    look_ahead_m: how far along the path the walker looks.
+    head_turn_interval_s: mean time between head turns toward a wall.
+    head_turn_deg: (min, max) head-turn amplitude.
+    pitch_deg: mean pitch (negative = looking down).
+    sway_pitch_deg, sway_roll_deg: amplitudes of the step-frequency sway.
+    step_hz: step frequency at nominal speed.
+    """
+
+    speed_mps: float = 1.0
+    height_range_m: tuple[float, float] = (1.2, 1.7)
+    min_clearance_m: float = 0.42
+    preferred_clearance_m: float = 0.9
+    grid_m: float = 0.1
+    max_yaw_rate_dps: float = 35.0
+    look_ahead_m: float = 1.5
+    head_turn_interval_s: float = 9.0
+    head_turn_deg: tuple[float, float] = (20.0, 45.0)
+    pitch_deg: float = -4.0
+    sway_pitch_deg: float = 1.0
+    sway_roll_deg: float = 1.5
+    step_hz: float = 1.8
+
+    def to_dict(self) -> dict[str, object]:
+        return asdict(self)
+
+
+@dataclass
+class FreeSpace:
+    """Walkable region and clearance of one storey on a grid.
+
+    Attributes
+    ----------
+    region: (H, W) bool, cell inside the walkable space (row = y index, column = x index).
+    clearance: (H, W) float32 metres to the nearest surface (0 outside the region).
+    origin_xy: (2,) world xy of the centre of cell (0, 0).
+    resolution: cell size in metres.
+    z_floor: storey floor height (world z, metres).
+    """
+
+    region: NDArray[np.bool_]
+    clearance: NDArray[np.float32]
+    origin_xy: F64
+    resolution: float
+    z_floor: float
+
+    def cell_centres(self) -> F64:
+        """(H, W, 2) world xy of every cell centre."""
+        h, w = self.region.shape
+        ys, xs = np.mgrid[0:h, 0:w]
+        return np.stack([xs, ys], axis=-1) * self.resolution + self.origin_xy
+
+    def to_cell(self, xy: F64) -> NDArray[np.int64]:
+        """(M, 2) integer ``(row, col)`` of world points ``xy`` (M, 2) (not clipped)."""
+        cr = np.rint((np.asarray(xy) - self.origin_xy) / self.resolution).astype(np.int64)
+        return cr[:, ::-1]
+
+    def clearance_at(self, xy: F64) -> F64:
+        """(M,) bilinearly interpolated clearance at world points (M, 2); 0 outside the grid."""
+        from scipy.ndimage import map_coordinates
+
+        rc = ((np.asarray(xy) - self.origin_xy) / self.resolution)[:, ::-1]
+        return map_coordinates(self.clearance, rc.T, order=1, mode="constant", cval=0.0)
+
+    @classmethod
+    def from_polygons(
+        cls,
+        world: World,
+        polygons: Sequence[F64],
+        z_floor: float,
+        doors_xy: F64 | None = None,
+        door_radius_m: float = 0.6,
+        resolution: float = 0.1,
+        heights_m: Sequence[float] = (0.5, 1.0, 1.3, 1.6),
+    ) -> FreeSpace:
+        """Region from free-space polygons (each (K, 2) world xy) plus discs at door centres."""
+        import cv2
+
+        if not polygons:
+            raise SimError("no free-space polygons given")
+        pts = np.concatenate([np.asarray(p, np.float64).reshape(-1, 2) for p in polygons])
+        lo = pts.min(axis=0) - 1.0
+        hi = pts.max(axis=0) + 1.0
+        shape = tuple(np.ceil((hi - lo) / resolution).astype(int)[::-1] + 1)
+        region = np.zeros(shape, np.uint8)
+        for poly in polygons:
+            px = (np.asarray(poly, np.float64).reshape(-1, 2) - lo) / resolution
+            # fixed-point polygon fill (4 fractional bits) so edges land on cell centres exactly
+            cv2.fillPoly(region, [np.rint(px * 16).astype(np.int32)], 1, shift=4)
+        if doors_xy is not None and len(doors_xy):
+            r = max(1, int(round(door_radius_m / resolution)))
+            for d in np.asarray(doors_xy, np.float64).reshape(-1, 2):
+                c = np.rint((d - lo) / resolution).astype(int)
+                cv2.circle(region, (int(c[0]), int(c[1])), r, 1, -1)
+        return cls._with_clearance(world, region.astype(bool), lo, resolution, z_floor, heights_m)
+
+    @classmethod
+    def from_world(
+        cls,
+        world: World,
+        z_floor: float | None = None,
+        resolution: float = 0.1,
+        heights_m: Sequence[float] = (0.5, 1.0, 1.3, 1.6),
+    ) -> FreeSpace:
+        """Region derived from the meshes of an arbitrary building (no polygons available).
+
+        ``z_floor`` defaults to :func:`detect_floor_height`. A cell is inside when a ray cast down
+        from ``z_floor + 1`` hits a surface 0.85–1.15 m below and a ray cast up hits anything
+        within 8 m (a roof or ceiling), i.e. it is indoors on this storey.
+        """
+        if z_floor is None:
+            z_floor = detect_floor_height(world)
+        v = world.vertices
+        lo = v[:, :2].min(axis=0).astype(np.float64) - 0.5
+        hi = v[:, :2].max(axis=0).astype(np.float64) + 0.5
+        shape = tuple(np.ceil((hi - lo) / resolution).astype(int)[::-1] + 1)
+        h, w = shape
+        ys, xs = np.mgrid[0:h, 0:w]
+        xy = np.stack([xs.ravel(), ys.ravel()], axis=-1) * resolution + lo
+        origins = np.concatenate([xy, np.full((len(xy), 1), z_floor + 1.0)], axis=1)
+        down = world.cast(origins, np.tile([0.0, 0.0, -1.0], (len(xy), 1)))["t_hit"]
+        up = world.cast(origins, np.tile([0.0, 0.0, 1.0], (len(xy), 1)))["t_hit"]
+        inside = (down > 0.85) & (down < 1.15) & (up < 8.0)
+        region = inside.reshape(shape)
+        return cls._with_clearance(world, region, lo, resolution, z_floor, heights_m)
+
+    @classmethod
+    def _with_clearance(
+        cls,
+        world: World,
+        region: NDArray[np.bool_],
+        origin_xy: F64,
+        resolution: float,
+        z_floor: float,
+        heights_m: Sequence[float],
+    ) -> FreeSpace:
+        from scipy.ndimage import distance_transform_edt
+
+        h, w = region.shape
+        rows, cols = np.nonzero(region)
+        xy = np.stack([cols, rows], axis=-1) * resolution + origin_xy
+        dist = np.full(len(xy), np.inf, np.float32)
+        for hz in heights_m:
+            q = np.concatenate([xy, np.full((len(xy), 1), z_floor + hz)], axis=1)
+            dist = np.minimum(dist, world.distance(q))
+        border = distance_transform_edt(np.pad(region, 1)).astype(np.float32)[1:-1, 1:-1]
+        clearance = np.zeros((h, w), np.float32)
+        clearance[rows, cols] = np.minimum(dist, (border[rows, cols] - 0.5) * resolution)
+        return cls(region, clearance, np.asarray(origin_xy, np.float64), resolution, z_floor)
+
+
+def detect_floor_height(world: World, min_share: float = 0.2) -> float:
+    """The lowest floor height carrying at least ``min_share`` of the largest floor's area.
+
+    Floor triangles (label FLOOR, facing up) are binned by height in 5 cm bins weighted by area.
+    """
+    tri = world.vertices[world.faces].astype(np.float64)
+    up = world.tri_label == Label.FLOOR
+    if not up.any():
+        raise SimError("the world has no floor triangles: pass z_floor explicitly")
+    n = np.cross(tri[up, 1] - tri[up, 0], tri[up, 2] - tri[up, 0])
+    area = 0.5 * np.linalg.norm(n, axis=1)
+    facing = n[:, 2] > 0.9 * np.linalg.norm(n, axis=1)
+    z = tri[up][:, :, 2].mean(axis=1)
+    z, area = z[facing], area[facing]
+    if len(z) == 0:
+        raise SimError("no upward-facing floor triangles: pass z_floor explicitly")
+    bins = np.round(z / 0.05).astype(np.int64)
+    uniq, inv = np.unique(bins, return_inverse=True)
+    weight = np.bincount(inv, weights=area)
+    ok = weight >= min_share * weight.max()
+    return float(uniq[ok].min() * 0.05)
+
+
+@dataclass
+class Walk:
+    """A dense (100 Hz) handheld trajectory; sample frame poses with :meth:`poses`.
+
+    Attributes
+    ----------
+    t: (T,) seconds from the start.
+    xyz: (T, 3) camera centre in the world (metres).
+    yaw, pitch, roll: (T,) radians (see the module docstring for the convention).
+    path_xy: (P, 2) the smoothed planned path (for clutter placement and pictures).
+    """
+
+    t: F64
+    xyz: F64
+    yaw: F64
+    pitch: F64
+    roll: F64
+    path_xy: F64
+
+    @property
+    def duration(self) -> float:
+        return float(self.t[-1])
+
+    def poses(self, times: F64) -> F64:
+        """(N, 7) ``world_from_cam`` TUM-order poses at ``times`` (N,) seconds (interpolated)."""
+        times = np.asarray(times, np.float64)
+        if times.min() < self.t[0] - 1e-9 or times.max() > self.t[-1] + 1e-9:
+            raise SimError(f"times outside the walk [0, {self.duration:.2f}] s")
+        xyz = np.stack([np.interp(times, self.t, self.xyz[:, k]) for k in range(3)], axis=1)
+        yaw = np.interp(times, self.t, self.yaw)
+        pitch = np.interp(times, self.t, self.pitch)
+        roll = np.interp(times, self.t, self.roll)
+        rot = camera_rotation(yaw, pitch, roll)
+        out = np.empty((len(times), 7))
+        out[:, :3] = xyz
+        out[:, 3:] = rotmat_to_quat(rot)
+        return out
+
+
+def camera_rotation(yaw: F64, pitch: F64, roll: F64) -> F64:
+    """(N, 3, 3) ``world_from_cam`` rotations from yaw/pitch/roll (N,) radians (module docstring)."""
+    yaw, pitch, roll = (np.atleast_1d(np.asarray(a, np.float64)) for a in (yaw, pitch, roll))
+    cy, sy = np.cos(yaw), np.sin(yaw)
+    zero, one = np.zeros_like(yaw), np.ones_like(yaw)
+    level = np.stack(
+        [
+            np.stack([sy, zero, cy], axis=-1),
+            np.stack([-cy, zero, sy], axis=-1),
+            np.stack([zero, -one, zero], axis=-1),
+        ],
+        axis=-2,
+    )  # rows = world x, y, z; columns = cam right, down, forward
+    cp, sp = np.cos(pitch), np.sin(pitch)
+    rx = np.zeros((len(pitch), 3, 3))
+    rx[:, 0, 0] = 1.0
+    rx[:, 1, 1], rx[:, 1, 2], rx[:, 2, 1], rx[:, 2, 2] = cp, -sp, sp, cp
+    cr, sr = np.cos(roll), np.sin(roll)
+    rz = np.zeros((len(roll), 3, 3))
+    rz[:, 2, 2] = 1.0
+    rz[:, 0, 0], rz[:, 0, 1], rz[:, 1, 0], rz[:, 1, 1] = cr, -sr, sr, cr
+    return level @ rx @ rz
+
+
+def _grid_graph(walkable: NDArray[np.bool_], clearance: NDArray[np.float32], res: float,
+                preferred: float) -> tuple[object, NDArray[np.int64]]:
+    """8-connected sparse graph over walkable cells; returns (csr matrix, node id grid (-1 = none))."""
+    from scipy.sparse import coo_matrix
+
+    h, w = walkable.shape
+    node = np.full((h, w), -1, np.int64)
+    rr, cc = np.nonzero(walkable)
+    node[rr, cc] = np.arange(len(rr))
+    penalty = 1.0 + 4.0 * np.clip((preferred - clearance) / preferred, 0.0, 1.0)
+    src_l, dst_l, wt_l = [], [], []
+    for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
+        r2, c2 = rr + dr, cc + dc
+        ok = (r2 >= 0) & (r2 < h) & (c2 >= 0) & (c2 < w)
+        ok[ok] &= walkable[r2[ok], c2[ok]]
+        a = node[rr[ok], cc[ok]]
+        b = node[r2[ok], c2[ok]]
+        step = res * np.hypot(dr, dc)
+        cost = step * 0.5 * (penalty[rr[ok], cc[ok]] + penalty[r2[ok], c2[ok]])
+        src_l += [a, b]
+        dst_l += [b, a]
+        wt_l += [cost, cost]
+    n = len(rr)
+    graph = coo_matrix(
+        (np.concatenate(wt_l), (np.concatenate(src_l), np.concatenate(dst_l))), shape=(n, n)
+    ).tocsr()
+    return graph, node
+
+
+def _smooth_signal(rng: np.random.Generator, t: F64, amplitude: float, fmin: float,
+                   fmax: float, n: int = 3) -> F64:
+    """A smooth random signal: a sum of ``n`` sinusoids with random frequencies and phases."""
+    out = np.zeros_like(t)
+    for _ in range(n):
+        f = rng.uniform(fmin, fmax)
+        out += np.sin(2.0 * np.pi * f * t + rng.uniform(0, 2 * np.pi))
+    return amplitude * out / np.sqrt(n / 2.0)
+
+
+def plan_walk(
+    free: FreeSpace, duration_s: float, rng: np.random.Generator, config: WalkConfig | None = None
+) -> Walk:
+    """Plan a handheld walk of ``duration_s`` seconds through ``free`` (module docstring)."""
+    from scipy.ndimage import gaussian_filter1d, label
+    from scipy.sparse.csgraph import dijkstra
+
+    cfg = config or WalkConfig()
+    res = free.resolution
+    walkable = free.region & (free.clearance >= cfg.min_clearance_m)
+    comp, n_comp = label(walkable, structure=np.ones((3, 3)))
+    if n_comp == 0:
+        raise SimError(
+            f"no cell has {cfg.min_clearance_m} m clearance: the free space is too narrow to walk"
+        )
+    sizes = np.bincount(comp.ravel())[1:]
+    walkable = comp == (1 + int(np.argmax(sizes)))
+    graph, node = _grid_graph(walkable, free.clearance, res, cfg.preferred_clearance_m)
+    rr, cc = np.nonzero(walkable)
+    clear = free.clearance[rr, cc]
+    # way-point candidates: the well-clear cells; farthest-point sampling spreads them out
+    good = np.flatnonzero(clear >= min(0.75, 0.9 * float(clear.max())))
+    cand_xy = np.stack([cc[good], rr[good]], axis=-1) * res
+    area = len(rr) * res * res
+    k = int(np.clip(np.ceil(area / 10.0), 4, 60))
+    k = min(k, len(good))
+    first = int(rng.integers(len(good)))
+    chosen = [first]
+    d = np.linalg.norm(cand_xy - cand_xy[first], axis=1)
+    for _ in range(k - 1):
+        nxt = int(np.argmax(d))
+        if d[nxt] < 0.5:
+            break
+        chosen.append(nxt)
+        d = np.minimum(d, np.linalg.norm(cand_xy - cand_xy[nxt], axis=1))
+    waypoints = node[rr[good[chosen]], cc[good[chosen]]]
+
+    need_m = duration_s * cfg.speed_mps * 1.4 + 5.0
+    current = int(waypoints[0])
+    unvisited = set(int(w) for w in waypoints[1:])
+    nodes_path = [current]
+    length = 0.0
+    guard = 0
+    while length < need_m:
+        guard += 1
+        if guard > 10 * len(waypoints) + 20:
+            raise SimError("walk planning did not reach the requested length")
+        if not unvisited:
+            unvisited = set(int(w) for w in waypoints) - {current}
+            if not unvisited:
+                raise SimError("the walkable space has a single way-point: too small to walk")
+        dist, pred = dijkstra(graph, indices=current, return_predecessors=True)
+        cands = sorted((float(dist[w]), w) for w in unvisited if np.isfinite(dist[w]))
+        if not cands:
+            raise SimError("way-points are unreachable from each other")
+        pick = cands[int(rng.integers(min(2, len(cands))))][1]
+        seg = [pick]
+        while seg[-1] != current:
+            seg.append(int(pred[seg[-1]]))
+        seg = seg[::-1]
+        seg_xy = np.stack([cc[seg], rr[seg]], axis=-1) * res
+        length += float(np.linalg.norm(np.diff(seg_xy, axis=0), axis=1).sum())
+        nodes_path += seg[1:]
+        unvisited.discard(pick)
+        current = pick
+    raw = np.stack([cc[nodes_path], rr[nodes_path]], axis=-1) * res + free.origin_xy
+
+    # resample at 5 cm, smooth, pull back where the smoothing cuts into the clearance margin
+    seg_len = np.linalg.norm(np.diff(raw, axis=0), axis=1)
+    s = np.concatenate([[0.0], np.cumsum(seg_len)])
+    s_new = np.arange(0.0, s[-1], 0.05)
+    raw_rs = np.stack([np.interp(s_new, s, raw[:, 0]), np.interp(s_new, s, raw[:, 1])], axis=1)
+    path = gaussian_filter1d(raw_rs, sigma=10.0, axis=0, mode="nearest")
+    for _ in range(12):
+        bad = free.clearance_at(path) < cfg.min_clearance_m + 0.03
+        if not bad.any():
+            break
+        bad = np.convolve(bad.astype(float), np.ones(9), mode="same") > 0
+        path[bad] = 0.5 * (path[bad] + raw_rs[bad])
+    seg_len = np.linalg.norm(np.diff(path, axis=0), axis=1)
+    s_path = np.concatenate([[0.0], np.cumsum(seg_len)])
+
+    # heading along the path and curvature-limited speed
+    heading = np.unwrap(np.arctan2(np.gradient(path[:, 1]), np.gradient(path[:, 0])))
+    curv = np.abs(np.gradient(gaussian_filter1d(heading, 4.0))) / 0.05  # rad per metre
+    dt = 0.01
+    n_t = int(np.ceil(duration_s / dt)) + 1
+    t = np.arange(n_t) * dt
+    speed_mod = 1.0 + _smooth_signal(rng, t, 0.06, 0.03, 0.15)
+    s_t = np.zeros(n_t)
+    for i in range(1, n_t):
+        kappa = np.interp(s_t[i - 1], s_path, curv)
+        v = cfg.speed_mps * speed_mod[i] / (1.0 + 0.8 * kappa)
+        s_t[i] = s_t[i - 1] + max(v, 0.3 * cfg.speed_mps) * dt
+    if s_t[-1] > s_path[-1]:
+        raise SimError("planned path shorter than the walk")
+    xy = np.stack([np.interp(s_t, s_path, path[:, 0]), np.interp(s_t, s_path, path[:, 1])], axis=1)
+
+    # yaw: look ahead along the path, add head turns toward the nearer wall, limit the rate
+    ahead = np.stack(
+        [np.interp(s_t + cfg.look_ahead_m, s_path, path[:, 0]),
+         np.interp(s_t + cfg.look_ahead_m, s_path, path[:, 1])], axis=1,
+    )
+    d_ahead = ahead - xy
+    near_end = np.linalg.norm(d_ahead, axis=1) < 0.2
+    yaw_path = np.arctan2(d_ahead[:, 1], d_ahead[:, 0])
+    if near_end.any():
+        yaw_path[near_end] = np.interp(s_t[near_end], s_path, heading)
+    yaw_path = np.unwrap(yaw_path)
+    turns = np.zeros(n_t)
+    t_next = rng.exponential(cfg.head_turn_interval_s)
+    while t_next < duration_s:
+        length_s = rng.uniform(2.0, 4.0)
+        amp = np.deg2rad(rng.uniform(*cfg.head_turn_deg))
+        # toward the side with less clearance (the nearer wall), probed 1 m left and right
+        i = int(t_next / dt)
+        left = xy[i] + np.array([-np.sin(yaw_path[i]), np.cos(yaw_path[i])])
+        right = xy[i] - np.array([-np.sin(yaw_path[i]), np.cos(yaw_path[i])])
+        cl = free.clearance_at(np.stack([left, right]))
+        sign = 1.0 if cl[0] < cl[1] else -1.0
+        tau = (t - t_next) / length_s
+        inside = (tau >= 0.0) & (tau <= 1.0)
+        turns[inside] += sign * amp * np.sin(np.pi * tau[inside]) ** 2
+        t_next += length_s + rng.exponential(cfg.head_turn_interval_s)
+    target = gaussian_filter1d(yaw_path + turns, sigma=0.3 / dt, mode="nearest")
+    max_step = np.deg2rad(cfg.max_yaw_rate_dps) * dt
+    yaw = np.empty(n_t)
+    yaw[0] = target[0]
+    for i in range(1, n_t):
+        yaw[i] = yaw[i - 1] + np.clip(target[i] - yaw[i - 1], -max_step, max_step)
+
+    # sway, bob and slow drifts
+    phase = 2.0 * np.pi * np.cumsum(cfg.step_hz * np.ones(n_t) * dt)
+    pitch = np.deg2rad(
+        cfg.pitch_deg + cfg.sway_pitch_deg * np.sin(phase) + _smooth_signal(rng, t, 2.0, 0.02, 0.2)
+    )
+    roll = np.deg2rad(
+        cfg.sway_roll_deg * np.sin(0.5 * phase + 0.3) + _smooth_signal(rng, t, 1.0, 0.02, 0.2)
+    )
+    h_lo, h_hi = cfg.height_range_m
+    h_mid = rng.uniform(h_lo + 0.15, h_hi - 0.15)
+    height = h_mid + _smooth_signal(rng, t, 0.05, 0.01, 0.1) + 0.015 * np.sin(phase)
+    height = np.clip(height, h_lo + 0.01, h_hi - 0.01)
+    xyz = np.concatenate([xy, (free.z_floor + height)[:, None]], axis=1)
+    return Walk(t, xyz, yaw, pitch, roll, path)

@@ -1,0 +1,179 @@
+"""SIFT extraction, descriptor matching and geometric verification on synthetic images."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bimcap.features import (
+    FeatureError,
+    MatcherBackend,
+    MatchOptions,
+    SiftBackend,
+    SiftOptions,
+    Verification,
+    extract_sift,
+    match_descriptors,
+    match_pair,
+    sequential_pairs,
+    verify_matches,
+)
+from bimcap.geometry.camera import Camera
+
+
+def _blob_image(centres: list[tuple[float, float]], shape: tuple[int, int] = (200, 300)) -> np.ndarray:
+    v, u = np.mgrid[0 : shape[0], 0 : shape[1]].astype(np.float64)
+    img = np.full(shape, 30.0)
+    for cu, cv in centres:
+        img += 200.0 * np.exp(-((u - cu) ** 2 + (v - cv) ** 2) / (2 * 4.0**2))
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
+def _noise(seed: int = 0, shape: tuple[int, int] = (300, 400), sigma: float = 2.5) -> np.ndarray:
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    big = cv2.GaussianBlur((rng.random(shape) * 255).astype(np.float32), (0, 0), sigma)
+    return cv2.normalize(big, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+
+
+@pytest.fixture(scope="module")
+def shifted_pair() -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
+    """Two crops of one noise image; b's pixel (u, v) shows a's pixel (u + 11, v + 7)."""
+    big = _noise()
+    du, dv = 11, 7
+    a = np.ascontiguousarray(big[:200, :280])
+    b = np.ascontiguousarray(big[dv : dv + 200, du : du + 280])
+    return a, b, (du, dv)
+
+
+@pytest.mark.parametrize("backend,tol", [(SiftBackend.PYCOLMAP, 0.05), (SiftBackend.OPENCV, 0.3)])
+def test_keypoints_use_pixel_centre_convention(backend: SiftBackend, tol: float) -> None:
+    """A Gaussian blob centred on pixel (100, 60) and one at (200.5, 140.25) are found there."""
+    centres = [(100.0, 60.0), (200.5, 140.25)]
+    feats = extract_sift(_blob_image(centres), SiftOptions(backend=backend))
+    assert len(feats) >= 2
+    for c in centres:
+        d = np.linalg.norm(feats.uv - np.array(c), axis=1)
+        assert d.min() < tol, (c, feats.uv)
+
+
+def test_features_shapes_and_dtypes(shifted_pair: tuple) -> None:
+    a, _, _ = shifted_pair
+    f = extract_sift(np.stack([a, a, a], axis=-1), SiftOptions(max_num_features=500))
+    assert 100 < len(f) <= 500
+    assert f.uv.shape == (len(f), 2) and f.uv.dtype == np.float64
+    assert f.descriptors.shape == (len(f), 128) and f.descriptors.dtype == np.uint8
+    assert f.scale.shape == f.orientation.shape == (len(f),)
+    # RootSIFT scaled by 512 (COLMAP's uint8 layout).
+    norms = np.linalg.norm(f.descriptors.astype(np.float64), axis=1)
+    assert np.allclose(norms, 512.0, rtol=0.02)
+
+
+def test_bad_images_are_refused() -> None:
+    with pytest.raises(FeatureError, match="8-bit"):
+        extract_sift(np.zeros((20, 20), np.float32))
+    with pytest.raises(FeatureError, match="shape"):
+        extract_sift(np.zeros((20, 20, 4), np.uint8))
+    with pytest.raises(FeatureError):
+        SiftOptions(max_num_features=0)
+
+
+def test_numpy_matcher_equals_pycolmap_matcher(shifted_pair: tuple) -> None:
+    """Oracle: COLMAP's own brute-force matcher gives exactly the same match set."""
+    a, b, _ = shifted_pair
+    fa = extract_sift(a, SiftOptions(max_num_features=800))
+    fb = extract_sift(b, SiftOptions(max_num_features=800))
+    ours = match_descriptors(fa.descriptors, fb.descriptors)
+    theirs = match_descriptors(
+        fa.descriptors, fb.descriptors, MatchOptions(backend=MatcherBackend.PYCOLMAP)
+    )
+    assert len(ours) > 300
+    assert set(map(tuple, ours.tolist())) == set(map(tuple, theirs.tolist()))
+
+
+def test_matches_follow_the_known_shift(shifted_pair: tuple) -> None:
+    a, b, (du, dv) = shifted_pair
+    fa, fb = extract_sift(a), extract_sift(b)
+    m = match_descriptors(fa.descriptors, fb.descriptors)
+    disp = fa.uv[m[:, 0]] - fb.uv[m[:, 1]]
+    good = np.linalg.norm(disp - [du, dv], axis=1) < 0.5
+    assert good.mean() > 0.97
+
+
+def test_ratio_and_cross_check_by_hand() -> None:
+    """Hand-built descriptors: an ambiguous query fails the ratio test; a clear one passes."""
+    rng = np.random.default_rng(3)
+
+    def unit(v: np.ndarray) -> np.ndarray:
+        return np.clip(np.rint(v / np.linalg.norm(v) * 512), 0, 255).astype(np.uint8)
+
+    base = [np.abs(rng.normal(size=128)) for _ in range(4)]
+    db = np.stack([unit(x) for x in base])
+    clear = unit(base[0] + 0.05 * np.abs(rng.normal(size=128)))
+    ambiguous = unit(base[2] + base[3])  # equally close to 2 and 3
+    m = match_descriptors(np.stack([clear, ambiguous]), db)
+    assert m.tolist() == [[0, 0]]
+
+
+def _two_view_points(n: int, seed: int) -> tuple[Camera, np.ndarray, np.ndarray]:
+    """Pixels of n random 3-D points (2–6 m deep) in two pinhole views 0.3 m and 5° apart."""
+    from scipy.spatial.transform import Rotation
+
+    cam = Camera(640, 480, 500.0, 500.0, 319.5, 239.5)
+    rng = np.random.default_rng(seed)
+    p = np.stack([rng.uniform(-2, 2, n), rng.uniform(-1.5, 1.5, n), rng.uniform(2, 6, n)], axis=1)
+    r = Rotation.from_euler("y", 5.0, degrees=True).as_matrix()
+    p_b = p @ r.T + np.array([-0.3, 0.05, 0.02])
+    uv_a, _ = cam.project(p)
+    uv_b, _ = cam.project(p_b)
+    ok = cam.in_image(uv_a) & cam.in_image(uv_b)
+    return cam, uv_a[ok], uv_b[ok]
+
+
+@pytest.mark.parametrize("ver", [Verification.TWO_VIEW, Verification.FUNDAMENTAL])
+def test_verification_removes_outliers(ver: Verification) -> None:
+    """Exact correspondences with parallax plus 20 % random pairs: the random pairs go."""
+    cam, uv_a, uv_b = _two_view_points(400, seed=1)
+    rng = np.random.default_rng(2)
+    uv_b = uv_b + rng.normal(scale=0.3, size=uv_b.shape)
+    n = len(uv_a)
+    good = np.stack([np.arange(n), np.arange(n)], axis=1)
+    bad = np.stack([rng.integers(0, n, n // 5), rng.integers(0, n, n // 5)], axis=1)
+    bad = bad[bad[:, 0] != bad[:, 1]]
+    matches = np.concatenate([good, bad]).astype(np.int32)
+    inl, model = verify_matches(uv_a, uv_b, matches, cam, MatchOptions(verification=ver))
+    is_good = inl[:, 0] == inl[:, 1]
+    assert model in ("CALIBRATED", "FUNDAMENTAL")
+    assert is_good.sum() > 0.97 * n
+    # An outlier survives only if it happens to lie within 2 px of its epipolar line.
+    assert (~is_good).sum() <= 0.05 * len(bad)
+    inl, model = verify_matches(uv_a, uv_b, matches, cam, MatchOptions(verification=Verification.NONE))
+    assert len(inl) == len(matches) and model == "none"
+
+
+def test_verified_matches_of_a_shifted_image(shifted_pair: tuple) -> None:
+    """A pure image shift is panoramic: nearly all true matches pass verification."""
+    a, b, (du, dv) = shifted_pair
+    cam = Camera(280, 200, 250.0, 250.0, 139.5, 99.5)
+    fa, fb = extract_sift(a), extract_sift(b)
+    pm = match_pair(fa, fb, cam, 3, 4)
+    assert (pm.frame_a, pm.frame_b) == (3, 4)
+    disp = fa.uv[pm.idx[:, 0]] - fb.uv[pm.idx[:, 1]]
+    assert pm.num_putative > 300 and len(pm.idx) > 0.95 * pm.num_putative
+    assert np.median(np.linalg.norm(disp - [du, dv], axis=1)) < 0.1
+
+
+def test_too_few_matches_give_none(shifted_pair: tuple) -> None:
+    a, _, _ = shifted_pair
+    other = _noise(seed=99)[:200, :280]
+    cam = Camera(280, 200, 250.0, 250.0, 139.5, 99.5)
+    pm = match_pair(extract_sift(a), extract_sift(np.ascontiguousarray(other)), cam, 0, 1)
+    assert pm.idx.shape == (0, 2) and pm.idx.dtype == np.int32
+
+
+def test_sequential_pairs() -> None:
+    assert sequential_pairs(4, 2) == [(0, 1), (0, 2), (1, 2), (1, 3), (2, 3)]
+    assert sequential_pairs(1, 3) == []
+    with pytest.raises(FeatureError):
+        sequential_pairs(4, 0)

@@ -1,0 +1,183 @@
+"""Keypoint depth look-up, tracks by connected components, the peers' match filters."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bimcap.features import (
+    DepthEdgePolicy,
+    DepthLookupOptions,
+    FeatureError,
+    MatchFilterOptions,
+    PairMatches,
+    RequireDepth,
+    assemble_match_observations,
+    build_tracks,
+    consistent_track_observations,
+    frame_gap_ok,
+    lookup_depth,
+    triangulate_tracks,
+)
+from bimcap.geometry.camera import Camera
+from bimcap.geometry.poses import invert, transform_points
+
+CAM = Camera(64, 48, 50.0, 50.0, 31.5, 23.5)
+IDENTITY = np.array([0.0, 0, 0, 0, 0, 0, 1])
+
+
+def _pair(a: int, b: int, idx: list[list[int]]) -> PairMatches:
+    return PairMatches(a, b, np.asarray(idx, np.int32).reshape(-1, 2), len(idx), "test")
+
+
+# --------------------------------------------------------------------------- depth look-up
+def test_bilinear_depth_on_a_ramp() -> None:
+    """depth = 2 + 0.01·u + 0.02·v is bilinear, so interpolation is exact."""
+    v, u = np.mgrid[0:48, 0:64]
+    depth = (2.0 + 0.01 * u + 0.02 * v).astype(np.float32)
+    uv = np.array([[10.25, 7.5], [0.0, 0.0], [62.9, 46.9], [30.0, 20.0]])
+    got = lookup_depth(depth, uv)
+    want = 2.0 + 0.01 * uv[:, 0] + 0.02 * uv[:, 1]
+    assert np.allclose(got, want, atol=1e-6)
+
+
+def test_depth_edges_and_holes() -> None:
+    depth = np.full((48, 64), 2.0, np.float32)
+    depth[:, 32:] = 5.0  # a depth edge between columns 31 and 32
+    depth[10, 10] = 0.0  # a hole
+    uv = np.array([[31.5, 20.0], [31.2, 20.0], [10.3, 10.2], [20.0, 20.0], [-3.0, 5.0], [70.0, 5.0]])
+    got = lookup_depth(depth, uv)
+    assert got.tolist() == [0.0, 0.0, 0.0, 2.0, 0.0, 0.0]
+    near = lookup_depth(depth, uv, DepthLookupOptions(edge_policy=DepthEdgePolicy.NEAREST))
+    # nearest of (31.5 → 32) is the far side, (31.2 → 31) the near side; the hole's nearest is
+    # the hole itself (10, 10) → still 0.
+    assert near.tolist() == [5.0, 2.0, 0.0, 2.0, 0.0, 0.0]
+
+
+def test_small_relative_spread_is_interpolated() -> None:
+    depth = np.full((48, 64), 4.0, np.float32)
+    depth[:, 32:] = 4.1  # 2.5 % step: below the 5 % default spread, interpolated
+    got = lookup_depth(depth, np.array([[31.5, 3.0]]))
+    assert got[0] == pytest.approx(4.05, abs=1e-6)
+    strict = lookup_depth(depth, np.array([[31.5, 3.0]]), DepthLookupOptions(max_relative_spread=0.01))
+    assert strict[0] == 0.0
+
+
+# --------------------------------------------------------------------------- tracks
+def test_tracks_are_connected_components() -> None:
+    # frame 0: 3 keypoints, frame 1: 3, frame 2: 2
+    pairs = [
+        _pair(0, 1, [[0, 0], [1, 2]]),
+        _pair(1, 2, [[0, 1], [2, 0]]),
+        _pair(0, 2, [[2, 0]]),  # joins 0:2 into the track of 0:1-1:2-2:0
+    ]
+    t = build_tracks([3, 3, 2], pairs)
+    groups = {}
+    for f, p, k in zip(t.obs_frame, t.obs_point, t.obs_keypoint):
+        groups.setdefault(int(p), set()).add((int(f), int(k)))
+    assert set(map(frozenset, groups.values())) == {
+        frozenset({(0, 0), (1, 0), (2, 1)}),
+        # (0,1)-(1,2)-(2,0)-(0,2): keypoints 1 and 2 of frame 0 in one track → dropped
+    }
+    assert t.num_points == 1
+    assert t.obs_frame.dtype == t.obs_point.dtype == np.int32
+
+
+def test_track_min_length_and_empty() -> None:
+    pairs = [_pair(0, 1, [[0, 0]]), _pair(1, 2, [[1, 0]]), _pair(0, 2, [])]
+    t = build_tracks([1, 2, 1], pairs, min_length=2)
+    assert t.num_points == 2
+    t3 = build_tracks([1, 2, 1], pairs, min_length=3)
+    assert t3.num_points == 0 and t3.obs_frame.shape == (0,)
+    assert build_tracks([5, 5], []).num_points == 0
+    with pytest.raises(FeatureError):
+        build_tracks([1, 1], [_pair(0, 3, [[0, 0]])])
+
+
+def test_triangulate_without_depth_recovers_the_point() -> None:
+    """Two views of (0.3, -0.2, 4.0) with no depth: DLT gives it back; with depth, the mean."""
+    p_world = np.array([0.3, -0.2, 4.0])
+    poses = np.array([IDENTITY, [0.5, 0.0, 0.0, 0, 0, 0, 1]])
+    uv = np.stack([CAM.project(transform_points(invert(pose), p_world[None]))[0][0] for pose in poses])
+    pts, valid = triangulate_tracks(
+        np.array([0, 1], np.int32), np.array([0, 0], np.int32), uv, np.zeros(2), CAM, poses
+    )
+    assert valid.all() and np.allclose(pts[0], p_world, atol=1e-9)
+    depth = np.array([4.0, 4.0])
+    pts, valid = triangulate_tracks(
+        np.array([0, 1], np.int32), np.array([0, 0], np.int32), uv, depth, CAM, poses
+    )
+    assert np.allclose(pts[0], p_world, atol=1e-9)
+
+
+# --------------------------------------------------------------------------- the peers' filters
+def test_frame_gap_is_unsigned() -> None:
+    """The peers compared ``j − i >= k`` signed: (5, 2) with k = 3 would be dropped."""
+    assert frame_gap_ok(np.array([5, 2, 4]), np.array([2, 5, 5]), 3).tolist() == [True, True, False]
+
+
+def _two_frame_setup() -> tuple[list[np.ndarray], list[np.ndarray], np.ndarray]:
+    """Frame 1 is 1 m to the right of frame 0; keypoint k of both sees the same world point,
+    except keypoint 1 of frame 1, which sees a point 0.5 m behind."""
+    poses = np.array([IDENTITY, [1.0, 0.0, 0.0, 0, 0, 0, 1]])
+    pts = np.array([[0.2, 0.1, 3.0], [0.6, -0.1, 2.5]])
+    pts_b = pts.copy()
+    pts_b[1, 2] += 0.5
+    uv0, _ = CAM.project(transform_points(invert(poses[0]), pts))
+    uv1, _ = CAM.project(transform_points(invert(poses[1]), pts_b))
+    d0 = transform_points(invert(poses[0]), pts)[:, 2]
+    d1 = transform_points(invert(poses[1]), pts_b)[:, 2]
+    return [uv0, uv1], [d0, d1], poses
+
+
+def test_distance_filter() -> None:
+    uvs, depths, poses = _two_frame_setup()
+    pairs = [_pair(0, 1, [[0, 0], [1, 1]])]
+    obs = assemble_match_observations(pairs, uvs, depths, CAM, poses, MatchFilterOptions())
+    assert obs.match_frames.tolist() == [[0, 1]]
+    assert np.allclose(obs.match_uv[0], np.concatenate([uvs[0][0], uvs[1][0]]))
+    assert np.allclose(obs.match_depth[0], [depths[0][0], depths[1][0]])
+    loose = assemble_match_observations(
+        pairs, uvs, depths, CAM, poses, MatchFilterOptions(max_initial_distance_m=0.6)
+    )
+    assert len(loose.match_frames) == 2
+    off = assemble_match_observations(
+        pairs, uvs, depths, CAM, poses, MatchFilterOptions(max_initial_distance_m=None)
+    )
+    assert len(off.match_frames) == 2
+    assert off.match_frames.dtype == np.int32 and off.match_uv.shape == (2, 4)
+
+
+def test_gap_and_depth_requirements() -> None:
+    uvs, depths, poses = _two_frame_setup()
+    uvs = uvs + [uvs[1]]
+    depths = [depths[0], depths[1], np.array([0.0, depths[1][1]])]
+    poses = np.concatenate([poses, poses[1:]])
+    pairs = [_pair(0, 1, [[0, 0]]), _pair(0, 2, [[0, 0]]), _pair(1, 2, [[1, 1]])]
+    none_filter = MatchFilterOptions(max_initial_distance_m=None, require_depth=RequireDepth.NONE)
+    assert len(assemble_match_observations(pairs, uvs, depths, CAM, poses, none_filter).match_frames) == 3
+    both = MatchFilterOptions(max_initial_distance_m=None)
+    got = assemble_match_observations(pairs, uvs, depths, CAM, poses, both)
+    assert got.match_frames.tolist() == [[0, 1], [1, 2]]  # frame 2's keypoint 0 has no depth
+    gap2 = MatchFilterOptions(min_frame_gap=2, max_initial_distance_m=None, require_depth=RequireDepth.ANY)
+    got = assemble_match_observations(pairs, uvs, depths, CAM, poses, gap2)
+    assert got.match_frames.tolist() == [[0, 2]]
+    assert got.match_depth[0, 1] == 0.0
+    with pytest.raises(FeatureError):
+        MatchFilterOptions(min_frame_gap=0)
+
+
+def test_track_observation_consistency() -> None:
+    """Three views of one point; the third view's depth is 1 m off: only it is flagged."""
+    p_world = np.array([0.3, -0.2, 4.0])
+    poses = np.array([IDENTITY, [0.3, 0.0, 0.0, 0, 0, 0, 1], [0.6, 0.0, 0.0, 0, 0, 0, 1]])
+    p_cam = np.stack([transform_points(invert(pose), p_world[None])[0] for pose in poses])
+    uv, _ = CAM.project(p_cam)
+    depth = p_cam[:, 2].copy()
+    depth[2] += 1.0
+    frames = np.array([0, 1, 2], np.int32)
+    point = np.zeros(3, np.int32)
+    keep = consistent_track_observations(frames, point, uv, depth, CAM, poses, 0.4)
+    assert keep.tolist() == [True, True, False]
+    depth[2] = 0.0  # no depth: nothing to test, kept
+    assert consistent_track_observations(frames, point, uv, depth, CAM, poses, 0.4).all()

@@ -1,0 +1,182 @@
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from _fusion_onnx_models import completion_identity, completion_normalized_conv
+from _fusion_scene import frames
+
+from bimcap.fusion import (
+    ClassicalOptions,
+    CompletionMethod,
+    CompletionOptions,
+    FusionInputError,
+    LinearOptions,
+    PlanarSmoothing,
+    PlanarSmoothingOptions,
+    complete_depth,
+    depth_errors,
+    fill_nearest,
+    project_lidar,
+    smooth_planar_regions,
+)
+from bimcap.fusion.onnx_completion import OnnxCompletionOptions, OnnxModelError, SizeMode
+from bimcap.geometry import Camera
+from bimcap.labels import Label
+
+
+@pytest.fixture(scope="module")
+def sparse_frames():  # type: ignore[no-untyped-def]
+    out = []
+    for f in frames():
+        out.append((f, project_lidar(f.points_in_lidar, f.cam_from_lidar, f.camera)))
+    return out
+
+
+@pytest.fixture(scope="module")
+def models(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    d = tmp_path_factory.mktemp("onnx")
+    return {
+        "identity": completion_identity(d / "identity.onnx"),
+        "nconv": completion_normalized_conv(d / "nconv.onnx", 9),
+        "bad_name": completion_identity(d / "bad_name.onnx", rgb_name="image"),
+        "bad_channels": completion_identity(d / "bad_channels.onnx", depth_channels=3),
+        "fixed": completion_identity(d / "fixed.onnx", hw=(64, 64)),
+        "rank3": completion_identity(d / "rank3.onnx", depth_rank3=True),
+    }
+
+
+def _beats_nearest(sparse_frames, options: CompletionOptions, margin: float) -> None:  # type: ignore[no-untyped-def]
+    for f, sp in sparse_frames:
+        dense = complete_depth(sp, options, f.image)
+        assert dense.shape == f.depth.shape and dense.dtype == np.float32
+        covered = dense > 0
+        err = depth_errors(dense, f.depth)
+        base = depth_errors(fill_nearest(sp), f.depth, valid=covered)
+        assert err.coverage > 0.9, options.method
+        assert err.mae < margin * base.mae, (options.method, err, base)
+
+
+def test_linear_beats_nearest_neighbour(sparse_frames) -> None:  # type: ignore[no-untyped-def]
+    _beats_nearest(sparse_frames, CompletionOptions(CompletionMethod.LINEAR), 0.5)
+
+
+def test_classical_beats_nearest_neighbour(sparse_frames) -> None:  # type: ignore[no-untyped-def]
+    _beats_nearest(sparse_frames, CompletionOptions(CompletionMethod.CLASSICAL), 0.95)
+
+
+def test_ring_interpolation_matters_when_ring_gaps_exceed_ku_kernels(sparse_frames) -> None:  # type: ignore[no-untyped-def]
+    # at full working resolution the gaps between rings (~16 px here) are wider than Ku's small
+    # kernels: the large foreground-preferring dilation then makes staircases on the floor
+    f, sp = sparse_frames[0]
+    ku = ClassicalOptions(work_scale=1.0, vertical_interpolation=False)
+    ours = ClassicalOptions(work_scale=1.0)
+    e_ku = depth_errors(complete_depth(sp, CompletionOptions(CompletionMethod.CLASSICAL, classical=ku)), f.depth)
+    e_ours = depth_errors(complete_depth(sp, CompletionOptions(CompletionMethod.CLASSICAL, classical=ours)), f.depth)
+    e_nn = depth_errors(fill_nearest(sp), f.depth)
+    assert e_ours.mae < e_nn.mae < e_ku.mae
+
+
+def test_hybrid_runs_through_onnx_runtime_and_beats_nearest(sparse_frames, models) -> None:  # type: ignore[no-untyped-def]
+    opts = CompletionOptions(CompletionMethod.HYBRID, onnx=OnnxCompletionOptions(models["nconv"]))
+    _beats_nearest(sparse_frames, opts, 0.5)
+    # with the identity network the hybrid is exactly the interpolation
+    f, sp = sparse_frames[0]
+    ident = complete_depth(sp, CompletionOptions(CompletionMethod.HYBRID, onnx=OnnxCompletionOptions(models["identity"])), f.image)
+    lin = complete_depth(sp, CompletionOptions(CompletionMethod.LINEAR))
+    np.testing.assert_allclose(ident, lin, rtol=1e-6)
+
+
+def test_onnx_method_equals_a_numpy_oracle(sparse_frames, models) -> None:  # type: ignore[no-untyped-def]
+    from scipy import ndimage
+
+    f, sp = sparse_frames[0]
+    out = complete_depth(sp, CompletionOptions(CompletionMethod.ONNX, onnx=OnnxCompletionOptions(models["nconv"], depth_scale=0.5)), f.image)
+    d = sp.depth.astype(np.float64)
+    num = ndimage.uniform_filter(d, 9, mode="constant") * 81
+    den = ndimage.uniform_filter((d > 0).astype(np.float64), 9, mode="constant") * 81
+    ref = num / np.maximum(den, 1e-6)
+    np.testing.assert_allclose(out, ref, atol=1e-4)
+    # and it is a real completion on what it covers
+    base = depth_errors(fill_nearest(sp), f.depth, valid=out > 0)
+    assert depth_errors(out, f.depth).mae < 1.1 * base.mae
+
+
+def test_onnx_tiling_and_resizing(sparse_frames, models) -> None:  # type: ignore[no-untyped-def]
+    f, sp = sparse_frames[0]
+    tiled = complete_depth(sp, CompletionOptions(CompletionMethod.ONNX, onnx=OnnxCompletionOptions(models["identity"], input_size=(128, 160), size_mode=SizeMode.TILE)), f.image)
+    np.testing.assert_allclose(tiled, sp.depth, rtol=1e-6)
+    # resizing sparse depth keeps (almost) every return: the identity network's output, resized
+    # back, has values only near returns, and they are returns' depths
+    small = complete_depth(sp, CompletionOptions(CompletionMethod.ONNX, onnx=OnnxCompletionOptions(models["identity"], input_size=(193, 258))), f.image)
+    assert small.shape == sp.depth.shape
+    assert (small > 0).sum() > 0.9 * (sp.depth > 0).sum()
+
+
+def test_onnx_bad_models_give_clear_errors(sparse_frames, models, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    f, sp = sparse_frames[0]
+
+    def run(path: Path, **kw: object) -> None:
+        complete_depth(sp, CompletionOptions(CompletionMethod.ONNX, onnx=OnnxCompletionOptions(path, **kw)), f.image)  # type: ignore[arg-type]
+
+    with pytest.raises(OnnxModelError, match="no input 'rgb'.*image"):
+        run(models["bad_name"])
+    with pytest.raises(OnnxModelError, match="3 channels, expected 1"):
+        run(models["bad_channels"])
+    with pytest.raises(OnnxModelError, match="rank 3, expected 4"):
+        run(models["rank3"])
+    with pytest.raises(OnnxModelError, match="fixed at"):
+        run(models["fixed"], input_size=(128, 128))
+    assert np.isfinite(complete_depth(sp, CompletionOptions(CompletionMethod.ONNX, onnx=OnnxCompletionOptions(models["fixed"])), f.image)).all()
+    with pytest.raises(OnnxModelError, match="no output 'depth_out'"):
+        run(models["identity"], output="depth_out")
+    with pytest.raises(OnnxModelError, match="not found"):
+        run(tmp_path / "missing.onnx")
+    with pytest.raises(FusionInputError, match="needs CompletionOptions.onnx"):
+        complete_depth(sp, CompletionOptions(CompletionMethod.HYBRID), f.image)
+    with pytest.raises(FusionInputError, match="differ in size"):
+        complete_depth(sp, CompletionOptions(CompletionMethod.ONNX, onnx=OnnxCompletionOptions(models["identity"])), f.image[:-1])
+
+
+def test_linear_is_exact_on_a_plane() -> None:
+    cam = Camera(200, 150, 150.0, 150.0, 100.0, 75.0)
+    rng = np.random.default_rng(0)
+    uv = np.stack([rng.uniform(0, 199, 400), rng.uniform(0, 149, 400)], 1)
+    # plane n·p + d = 0 with n = (0, -0.6, -0.8) (floor-like), d = 3
+    rays = cam.rays(uv, distorted=False)
+    z = 3.0 / (rays @ np.array([0.0, 0.6, 0.8]))
+    sparse = np.zeros((150, 200), np.float32)
+    sparse[np.rint(uv[:, 1]).astype(int), np.rint(uv[:, 0]).astype(int)] = z
+    from bimcap.fusion.projection import SparseDepth
+
+    sp = SparseDepth(sparse, uv, z, np.arange(400), {})
+    dense = complete_depth(sp, CompletionOptions(CompletionMethod.LINEAR, linear=LinearOptions(max_edge_px=1e9, max_depth_ratio=1e9)))
+    grid = cam.pixel_grid()
+    truth = (3.0 / (cam.rays(grid, distorted=False) @ np.array([0.0, 0.6, 0.8]))).reshape(150, 200)
+    m = dense > 0
+    assert m.mean() > 0.8
+    np.testing.assert_allclose(dense[m], truth[m], rtol=1e-5)
+
+
+def test_bad_sparse_inputs() -> None:
+    with pytest.raises(FusionInputError, match="at least 3"):
+        complete_depth(np.zeros((10, 10), np.float32))
+    bad = np.zeros((10, 10), np.float32)
+    bad[2, 2] = np.nan
+    with pytest.raises(FusionInputError, match="finite"):
+        complete_depth(bad, CompletionOptions(CompletionMethod.CLASSICAL))
+
+
+@pytest.mark.parametrize("mode", [PlanarSmoothing.PLANE_FIT, PlanarSmoothing.BLUR])
+def test_planar_smoothing_reduces_noise_on_the_floor(sparse_frames, mode: PlanarSmoothing) -> None:  # type: ignore[no-untyped-def]
+    f, _ = sparse_frames[0]
+    rng = np.random.default_rng(1)
+    noisy = (f.depth * (1.0 + rng.normal(0.0, 0.01, f.depth.shape))).astype(np.float32)
+    out = smooth_planar_regions(noisy, f.labels, f.camera, PlanarSmoothingOptions(mode=mode))
+    floor = f.labels == int(Label.FLOOR)
+    wall = f.labels == int(Label.WALL)
+    before = np.abs(noisy - f.depth)[floor].mean()
+    after = np.abs(out - f.depth)[floor].mean()
+    assert after < 0.5 * before
+    np.testing.assert_array_equal(out[wall], noisy[wall])  # untouched outside the classes
