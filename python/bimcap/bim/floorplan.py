@@ -74,6 +74,8 @@ class FloorPlanOptions:
     min_length_m: shorter final segments are dropped.
     merge_angle_deg, merge_offset_m: collinearity tolerances for merging.
     margin_m: raster margin around the model's walls and columns.
+    reach_m: a refined face is followed up to this far past the rough segment's ends (a rough
+        detector often stops short of a corner whose pixels another line took).
     """
 
     cut_height_m: float = 1.2
@@ -83,11 +85,12 @@ class FloorPlanOptions:
     vectorizer: Vectorizer = Vectorizer.HOUGH
     min_component_px: int = 3
     fit_tol_m: float = 0.005
-    gap_m: float = 0.10
+    gap_m: float = 0.04
     min_length_m: float = 0.03
     merge_angle_deg: float = 1.0
     merge_offset_m: float = 0.01
     margin_m: float = 0.5
+    reach_m: float = 0.5
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -250,10 +253,14 @@ def detect(img: NDArray[np.uint8], method: Vectorizer, fine: bool = False) -> ND
     if method == Vectorizer.HOUGH:
         cv2.setRNGSeed(0)  # HoughLinesP is randomised: fix its draw order for reproducible plans
         if fine:
-            lines = cv2.HoughLinesP(img, 1, np.pi / 720, threshold=3, minLineLength=2,
+            # Short leftovers (jambs, wall ends of 3-5 pixels) are where Hough is weakest: add
+            # the polygon sides of the leftover contours as candidates too.
+            lines = cv2.HoughLinesP(img, 1, np.pi / 180, threshold=3, minLineLength=2,
                                     maxLineGap=1)
+            hough = np.zeros((0, 4)) if lines is None else lines.reshape(-1, 4).astype(np.float64)
+            return np.concatenate([hough, detect(img, Vectorizer.CONTOUR)])
         else:
-            lines = cv2.HoughLinesP(img, 1, np.pi / 720, threshold=10, minLineLength=5,
+            lines = cv2.HoughLinesP(img, 1, np.pi / 360, threshold=10, minLineLength=5,
                                     maxLineGap=2)
         return np.zeros((0, 4)) if lines is None else lines.reshape(-1, 4).astype(np.float64)
     if method == Vectorizer.LSD:
@@ -316,24 +323,44 @@ def refine(
     tree: Any,
     res: float,
     opts: FloorPlanOptions,
+    origin: NDArray[np.float64],
+    shape: tuple[int, int],
 ) -> NDArray[np.float64]:
     """Snap rough segments (S, 4) metres onto the face points ``pts`` (P, 2); (S', 4) metres.
 
     Every face within 1.5 cells of a rough segment (both faces of a thin wall, say) is fitted on
     its own: offsets from the rough line are histogrammed in ``fit_tol_m`` bins, each strong peak
-    is a face, its points are fitted by total least squares, refitted on the points within
-    ``fit_tol_m`` of that line, projected, and split at gaps longer than ``gap_m``.
+    is a face; its points are fitted by total least squares, the face is followed through the
+    neighbourhood (up to ``reach_m`` past the rough ends) and refitted until the line settles,
+    then split at gaps longer than ``gap_m``. Rough segments are taken longest first, and one
+    whose pixels already lie on refined segments (90 %) is skipped: it would find them again.
     """
-    out = []
+    import cv2
+
+    out: list[NDArray[np.float64]] = []
     search = 1.5 * res
-    for seg in rough:
+    done = np.zeros(shape, dtype=np.uint8)
+    lengths = np.hypot(rough[:, 2] - rough[:, 0], rough[:, 3] - rough[:, 1])
+
+    def to_px(p: NDArray[np.float64]) -> NDArray[np.int64]:
+        return np.floor((p - origin) / res).astype(np.int64)
+
+    for si in np.argsort(-lengths, kind="stable"):
+        seg = rough[si]
         a, b = seg[:2], seg[2:]
-        length = float(np.hypot(*(b - a)))
+        length = float(lengths[si])
         if length < 1e-6:
             continue
+        steps = np.linspace(0.0, 1.0, max(2, int(np.ceil(2 * length / res)) + 1))
+        px = to_px(a[None] + steps[:, None] * (b - a)[None])
+        ok = (px[:, 0] >= 0) & (px[:, 0] < shape[1]) & (px[:, 1] >= 0) & (px[:, 1] < shape[0])
+        if ok.all() and done[px[:, 1], px[:, 0]].mean() >= 0.9:
+            continue
+        n_out = len(out)
         d = (b - a) / length
         n = np.array([-d[1], d[0]])
-        idx = np.asarray(tree.query_ball_point((a + b) / 2, length / 2 + 2 * res), dtype=np.int64)
+        idx = np.asarray(tree.query_ball_point((a + b) / 2, length / 2 + opts.reach_m),
+                         dtype=np.int64)
         if len(idx) < 3:
             continue
         q = pts[idx] - a
@@ -348,19 +375,60 @@ def refine(
             if len(cand) < 3:
                 continue
             c, u = _fit_line(cand)
-            # Refit on the points close to the fitted line, over the rough segment's extent.
-            nn = np.array([-u[1], u[0]])
-            q2 = pts[idx] - c
-            t2 = q2 @ u
-            ta, tb = sorted(((a - c) @ u, (b - c) @ u))
-            keep = (np.abs(q2 @ nn) <= opts.fit_tol_m) & (t2 >= ta - res) & (t2 <= tb + res)
-            if keep.sum() < 3:
+            near = pts[idx]
+            runs: list[tuple[float, float]] = []
+            for _ in range(4):
+                # Follow the face through the whole neighbourhood (it may run past the rough
+                # segment's ends: Hough stops short of corners), keep the runs that meet the
+                # rough segment, and refit on their points until the line settles.
+                nn = np.array([-u[1], u[0]])
+                q = near - c
+                on = np.abs(q @ nn) <= opts.fit_tol_m
+                t_on = q[on] @ u
+                ta, tb = sorted(((a - c) @ u, (b - c) @ u))
+                runs = [(lo, hi) for lo, hi in _runs(t_on, opts.gap_m)
+                        if lo <= tb + res and hi >= ta - res]
+                if not runs:
+                    break
+                inside = np.zeros(len(t_on), dtype=bool)
+                for lo, hi in runs:
+                    inside |= (t_on >= lo) & (t_on <= hi)
+                if inside.sum() < 3:
+                    runs = []
+                    break
+                c_new, u_new = _fit_line(near[on][inside])
+                u_new = u_new if u_new @ u >= 0 else -u_new
+                settled = abs(float(u[0] * u_new[1] - u[1] * u_new[0])) < 1e-7 and abs(
+                    float((c_new - c) @ nn)) < 1e-6
+                c, u = c_new, u_new
+                if settled:
+                    break
+            if not runs:
                 continue
-            c, u = _fit_line(pts[idx[keep]])
-            t3 = (pts[idx[keep]] - c) @ u
-            for lo, hi in _runs(t3, opts.gap_m):
+            # The runs of the final line; a run that reaches the edge of the neighbourhood goes
+            # on beyond it: widen the neighbourhood until every run ends inside.
+            nn = np.array([-u[1], u[0]])
+            mid = (a + b) / 2
+            radius = length / 2 + opts.reach_m
+            ta, tb = sorted(((a - c) @ u, (b - c) @ u))
+            t_mid = float((mid - c) @ u)
+            while True:
+                q = near - c
+                t_on = q[np.abs(q @ nn) <= opts.fit_tol_m] @ u
+                kept = [(lo, hi) for lo, hi in _runs(t_on, opts.gap_m)
+                        if lo <= tb + res and hi >= ta - res]
+                reach_edge = any(max(abs(lo - t_mid), abs(hi - t_mid)) >= radius - res
+                                 for lo, hi in kept)
+                if not reach_edge:
+                    break
+                radius *= 2
+                near = pts[np.asarray(tree.query_ball_point(mid, radius), dtype=np.int64)]
+            for lo, hi in kept:
                 if hi - lo >= opts.min_length_m:
                     out.append(np.concatenate([c + lo * u, c + hi * u]))
+        for s_new in out[n_out:]:
+            p0, p1 = to_px(s_new[:2]), to_px(s_new[2:])
+            cv2.line(done, (int(p0[0]), int(p0[1])), (int(p1[0]), int(p1[1])), 1, 1)
     return np.asarray(out, dtype=np.float64).reshape(-1, 4)
 
 
@@ -453,13 +521,18 @@ def vectorize(
     for fine in (False, True):
         px = detect(residual, opts.vectorizer, fine)
         rough = origin[[0, 1, 0, 1]] + (px + 0.5) * res
-        found.append(refine(rough, pts, tree, res, opts))
+        found.append(refine(rough, pts, tree, res, opts, origin, shape))
         if not fine:
             # Second round on what the first did not explain.
             done = np.concatenate(found)
             left = pts[~explained(pts, done, 2 * opts.fit_tol_m)]
             residual = clean(rasterize(left, origin, res, shape), opts.min_component_px)
-    segs = merge_collinear(np.concatenate(found), opts)
+    segs = np.concatenate(found)
+    for _ in range(4):  # greedy merging is order dependent: repeat until nothing changes
+        n_before = len(segs)
+        segs = merge_collinear(segs, opts)
+        if len(segs) == n_before:
+            break
     length = np.hypot(segs[:, 2] - segs[:, 0], segs[:, 3] - segs[:, 1])
     return segs[length >= opts.min_length_m], img
 
@@ -551,8 +624,9 @@ def storey_plan(
         band = np.concatenate(band_slices) if band_slices else np.zeros((0, 4))
         exact[cls] = slice_mesh(v, f, zc)
         exact_band[cls] = band
-        # The band's slices repeat each vertical face: keep one point per res/8 square.
-        pts = thin_points(sample_segments(band, opts.resolution_m / 4)[0], opts.resolution_m / 8)
+        # The band's slices repeat each vertical face: keep one point per fit_tol/2 square.
+        pts = thin_points(sample_segments(band, opts.resolution_m / 4, endpoints=True)[0],
+                          opts.fit_tol_m / 2)
         if cls == Label.COLUMN:
             segs, img = column_outlines(pts, origin, shape, opts)
         else:

@@ -80,18 +80,20 @@ def slice_band(
 
 
 def sample_segments(
-    segments: NDArray[np.float64], step: float
+    segments: NDArray[np.float64], step: float, endpoints: bool = False
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Points every ``step`` metres along segments, each carrying the length it stands for.
 
     Parameters
     ----------
     segments: (S, 4) ``x1 y1 x2 y2`` metres. step: sampling step in metres.
+    endpoints: also emit both endpoints of every segment (weight 0), so that the samples reach
+        the segment ends exactly.
 
     Returns
     -------
-    points: (P, 2) float64 metres (sub-segment midpoints); weights: (P,) float64 metres, summing
-    to the total length.
+    points: (P, 2) float64 metres (sub-segment midpoints, then the endpoints if asked);
+    weights: (P,) float64 metres, summing to the total length.
     """
     if len(segments) == 0:
         return np.zeros((0, 2)), np.zeros(0)
@@ -103,7 +105,11 @@ def sample_segments(
     k = np.arange(idx.size) - np.repeat(start, n)
     t = (k + 0.5) / n[idx]
     pts = seg[idx, :2] + t[:, None] * (seg[idx, 2:] - seg[idx, :2])
-    return pts, (length / n)[idx]
+    w = (length / n)[idx]
+    if endpoints:
+        pts = np.concatenate([pts, seg[:, :2], seg[:, 2:]])
+        w = np.concatenate([w, np.zeros(2 * len(seg))])
+    return pts, w
 
 
 def thin_points(pts: NDArray[np.float64], cell: float) -> NDArray[np.float64]:
