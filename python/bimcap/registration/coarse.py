@@ -34,11 +34,11 @@ from scipy.spatial.transform import Rotation, Slerp
 from bimcap.geometry.poses import matrix_to_pose, pose_to_matrix, transform_points
 from bimcap.labels import Label
 from bimcap.registration.continuity import transition_cost, viterbi_chain
-from bimcap.registration.correlative import ScoreLayer, score_volume, top_hypotheses
-from bimcap.registration.distance_field import DistanceField, SegmentIndex
+from bimcap.registration.correlative import score_volume, top_hypotheses
 from bimcap.registration.errors import RegistrationInputError
 from bimcap.registration.gravity import LevelResult, level_window
-from bimcap.registration.icp import Correction2D, icp_2d
+from bimcap.registration.icp import Correction2D, icp_2d, rot2
+from bimcap.registration.plan_maps import PlanMaps
 
 F64 = NDArray[np.float64]
 I32 = NDArray[np.int32]
@@ -170,6 +170,8 @@ class CoarseOptions:
     """Settings of :func:`coarse_register` (lengths in metres, angles in degrees).
 
     The defaults search ±2 m and ±20° around the initial pose of every window of 10 frames.
+``view_bins`` (≥ 2) enables the visibility test of :mod:`.plan_maps` (a point is matched only
+to faces its ray can hit from free space); 1 disables it.
     Set ``yaw_range_deg`` to 180 for a full-circle search. ``use_correlative=False`` leaves only
     the local ICP from the initial pose (the baseline of the benchmark).
     """
@@ -183,6 +185,7 @@ class CoarseOptions:
     fine_resolution_m: float = 0.025
     fine_sigma_m: float = 0.05
     score_truncate: float = 3.0
+    view_bins: int = 4
     column_weight: float = 1.0
     top_k: int = 8
     nms_xy_m: float = 0.3
@@ -208,6 +211,7 @@ class CoarseOptions:
     min_points: int = 50
     min_inlier_ratio: float = 0.4
     min_score: float = 0.25
+    min_constraint: float = 0.02
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -226,7 +230,7 @@ class CoarseOptions:
             if name in positive and not value > 0:
                 raise RegistrationInputError(f"must be > 0, got {value}", None, name)
         for name in ("window_frames", "top_k", "icp_iterations", "max_points_per_window",
-                     "min_points"):
+                     "min_points", "view_bins"):
             if getattr(self, name) < 1:
                 raise RegistrationInputError(f"must be >= 1, got {getattr(self, name)}", None,
                                              name)
@@ -246,7 +250,10 @@ class WindowResult:
 
     ``yaw_deg``/``t_m``/``pivot`` describe the chosen planar correction
     ``q = R(yaw)(p - pivot) + pivot + t`` (after levelling); ``dz_m``/``tilt_deg`` the levelling.
-    ``reason`` says why a window was not accepted ("" when it was).
+    ``constraint`` is the ICP's translation constraint (see :class:`.icp.IcpResult`); a
+    degenerate window (a corridor seen without ends or doors) is not accepted and takes the
+    interpolated correction of its neighbours. ``reason`` says why a window was not accepted
+    ("" when it was).
     """
 
     start: int
@@ -260,6 +267,7 @@ class WindowResult:
     tilt_deg: float
     score: float
     inlier_ratio: float
+    constraint: float
     best_score: float
     accepted: bool
     reason: str
@@ -281,7 +289,7 @@ class CoarseResult:
     accepted: (N,) bool, the frame's window passed the checks (others were interpolated).
     frame_window: (N,) int32 window index of each frame.
     windows: one :class:`WindowResult` per window.
-    timings: seconds per step (``level``, ``fields``, ``correlative``, ``icp``, ``continuity``,
+    timings: seconds per step (``level``, ``maps``, ``correlative``, ``icp``, ``continuity``,
         ``apply``, ``total``) and ``per_window`` (mean of the per-window search time).
     """
 
@@ -316,52 +324,20 @@ class CoarseResult:
 
 
 @dataclass
-class _Fields:
-    """Score maps of one storey's plan section (walls and columns, coarse and fine)."""
-
-    segments: F64
-    segment_class: I32
-    coarse: dict[int, DistanceField]
-    coarse_score: dict[int, NDArray[np.float32]]
-    fine: dict[int, DistanceField]
-    fine_score: dict[int, NDArray[np.float32]]
-    index: SegmentIndex
-
-
-@dataclass
 class _Candidate:
     correction: Correction2D
     score: float
     inlier_ratio: float
+    constraint: float
 
 
-def _build_fields(plan: FloorPlan, mask: NDArray[np.bool_], opt: CoarseOptions) -> _Fields:
-    seg, cls_ = plan.segments[mask], plan.segment_class[mask]
+def _build_maps(plan: FloorPlan, mask: NDArray[np.bool_], opt: CoarseOptions) -> PlanMaps:
     xy = plan.segments.reshape(-1, 2)
     bounds = (xy[:, 0].min(), xy[:, 1].min(), xy[:, 0].max(), xy[:, 1].max())
-    margin = opt.xy_range_m + 3.0
-    coarse, coarse_s, fine, fine_s = {}, {}, {}, {}
-    for c in (int(Label.WALL), int(Label.COLUMN)):
-        s = seg[cls_ == c]
-        coarse[c] = DistanceField.from_segments(s, opt.coarse_resolution_m, bounds, margin)
-        coarse_s[c] = coarse[c].score_map(opt.coarse_sigma_m, opt.score_truncate)
-        fine[c] = DistanceField.from_segments(s, opt.fine_resolution_m, bounds, margin)
-        fine_s[c] = fine[c].score_map(opt.fine_sigma_m, opt.score_truncate)
-    index = SegmentIndex.build(seg, cls_, opt.fine_resolution_m, bounds, margin)
-    return _Fields(seg, cls_, coarse, coarse_s, fine, fine_s, index)
-
-
-def _fine_eval(fields: _Fields, p_xy: F64, p_class: I32, opt: CoarseOptions
-               ) -> tuple[F64, F64]:
-    """Per point (score, distance) against the fine maps of the point's class."""
-    score = np.zeros(len(p_xy))
-    dist = np.full(len(p_xy), np.inf)
-    for c in (int(Label.WALL), int(Label.COLUMN)):
-        m = p_class == c
-        if m.any():
-            score[m] = fields.fine[c].lookup(p_xy[m], fields.fine_score[c])
-            dist[m] = fields.fine[c].lookup(p_xy[m])
-    return score, dist
+    return PlanMaps.build(plan.segments[mask], plan.segment_class[mask], bounds,
+                          opt.xy_range_m + 3.0, opt.view_bins, opt.coarse_resolution_m,
+                          opt.coarse_sigma_m, opt.fine_resolution_m, opt.fine_sigma_m,
+                          opt.score_truncate)
 
 
 def _weighted_mean(values: F64, p_class: I32, column_weight: float) -> float:
@@ -372,20 +348,18 @@ def _weighted_mean(values: F64, p_class: I32, column_weight: float) -> float:
 
 
 def _subsample(p_xy: F64, p_class: I32, cell: float | None, cap: int,
-               rng: np.random.Generator) -> tuple[F64, I32]:
-    """Thin points out: with ``cell``, one point per (cell, class) grid cell (for occupancy
-    templates; this flattens the noise distribution, so ICP must not use it); then at most
-    ``cap`` points drawn uniformly at random (keeps the noise distribution)."""
-    if len(p_xy) == 0:
-        return p_xy, p_class
+               rng: np.random.Generator) -> NDArray[np.int64]:
+    """Indices of a thinned point set: with ``cell``, one point per (cell, class) grid cell (for
+    occupancy templates; this flattens the noise distribution, so ICP must not use it); then at
+    most ``cap`` points drawn uniformly at random (keeps the noise distribution)."""
     keep = np.arange(len(p_xy))
-    if cell is not None:
+    if len(p_xy) and cell is not None:
         key = np.c_[np.floor(p_xy / cell).astype(np.int64), p_class.astype(np.int64)]
         _, keep = np.unique(key, axis=0, return_index=True)
         keep = np.sort(keep)
     if len(keep) > cap:
         keep = np.sort(rng.choice(keep, cap, replace=False))
-    return p_xy[keep], p_class[keep]
+    return keep
 
 
 def _pick_height(heights: F64, z: float, below: bool = False) -> float | None:
@@ -455,7 +429,7 @@ def coarse_register(
     n = len(poses)
     samples.check_frames(n)
     rng = np.random.default_rng(opt.seed)
-    timings = {k: 0.0 for k in ("level", "fields", "correlative", "icp", "continuity", "apply")}
+    timings = {k: 0.0 for k in ("level", "maps", "correlative", "icp", "continuity", "apply")}
 
     # All labelled points in the world with the initial poses, once.
     world_pts: dict[str, F64] = {}
@@ -472,7 +446,7 @@ def coarse_register(
     frame_window = np.repeat(np.arange(len(starts)), stops - starts).astype(np.int32)
     win_of = {c: frame_window[frames[c]] for c in _CLASSES}
 
-    field_cache: dict[tuple[float | None, bytes], _Fields] = {}
+    map_cache: dict[tuple[float | None, bytes], PlanMaps] = {}
     yaw_range = np.deg2rad(opt.yaw_range_deg)
     step = np.deg2rad(opt.yaw_step_deg)
     if opt.yaw_range_deg >= 180:
@@ -483,8 +457,7 @@ def coarse_register(
 
     levels: list[LevelResult] = []
     cands: list[list[_Candidate]] = []
-    win_fields: list[_Fields] = []
-    win_pts: list[tuple[F64, I32]] = []
+    win_maps: list[PlanMaps] = []
     win_meta: list[dict[str, Any]] = []
     for w, (f0, f1) in enumerate(zip(starts, stops)):
         tw = time.perf_counter()
@@ -503,21 +476,26 @@ def coarse_register(
                  if opt.use_gravity else LevelResult.identity(pivot3))
         lm = level.matrix()
         timings["level"] += time.perf_counter() - t0
-        # 2. planar points after levelling, wall band, subsampling.
-        planar, pclass = [], []
+        # 2. planar points after levelling (with the ray direction camera → point), wall band,
+        # and two thinned sets: random for ICP, one per cell for the occupancy templates.
+        planar, views, pclass = [], [], []
         for c, lab in (("wall", Label.WALL), ("column", Label.COLUMN)):
             q = pts[c] @ lm[:3, :3].T + lm[:3, 3]
+            cam = poses[frames[c][win_of[c] == w], :3] @ lm[:3, :3].T + lm[:3, 3]
+            keep = np.ones(len(q), dtype=bool)
             if floor_z is not None and opt.wall_band_m > 0:
-                keep = q[:, 2] > floor_z + opt.wall_band_m
+                keep &= q[:, 2] > floor_z + opt.wall_band_m
                 if ceil_z is not None:
                     keep &= q[:, 2] < ceil_z - opt.wall_band_m
-                q = q[keep]
-            planar.append(q[:, :2])
-            pclass.append(np.full(len(q), int(lab), np.int32))
-        all_xy, all_cls = np.concatenate(planar), np.concatenate(pclass)
-        p_xy, p_cls = _subsample(all_xy, all_cls, None, opt.max_points_per_window, rng)
-        occ_xy, occ_cls = _subsample(all_xy, all_cls, 0.5 * opt.coarse_resolution_m,
-                                     10 * opt.max_points_per_window, rng)
+            planar.append(q[keep, :2])
+            views.append(q[keep, :2] - cam[keep, :2])
+            pclass.append(np.full(int(keep.sum()), int(lab), np.int32))
+        all_xy, all_view, all_cls = (np.concatenate(planar), np.concatenate(views),
+                                     np.concatenate(pclass))
+        sel = _subsample(all_xy, all_cls, None, opt.max_points_per_window, rng)
+        p_xy, p_view, p_cls = all_xy[sel], all_view[sel], all_cls[sel]
+        occ = _subsample(all_xy, all_cls, 0.5 * opt.coarse_resolution_m,
+                         10 * opt.max_points_per_window, rng)
         # Plan section of this storey.
         t0 = time.perf_counter()
         if plan.segment_z is not None and floor_z is not None:
@@ -526,21 +504,22 @@ def coarse_register(
         else:
             mask = np.ones(len(plan.segments), dtype=bool)
         key = (None if floor_z is None else round(floor_z, 3), np.packbits(mask).tobytes())
-        if key not in field_cache:
-            field_cache[key] = _build_fields(plan, mask, opt)
-        fields = field_cache[key]
-        timings["fields"] += time.perf_counter() - t0
+        if key not in map_cache:
+            map_cache[key] = _build_maps(plan, mask, opt)
+        maps = map_cache[key]
+        timings["maps"] += time.perf_counter() - t0
+
+        def associate(q: F64, q_class: I32, view: F64, maps: PlanMaps = maps) -> tuple[F64, F64]:
+            return maps.nearest(q, maps.layer_of(q_class, view))
+
         pivot = pivot3[:2].copy()
         found: list[_Candidate] = []
-        if len(p_xy) >= opt.min_points and len(fields.segments):
+        if len(p_xy) >= opt.min_points and len(maps.segments):
             # 3. correlative search.
             t0 = time.perf_counter()
             if opt.use_correlative:
-                layers = [ScoreLayer(occ_xy[occ_cls == c], fields.coarse[c],
-                                     fields.coarse_score[c],
-                                     1.0 if c == Label.WALL else opt.column_weight)
-                          for c in (int(Label.WALL), int(Label.COLUMN))]
-                vol, res, nn = score_volume(layers, pivot, yaws, opt.xy_range_m)
+                vol, res, nn = score_volume(all_xy[occ], all_cls[occ], all_view[occ], maps, pivot,
+                                            yaws, opt.xy_range_m, opt.column_weight)
                 hyps = top_hypotheses(vol, yaws, res, nn, opt.top_k, opt.nms_xy_m,
                                       np.deg2rad(opt.nms_yaw_deg))
                 inits = [Correction2D(h.yaw, h.t, pivot) for h in hyps]
@@ -550,19 +529,21 @@ def coarse_register(
             # 4. ICP and fine scoring of each hypothesis.
             t0 = time.perf_counter()
             for init in inits:
+                constraint = float("nan")
                 if opt.use_icp:
-                    r = icp_2d(p_xy, p_cls, fields.index.nearest, init,
-                               opt.icp_radius_start_m, opt.icp_radius_end_m, opt.icp_iterations,
-                               opt.icp_huber_m, opt.inlier_m)
-                    corr = r.correction
+                    fit = icp_2d(p_xy, p_cls, associate, init, p_view, opt.icp_radius_start_m,
+                                 opt.icp_radius_end_m, opt.icp_iterations, opt.icp_huber_m,
+                                 opt.inlier_m)
+                    corr, constraint = fit.correction, fit.constraint
                 else:
                     corr = init
-                s, d = _fine_eval(fields, corr.apply(p_xy), p_cls, opt)
-                cand = _Candidate(corr, _weighted_mean(s, p_cls, opt.column_weight),
-                                  float((d < opt.inlier_m).mean()))
+                layer = maps.layer_of(p_cls, p_view @ rot2(corr.yaw).T)
+                sc, dist = maps.fine_eval(corr.apply(p_xy), layer)
+                cand = _Candidate(corr, _weighted_mean(sc, p_cls, opt.column_weight),
+                                  float((dist < opt.inlier_m).mean()), constraint)
                 dup = [k for k, o in enumerate(found)
-                       if abs(np.angle(np.exp(1j * (o.correction.yaw - corr.yaw)))) < np.deg2rad(0.5)
-                       and np.linalg.norm(o.correction.t - corr.t) < 0.05]
+                       if abs(np.angle(np.exp(1j * (o.correction.yaw - corr.yaw))))
+                       < np.deg2rad(0.5) and np.linalg.norm(o.correction.t - corr.t) < 0.05]
                 if dup:
                     if cand.score > found[dup[0]].score:
                         found[dup[0]] = cand
@@ -571,8 +552,7 @@ def coarse_register(
             timings["icp"] += time.perf_counter() - t0
         levels.append(level)
         cands.append(found)
-        win_fields.append(fields)
-        win_pts.append((p_xy, p_cls))
+        win_maps.append(maps)
         win_meta.append({"seconds": time.perf_counter() - tw, "n_points": len(p_xy)})
 
     # 5. continuity: one hypothesis per window.
@@ -606,7 +586,8 @@ def coarse_register(
             reason = "too few points" if win_meta[w]["n_points"] < opt.min_points else "no hypothesis"
             windows.append(WindowResult(int(f0), int(f1), win_meta[w]["n_points"], 0, 0.0,
                                         (0.0, 0.0), tuple(poses[f0:f1, :2].mean(0)), lv.dz, tilt,
-                                        0.0, 0.0, 0.0, False, reason, win_meta[w]["seconds"]))
+                                        0.0, 0.0, 0.0, 0.0, False, reason,
+                                        win_meta[w]["seconds"]))
             continue
         cand = cands[w][choice[w]]
         corr = cand.correction
@@ -617,6 +598,8 @@ def coarse_register(
             reason = f"inlier ratio {cand.inlier_ratio:.2f} < {opt.min_inlier_ratio}"
         elif cand.score < opt.min_score:
             reason = f"score {cand.score:.2f} < {opt.min_score}"
+        elif cand.constraint < opt.min_constraint:
+            reason = f"degenerate (translation constraint {cand.constraint:.3f})"
         elif opt.use_correlative and (np.abs(corr.t).max() > edge_t or
                                       (opt.yaw_range_deg < 180 and abs(corr.yaw) > edge_yaw)):
             reason = "optimum at the edge of the search range"
@@ -625,7 +608,7 @@ def coarse_register(
             int(f0), int(f1), win_meta[w]["n_points"], len(cands[w]),
             float(np.rad2deg(corr.yaw)), (float(corr.t[0]), float(corr.t[1])),
             (float(corr.pivot[0]), float(corr.pivot[1])), lv.dz, tilt, cand.score,
-            cand.inlier_ratio, max(c.score for c in cands[w]), accepted, reason,
+            cand.inlier_ratio, cand.constraint, max(c.score for c in cands[w]), accepted, reason,
             win_meta[w]["seconds"]))
         if accepted:
             nodes.append(0.5 * (f0 + f1 - 1))
@@ -645,15 +628,15 @@ def coarse_register(
         fr = frames[c]
         if not len(fr):
             continue
-        q = transform_points(out_poses[fr], getattr(samples, f"{c}_p_in_cam"))
+        q = transform_points(out_poses[fr], getattr(samples, f"{c}_p_in_cam"))[:, :2]
+        view = q - out_poses[fr, :2]
+        cls_ = np.full(len(fr), int(lab), np.int32)
+        wt = 1.0 if lab == Label.WALL else opt.column_weight
         for w in np.unique(frame_window[fr]):
             m = frame_window[fr] == w
-            fl = win_fields[w]
-            s = fl.fine[int(lab)].lookup(q[m, :2], fl.fine_score[int(lab)])
-            d = fl.fine[int(lab)].lookup(q[m, :2])
-            wt = 1.0 if lab == Label.WALL else opt.column_weight
-            np.add.at(frame_score, fr[m], wt * s)
-            np.add.at(frame_inl, fr[m], wt * (d < opt.inlier_m))
+            sc, dist = win_maps[w].fine_eval(q[m], win_maps[w].layer_of(cls_[m], view[m]))
+            np.add.at(frame_score, fr[m], wt * sc)
+            np.add.at(frame_inl, fr[m], wt * (dist < opt.inlier_m))
     count = np.zeros(n)
     for c, lab in (("wall", Label.WALL), ("column", Label.COLUMN)):
         np.add.at(count, frames[c], 1.0 if lab == Label.WALL else opt.column_weight)

@@ -92,12 +92,18 @@ def point_segment_distance(p_xy: NDArray[np.float64], segments: NDArray[np.float
 
 @dataclass(frozen=True)
 class IcpResult:
-    """Outcome of :func:`icp_2d`: the correction, and the fit at the final radius."""
+    """Outcome of :func:`icp_2d`: the correction, and the fit at the final radius.
+
+    ``constraint`` is the smaller eigenvalue of the mean outer product ``n nᵀ`` of the inliers'
+    residual directions (0 = translation unconstrained along some direction, as in a corridor
+    seen without its ends or doors; 0.5 = constrained equally in every direction).
+    """
 
     correction: Correction2D
     inlier_ratio: float
     rms_m: float
     iterations: int
+    constraint: float
 
 
 def _nearest_by_class(q: F64, q_class: NDArray[np.int32], segments: F64,
@@ -114,8 +120,10 @@ def _nearest_by_class(q: F64, q_class: NDArray[np.int32], segments: F64,
     return dist, closest
 
 
-#: ``associate(q (M, 2), q_class (M,)) -> (dist (M,), closest (M, 2))``.
-Associator = Callable[[F64, NDArray[np.int32]], tuple[F64, F64]]
+#: ``associate(q (M, 2), q_class (M,), view (M, 2)) -> (dist (M,), closest (M, 2))``: the
+#: nearest admissible segment of each point; ``view`` is the ray direction camera → point after
+#: the current correction (an associator may use it to skip faces that cannot be seen).
+Associator = Callable[[F64, NDArray[np.int32], F64], tuple[F64, F64]]
 
 
 def exact_associator(segments: NDArray[np.float64], segment_class: NDArray[np.int32]
@@ -123,7 +131,7 @@ def exact_associator(segments: NDArray[np.float64], segment_class: NDArray[np.in
     """Brute-force same-class nearest segment (exact; O(M·S))."""
     seg = np.asarray(segments, dtype=np.float64)
     cls_ = np.asarray(segment_class)
-    return lambda q, q_class: _nearest_by_class(q, q_class, seg, cls_)
+    return lambda q, q_class, view: _nearest_by_class(q, q_class, seg, cls_)
 
 
 def icp_2d(
@@ -131,6 +139,7 @@ def icp_2d(
     p_class: NDArray[np.int32],
     associate: Associator,
     init: Correction2D,
+    view_xy: NDArray[np.float64] | None = None,
     radius_start_m: float = 0.3,
     radius_end_m: float = 0.08,
     iterations: int = 10,
@@ -151,6 +160,8 @@ def icp_2d(
     associate: nearest same-class segment of points (:func:`exact_associator`, or the raster
         :meth:`bimcap.registration.distance_field.SegmentIndex.nearest`).
     init: the starting correction; its pivot is kept.
+    view_xy: (M, 2) ray directions camera → point before the correction (rotated with the
+        yaw and passed to ``associate``); None = zeros.
 
     Returns
     -------
@@ -158,11 +169,12 @@ def icp_2d(
     """
     p = np.asarray(p_xy, dtype=np.float64).reshape(-1, 2)
     yaw, t, pivot = float(init.yaw), np.asarray(init.t, dtype=np.float64).copy(), init.pivot
+    view = np.zeros_like(p) if view_xy is None else np.asarray(view_xy, dtype=np.float64)
     radii = np.geomspace(radius_start_m, radius_end_m, max(iterations, 1))
     it = 0
     for it, radius in enumerate(radii, start=1):
         q = apply_correction(p, yaw, t, pivot)
-        dist, closest = associate(q, p_class)
+        dist, closest = associate(q, p_class, view @ rot2(yaw).T)
         use = dist < radius
         if use.sum() < 3:
             break
@@ -183,9 +195,15 @@ def icp_2d(
         if abs(dyaw) < 1e-6 and np.linalg.norm(dt) < 1e-5 and radius <= radius_end_m * 1.01:
             break
     q = apply_correction(p, yaw, t, pivot)
-    dist, _ = associate(q, p_class)
+    dist, closest = associate(q, p_class, view @ rot2(yaw).T)
     ok = dist < inlier_m
     rms = float(np.sqrt(np.mean(dist[ok] ** 2))) if ok.any() else float("nan")
+    constraint = 0.0
+    if ok.sum() >= 3:
+        # Directions from the segment to the point; for points on the line use its normal,
+        # which the residual direction approximates well enough at noise level.
+        n = (q[ok] - closest[ok]) / np.maximum(dist[ok], 1e-12)[:, None]
+        constraint = float(np.linalg.eigvalsh(n.T @ n / len(n))[0])
     yaw = float(np.arctan2(np.sin(yaw), np.cos(yaw)))
     return IcpResult(Correction2D(yaw, t, np.asarray(pivot, dtype=np.float64)),
-                     float(ok.mean()) if len(ok) else 0.0, rms, it)
+                     float(ok.mean()) if len(ok) else 0.0, rms, it, constraint)

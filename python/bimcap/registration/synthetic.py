@@ -75,6 +75,42 @@ def rectangle(x0: float, y0: float, x1: float, y1: float) -> F64:
     return np.array([[x0, y0, x1, y0], [x1, y0, x1, y1], [x1, y1, x0, y1], [x0, y1, x0, y0]])
 
 
+def solids(rects: list[tuple[float, float, float, float]], segment_class: int = int(Label.WALL)
+           ) -> Scene:
+    """A scene of solid rectangles ``(x0, y0, x1, y1)`` (walls as thick solids, as a BIM plan
+    section gives them); the rectangles must not overlap (butt joints are fine) so that every
+    outline stays a closed curve with a well-defined inside."""
+    seg = np.concatenate([rectangle(*r) for r in rects]) if rects else np.zeros((0, 4))
+    return Scene(seg, np.full(len(seg), segment_class, np.int32))
+
+
+def merge(*scenes: Scene) -> Scene:
+    """One scene with the segments of all (floor/ceiling of the first)."""
+    return Scene(np.concatenate([s.segments for s in scenes]),
+                 np.concatenate([s.segment_class for s in scenes]), scenes[0].floor_z,
+                 scenes[0].ceiling_z)
+
+
+def symmetric_scene(room_column_xy: tuple[float, float] = (2.2, 1.8)) -> Scene:
+    """A room ``[0.2, 8.2] × [-3, 3]`` with a 1.2 m door in its west and east walls, each
+    opening onto a 10 m corridor 2.4 m wide closed at its far end: the walls are symmetric
+    under a 180° turn about (4.2, 0). A column in the west corridor at (-6, 0.8) breaks the
+    symmetry there; a second column stands in the room at ``room_column_xy`` (put it at the
+    mirror image in the as-built world to make the room's own data favour the flipped pose).
+    Walls 0.2 m thick, as solids."""
+    t = 0.2
+    walls = [
+        (-10.0, -1.2 - t, 0.0, -1.2), (-10.0, 1.2, 0.0, 1.2 + t), (-10.0 - t, -1.2 - t, -10.0, 1.2 + t),
+        (0.0, -3.0 - t, t, -0.6), (0.0, 0.6, t, 3.0 + t),
+        (8.2, -3.0 - t, 8.2 + t, -0.6), (8.2, 0.6, 8.2 + t, 3.0 + t),
+        (t, -3.0 - t, 8.2, -3.0), (t, 3.0, 8.2, 3.0 + t),
+        (8.4, -1.2 - t, 18.4, -1.2), (8.4, 1.2, 18.4, 1.2 + t), (18.4, -1.2 - t, 18.4 + t, 1.2 + t),
+    ]
+    cx, cy = room_column_xy
+    columns = [(-6.15, 0.65, -5.85, 0.95), (cx - 0.15, cy - 0.15, cx + 0.15, cy + 0.15)]
+    return merge(solids(walls), solids(columns, int(Label.COLUMN)))
+
+
 def level_pose(x: float, y: float, yaw: float, height: float = 1.5) -> F64:
     """(7,) ``world_from_cam`` of a level camera at ``(x, y, height)`` looking along ``yaw``."""
     rot = Rotation.from_euler("z", yaw) * Rotation.from_matrix(_R_LEVEL)
@@ -189,5 +225,5 @@ def pose_errors(estimate: NDArray[np.float64], truth: NDArray[np.float64]) -> tu
     return t_err, r_err
 
 
-__all__ = ["Scene", "demo_scene", "demo_tour", "rectangle", "level_pose", "poses_along",
+__all__ = ["Scene", "demo_scene", "demo_tour", "rectangle", "solids", "merge", "symmetric_scene", "level_pose", "poses_along",
            "displace", "scan", "scan_sequence", "pose_errors"]
