@@ -209,8 +209,8 @@ to faces its ray can hit from free space); 1 disables it.
     continuity_cap: float = 50.0
     score_sigma: float = 0.05
     min_points: int = 50
-    min_inlier_ratio: float = 0.4
-    min_score: float = 0.25
+    min_inlier_ratio: float = 0.55
+    min_score: float = 0.5
     min_constraint: float = 0.02
     seed: int = 0
 

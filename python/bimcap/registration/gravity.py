@@ -106,15 +106,16 @@ def level_window(
         jac = np.c_[v[:, 1], -v[:, 0], np.ones(len(v))]
         ru = r[use]
         w = np.where(np.abs(ru) <= huber_m, 1.0, huber_m / np.maximum(np.abs(ru), 1e-12))
-        nrm = float(w.sum())
-        a = (jac * w[:, None]).T @ jac / nrm
-        # Weak prior on the accumulated tilt (pulls towards the initial attitude).
+        # Data weighted by 1/huber² (the noise scale), so the angle prior only matters when
+        # the floor patch is too small to fix the tilt.
+        info = 1.0 / huber_m ** 2
+        a = (jac * w[:, None]).T @ jac * info
         tilt = Rotation.from_matrix(rot).as_rotvec()
-        a[0, 0] += prior / nrm
-        a[1, 1] += prior / nrm
-        g = (jac * w[:, None]).T @ ru / nrm
-        g[0] += prior / nrm * tilt[0]
-        g[1] += prior / nrm * tilt[1]
+        a[0, 0] += prior
+        a[1, 1] += prior
+        g = (jac * w[:, None]).T @ ru * info
+        g[0] += prior * tilt[0]
+        g[1] += prior * tilt[1]
         delta = -np.linalg.solve(a, g)
         rot = Rotation.from_rotvec([delta[0], delta[1], 0.0]).as_matrix() @ rot
         dz += float(delta[2])
