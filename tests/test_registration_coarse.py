@@ -133,3 +133,48 @@ def test_symmetric_room_flips_without_continuity() -> None:
     # Negative control: the same data without the continuity chain take the flipped room.
     _, r_err = _symmetric_case(use_continuity=False)
     assert r_err.max() > 150.0
+
+
+def test_rigid_motion_of_the_whole_world_changes_nothing(demo: Scene) -> None:
+    # Invariant: turn the building, the truth and the drift by 30° and move them by (7, -3):
+    # the stage must converge just as well (the view bins follow the plan's wall direction).
+    from bimcap.geometry.poses import compose
+
+    yaw, shift = np.deg2rad(30.0), np.array([7.0, -3.0])
+    c, s = np.cos(yaw), np.sin(yaw)
+    rot = np.array([[c, -s], [s, c]])
+    moved = Scene(np.c_[demo.segments[:, :2] @ rot.T + shift, demo.segments[:, 2:] @ rot.T + shift],
+                  demo.segment_class, demo.floor_z, demo.ceiling_z)
+    world = np.r_[shift, 0.0, 0.0, 0.0, np.sin(yaw / 2), np.cos(yaw / 2)]
+    gt = compose(world, corridor_walk(10))
+    samples = scan_sequence(gt, moved, seed=6, clutter_fraction=0.03)
+    init = drift(gt, 1.5, 15.0)
+    res = coarse_register(init, samples, moved.floor_plan())
+    t_err, r_err = pose_errors(res.poses, gt)
+    assert t_err.max() < 0.05 and r_err.max() < 0.5, (t_err.max(), r_err.max())
+
+
+@pytest.mark.slow
+def test_smoothly_growing_drift_like_exp1(demo: Scene) -> None:
+    # Odometry with a 3 % scale error and a constant yaw rate: 0 at the start, ~1 m and ~11°
+    # after 60 frames. Window corrections + per-frame ICP must take it out.
+    from bimcap.geometry.poses import compose, invert
+    from scipy.spatial.transform import Rotation
+
+    from bimcap.registration.synthetic import demo_tour
+
+    gt = poses_along(demo_tour(seed=0), 0.25)[100:160]
+    step_err = np.r_[0.0, 0.0, 0.0, Rotation.from_euler("y", np.deg2rad(11.0) / len(gt)).as_quat()]
+    rel = compose(invert(gt[:-1]), gt[1:])
+    rel[:, :3] *= 1.03
+    init = [gt[0]]
+    for r in rel:
+        init.append(compose(init[-1], compose(r, step_err)))
+    init_arr = np.array(init)
+    t0, r0 = pose_errors(init_arr, gt)
+    assert t0.max() > 0.8 and r0.max() > 10.0
+    res = coarse_register(init_arr, scan_sequence(gt, demo, seed=7, clutter_fraction=0.05),
+                          demo.floor_plan())
+    t_err, r_err = pose_errors(res.poses, gt)
+    assert t_err.max() < 0.05, t_err
+    assert np.median(r_err) < 0.2 and np.percentile(r_err, 90) < 0.5, r_err
