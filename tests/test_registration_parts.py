@@ -208,7 +208,8 @@ def test_input_errors_name_the_field() -> None:
     with pytest.raises(RegistrationInputError, match="xy_range_m"):
         CoarseOptions(xy_range_m=0.0)
     with pytest.raises(RegistrationInputError, match="wall_p_in_cam"):
-        SemanticSamples.from_arrays(wall_frame=np.zeros(3, np.int32), wall_p_in_cam=np.zeros((2, 3)))
+        SemanticSamples.from_arrays(wall_frame=np.zeros(3, np.int32),
+                                    wall_p_in_cam=np.zeros((2, 3)))
     with pytest.raises(RegistrationInputError, match="segment_class"):
         FloorPlan(SEGMENTS, np.array([1, 2, 1]))
     plan = FloorPlan(SEGMENTS, np.ones(3, np.int32))

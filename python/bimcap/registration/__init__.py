@@ -6,6 +6,8 @@ Public API: :func:`coarse_register` with :class:`CoarseOptions`, :class:`Semanti
 OpenCV is imported only when a distance field is built.
 """
 
+from __future__ import annotations
+
 from bimcap.registration.coarse import (
     CoarseOptions,
     CoarseResult,

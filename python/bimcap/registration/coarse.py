@@ -17,7 +17,16 @@ smooth):
 
 Accepted windows' corrections (4×4 world-from-world) are interpolated per frame between window
 centres (slerp / lerp), and rejected windows take the interpolation of their accepted
-neighbours. All arrays follow docs/architecture.md: poses ``(N, 7)`` TUM order, points in the
+neighbours. Finally (5.) every frame of an accepted window gets a short ICP of its own, which
+takes out the drift *inside* a window (kept only when well constrained and small).
+
+Typical use, from the solver problem's arrays (docs/architecture.md)::
+
+    samples = SemanticSamples.from_arrays(wall_frame=..., wall_p_in_cam=..., column_frame=...,
+                                          column_p_in_cam=..., floor_frame=..., ...)
+    plan = FloorPlan.from_planes(segments, segment_class, segment_z, planes, plane_kind)
+    result = coarse_register(world_from_cam, samples, plan, CoarseOptions())
+    world_from_cam = result.poses   # the bundle adjustment starts from here All arrays follow docs/architecture.md: poses ``(N, 7)`` TUM order, points in the
 OpenCV camera frame, metres.
 """
 
@@ -74,7 +83,8 @@ class SemanticSamples:
     def from_arrays(cls, **arrays: ArrayLike | None) -> SemanticSamples:
         """Build from keyword arrays named as in the solver problem (``wall_frame`` ...);
         a missing or None class is empty. Raises :class:`RegistrationInputError` on bad shapes."""
-        unknown = sorted(set(arrays) - {f"{c}_{s}" for c in _CLASSES for s in ("frame", "p_in_cam")})
+        known = {f"{c}_{s}" for c in _CLASSES for s in ("frame", "p_in_cam")}
+        unknown = sorted(set(arrays) - known)
         if unknown:
             raise RegistrationInputError("unknown array", None, unknown[0])
         out: dict[str, Any] = {}
@@ -194,8 +204,10 @@ class CoarseOptions:
     refine_frames, frame_max_points, frame_max_step_m, frame_max_step_deg: after the window
         corrections, each frame of an accepted window gets its own short ICP (radius
         ``icp_radius_end_m · 2`` → ``icp_radius_end_m``), which takes out the drift *inside*
-        a window; the frame keeps it only if it is well constrained, has enough inliers and
+        a window; a frame's fit counts only if it is well constrained, has enough inliers and
         moved less than the step limits.
+    frame_smooth: each frame then takes the median of the counted per-frame corrections
+        within ± this many frames (drift is smooth; one frame's fit is noisy).
     continuity_weight, continuity_sigma_t_m, continuity_sigma_yaw_deg, continuity_cap,
         score_sigma: the Viterbi chain's costs (:mod:`.continuity`).
     min_points, min_inlier_ratio, min_score, min_constraint: a window is accepted only with
@@ -234,6 +246,7 @@ class CoarseOptions:
     use_continuity: bool = True
     interpolate: bool = True
     refine_frames: bool = True
+    frame_smooth: int = 3
     frame_max_points: int = 1500
     frame_max_step_m: float = 0.2
     frame_max_step_deg: float = 2.0
@@ -271,7 +284,7 @@ class CoarseOptions:
                                              name)
         if not 0 <= self.yaw_range_deg <= 180:
             raise RegistrationInputError("must be in [0, 180]", None, "yaw_range_deg")
-        for name in ("column_weight", "continuity_weight", "wall_band_m"):
+        for name in ("column_weight", "continuity_weight", "wall_band_m", "frame_smooth"):
             if getattr(self, name) < 0:
                 raise RegistrationInputError("must be >= 0", None, name)
 
@@ -326,7 +339,10 @@ class CoarseResult:
     windows: one :class:`WindowResult` per window.
     timings: seconds per step (``level``, ``maps``, ``correlative``, ``icp``, ``continuity``,
         ``apply``, ``total``) and ``per_window`` (mean time of one window's levelling, search
-        and ICP, without building the plan maps, which happens once per storey).
+        and ICP, without building the plan maps, which happens once per storey); the same as
+        CPU time of this process in ``cpu_total`` and ``cpu_per_window`` (all threads; useful
+        on a shared machine). ``refine_frames`` is the per-frame ICP's time and
+        ``frames_refined`` the number of frames that kept it.
     """
 
     poses: F64
@@ -437,12 +453,14 @@ def _refine_frames(per_frame: F64, poses: F64, world_pts: dict[str, F64], frames
                    frame_window: I32, win_maps: list[PlanMaps], win_meta: list[dict[str, Any]],
                    accepted: NDArray[np.bool_], opt: CoarseOptions, rng: np.random.Generator
                    ) -> int:
-    """Per-frame ICP on top of the interpolated window corrections (in place); returns the
-    number of frames that kept their refinement."""
+    """Per-frame ICP on top of the interpolated window corrections, smoothed over
+    ``±frame_smooth`` frames (in place); returns the number of frames that were refined."""
     order = {c: np.argsort(frames[c], kind="stable") for c in ("wall", "column")}
     bounds = {c: np.searchsorted(frames[c][order[c]], np.arange(len(poses) + 1))
               for c in ("wall", "column")}
-    kept = 0
+    delta = np.zeros((len(poses), 3))
+    good = np.zeros(len(poses), dtype=bool)
+    cams = np.full((len(poses), 2), np.nan)
     for i in np.flatnonzero(accepted):
         m = per_frame[i]
         meta = win_meta[frame_window[i]]
@@ -460,6 +478,7 @@ def _refine_frames(per_frame: F64, poses: F64, world_pts: dict[str, F64], frames
             xy.append(q[keep, :2])
             cls_.append(np.full(int(keep.sum()), int(lab), np.int32))
         p_xy, p_cls = np.concatenate(xy), np.concatenate(cls_)
+        cams[i] = cam[:2]
         if len(p_xy) < opt.min_points:
             continue
         sel = _subsample(p_xy, p_cls, None, opt.frame_max_points, rng)
@@ -476,8 +495,20 @@ def _refine_frames(per_frame: F64, poses: F64, world_pts: dict[str, F64], frames
         if (fit.inlier_ratio >= opt.min_inlier_ratio and fit.constraint >= opt.min_constraint
                 and np.linalg.norm(corr.t) <= opt.frame_max_step_m
                 and abs(np.rad2deg(corr.yaw)) <= opt.frame_max_step_deg):
-            per_frame[i] = _lift(corr) @ m
-            kept += 1
+            delta[i] = (corr.yaw, corr.t[0], corr.t[1])
+            good[i] = True
+    # Drift is smooth and a single frame's fit is noisy: every frame takes the component-wise
+    # median of the kept corrections within ±frame_smooth frames (about its own camera).
+    kept = 0
+    h = opt.frame_smooth
+    for i in np.flatnonzero(accepted):
+        lo, hi = max(i - h, 0), min(i + h + 1, len(poses))
+        near = np.flatnonzero(good[lo:hi]) + lo
+        if len(near) == 0 or np.isnan(cams[i]).any():
+            continue
+        d = np.median(delta[near], axis=0)
+        per_frame[i] = _lift(Correction2D(float(d[0]), d[1:], cams[i])) @ per_frame[i]
+        kept += 1
     return kept
 
 
@@ -509,7 +540,8 @@ def coarse_register(
     CoarseResult
     """
     opt = CoarseOptions() if options is None else options
-    t_start = time.perf_counter()
+    t_start, c_start = time.perf_counter(), time.process_time()
+    maps_cpu = 0.0
     poses = np.asarray(world_from_cam, dtype=np.float64)
     if poses.ndim != 2 or poses.shape[1] != 7 or len(poses) == 0 or not np.isfinite(poses).all():
         raise RegistrationInputError(f"must be finite (N>0, 7), got {poses.shape}", None,
@@ -551,8 +583,9 @@ def coarse_register(
     win_maps: list[PlanMaps] = []
     win_meta: list[dict[str, Any]] = []
     for w, (f0, f1) in enumerate(zip(starts, stops)):
-        tw = time.perf_counter()
-        maps_before = timings["maps"]
+        tw, cw = time.perf_counter(), time.process_time()
+        maps_before, maps_cpu_before = timings["maps"], maps_cpu
+
         pivot3 = poses[f0:f1, :3].mean(0)
         pts = {c: world_pts[c][win_of[c] == w] for c in _CLASSES}
         # 1. gravity and height.
@@ -598,7 +631,9 @@ def coarse_register(
         key = (plan_key, None if floor_z is None else round(floor_z, 3),
                np.packbits(mask).tobytes())
         if key not in map_cache:
+            c0 = time.process_time()
             map_cache[key] = _build_maps(plan, mask, opt)
+            maps_cpu += time.process_time() - c0
         maps = map_cache[key]
         timings["maps"] += time.perf_counter() - t0
 
@@ -647,6 +682,7 @@ def coarse_register(
         cands.append(found)
         win_maps.append(maps)
         win_meta.append({"seconds": time.perf_counter() - tw - (timings["maps"] - maps_before),
+                         "cpu_seconds": time.process_time() - cw - (maps_cpu - maps_cpu_before),
                          "n_points": len(p_xy), "floor_z": floor_z, "ceiling_z": ceil_z})
 
     # 5. continuity: one hypothesis per window.
@@ -677,7 +713,8 @@ def coarse_register(
         lv = levels[w]
         tilt = float(np.rad2deg(Rotation.from_matrix(lv.rotation).magnitude()))
         if not cands[w]:
-            reason = "too few points" if win_meta[w]["n_points"] < opt.min_points else "no hypothesis"
+            few = win_meta[w]["n_points"] < opt.min_points
+            reason = "too few points" if few else "no hypothesis"
             windows.append(WindowResult(int(f0), int(f1), win_meta[w]["n_points"], 0, 0.0,
                                         (0.0, 0.0), tuple(poses[f0:f1, :2].mean(0)), lv.dz, tilt,
                                         0.0, 0.0, 0.0, 0.0, False, reason,
@@ -746,6 +783,8 @@ def coarse_register(
     frame_inl = np.where(count > 0, frame_inl / np.maximum(count, 1e-12), 0.0)
     timings["apply"] += time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start
+    timings["cpu_total"] = time.process_time() - c_start
+    timings["cpu_per_window"] = float(np.mean([m["cpu_seconds"] for m in win_meta]))
     timings["frames_refined"] = float(n_refined)
     timings["per_window"] = float(np.mean([m["seconds"] for m in win_meta]))
     return CoarseResult(out_poses, frame_score, frame_inl, accepted_frames, frame_window, windows,

@@ -100,7 +100,8 @@ def symmetric_scene(room_column_xy: tuple[float, float] = (2.2, 1.8)) -> Scene:
     Walls 0.2 m thick, as solids."""
     t = 0.2
     walls = [
-        (-10.0, -1.2 - t, 0.0, -1.2), (-10.0, 1.2, 0.0, 1.2 + t), (-10.0 - t, -1.2 - t, -10.0, 1.2 + t),
+        (-10.0, -1.2 - t, 0.0, -1.2), (-10.0, 1.2, 0.0, 1.2 + t),
+        (-10.0 - t, -1.2 - t, -10.0, 1.2 + t),
         (0.0, -3.0 - t, t, -0.6), (0.0, 0.6, t, 3.0 + t),
         (8.2, -3.0 - t, 8.2 + t, -0.6), (8.2, 0.6, 8.2 + t, 3.0 + t),
         (t, -3.0 - t, 8.2, -3.0), (t, 3.0, 8.2, 3.0 + t),
@@ -225,5 +226,5 @@ def pose_errors(estimate: NDArray[np.float64], truth: NDArray[np.float64]) -> tu
     return t_err, r_err
 
 
-__all__ = ["Scene", "demo_scene", "demo_tour", "rectangle", "solids", "merge", "symmetric_scene", "level_pose", "poses_along",
-           "displace", "scan", "scan_sequence", "pose_errors"]
+__all__ = ["Scene", "demo_scene", "demo_tour", "displace", "level_pose", "merge", "pose_errors",
+           "poses_along", "rectangle", "scan", "scan_sequence", "solids", "symmetric_scene"]
