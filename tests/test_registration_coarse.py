@@ -178,3 +178,33 @@ def test_smoothly_growing_drift_like_exp1(demo: Scene) -> None:
     t_err, r_err = pose_errors(res.poses, gt)
     assert t_err.max() < 0.05, t_err
     assert np.median(r_err) < 0.2 and np.percentile(r_err, 90) < 0.5, r_err
+
+
+def _two_storey_case(demo: Scene, use_segment_z: bool) -> np.ndarray:
+    from bimcap.registration import FloorPlan
+
+    # Upstairs the same layout stands 0.6 m further east; the walk is upstairs and starts
+    # 0.6 m west of its truth, i.e. exactly where it would be right on the ground floor.
+    shift = np.array([0.6, 0.0, 0.6, 0.0])
+    upper = Scene(demo.segments + shift, demo.segment_class, 3.1, 5.9)
+    seg_z = np.r_[np.tile([0.0, 2.9], (len(demo.segments), 1)),
+                  np.tile([3.1, 6.0], (len(upper.segments), 1))]
+    plan = FloorPlan(np.r_[demo.segments, upper.segments],
+                     np.r_[demo.segment_class, upper.segment_class],
+                     seg_z if use_segment_z else None, np.array([0.0, 3.1]), np.array([2.8, 5.9]))
+    gt = poses_along(np.array([[3.0, -0.3], [6.0, -0.3]]), 0.25, height=4.6)[:10]
+    samples = scan_sequence(gt, upper, seed=8, clutter_fraction=0.03)
+    init = displace(gt, 0.0, np.array([-0.6, 0.0, 0.2]), gt[:, :3].mean(0))
+    res = coarse_register(init, samples, plan)
+    assert res.windows[0].dz_m == pytest.approx(-0.2, abs=0.02)  # floor at 3.1 m found
+    return pose_errors(res.poses, gt)[0]
+
+
+def test_storey_is_chosen_by_the_floor_height(demo: Scene) -> None:
+    assert _two_storey_case(demo, use_segment_z=True).max() < 0.05
+
+
+def test_without_storey_bands_the_wrong_storey_can_win(demo: Scene) -> None:
+    # Negative control: with every segment on every storey the ground-floor plan fits the
+    # initial pose perfectly and nothing moves it.
+    assert _two_storey_case(demo, use_segment_z=False).min() > 0.5
