@@ -565,6 +565,10 @@ def coarse_register(
     stops = np.r_[starts[1:], n]
     frame_window = np.repeat(np.arange(len(starts)), stops - starts).astype(np.int32)
     win_of = {c: frame_window[frames[c]] for c in _CLASSES}
+    # Points of window w of class c: by_win[c][bounds[c][w]:bounds[c][w + 1]].
+    by_win = {c: np.argsort(win_of[c], kind="stable") for c in _CLASSES}
+    bounds = {c: np.searchsorted(win_of[c][by_win[c]], np.arange(len(starts) + 1))
+              for c in _CLASSES}
 
     map_cache: dict[Any, PlanMaps] = {} if maps_cache is None else maps_cache
     plan_key = (plan.segments.tobytes(), plan.segment_class.tobytes(), opt.view_bins,
@@ -585,9 +589,9 @@ def coarse_register(
     for w, (f0, f1) in enumerate(zip(starts, stops)):
         tw, cw = time.perf_counter(), time.process_time()
         maps_before, maps_cpu_before = timings["maps"], maps_cpu
-
         pivot3 = poses[f0:f1, :3].mean(0)
-        pts = {c: world_pts[c][win_of[c] == w] for c in _CLASSES}
+        idx = {c: by_win[c][bounds[c][w]:bounds[c][w + 1]] for c in _CLASSES}
+        pts = {c: world_pts[c][idx[c]] for c in _CLASSES}
         # 1. gravity and height.
         t0 = time.perf_counter()
         ref_z = float(np.median(pts["floor"][:, 2])) if len(pts["floor"]) else float(pivot3[2])
@@ -606,7 +610,7 @@ def coarse_register(
         planar, views, pclass = [], [], []
         for c, lab in (("wall", Label.WALL), ("column", Label.COLUMN)):
             q = pts[c] @ lm[:3, :3].T + lm[:3, 3]
-            cam = poses[frames[c][win_of[c] == w], :3] @ lm[:3, :3].T + lm[:3, 3]
+            cam = poses[frames[c][idx[c]], :3] @ lm[:3, :3].T + lm[:3, 3]
             keep = np.ones(len(q), dtype=bool)
             if floor_z is not None and opt.wall_band_m > 0:
                 keep &= q[:, 2] > floor_z + opt.wall_band_m
@@ -771,8 +775,10 @@ def coarse_register(
         view = q - out_poses[fr, :2]
         cls_ = np.full(len(fr), int(lab), np.int32)
         wt = 1.0 if lab == Label.WALL else opt.column_weight
-        for w in np.unique(frame_window[fr]):
-            m = frame_window[fr] == w
+        for w in range(len(starts)):
+            m = by_win[c][bounds[c][w]:bounds[c][w + 1]]
+            if len(m) == 0:
+                continue
             sc, dist = win_maps[w].fine_eval(q[m], win_maps[w].layer_of(cls_[m], view[m]))
             np.add.at(frame_score, fr[m], wt * sc)
             np.add.at(frame_inl, fr[m], wt * (dist < opt.inlier_m))
