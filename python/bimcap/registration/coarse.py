@@ -1,0 +1,797 @@
+"""The coarse registration stage: bring drifted frames near their true pose using the BIM alone.
+
+Per window of ``window_frames`` consecutive frames (whose relative poses are trusted: drift is
+smooth):
+
+1. **gravity/height** (:mod:`.gravity`): floor and ceiling points fix pitch, roll and z against
+   the BIM's floor/ceiling heights;
+2. **correlative search** (:mod:`.correlative`): the window's wall and column points, projected
+   to the floor plane, are matched over x, y and yaw against robust score maps of the floor
+   plan (truncated Gaussians of a distance field, one per class); the top-K local maxima are
+   kept;
+3. **ICP** (:mod:`.icp`): each hypothesis is refined by robust point-to-segment ICP and scored
+   again at fine resolution;
+4. **continuity** (:mod:`.continuity`): a Viterbi pass over the windows picks one hypothesis per
+   window so that neighbouring corrections agree (this resolves corridors that are ambiguous
+   along their axis and symmetric rooms).
+
+Accepted windows' corrections (4×4 world-from-world) are interpolated per frame between window
+centres (slerp / lerp), and rejected windows take the interpolation of their accepted
+neighbours. Finally (5.) every frame of an accepted window gets a short ICP of its own, which
+takes out the drift *inside* a window (kept only when well constrained and small).
+
+Typical use, from the solver problem's arrays (docs/architecture.md)::
+
+    samples = SemanticSamples.from_arrays(wall_frame=..., wall_p_in_cam=..., column_frame=...,
+                                          column_p_in_cam=..., floor_frame=..., ...)
+    plan = FloorPlan.from_planes(segments, segment_class, segment_z, planes, plane_kind)
+    result = coarse_register(world_from_cam, samples, plan, CoarseOptions())
+    world_from_cam = result.poses   # the bundle adjustment starts from here All arrays follow docs/architecture.md: poses ``(N, 7)`` TUM order, points in the
+OpenCV camera frame, metres.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation, Slerp
+
+from bimcap.geometry.poses import matrix_to_pose, pose_to_matrix, transform_points
+from bimcap.labels import Label
+from bimcap.registration.continuity import transition_cost, viterbi_chain
+from bimcap.registration.correlative import score_volume, top_hypotheses
+from bimcap.registration.errors import RegistrationInputError
+from bimcap.registration.gravity import LevelResult, level_window
+from bimcap.registration.icp import Correction2D, icp_2d, rot2
+from bimcap.registration.plan_maps import PlanMaps
+
+F64 = NDArray[np.float64]
+I32 = NDArray[np.int32]
+
+_CLASSES = ("wall", "column", "floor", "ceiling")
+
+
+# ------------------------------------------------------------------------------------------------
+# Inputs.
+
+
+@dataclass(frozen=True)
+class SemanticSamples:
+    """Labelled points of every frame in its camera frame (the front end's semantic samples).
+
+    Attributes
+    ----------
+    wall_frame: (W,) int32 frame index; wall_p_in_cam: (W, 3) metres, OpenCV camera frame.
+    column_frame, column_p_in_cam; floor_frame, floor_p_in_cam; ceiling_frame,
+    ceiling_p_in_cam: likewise (any may be empty).
+    """
+
+    wall_frame: I32
+    wall_p_in_cam: F64
+    column_frame: I32
+    column_p_in_cam: F64
+    floor_frame: I32
+    floor_p_in_cam: F64
+    ceiling_frame: I32
+    ceiling_p_in_cam: F64
+
+    @classmethod
+    def from_arrays(cls, **arrays: ArrayLike | None) -> SemanticSamples:
+        """Build from keyword arrays named as in the solver problem (``wall_frame`` ...);
+        a missing or None class is empty. Raises :class:`RegistrationInputError` on bad shapes."""
+        known = {f"{c}_{s}" for c in _CLASSES for s in ("frame", "p_in_cam")}
+        unknown = sorted(set(arrays) - known)
+        if unknown:
+            raise RegistrationInputError("unknown array", None, unknown[0])
+        out: dict[str, Any] = {}
+        for c in _CLASSES:
+            fr, p = arrays.get(f"{c}_frame"), arrays.get(f"{c}_p_in_cam")
+            fr_a = np.zeros(0, np.int32) if fr is None else np.asarray(fr)
+            p_a = np.zeros((0, 3)) if p is None else np.asarray(p, dtype=np.float64)
+            if fr_a.ndim != 1 or not (fr_a.size == 0 or np.issubdtype(fr_a.dtype, np.integer)):
+                raise RegistrationInputError(f"must be (M,) integers, got {fr_a.shape} "
+                                             f"{fr_a.dtype}", None, f"{c}_frame")
+            if p_a.ndim != 2 or p_a.shape[1] != 3 or len(p_a) != len(fr_a):
+                raise RegistrationInputError(f"must be ({len(fr_a)}, 3), got {p_a.shape}", None,
+                                             f"{c}_p_in_cam")
+            if not np.isfinite(p_a).all():
+                raise RegistrationInputError("contains NaN or inf", None, f"{c}_p_in_cam")
+            out[f"{c}_frame"] = fr_a.astype(np.int32)
+            out[f"{c}_p_in_cam"] = p_a
+        return cls(**out)
+
+    def check_frames(self, n_frames: int) -> None:
+        for c in _CLASSES:
+            fr = getattr(self, f"{c}_frame")
+            if fr.size and (fr.min() < 0 or fr.max() >= n_frames):
+                raise RegistrationInputError(f"frame index outside [0, {n_frames})", None,
+                                             f"{c}_frame")
+
+
+@dataclass(frozen=True)
+class FloorPlan:
+    """The BIM as the coarse stage sees it.
+
+    Attributes
+    ----------
+    segments: (S, 4) ``x1 y1 x2 y2`` metres.
+    segment_class: (S,) int32, ``Label.WALL`` (1) or ``Label.COLUMN`` (4).
+    segment_z: (S, 2) the z range each segment applies to, or None (all storeys alike).
+    floor_heights: (Lf,) world z of the floors (metres), may be empty.
+    ceiling_heights: (Lc,) world z of the ceilings, may be empty.
+    """
+
+    segments: F64
+    segment_class: I32
+    segment_z: F64 | None = None
+    floor_heights: F64 = field(default_factory=lambda: np.zeros(0))
+    ceiling_heights: F64 = field(default_factory=lambda: np.zeros(0))
+
+    def __post_init__(self) -> None:
+        seg = np.asarray(self.segments, dtype=np.float64)
+        if seg.ndim != 2 or seg.shape[1] != 4 or len(seg) == 0 or not np.isfinite(seg).all():
+            raise RegistrationInputError(f"must be finite (S>0, 4), got {seg.shape}", None,
+                                         "segments")
+        cls_ = np.asarray(self.segment_class).astype(np.int32).reshape(-1)
+        if len(cls_) != len(seg) or not np.isin(cls_, (Label.WALL, Label.COLUMN)).all():
+            raise RegistrationInputError("must be (S,) of 1 (wall) / 4 (column)", None,
+                                         "segment_class")
+        object.__setattr__(self, "segments", seg)
+        object.__setattr__(self, "segment_class", cls_)
+        if self.segment_z is not None:
+            z = np.asarray(self.segment_z, dtype=np.float64)
+            if z.shape != (len(seg), 2):
+                raise RegistrationInputError(f"must be ({len(seg)}, 2), got {z.shape}", None,
+                                             "segment_z")
+            object.__setattr__(self, "segment_z", z)
+        object.__setattr__(self, "floor_heights",
+                           np.sort(np.asarray(self.floor_heights, dtype=np.float64).reshape(-1)))
+        object.__setattr__(self, "ceiling_heights",
+                           np.sort(np.asarray(self.ceiling_heights, dtype=np.float64).reshape(-1)))
+
+    @classmethod
+    def from_planes(cls, segments: ArrayLike, segment_class: ArrayLike,
+                    segment_z: ArrayLike | None, planes: ArrayLike, plane_kind: ArrayLike
+                    ) -> FloorPlan:
+        """From the solver arrays: ``planes (Q, 4)`` ``n·p + d`` and their kinds
+        (``Label.FLOOR`` / ``Label.CEILING``); only horizontal planes (|n_z| > 0.99) count."""
+        pl = np.asarray(planes, dtype=np.float64).reshape(-1, 4)
+        kind = np.asarray(plane_kind).reshape(-1)
+        if len(kind) != len(pl):
+            raise RegistrationInputError(f"must be ({len(pl)},)", None, "plane_kind")
+        horiz = np.abs(pl[:, 2]) > 0.99
+        height = -pl[:, 3] / np.where(horiz, pl[:, 2], 1.0)
+        return cls(np.asarray(segments, dtype=np.float64), np.asarray(segment_class),
+                   None if segment_z is None else np.asarray(segment_z, dtype=np.float64),
+                   np.unique(height[horiz & (kind == Label.FLOOR)]),
+                   np.unique(height[horiz & (kind == Label.CEILING)]))
+
+
+# ------------------------------------------------------------------------------------------------
+# Options and results.
+
+
+@dataclass(frozen=True)
+class CoarseOptions:
+    """Settings of :func:`coarse_register` (lengths in metres, angles in degrees).
+
+    Attributes
+    ----------
+    window_frames: frames per window (their relative poses are trusted).
+    xy_range_m, yaw_range_deg: half-widths of the search around the levelled initial pose;
+        ``yaw_range_deg = 180`` searches the full circle.
+    yaw_step_deg, coarse_resolution_m, coarse_sigma_m: the correlative grid and the width of
+        its score (truncated Gaussian of the distance to the plan).
+    fine_resolution_m, fine_sigma_m: the maps that score hypotheses after ICP and that find
+        the nearest segment for ICP.
+    score_truncate: the score is 0 beyond ``score_truncate · sigma`` (clutter, missing walls).
+    view_bins: ray-direction bins of the visibility test (:mod:`.plan_maps`); 1 disables it.
+    column_weight: weight of column points relative to wall points.
+    top_k, nms_xy_m, nms_yaw_deg: hypotheses kept per window and their suppression radius.
+    icp_*: the point-to-segment ICP (radius shrinks from start to end; Huber scale).
+    inlier_m: a point within this distance of its segment is an inlier.
+    max_points_per_window: random subsample for ICP and scoring.
+    wall_band_m: wall/column points within this height of the floor or ceiling are ignored.
+    plan_cut_height_m: segments apply to a window if their ``segment_z`` range holds
+        ``floor + plan_cut_height_m``.
+    use_gravity, use_correlative, use_icp, use_continuity, interpolate: stage switches;
+        ``use_correlative=False`` leaves a plain local ICP from the initial pose (the
+        benchmark's baseline).
+    refine_frames, frame_max_points, frame_max_step_m, frame_max_step_deg: after the window
+        corrections, each frame of an accepted window gets its own short ICP (radius
+        ``icp_radius_end_m · 2`` → ``icp_radius_end_m``), which takes out the drift *inside*
+        a window; a frame's fit counts only if it is well constrained, has enough inliers and
+        moved less than the step limits.
+    frame_smooth: each frame then takes the median of the counted per-frame corrections
+        within ± this many frames (drift is smooth; one frame's fit is noisy).
+    continuity_weight, continuity_sigma_t_m, continuity_sigma_yaw_deg, continuity_cap,
+        score_sigma: the Viterbi chain's costs (:mod:`.continuity`).
+    min_points, min_inlier_ratio, min_score, min_constraint: a window is accepted only with
+        enough points, inliers and fine score, a translation constraint (not a bare corridor)
+        and an optimum inside the search range. On the demo building a right match scores
+        0.65-0.9 with 72-97 % inliers (30 % to 3 % clutter) and a wrong one about 0.43 with
+        48 %; the defaults sit between.
+    seed: seeds the random point subsampling.
+    """
+
+    window_frames: int = 10
+    xy_range_m: float = 2.0
+    yaw_range_deg: float = 20.0
+    yaw_step_deg: float = 1.0
+    coarse_resolution_m: float = 0.1
+    coarse_sigma_m: float = 0.15
+    fine_resolution_m: float = 0.025
+    fine_sigma_m: float = 0.05
+    score_truncate: float = 3.0
+    view_bins: int = 4
+    column_weight: float = 1.0
+    top_k: int = 8
+    nms_xy_m: float = 0.3
+    nms_yaw_deg: float = 3.0
+    icp_iterations: int = 12
+    icp_radius_start_m: float = 0.3
+    icp_radius_end_m: float = 0.06
+    icp_huber_m: float = 0.03
+    inlier_m: float = 0.1
+    max_points_per_window: int = 3000
+    wall_band_m: float = 0.15
+    plan_cut_height_m: float = 1.0
+    use_gravity: bool = True
+    use_correlative: bool = True
+    use_icp: bool = True
+    use_continuity: bool = True
+    interpolate: bool = True
+    refine_frames: bool = True
+    frame_smooth: int = 3
+    frame_max_points: int = 1500
+    frame_max_step_m: float = 0.2
+    frame_max_step_deg: float = 2.0
+    continuity_weight: float = 1.0
+    continuity_sigma_t_m: float = 0.3
+    continuity_sigma_yaw_deg: float = 3.0
+    continuity_cap: float = 50.0
+    score_sigma: float = 0.05
+    min_points: int = 50
+    min_inlier_ratio: float = 0.55
+    min_score: float = 0.5
+    min_constraint: float = 0.02
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        """Raise :class:`RegistrationInputError` naming the first bad field."""
+        positive = ("xy_range_m", "yaw_step_deg", "coarse_resolution_m", "coarse_sigma_m",
+                    "fine_resolution_m", "fine_sigma_m", "score_truncate", "nms_xy_m",
+                    "nms_yaw_deg", "icp_radius_start_m", "icp_radius_end_m", "icp_huber_m",
+                    "inlier_m", "continuity_sigma_t_m",
+                    "continuity_sigma_yaw_deg", "continuity_cap", "score_sigma",
+                    "frame_max_step_m", "frame_max_step_deg")
+        for name, value in asdict(self).items():
+            if isinstance(value, float) and not np.isfinite(value):
+                raise RegistrationInputError(f"must be finite, got {value}", None, name)
+            if name in positive and not value > 0:
+                raise RegistrationInputError(f"must be > 0, got {value}", None, name)
+        for name in ("window_frames", "top_k", "icp_iterations", "max_points_per_window",
+                     "min_points", "view_bins", "frame_max_points"):
+            if getattr(self, name) < 1:
+                raise RegistrationInputError(f"must be >= 1, got {getattr(self, name)}", None,
+                                             name)
+        if not 0 <= self.yaw_range_deg <= 180:
+            raise RegistrationInputError("must be in [0, 180]", None, "yaw_range_deg")
+        for name in ("column_weight", "continuity_weight", "wall_band_m", "frame_smooth"):
+            if getattr(self, name) < 0:
+                raise RegistrationInputError("must be >= 0", None, name)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class WindowResult:
+    """What the coarse stage decided for one window of frames ``[start, stop)``.
+
+    ``yaw_deg``/``t_m``/``pivot`` describe the chosen planar correction
+    ``q = R(yaw)(p - pivot) + pivot + t`` (after levelling); ``dz_m``/``tilt_deg`` the levelling.
+    ``constraint`` is the ICP's translation constraint (see :class:`.icp.IcpResult`); a
+    degenerate window (a corridor seen without ends or doors) is not accepted and takes the
+    interpolated correction of its neighbours. ``reason`` says why a window was not accepted
+    ("" when it was).
+    """
+
+    start: int
+    stop: int
+    n_points: int
+    n_hypotheses: int
+    yaw_deg: float
+    t_m: tuple[float, float]
+    pivot: tuple[float, float]
+    dz_m: float
+    tilt_deg: float
+    score: float
+    inlier_ratio: float
+    constraint: float
+    best_score: float
+    accepted: bool
+    reason: str
+    seconds: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass
+class CoarseResult:
+    """Output of :func:`coarse_register`.
+
+    Attributes
+    ----------
+    poses: (N, 7) corrected ``world_from_cam``, TUM order.
+    frame_score: (N,) mean fine score of each frame's wall/column points at ``poses`` (0..1).
+    frame_inlier_ratio: (N,) fraction of them within ``inlier_m`` of a same-class segment.
+    accepted: (N,) bool, the frame's window passed the checks (others were interpolated).
+    frame_window: (N,) int32 window index of each frame.
+    windows: one :class:`WindowResult` per window.
+    timings: seconds per step (``level``, ``maps``, ``correlative``, ``icp``, ``continuity``,
+        ``apply``, ``total``) and ``per_window`` (mean time of one window's levelling, search
+        and ICP, without building the plan maps, which happens once per storey); the same as
+        CPU time of this process in ``cpu_total`` and ``cpu_per_window`` (all threads; useful
+        on a shared machine). ``refine_frames`` is the per-frame ICP's time and
+        ``frames_refined`` the number of frames that kept it.
+    """
+
+    poses: F64
+    frame_score: F64
+    frame_inlier_ratio: F64
+    accepted: NDArray[np.bool_]
+    frame_window: I32
+    windows: list[WindowResult]
+    timings: dict[str, float]
+    options: CoarseOptions
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready summary (per-frame arrays as lists)."""
+        return {
+            "n_frames": int(len(self.poses)),
+            "n_windows": len(self.windows),
+            "accepted_fraction": float(self.accepted.mean()) if len(self.accepted) else 0.0,
+            "poses": self.poses.tolist(),
+            "frame_score": self.frame_score.tolist(),
+            "frame_inlier_ratio": self.frame_inlier_ratio.tolist(),
+            "accepted": self.accepted.astype(bool).tolist(),
+            "frame_window": self.frame_window.tolist(),
+            "windows": [w.to_dict() for w in self.windows],
+            "timings": dict(self.timings),
+            "options": self.options.to_dict(),
+        }
+
+
+# ------------------------------------------------------------------------------------------------
+# Internals.
+
+
+@dataclass
+class _Candidate:
+    correction: Correction2D
+    score: float
+    inlier_ratio: float
+    constraint: float
+
+
+def _build_maps(plan: FloorPlan, mask: NDArray[np.bool_], opt: CoarseOptions) -> PlanMaps:
+    xy = plan.segments.reshape(-1, 2)
+    bounds = (xy[:, 0].min(), xy[:, 1].min(), xy[:, 0].max(), xy[:, 1].max())
+    return PlanMaps.build(plan.segments[mask], plan.segment_class[mask], bounds,
+                          opt.xy_range_m + 3.0, opt.view_bins, opt.coarse_resolution_m,
+                          opt.coarse_sigma_m, opt.fine_resolution_m, opt.fine_sigma_m,
+                          opt.score_truncate)
+
+
+def _weighted_mean(values: F64, p_class: I32, column_weight: float) -> float:
+    if len(values) == 0:
+        return 0.0
+    w = np.where(p_class == Label.COLUMN, column_weight, 1.0)
+    return float((values * w).sum() / max(w.sum(), 1e-12))
+
+
+def _subsample(p_xy: F64, p_class: I32, cell: float | None, cap: int,
+               rng: np.random.Generator) -> NDArray[np.int64]:
+    """Indices of a thinned point set: with ``cell``, one point per (cell, class) grid cell (for
+    occupancy templates; this flattens the noise distribution, so ICP must not use it); then at
+    most ``cap`` points drawn uniformly at random (keeps the noise distribution)."""
+    keep = np.arange(len(p_xy))
+    if len(p_xy) and cell is not None:
+        key = np.c_[np.floor(p_xy / cell).astype(np.int64), p_class.astype(np.int64)]
+        _, keep = np.unique(key, axis=0, return_index=True)
+        keep = np.sort(keep)
+    if len(keep) > cap:
+        keep = np.sort(rng.choice(keep, cap, replace=False))
+    return keep
+
+
+def _pick_height(heights: F64, z: float, below: bool = False) -> float | None:
+    if len(heights) == 0:
+        return None
+    if below:
+        cand = heights[heights <= z]
+        return float(cand.max()) if len(cand) else float(heights.min())
+    return float(heights[np.abs(heights - z).argmin()])
+
+
+def _lift(c2: Correction2D) -> F64:
+    m3 = c2.matrix()
+    m = np.eye(4)
+    m[:2, :2] = m3[:2, :2]
+    m[:2, 3] = m3[:2, 2]
+    return m
+
+
+def _interpolate(nodes: NDArray[np.float64], mats: list[F64], n_frames: int) -> F64:
+    """(N, 4, 4) per-frame corrections interpolated between node frame positions."""
+    out = np.tile(np.eye(4), (n_frames, 1, 1))
+    if len(nodes) == 0:
+        return out
+    if len(nodes) == 1:
+        out[:] = mats[0]
+        return out
+    idx = np.arange(n_frames, dtype=np.float64)
+    rots = Rotation.from_matrix(np.array([m[:3, :3] for m in mats]))
+    slerp = Slerp(nodes, rots)
+    clamped = np.clip(idx, nodes[0], nodes[-1])
+    out[:, :3, :3] = slerp(clamped).as_matrix()
+    for k in range(3):
+        out[:, k, 3] = np.interp(clamped, nodes, [m[k, 3] for m in mats])
+    return out
+
+
+def _refine_frames(per_frame: F64, poses: F64, world_pts: dict[str, F64], frames: dict[str, I32],
+                   frame_window: I32, win_maps: list[PlanMaps], win_meta: list[dict[str, Any]],
+                   accepted: NDArray[np.bool_], opt: CoarseOptions, rng: np.random.Generator
+                   ) -> int:
+    """Per-frame ICP on top of the interpolated window corrections, smoothed over
+    ``±frame_smooth`` frames (in place); returns the number of frames that were refined."""
+    order = {c: np.argsort(frames[c], kind="stable") for c in ("wall", "column")}
+    bounds = {c: np.searchsorted(frames[c][order[c]], np.arange(len(poses) + 1))
+              for c in ("wall", "column")}
+    delta = np.zeros((len(poses), 3))
+    good = np.zeros(len(poses), dtype=bool)
+    cams = np.full((len(poses), 2), np.nan)
+    for i in np.flatnonzero(accepted):
+        m = per_frame[i]
+        meta = win_meta[frame_window[i]]
+        maps = win_maps[frame_window[i]]
+        cam = m[:3, :3] @ poses[i, :3] + m[:3, 3]
+        xy, cls_ = [], []
+        for c, lab in (("wall", Label.WALL), ("column", Label.COLUMN)):
+            idx = order[c][bounds[c][i]:bounds[c][i + 1]]
+            q = world_pts[c][idx] @ m[:3, :3].T + m[:3, 3]
+            keep = np.ones(len(q), dtype=bool)
+            if meta["floor_z"] is not None and opt.wall_band_m > 0:
+                keep &= q[:, 2] > meta["floor_z"] + opt.wall_band_m
+                if meta["ceiling_z"] is not None:
+                    keep &= q[:, 2] < meta["ceiling_z"] - opt.wall_band_m
+            xy.append(q[keep, :2])
+            cls_.append(np.full(int(keep.sum()), int(lab), np.int32))
+        p_xy, p_cls = np.concatenate(xy), np.concatenate(cls_)
+        cams[i] = cam[:2]
+        if len(p_xy) < opt.min_points:
+            continue
+        sel = _subsample(p_xy, p_cls, None, opt.frame_max_points, rng)
+        p_xy, p_cls = p_xy[sel], p_cls[sel]
+
+        def associate(q: F64, q_class: I32, view: F64, maps: PlanMaps = maps
+                      ) -> tuple[F64, F64]:
+            return maps.nearest(q, maps.layer_of(q_class, view))
+
+        fit = icp_2d(p_xy, p_cls, associate, Correction2D(0.0, np.zeros(2), cam[:2]),
+                     p_xy - cam[:2], 2 * opt.icp_radius_end_m, opt.icp_radius_end_m,
+                     max(opt.icp_iterations // 2, 3), opt.icp_huber_m, opt.inlier_m)
+        corr = fit.correction
+        if (fit.inlier_ratio >= opt.min_inlier_ratio and fit.constraint >= opt.min_constraint
+                and np.linalg.norm(corr.t) <= opt.frame_max_step_m
+                and abs(np.rad2deg(corr.yaw)) <= opt.frame_max_step_deg):
+            delta[i] = (corr.yaw, corr.t[0], corr.t[1])
+            good[i] = True
+    # Drift is smooth and a single frame's fit is noisy: every frame takes the component-wise
+    # median of the kept corrections within ±frame_smooth frames (about its own camera).
+    kept = 0
+    h = opt.frame_smooth
+    for i in np.flatnonzero(accepted):
+        lo, hi = max(i - h, 0), min(i + h + 1, len(poses))
+        near = np.flatnonzero(good[lo:hi]) + lo
+        if len(near) == 0 or np.isnan(cams[i]).any():
+            continue
+        d = np.median(delta[near], axis=0)
+        per_frame[i] = _lift(Correction2D(float(d[0]), d[1:], cams[i])) @ per_frame[i]
+        kept += 1
+    return kept
+
+
+# ------------------------------------------------------------------------------------------------
+# The stage.
+
+
+def coarse_register(
+    world_from_cam: ArrayLike,
+    samples: SemanticSamples,
+    plan: FloorPlan,
+    options: CoarseOptions | None = None,
+    maps_cache: dict[Any, PlanMaps] | None = None,
+) -> CoarseResult:
+    """Coarse registration of a trajectory to the floor plan (see the module docstring).
+
+    Parameters
+    ----------
+    world_from_cam: (N, 7) initial poses, TUM order ``[tx ty tz qx qy qz qw]``.
+    samples: the labelled points of every frame, camera frame.
+    plan: segments and floor/ceiling heights of the BIM.
+    options: settings; default :class:`CoarseOptions`.
+    maps_cache: optional dict in which the plan's raster maps are kept, to reuse them in later
+        calls with the same ``plan`` and the same map settings (benchmarks, several sequences
+        in one building); keyed by the plan's and the options' relevant values.
+
+    Returns
+    -------
+    CoarseResult
+    """
+    opt = CoarseOptions() if options is None else options
+    t_start, c_start = time.perf_counter(), time.process_time()
+    maps_cpu = 0.0
+    poses = np.asarray(world_from_cam, dtype=np.float64)
+    if poses.ndim != 2 or poses.shape[1] != 7 or len(poses) == 0 or not np.isfinite(poses).all():
+        raise RegistrationInputError(f"must be finite (N>0, 7), got {poses.shape}", None,
+                                     "world_from_cam")
+    n = len(poses)
+    samples.check_frames(n)
+    rng = np.random.default_rng(opt.seed)
+    timings = {k: 0.0 for k in ("level", "maps", "correlative", "icp", "continuity", "apply")}
+
+    # All labelled points in the world with the initial poses, once.
+    world_pts: dict[str, F64] = {}
+    frames: dict[str, I32] = {}
+    for c in _CLASSES:
+        fr = getattr(samples, f"{c}_frame")
+        world_pts[c] = (transform_points(poses[fr], getattr(samples, f"{c}_p_in_cam"))
+                        if len(fr) else np.zeros((0, 3)))
+        frames[c] = fr
+    starts = np.arange(0, n, opt.window_frames)
+    if len(starts) > 1 and n - starts[-1] < max(opt.window_frames // 2, 1):
+        starts = starts[:-1]  # merge a short tail into the previous window
+    stops = np.r_[starts[1:], n]
+    frame_window = np.repeat(np.arange(len(starts)), stops - starts).astype(np.int32)
+    win_of = {c: frame_window[frames[c]] for c in _CLASSES}
+    # Points of window w of class c: by_win[c][bounds[c][w]:bounds[c][w + 1]].
+    by_win = {c: np.argsort(win_of[c], kind="stable") for c in _CLASSES}
+    bounds = {c: np.searchsorted(win_of[c][by_win[c]], np.arange(len(starts) + 1))
+              for c in _CLASSES}
+
+    map_cache: dict[Any, PlanMaps] = {} if maps_cache is None else maps_cache
+    plan_key = (plan.segments.tobytes(), plan.segment_class.tobytes(), opt.view_bins,
+                opt.coarse_resolution_m, opt.coarse_sigma_m, opt.fine_resolution_m,
+                opt.fine_sigma_m, opt.score_truncate, opt.xy_range_m)
+    yaw_range = np.deg2rad(opt.yaw_range_deg)
+    step = np.deg2rad(opt.yaw_step_deg)
+    if opt.yaw_range_deg >= 180:
+        yaws = np.arange(-np.pi, np.pi, step)
+    else:
+        k = int(np.floor(yaw_range / step + 1e-9))
+        yaws = np.arange(-k, k + 1) * step
+
+    levels: list[LevelResult] = []
+    cands: list[list[_Candidate]] = []
+    win_maps: list[PlanMaps] = []
+    win_meta: list[dict[str, Any]] = []
+    for w, (f0, f1) in enumerate(zip(starts, stops)):
+        tw, cw = time.perf_counter(), time.process_time()
+        maps_before, maps_cpu_before = timings["maps"], maps_cpu
+        pivot3 = poses[f0:f1, :3].mean(0)
+        idx = {c: by_win[c][bounds[c][w]:bounds[c][w + 1]] for c in _CLASSES}
+        pts = {c: world_pts[c][idx[c]] for c in _CLASSES}
+        # 1. gravity and height.
+        t0 = time.perf_counter()
+        ref_z = float(np.median(pts["floor"][:, 2])) if len(pts["floor"]) else float(pivot3[2])
+        floor_z = _pick_height(plan.floor_heights, ref_z, below=not len(pts["floor"]))
+        ceil_z = None
+        if len(plan.ceiling_heights):
+            above = plan.ceiling_heights[plan.ceiling_heights > (floor_z if floor_z is not None
+                                                                 else ref_z)]
+            ceil_z = float(above.min()) if len(above) else None
+        level = (level_window(pts["floor"], pts["ceiling"], floor_z, ceil_z, pivot3)
+                 if opt.use_gravity else LevelResult.identity(pivot3))
+        lm = level.matrix()
+        timings["level"] += time.perf_counter() - t0
+        # 2. planar points after levelling (with the ray direction camera → point), wall band,
+        # and two thinned sets: random for ICP, one per cell for the occupancy templates.
+        planar, views, pclass = [], [], []
+        for c, lab in (("wall", Label.WALL), ("column", Label.COLUMN)):
+            q = pts[c] @ lm[:3, :3].T + lm[:3, 3]
+            cam = poses[frames[c][idx[c]], :3] @ lm[:3, :3].T + lm[:3, 3]
+            keep = np.ones(len(q), dtype=bool)
+            if floor_z is not None and opt.wall_band_m > 0:
+                keep &= q[:, 2] > floor_z + opt.wall_band_m
+                if ceil_z is not None:
+                    keep &= q[:, 2] < ceil_z - opt.wall_band_m
+            planar.append(q[keep, :2])
+            views.append(q[keep, :2] - cam[keep, :2])
+            pclass.append(np.full(int(keep.sum()), int(lab), np.int32))
+        all_xy, all_view, all_cls = (np.concatenate(planar), np.concatenate(views),
+                                     np.concatenate(pclass))
+        sel = _subsample(all_xy, all_cls, None, opt.max_points_per_window, rng)
+        p_xy, p_view, p_cls = all_xy[sel], all_view[sel], all_cls[sel]
+        occ = _subsample(all_xy, all_cls, 0.5 * opt.coarse_resolution_m,
+                         10 * opt.max_points_per_window, rng)
+        # Plan section of this storey.
+        t0 = time.perf_counter()
+        if plan.segment_z is not None and floor_z is not None:
+            zc = floor_z + opt.plan_cut_height_m
+            mask = (plan.segment_z[:, 0] <= zc) & (zc <= plan.segment_z[:, 1])
+        else:
+            mask = np.ones(len(plan.segments), dtype=bool)
+        key = (plan_key, None if floor_z is None else round(floor_z, 3),
+               np.packbits(mask).tobytes())
+        if key not in map_cache:
+            c0 = time.process_time()
+            map_cache[key] = _build_maps(plan, mask, opt)
+            maps_cpu += time.process_time() - c0
+        maps = map_cache[key]
+        timings["maps"] += time.perf_counter() - t0
+
+        def associate(q: F64, q_class: I32, view: F64, maps: PlanMaps = maps) -> tuple[F64, F64]:
+            return maps.nearest(q, maps.layer_of(q_class, view))
+
+        pivot = pivot3[:2].copy()
+        found: list[_Candidate] = []
+        if len(p_xy) >= opt.min_points and len(maps.segments):
+            # 3. correlative search.
+            t0 = time.perf_counter()
+            if opt.use_correlative:
+                vol, res, nn = score_volume(all_xy[occ], all_cls[occ], all_view[occ], maps, pivot,
+                                            yaws, opt.xy_range_m, opt.column_weight)
+                hyps = top_hypotheses(vol, yaws, res, nn, opt.top_k, opt.nms_xy_m,
+                                      np.deg2rad(opt.nms_yaw_deg))
+                inits = [Correction2D(h.yaw, h.t, pivot) for h in hyps]
+            else:
+                inits = [Correction2D(0.0, np.zeros(2), pivot)]
+            timings["correlative"] += time.perf_counter() - t0
+            # 4. ICP and fine scoring of each hypothesis.
+            t0 = time.perf_counter()
+            for init in inits:
+                constraint = float("nan")
+                if opt.use_icp:
+                    fit = icp_2d(p_xy, p_cls, associate, init, p_view, opt.icp_radius_start_m,
+                                 opt.icp_radius_end_m, opt.icp_iterations, opt.icp_huber_m,
+                                 opt.inlier_m)
+                    corr, constraint = fit.correction, fit.constraint
+                else:
+                    corr = init
+                layer = maps.layer_of(p_cls, p_view @ rot2(corr.yaw).T)
+                sc, dist = maps.fine_eval(corr.apply(p_xy), layer)
+                cand = _Candidate(corr, _weighted_mean(sc, p_cls, opt.column_weight),
+                                  float((dist < opt.inlier_m).mean()), constraint)
+                dup = [k for k, o in enumerate(found)
+                       if abs(np.angle(np.exp(1j * (o.correction.yaw - corr.yaw))))
+                       < np.deg2rad(0.5) and np.linalg.norm(o.correction.t - corr.t) < 0.05]
+                if dup:
+                    if cand.score > found[dup[0]].score:
+                        found[dup[0]] = cand
+                else:
+                    found.append(cand)
+            timings["icp"] += time.perf_counter() - t0
+        levels.append(level)
+        cands.append(found)
+        win_maps.append(maps)
+        win_meta.append({"seconds": time.perf_counter() - tw - (timings["maps"] - maps_before),
+                         "cpu_seconds": time.process_time() - cw - (maps_cpu - maps_cpu_before),
+                         "n_points": len(p_xy), "floor_z": floor_z, "ceiling_z": ceil_z})
+
+    # 5. continuity: one hypothesis per window.
+    t0 = time.perf_counter()
+    active = [w for w in range(len(starts)) if cands[w]]
+    choice = {w: int(np.argmax([c.score for c in cands[w]])) for w in active}
+    if opt.use_continuity and opt.continuity_weight > 0 and len(active) > 1:
+        unary = [-np.array([c.score for c in cands[w]]) / opt.score_sigma for w in active]
+        pair = []
+        for a, b in zip(active[:-1], active[1:]):
+            boundary = 0.5 * (poses[stops[a] - 1, :2] + poses[starts[b], :2])
+            gap = max((starts[b] - stops[a]) / opt.window_frames + 1.0, 1.0)
+            cost = transition_cost([c.correction for c in cands[a]],
+                                   [c.correction for c in cands[b]], boundary,
+                                   opt.continuity_sigma_t_m * np.sqrt(gap),
+                                   np.deg2rad(opt.continuity_sigma_yaw_deg) * np.sqrt(gap),
+                                   opt.continuity_cap)
+            pair.append(opt.continuity_weight * cost)
+        labels, _ = viterbi_chain(unary, pair)
+        choice = {w: int(lab) for w, lab in zip(active, labels)}
+    timings["continuity"] += time.perf_counter() - t0
+
+    # 6. accept, interpolate, apply.
+    t0 = time.perf_counter()
+    windows: list[WindowResult] = []
+    nodes, mats = [], []
+    for w, (f0, f1) in enumerate(zip(starts, stops)):
+        lv = levels[w]
+        tilt = float(np.rad2deg(Rotation.from_matrix(lv.rotation).magnitude()))
+        if not cands[w]:
+            few = win_meta[w]["n_points"] < opt.min_points
+            reason = "too few points" if few else "no hypothesis"
+            windows.append(WindowResult(int(f0), int(f1), win_meta[w]["n_points"], 0, 0.0,
+                                        (0.0, 0.0), tuple(poses[f0:f1, :2].mean(0)), lv.dz, tilt,
+                                        0.0, 0.0, 0.0, 0.0, False, reason,
+                                        win_meta[w]["seconds"]))
+            continue
+        cand = cands[w][choice[w]]
+        corr = cand.correction
+        reason = ""
+        edge_t = opt.xy_range_m - opt.coarse_resolution_m
+        edge_yaw = yaw_range - 0.5 * step
+        if cand.inlier_ratio < opt.min_inlier_ratio:
+            reason = f"inlier ratio {cand.inlier_ratio:.2f} < {opt.min_inlier_ratio}"
+        elif cand.score < opt.min_score:
+            reason = f"score {cand.score:.2f} < {opt.min_score}"
+        elif cand.constraint < opt.min_constraint:
+            reason = f"degenerate (translation constraint {cand.constraint:.3f})"
+        elif opt.use_correlative and (np.abs(corr.t).max() > edge_t or
+                                      (opt.yaw_range_deg < 180 and abs(corr.yaw) > edge_yaw)):
+            reason = "optimum at the edge of the search range"
+        accepted = reason == ""
+        windows.append(WindowResult(
+            int(f0), int(f1), win_meta[w]["n_points"], len(cands[w]),
+            float(np.rad2deg(corr.yaw)), (float(corr.t[0]), float(corr.t[1])),
+            (float(corr.pivot[0]), float(corr.pivot[1])), lv.dz, tilt, cand.score,
+            cand.inlier_ratio, cand.constraint, max(c.score for c in cands[w]), accepted, reason,
+            win_meta[w]["seconds"]))
+        if accepted:
+            nodes.append(0.5 * (f0 + f1 - 1))
+            mats.append(_lift(corr) @ lv.matrix())
+    per_frame = _interpolate(np.asarray(nodes), mats, n)
+    accepted_frames = np.zeros(n, dtype=bool)
+    for w, wr in enumerate(windows):
+        if wr.accepted:
+            accepted_frames[wr.start:wr.stop] = True
+            if not opt.interpolate:
+                per_frame[wr.start:wr.stop] = mats[nodes.index(0.5 * (wr.start + wr.stop - 1))]
+    timings["apply"] += time.perf_counter() - t0
+    t0 = time.perf_counter()
+    n_refined = 0
+    if opt.refine_frames and opt.use_icp and accepted_frames.any():
+        n_refined = _refine_frames(per_frame, poses, world_pts, frames, frame_window, win_maps,
+                                   win_meta, accepted_frames, opt, rng)
+    timings["refine_frames"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    out_poses = matrix_to_pose(per_frame @ pose_to_matrix(poses))
+    # Per-frame fit at the output poses.
+    frame_score = np.zeros(n)
+    frame_inl = np.zeros(n)
+    for c, lab in (("wall", Label.WALL), ("column", Label.COLUMN)):
+        fr = frames[c]
+        if not len(fr):
+            continue
+        q = transform_points(out_poses[fr], getattr(samples, f"{c}_p_in_cam"))[:, :2]
+        view = q - out_poses[fr, :2]
+        cls_ = np.full(len(fr), int(lab), np.int32)
+        wt = 1.0 if lab == Label.WALL else opt.column_weight
+        for w in range(len(starts)):
+            m = by_win[c][bounds[c][w]:bounds[c][w + 1]]
+            if len(m) == 0:
+                continue
+            sc, dist = win_maps[w].fine_eval(q[m], win_maps[w].layer_of(cls_[m], view[m]))
+            np.add.at(frame_score, fr[m], wt * sc)
+            np.add.at(frame_inl, fr[m], wt * (dist < opt.inlier_m))
+    count = np.zeros(n)
+    for c, lab in (("wall", Label.WALL), ("column", Label.COLUMN)):
+        np.add.at(count, frames[c], 1.0 if lab == Label.WALL else opt.column_weight)
+    frame_score = np.where(count > 0, frame_score / np.maximum(count, 1e-12), 0.0)
+    frame_inl = np.where(count > 0, frame_inl / np.maximum(count, 1e-12), 0.0)
+    timings["apply"] += time.perf_counter() - t0
+    timings["total"] = time.perf_counter() - t_start
+    timings["cpu_total"] = time.process_time() - c_start
+    timings["cpu_per_window"] = float(np.mean([m["cpu_seconds"] for m in win_meta]))
+    timings["frames_refined"] = float(n_refined)
+    timings["per_window"] = float(np.mean([m["seconds"] for m in win_meta]))
+    return CoarseResult(out_poses, frame_score, frame_inl, accepted_frames, frame_window, windows,
+                        timings, opt)

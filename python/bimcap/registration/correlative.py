@@ -1,0 +1,160 @@
+"""Correlative scan matching of planar points against a floor-plan score map.
+
+For every yaw on a grid the window's points (projected to the floor plane) are rotated about the
+pivot and rasterised into a binary occupancy template at the score map's resolution; one
+``cv2.matchTemplate`` (cross-correlation, FFT-based for large templates) then gives the summed
+score of *every* translation on the grid at once. Occupancy (not counts) equalises the weight
+of dense near-range surfaces and far ones. Points are correlated against the map of their own
+class and ray direction (:class:`bimcap.registration.plan_maps.PlanMaps`: same-class association,
+no matching onto faces that cannot be seen), and the layers are added with a per-class weight.
+
+The result is a score volume over (yaw, ty, tx); its local maxima, after non-maximum
+suppression, are the hypotheses handed to ICP and to the trajectory-continuity chain.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from bimcap.registration.icp import rot2
+from bimcap.registration.plan_maps import PlanMaps
+
+F64 = NDArray[np.float64]
+F32 = NDArray[np.float32]
+
+
+@dataclass(frozen=True)
+class Hypothesis:
+    """One candidate planar correction ``q = R(yaw)(p - pivot) + pivot + t``.
+
+    ``score`` is the weighted mean score per occupied cell, in [0, 1].
+    """
+
+    yaw: float
+    t: F64
+    score: float
+
+
+def _crop(img: F32, r0: int, r1: int, c0: int, c1: int) -> F32:
+    """``img[r0:r1, c0:c1]`` with zeros outside the image."""
+    h, w = img.shape
+    out = np.zeros((r1 - r0, c1 - c0), dtype=np.float32)
+    rr0, rr1, cc0, cc1 = max(r0, 0), min(r1, h), max(c0, 0), min(c1, w)
+    if rr0 < rr1 and cc0 < cc1:
+        out[rr0 - r0:rr1 - r0, cc0 - c0:cc1 - c0] = img[rr0:rr1, cc0:cc1]
+    return out
+
+
+def score_volume(
+    p_xy: NDArray[np.float64],
+    p_class: NDArray[np.int32],
+    view_xy: NDArray[np.float64],
+    maps: PlanMaps,
+    pivot: NDArray[np.float64],
+    yaws: NDArray[np.float64],
+    xy_range_m: float,
+    column_weight: float = 1.0,
+) -> tuple[F32, float, int]:
+    """Score of every (yaw, ty, tx) on the coarse grid of ``maps``.
+
+    Parameters
+    ----------
+    p_xy: (M, 2) world points before the correction; p_class: (M,) 1 wall / 4 column.
+    view_xy: (M, 2) ray directions camera → point (any length), before the correction.
+    maps: the plan's layered maps; points are rasterised per layer (class × ray direction
+        after the yaw) into binary occupancy templates.
+    pivot: (2,) the rotation centre; yaws: (Y,) radians; xy_range_m: half-width of the
+        translation grid.
+
+    Returns
+    -------
+    ``(volume (Y, 2n+1, 2n+1), res, n)``: ``volume[k, j, i]`` is the weighted mean score per
+    occupied cell of ``yaw = yaws[k]``, ``t = ((i - n) res, (j - n) res)``.
+    """
+    import cv2
+
+    res = maps.coarse[0].resolution_m
+    origin = maps.coarse[0].origin_xy
+    n = int(round(xy_range_m / res))
+    vol = np.zeros((len(yaws), 2 * n + 1, 2 * n + 1), dtype=np.float32)
+    if len(p_xy) == 0:
+        return vol, res, n
+    for k, yaw in enumerate(yaws):
+        r = rot2(float(yaw))
+        q = (p_xy - pivot) @ r.T + pivot
+        layer = maps.layer_of(p_class, view_xy @ r.T)
+        uv = np.round((q - origin) / res).astype(np.int64)
+        total = np.zeros((2 * n + 1, 2 * n + 1), dtype=np.float32)
+        count = 0.0
+        for lay in np.unique(layer):
+            weight = column_weight if lay >= maps.n_bins else 1.0
+            if weight == 0:
+                continue
+            luv = uv[layer == lay]
+            u0, v0 = luv.min(0)
+            u1, v1 = luv.max(0)
+            templ = np.zeros((v1 - v0 + 1, u1 - u0 + 1), dtype=np.float32)
+            templ[luv[:, 1] - v0, luv[:, 0] - u0] = 1.0
+            count += weight * float(templ.sum())
+            if len(maps.rows[lay]) == 0:
+                continue  # nothing of this class is visible this way: the points score 0
+            img = _crop(maps.coarse_score[lay], v0 - n, v1 + n + 1, u0 - n, u1 + n + 1)
+            total += weight * cv2.matchTemplate(img, templ, cv2.TM_CCORR)
+        if count > 0:
+            vol[k] = total / count
+    return vol, res, n
+
+
+def top_hypotheses(
+    volume: F32,
+    yaws: NDArray[np.float64],
+    res: float,
+    n: int,
+    top_k: int,
+    nms_xy_m: float,
+    nms_yaw_rad: float,
+    diverse_yaw_rad: float = np.deg2rad(10.0),
+    min_score: float = 1e-6,
+) -> list[Hypothesis]:
+    """Up to ``top_k`` local maxima of ``volume`` after greedy non-maximum suppression.
+
+    Two hypotheses are the same if both ``|Δt| < nms_xy_m`` and ``|Δyaw| < nms_yaw_rad``.
+    Half of the places go first to the best peak of each distinct yaw mode (peaks at least
+    ``diverse_yaw_rad`` apart), so that a scene that is ambiguous along one axis (a corridor)
+    cannot fill the list with translated copies of one yaw and crowd out the yaw that a
+    neighbouring window needs (a symmetric room's unflipped pose).
+    """
+    from scipy.ndimage import maximum_filter
+
+    peak = (volume >= maximum_filter(volume, size=(3, 3, 3), mode="nearest")) & (volume > min_score)
+    k, j, i = np.nonzero(peak)
+    s = volume[k, j, i]
+    order = np.argsort(-s, kind="stable")
+    yaw_all = yaws[k[order]]
+    t_all = np.c_[(i[order] - n) * res, (j[order] - n) * res]
+    s_all = s[order]
+
+    def wrap(a: NDArray[np.float64]) -> NDArray[np.float64]:
+        return np.abs(np.arctan2(np.sin(a), np.cos(a)))
+
+    chosen: list[int] = []
+    for o in range(len(order)):  # pass 1: one per yaw mode
+        if len(chosen) >= max(top_k // 2, 1):
+            break
+        if not chosen or wrap(yaw_all[chosen] - yaw_all[o]).min() >= diverse_yaw_rad:
+            chosen.append(o)
+    for o in range(len(order)):  # pass 2: fill with the best remaining distinct peaks
+        if len(chosen) >= top_k:
+            break
+        if o in chosen:
+            continue
+        c = np.asarray(chosen, dtype=np.int64)
+        same = ((wrap(yaw_all[c] - yaw_all[o]) < nms_yaw_rad)
+                & (np.linalg.norm(t_all[c] - t_all[o], axis=1) < nms_xy_m))
+        if not same.any():
+            chosen.append(o)
+    chosen.sort(key=lambda o: -s_all[o])
+    return [Hypothesis(float(yaw_all[o]), t_all[o].copy(), float(s_all[o])) for o in chosen]

@@ -1,0 +1,192 @@
+"""Visibility-aware maps of a floor plan: which side of each segment is free space, and one
+distance field / score map / nearest-segment index per (class, viewing direction).
+
+Walls have two faces a few centimetres apart (12-20 cm); a point seen on the inner face of an
+exterior wall fits its outer face just as well unless the matcher knows that the outer face
+cannot be seen from inside. Each plan segment therefore gets its **free-side normal** (the side
+that is not inside a wall or column solid, found by a ray-parity test on the closed outlines of
+its class), and the plan is split into ``n_bins`` layers by viewing direction: layer ``k``
+holds the segments that a ray travelling in direction ``d_k ± π/n_bins`` can hit from the
+free side. A point is matched only against the layer of its own class and of its ray's
+direction (camera → point, after the candidate yaw). The bins are centred half a bin off the
+plan's main wall direction, so that with four bins a ray along a corridor is never in the same
+layer as the corridor walls' outer faces.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from bimcap.labels import Label
+from bimcap.registration.distance_field import DistanceField, distance_to_segments
+
+F64 = NDArray[np.float64]
+F32 = NDArray[np.float32]
+I32 = NDArray[np.int32]
+
+#: The classes the coarse stage matches, in layer order.
+CLASSES = (int(Label.WALL), int(Label.COLUMN))
+
+
+def _crossings(p: F64, d: NDArray[np.float64], segments: F64) -> NDArray[np.int64]:
+    """Number of segments each ray ``p + s d`` (s > 0) crosses; (M,) for (M, 2) points."""
+    a, e = segments[:, :2], segments[:, 2:] - segments[:, :2]
+    den = d[0] * e[:, 1] - d[1] * e[:, 0]
+    w = a[None] - p[:, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = (w[..., 0] * e[None, :, 1] - w[..., 1] * e[None, :, 0]) / den[None]
+        u = (w[..., 0] * d[1] - w[..., 1] * d[0]) / den[None]
+    hit = (np.abs(den)[None] > 1e-12) & (s > 0) & (u >= 0) & (u < 1)
+    return np.asarray(hit.sum(1), dtype=np.int64)
+
+
+def free_normals(segments: NDArray[np.float64], segment_class: NDArray[np.int32],
+                 eps_m: float = 0.01) -> F64:
+    """(S, 2) unit normal of each segment pointing into free space; zero where undecided.
+
+    The outlines of each class are treated as closed curves: a point just beside a segment is
+    inside a solid iff a ray from it crosses an odd number of that class's segments. Two
+    slanted rays must agree, and exactly one side must be inside; otherwise (an open outline,
+    a free-standing line) the segment is visible from both sides (zero normal).
+    """
+    seg = np.asarray(segments, dtype=np.float64).reshape(-1, 4)
+    out = np.zeros((len(seg), 2))
+    dirs = (np.array([0.8944, 0.4472]), np.array([-0.3162, 0.9487]))
+    for c in np.unique(segment_class):
+        rows = np.flatnonzero(segment_class == c)
+        s = seg[rows]
+        e = s[:, 2:] - s[:, :2]
+        length = np.linalg.norm(e, axis=1)
+        n = np.c_[-e[:, 1], e[:, 0]] / np.maximum(length, 1e-12)[:, None]
+        mid = 0.5 * (s[:, :2] + s[:, 2:])
+        inside = []
+        for sign in (1.0, -1.0):
+            p = mid + sign * eps_m * n
+            odd = [(_crossings(p, d, s) % 2 == 1) for d in dirs]
+            inside.append(np.where(odd[0] == odd[1], odd[0].astype(np.int8), -1))
+        plus, minus = inside
+        good = (length > 1e-9) & (plus >= 0) & (minus >= 0) & (plus != minus)
+        sign = np.where(plus == 0, 1.0, -1.0)
+        out[rows[good]] = sign[good, None] * n[good]
+    return out
+
+
+def dominant_orientation(segments: NDArray[np.float64]) -> float:
+    """The plan's main wall direction modulo 90° (radians, length-weighted circular mean)."""
+    e = segments[:, 2:] - segments[:, :2]
+    ang = np.arctan2(e[:, 1], e[:, 0])
+    z = (np.hypot(e[:, 0], e[:, 1]) * np.exp(4j * ang)).sum()
+    return float(np.angle(z) / 4) if abs(z) > 0 else 0.0
+
+
+def view_bin(view_xy: NDArray[np.float64], n_bins: int, offset: float = 0.0
+             ) -> NDArray[np.int64]:
+    """(M,) bin of each ray direction; bin k is centred on angle ``offset + 2πk / n_bins``."""
+    if n_bins <= 1:
+        return np.zeros(len(view_xy), dtype=np.int64)
+    ang = np.arctan2(view_xy[:, 1], view_xy[:, 0]) - offset
+    return np.asarray(np.round(ang / (2 * np.pi / n_bins)) % n_bins, dtype=np.int64)
+
+
+@dataclass
+class PlanMaps:
+    """Per-layer distance fields and score maps of one storey's plan section.
+
+    Layer ``l = slot * n_bins + k`` holds the segments of class ``CLASSES[slot]`` visible to
+    rays of bin ``k`` (see the module docstring).
+
+    Attributes
+    ----------
+    segments: (S, 4); segment_class: (S,) int32; free_normal: (S, 2).
+    n_bins: number of viewing-direction bins (1 = no visibility test).
+    bin_offset: direction of the centre of bin 0, radians: half a bin off the plan's main
+        wall direction, so that no bin holds rays on both sides of a wall's direction (a ray
+        travelling along a corridor then cannot be matched to the outer face of its walls).
+    rows: per layer, the segment rows it holds.
+    coarse, fine: per layer, a :class:`DistanceField` (``fine`` with nearest-segment labels).
+    coarse_score, fine_score: per layer, the truncated-Gaussian score map.
+    """
+
+    segments: F64
+    segment_class: I32
+    free_normal: F64
+    n_bins: int
+    bin_offset: float
+    rows: list[NDArray[np.int64]]
+    coarse: list[DistanceField]
+    coarse_score: list[F32]
+    fine: list[DistanceField]
+    fine_score: list[F32]
+
+    @classmethod
+    def build(cls, segments: NDArray[np.float64], segment_class: NDArray[np.int32],
+              bounds_xy: tuple[float, float, float, float], margin_m: float, n_bins: int,
+              coarse_resolution_m: float, coarse_sigma_m: float, fine_resolution_m: float,
+              fine_sigma_m: float, truncate: float) -> PlanMaps:
+        seg = np.asarray(segments, dtype=np.float64).reshape(-1, 4)
+        cls_ = np.asarray(segment_class, dtype=np.int32)
+        n_bins = max(int(n_bins), 1)
+        normal = free_normals(seg, cls_) if n_bins > 1 else np.zeros((len(seg), 2))
+        half = np.pi / n_bins
+        offset = dominant_orientation(seg) + half if len(seg) else half
+        rows, coarse, coarse_s, fine, fine_s = [], [], [], [], []
+        for c in CLASSES:
+            for k in range(n_bins):
+                if n_bins > 1:
+                    a = offset + 2 * np.pi * k / n_bins
+                    d = np.array([np.cos(a), np.sin(a)])
+                    # Some ray of the bin hits a face from its free side iff n·d < sin(half);
+                    # faces exactly parallel to a bin edge are left out (grazing only).
+                    vis = (normal @ d < np.sin(half) - 1e-6) | ~normal.any(1)
+                else:
+                    vis = np.ones(len(seg), dtype=bool)
+                r = np.flatnonzero(vis & (cls_ == c))
+                rows.append(r)
+                cf = DistanceField.from_segments(seg[r], coarse_resolution_m, bounds_xy, margin_m)
+                ff = DistanceField.from_segments(seg[r], fine_resolution_m, bounds_xy, margin_m,
+                                                 with_nearest=True)
+                coarse.append(cf)
+                coarse_s.append(cf.score_map(coarse_sigma_m, truncate))
+                fine.append(ff)
+                fine_s.append(ff.score_map(fine_sigma_m, truncate))
+        return cls(seg, cls_, normal, n_bins, offset, rows, coarse, coarse_s, fine, fine_s)
+
+    @property
+    def n_layers(self) -> int:
+        return len(self.rows)
+
+    def layer_of(self, p_class: NDArray[np.int32], view_xy: NDArray[np.float64]
+                 ) -> NDArray[np.int64]:
+        """(M,) layer of each point from its class and its ray direction (camera → point)."""
+        slot = np.where(np.asarray(p_class) == Label.COLUMN, 1, 0)
+        return slot * self.n_bins + view_bin(view_xy, self.n_bins, self.bin_offset)
+
+    def nearest(self, q_xy: NDArray[np.float64], layer: NDArray[np.int64]) -> tuple[F64, F64]:
+        """(dist (M,), closest (M, 2)): the exact distance to the segment that the fine raster
+        names nearest in each point's layer; ``inf`` (and the point) for an empty layer."""
+        q = np.asarray(q_xy, dtype=np.float64).reshape(-1, 2)
+        dist = np.full(len(q), np.inf)
+        closest = q.copy()
+        for lay in np.unique(layer):
+            r = self.rows[lay]
+            if len(r) == 0:
+                continue
+            m = layer == lay
+            idx = r[self.fine[lay].nearest_at(q[m])]
+            dist[m], closest[m] = distance_to_segments(q[m], self.segments, idx)
+        return dist, closest
+
+    def fine_eval(self, q_xy: NDArray[np.float64], layer: NDArray[np.int64]
+                  ) -> tuple[F64, F64]:
+        """(score (M,), raster distance (M,)) of each point in its layer's fine maps."""
+        q = np.asarray(q_xy, dtype=np.float64).reshape(-1, 2)
+        score = np.zeros(len(q))
+        dist = np.full(len(q), np.inf)
+        for lay in np.unique(layer):
+            m = layer == lay
+            score[m] = self.fine[lay].lookup(q[m], self.fine_score[lay])
+            dist[m] = self.fine[lay].lookup(q[m])
+        return score, dist

@@ -1,0 +1,210 @@
+"""End-to-end tests of the coarse registration stage on synthetic scans of real floor plans.
+
+The plans are the demo building's exact plan section (``bimcap.sim``: a 15 m corridor with
+doors, rooms, columns) and a 180°-symmetric room between two corridors; the scans are ray-cast
+from known poses (:mod:`bimcap.registration.synthetic`), so the truth is exact.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bimcap.registration import CoarseOptions, coarse_register
+from bimcap.registration.synthetic import (
+    Scene,
+    displace,
+    level_pose,
+    pose_errors,
+    poses_along,
+    scan_sequence,
+    symmetric_scene,
+)
+
+pytest.importorskip("cv2")
+
+
+@pytest.fixture(scope="module")
+def demo() -> Scene:
+    from bimcap.registration.synthetic import demo_scene
+
+    return demo_scene(seed=0)
+
+
+def corridor_walk(n: int = 10, x0: float = 4.0) -> np.ndarray:
+    """(n, 7) cameras walking east along the demo corridor (y = -0.3), 0.25 m apart."""
+    return poses_along(np.array([[x0, -0.3], [x0 + 0.25 * n + 0.01, -0.3]]), 0.25)[:n]
+
+
+def drift(gt: np.ndarray, t_m: float, yaw_deg: float, dz: float = 0.1,
+          tilt_deg: tuple[float, float] = (1.0, -1.0)) -> np.ndarray:
+    """The issue's displacement: ``t_m`` metres (diagonal) and ``yaw_deg`` about the window's
+    centre, plus a little z and tilt that the floor/ceiling must take out."""
+    direction = np.array([0.6, -0.8])
+    return displace(gt, np.deg2rad(yaw_deg), np.r_[t_m * direction, dz], gt[:, :3].mean(0),
+                    (np.deg2rad(tilt_deg[0]), np.deg2rad(tilt_deg[1])))
+
+
+def test_window_displaced_1p5m_15deg_in_corridor_returns(demo: Scene) -> None:
+    gt = corridor_walk(10)
+    samples = scan_sequence(gt, demo, seed=1, clutter_fraction=0.03)
+    init = drift(gt, 1.5, 15.0)
+    t0, r0 = pose_errors(init, gt)
+    assert t0.min() > 1.0 and r0.min() > 14.0  # the start really is far off
+    res = coarse_register(init, samples, demo.floor_plan())
+    t_err, r_err = pose_errors(res.poses, gt)
+    assert t_err.max() < 0.05, t_err
+    assert r_err.max() < 0.5, r_err
+    assert res.accepted.all()
+    assert (res.frame_inlier_ratio > 0.8).all()
+    assert abs(res.windows[0].dz_m + 0.1) < 0.02  # the floor took the z error out
+
+
+def test_single_frame_displaced_1p5m_15deg_returns(demo: Scene) -> None:
+    gt = level_pose(6.0, -0.3, 0.0)[None]
+    samples = scan_sequence(gt, demo, seed=2, clutter_fraction=0.03)
+    init = displace(gt, np.deg2rad(-15.0), np.array([-0.9, 1.2, 0.0]), gt[0, :3])
+    res = coarse_register(init, samples, demo.floor_plan(), CoarseOptions(window_frames=1))
+    t_err, r_err = pose_errors(res.poses, gt)
+    assert t_err[0] < 0.05 and r_err[0] < 0.5, (t_err, r_err)
+
+
+def test_missing_wall_and_clutter_do_not_break_it(demo: Scene) -> None:
+    # As built, the corridor's north wall between x = 5 and 9 is missing (the BIM still has
+    # it): the camera sees into the rooms behind; 15 % of the wall points are clutter.
+    as_built = demo.without((5.0, 1.1, 9.0, 1.45))
+    assert len(as_built.segments) < len(demo.segments)
+    gt = corridor_walk(12, x0=4.5)
+    samples = scan_sequence(gt, as_built, seed=3, clutter_fraction=0.15)
+    init = drift(gt, 1.2, -12.0)
+    res = coarse_register(init, samples, demo.floor_plan())
+    t_err, r_err = pose_errors(res.poses, gt)
+    assert t_err.max() < 0.05, t_err
+    assert r_err.max() < 0.5, r_err
+
+
+def test_displacement_outside_the_search_range_is_not_accepted(demo: Scene) -> None:
+    # Negative control: 3.5 m is outside the ±2 m range, so the stage must not claim success.
+    gt = corridor_walk(10)
+    samples = scan_sequence(gt, demo, seed=4, clutter_fraction=0.03)
+    init = displace(gt, 0.0, np.array([0.0, 3.5, 0.0]), gt[:, :3].mean(0))
+    res = coarse_register(init, samples, demo.floor_plan())
+    t_err, _ = pose_errors(res.poses, gt)
+    assert t_err.min() > 1.0  # it could not fix it ...
+    assert not res.accepted.any(), [w.reason for w in res.windows]  # ... and says so
+    # Frames of rejected windows keep their initial pose when nothing was accepted.
+    np.testing.assert_allclose(res.poses, init, atol=1e-9)
+
+
+def test_true_pose_is_a_fixed_point(demo: Scene) -> None:
+    gt = corridor_walk(20, x0=2.0)
+    samples = scan_sequence(gt, demo, seed=5)
+    res = coarse_register(gt, samples, demo.floor_plan())
+    t_err, r_err = pose_errors(res.poses, gt)
+    assert t_err.max() < 0.01 and r_err.max() < 0.1, (t_err.max(), r_err.max())
+    d = res.to_dict()
+    assert d["n_frames"] == 20 and len(d["windows"]) == 2 and d["accepted_fraction"] == 1.0
+
+
+def _symmetric_case(use_continuity: bool) -> tuple[np.ndarray, np.ndarray]:
+    # The room's own data favour the flipped pose: the as-built room column stands at the
+    # mirror image of the BIM's. The corridor column anchors the walk before the room.
+    bim = symmetric_scene((2.2, 1.8))
+    as_built = symmetric_scene((6.2, -1.8))
+    path = np.array([[-2.0, 0.4], [-8.5, 0.4], [-8.5, -0.4], [1.0, -0.4], [1.0, 0.0], [4.0, 0.0],
+                     [4.0, 1.5], [7.0, 1.5], [7.0, -1.5], [4.0, -1.5]])
+    gt = poses_along(path, 0.3)
+    samples = scan_sequence(gt, as_built, seed=3, clutter_fraction=0.03)
+    init = displace(gt, np.deg2rad(5.0), np.array([0.4, -0.3, 0.0]), gt[:, :3].mean(0))
+    opt = CoarseOptions(yaw_range_deg=180.0, yaw_step_deg=2.0, use_continuity=use_continuity)
+    res = coarse_register(init, samples, bim.floor_plan(), opt)
+    return pose_errors(res.poses, gt)
+
+
+@pytest.mark.slow
+def test_symmetric_room_does_not_flip_with_continuity() -> None:
+    t_err, r_err = _symmetric_case(use_continuity=True)
+    assert r_err.max() < 0.5, r_err
+    assert t_err.max() < 0.05, t_err
+
+
+@pytest.mark.slow
+def test_symmetric_room_flips_without_continuity() -> None:
+    # Negative control: the same data without the continuity chain take the flipped room.
+    _, r_err = _symmetric_case(use_continuity=False)
+    assert r_err.max() > 150.0
+
+
+def test_rigid_motion_of_the_whole_world_changes_nothing(demo: Scene) -> None:
+    # Invariant: turn the building, the truth and the drift by 30° and move them by (7, -3):
+    # the stage must converge just as well (the view bins follow the plan's wall direction).
+    from bimcap.geometry.poses import compose
+
+    yaw, shift = np.deg2rad(30.0), np.array([7.0, -3.0])
+    c, s = np.cos(yaw), np.sin(yaw)
+    rot = np.array([[c, -s], [s, c]])
+    moved = Scene(np.c_[demo.segments[:, :2] @ rot.T + shift, demo.segments[:, 2:] @ rot.T + shift],
+                  demo.segment_class, demo.floor_z, demo.ceiling_z)
+    world = np.r_[shift, 0.0, 0.0, 0.0, np.sin(yaw / 2), np.cos(yaw / 2)]
+    gt = compose(world, corridor_walk(10))
+    samples = scan_sequence(gt, moved, seed=6, clutter_fraction=0.03)
+    init = drift(gt, 1.5, 15.0)
+    res = coarse_register(init, samples, moved.floor_plan())
+    t_err, r_err = pose_errors(res.poses, gt)
+    assert t_err.max() < 0.05 and r_err.max() < 0.5, (t_err.max(), r_err.max())
+
+
+@pytest.mark.slow
+def test_smoothly_growing_drift_like_exp1(demo: Scene) -> None:
+    # Odometry with a 3 % scale error and a constant yaw rate: 0 at the start, ~1 m and ~11°
+    # after 60 frames. Window corrections + per-frame ICP must take it out.
+    from bimcap.geometry.poses import compose, invert
+    from scipy.spatial.transform import Rotation
+
+    from bimcap.registration.synthetic import demo_tour
+
+    gt = poses_along(demo_tour(seed=0), 0.25)[100:160]
+    step_err = np.r_[0.0, 0.0, 0.0, Rotation.from_euler("y", np.deg2rad(11.0) / len(gt)).as_quat()]
+    rel = compose(invert(gt[:-1]), gt[1:])
+    rel[:, :3] *= 1.03
+    init = [gt[0]]
+    for r in rel:
+        init.append(compose(init[-1], compose(r, step_err)))
+    init_arr = np.array(init)
+    t0, r0 = pose_errors(init_arr, gt)
+    assert t0.max() > 0.8 and r0.max() > 10.0
+    res = coarse_register(init_arr, scan_sequence(gt, demo, seed=7, clutter_fraction=0.05),
+                          demo.floor_plan())
+    t_err, r_err = pose_errors(res.poses, gt)
+    assert t_err.max() < 0.05, t_err
+    assert np.median(r_err) < 0.2 and np.percentile(r_err, 90) < 0.5, r_err
+
+
+def _two_storey_case(demo: Scene, use_segment_z: bool) -> np.ndarray:
+    from bimcap.registration import FloorPlan
+
+    # Upstairs the same layout stands 0.6 m further east; the walk is upstairs and starts
+    # 0.6 m west of its truth, i.e. exactly where it would be right on the ground floor.
+    shift = np.array([0.6, 0.0, 0.6, 0.0])
+    upper = Scene(demo.segments + shift, demo.segment_class, 3.1, 5.9)
+    seg_z = np.r_[np.tile([0.0, 2.9], (len(demo.segments), 1)),
+                  np.tile([3.1, 6.0], (len(upper.segments), 1))]
+    plan = FloorPlan(np.r_[demo.segments, upper.segments],
+                     np.r_[demo.segment_class, upper.segment_class],
+                     seg_z if use_segment_z else None, np.array([0.0, 3.1]), np.array([2.8, 5.9]))
+    gt = poses_along(np.array([[3.0, -0.3], [6.0, -0.3]]), 0.25, height=4.6)[:10]
+    samples = scan_sequence(gt, upper, seed=8, clutter_fraction=0.03)
+    init = displace(gt, 0.0, np.array([-0.6, 0.0, 0.2]), gt[:, :3].mean(0))
+    res = coarse_register(init, samples, plan)
+    assert res.windows[0].dz_m == pytest.approx(-0.2, abs=0.02)  # floor at 3.1 m found
+    return pose_errors(res.poses, gt)[0]
+
+
+def test_storey_is_chosen_by_the_floor_height(demo: Scene) -> None:
+    assert _two_storey_case(demo, use_segment_z=True).max() < 0.05
+
+
+def test_without_storey_bands_the_wrong_storey_can_win(demo: Scene) -> None:
+    # Negative control: with every segment on every storey the ground-floor plan fits the
+    # initial pose perfectly and nothing moves it.
+    assert _two_storey_case(demo, use_segment_z=False).min() > 0.5

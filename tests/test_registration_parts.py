@@ -1,0 +1,229 @@
+"""Unit tests of the coarse stage's parts against hand-computed values and brute-force oracles."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from bimcap.labels import Label
+from bimcap.registration import (
+    BIM_TERMS,
+    CoarseOptions,
+    FloorPlan,
+    PoseBlock,
+    RegistrationInputError,
+    Schedule,
+    ScheduleStage,
+    SemanticSamples,
+    StageKind,
+    Term,
+    coarse_register,
+)
+from bimcap.registration.continuity import transition_cost, viterbi_chain
+from bimcap.registration.correlative import score_volume, top_hypotheses
+from bimcap.registration.distance_field import DistanceField
+from bimcap.registration.gravity import level_window
+from bimcap.registration.icp import Correction2D, exact_associator, icp_2d, point_segment_distance
+from bimcap.registration.plan_maps import PlanMaps, free_normals, view_bin
+from bimcap.registration.synthetic import rectangle
+
+pytest.importorskip("cv2")
+
+# An L-shaped room corner plus a far wall: constrains x, y and yaw.
+SEGMENTS = np.array([[0.0, 0.0, 6.0, 0.0], [0.0, 0.0, 0.0, 4.0], [6.0, 0.0, 6.0, 4.0]])
+
+
+def sample_segments(segments: np.ndarray, step: float) -> np.ndarray:
+    pts = []
+    for x1, y1, x2, y2 in segments:
+        n = max(int(np.hypot(x2 - x1, y2 - y1) / step), 1)
+        u = (np.arange(n) + 0.5) / n
+        pts.append(np.c_[x1 + u * (x2 - x1), y1 + u * (y2 - y1)])
+    return np.concatenate(pts)
+
+
+def test_point_segment_distance_hand_values() -> None:
+    seg = np.array([[0.0, 0.0, 1.0, 0.0]])
+    d, idx, c = point_segment_distance(np.array([[0.5, 0.3], [2.0, 0.0], [-3.0, 4.0]]), seg)
+    np.testing.assert_allclose(d, [0.3, 1.0, 5.0])
+    np.testing.assert_allclose(c, [[0.5, 0.0], [1.0, 0.0], [0.0, 0.0]])
+    assert (idx == 0).all()
+
+
+def test_distance_field_matches_exact_distance_within_a_pixel() -> None:
+    res = 0.02
+    field = DistanceField.from_segments(SEGMENTS, res, margin_m=1.0, with_nearest=True)
+    rng = np.random.default_rng(0)
+    p = rng.uniform([-0.5, -0.5], [6.5, 4.5], (500, 2))
+    exact, idx, _ = point_segment_distance(p, SEGMENTS)
+    np.testing.assert_allclose(field.lookup(p), exact, atol=res)
+    # The raster nearest-segment label agrees with the exact one away from the bisectors.
+    d_sorted = np.sort(np.stack([point_segment_distance(p, s[None])[0] for s in SEGMENTS]), 0)
+    clear = d_sorted[1] - d_sorted[0] > 2 * res
+    assert (field.nearest_at(p)[clear] == idx[clear]).all()
+    score = field.score_map(0.05, 3.0)
+    assert score.max() == pytest.approx(1.0) and score.min() == 0.0
+
+
+def test_free_normals_point_out_of_solids() -> None:
+    # A solid column (square) and a thick wall: every face's free side is outside.
+    seg = np.concatenate([rectangle(0.0, 0.0, 1.0, 1.0), rectangle(3.0, 0.0, 8.0, 0.2)])
+    cls = np.r_[np.full(4, Label.COLUMN), np.full(4, Label.WALL)].astype(np.int32)
+    n = free_normals(seg, cls)
+    mid = 0.5 * (seg[:, :2] + seg[:, 2:])
+    centre = np.r_[[[0.5, 0.5]] * 4, [[5.5, 0.1]] * 4]
+    assert (np.einsum("ij,ij->i", n, mid - centre) > 0).all()
+    np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0)
+
+
+def test_view_bins_keep_outer_faces_of_a_corridor_out() -> None:
+    # Corridor 2 m wide between two 0.2 m walls; a ray along the corridor going east and a bit
+    # south can only hit the inner face of the south wall, never its outer face.
+    walls = np.concatenate([rectangle(0.0, -1.2, 10.0, -1.0), rectangle(0.0, 1.0, 10.0, 1.2)])
+    cls = np.full(len(walls), Label.WALL, dtype=np.int32)
+    maps = PlanMaps.build(walls, cls, (0.0, -1.2, 10.0, 1.2), 1.0, 4, 0.1, 0.15, 0.05, 0.05, 3.0)
+    lay = maps.layer_of(np.array([Label.WALL]), np.array([[1.0, -0.1]]))[0]
+    seg = maps.segments[maps.rows[lay]]
+    ys = {round(float(s[1]), 3) for s in seg if abs(s[1] - s[3]) < 1e-9}  # horizontal faces
+    # South-facing faces (normal +y) only: the south wall's inner face and the north wall's
+    # outer face; never the south wall's outer face (-1.2) nor the north inner face (1.0).
+    assert ys == {-1.0, 1.2}
+    assert view_bin(np.array([[1.0, 0.01], [1.0, -0.01]]), 4, np.pi / 4).tolist() == [0, 3]
+
+
+def test_icp_recovers_a_known_correction() -> None:
+    truth = sample_segments(SEGMENTS, 0.05)
+    pivot = truth.mean(0)
+    yaw, t = np.deg2rad(4.0), np.array([0.12, -0.08])
+    # Observed = truth moved by the inverse of (yaw, t); ICP must find (yaw, t).
+    observed = (truth - pivot - t) @ np.array([[np.cos(yaw), np.sin(yaw)],
+                                               [-np.sin(yaw), np.cos(yaw)]]).T + pivot
+    cls = np.full(len(observed), Label.WALL, dtype=np.int32)
+    assoc = exact_associator(SEGMENTS, np.full(3, Label.WALL, dtype=np.int32))
+    r = icp_2d(observed, cls, assoc, Correction2D(0.0, np.zeros(2), pivot), radius_start_m=0.5,
+               iterations=20)
+    assert r.correction.yaw == pytest.approx(yaw, abs=1e-6)
+    np.testing.assert_allclose(r.correction.t, t, atol=1e-6)
+    np.testing.assert_allclose(r.correction.apply(observed), truth, atol=1e-6)
+    assert r.inlier_ratio == 1.0 and r.constraint > 0.1
+
+
+def test_icp_reports_a_degenerate_corridor() -> None:
+    walls = np.array([[0.0, -1.0, 10.0, -1.0], [0.0, 1.0, 10.0, 1.0]])
+    p = sample_segments(walls, 0.05)
+    cls = np.full(len(p), Label.WALL, dtype=np.int32)
+    r = icp_2d(p, cls, exact_associator(walls, np.full(2, Label.WALL, dtype=np.int32)),
+               Correction2D(0.0, np.zeros(2), p.mean(0)))
+    assert r.constraint < 1e-6
+
+
+def test_score_volume_peaks_at_the_true_grid_offset() -> None:
+    seg = np.concatenate([SEGMENTS, rectangle(2.0, 2.0, 2.3, 2.3)])
+    cls = np.r_[np.full(3, Label.WALL), np.full(4, Label.COLUMN)].astype(np.int32)
+    maps = PlanMaps.build(seg, cls, (0.0, 0.0, 6.0, 4.0), 3.0, 1, 0.1, 0.15, 0.05, 0.05, 3.0)
+    truth = sample_segments(seg, 0.05)
+    p_cls = np.r_[np.full(len(sample_segments(SEGMENTS, 0.05)), Label.WALL),
+                  np.full(len(truth) - len(sample_segments(SEGMENTS, 0.05)), Label.COLUMN)]
+    shift = np.array([0.7, -0.4])
+    yaws = np.deg2rad(np.arange(-10, 11, 2.0))
+    vol, res, n = score_volume(truth - shift, p_cls.astype(np.int32), np.zeros_like(truth), maps,
+                               truth.mean(0), yaws, 1.0)
+    k, j, i = np.unravel_index(vol.argmax(), vol.shape)
+    assert yaws[k] == 0.0
+    np.testing.assert_allclose([(i - n) * res, (j - n) * res], shift, atol=1e-9)
+    hyps = top_hypotheses(vol, yaws, res, n, 4, 0.3, np.deg2rad(3.0))
+    assert hyps[0].score == pytest.approx(float(vol.max()))
+    assert all(a.score >= b.score for a, b in zip(hyps, hyps[1:]))
+
+
+def test_level_window_recovers_tilt_and_height() -> None:
+    rng = np.random.default_rng(1)
+    xy = rng.uniform(-3, 3, (800, 2))
+    floor = np.c_[xy, np.zeros(len(xy))]
+    ceiling = np.c_[xy[:400], np.full(400, 2.8)]
+    pivot = np.array([0.0, 0.0, 1.5])
+    from scipy.spatial.transform import Rotation
+
+    err = Rotation.from_euler("xy", [0.02, -0.015])
+    dz = 0.25
+    f_obs = err.apply(floor - pivot) + pivot + [0, 0, dz]
+    c_obs = err.apply(ceiling - pivot) + pivot + [0, 0, dz]
+    f_obs[:40, 2] += 0.6  # clutter labelled floor (a table top) must not matter
+    lv = level_window(f_obs, c_obs, 0.0, 2.8, pivot, gate_m=0.2)
+    assert lv.ok
+    m = lv.matrix()
+    fixed = f_obs[40:] @ m[:3, :3].T + m[:3, 3]
+    assert np.abs(fixed[:, 2]).max() < 1e-3
+    assert np.rad2deg((Rotation.from_matrix(lv.rotation) * err).magnitude()) < 0.05
+
+
+def test_viterbi_matches_brute_force() -> None:
+    rng = np.random.default_rng(2)
+    sizes = [3, 4, 2, 3]
+    unary = [rng.normal(size=k) for k in sizes]
+    pair = [rng.uniform(0, 2, (a, b)) for a, b in zip(sizes[:-1], sizes[1:])]
+    labels, cost = viterbi_chain(unary, pair)
+    best = min(itertools.product(*[range(k) for k in sizes]),
+               key=lambda lab: sum(u[i] for u, i in zip(unary, lab))
+               + sum(p[a, b] for p, a, b in zip(pair, lab[:-1], lab[1:])))
+    assert tuple(labels) == best
+    assert cost == pytest.approx(sum(u[i] for u, i in zip(unary, best))
+                                 + sum(p[a, b] for p, a, b in zip(pair, best[:-1], best[1:])))
+
+
+def test_transition_cost_is_pivot_independent() -> None:
+    # The same world correction written about two different pivots costs nothing.
+    yaw, t = 0.1, np.array([0.3, -0.2])
+    a = Correction2D(yaw, t, np.array([0.0, 0.0]))
+    pivot = np.array([5.0, 2.0])
+    m = a.matrix()
+    b = Correction2D(yaw, m[:2, :2] @ pivot + m[:2, 2] - pivot, pivot)
+    flip = Correction2D(yaw + np.pi, t, pivot)
+    cost = transition_cost([a], [b, flip], np.array([2.0, 1.0]), 0.3, np.deg2rad(3.0), 50.0)
+    assert cost[0, 0] == pytest.approx(0.0, abs=1e-12)
+    assert cost[0, 1] == 50.0
+
+
+def test_schedule_default_and_rotation_first() -> None:
+    s = Schedule.default()
+    assert [st.kind for st in s.stages] == [StageKind.COARSE, StageKind.BIM_ONLY,
+                                            StageKind.ALL_TERMS]
+    assert s.stages[1].terms == BIM_TERMS and s.stages[1].loss_scale_factor > 1
+    r = Schedule.default(coarse=False, rotation_first=True)
+    assert [(st.kind, st.pose_block) for st in r.stages] == [
+        (StageKind.BIM_ONLY, PoseBlock.ROTATION), (StageKind.BIM_ONLY, PoseBlock.TRANSLATION),
+        (StageKind.ALL_TERMS, PoseBlock.ROTATION), (StageKind.ALL_TERMS, PoseBlock.TRANSLATION)]
+    assert not r.has_coarse
+    assert Schedule.from_dict(r.to_dict()) == r
+    with pytest.raises(RegistrationInputError, match="terms"):
+        ScheduleStage("bad", StageKind.BIM_ONLY, terms=frozenset({Term.G}))
+    with pytest.raises(RegistrationInputError, match="first"):
+        Schedule((ScheduleStage("all", StageKind.ALL_TERMS),
+                  ScheduleStage("c", StageKind.COARSE, terms=frozenset())))
+
+
+def test_input_errors_name_the_field() -> None:
+    with pytest.raises(RegistrationInputError, match="xy_range_m"):
+        CoarseOptions(xy_range_m=0.0)
+    with pytest.raises(RegistrationInputError, match="wall_p_in_cam"):
+        SemanticSamples.from_arrays(wall_frame=np.zeros(3, np.int32),
+                                    wall_p_in_cam=np.zeros((2, 3)))
+    with pytest.raises(RegistrationInputError, match="segment_class"):
+        FloorPlan(SEGMENTS, np.array([1, 2, 1]))
+    plan = FloorPlan(SEGMENTS, np.ones(3, np.int32))
+    samples = SemanticSamples.from_arrays(wall_frame=np.array([0, 5]),
+                                          wall_p_in_cam=np.ones((2, 3)))
+    with pytest.raises(RegistrationInputError, match="wall_frame"):
+        coarse_register(np.tile([0, 0, 0, 0, 0, 0, 1.0], (2, 1)), samples, plan)
+    with pytest.raises(RegistrationInputError, match="world_from_cam"):
+        coarse_register(np.full((2, 7), np.nan), samples, plan)
+
+
+def test_floor_plan_from_planes_reads_heights() -> None:
+    planes = np.array([[0, 0, 1.0, -0.0], [0, 0, -1.0, 2.8], [0, 0, 1.0, -3.1], [1.0, 0, 0, 2.0]])
+    kind = np.array([Label.FLOOR, Label.CEILING, Label.FLOOR, Label.FLOOR])
+    plan = FloorPlan.from_planes(SEGMENTS, np.ones(3), None, planes, kind)
+    np.testing.assert_allclose(plan.floor_heights, [0.0, 3.1])
+    np.testing.assert_allclose(plan.ceiling_heights, [2.8])
