@@ -31,13 +31,15 @@ def add_config_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--rotation-first", action=argparse.BooleanOptionalAction, default=None,
                    help="refine rotations first, then everything")
     g.add_argument("--window", type=int, help="match each frame with its next N frames")
+    g.add_argument("--max-match-distance", type=float,
+                   help="drop matches whose points are further apart under the initial poses (m)")
     g.add_argument("--workers", type=int, help="front-end processes (default: all cores)")
 
 
 def config_from_args(args: argparse.Namespace) -> RefineConfig:
     keys = ("method", "terms", "weighting", "loss", "geometric_mode", "completion",
             "completion_model", "segmentation", "segmentation_model", "labels_dir", "coarse",
-            "rotation_first", "window", "workers")
+            "rotation_first", "window", "max_match_distance", "workers")
     overrides: dict[str, Any] = {k: getattr(args, k) for k in keys if getattr(args, k, None) is not None}
     if args.config:
         return RefineConfig.from_toml(args.config, **overrides)

@@ -85,6 +85,9 @@ class RefineConfig:
     coarse: run the coarse registration before the bundle adjustment (None: automatic).
     rotation_first: refine rotations first, then everything (the paper's Exp. 3 remedy).
     window: match each frame with its next ``window`` frames.
+    max_match_distance: the peers' filter on matches (metres between the two back-projected
+        points under the initial poses; the paper used 0.4). None (default) keeps every
+        geometrically verified match: with per-frame rotation drift the filter drops most of them.
     workers: front-end processes (None: all cores).
     solver: overrides of ``bimcap.optimize.SolverOptions`` fields (nested dicts for terms).
     """
@@ -102,6 +105,7 @@ class RefineConfig:
     coarse: bool | None = None
     rotation_first: bool = False
     window: int = 4
+    max_match_distance: float | None = None
     workers: int | None = None
     solver: dict[str, Any] = field(default_factory=dict)
 

@@ -194,6 +194,7 @@ def prepare(
     work_dir: where the caches live (``bim/``, ``cache/``).
     """
     from bimcap.dataset import read_sequence
+    from bimcap.features.tracks import MatchFilterOptions
     from bimcap.frontend.runner import FrontendConfig, run_frontend
 
     timings: dict[str, float] = {}
@@ -214,7 +215,10 @@ def prepare(
         f"labels {config.segmentation.value})", quiet)
     depth, labels, refiner = make_providers(config, seq)
     fe = run_frontend(
-        seq, FrontendConfig(window=config.window), traj, depth, labels,
+        seq,
+        FrontendConfig(window=config.window,
+                       filters=MatchFilterOptions(max_initial_distance_m=config.max_match_distance)),
+        traj, depth, labels,
         cache_dir=work / "cache", workers=config.workers, progress=not quiet,
         depth_refiner=refiner,
     )
