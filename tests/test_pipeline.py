@@ -1,0 +1,119 @@
+"""End-to-end: the demo pipeline on a tiny world, the refine outputs, and the config file."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bimcap.geometry import read_tum
+from bimcap.pipeline.config import ConfigError, DepthSource, LabelSource, Method, RefineConfig
+
+pytest.importorskip("bimcap._core", reason="the C++ core is not built")
+
+
+@pytest.fixture(scope="module")
+def tiny_demo(tmp_path_factory: pytest.TempPathFactory):
+    """The demo on the tiny building: 12 frames at 1/8 ConSLAM resolution, exp2 drift."""
+    from bimcap.pipeline.demo import DemoOptions, run_demo
+
+    out = tmp_path_factory.mktemp("demo")
+    cfg = RefineConfig(workers=1)
+    opts = DemoOptions(preset="tiny", frames=12, scale=0.125, fps=2.0, config=cfg)
+    return run_demo(out, opts, quiet=True)
+
+
+@pytest.mark.slow
+def test_demo_writes_every_artefact(tiny_demo) -> None:
+    out = tiny_demo.out_dir
+    for rel in ("world/building.ifc", "world/building_as_built.ifc", "sequence/manifest.json",
+                "sequence/poses/gt.tum", "sequence/poses/init.tum", "refine/refined.tum",
+                "refine/refined_facap.tum", "refine/report.html", "demo.json",
+                "refine/bim/floorplan.json"):
+        assert (out / rel).is_file(), rel
+    html = (out / "refine" / "report.html").read_text()
+    assert "data:image/png;base64," in html and "ATE" in html
+    figures = sorted(p.name for p in (out / "refine" / "figures").glob("*.png"))
+    assert "trajectories.png" in figures and any(f.startswith("side_") for f in figures)
+
+
+@pytest.mark.slow
+def test_demo_refinement_reduces_the_rotation_error(tiny_demo) -> None:
+    """Regression bound on a tiny world (the accuracy targets are measured by bench/)."""
+    res = tiny_demo.results
+    before = res["initial"]["metrics"]["ate_rot_deg"]["rmse"]
+    after = res["bimcap"]["metrics"]["ate_rot_deg"]["rmse"]
+    assert before == pytest.approx(8.82, abs=0.01)  # the exp2 preset's calibrated drift
+    assert after < 0.5 * before
+    gt = read_tum(tiny_demo.out_dir / "sequence" / "poses" / "gt.tum")
+    refined = read_tum(tiny_demo.out_dir / "refine" / "refined.tum")
+    np.testing.assert_array_equal(refined.timestamps, gt.timestamps)
+
+
+@pytest.mark.slow
+def test_demo_rerun_reuses_its_caches(tiny_demo) -> None:
+    from bimcap.pipeline.demo import DemoOptions, run_demo
+
+    opts = DemoOptions(preset="tiny", frames=12, scale=0.125, fps=2.0,
+                       config=RefineConfig(workers=1), facap=False)
+    again = run_demo(tiny_demo.out_dir, opts, quiet=True)
+    assert again.seconds < tiny_demo.seconds
+    first = tiny_demo.results["bimcap"]["metrics"]["ate_rot_deg"]["rmse"]
+    assert again.results["bimcap"]["metrics"]["ate_rot_deg"]["rmse"] == pytest.approx(first, rel=1e-6)
+
+
+@pytest.mark.slow
+def test_refine_cli_outputs_and_never_overwrites(tiny_demo, tmp_path: Path) -> None:
+    from bimcap.cli import main
+
+    seq = tiny_demo.out_dir / "sequence"
+    gt_before = (seq / "poses" / "gt.tum").read_bytes()
+    out = tmp_path / "run"
+    rc = main(["refine", str(seq), "-o", str(out), "--terms", "F+W+Co+Ce", "--no-report", "-q",
+               "--workers", "1"])
+    assert rc == 0
+    result = json.loads((out / "result.json").read_text())
+    assert result["config"]["effective_terms"] == "F+W+Co+Ce"
+    for name in ("refined.tum", "summary.json", "map_before.ply", "map_after.ply"):
+        assert (out / name).is_file()
+    assert (seq / "poses" / "gt.tum").read_bytes() == gt_before
+    # an output that would replace an input is refused before anything is written
+    clash = tmp_path / "clash"
+    clash.mkdir()
+    init_copy = clash / "refined.tum"
+    init_copy.write_bytes((seq / "poses" / "init.tum").read_bytes())
+    before = init_copy.read_bytes()
+    rc = main(["refine", str(seq), "-o", str(clash), "--init", str(init_copy), "-q"])
+    assert rc == 2
+    assert init_copy.read_bytes() == before
+    assert sorted(p.name for p in clash.iterdir()) == ["refined.tum"]
+
+
+def test_config_from_toml_and_errors(tmp_path: Path) -> None:
+    f = tmp_path / "run.toml"
+    f.write_text('method = "facap"\ncompletion = "linear"\n[solver]\nassociation_gate = 0.3\n'
+                 '[solver.wall]\nsigma = 0.02\n')
+    cfg = RefineConfig.from_toml(f, terms="G+F")
+    assert cfg.method is Method.FACAP and cfg.completion is DepthSource.LINEAR
+    assert cfg.effective_terms == "G+F" and cfg.effective_weighting == "paper"
+    assert cfg.solver == {"association_gate": 0.3, "wall": {"sigma": 0.02}}
+    from bimcap.pipeline.refine import solver_options
+
+    opts = solver_options(cfg)
+    assert opts.association_gate == 0.3 and opts.wall.sigma == 0.02
+    assert opts.floor.enabled and not opts.wall.enabled
+
+    bad = tmp_path / "bad.toml"
+    bad.write_text("methd = 'facap'\n")
+    with pytest.raises(ConfigError, match="unknown key") as info:
+        RefineConfig.from_toml(bad)
+    assert str(bad) in str(info.value)
+    bad.write_text("method = [\n")
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        RefineConfig.from_toml(bad)
+    with pytest.raises(ConfigError, match="completion_model"):
+        RefineConfig(completion=DepthSource.HYBRID)
+    with pytest.raises(ConfigError, match="labels_dir"):
+        RefineConfig(segmentation=LabelSource.DISK)
