@@ -175,7 +175,11 @@ class SolverOptions:
             non_negative(f"{attr}.weight", t.weight)
             positive(f"{attr}.sigma", t.sigma)
             positive(f"{attr}.loss_scale", t.loss_scale)
-            Loss(t.loss)
+            if not isinstance(t.loss, Loss):
+                try:
+                    t.loss = Loss(t.loss)
+                except ValueError:
+                    raise SolverInputError(f"unknown loss {t.loss!r}", field=f"{attr}.loss") from None
         positive("pixel_sigma", self.pixel_sigma)
         positive("association_gate", self.association_gate)
         positive("max_time_s", self.max_time_s)
