@@ -20,7 +20,9 @@ def core():  # noqa: ANN201
 def bimcap_solve_binary() -> Path:
     """The bimcap_solve executable: $BIMCAP_SOLVE, next to the interpreter, on PATH, or a dev build."""
     candidates = [os.environ.get("BIMCAP_SOLVE"), str(Path(sys.executable).parent / "bimcap_solve"), shutil.which("bimcap_solve")]
-    candidates += [str(p) for p in sorted(REPO.glob("build/*/cpp/bimcap_solve"))]
+    # Developer builds, the most recent first (it matches the freshly built python/bimcap/_core).
+    builds = sorted(REPO.glob("build/*/cpp/bimcap_solve"), key=lambda p: p.stat().st_mtime, reverse=True)
+    candidates += [str(p) for p in builds]
     for c in candidates:
         if c and Path(c).is_file() and os.access(c, os.X_OK):
             return Path(c)

@@ -213,3 +213,15 @@ def test_landmark_mode_and_covariance(synthetic) -> None:  # noqa: ANN001
     assert np.all(np.linalg.eigvalsh(result.covariance[1:]) > 0)
     err = np.linalg.norm(result.track_points - synthetic.gt_track_points, axis=1)
     assert np.median(err) < 0.05
+
+
+def test_solve_demo_command(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    core()
+    from bimcap.cli import main
+
+    assert main(["solve-demo", "--frames", "20", "--terms", "G,F,W", "-o", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "pose error (RMSE vs ground truth): before" in out
+    assert (tmp_path / "refined.tum").is_file() and (tmp_path / "problem.bimcap").is_file()
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert {t["name"] for t in summary["terms"] if t["active"]} == {"G", "F", "W"}

@@ -140,6 +140,7 @@ void SolverOptions::Check() const {
   CheckPositive("pixel_sigma", pixel_sigma);
   CheckPositive("association_gate", association_gate);
   if (outer_iterations < 1) throw OptionsError("outer_iterations", "must be >= 1");
+  CheckNonNegative("association_change_tolerance", association_change_tolerance);
   if (max_iterations < 0) throw OptionsError("max_iterations", "must be >= 0");
   CheckNonNegative("function_tolerance", function_tolerance);
   CheckNonNegative("gradient_tolerance", gradient_tolerance);
@@ -173,6 +174,7 @@ std::map<std::string, std::string> OptionsToKeyValues(const SolverOptions& o) {
   kv["pixel_sigma"] = FormatDouble(o.pixel_sigma);
   kv["association_gate"] = FormatDouble(o.association_gate);
   kv["outer_iterations"] = std::to_string(o.outer_iterations);
+  kv["association_change_tolerance"] = FormatDouble(o.association_change_tolerance);
   kv["max_iterations"] = std::to_string(o.max_iterations);
   kv["function_tolerance"] = FormatDouble(o.function_tolerance);
   kv["gradient_tolerance"] = FormatDouble(o.gradient_tolerance);
@@ -200,6 +202,8 @@ SolverOptions OptionsFromKeyValues(const std::map<std::string, std::string>& val
       o.pixel_sigma = ParseDouble(key, value);
     } else if (key == "association_gate") {
       o.association_gate = ParseDouble(key, value);
+    } else if (key == "association_change_tolerance") {
+      o.association_change_tolerance = ParseDouble(key, value);
     } else if (key == "outer_iterations") {
       o.outer_iterations = ParseInt(key, value);
     } else if (key == "max_iterations") {

@@ -66,6 +66,8 @@ struct SolverOptions {
   // `outer_iterations` runs.
   double association_gate = 0.5;
   int outer_iterations = 5;
+  // Stop re-associating once at most this fraction of the W / Co points changed segment.
+  double association_change_tolerance = 1e-3;
 
   // Ceres.
   int max_iterations = 100;

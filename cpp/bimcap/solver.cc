@@ -188,16 +188,17 @@ SolveResult Solve(const ProblemData& data, const SolverOptions& options) {
                                                   options.association_gate);
     summary.association.push_back({"Co", column_index->num_segments(), {}, {}});
   }
-  // Returns whether any association changed.
+  // Returns whether more than association_change_tolerance of the points changed segment.
   auto associate = [&](bool initial) {
-    bool changed = false;
+    int64_t changed = 0, points = 0;
     size_t slot = 0;
     if (use_wall) {
       AssociationStats stats;
       state.wall_segment = AssociatePoints(*wall_index, data.wall_frame, data.wall_p_in_cam,
                                            state.poses.data(), state.wall_segment, &stats);
       (initial ? summary.association[slot].initial : summary.association[slot].final) = stats;
-      changed = changed || stats.num_changed > 0;
+      changed += stats.num_changed;
+      points += stats.num_points;
       ++slot;
     }
     if (use_column) {
@@ -206,9 +207,11 @@ SolveResult Solve(const ProblemData& data, const SolverOptions& options) {
                                              data.column_p_in_cam, state.poses.data(),
                                              state.column_segment, &stats);
       (initial ? summary.association[slot].initial : summary.association[slot].final) = stats;
-      changed = changed || stats.num_changed > 0;
+      changed += stats.num_changed;
+      points += stats.num_points;
     }
-    return changed;
+    return changed > 0 &&
+           static_cast<double>(changed) > options.association_change_tolerance * static_cast<double>(points);
   };
 
   associate(true);

@@ -4,7 +4,7 @@ The options cross into C++ as a flat ``{key: str}`` dict (:meth:`SolverOptions.t
 ``key=value`` text that a problem file stores. Keys: ``geometric_mode``, ``weighting``,
 ``plane_mode``, ``refine_mode``, per term ``<term>.enabled|paper_weight|weight|sigma|loss|
 loss_scale`` with ``<term>`` in ``geometric, depth, floor, ceiling, wall, column``, then
-``pixel_sigma``, ``association_gate``, ``outer_iterations``, ``max_iterations``,
+``pixel_sigma``, ``association_gate``, ``outer_iterations``, ``association_change_tolerance``, ``max_iterations``,
 ``function_tolerance``, ``gradient_tolerance``, ``parameter_tolerance``, ``max_time_s``,
 ``num_threads``, ``linear_solver``, ``compute_covariance``, ``verbose``.
 """
@@ -119,6 +119,8 @@ class SolverOptions:
     association_gate: float = 0.5
     #: W / Co: at most this many Ceres runs, re-associating in between.
     outer_iterations: int = 5
+    #: W / Co: stop re-associating once at most this fraction of the points changed segment.
+    association_change_tolerance: float = 1e-3
     max_iterations: int = 100
     function_tolerance: float = 1e-6
     gradient_tolerance: float = 1e-10
@@ -175,10 +177,15 @@ class SolverOptions:
             non_negative(f"{attr}.weight", t.weight)
             positive(f"{attr}.sigma", t.sigma)
             positive(f"{attr}.loss_scale", t.loss_scale)
-            Loss(t.loss)
+            if not isinstance(t.loss, Loss):
+                try:
+                    t.loss = Loss(t.loss)
+                except ValueError:
+                    raise SolverInputError(f"unknown loss {t.loss!r}", field=f"{attr}.loss") from None
         positive("pixel_sigma", self.pixel_sigma)
         positive("association_gate", self.association_gate)
         positive("max_time_s", self.max_time_s)
+        non_negative("association_change_tolerance", self.association_change_tolerance)
         for name in ("function_tolerance", "gradient_tolerance", "parameter_tolerance"):
             non_negative(name, getattr(self, name))
         if int(self.outer_iterations) < 1:
