@@ -7,6 +7,8 @@ from known poses (:mod:`bimcap.registration.synthetic`), so the truth is exact.
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -104,6 +106,12 @@ def test_true_pose_is_a_fixed_point(demo: Scene) -> None:
     assert t_err.max() < 0.01 and r_err.max() < 0.1, (t_err.max(), r_err.max())
     d = res.to_dict()
     assert d["n_frames"] == 20 and len(d["windows"]) == 2 and d["accepted_fraction"] == 1.0
+    json.dumps(d, allow_nan=False)
+    # Plain local ICP (no correlative search) leaves the true pose alone as well.
+    icp_only = coarse_register(gt, samples, demo.floor_plan(),
+                               CoarseOptions(use_correlative=False, use_continuity=False))
+    assert pose_errors(icp_only.poses, gt)[0].max() < 0.01
+    json.dumps(icp_only.to_dict(), allow_nan=False)
 
 
 def _symmetric_case(use_continuity: bool) -> tuple[np.ndarray, np.ndarray]:

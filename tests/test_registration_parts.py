@@ -78,6 +78,16 @@ def test_free_normals_point_out_of_solids() -> None:
     np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0)
 
 
+def test_open_outlines_get_no_free_side() -> None:
+    # Single-line walls (no solids): parity is meaningless, so every face stays visible.
+    lines = np.array([[0.0, 0.0, 5.0, 0.0], [0.0, 2.0, 5.0, 2.0], [5.0, 0.0, 5.0, 2.0]])
+    n = free_normals(lines, np.full(3, Label.WALL, dtype=np.int32))
+    assert not n.any()
+    # A room drawn as a closed loop of single lines: its inside is a room, not a solid.
+    room = rectangle(0.0, 0.0, 5.0, 4.0)
+    assert not free_normals(room, np.full(4, Label.WALL, dtype=np.int32)).any()
+
+
 def test_view_bins_keep_outer_faces_of_a_corridor_out() -> None:
     # Corridor 2 m wide between two 0.2 m walls; a ray along the corridor going east and a bit
     # south can only hit the inner face of the south wall, never its outer face.

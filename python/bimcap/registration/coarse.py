@@ -322,7 +322,9 @@ class WindowResult:
     seconds: float
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        """JSON-ready (NaN, e.g. ``constraint`` without ICP, becomes None)."""
+        return {k: (None if isinstance(v, float) and not np.isfinite(v) else v)
+                for k, v in asdict(self).items()}
 
 
 @dataclass

@@ -43,14 +43,48 @@ def _crossings(p: F64, d: NDArray[np.float64], segments: F64) -> NDArray[np.int6
     return np.asarray(hit.sum(1), dtype=np.int64)
 
 
+def _inside_clearance(p: F64, own: NDArray[np.int64], segments: F64, chunk: int = 512) -> F64:
+    """(M,) distance from each point to the nearest segment other than its own ``own[i]``."""
+    a, ab = segments[:, :2], segments[:, 2:] - segments[:, :2]
+    len2 = np.maximum((ab ** 2).sum(1), 1e-18)
+    out = np.empty(len(p))
+    for k in range(0, len(p), chunk):
+        q = p[k:k + chunk]
+        u = np.clip(((q[:, None, :] - a[None]) * ab[None]).sum(-1) / len2[None], 0.0, 1.0)
+        d = np.linalg.norm(q[:, None, :] - (a[None] + u[..., None] * ab[None]), axis=-1)
+        d[np.arange(len(q)), own[k:k + chunk]] = np.inf
+        out[k:k + chunk] = d.min(1)
+    return out
+
+
+def _on_closed_curves(segments: F64, tol_m: float = 1e-4) -> NDArray[np.bool_]:
+    """(S,) True for segments left after repeatedly pruning every segment with an endpoint
+    that no other remaining segment shares (dangling chains, open outlines)."""
+    ends = np.round(np.r_[segments[:, :2], segments[:, 2:]] / tol_m).astype(np.int64)
+    _, vid = np.unique(ends, axis=0, return_inverse=True)
+    vid = vid.reshape(2, -1)
+    alive = np.ones(len(segments), dtype=bool)
+    while True:
+        deg = np.bincount(vid[:, alive].ravel(), minlength=int(vid.max()) + 1)
+        dangling = alive & ((deg[vid[0]] < 2) | (deg[vid[1]] < 2))
+        if not dangling.any():
+            return alive
+        alive &= ~dangling
+
+
 def free_normals(segments: NDArray[np.float64], segment_class: NDArray[np.int32],
-                 eps_m: float = 0.01) -> F64:
+                 eps_m: float = 0.01, max_thickness_m: float = 1.2) -> F64:
     """(S, 2) unit normal of each segment pointing into free space; zero where undecided.
 
     The outlines of each class are treated as closed curves: a point just beside a segment is
     inside a solid iff a ray from it crosses an odd number of that class's segments. Two
-    slanted rays must agree, and exactly one side must be inside; otherwise (an open outline,
-    a free-standing line) the segment is visible from both sides (zero normal).
+    slanted rays must agree, and exactly one side must be inside; otherwise the segment is
+    visible from both sides (zero normal). Segments that are not on a closed curve of their
+    class (open outlines: centre lines, single faces; found by pruning dangling segments) get a
+    zero normal too, since parity means nothing there. Finally a face is trusted only if the
+    point just inside it is within ``max_thickness_m / 2`` of another segment (walls and
+    columns are thin; a room drawn as a closed loop of single lines would otherwise look like
+    a solid).
     """
     seg = np.asarray(segments, dtype=np.float64).reshape(-1, 4)
     out = np.zeros((len(seg), 2))
@@ -62,15 +96,22 @@ def free_normals(segments: NDArray[np.float64], segment_class: NDArray[np.int32]
         length = np.linalg.norm(e, axis=1)
         n = np.c_[-e[:, 1], e[:, 0]] / np.maximum(length, 1e-12)[:, None]
         mid = 0.5 * (s[:, :2] + s[:, 2:])
+        shared = _on_closed_curves(s)
         inside = []
         for sign in (1.0, -1.0):
             p = mid + sign * eps_m * n
             odd = [(_crossings(p, d, s) % 2 == 1) for d in dirs]
             inside.append(np.where(odd[0] == odd[1], odd[0].astype(np.int8), -1))
         plus, minus = inside
-        good = (length > 1e-9) & (plus >= 0) & (minus >= 0) & (plus != minus)
+        good = shared & (length > 1e-9) & (plus >= 0) & (minus >= 0) & (plus != minus)
         sign = np.where(plus == 0, 1.0, -1.0)
-        out[rows[good]] = sign[good, None] * n[good]
+        free = sign[:, None] * n
+        if good.any():
+            clear = np.full(len(s), np.inf)
+            g = np.flatnonzero(good)
+            clear[g] = _inside_clearance(mid[g] - eps_m * free[g], g, s)
+            good &= clear <= 0.5 * max_thickness_m
+        out[rows[good]] = free[good]
     return out
 
 
