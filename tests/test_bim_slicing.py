@@ -81,7 +81,7 @@ def test_merge_collinear_joins_and_keeps_gaps() -> None:
     segs = np.array([
         [0.0, 0.0, 1.0, 0.0],
         [0.95, 0.002, 2.0, 0.002],  # overlaps, 2 mm off: joins
-        [2.05, 0.0, 3.0, 0.0],  # 5 cm gap < gap_m: joins
+        [2.03, 0.0, 3.0, 0.0],  # 3 cm gap < gap_m (4 cm): joins
         [3.9, 0.0, 5.0, 0.0],  # 0.9 m gap (a door): stays apart
         [0.0, 0.5, 1.0, 0.5],  # parallel 0.5 m away: apart
     ])

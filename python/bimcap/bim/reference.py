@@ -109,11 +109,14 @@ class BimReference:
         """(Q,) int32 Label ids (2 floor, 3 ceiling)."""
         return np.array([int(p.kind) for p in self.plane_info], dtype=np.int32)
 
-    def plane_under(self, p_in_world: NDArray[np.float64], kind: Label) -> NDArray[np.int32]:
+    def plane_under(
+        self, p_in_world: NDArray[np.float64], kind: Label, side_tol_m: float = 0.5
+    ) -> NDArray[np.int32]:
         """For each point (M, 3) metres, the index of the plane of ``kind`` (Label.FLOOR or
-        Label.CEILING) whose xy polygon contains it and whose height is nearest; −1 where none.
-        Returns (M,) int32 indices into :attr:`planes`."""
-        return plane_under(self.plane_info, self.planes, p_in_world, Label(kind))
+        Label.CEILING) whose xy polygon contains it, on whose room side it is (signed distance
+        ≥ −side_tol_m), and whose height is nearest; −1 where none. Returns (M,) int32 indices
+        into :attr:`planes` (see :func:`bimcap.bim.planes.plane_under`)."""
+        return plane_under(self.plane_info, self.planes, p_in_world, Label(kind), side_tol_m)
 
     def summary(self) -> dict[str, Any]:
         """Counts for the CLI and reference.json."""
