@@ -84,7 +84,8 @@ def test_plane_under_and_sign(building: tuple[SimpleBuilding, BimModel],
     assert fl.dtype == np.int32
     # A point inside a room is at positive signed distance from its floor and its ceiling.
     for k in range(3):
-        for idx, expected in ((fl[k], local[k, 2] - h[fl[k]][1]), (ce[k], h[ce[k]][1] - local[k, 2])):
+        for idx, expected in ((fl[k], local[k, 2] - h[fl[k]][1]),
+                              (ce[k], h[ce[k]][1] - local[k, 2])):
             n, d = reference.planes[idx, :3], reference.planes[idx, 3]
             assert n @ p[k] + d == pytest.approx(expected)
             assert expected > 0

@@ -10,7 +10,9 @@ from bimcap.bim.semantic_cloud import read_ply, sample_surface, write_ply
 from bimcap.bim.slicing import agreement, sample_segments, slice_mesh, thin_points
 
 
-def unit_cube(offset: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+def unit_cube(
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0),
+) -> tuple[np.ndarray, np.ndarray]:
     v = np.array([[x, y, z] for z in (0, 1) for y in (0, 1) for x in (0, 1)], dtype=np.float64)
     v += np.asarray(offset)
     f = np.array([

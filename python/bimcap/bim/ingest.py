@@ -219,7 +219,9 @@ def classify(element: Any, parent: Any | None = None) -> Label:
     return Label.UNKNOWN
 
 
-def _storey_of(element: Any, cache: dict[int, str | None], storey_names: dict[int, str]) -> str | None:
+def _storey_of(
+    element: Any, cache: dict[int, str | None], storey_names: dict[int, str]
+) -> str | None:
     """Name of the storey containing ``element`` (through spaces and aggregates), or None."""
     import ifcopenshell.util.element as ue
 

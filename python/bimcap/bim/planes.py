@@ -161,13 +161,10 @@ def _pieces(tris: NDArray[np.float64], simplify: float) -> list[Any]:
 
 
 def _planes_from_faces(
-    elements: list[BimElement],
-    kind: Label,
-    up: bool,
-    source: str,
-    opts: PlaneOptions,
+    elements: list[BimElement], up: bool, opts: PlaneOptions
 ) -> list[tuple[float, Any, list[str]]]:
-    """(height, shapely polygon, guids) for every connected horizontal piece."""
+    """(height, shapely polygon, guids) of every connected horizontal piece of the up-facing
+    (``up``) or down-facing faces of ``elements``."""
     cos_tilt = float(np.cos(np.deg2rad(opts.max_tilt_deg)))
     tris, z, owners = _horizontal_faces(elements, up, cos_tilt)
     out = []
@@ -223,7 +220,7 @@ def extract_planes(model: BimModel, opts: PlaneOptions | None = None) -> list[Re
 
     # ---- floors from slabs / floor coverings
     floors_src = model.by_label(Label.FLOOR)
-    for h, poly, guids in _planes_from_faces(floors_src, Label.FLOOR, True, "slab", opts):
+    for h, poly, guids in _planes_from_faces(floors_src, True, opts):
         planes.append(
             _make_plane(Label.FLOOR, h, poly, storey_for_height(model, h, -0.5), "slab", guids)
         )
@@ -238,7 +235,7 @@ def extract_planes(model: BimModel, opts: PlaneOptions | None = None) -> list[Re
         spaces = read_spaces(model)
         for st in missing:
             mine = [sp for sp in spaces if sp.storey == st.name]
-            got = _planes_from_faces(mine, Label.FLOOR, False, "space", opts)
+            got = _planes_from_faces(mine, False, opts)
             if got:
                 for h, poly, guids in got:
                     planes.append(_make_plane(Label.FLOOR, h, poly, st.name, "space", guids))
@@ -261,7 +258,7 @@ def extract_planes(model: BimModel, opts: PlaneOptions | None = None) -> list[Re
 
     # ---- ceilings from coverings
     ceil_elems = model.by_label(Label.CEILING)
-    cover = _planes_from_faces(ceil_elems, Label.CEILING, False, "covering", opts)
+    cover = _planes_from_faces(ceil_elems, False, opts)
     covered: dict[str | None, Any] = {}
     for h, poly, guids in cover:
         st = storey_for_height(model, h, 1.0)
@@ -271,7 +268,7 @@ def extract_planes(model: BimModel, opts: PlaneOptions | None = None) -> list[Re
     # ---- ceilings from the undersides of slabs, where no covering is
     slabs = [e for e in model.elements if e.ifc_class in ("IfcSlab", "IfcRoof")
              or (e.label == Label.FLOOR and e.ifc_class.startswith("IfcSlab"))]
-    for h, poly, guids in _planes_from_faces(slabs, Label.CEILING, False, "slab-above", opts):
+    for h, poly, guids in _planes_from_faces(slabs, False, opts):
         st = storey_for_height(model, h, 1.0)
         if st is None:
             continue

@@ -37,7 +37,7 @@ from bimcap.bim.errors import BimInputError
 from bimcap.bim.floorplan import FloorPlan, FloorPlanOptions, Vectorizer, build_floor_plan
 from bimcap.bim.ingest import BimModel, Storey
 from bimcap.bim.planes import PlaneOptions, ReferencePlane, extract_planes, plane_under
-from bimcap.bim.semantic_cloud import read_ply, sample_model, write_ply
+from bimcap.bim.semantic_cloud import sample_model, write_ply
 from bimcap.io.atomic import atomic_write_bytes, atomic_write_json
 from bimcap.labels import Label
 
