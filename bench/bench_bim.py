@@ -45,7 +45,7 @@ def generated_building(directory: Path) -> Path:
         return path
     except Exception:  # the generator branch may not have landed
         sys.path.insert(0, str(REPO / "tests"))
-        from bim_simple_building import build_simple_building
+        from _bim_building import build_simple_building
 
         build_simple_building(path, n_storeys=3)
         return path

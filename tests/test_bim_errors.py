@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from bim_simple_building import build_simple_building
+from _bim_building import build_simple_building
 
 from bimcap.bim.errors import BimError, BimInputError
 from bimcap.bim.ingest import load_model

@@ -1,4 +1,4 @@
-"""The BIM reference of a small IFC4 building with known geometry (tests/bim_simple_building.py):
+"""The BIM reference of a small IFC4 building with known geometry (tests/_bim_building.py):
 walls, columns, planes and plane_under, the floor plan against the known faces, save / load."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from bim_simple_building import SimpleBuilding, build_simple_building
+from _bim_building import SimpleBuilding, build_simple_building
 
 from bimcap.bim.floorplan import FloorPlanOptions, Vectorizer, build_floor_plan
 from bimcap.bim.ingest import BimModel, load_model
