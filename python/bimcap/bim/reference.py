@@ -196,8 +196,15 @@ class BimReference:
             raise BimInputError(
                 f"expected format {FORMAT!r} version {VERSION}", files["reference.json"], "format"
             )
-        with np.load(files["reference.npz"]) as z:
-            arrays = {k: z[k] for k in z.files}
+        try:
+            with np.load(files["reference.npz"]) as z:
+                arrays = {k: z[k] for k in z.files}
+        except (OSError, ValueError) as exc:
+            raise BimInputError(f"unreadable arrays: {exc}", files["reference.npz"]) from exc
+        needed = ("planes", "segments", "segment_class", "segment_z", "points", "labels")
+        for key in needed:
+            if key not in arrays:
+                raise BimInputError("array missing", files["reference.npz"], key)
         plane_info = [ReferencePlane.from_dict(p) for p in pj["planes"]]
         planes = np.ascontiguousarray(arrays["planes"], dtype=np.float64).reshape(-1, 4)
         if len(plane_info) != len(planes):
