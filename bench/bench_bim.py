@@ -3,8 +3,9 @@
     PYTHONPATH=python python bench/bench_bim.py [--models DIR] [--skip-vectorizers]
 
 Part 1 runs ``bimcap bim MODEL -o TMP`` on each shared model and on a generated 3-storey building,
-each in a fresh process, and prints wall time and peak memory (target: Duplex < 15 s on the
-project's 2-core machine). Part 2 compares the rough detectors (Hough / LSD / contour, each
+each in a fresh process (imports included), and prints wall time, CPU time (user + system, all
+threads) and peak memory (target: Duplex < 15 s on the project's 2-core machine; the machine is
+shared, so compare CPU time when the wall time looks off). Part 2 compares the rough detectors (Hough / LSD / contour, each
 followed by the same refinement and merging) by coverage / precision against the exact slice
 and by time: the numbers behind the default (``Vectorizer.HOUGH``).
 """
@@ -31,7 +32,8 @@ t = time.perf_counter()
 from bimcap.cli import main
 rc = main(["bim", sys.argv[1], "-o", sys.argv[2]])
 dt = time.perf_counter() - t
-print("BENCH", rc, dt, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)
+ru = resource.getrusage(resource.RUSAGE_SELF)
+print("BENCH", rc, dt, ru.ru_maxrss / 1024.0, ru.ru_utime + ru.ru_stime)
 """
 
 
@@ -51,7 +53,7 @@ def generated_building(directory: Path) -> Path:
         return path
 
 
-def run_cli(model: Path) -> tuple[int, float, float, str]:
+def run_cli(model: Path) -> tuple[int, float, float, float, str]:
     with tempfile.TemporaryDirectory() as out:
         env_path = str(REPO / "python")
         proc = subprocess.run(
@@ -60,10 +62,10 @@ def run_cli(model: Path) -> tuple[int, float, float, str]:
         )
         line = [x for x in proc.stdout.splitlines() if x.startswith("BENCH")]
         if not line:
-            return -1, float("nan"), float("nan"), proc.stderr[-500:]
-        _, rc, dt, mem = line[0].split()
+            return -1, float("nan"), float("nan"), float("nan"), proc.stderr[-500:]
+        _, rc, dt, mem, cpu = line[0].split()
         cov = [x.strip() for x in proc.stdout.splitlines() if "coverage" in x]
-        return int(rc), float(dt), float(mem), "; ".join(cov)
+        return int(rc), float(dt), float(mem), float(cpu), "; ".join(cov)
 
 
 def compare_vectorizers(model_path: Path) -> list[tuple[str, str, float, float, float, int]]:
@@ -98,10 +100,10 @@ def main() -> int:
         paths = [args.models / m for m in MODELS if (args.models / m).is_file()]
         paths.append(generated_building(Path(tmp)))
         print("## bimcap bim, one fresh process per model")
-        print(f"{'model':<28} {'rc':>3} {'time s':>8} {'peak MiB':>9}  floor plan")
+        print(f"{'model':<28} {'rc':>3} {'wall s':>7} {'cpu s':>6} {'peak MiB':>9}  floor plan")
         for p in paths:
-            rc, dt, mem, cov = run_cli(p)
-            print(f"{p.name:<28} {rc:>3} {dt:>8.2f} {mem:>9.0f}  {cov}")
+            rc, dt, mem, cpu, cov = run_cli(p)
+            print(f"{p.name:<28} {rc:>3} {dt:>7.2f} {cpu:>6.2f} {mem:>9.0f}  {cov}")
         if not args.skip_vectorizers:
             print("\n## rough detector comparison (same refinement), length-weighted over storeys")
             print(f"{'model':<28} {'detector':<8} {'coverage':>9} {'precision':>9} "
