@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from bim_simple_building import build_simple_building
+from _bim_building import build_simple_building
 
 from bimcap.bim.errors import BimError, BimInputError
 from bimcap.bim.ingest import load_model
@@ -99,3 +99,25 @@ def test_cli_writes_everything(good_ifc: Path, tmp_path: Path,
     assert np.all(ref.segment_z == [0.0, 3.0])
     svg = (out / "floorplan_00_Storey_0.svg").read_text()
     assert svg.startswith("<svg") and "<line" in svg
+
+
+def test_bad_options() -> None:
+    from bimcap.bim.errors import BimOptionsError
+    from bimcap.bim.floorplan import FloorPlanOptions
+
+    with pytest.raises(BimOptionsError, match="resolution_m"):
+        FloorPlanOptions(resolution_m=0.0)
+    with pytest.raises(BimOptionsError, match="n_levels"):
+        FloorPlanOptions(n_levels=0)
+    with pytest.raises(ValueError):
+        FloorPlanOptions(vectorizer="sobel")  # type: ignore[arg-type]
+
+
+def test_damaged_reference(tmp_path: Path, good_ifc: Path) -> None:
+    from bimcap.bim.reference import build_reference
+
+    ref = build_reference(load_model(good_ifc))
+    ref.save(tmp_path)
+    (tmp_path / "reference.npz").write_bytes(b"not a zip")
+    with pytest.raises(BimInputError, match="reference.npz"):
+        BimReference.load(tmp_path)

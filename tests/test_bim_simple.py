@@ -1,4 +1,4 @@
-"""The BIM reference of a small IFC4 building with known geometry (tests/bim_simple_building.py):
+"""The BIM reference of a small IFC4 building with known geometry (tests/_bim_building.py):
 walls, columns, planes and plane_under, the floor plan against the known faces, save / load."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from bim_simple_building import SimpleBuilding, build_simple_building
+from _bim_building import SimpleBuilding, build_simple_building
 
 from bimcap.bim.floorplan import FloorPlanOptions, Vectorizer, build_floor_plan
 from bimcap.bim.ingest import BimModel, load_model
@@ -84,7 +84,8 @@ def test_plane_under_and_sign(building: tuple[SimpleBuilding, BimModel],
     assert fl.dtype == np.int32
     # A point inside a room is at positive signed distance from its floor and its ceiling.
     for k in range(3):
-        for idx, expected in ((fl[k], local[k, 2] - h[fl[k]][1]), (ce[k], h[ce[k]][1] - local[k, 2])):
+        for idx, expected in ((fl[k], local[k, 2] - h[fl[k]][1]),
+                              (ce[k], h[ce[k]][1] - local[k, 2])):
             n, d = reference.planes[idx, :3], reference.planes[idx, 3]
             assert n @ p[k] + d == pytest.approx(expected)
             assert expected > 0

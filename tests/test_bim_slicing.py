@@ -10,7 +10,9 @@ from bimcap.bim.semantic_cloud import read_ply, sample_surface, write_ply
 from bimcap.bim.slicing import agreement, sample_segments, slice_mesh, thin_points
 
 
-def unit_cube(offset: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+def unit_cube(
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0),
+) -> tuple[np.ndarray, np.ndarray]:
     v = np.array([[x, y, z] for z in (0, 1) for y in (0, 1) for x in (0, 1)], dtype=np.float64)
     v += np.asarray(offset)
     f = np.array([
@@ -81,7 +83,7 @@ def test_merge_collinear_joins_and_keeps_gaps() -> None:
     segs = np.array([
         [0.0, 0.0, 1.0, 0.0],
         [0.95, 0.002, 2.0, 0.002],  # overlaps, 2 mm off: joins
-        [2.05, 0.0, 3.0, 0.0],  # 5 cm gap < gap_m: joins
+        [2.03, 0.0, 3.0, 0.0],  # 3 cm gap < gap_m (4 cm): joins
         [3.9, 0.0, 5.0, 0.0],  # 0.9 m gap (a door): stays apart
         [0.0, 0.5, 1.0, 0.5],  # parallel 0.5 m away: apart
     ])

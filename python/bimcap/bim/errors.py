@@ -16,6 +16,10 @@ class BimInputError(BimError, InputError):
     """
 
 
+class BimOptionsError(BimError, ValueError):
+    """Options that cannot work (a non-positive resolution, an empty band ...); names the field."""
+
+
 class BimWarning(UserWarning):
     """Base class of the BIM stage's warnings (something was missing and has been worked around)."""
 

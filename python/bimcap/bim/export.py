@@ -21,11 +21,13 @@ from bimcap.labels import LABEL_COLORS, Label
 _EXACT_RGB = (170, 170, 170)
 
 
-def _title(sp: StoreyPlan) -> str:
+def _title(sp: StoreyPlan) -> tuple[str, str]:
+    """Two title lines: storey, band and segment count; agreement with the exact slice."""
     a = sp.agreement.get("all")
-    q = "" if a is None else f" | coverage {a.coverage:.3f} precision {a.precision:.3f}"
+    q = "" if a is None else (f"coverage {a.coverage:.3f}, precision {a.precision:.3f} "
+                              f"(tol {a.tol_m:.2f} m; grey = exact slice)")
     return (f"{sp.storey}: z {sp.band[0]:.2f}..{sp.band[1]:.2f} m, "
-            f"{len(sp.segments)} segments{q}")
+            f"{len(sp.segments)} segments", q)
 
 
 def _frame(sp: StoreyPlan, margin: float = 0.5) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -40,7 +42,7 @@ def storey_svg(sp: StoreyPlan, px_per_m: float = 40.0) -> str:
     """The SVG text of one storey's plan (1 SVG unit = 1 pixel at ``px_per_m``)."""
     lo, hi = _frame(sp)
     w, h = (hi - lo) * px_per_m
-    head = 24.0
+    head = 40.0
 
     def tx(x: NDArray[np.float64]) -> NDArray[np.float64]:
         return (x - lo[0]) * px_per_m
@@ -52,7 +54,8 @@ def storey_svg(sp: StoreyPlan, px_per_m: float = 40.0) -> str:
         f'<svg xmlns="http://www.w3.org/2000/svg" width="{w:.0f}" height="{h + head:.0f}" '
         f'viewBox="0 0 {w:.1f} {h + head:.1f}">',
         '<rect width="100%" height="100%" fill="white"/>',
-        f'<text x="4" y="16" font-family="sans-serif" font-size="13">{_title(sp)}</text>',
+        f'<text x="4" y="16" font-family="sans-serif" font-size="13">{_title(sp)[0]}</text>',
+        f'<text x="4" y="32" font-family="sans-serif" font-size="11">{_title(sp)[1]}</text>',
     ]
     for cls in PLAN_CLASSES:
         ex = sp.exact.get(cls, np.zeros((0, 4)))
@@ -82,7 +85,7 @@ def storey_png(sp: StoreyPlan, px_per_m: float = 40.0, max_px: int = 2400) -> by
 
     lo, hi = _frame(sp)
     scale = min(px_per_m, max_px / max(float((hi - lo).max()), 1e-6))
-    head = 28
+    head = 44
     w, h = (np.ceil((hi - lo) * scale)).astype(int)
     img = np.full((h + head, w, 3), 255, dtype=np.uint8)
 
@@ -102,7 +105,9 @@ def storey_png(sp: StoreyPlan, px_per_m: float = 40.0, max_px: int = 2400) -> by
     y0 = head + h - 10
     cv2.line(img, (10, y0), (10 + int(round(scale)), y0), (0, 0, 0), 3)
     cv2.putText(img, "1 m", (10, y0 - 6), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
-    cv2.putText(img, _title(sp), (4, 19), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
+    for k, line in enumerate(_title(sp)):
+        cv2.putText(img, line, (4, 17 + 18 * k), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1,
+                    cv2.LINE_AA)
     ok, buf = cv2.imencode(".png", img)
     if not ok:  # pragma: no cover - cv2 only fails on empty images
         raise RuntimeError("PNG encoding failed")

@@ -92,6 +92,23 @@ class FloorPlanOptions:
     margin_m: float = 0.5
     reach_m: float = 0.5
 
+    def __post_init__(self) -> None:
+        from bimcap.bim.errors import BimOptionsError
+
+        positive = ("half_band_m", "resolution_m", "fit_tol_m", "gap_m", "min_length_m",
+                    "merge_offset_m", "reach_m")
+        for name in positive:
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise BimOptionsError(f"FloorPlanOptions.{name} must be > 0, got {value!r}")
+        if self.n_levels < 1:
+            raise BimOptionsError(f"FloorPlanOptions.n_levels must be >= 1, got {self.n_levels}")
+        if not np.isfinite(self.cut_height_m):
+            raise BimOptionsError("FloorPlanOptions.cut_height_m must be finite")
+        if self.fit_tol_m >= self.resolution_m:
+            raise BimOptionsError("FloorPlanOptions.fit_tol_m must be below resolution_m")
+        object.__setattr__(self, "vectorizer", Vectorizer(self.vectorizer))
+
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         d["vectorizer"] = self.vectorizer.value

@@ -219,7 +219,9 @@ def classify(element: Any, parent: Any | None = None) -> Label:
     return Label.UNKNOWN
 
 
-def _storey_of(element: Any, cache: dict[int, str | None], storey_names: dict[int, str]) -> str | None:
+def _storey_of(
+    element: Any, cache: dict[int, str | None], storey_names: dict[int, str]
+) -> str | None:
     """Name of the storey containing ``element`` (through spaces and aggregates), or None."""
     import ifcopenshell.util.element as ue
 
@@ -295,7 +297,11 @@ def _tessellate(
 
 
 def load_model(
-    path: str | PathLike[str], *, threads: int | None = None, load_spaces: bool = False
+    path: str | PathLike[str],
+    *,
+    threads: int | None = None,
+    load_spaces: bool = False,
+    include_furniture: bool = True,
 ) -> BimModel:
     """Open an IFC file and tessellate every element in world coordinates, in metres.
 
@@ -305,6 +311,9 @@ def load_model(
     threads: geometry threads (default: ``multiprocessing.cpu_count()``).
     load_spaces: also tessellate IfcSpace volumes into :attr:`BimModel.spaces` (used to derive
         floor planes when a storey has no floor slab).
+    include_furniture: tessellate IfcFurnishingElement (label "other") too. Furniture plays no
+        part in planes, floor plan or cloud; leaving it out saves most of the time on furnished
+        models (Duplex: 3.7 s → 1.2 s of tessellation).
 
     Raises
     ------
@@ -334,7 +343,8 @@ def load_model(
     storey_names = {ifc.by_guid(s.guid).id(): s.name for s in storeys}
     n_threads = threads or multiprocessing.cpu_count() or 1
 
-    shapes = _tessellate(ifc, n_threads, None, list(EXCLUDED_CLASSES))
+    excluded = EXCLUDED_CLASSES + (() if include_furniture else ("IfcFurnishingElement",))
+    shapes = _tessellate(ifc, n_threads, None, list(excluded))
     cache: dict[int, str | None] = {}
     elements: list[BimElement] = []
     done: set[int] = set()
@@ -357,7 +367,6 @@ def load_model(
             )
         )
     failed = []
-    excluded = tuple(EXCLUDED_CLASSES)
     for prod in ifc.by_type("IfcProduct"):
         if prod.id() in done or any(prod.is_a(c) for c in excluded):
             continue

@@ -161,13 +161,10 @@ def _pieces(tris: NDArray[np.float64], simplify: float) -> list[Any]:
 
 
 def _planes_from_faces(
-    elements: list[BimElement],
-    kind: Label,
-    up: bool,
-    source: str,
-    opts: PlaneOptions,
+    elements: list[BimElement], up: bool, opts: PlaneOptions
 ) -> list[tuple[float, Any, list[str]]]:
-    """(height, shapely polygon, guids) for every connected horizontal piece."""
+    """(height, shapely polygon, guids) of every connected horizontal piece of the up-facing
+    (``up``) or down-facing faces of ``elements``."""
     cos_tilt = float(np.cos(np.deg2rad(opts.max_tilt_deg)))
     tris, z, owners = _horizontal_faces(elements, up, cos_tilt)
     out = []
@@ -223,7 +220,7 @@ def extract_planes(model: BimModel, opts: PlaneOptions | None = None) -> list[Re
 
     # ---- floors from slabs / floor coverings
     floors_src = model.by_label(Label.FLOOR)
-    for h, poly, guids in _planes_from_faces(floors_src, Label.FLOOR, True, "slab", opts):
+    for h, poly, guids in _planes_from_faces(floors_src, True, opts):
         planes.append(
             _make_plane(Label.FLOOR, h, poly, storey_for_height(model, h, -0.5), "slab", guids)
         )
@@ -238,7 +235,7 @@ def extract_planes(model: BimModel, opts: PlaneOptions | None = None) -> list[Re
         spaces = read_spaces(model)
         for st in missing:
             mine = [sp for sp in spaces if sp.storey == st.name]
-            got = _planes_from_faces(mine, Label.FLOOR, False, "space", opts)
+            got = _planes_from_faces(mine, False, opts)
             if got:
                 for h, poly, guids in got:
                     planes.append(_make_plane(Label.FLOOR, h, poly, st.name, "space", guids))
@@ -261,7 +258,7 @@ def extract_planes(model: BimModel, opts: PlaneOptions | None = None) -> list[Re
 
     # ---- ceilings from coverings
     ceil_elems = model.by_label(Label.CEILING)
-    cover = _planes_from_faces(ceil_elems, Label.CEILING, False, "covering", opts)
+    cover = _planes_from_faces(ceil_elems, False, opts)
     covered: dict[str | None, Any] = {}
     for h, poly, guids in cover:
         st = storey_for_height(model, h, 1.0)
@@ -271,7 +268,7 @@ def extract_planes(model: BimModel, opts: PlaneOptions | None = None) -> list[Re
     # ---- ceilings from the undersides of slabs, where no covering is
     slabs = [e for e in model.elements if e.ifc_class in ("IfcSlab", "IfcRoof")
              or (e.label == Label.FLOOR and e.ifc_class.startswith("IfcSlab"))]
-    for h, poly, guids in _planes_from_faces(slabs, Label.CEILING, False, "slab-above", opts):
+    for h, poly, guids in _planes_from_faces(slabs, False, opts):
         st = storey_for_height(model, h, 1.0)
         if st is None:
             continue
@@ -280,7 +277,9 @@ def extract_planes(model: BimModel, opts: PlaneOptions | None = None) -> list[Re
             continue
         rest = poly.difference(covered[st]) if st in covered else poly
         for piece in getattr(rest, "geoms", [rest]):
-            if piece.geom_type == "Polygon" and piece.area >= opts.min_area_m2:
+            # Slivers over walls (narrower than 0.4 m) are not ceilings anyone sees.
+            if (piece.geom_type == "Polygon" and piece.area >= opts.min_area_m2
+                    and not piece.buffer(-0.2).is_empty):
                 planes.append(
                     _make_plane(Label.CEILING, h, piece.simplify(opts.simplify_m), st,
                                 "slab-above", guids)
@@ -302,20 +301,25 @@ def plane_under(
     plane_array: NDArray[np.float64],
     p_in_world: NDArray[np.float64],
     kind: Label,
+    side_tol_m: float = 0.5,
 ) -> NDArray[np.int32]:
-    """For each point, the index of the plane of ``kind`` under it (−1 where none).
+    """For each point, the index of the plane of ``kind`` under (floor) or over (ceiling) it.
 
-    A plane qualifies when its xy polygon contains the point; among those, the one whose signed
-    distance ``n·p + d`` is smallest in magnitude wins.
+    A plane qualifies when its xy polygon contains the point and the point is on the plane's
+    room side: signed distance ``n·p + d ≥ −side_tol_m`` (floor normals point up, ceiling normals
+    down, so a point in the room is positive for both; the tolerance absorbs noise and drift).
+    Among the qualifying planes the one nearest in ``|n·p + d|`` wins, so the floor of the storey
+    a point is in is chosen, not the ceiling of the storey below that may be nearer.
 
     Parameters
     ----------
     planes: the planes (polygons). plane_array: (Q, 4) their ``[nx, ny, nz, d]``.
     p_in_world: (M, 3) float64 metres.
+    kind: Label.FLOOR or Label.CEILING. side_tol_m: metres.
 
     Returns
     -------
-    (M,) int32 plane indices into ``planes``.
+    (M,) int32 plane indices into ``planes``, −1 where no plane qualifies.
     """
     import shapely
 
@@ -332,9 +336,13 @@ def plane_under(
         )[0]
         if len(cand) == 0:
             continue
+        signed = p[cand] @ plane_array[q, :3] + plane_array[q, 3]
+        ok = signed >= -side_tol_m
+        cand, signed = cand[ok], signed[ok]
+        if len(cand) == 0:
+            continue
         inside = shapely.contains_xy(shp, p[cand, 0], p[cand, 1])
-        cand = cand[inside]
-        dist = np.abs(p[cand] @ plane_array[q, :3] + plane_array[q, 3])
+        cand, dist = cand[inside], np.abs(signed[inside])
         better = dist < best_d[cand]
         best[cand[better]] = q
         best_d[cand[better]] = dist[better]

@@ -37,7 +37,7 @@ from bimcap.bim.errors import BimInputError
 from bimcap.bim.floorplan import FloorPlan, FloorPlanOptions, Vectorizer, build_floor_plan
 from bimcap.bim.ingest import BimModel, Storey
 from bimcap.bim.planes import PlaneOptions, ReferencePlane, extract_planes, plane_under
-from bimcap.bim.semantic_cloud import read_ply, sample_model, write_ply
+from bimcap.bim.semantic_cloud import sample_model, write_ply
 from bimcap.io.atomic import atomic_write_bytes, atomic_write_json
 from bimcap.labels import Label
 
@@ -109,11 +109,14 @@ class BimReference:
         """(Q,) int32 Label ids (2 floor, 3 ceiling)."""
         return np.array([int(p.kind) for p in self.plane_info], dtype=np.int32)
 
-    def plane_under(self, p_in_world: NDArray[np.float64], kind: Label) -> NDArray[np.int32]:
+    def plane_under(
+        self, p_in_world: NDArray[np.float64], kind: Label, side_tol_m: float = 0.5
+    ) -> NDArray[np.int32]:
         """For each point (M, 3) metres, the index of the plane of ``kind`` (Label.FLOOR or
-        Label.CEILING) whose xy polygon contains it and whose height is nearest; −1 where none.
-        Returns (M,) int32 indices into :attr:`planes`."""
-        return plane_under(self.plane_info, self.planes, p_in_world, Label(kind))
+        Label.CEILING) whose xy polygon contains it, on whose room side it is (signed distance
+        ≥ −side_tol_m), and whose height is nearest; −1 where none. Returns (M,) int32 indices
+        into :attr:`planes` (see :func:`bimcap.bim.planes.plane_under`)."""
+        return plane_under(self.plane_info, self.planes, p_in_world, Label(kind), side_tol_m)
 
     def summary(self) -> dict[str, Any]:
         """Counts for the CLI and reference.json."""
@@ -193,8 +196,15 @@ class BimReference:
             raise BimInputError(
                 f"expected format {FORMAT!r} version {VERSION}", files["reference.json"], "format"
             )
-        with np.load(files["reference.npz"]) as z:
-            arrays = {k: z[k] for k in z.files}
+        try:
+            with np.load(files["reference.npz"]) as z:
+                arrays = {k: z[k] for k in z.files}
+        except (OSError, ValueError) as exc:
+            raise BimInputError(f"unreadable arrays: {exc}", files["reference.npz"]) from exc
+        needed = ("planes", "segments", "segment_class", "segment_z", "points", "labels")
+        for key in needed:
+            if key not in arrays:
+                raise BimInputError("array missing", files["reference.npz"], key)
         plane_info = [ReferencePlane.from_dict(p) for p in pj["planes"]]
         planes = np.ascontiguousarray(arrays["planes"], dtype=np.float64).reshape(-1, 4)
         if len(plane_info) != len(planes):

@@ -67,7 +67,9 @@ def sample_model(
     rng = np.random.default_rng(seed)
     pts, labs = [], []
     for lab in labels:
-        v, f = model.mesh(lab) if model.by_label(lab) else (np.zeros((0, 3)), np.zeros((0, 3), np.int32))
+        if not model.by_label(lab):
+            continue
+        v, f = model.mesh(lab)
         p = sample_surface(v, f, density_per_m2, rng)
         pts.append(p)
         labs.append(np.full(len(p), int(lab), dtype=np.uint8))
@@ -76,7 +78,9 @@ def sample_model(
     return np.concatenate(pts), np.concatenate(labs)
 
 
-def write_ply(path: str | PathLike[str], points: NDArray[np.float64], labels: NDArray[np.uint8]) -> None:
+def write_ply(
+    path: str | PathLike[str], points: NDArray[np.float64], labels: NDArray[np.uint8]
+) -> None:
     """Write a labelled, coloured binary PLY atomically (see the module docstring)."""
     n = len(points)
     rec = np.empty(n, dtype=_PLY_DTYPE)

@@ -70,7 +70,10 @@ def slice_mesh(
 def slice_band(
     vertices: NDArray[np.float64], faces: NDArray[np.int32], z_lo: float, z_hi: float, n: int
 ) -> list[NDArray[np.float64]]:
-    """Slices at ``n`` evenly spaced heights from ``z_lo`` to ``z_hi`` (inclusive); list of (K, 4)."""
+    """Slices at ``n`` evenly spaced heights from ``z_lo`` to ``z_hi`` (inclusive).
+
+    Returns a list of ``n`` (K_i, 4) segment arrays (see :func:`slice_mesh`).
+    """
     if len(faces):
         zt = vertices[faces][:, :, 2]
         sel = (zt.max(axis=1) >= z_lo) & (zt.min(axis=1) <= z_hi)

@@ -26,7 +26,8 @@ def register(sub: Any) -> None:
     p.add_argument("--resolution", type=float, default=0.05, help="raster cell size, m (0.05)")
     p.add_argument("--vectorizer", choices=["hough", "lsd", "contour"], default="hough",
                    help="rough line detector (hough)")
-    p.add_argument("--meshes", action="store_true", help="also write one OBJ mesh per class")
+    p.add_argument("--meshes", action="store_true",
+                   help="also write one OBJ mesh per class (furniture included in 'other')")
     p.set_defaults(func=run)
 
 
@@ -43,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", BimWarning)
-        model = load_model(args.model)
+        model = load_model(args.model, include_furniture=args.meshes)
         t1 = time.perf_counter()
         opts = ReferenceOptions(
             density_per_m2=args.density,

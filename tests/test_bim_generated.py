@@ -1,0 +1,83 @@
+"""The BIM reference of buildings from the parametric generator (bimcap.sim.building), scored
+against the generator's own exact plan section (``BuildingTruth.plan_outline``), an oracle this
+stage did not write: the union outline of the wall solids with openings cut, and the columns."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bimcap.bim.ingest import BimModel, load_model
+from bimcap.bim.reference import BimReference, build_reference
+from bimcap.bim.slicing import agreement, sample_segments
+from bimcap.labels import Label
+
+building = pytest.importorskip("bimcap.sim.building")
+
+
+@pytest.fixture(scope="module")
+def generated(tmp_path_factory: pytest.TempPathFactory) -> tuple[object, BimModel, BimReference]:
+    path = tmp_path_factory.mktemp("gen") / "gen.ifc"
+    g = building.generate_building(building.BuildingSpec(storeys=2), seed=3, ifc_path=path)
+    model = load_model(Path(path))
+    return g, model, build_reference(model)
+
+
+def _dist_to_segments(p: np.ndarray, segs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    a, b = segs[:, :2], segs[:, 2:]
+    ab = b - a
+    t = np.clip(((p[:, None] - a[None]) * ab[None]).sum(-1) / (ab * ab).sum(-1)[None], 0, 1)
+    d = np.linalg.norm(p[:, None] - (a[None] + t[..., None] * ab[None]), axis=-1)
+    return d.min(axis=1), d.argmin(axis=1)
+
+
+def test_counts_round_trip(generated: tuple[object, BimModel, BimReference]) -> None:
+    g, model, _ = generated
+    counts = g.truth.counts  # type: ignore[attr-defined]
+    n_walls = sum(1 for e in model.elements if e.ifc_class.startswith("IfcWall"))
+    assert n_walls == counts.get("IfcWall", n_walls)
+    assert len(model.by_label(Label.COLUMN)) == counts.get("IfcColumn", 0)
+    assert len(model.by_label(Label.DOOR)) == counts.get("IfcDoor", 0)
+    assert len(model.by_label(Label.WINDOW)) == counts.get("IfcWindow", 0)
+    assert model.failed == []
+
+
+def test_planes_at_known_heights(generated: tuple[object, BimModel, BimReference]) -> None:
+    g, _, ref = generated
+    for st in g.truth.storeys:  # type: ignore[attr-defined]
+        name = st.name
+        floors = [p.height for p in ref.plane_info if p.kind == Label.FLOOR and p.storey == name]
+        ceils = [p.height for p in ref.plane_info
+                 if p.kind == Label.CEILING and p.storey == name and p.source == "covering"]
+        assert floors and np.allclose(floors, st.floor_z, atol=1e-6)
+        assert ceils and np.allclose(ceils, st.ceiling_z, atol=1e-6)
+        # A point in the middle of the corridor: floor and ceiling under / over it.
+        p = np.array([[7.5, 0.0, st.floor_z + 1.0]])
+        fl, ce = ref.plane_under(p, Label.FLOOR), ref.plane_under(p, Label.CEILING)
+        assert ref.plane_info[fl[0]].height == pytest.approx(st.floor_z)
+        assert ref.plane_info[ce[0]].height == pytest.approx(st.ceiling_z)
+
+
+def test_floor_plan_matches_generator_oracle(generated: tuple[object, BimModel, BimReference]
+                                             ) -> None:
+    g, _, ref = generated
+    assert ref.floor_plan is not None
+    for k, sp in enumerate(ref.floor_plan.storeys):
+        oracle = g.truth.plan_outline(k, float(sp.band.mean()))  # type: ignore[attr-defined]
+        for cls in (Label.WALL, Label.COLUMN):
+            ex = oracle.segments[oracle.segment_class == cls]
+            det = sp.segments[sp.segment_class == cls]
+            a = agreement(ex, ex, det, tol=0.01)
+            assert a.coverage >= 0.95 and a.precision >= 0.95, (k, cls, a)
+        walls = sp.segments[sp.segment_class == Label.WALL]
+        for face in oracle.segments[oracle.segment_class == Label.WALL]:
+            p, _ = sample_segments(face[None], 0.01)
+            d, j = _dist_to_segments(p, walls)
+            assert d.max() <= 0.01, (k, face, d.max())
+            u = face[2:] - face[:2]
+            v = walls[np.bincount(j).argmax()]
+            v = v[2:] - v[:2]
+            cos = abs(u @ v) / np.linalg.norm(u) / np.linalg.norm(v)
+            assert np.degrees(np.arccos(min(1.0, cos))) <= 1.0
