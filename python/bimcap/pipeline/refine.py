@@ -316,8 +316,15 @@ def solver_options(config: RefineConfig) -> Any:
     except ValueError as exc:
         raise InputError(str(exc), field="geometric_mode/loss") from None
     opts.weighting = Weighting(config.effective_weighting.upper())
+    if "pixel_sigma" not in config.solver:
+        opts.pixel_sigma = 2.0
+    for attr in ("floor", "ceiling"):
+        if "sigma" not in (config.solver.get(attr) or {}):
+            getattr(opts, attr).sigma = 0.03
     if config.method is Method.FACAP:
+        # FACaP's objective: the point error for G and one plane fitted to the scan's own floor.
         opts.plane_mode = PlaneMode.FACAP
+        opts.geometric_mode = GeometricMode.POINT
     for attr in ("geometric", "floor", "ceiling", "wall", "column"):
         term = getattr(opts, attr)
         if "loss" not in (config.solver.get(attr) or {}):
@@ -381,11 +388,24 @@ def solve_prepared(prepared: Prepared, config: RefineConfig, quiet: bool = False
 
 
 def _coarse(prepared: Prepared, poses: F64, quiet: bool) -> tuple[F64, dict[str, Any]]:
-    """Coarse registration of the initial poses to the BIM (``bimcap.registration``)."""
-    from bimcap.registration import coarse_register_prepared
+    """Coarse registration of the initial poses to the BIM (``bimcap.registration``): per window
+    of frames, levelling on the floor/ceiling, a correlative x-y-yaw search of the wall and column
+    points against the floor plan, trajectory continuity (Viterbi), point-to-segment ICP."""
+    from bimcap.registration import FloorPlan, SemanticSamples, coarse_register
 
-    log("coarse registration to the floor plan", quiet)
-    return coarse_register_prepared(prepared, poses)
+    arrays = prepared.frontend.to_problem_arrays()
+    names = [f"{c}_{s}" for c in ("wall", "column", "floor", "ceiling") for s in ("frame", "p_in_cam")]
+    samples = SemanticSamples.from_arrays(**{k: arrays.get(k) for k in names})
+    ref = prepared.reference
+    plan = FloorPlan.from_planes(ref.segments, ref.segment_class, ref.segment_z, ref.planes,
+                                 ref.plane_kind)
+    t0 = time.perf_counter()
+    res = coarse_register(poses, samples, plan)
+    info = res.to_dict()
+    info["seconds"] = time.perf_counter() - t0
+    log(f"coarse registration: {int(res.accepted.sum())}/{len(res.accepted)} frames accepted "
+        f"({info['seconds']:.1f} s)", quiet)
+    return np.asarray(res.poses, np.float64), info
 
 
 # ------------------------------------------------------------------------ step 3: the whole run
