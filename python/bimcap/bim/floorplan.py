@@ -3,7 +3,8 @@
 Per storey (DESIGN §1 step 2):
 
 1. **Cut** the wall and column meshes in a horizontal band, by default ±0.2 m around 1.2 m above
-   the storey elevation (above usual window sills, below door heads), by slicing them exactly at
+   the storey elevation (above usual window sills, below door heads; clipped to the storey's own
+   z range, below the next storey's elevation), by slicing them exactly at
    ``n_levels`` evenly spaced heights and sampling the slice outlines every ``resolution/4``:
    a dense, uniformly sampled point set on the element surfaces inside the band.
 2. **Rasterise** each class into an occupancy image (default 0.05 m cells) whose pixel
@@ -625,13 +626,18 @@ def storey_plan(
 ) -> StoreyPlan:
     """The floor plan of storey ``model.storeys[index]`` (see the module docstring)."""
     st = model.storeys[index]
-    zc = st.elevation_m + opts.cut_height_m
-    lo, hi = zc - opts.half_band_m, zc + opts.half_band_m
     if index + 1 < len(model.storeys):
         top = model.storeys[index + 1].elevation_m
     else:
         tops = [e.zmax for e in model.by_label(Label.WALL)]
         top = max([st.elevation_m + 3.0] + tops)
+    # The band never leaves its storey (a low storey such as a foundation level must not pick up
+    # the walls standing on the next one); the cut stays in the middle of what is left.
+    lo = max(st.elevation_m + opts.cut_height_m - opts.half_band_m, st.elevation_m)
+    hi = min(st.elevation_m + opts.cut_height_m + opts.half_band_m, top - 1e-3)
+    if hi <= lo:
+        lo, hi = st.elevation_m, max(top - 1e-3, st.elevation_m)
+    zc = 0.5 * (lo + hi)
     segs_all, cls_all = [], []
     exact, exact_band, images, agree = {}, {}, {}, {}
     for cls in PLAN_CLASSES:
