@@ -266,6 +266,12 @@ def build_problem(prepared: Prepared, init_poses: F64 | None = None) -> tuple[An
         if len(frames):
             p_world = transform_points(poses[frames], p_cam)
             idx = ref.plane_under(p_world, kind)
+            # Drift can put a point on the wrong side of its plane; look again from 1 m inside
+            # the room (above a floor, below a ceiling) for the plane over the same xy.
+            lost = idx < 0
+            if lost.any():
+                lift = np.array([0.0, 0.0, 1.0 if kind is Label.FLOOR else -1.0])
+                idx[lost] = ref.plane_under(p_world[lost] + lift, kind)
         else:
             idx = np.zeros(0, np.int32)
         keep = idx >= 0
