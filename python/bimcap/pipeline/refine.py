@@ -326,7 +326,7 @@ def solver_options(config: RefineConfig) -> Any:
         opts.pixel_sigma = 2.0
     for attr in ("floor", "ceiling"):
         if "sigma" not in (config.solver.get(attr) or {}):
-            getattr(opts, attr).sigma = 0.03
+            getattr(opts, attr).sigma = 0.05
     if config.method is Method.FACAP:
         # FACaP's objective: the point error for G and one plane fitted to the scan's own floor.
         opts.plane_mode = PlaneMode.FACAP
