@@ -86,7 +86,8 @@ class RefineConfig:
         FACaP runs always use ``point``.
     completion, completion_model: dense-depth source; the ONNX model path for onnx / hybrid.
     segmentation, segmentation_model, labels_dir: label source; the ONNX model or label folder.
-    coarse: run the coarse registration before the bundle adjustment (None: automatic).
+    coarse: run the coarse registration to the floor plan before the bundle adjustment (off by
+        default: on the demo world's estimated labels it does not yet help, see issue notes).
     rotation_first: refine rotations first, then everything (the paper's Exp. 3 remedy).
     window: match each frame with its next ``window`` frames.
     max_match_distance: the peers' filter on matches (metres between the two back-projected
@@ -106,7 +107,7 @@ class RefineConfig:
     segmentation: LabelSource = LabelSource.GEOMETRIC
     segmentation_model: str | None = None
     labels_dir: str | None = None
-    coarse: bool | None = None
+    coarse: bool = False
     rotation_first: bool = False
     window: int = 4
     max_match_distance: float | None = None
