@@ -124,7 +124,6 @@ def run_demo(out_dir: str | Path, opts: DemoOptions | None = None, quiet: bool =
     prepared = prepare(seq_dir, design, None, o.config, run_dir, quiet)
     gt = prepared.sequence.trajectory("gt")
 
-    rows: list[RunRow] = []
     results: dict[str, Any] = {}
     tm0, mm0 = evaluate_run(prepared, prepared.init, gt)
     metrics = {"initial": tm0}

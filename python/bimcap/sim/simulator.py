@@ -32,7 +32,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from bimcap.dataset import MANIFEST, FrameInfo, LidarInfo, Sequence, SequenceWriter, write_frame
+from bimcap.dataset import MANIFEST, FrameInfo, LidarInfo, SequenceWriter, write_frame
+from bimcap.dataset import Sequence as SequenceDir
 from bimcap.geometry.camera import Camera
 from bimcap.geometry.poses import compose, matrix_to_pose
 from bimcap.geometry.trajectory import Trajectory
@@ -163,7 +164,7 @@ class SimulationResult:
         (``time.process_time``) summed over render workers (``image``, ``lidar``, ``write``).
     """
 
-    sequence: Sequence
+    sequence: SequenceDir
     world_from_cam: F64
     timestamps: F64
     clutter: list[ClutterObject]
@@ -303,7 +304,7 @@ def sidecar_free_space(ifc: str | PathLike[str], storey: int = 0
 
 # ------------------------------------------------------------------------------- frame writing
 def _finish_sequence(out: Path, cfg: SimulatorConfig, frames: list[FrameInfo],
-                     world_from_cam: F64, ifc_ref: str | None, source: dict[str, Any]) -> Sequence:
+                     world_from_cam: F64, ifc_ref: str | None, source: dict[str, Any]) -> SequenceDir:
     """Register the frames (written by the render workers with :func:`bimcap.dataset.write_frame`)
     with a :class:`bimcap.dataset.SequenceWriter`, which writes ``poses/gt.tum`` and the manifest
     last, and returns the sequence read back."""
@@ -494,7 +495,7 @@ def simulate(
     as_built_ifc: str | PathLike[str] | None = None,
     clutter: bool = True,
     overwrite: bool = False,
-) -> Sequence:
+) -> SequenceDir:
     """Simulate a sequence directory for the building ``ifc_path``.
 
     The sensors see ``as_built_ifc`` if given (the generator's as-built variant), else the design
