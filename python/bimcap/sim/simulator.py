@@ -33,9 +33,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from bimcap.dataset import MANIFEST, FrameInfo, LidarInfo, SequenceWriter, write_frame
+from bimcap.dataset.conslam import (
+    CONSLAM_CAM_FROM_LIDAR,
+    CONSLAM_CAM_FROM_LIDAR_MATRIX,
+    CONSLAM_CAMERA,
+)
 from bimcap.dataset import Sequence as SequenceDir
 from bimcap.geometry.camera import Camera
-from bimcap.geometry.poses import compose, matrix_to_pose
+from bimcap.geometry.poses import compose
 from bimcap.geometry.trajectory import Trajectory
 from bimcap.io.atomic import check_not_input
 from bimcap.labels import Label
@@ -58,21 +63,9 @@ __all__ = [
     "simulate_world",
 ]
 
-#: ConSLAM's RGB camera at full resolution (2064×1544, plumb_bob), DESIGN §3.
-CONSLAM_CAMERA = Camera(
-    2064, 1544, 2351.85909, 2353.56734, 1017.24032, 788.70774,
-    (-0.054366, 0.118389, 0.001781, -0.003908, 0.0),
-)
-#: ConSLAM's LiDAR→camera extrinsic, 3×4, mapping LiDAR points into the RGB optical frame.
-CONSLAM_CAM_FROM_LIDAR_3X4 = np.array(
-    [
-        [0.05758374, -0.99833897, -0.00184651, -0.0081025],
-        [-0.0017837, 0.0017467, -0.99999688, -0.0631593],
-        [0.99833909, 0.05758685, -0.00168015, -0.0215235],
-    ]
-)
-#: The same extrinsic as a TUM-order pose ``[tx, ty, tz, qx, qy, qz, qw]``.
-CONSLAM_CAM_FROM_LIDAR: F64 = matrix_to_pose(CONSLAM_CAM_FROM_LIDAR_3X4)
+#: ConSLAM's calibration (DESIGN §3), defined once in the importer: the RGB camera at full
+#: resolution, the LiDAR→camera extrinsic as published (3×4) and as a TUM-order pose.
+CONSLAM_CAM_FROM_LIDAR_3X4 = CONSLAM_CAM_FROM_LIDAR_MATRIX
 
 
 @dataclass(frozen=True)
