@@ -244,7 +244,24 @@ class ProblemStats:
         return dict(self.__dict__)
 
 
-def build_problem(prepared: Prepared, init_poses: F64 | None = None) -> tuple[Any, ProblemStats]:
+def filter_matches_by_distance(arrays: dict[str, Any], poses: F64, camera: Any,
+                               max_distance: float) -> int:
+    """The peers' filter, in place: drop matches whose two back-projected points lie further
+    apart than ``max_distance`` metres in the world under ``poses``. Returns how many went."""
+    frames = np.asarray(arrays.get("match_frames", np.zeros((0, 2), np.int32)))
+    if len(frames) == 0:
+        return 0
+    uv, depth = np.asarray(arrays["match_uv"]), np.asarray(arrays["match_depth"])
+    p_a = transform_points(poses[frames[:, 0]], camera.backproject(uv[:, :2], depth[:, 0], False))
+    p_b = transform_points(poses[frames[:, 1]], camera.backproject(uv[:, 2:], depth[:, 1], False))
+    keep = np.linalg.norm(p_a - p_b, axis=1) <= max_distance
+    for name in ("match_frames", "match_uv", "match_depth"):
+        arrays[name] = np.asarray(arrays[name])[keep]
+    return int((~keep).sum())
+
+
+def build_problem(prepared: Prepared, init_poses: F64 | None = None,
+                  max_match_distance: float | None = None) -> tuple[Any, ProblemStats]:
     """Assemble the solver problem from the front end, the BIM reference and the initial poses.
 
     Floor (ceiling) samples are assigned the BIM floor (ceiling) plane under them at the initial
@@ -259,6 +276,8 @@ def build_problem(prepared: Prepared, init_poses: F64 | None = None) -> tuple[An
     arrays = dict(fe.to_problem_arrays())
     cam = prepared.sequence.camera.pinhole()
     n = len(poses)
+    if max_match_distance is not None:
+        filter_matches_by_distance(arrays, poses, cam, max_match_distance)
     dropped = {}
     for name, kind in (("floor", Label.FLOOR), ("ceiling", Label.CEILING)):
         frames = np.asarray(arrays.get(f"{name}_frame", np.zeros(0, np.int32)), np.int32)
@@ -377,8 +396,9 @@ def solve_prepared(prepared: Prepared, config: RefineConfig, quiet: bool = False
     stages = [RefineMode.ROTATION, RefineMode.FULL] if config.rotation_first else [opts.refine_mode]
     summaries = []
     stats = None
+    max_dist = 0.4 if config.method is Method.FACAP else None
     for mode in stages:
-        problem, stats = build_problem(prepared, poses)
+        problem, stats = build_problem(prepared, poses, max_dist)
         opts.refine_mode = mode
         log(f"solving {config.method.value} {config.effective_terms} "
             f"({config.effective_weighting}, {mode.value.lower()}): {stats.to_dict()}", quiet)
