@@ -4,6 +4,8 @@
 
 #include <Eigen/Eigenvalues>
 
+#include "bimcap/cost_functions/pose_prior.h"
+
 namespace bimcap {
 
 std::unique_ptr<ceres::LossFunction> CreateLoss(LossType type, double scale, double weight) {
@@ -68,6 +70,7 @@ void ProblemBuilder::Build() {
   AddPlaneTerm(kTermCe, data_.ceiling_frame, data_.ceiling_p_in_cam, data_.ceiling_plane, 1);
   AddSegmentTerm(kTermW, data_.wall_frame, data_.wall_p_in_cam, state_->wall_segment);
   AddSegmentTerm(kTermCo, data_.column_frame, data_.column_p_in_cam, state_->column_segment);
+  AddPosePrior();  // last: it anchors only the poses the terms above put into the problem
 
   // 2. Manifolds, 3. gauge. A pose without residuals is not in the problem and stays as it is.
   num_free_poses_ = 0;
@@ -102,6 +105,31 @@ void ProblemBuilder::Build() {
       if (problem_->HasParameterBlock(plane)) ordering_->AddElementToGroup(plane, 1);
     }
   }
+}
+
+void ProblemBuilder::AddPosePrior() {
+  std::vector<int64_t> free;
+  for (int64_t i = 0; i < data_.num_poses(); ++i) {
+    if (data_.pose_fixed(i) == 0 && problem_->HasParameterBlock(Pose(i))) free.push_back(i);
+  }
+  // Never in PAPER weighting (the peers' objective); Prepare also leaves it out there because
+  // Check() holds prior.paper_weight at 0. The functor whitens, so s = 1.
+  if (options_.weighting == Weighting::kPaper) {
+    terms_[kTermPrior] = TermBlocks();
+    losses_[kTermPrior].reset();
+    return;
+  }
+  if (!Prepare(kTermPrior, static_cast<int64_t>(free.size()), 1.0, 6)) return;
+  TermBlocks& term = terms_[kTermPrior];
+  ceres::LossFunction* loss = losses_[kTermPrior].get();
+  const double sigma_t = options_.prior.sigma;
+  const double sigma_r = options_.prior_sigma_r_deg * M_PI / 180.0;
+  for (const int64_t i : free) {
+    // The prior mean is the input pose (data_ is never written; the state is a copy).
+    term.ids.push_back(problem_->AddResidualBlock(
+        PosePriorCostFunctor::Create(data_.poses.row(i), sigma_t, sigma_r), loss, Pose(i)));
+  }
+  term.num_residual_blocks = static_cast<int64_t>(free.size());
 }
 
 void ProblemBuilder::InitFacapPlanes() {

@@ -8,9 +8,10 @@
 namespace bimcap {
 namespace {
 
-const char* const kTermNames[kNumTerms] = {"G", "depth", "F", "Ce", "W", "Co"};
+const char* const kTermNames[kNumTerms] = {"G", "depth", "F", "Ce", "W", "Co", "prior"};
 // The prefix of each term's keys.
-const char* const kTermKeys[kNumTerms] = {"geometric", "depth", "floor", "ceiling", "wall", "column"};
+const char* const kTermKeys[kNumTerms] = {"geometric", "depth", "floor", "ceiling",
+                                          "wall",      "column", "prior"};
 
 template <typename E>
 struct EnumNames;
@@ -117,7 +118,8 @@ TermOptions& SolverOptions::term(int id) {
     case kTermF: return floor;
     case kTermCe: return ceiling;
     case kTermW: return wall;
-    default: return column;
+    case kTermCo: return column;
+    default: return prior;
   }
 }
 
@@ -137,6 +139,11 @@ void SolverOptions::Check() const {
       throw OptionsError(prefix + "loss", "unknown loss");
     }
   }
+  if (prior.paper_weight != 0.0) {
+    throw OptionsError("prior.paper_weight",
+                       "must be 0: the pose prior is not part of the paper's objective");
+  }
+  CheckPositive("prior_sigma_r_deg", prior_sigma_r_deg);
   CheckPositive("pixel_sigma", pixel_sigma);
   CheckPositive("association_gate", association_gate);
   if (outer_iterations < 1) throw OptionsError("outer_iterations", "must be >= 1");
@@ -171,6 +178,7 @@ std::map<std::string, std::string> OptionsToKeyValues(const SolverOptions& o) {
     kv[p + "loss"] = EnumToString(term.loss);
     kv[p + "loss_scale"] = FormatDouble(term.loss_scale);
   }
+  kv["prior_sigma_r_deg"] = FormatDouble(o.prior_sigma_r_deg);
   kv["pixel_sigma"] = FormatDouble(o.pixel_sigma);
   kv["association_gate"] = FormatDouble(o.association_gate);
   kv["outer_iterations"] = std::to_string(o.outer_iterations);
@@ -198,6 +206,8 @@ SolverOptions OptionsFromKeyValues(const std::map<std::string, std::string>& val
       o.plane_mode = EnumFromString<PlaneMode>(key, value);
     } else if (key == "refine_mode") {
       o.refine_mode = EnumFromString<RefineMode>(key, value);
+    } else if (key == "prior_sigma_r_deg") {
+      o.prior_sigma_r_deg = ParseDouble(key, value);
     } else if (key == "pixel_sigma") {
       o.pixel_sigma = ParseDouble(key, value);
     } else if (key == "association_gate") {

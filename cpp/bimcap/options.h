@@ -40,10 +40,19 @@ struct TermOptions {
   double loss_scale = 1.0;    // in sigmas (the loss acts on the whitened residual)
 };
 
-// The terms, in summary order.
-enum TermId { kTermG = 0, kTermDepth = 1, kTermF = 2, kTermCe = 3, kTermW = 4, kTermCo = 5 };
-inline constexpr int kNumTerms = 6;
-const char* TermName(int term);  // "G", "depth", "F", "Ce", "W", "Co"
+// The terms, in summary order: the paper's (G with its depth prior, F, Ce, W, Co), then the pose
+// prior (not a paper term: never in PAPER weighting nor in the paper objective).
+enum TermId {
+  kTermG = 0,
+  kTermDepth = 1,
+  kTermF = 2,
+  kTermCe = 3,
+  kTermW = 4,
+  kTermCo = 5,
+  kTermPrior = 6,
+};
+inline constexpr int kNumTerms = 7;
+const char* TermName(int term);  // "G", "depth", "F", "Ce", "W", "Co", "prior"
 
 struct SolverOptions {
   GeometricMode geometric_mode = GeometricMode::kPoint;
@@ -59,6 +68,11 @@ struct SolverOptions {
   TermOptions ceiling{true, 0.02, 1.0, 0.02, LossType::kHuber, 1.0};
   TermOptions wall{true, 0.0007, 1.0, 0.05, LossType::kHuber, 1.0};
   TermOptions column{true, 0.0007, 1.0, 0.05, LossType::kHuber, 1.0};
+  // Pose prior (kRobust only): each free pose held near its initial value, translation with
+  // `prior.sigma` (m), rotation with `prior_sigma_r_deg` (degrees); plain L2 by default. Its
+  // paper_weight must be 0 (it is not part of the peers' objective).
+  TermOptions prior{true, 0.0, 1.0, 2.0, LossType::kNone, 1.0};
+  double prior_sigma_r_deg = 20.0;
   double pixel_sigma = 1.0;
 
   // W / Co association: a point's nearest same-class segment within `association_gate` metres

@@ -13,7 +13,7 @@
 namespace bimcap {
 
 struct TermSummary {
-  std::string name;                 // "G", "depth", "F", "Ce", "W", "Co"
+  std::string name;                 // "G", "depth", "F", "Ce", "W", "Co", "prior"
   bool active = false;
   int64_t num_residual_blocks = 0;  // observations in the final problem
   int64_t num_residuals = 0;        // scalar residuals (blocks × residual size)
@@ -23,7 +23,8 @@ struct TermSummary {
   // Ceres cost of the term (½ Σ ρ(‖s r‖²)) before the first and after the last run.
   double initial_cost = 0.0;
   double final_cost = 0.0;
-  // Root mean square of the raw (unweighted) residuals, in the term's unit (m or px).
+  // Root mean square of the raw (unweighted) residuals, in the term's unit (m or px; the
+  // prior's residuals are whitened: in sigmas).
   double initial_rms = 0.0;
   double final_rms = 0.0;
   // λ · mean ‖r‖² over the observations: this term's share of the peers' objective.

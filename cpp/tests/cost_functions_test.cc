@@ -12,6 +12,7 @@
 #include "bimcap/cost_functions/point_consistency.h"
 #include "bimcap/cost_functions/point_to_plane.h"
 #include "bimcap/cost_functions/point_to_segment.h"
+#include "bimcap/cost_functions/pose_prior.h"
 #include "bimcap/cost_functions/reprojection.h"
 #include "bimcap/pose.h"
 
@@ -175,6 +176,47 @@ TEST(PointToSegment, HandValues) {
   EXPECT_NEAR(Evaluate(*cost, {pose.data()})[0], 2.0 * 0.5, 1e-12);  // world (2, 0.5, 8)
 }
 
+TEST(PosePrior, HandValues) {
+  const double sigma_t = 2.0, sigma_r = 20.0 * M_PI / 180.0;
+  const Eigen::Quaterniond q0(Eigen::AngleAxisd(0.7, Eigen::Vector3d(1, 2, 3).normalized()));
+  const Pose7 pose0 = MakePose({1, -2, 1.4}, q0);
+  std::unique_ptr<ceres::CostFunction> cost(PosePriorCostFunctor::Create(pose0.data(), sigma_t, sigma_r));
+  ASSERT_EQ(cost->num_residuals(), 6);
+  // Zero at the prior mean.
+  for (double r : Evaluate(*cost, {pose0.data()})) EXPECT_NEAR(r, 0.0, 1e-15);
+  // 0.1 m along x: 0.1 / sigma_t in the first residual, nothing else.
+  Pose7 shifted = pose0;
+  shifted[0] += 0.1;
+  std::vector<double> r = Evaluate(*cost, {shifted.data()});
+  EXPECT_NEAR(r[0], 0.1 / sigma_t, 1e-12);
+  for (int k = 1; k < 6; ++k) EXPECT_NEAR(r[k], 0.0, 1e-12);
+  // 5° about the camera's own z (q = q0 · Rz): 2 sin(2.5°) / sigma_r ≈ 5° in rad / sigma_r, in r[5].
+  const double yaw = 5.0 * M_PI / 180.0;
+  const Pose7 turned = MakePose({1, -2, 1.4}, q0 * Eigen::Quaterniond(Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ())));
+  r = Evaluate(*cost, {turned.data()});
+  for (int k = 0; k < 5; ++k) EXPECT_NEAR(r[k], 0.0, 1e-12);
+  EXPECT_NEAR(r[5], 2.0 * std::sin(yaw / 2) / sigma_r, 1e-12);
+  EXPECT_NEAR(r[5], yaw / sigma_r, 1e-3 * yaw / sigma_r);
+  // 5° about the world z (q = Rz · q0): the same angle, about q0⁻¹ z.
+  const Pose7 world_turned = MakePose({1, -2, 1.4}, Eigen::Quaterniond(Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ())) * q0);
+  r = Evaluate(*cost, {world_turned.data()});
+  const Eigen::Vector3d rot(r[3], r[4], r[5]);
+  EXPECT_NEAR(rot.norm(), 2.0 * std::sin(yaw / 2) / sigma_r, 1e-12);
+  EXPECT_NEAR(rot.normalized().dot(q0.conjugate() * Eigen::Vector3d::UnitZ()), 1.0, 1e-12);
+  // q and −q are the same rotation: the same residual (also for the prior mean's sign).
+  Pose7 negated = turned;
+  for (int k = 3; k < 7; ++k) negated[k] = -negated[k];
+  const std::vector<double> rn = Evaluate(*cost, {negated.data()});
+  r = Evaluate(*cost, {turned.data()});
+  for (int k = 0; k < 6; ++k) EXPECT_NEAR(rn[k], r[k], 1e-15) << k;
+  Pose7 pose0_negated = pose0;
+  for (int k = 3; k < 7; ++k) pose0_negated[k] = -pose0_negated[k];
+  std::unique_ptr<ceres::CostFunction> cost_negated(
+      PosePriorCostFunctor::Create(pose0_negated.data(), sigma_t, sigma_r));
+  const std::vector<double> r2 = Evaluate(*cost_negated, {turned.data()});
+  for (int k = 0; k < 6; ++k) EXPECT_NEAR(r2[k], r[k], 1e-15) << k;
+}
+
 class GradientTest : public ::testing::Test {
  protected:
   std::mt19937 rng{42};
@@ -241,6 +283,26 @@ TEST_F(GradientTest, AllFunctors) {
       SCOPED_TRACE(seg[0] < world.x() ? "c7 interior" : "c7 past the end");
       ExpectGradientsMatch(*c7, {a.data()}, /*trust_checker=*/false);
     }
+    }
+    // Pose prior centred on a, at 100° from a (about a random axis; away from the 180° sign switch
+    // of δq) with the quaternion in either sign, and at a nearby pose.
+    std::unique_ptr<ceres::CostFunction> c8(PosePriorCostFunctor::Create(a.data(), 0.5, 0.2));
+    const Eigen::Vector3d axis = Eigen::Vector3d(b[3], b[4], b[5]).normalized();
+    Pose7 far = MakePose(Eigen::Vector3d(b[0], b[1], b[2]),
+                         Eigen::Quaterniond(a[6], a[3], a[4], a[5]) *
+                             Eigen::Quaterniond(Eigen::AngleAxisd(100.0 * M_PI / 180.0, axis)));
+    Pose7 far_negated = far;
+    for (int k = 3; k < 7; ++k) far_negated[k] = -far_negated[k];
+    Pose7 near_a = a;
+    for (int k = 0; k < 7; ++k) near_a[k] += 0.01 * (k + 1);
+    {
+      SCOPED_TRACE("c8 far");
+      ExpectGradientsMatch(*c8, {far.data()});
+      ExpectGradientsMatch(*c8, {far_negated.data()});
+    }
+    {
+      SCOPED_TRACE("c8 near");
+      ExpectGradientsMatch(*c8, {near_a.data()});
     }
   }
 }

@@ -13,6 +13,14 @@ TEST(Options, DefaultsAreValidAndPaperWeights) {
   EXPECT_EQ(o.ceiling.paper_weight, 0.02);
   EXPECT_EQ(o.wall.paper_weight, 0.0007);
   EXPECT_EQ(o.column.paper_weight, 0.0007);
+  // The pose prior: on, weak (2 m, 20°), plain L2, never in the paper objective.
+  EXPECT_TRUE(o.prior.enabled);
+  EXPECT_EQ(o.prior.paper_weight, 0.0);
+  EXPECT_EQ(o.prior.sigma, 2.0);
+  EXPECT_EQ(o.prior_sigma_r_deg, 20.0);
+  EXPECT_EQ(o.prior.loss, LossType::kNone);
+  EXPECT_STREQ(TermName(kTermPrior), "prior");
+  EXPECT_EQ(&o.term(kTermPrior), &o.prior);
 }
 
 TEST(Options, TextRoundTrip) {
@@ -23,9 +31,15 @@ TEST(Options, TextRoundTrip) {
   o.floor.loss = LossType::kCauchy;
   o.association_gate = 0.123456789;
   o.max_iterations = 17;
+  o.prior.enabled = false;
+  o.prior.sigma = 0.75;
+  o.prior_sigma_r_deg = 3.5;
   const SolverOptions back = OptionsFromText(OptionsToText(o));
   EXPECT_EQ(OptionsToKeyValues(back), OptionsToKeyValues(o));
   EXPECT_EQ(back.association_gate, 0.123456789);
+  EXPECT_FALSE(back.prior.enabled);
+  EXPECT_EQ(back.prior.sigma, 0.75);
+  EXPECT_EQ(back.prior_sigma_r_deg, 3.5);
 }
 
 void ExpectRejected(const std::string& key, const std::string& value) {
@@ -49,6 +63,9 @@ TEST(Options, BadValuesNameTheKey) {
   ExpectRejected("floor.enabled", "yes");
   ExpectRejected("no_such_option", "1");
   ExpectRejected("floor.no_such_field", "1");
+  ExpectRejected("prior.paper_weight", "0.1");  // the prior is never part of the paper objective
+  ExpectRejected("prior.sigma", "-2");
+  ExpectRejected("prior_sigma_r_deg", "0");
   EXPECT_THROW(OptionsFromText("weighting=PAPER\nweighting=ROBUST\n"), OptionsError);
   EXPECT_THROW(OptionsFromText("garbage line\n"), OptionsError);
 }

@@ -3,8 +3,8 @@
 The options cross into C++ as a flat ``{key: str}`` dict (:meth:`SolverOptions.to_flat`), the same
 ``key=value`` text that a problem file stores. Keys: ``geometric_mode``, ``weighting``,
 ``plane_mode``, ``refine_mode``, per term ``<term>.enabled|paper_weight|weight|sigma|loss|
-loss_scale`` with ``<term>`` in ``geometric, depth, floor, ceiling, wall, column``, then
-``pixel_sigma``, ``association_gate``, ``outer_iterations``, ``association_change_tolerance``, ``max_iterations``,
+loss_scale`` with ``<term>`` in ``geometric, depth, floor, ceiling, wall, column, prior``, then
+``prior_sigma_r_deg``, ``pixel_sigma``, ``association_gate``, ``outer_iterations``, ``association_change_tolerance``, ``max_iterations``,
 ``function_tolerance``, ``gradient_tolerance``, ``parameter_tolerance``, ``max_time_s``,
 ``num_threads``, ``linear_solver``, ``compute_covariance``, ``verbose``.
 """
@@ -97,6 +97,11 @@ TERM_ATTRIBUTES: dict[str, str] = {
     "W": "wall",
     "Co": "column",
 }
+#: The pose prior's name (in the summary) and option attribute: not one of the paper's terms, so
+#: :meth:`SolverOptions.with_terms` leaves it as it is.
+PRIOR_TERM = "prior"
+#: Every attribute that holds a :class:`TermOptions`.
+_TERM_OPTION_ATTRIBUTES: tuple[str, ...] = (*TERM_ATTRIBUTES.values(), PRIOR_TERM)
 
 
 @dataclass
@@ -113,6 +118,15 @@ class SolverOptions:
     ceiling: TermOptions = field(default_factory=lambda: TermOptions(True, 0.02, 1.0, 0.02))
     wall: TermOptions = field(default_factory=lambda: TermOptions(True, 0.0007, 1.0, 0.05))
     column: TermOptions = field(default_factory=lambda: TermOptions(True, 0.0007, 1.0, 0.05))
+    #: Pose prior (ROBUST weighting only; never added in PAPER weighting): each free pose held
+    #: near its initial value by r = [(t - t0) / sigma ; 2 vec(q0^-1 q) / prior_sigma_r_deg (rad)],
+    #: plain L2. ``sigma`` is the translation scale (m); ``paper_weight`` must stay 0. It anchors
+    #: the degrees of freedom the enabled terms leave unobserved (e.g. x, y, yaw under F alone).
+    prior: TermOptions = field(
+        default_factory=lambda: TermOptions(True, 0.0, 1.0, 2.0, Loss.NONE, 1.0)
+    )
+    #: The pose prior's rotation scale, degrees.
+    prior_sigma_r_deg: float = 20.0
     #: G's noise scale in pixels (REPROJECTION, LANDMARK).
     pixel_sigma: float = 1.0
     #: W / Co: the largest xy distance (m) at which a point is associated with a segment.
@@ -141,7 +155,7 @@ class SolverOptions:
     def with_terms(self, terms: str) -> SolverOptions:
         """A copy with exactly the listed terms on, e.g. ``"G+F+W"`` or ``"G,F,Ce,W,Co"``.
 
-        ``depth`` follows G.
+        ``depth`` follows G. The pose prior (``prior``) is not a paper term and keeps its setting.
         """
         wanted = {t.strip() for t in terms.replace("+", ",").split(",") if t.strip()}
         unknown = wanted - set(TERM_ATTRIBUTES)
@@ -156,7 +170,9 @@ class SolverOptions:
         return out
 
     def term(self, name: str) -> TermOptions:
-        """The options of term ``name`` (``"G"``, ``"F"`` ...)."""
+        """The options of term ``name`` (``"G"``, ``"F"`` ..., or ``"prior"``)."""
+        if name == PRIOR_TERM:
+            return self.prior
         return getattr(self, TERM_ATTRIBUTES[name])
 
     # --------------------------------------------------------------- validation
@@ -171,7 +187,7 @@ class SolverOptions:
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise SolverInputError(f"must be a finite number >= 0, got {v!r}", field=name)
 
-        for attr in TERM_ATTRIBUTES.values():
+        for attr in _TERM_OPTION_ATTRIBUTES:
             t = getattr(self, attr)
             non_negative(f"{attr}.paper_weight", t.paper_weight)
             non_negative(f"{attr}.weight", t.weight)
@@ -182,6 +198,12 @@ class SolverOptions:
                     t.loss = Loss(t.loss)
                 except ValueError:
                     raise SolverInputError(f"unknown loss {t.loss!r}", field=f"{attr}.loss") from None
+        if self.prior.paper_weight != 0:
+            raise SolverInputError(
+                "must be 0: the pose prior is not part of the paper's objective",
+                field="prior.paper_weight",
+            )
+        positive("prior_sigma_r_deg", self.prior_sigma_r_deg)
         positive("pixel_sigma", self.pixel_sigma)
         positive("association_gate", self.association_gate)
         positive("max_time_s", self.max_time_s)
@@ -218,7 +240,7 @@ class SolverOptions:
             target: Any = out
             name = head
             if sub:
-                if head not in TERM_ATTRIBUTES.values():
+                if head not in _TERM_OPTION_ATTRIBUTES:
                     raise SolverInputError("unknown option", field=key)
                 target, name = getattr(out, head), sub
             known = {f.name: f for f in fields(target)}
