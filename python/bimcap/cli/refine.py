@@ -72,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
 
     cfg = config_from_args(args)
     result = refine(args.sequence, args.out, cfg, ifc=args.ifc, init=args.init, gt=args.gt,
-                    report=not args.no_report, quiet=args.quiet)
+                    report=not args.no_report, quiet=args.quiet, command=command_line())
     print(result.outcome.summary.table())
     if result.metrics_after is not None:
         print(summary_table({"initial": result.metrics_before, "refined": result.metrics_after}))

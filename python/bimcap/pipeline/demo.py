@@ -109,10 +109,15 @@ class DemoResult:
 
 def run_demo(out_dir: str | Path, opts: DemoOptions | None = None, quiet: bool = False) -> DemoResult:
     """Run the demo into ``out_dir`` (re-running reuses what is already there)."""
-    from bimcap.pipeline.refine import evaluate_run, prepare, solve_prepared, summary_table
-    from bimcap.pipeline.report import RunRow, write_refine_report
-    from bimcap.pipeline.refine import RefineResult
     from bimcap.geometry import write_tum
+    from bimcap.pipeline.refine import (
+        RefineResult,
+        evaluate_run,
+        prepare,
+        solve_prepared,
+        summary_table,
+    )
+    from bimcap.pipeline.report import RunRow, write_refine_report
 
     o = opts or DemoOptions()
     out = Path(out_dir)
@@ -141,8 +146,9 @@ def run_demo(out_dir: str | Path, opts: DemoOptions | None = None, quiet: bool =
     metrics["BIMCaP"] = tm1
     write_tum(run_dir / "refined.tum", outcome.refined, header="BIMCaP refined world_from_cam")
     result = RefineResult(run_dir, o.config, prepared.init, outcome.refined, outcome, tm0, tm1,
-                          mm0, mm1, timings={**prepared.timings, "solve": outcome.seconds})
-    result.command = "bimcap demo -o " + str(out)  # type: ignore[attr-defined]
+                          mm0, mm1, timings={**prepared.timings, "solve": outcome.seconds},
+                          command=f"bimcap demo -o {out} --preset {o.preset} --seed {o.seed} "
+                                  f"--frames {o.frames} --scale {o.scale} --drift {o.drift}")
     report = write_refine_report(result, prepared, gt, extra)
     table = summary_table(metrics)
     seconds = time.perf_counter() - t0

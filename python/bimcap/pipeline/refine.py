@@ -450,9 +450,11 @@ class RefineResult:
     map_after: Any = None
     timings: dict[str, float] = field(default_factory=dict)
     files: dict[str, str] = field(default_factory=dict)
+    command: str = ""
 
     def to_dict(self) -> dict[str, Any]:
         return {
+            "command": self.command,
             "config": self.config.to_dict(),
             "solve": self.outcome.to_dict(),
             "metrics_before": None if self.metrics_before is None else self.metrics_before.to_dict(),
@@ -506,6 +508,7 @@ def refine(
     gt: str | PathLike[str] | None = None,
     report: bool = True,
     quiet: bool = False,
+    command: str = "",
 ) -> RefineResult:
     """Refine a sequence's trajectory against its BIM and write every output into ``out_dir``.
 
@@ -535,7 +538,7 @@ def refine(
     prepared.frontend.write_semantic_map(out / "map_after.ply", outcome.refined.poses)
 
     result = RefineResult(out, cfg, prepared.init, outcome.refined, outcome,
-                          timings={**prepared.timings, "solve": outcome.seconds})
+                          timings={**prepared.timings, "solve": outcome.seconds}, command=command)
     gt_traj = None
     if gt is not None:
         gt_traj = read_tum(gt)
@@ -564,7 +567,3 @@ def summary_table(rows: dict[str, Any]) -> str:
             f"{tm.yaw_rmse_deg:>8.3f}{tm.pitch_rmse_deg:>8.3f}{tm.roll_rmse_deg:>8.3f}"
         )
     return "\n".join(lines)
-
-
-def dumps(obj: Any) -> str:
-    return json.dumps(obj, indent=2)

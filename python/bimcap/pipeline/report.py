@@ -221,6 +221,6 @@ def write_refine_report(result: Any, prepared: Any, gt: Any, extra: list[RunRow]
         heights=bim_heights(ref),
         settings={"config": result.config.to_dict(), "problem": result.outcome.problem_stats.to_dict(),
                   "timings_s": result.timings},
-        reproduce=getattr(result, "command", ""),
+        reproduce=result.command,
     )
     return write_report(inp)
