@@ -33,6 +33,7 @@ OpenCV camera frame, metres.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -45,6 +46,7 @@ from bimcap.labels import Label
 from bimcap.registration.continuity import transition_cost, viterbi_chain
 from bimcap.registration.correlative import score_volume, top_hypotheses
 from bimcap.registration.errors import RegistrationInputError
+from bimcap.registration.frame_level import FrameLevelOptions, FrameLevelResult, level_frames
 from bimcap.registration.gravity import LevelResult, level_window
 from bimcap.registration.icp import Correction2D, icp_2d, rot2
 from bimcap.registration.plan_maps import PlanMaps
@@ -216,6 +218,11 @@ class CoarseOptions:
         0.65-0.9 with 72-97 % inliers (30 % to 3 % clutter) and a wrong one about 0.43 with
         48 %; the defaults sit between.
     seed: seeds the random point subsampling.
+    frame_orientation, frame_yaw_range_deg, frame_xy_range_m, frame_min_inlier_ratio: before
+        the windows, every frame is rotated about its own camera centre: tilt from its floor
+        points, yaw from a correlative search + ICP of its wall/column points (kept when the
+        best fit has ``frame_min_inlier_ratio`` inliers); see :mod:`.frame_level`. This takes
+        out independent per-frame orientation errors that make a window's frames disagree.
     """
 
     window_frames: int = 10
@@ -260,6 +267,10 @@ class CoarseOptions:
     min_score: float = 0.5
     min_constraint: float = 0.02
     seed: int = 0
+    frame_orientation: bool = True
+    frame_yaw_range_deg: float = 25.0
+    frame_xy_range_m: float = 2.5
+    frame_min_inlier_ratio: float = 0.5
 
     def __post_init__(self) -> None:
         self.validate()
@@ -271,7 +282,7 @@ class CoarseOptions:
                     "nms_yaw_deg", "icp_radius_start_m", "icp_radius_end_m", "icp_huber_m",
                     "inlier_m", "continuity_sigma_t_m",
                     "continuity_sigma_yaw_deg", "continuity_cap", "score_sigma",
-                    "frame_max_step_m", "frame_max_step_deg")
+                    "frame_max_step_m", "frame_max_step_deg", "frame_xy_range_m")
         for name, value in asdict(self).items():
             if isinstance(value, float) and not np.isfinite(value):
                 raise RegistrationInputError(f"must be finite, got {value}", None, name)
@@ -282,8 +293,11 @@ class CoarseOptions:
             if getattr(self, name) < 1:
                 raise RegistrationInputError(f"must be >= 1, got {getattr(self, name)}", None,
                                              name)
-        if not 0 <= self.yaw_range_deg <= 180:
-            raise RegistrationInputError("must be in [0, 180]", None, "yaw_range_deg")
+        for name in ("yaw_range_deg", "frame_yaw_range_deg"):
+            if not 0 <= getattr(self, name) <= 180:
+                raise RegistrationInputError("must be in [0, 180]", None, name)
+        if not 0 <= self.frame_min_inlier_ratio <= 1:
+            raise RegistrationInputError("must be in [0, 1]", None, "frame_min_inlier_ratio")
         for name in ("column_weight", "continuity_weight", "wall_band_m", "frame_smooth"):
             if getattr(self, name) < 0:
                 raise RegistrationInputError("must be >= 0", None, name)
@@ -383,6 +397,49 @@ class _Candidate:
     score: float
     inlier_ratio: float
     constraint: float
+
+
+def _ceiling_above(plan: FloorPlan, z: float | None) -> float | None:
+    if z is None or not len(plan.ceiling_heights):
+        return None
+    above = plan.ceiling_heights[plan.ceiling_heights > z]
+    return float(above.min()) if len(above) else None
+
+
+def _level_frames(poses: F64, samples: SemanticSamples, plan: FloorPlan,
+                  maps_for: Callable[[float | None], PlanMaps], opt: CoarseOptions,
+                  rng: np.random.Generator) -> FrameLevelResult:
+    """Stage 0: :func:`.frame_level.level_frames` with this stage's settings."""
+    order = {}
+    bounds = {}
+    for c in ("wall", "column", "floor"):
+        fr = getattr(samples, f"{c}_frame")
+        order[c] = np.argsort(fr, kind="stable")
+        bounds[c] = np.searchsorted(fr[order[c]], np.arange(len(poses) + 1))
+
+    def frame_points(i: int) -> dict[str, F64]:
+        out = {}
+        for c in ("wall", "column", "floor"):
+            idx = order[c][bounds[c][i]:bounds[c][i + 1]]
+            p = getattr(samples, f"{c}_p_in_cam")[idx]
+            out[c] = (transform_points(np.repeat(poses[i:i + 1], len(p), 0), p) if len(p)
+                      else np.zeros((0, 3)))
+        return out
+
+    def floor_z_of(floor_pts: F64, cam_z: float) -> float | None:
+        ref = float(np.median(floor_pts[:, 2])) if len(floor_pts) else cam_z
+        return _pick_height(plan.floor_heights, ref, below=not len(floor_pts))
+
+    fopt = FrameLevelOptions(yaw_range_deg=opt.frame_yaw_range_deg,
+                             yaw_step_deg=opt.yaw_step_deg, xy_range_m=opt.frame_xy_range_m,
+                             min_points=opt.min_points,
+                             min_inlier_ratio=opt.frame_min_inlier_ratio,
+                             max_points=opt.frame_max_points)
+    icp = {"radius_start_m": opt.icp_radius_start_m, "radius_end_m": opt.icp_radius_end_m,
+           "iterations": opt.icp_iterations, "huber_m": opt.icp_huber_m,
+           "inlier_m": opt.inlier_m}
+    return level_frames(poses[:, :3], frame_points, floor_z_of, maps_for, opt.wall_band_m,
+                        lambda z: _ceiling_above(plan, z), icp, fopt, rng)
 
 
 def _build_maps(plan: FloorPlan, mask: NDArray[np.bool_], opt: CoarseOptions) -> PlanMaps:
@@ -553,6 +610,32 @@ def coarse_register(
     rng = np.random.default_rng(opt.seed)
     timings = {k: 0.0 for k in ("level", "maps", "correlative", "icp", "continuity", "apply")}
 
+    map_cache: dict[Any, PlanMaps] = {} if maps_cache is None else maps_cache
+    plan_key = (plan.segments.tobytes(), plan.segment_class.tobytes(), opt.view_bins,
+                opt.coarse_resolution_m, opt.coarse_sigma_m, opt.fine_resolution_m,
+                opt.fine_sigma_m, opt.score_truncate, max(opt.xy_range_m, opt.frame_xy_range_m))
+
+    def maps_for(floor_z: float | None) -> PlanMaps:
+        """The plan maps of the storey whose floor is at ``floor_z`` (cached)."""
+        if plan.segment_z is not None and floor_z is not None:
+            zc = floor_z + opt.plan_cut_height_m
+            mask = (plan.segment_z[:, 0] <= zc) & (zc <= plan.segment_z[:, 1])
+        else:
+            mask = np.ones(len(plan.segments), dtype=bool)
+        key = (plan_key, None if floor_z is None else round(floor_z, 3),
+               np.packbits(mask).tobytes())
+        if key not in map_cache:
+            map_cache[key] = _build_maps(plan, mask, opt)
+        return map_cache[key]
+
+    # 0. per-frame orientation (tilt and yaw about each camera centre).
+    frame_level: FrameLevelResult | None = None
+    if opt.frame_orientation and opt.use_gravity:
+        t0 = time.perf_counter()
+        frame_level = _level_frames(poses, samples, plan, maps_for, opt, rng)
+        poses = matrix_to_pose(frame_level.world_from_world @ pose_to_matrix(poses))
+        timings["frame_orientation"] = time.perf_counter() - t0
+
     # All labelled points in the world with the initial poses, once.
     world_pts: dict[str, F64] = {}
     frames: dict[str, I32] = {}
@@ -572,10 +655,6 @@ def coarse_register(
     bounds = {c: np.searchsorted(win_of[c][by_win[c]], np.arange(len(starts) + 1))
               for c in _CLASSES}
 
-    map_cache: dict[Any, PlanMaps] = {} if maps_cache is None else maps_cache
-    plan_key = (plan.segments.tobytes(), plan.segment_class.tobytes(), opt.view_bins,
-                opt.coarse_resolution_m, opt.coarse_sigma_m, opt.fine_resolution_m,
-                opt.fine_sigma_m, opt.score_truncate, opt.xy_range_m)
     yaw_range = np.deg2rad(opt.yaw_range_deg)
     step = np.deg2rad(opt.yaw_step_deg)
     if opt.yaw_range_deg >= 180:
@@ -629,18 +708,9 @@ def coarse_register(
                          10 * opt.max_points_per_window, rng)
         # Plan section of this storey.
         t0 = time.perf_counter()
-        if plan.segment_z is not None and floor_z is not None:
-            zc = floor_z + opt.plan_cut_height_m
-            mask = (plan.segment_z[:, 0] <= zc) & (zc <= plan.segment_z[:, 1])
-        else:
-            mask = np.ones(len(plan.segments), dtype=bool)
-        key = (plan_key, None if floor_z is None else round(floor_z, 3),
-               np.packbits(mask).tobytes())
-        if key not in map_cache:
-            c0 = time.process_time()
-            map_cache[key] = _build_maps(plan, mask, opt)
-            maps_cpu += time.process_time() - c0
-        maps = map_cache[key]
+        c0 = time.process_time()
+        maps = maps_for(floor_z)
+        maps_cpu += time.process_time() - c0
         timings["maps"] += time.perf_counter() - t0
 
         def associate(q: F64, q_class: I32, view: F64, maps: PlanMaps = maps) -> tuple[F64, F64]:
