@@ -414,10 +414,11 @@ def solve_prepared(prepared: Prepared, config: RefineConfig, quiet: bool = False
 
 
 def _coarse(prepared: Prepared, poses: F64, quiet: bool) -> tuple[F64, dict[str, Any]]:
-    """Coarse registration of the initial poses to the BIM (``bimcap.registration``): per window
+    """Coarse registration of the initial poses to the BIM (``bimcap.registration``): per frame,
+    tilt from the floor and yaw + translation tracked against the floor plan; then per window
     of frames, levelling on the floor/ceiling, a correlative x-y-yaw search of the wall and column
     points against the floor plan, trajectory continuity (Viterbi), point-to-segment ICP."""
-    from bimcap.registration import FloorPlan, SemanticSamples, coarse_register
+    from bimcap.registration import CoarseOptions, FloorPlan, SemanticSamples, coarse_register
 
     arrays = prepared.frontend.to_problem_arrays()
     names = [f"{c}_{s}" for c in ("wall", "column", "floor", "ceiling") for s in ("frame", "p_in_cam")]
@@ -426,7 +427,9 @@ def _coarse(prepared: Prepared, poses: F64, quiet: bool) -> tuple[F64, dict[str,
     plan = FloorPlan.from_planes(ref.segments, ref.segment_class, ref.segment_z, ref.planes,
                                  ref.plane_kind)
     t0 = time.perf_counter()
-    res = coarse_register(poses, samples, plan)
+    # Per-frame orientation first: real initial poses carry independent per-frame rotation
+    # errors, which a window's rigid correction cannot take out.
+    res = coarse_register(poses, samples, plan, CoarseOptions(frame_orientation=True))
     info = res.to_dict()
     info["seconds"] = time.perf_counter() - t0
     log(f"coarse registration: {int(res.accepted.sum())}/{len(res.accepted)} frames accepted "

@@ -218,7 +218,8 @@ class CoarseOptions:
         0.65-0.9 with 72-97 % inliers (30 % to 3 % clutter) and a wrong one about 0.43 with
         48 %; the defaults sit between.
     seed: seeds the random point subsampling.
-    frame_orientation, frame_yaw_range_deg, frame_xy_range_m, frame_min_inlier_ratio: before
+    frame_orientation, frame_yaw_range_deg, frame_xy_range_m, frame_min_inlier_ratio,
+        frame_translation, frame_deadband_m, frame_gate_m: before
         the windows, every frame is rotated about its own camera centre: tilt from its floor
         points, yaw from a correlative search + ICP of its wall/column points (kept when the
         best fit has ``frame_min_inlier_ratio`` inliers); see :mod:`.frame_level`. This takes
@@ -267,10 +268,13 @@ class CoarseOptions:
     min_score: float = 0.5
     min_constraint: float = 0.02
     seed: int = 0
-    frame_orientation: bool = True
+    frame_orientation: bool = False
     frame_yaw_range_deg: float = 25.0
     frame_xy_range_m: float = 2.5
     frame_min_inlier_ratio: float = 0.5
+    frame_translation: bool = True
+    frame_deadband_m: float = 0.3
+    frame_gate_m: float = 0.35
 
     def __post_init__(self) -> None:
         self.validate()
@@ -283,6 +287,9 @@ class CoarseOptions:
                     "inlier_m", "continuity_sigma_t_m",
                     "continuity_sigma_yaw_deg", "continuity_cap", "score_sigma",
                     "frame_max_step_m", "frame_max_step_deg", "frame_xy_range_m")
+        for name in ("frame_deadband_m", "frame_gate_m"):
+            if getattr(self, name) < 0:
+                raise RegistrationInputError("must be >= 0", None, name)
         for name, value in asdict(self).items():
             if isinstance(value, float) and not np.isfinite(value):
                 raise RegistrationInputError(f"must be finite, got {value}", None, name)
@@ -353,7 +360,8 @@ class CoarseResult:
     accepted: (N,) bool, the frame's window passed the checks (others were interpolated).
     frame_window: (N,) int32 window index of each frame.
     windows: one :class:`WindowResult` per window.
-    timings: seconds per step (``level``, ``maps``, ``correlative``, ``icp``, ``continuity``,
+    frame_level: the per-frame orientation pass (stage 0), None when it was off.
+    timings: seconds per step (``frame_orientation``, ``level``, ``maps``, ``correlative``, ``icp``, ``continuity``,
         ``apply``, ``total``) and ``per_window`` (mean time of one window's levelling, search
         and ICP, without building the plan maps, which happens once per storey); the same as
         CPU time of this process in ``cpu_total`` and ``cpu_per_window`` (all threads; useful
@@ -369,6 +377,7 @@ class CoarseResult:
     windows: list[WindowResult]
     timings: dict[str, float]
     options: CoarseOptions
+    frame_level: FrameLevelResult | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary (per-frame arrays as lists)."""
@@ -384,6 +393,7 @@ class CoarseResult:
             "windows": [w.to_dict() for w in self.windows],
             "timings": dict(self.timings),
             "options": self.options.to_dict(),
+            "frame_level": None if self.frame_level is None else self.frame_level.to_dict(),
         }
 
 
@@ -630,10 +640,22 @@ def coarse_register(
 
     # 0. per-frame orientation (tilt and yaw about each camera centre).
     frame_level: FrameLevelResult | None = None
+    skip_windows = False
     if opt.frame_orientation and opt.use_gravity:
         t0 = time.perf_counter()
         frame_level = _level_frames(poses, samples, plan, maps_for, opt, rng)
-        poses = matrix_to_pose(frame_level.world_from_world @ pose_to_matrix(poses))
+        m = frame_level.world_from_world.copy()
+        near = frame_level.drift_m < opt.frame_gate_m
+        if opt.frame_translation and not near:
+            # Soft threshold: the plan and the labels are good only to a few decimetres in
+            # places (a frame that sees one door jamb locks onto it), and a consistent offset
+            # over many frames is what the bundle adjustment cannot undo.
+            t3 = frame_level.translation
+            norm = np.linalg.norm(t3, axis=1)
+            shrink = np.clip(1.0 - opt.frame_deadband_m / np.maximum(norm, 1e-12), 0.0, 1.0)
+            m[:, :3, 3] += t3 * shrink[:, None]
+        skip_windows = near
+        poses = matrix_to_pose(m @ pose_to_matrix(poses))
         timings["frame_orientation"] = time.perf_counter() - t0
 
     # All labelled points in the world with the initial poses, once.
@@ -718,7 +740,7 @@ def coarse_register(
 
         pivot = pivot3[:2].copy()
         found: list[_Candidate] = []
-        if len(p_xy) >= opt.min_points and len(maps.segments):
+        if len(p_xy) >= opt.min_points and len(maps.segments) and not skip_windows:
             # 3. correlative search.
             t0 = time.perf_counter()
             if opt.use_correlative:
@@ -790,7 +812,8 @@ def coarse_register(
         tilt = float(np.rad2deg(Rotation.from_matrix(lv.rotation).magnitude()))
         if not cands[w]:
             few = win_meta[w]["n_points"] < opt.min_points
-            reason = "too few points" if few else "no hypothesis"
+            reason = ("input already near the plan" if skip_windows
+                      else "too few points" if few else "no hypothesis")
             windows.append(WindowResult(int(f0), int(f1), win_meta[w]["n_points"], 0, 0.0,
                                         (0.0, 0.0), tuple(poses[f0:f1, :2].mean(0)), lv.dz, tilt,
                                         0.0, 0.0, 0.0, 0.0, False, reason,
@@ -866,4 +889,4 @@ def coarse_register(
     timings["frames_refined"] = float(n_refined)
     timings["per_window"] = float(np.mean([m["seconds"] for m in win_meta]))
     return CoarseResult(out_poses, frame_score, frame_inl, accepted_frames, frame_window, windows,
-                        timings, opt)
+                        timings, opt, frame_level)

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -45,7 +46,7 @@ class FrameLevelOptions:
     ----------
     yaw_range_deg, yaw_step_deg: the yaw search about each camera.
     xy_range_m: half-width of the translation search (the yaw must be found wherever the
-        frame's walls are; its translation is not kept).
+        frame's walls are) for the first frame.
     top_k: hypotheses refined by ICP.
     min_points: wall+column points a frame needs for a yaw.
     min_inlier_ratio: inliers (within ``inlier_m``) the best fit needs for its yaw to be kept.
@@ -53,7 +54,12 @@ class FrameLevelOptions:
     max_points: random subsample of a frame's wall/column points.
     track_xy_range_m: the translation search once a frame has been placed: the frames are
         searched in order about the last placed frame's translation correction (the drift of
-        the position is a random walk).
+        the position is a random walk), growing with the square root of the frames since it.
+    track_max_step_m: a frame's translation is kept only if it moves less than this (times
+        the same square root) from that prediction, and if it lies within this of the median
+        of its kept neighbours (± 3 frames).
+    track_history: the prediction is the median of the last this many kept translations (one
+        wrong match does not pull the next frames onto an alias of a repetitive wall).
     min_constraint, min_score: a frame's translation is kept only with this translation
         constraint (not a bare corridor wall) and fine score; the others interpolate.
     max_tilt_deg, min_floor_spread_m: a tilt fit is kept only up to this size and when the
@@ -69,8 +75,10 @@ class FrameLevelOptions:
     min_floor_points: int = 30
     max_points: int = 1500
     track_xy_range_m: float = 1.0
+    track_max_step_m: float = 0.6
+    track_history: int = 3
     min_constraint: float = 0.02
-    min_score: float = 0.3
+    min_score: float = 0.5
     max_tilt_deg: float = 20.0
     min_floor_spread_m: float = 0.2
 
@@ -81,8 +89,15 @@ class FrameLevelResult:
 
     Attributes
     ----------
-    world_from_world: (N, 4, 4) corrections (rotation about each camera centre).
-    tilt_ok: (N,) bool, the tilt was fitted; yaw_ok: (N,) bool, the yaw was kept.
+    world_from_world: (N, 4, 4) the rotations about each camera centre (no translation).
+    tilt_ok: (N,) bool, the tilt was fitted; yaw_ok: (N,) bool, the yaw was kept;
+    t_ok: (N,) bool, the translation was kept (the others are interpolated).
+    score, constraint: (N,) fine score and ICP translation constraint of each frame's best fit
+        (0 without one).
+    translation: (N, 3) the tracked translation correction of each frame (x, y from the plan,
+        z from the floor; interpolated between the frames that fixed them), metres; not in
+        ``world_from_world``: the caller decides how much of it to apply.
+    drift_m: median length of the kept frames' translations (how far off the input was).
     yaw_deg: (N,) the kept yaw correction (0 where not kept); tilt_deg: (N,) its tilt size.
     """
 
@@ -91,6 +106,19 @@ class FrameLevelResult:
     yaw_ok: NDArray[np.bool_]
     yaw_deg: F64
     tilt_deg: F64
+    t_ok: NDArray[np.bool_]
+    score: F64
+    constraint: F64
+    translation: F64
+    drift_m: float
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready (per-frame lists; the matrices are left out)."""
+        return {"tilt_ok": self.tilt_ok.tolist(), "yaw_ok": self.yaw_ok.tolist(),
+                "t_ok": self.t_ok.tolist(), "yaw_deg": self.yaw_deg.tolist(),
+                "tilt_deg": self.tilt_deg.tolist(), "score": self.score.tolist(),
+                "constraint": self.constraint.tolist(),
+                "translation": self.translation.tolist(), "drift_m": self.drift_m}
 
 
 def level_frames(
@@ -104,7 +132,7 @@ def level_frames(
     opt: FrameLevelOptions,
     rng: np.random.Generator,
 ) -> FrameLevelResult:
-    """Tilt and yaw of every frame (see the module docstring).
+    """Tilt and yaw of every frame, and a tracked translation (see the module docstring).
 
     Parameters
     ----------
@@ -137,6 +165,10 @@ def level_frames(
     t_frame = np.zeros((n, 2))
     t_ok = np.zeros(n, dtype=bool)
     scores = np.zeros(n)
+    constraints = np.zeros(n)
+    dz = np.zeros(n)              # height corrections (from the floor; interpolated elsewhere)
+    dz_pred = 0.0
+    last = -1                     # the last frame whose translation was kept
     for i in range(n):
         cam = np.asarray(cam_xyz[i], dtype=np.float64)
         pts = frame_points(i)
@@ -150,13 +182,14 @@ def level_frames(
             if (lv.ok and lv.inlier_ratio >= opt.min_inlier_ratio and tilt <= opt.max_tilt_deg
                     and np.sqrt(max(spread, 0.0)) >= opt.min_floor_spread_m):
                 m[:3, :3] = lv.rotation
-                m[:3, 3] = cam - lv.rotation @ cam + np.array([0.0, 0.0, lv.dz])
+                m[:3, 3] = cam - lv.rotation @ cam
+                dz[i] = dz_pred = lv.dz
                 tilt_ok[i] = True
                 tilt_deg[i] = tilt
         ceil_z = ceiling_z_of(floor_z)
         xy, cls_ = [], []
         for c, lab in (("wall", Label.WALL), ("column", Label.COLUMN)):
-            q = pts[c] @ m[:3, :3].T + m[:3, 3]
+            q = pts[c] @ m[:3, :3].T + m[:3, 3] + np.array([0.0, 0.0, dz_pred])
             keep = np.ones(len(q), dtype=bool)
             if floor_z is not None and wall_band_m > 0:
                 keep &= q[:, 2] > floor_z + wall_band_m
@@ -173,7 +206,9 @@ def level_frames(
                 p_xy, p_cls = p_xy[sel], p_cls[sel]
             maps = maps_of(floor_z)
             view = p_xy - pivot
-            rng_m = opt.xy_range_m if not t_ok.any() else opt.track_xy_range_m
+            gap = i - last if last >= 0 else 0
+            rng_m = (opt.xy_range_m if last < 0
+                     else min(opt.xy_range_m, opt.track_xy_range_m * np.sqrt(gap)))
             vol, res, nn = score_volume(p_xy, p_cls, view, maps, pivot, yaws, rng_m)
             hyps = top_hypotheses(vol, yaws, res, nn, opt.top_k, 0.3, np.deg2rad(3.0))
 
@@ -199,15 +234,31 @@ def level_frames(
             yaw_ok[i] = True
             yaw_deg[i] = float(np.rad2deg(corr.yaw))
             scores[i] = score
-            if constraint >= opt.min_constraint and score >= opt.min_score:
+            constraints[i] = constraint
+            if (constraint >= opt.min_constraint and score >= opt.min_score
+                    and (last < 0 or np.linalg.norm(corr.t)
+                         <= opt.track_max_step_m * np.sqrt(gap))):
+                last = i
                 t_ok[i] = True
                 t_frame[i] = t_pred + corr.t
-                t_pred = t_frame[i].copy()
+                recent = np.flatnonzero(t_ok[:i + 1])[-opt.track_history:]
+                t_pred = np.median(t_frame[recent], axis=0)
         out[i] = m
-    # Translations: trusted frames keep theirs, the others are interpolated between them.
+    # Translations and heights: trusted frames keep theirs, the others are interpolated
+    # between them. A kept translation far from the median of its kept neighbours is a wrong match.
+    for i in np.flatnonzero(t_ok):
+        near = np.flatnonzero(t_ok[max(i - 3, 0):i + 4]) + max(i - 3, 0)
+        near = near[near != i]
+        if len(near) >= 2 and (np.linalg.norm(t_frame[i] - np.median(t_frame[near], axis=0))
+                               > opt.track_max_step_m):
+            t_ok[i] = False
     if t_ok.any():
         idx = np.flatnonzero(t_ok)
         for k in range(2):
             t_frame[:, k] = np.interp(np.arange(n), idx, t_frame[idx, k])
-    out[:, :2, 3] += t_frame
-    return FrameLevelResult(out, tilt_ok, yaw_ok, yaw_deg, tilt_deg)
+    if tilt_ok.any():
+        idx = np.flatnonzero(tilt_ok)
+        dz = np.interp(np.arange(n), idx, dz[idx])
+    t3 = np.c_[t_frame, dz]
+    drift = float(np.median(np.linalg.norm(t3[t_ok], axis=1))) if t_ok.any() else 0.0
+    return FrameLevelResult(out, tilt_ok, yaw_ok, yaw_deg, tilt_deg, t_ok, scores, constraints, t3, drift)
