@@ -216,3 +216,60 @@ def test_without_storey_bands_the_wrong_storey_can_win(demo: Scene) -> None:
     # Negative control: with every segment on every storey the ground-floor plan fits the
     # initial pose perfectly and nothing moves it.
     assert _two_storey_case(demo, use_segment_z=False).min() > 0.5
+
+
+def per_frame_drift(gt: np.ndarray, seed: int, yaw_deg: float, tilt_deg: float,
+                    step_m: float, offset_m: np.ndarray) -> np.ndarray:
+    """Real-world drift: an independent yaw and tilt per frame about its own camera (N(0, σ)
+    degrees) and a translation random walk (steps N(0, step_m) per axis in x, y) on top of a
+    constant ``offset_m`` (3,)."""
+    rng = np.random.default_rng(seed)
+    walk = np.cumsum(rng.normal(0.0, step_m, (len(gt), 2)), axis=0)
+    out = []
+    for i, pose in enumerate(gt):
+        tilt = np.deg2rad(rng.normal(0.0, tilt_deg, 2))
+        out.append(displace(pose[None], np.deg2rad(rng.normal(0.0, yaw_deg)),
+                            np.r_[walk[i], 0.0] + offset_m, pose[:3], (tilt[0], tilt[1]))[0])
+    return np.array(out)
+
+
+def test_frame_orientation_takes_out_independent_per_frame_rotations(demo: Scene) -> None:
+    gt = corridor_walk(12, x0=3.0)
+    samples = scan_sequence(gt, demo, seed=5, clutter_fraction=0.03)
+    init = per_frame_drift(gt, 3, 8.0, 4.0, 0.05, np.array([0.8, 0.4, 0.1]))
+    t0, r0 = pose_errors(init, gt)
+    assert np.median(r0) > 4.0 and t0.min() > 0.6
+    res = coarse_register(init, samples, demo.floor_plan(),
+                          CoarseOptions(frame_orientation=True))
+    fl = res.frame_level
+    assert fl is not None and fl.drift_m > 0.35 and fl.yaw_ok.mean() > 0.8
+    t_err, r_err = pose_errors(res.poses, gt)
+    assert np.median(r_err) < 0.5, r_err
+    assert t_err.max() < 0.3, t_err  # the deadband leaves up to 0.3 m to the windows and BA
+    # The window stage alone cannot fit frames whose rotations disagree.
+    base = coarse_register(init, samples, demo.floor_plan())
+    assert np.median(pose_errors(base.poses, gt)[1]) > 2.0
+
+
+def test_frame_orientation_near_input_keeps_positions(demo: Scene) -> None:
+    gt = corridor_walk(10, x0=3.0)
+    samples = scan_sequence(gt, demo, seed=6, clutter_fraction=0.03)
+    init = per_frame_drift(gt, 4, 6.0, 3.0, 0.02, np.array([0.1, 0.05, 0.0]))
+    res = coarse_register(init, samples, demo.floor_plan(),
+                          CoarseOptions(frame_orientation=True))
+    assert res.frame_level is not None and res.frame_level.drift_m < 0.35
+    # Only rotations about the cameras: positions unchanged, windows skipped.
+    assert np.allclose(res.poses[:, :3], init[:, :3], atol=1e-9)
+    assert not res.accepted.any()
+    assert all(w.reason == "input already near the plan" for w in res.windows)
+    assert np.median(pose_errors(res.poses, gt)[1]) < 0.5
+    json.dumps(res.to_dict())
+
+
+def test_frame_options_are_validated() -> None:
+    from bimcap.registration.errors import RegistrationInputError
+
+    with pytest.raises(RegistrationInputError, match="frame_gate_m"):
+        CoarseOptions(frame_gate_m=-1.0)
+    with pytest.raises(RegistrationInputError, match="frame_yaw_range_deg"):
+        CoarseOptions(frame_yaw_range_deg=200.0)
