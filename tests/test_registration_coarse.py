@@ -255,9 +255,13 @@ def test_frame_orientation_near_input_keeps_positions(demo: Scene) -> None:
     gt = corridor_walk(10, x0=3.0)
     samples = scan_sequence(gt, demo, seed=6, clutter_fraction=0.03)
     init = per_frame_drift(gt, 4, 6.0, 3.0, 0.02, np.array([0.1, 0.05, 0.0]))
-    res = coarse_register(init, samples, demo.floor_plan(),
-                          CoarseOptions(frame_orientation=True))
+    plan = demo.floor_plan()
+    res = coarse_register(init, samples, plan, CoarseOptions(frame_orientation=True))
     assert res.frame_level is not None and res.frame_level.drift_m < 0.35
+    t_same, r_same = pose_errors(res.poses, init)  # within the bundle adjustment's reach:
+    assert t_same.max() < 1e-9 and r_same.max() < 1e-6  # unchanged
+    res = coarse_register(init, samples, plan,
+                          CoarseOptions(frame_orientation=True, frame_rotate_when_near=True))
     # Only rotations about the cameras: positions unchanged, windows skipped.
     assert np.allclose(res.poses[:, :3], init[:, :3], atol=1e-9)
     assert not res.accepted.any()

@@ -219,7 +219,7 @@ class CoarseOptions:
         48 %; the defaults sit between.
     seed: seeds the random point subsampling.
     frame_orientation, frame_yaw_range_deg, frame_xy_range_m, frame_min_inlier_ratio,
-        frame_translation, frame_deadband_m, frame_gate_m: before
+        frame_translation, frame_deadband_m, frame_gate_m, frame_rotate_when_near: before
         the windows, every frame is rotated about its own camera centre: tilt from its floor
         points, yaw from a correlative search + ICP of its wall/column points (kept when the
         best fit has ``frame_min_inlier_ratio`` inliers); see :mod:`.frame_level`. This takes
@@ -275,6 +275,7 @@ class CoarseOptions:
     frame_translation: bool = True
     frame_deadband_m: float = 0.3
     frame_gate_m: float = 0.35
+    frame_rotate_when_near: bool = False
 
     def __post_init__(self) -> None:
         self.validate()
@@ -655,7 +656,8 @@ def coarse_register(
             shrink = np.clip(1.0 - opt.frame_deadband_m / np.maximum(norm, 1e-12), 0.0, 1.0)
             m[:, :3, 3] += t3 * shrink[:, None]
         skip_windows = near
-        poses = matrix_to_pose(m @ pose_to_matrix(poses))
+        if not near or opt.frame_rotate_when_near:
+            poses = matrix_to_pose(m @ pose_to_matrix(poses))
         timings["frame_orientation"] = time.perf_counter() - t0
 
     # All labelled points in the world with the initial poses, once.
