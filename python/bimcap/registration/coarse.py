@@ -1,6 +1,14 @@
 """The coarse registration stage: bring drifted frames near their true pose using the BIM alone.
 
-Per window of ``window_frames`` consecutive frames (whose relative poses are trusted: drift is
+0. (``frame_orientation``, off by default, on in the pipeline) **per frame** (:mod:`.frame_level`):
+   real initial poses carry independent per-frame rotation errors (several degrees from one frame
+   to the next) and a translation random walk, so a window's frames are not rigidly consistent.
+   Each frame is first rotated about its own camera (tilt from its floor points, yaw from its
+   walls), and its translation is tracked frame by frame; the part of that translation beyond
+   ``frame_deadband_m`` is applied. If the median tracked translation is below ``frame_gate_m``
+   the input is already within the bundle adjustment's reach and is returned unchanged.
+
+Then per window of ``window_frames`` consecutive frames (whose relative poses are trusted: drift is
 smooth):
 
 1. **gravity/height** (:mod:`.gravity`): floor and ceiling points fix pitch, roll and z against
@@ -26,8 +34,10 @@ Typical use, from the solver problem's arrays (docs/architecture.md)::
                                           column_p_in_cam=..., floor_frame=..., ...)
     plan = FloorPlan.from_planes(segments, segment_class, segment_z, planes, plane_kind)
     result = coarse_register(world_from_cam, samples, plan, CoarseOptions())
-    world_from_cam = result.poses   # the bundle adjustment starts from here All arrays follow docs/architecture.md: poses ``(N, 7)`` TUM order, points in the
-OpenCV camera frame, metres.
+    world_from_cam = result.poses   # the bundle adjustment starts from here
+
+All arrays follow docs/architecture.md: poses ``(N, 7)`` TUM order, points in the OpenCV camera
+frame, metres.
 """
 
 from __future__ import annotations
@@ -362,9 +372,9 @@ class CoarseResult:
     frame_window: (N,) int32 window index of each frame.
     windows: one :class:`WindowResult` per window.
     frame_level: the per-frame orientation pass (stage 0), None when it was off.
-    timings: seconds per step (``frame_orientation``, ``level``, ``maps``, ``correlative``, ``icp``, ``continuity``,
-        ``apply``, ``total``) and ``per_window`` (mean time of one window's levelling, search
-        and ICP, without building the plan maps, which happens once per storey); the same as
+    timings: seconds per step (``frame_orientation``, ``level``, ``maps``, ``correlative``,
+        ``icp``, ``continuity``, ``apply``, ``total``) and ``per_window`` (mean time of one
+        window's levelling, search and ICP, without building the plan maps, which happens once per storey); the same as
         CPU time of this process in ``cpu_total`` and ``cpu_per_window`` (all threads; useful
         on a shared machine). ``refine_frames`` is the per-frame ICP's time and
         ``frames_refined`` the number of frames that kept it.

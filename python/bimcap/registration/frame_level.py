@@ -261,4 +261,5 @@ def level_frames(
         dz = np.interp(np.arange(n), idx, dz[idx])
     t3 = np.c_[t_frame, dz]
     drift = float(np.median(np.linalg.norm(t3[t_ok], axis=1))) if t_ok.any() else 0.0
-    return FrameLevelResult(out, tilt_ok, yaw_ok, yaw_deg, tilt_deg, t_ok, scores, constraints, t3, drift)
+    return FrameLevelResult(out, tilt_ok, yaw_ok, yaw_deg, tilt_deg, t_ok, scores, constraints,
+                            t3, drift)
