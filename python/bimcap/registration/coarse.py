@@ -374,8 +374,8 @@ class CoarseResult:
     frame_level: the per-frame orientation pass (stage 0), None when it was off.
     timings: seconds per step (``frame_orientation``, ``level``, ``maps``, ``correlative``,
         ``icp``, ``continuity``, ``apply``, ``total``) and ``per_window`` (mean time of one
-        window's levelling, search and ICP, without building the plan maps, which happens once per storey); the same as
-        CPU time of this process in ``cpu_total`` and ``cpu_per_window`` (all threads; useful
+        window's levelling, search and ICP, without building the plan maps, which happens once
+        per storey); the same as CPU time of this process in ``cpu_total`` and ``cpu_per_window`` (all threads; useful
         on a shared machine). ``refine_frames`` is the per-frame ICP's time and
         ``frames_refined`` the number of frames that kept it.
     """
