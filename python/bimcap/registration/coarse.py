@@ -375,9 +375,9 @@ class CoarseResult:
     timings: seconds per step (``frame_orientation``, ``level``, ``maps``, ``correlative``,
         ``icp``, ``continuity``, ``apply``, ``total``) and ``per_window`` (mean time of one
         window's levelling, search and ICP, without building the plan maps, which happens once
-        per storey); the same as CPU time of this process in ``cpu_total`` and ``cpu_per_window`` (all threads; useful
-        on a shared machine). ``refine_frames`` is the per-frame ICP's time and
-        ``frames_refined`` the number of frames that kept it.
+        per storey); the same as CPU time of this process in ``cpu_total`` and
+        ``cpu_per_window`` (all threads; useful on a shared machine). ``refine_frames`` is the
+        per-frame ICP's time and ``frames_refined`` the number of frames that kept it.
     """
 
     poses: F64
