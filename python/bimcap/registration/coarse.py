@@ -652,6 +652,7 @@ def coarse_register(
     # 0. per-frame orientation (tilt and yaw about each camera centre).
     frame_level: FrameLevelResult | None = None
     skip_windows = False
+    input_poses, unchanged = poses, True
     if opt.frame_orientation and opt.use_gravity:
         t0 = time.perf_counter()
         frame_level = _level_frames(poses, samples, plan, maps_for, opt, rng)
@@ -668,6 +669,7 @@ def coarse_register(
         skip_windows = near
         if not near or opt.frame_rotate_when_near:
             poses = matrix_to_pose(m @ pose_to_matrix(poses))
+            unchanged = False
         timings["frame_orientation"] = time.perf_counter() - t0
 
     # All labelled points in the world with the initial poses, once.
@@ -870,7 +872,10 @@ def coarse_register(
                                    win_meta, accepted_frames, opt, rng)
     timings["refine_frames"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    out_poses = matrix_to_pose(per_frame @ pose_to_matrix(poses))
+    if unchanged and not accepted_frames.any():
+        out_poses = input_poses.copy()  # bit for bit: no pose round trip
+    else:
+        out_poses = matrix_to_pose(per_frame @ pose_to_matrix(poses))
     # Per-frame fit at the output poses.
     frame_score = np.zeros(n)
     frame_inl = np.zeros(n)
