@@ -4,8 +4,8 @@ The window stage (:mod:`.coarse`) trusts the relative poses inside a window. Whe
 orientations carry independent per-frame errors (a noisy IMU or a per-frame rotation prior,
 several degrees of pitch and yaw from one frame to the next), a window's points do not agree
 with each other under any single rigid correction, and the window stage rejects it. This pass
-takes those errors out first, one frame at a time, rotating each camera about its own centre
-(its position is left to the window stage):
+takes those errors out first, one frame at a time, rotating each camera about its own centre,
+and tracks each frame's translation (the caller decides how much of it to apply):
 
 1. **tilt**: the frame's floor points are fitted to the BIM floor height
    (:func:`.gravity.level_window`, ceiling points are not used: they are the least reliable
@@ -13,8 +13,13 @@ takes those errors out first, one frame at a time, rotating each camera about it
 2. **yaw**: the frame's wall and column points, after the tilt, are matched over x, y and yaw
    against the floor plan (:func:`.correlative.score_volume`, then ICP from the best
    hypotheses); a single frame often sees only one or two walls, so its translation may be
-   unconstrained, but the direction of the walls fixes the yaw. Only the yaw is kept, and only
-   when the fit has enough points and inliers.
+   unconstrained, but the direction of the walls fixes the yaw. The yaw is kept when the fit
+   has enough points and inliers;
+3. **translation**: frames are searched in order about a prediction (the median of the last
+   kept translations: the position drift is a random walk); a frame's translation is kept
+   when its fit is well constrained, scores well and stays near the prediction, then checked
+   against its kept neighbours; the others, and the heights of frames without a floor fit,
+   are interpolated.
 
 Arrays follow docs/architecture.md: poses ``(N, 7)`` TUM order, metres, radians inside.
 """
