@@ -51,7 +51,7 @@ void ProblemBuilder::AddGeometric() {
       }
     } else if (depth_a > 0 && depth_b > 0) {
       term.ids.push_back(problem_->AddResidualBlock(
-          PointConsistencyCostFunctor::Create(BackprojectPixel(k_a, uv[0], uv[1], depth_a),
+          PointConsistencyCostFunction::Create(BackprojectPixel(k_a, uv[0], uv[1], depth_a),
                                               BackprojectPixel(k_b, uv[2], uv[3], depth_b), s),
           loss, Pose(a), Pose(b)));
     }
