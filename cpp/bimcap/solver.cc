@@ -6,6 +6,7 @@
 #include <cmath>
 #include <memory>
 #include <sstream>
+#include <vector>
 
 #include <ceres/covariance.h>
 #include <ceres/solver.h>
@@ -216,7 +217,15 @@ SolveResult Solve(const ProblemData& data, const SolverOptions& options) {
 
   associate(true);
   for (auto& a : summary.association) a.final = a.initial;
-  builder.Build();
+  // The association the current problem was built with: a problem built on the same association
+  // is the same problem (the residual blocks point into state.poses), so it is not rebuilt.
+  std::vector<int> built_wall, built_column;
+  auto build = [&]() {
+    builder.Build();
+    built_wall = state.wall_segment;
+    built_column = state.column_segment;
+  };
+  build();
   Record(EvaluateTerms(builder), builder, options, true, &summary);
 
   ceres::Solver::Options solver_options;
@@ -232,7 +241,7 @@ SolveResult Solve(const ProblemData& data, const SolverOptions& options) {
   const bool reassociate = use_wall || use_column;
   double remaining_time = options.max_time_s;
   for (int round = 0; round < options.outer_iterations; ++round) {
-    if (round > 0) builder.Build();
+    if (round > 0) build();
     solver_options.linear_solver_type = ChooseLinearSolver(options, builder.has_landmarks());
     solver_options.linear_solver_ordering = builder.has_landmarks() ? builder.ordering() : nullptr;
     solver_options.max_solver_time_in_seconds = std::max(remaining_time, 1e-3);
@@ -260,7 +269,7 @@ SolveResult Solve(const ProblemData& data, const SolverOptions& options) {
   }
 
   // Final costs on the final association.
-  builder.Build();
+  if (state.wall_segment != built_wall || state.column_segment != built_column) build();
   Record(EvaluateTerms(builder), builder, options, false, &summary);
   summary.num_free_poses = builder.num_free_poses();
   for (const TermSummary& t : summary.terms) {
