@@ -71,7 +71,7 @@ void ProblemBuilder::AddLandmarks() {
       const int f = data_.track_obs_frame(i);
       const double* kf = data_.cameras.row(data_.frame_camera(f));
       term.ids.push_back(problem_->AddResidualBlock(
-          LandmarkReprojectionCostFunctor::Create(
+          LandmarkReprojectionCostFunction::Create(
               Eigen::Vector2d(data_.track_obs_uv(i, 0), data_.track_obs_uv(i, 1)),
               Eigen::Vector4d(kf[0], kf[1], kf[2], kf[3]), term.sqrt_weight),
           loss, Pose(f), state_->track_points.data() + 3 * data_.track_obs_point(i)));

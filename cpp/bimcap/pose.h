@@ -74,6 +74,38 @@ Eigen::Matrix<T, 3, 1> WorldToCam(const T* world_from_cam,
   return q.conjugate() * (p_in_world - t);
 }
 
+// p_in_cam = Rᵀ (p_in_world − t) with Eigen's formula for the conjugate quaternion [−u, w], and
+// its derivatives as autodiff gives them for WorldToCam: d_p_d_world (3 x 3, the map the formula
+// applies; Rᵀ for a unit quaternion; ∂/∂t is its negative) and d_p_d_q (3 x 4, [qx qy qz qw]).
+inline Eigen::Vector3d WorldToCamWithJacobian(const double* world_from_cam,
+                                              const Eigen::Vector3d& p_in_world,
+                                              Eigen::Matrix3d* d_p_d_world,
+                                              Eigen::Matrix<double, 3, 4>* d_p_d_q) {
+  const Eigen::Map<const Eigen::Vector3d> t(world_from_cam);
+  const Eigen::Vector3d u = -Eigen::Map<const Eigen::Vector3d>(world_from_cam + 3);  // conjugate
+  const double w = world_from_cam[6];
+  const Eigen::Vector3d d = p_in_world - t;
+  const Eigen::Vector3d ud2 = 2.0 * u.cross(d);
+  if (d_p_d_world != nullptr || d_p_d_q != nullptr) {
+    auto skew = [](const Eigen::Vector3d& a) {
+      Eigen::Matrix3d m;
+      m << 0.0, -a.z(), a.y(), a.z(), 0.0, -a.x(), -a.y(), a.x(), 0.0;
+      return m;
+    };
+    const Eigen::Matrix3d u_x = skew(u);
+    if (d_p_d_world != nullptr) {
+      *d_p_d_world = Eigen::Matrix3d::Identity() + 2.0 * w * u_x + 2.0 * u_x * u_x;
+    }
+    if (d_p_d_q != nullptr) {
+      // ∂/∂(−u) as in CamToWorldWithJacobian, times −1 for the conjugate.
+      const Eigen::Matrix3d d_x = skew(d);
+      d_p_d_q->leftCols<3>() = 2.0 * w * d_x + skew(ud2) + 2.0 * u_x * d_x;
+      d_p_d_q->col(3) = ud2;
+    }
+  }
+  return d + w * ud2 + u.cross(ud2);
+}
+
 // The manifold of a 7-double pose block:
 //   kFull:        ProductManifold<EuclideanManifold<3>, EigenQuaternionManifold>   (tangent 6)
 //   kRotation:    translation held by a SubsetManifold, rotation free             (tangent 3)

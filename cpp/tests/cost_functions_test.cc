@@ -394,6 +394,25 @@ TEST(AnalyticJacobians, MatchAutoDiff) {
       ExpectSameAsAutoDiff(*x0, *y0, {a.data()});
     }
   }
+  for (int trial = 0; trial < 200; ++trial) {
+    SCOPED_TRACE("landmark reprojection");
+    Pose7 a = RandomPose(&rng);
+    if (trial % 2 == 1) {
+      const double sa = scale(rng);
+      for (int k = 3; k < 7; ++k) a[k] *= sa;
+    }
+    // Mostly in front of the camera, some behind (zero residual and Jacobians).
+    const Eigen::Vector3d p_in_cam(g(rng), g(rng), trial % 10 == 0 ? -1.0 : 1.0 + std::abs(g(rng)));
+    const Eigen::Vector3d x = Eigen::Map<const Eigen::Quaterniond>(a.data() + 3).normalized() * p_in_cam +
+                              Eigen::Map<const Eigen::Vector3d>(a.data());
+    const double point[3] = {x.x(), x.y(), x.z()};
+    const Eigen::Vector2d uv(300 + 50 * g(rng), 200 + 50 * g(rng));
+    const Eigen::Vector4d k(500 + g(rng), 480 + g(rng), 320, 240);
+    const double s = 0.1 + std::abs(g(rng));
+    std::unique_ptr<ceres::CostFunction> y(LandmarkReprojectionCostFunctor::Create(uv, k, s));
+    std::unique_ptr<ceres::CostFunction> z(LandmarkReprojectionCostFunction::Create(uv, k, s));
+    ExpectSameAsAutoDiff(*z, *y, {a.data(), point});
+  }
   EXPECT_GT(interior, 20);
   EXPECT_GT(past_end, 20);
 }
