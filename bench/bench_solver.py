@@ -36,19 +36,25 @@ DENSE = dict(matches_per_pair=120, floor_per_frame=100, ceiling_per_frame=60, wa
 # ----------------------------------------------------------------------------------- scaling
 def _scaling_child(frames: int, queue: Any) -> None:
     s = make_synthetic_problem(num_frames=frames, seed=1, **DENSE)
-    base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    before = resource.getrusage(resource.RUSAGE_SELF)
+    base = before.ru_maxrss
     r = solve(s.problem, SolverOptions(num_threads=2), check=False)
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    after = resource.getrusage(resource.RUSAGE_SELF)
+    peak = after.ru_maxrss
+    # CPU seconds of the solve (all threads): less sensitive than wall time to a loaded machine.
+    cpu = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
     t0, r0 = pose_errors(s.problem.poses, s.gt_poses)
     t1, r1 = pose_errors(r.poses, s.gt_poses)
-    queue.put(dict(frames=frames, residuals=r.summary.num_residuals, time=r.summary.time_s,
-                   ceres=r.summary.ceres_time_s, iters=r.summary.iterations, rounds=r.summary.outer_iterations,
+    queue.put(dict(frames=frames, residuals=r.summary.num_residuals, time=r.summary.time_s, cpu=cpu,
+                   cost=r.summary.final_cost, ceres=r.summary.ceres_time_s, iters=r.summary.iterations,
+                   rounds=r.summary.outer_iterations,
                    rss=peak / 1024, rss_solve=(peak - base) / 1024, err=(t0, r0, t1, r1), term=r.summary.termination))
 
 
 def bench_scaling(sizes: list[int]) -> None:
     print("\n## Scaling (all terms, ROBUST/Huber, 2 threads; each size in a fresh process)")
-    print(f"{'frames':>6} {'residuals':>10} {'time s':>8} {'ceres s':>8} {'iters':>6} {'rounds':>6} {'peak RSS MB':>11} {'error before -> after':>34}")
+    print(f"{'frames':>6} {'residuals':>10} {'time s':>8} {'ceres s':>8} {'cpu s':>7} {'iters':>6} {'rounds':>6} "
+          f"{'final cost':>18} {'peak RSS MB':>11} {'error before -> after':>34}")
     ctx = mp.get_context("fork")
     for n in sizes:
         q = ctx.Queue()
@@ -57,8 +63,8 @@ def bench_scaling(sizes: list[int]) -> None:
         row = q.get()
         p.join()
         t0, r0, t1, r1 = row["err"]
-        print(f"{row['frames']:6d} {row['residuals']:10d} {row['time']:8.2f} {row['ceres']:8.2f} {row['iters']:6d} "
-              f"{row['rounds']:6d} {row['rss']:11.0f} {t0:8.3f} m {r0:5.2f}° -> {t1:6.4f} m {r1:5.3f}°")
+        print(f"{row['frames']:6d} {row['residuals']:10d} {row['time']:8.2f} {row['ceres']:8.2f} {row['cpu']:7.2f} "
+              f"{row['iters']:6d} {row['rounds']:6d} {row['cost']:18.12g} {row['rss']:11.0f} {t0:8.3f} m {r0:5.2f}° -> {t1:6.4f} m {r1:5.3f}°")
 
 
 # -------------------------------------------------------------------------------- pycolmap BA

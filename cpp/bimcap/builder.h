@@ -56,6 +56,8 @@ class ProblemBuilder {
 
   ceres::Problem& problem() { return *problem_; }
   const std::array<TermBlocks, kNumTerms>& terms() const { return terms_; }
+  // The loss of a term's residual blocks (null: plain squares).
+  const ceres::LossFunction* loss(int term) const { return losses_[term].get(); }
   // Elimination ordering for Schur solvers, or null when there are no landmarks.
   std::shared_ptr<ceres::ParameterBlockOrdering> ordering() const { return ordering_; }
   bool has_landmarks() const { return has_landmarks_; }

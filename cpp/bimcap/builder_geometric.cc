@@ -51,7 +51,7 @@ void ProblemBuilder::AddGeometric() {
       }
     } else if (depth_a > 0 && depth_b > 0) {
       term.ids.push_back(problem_->AddResidualBlock(
-          PointConsistencyCostFunctor::Create(BackprojectPixel(k_a, uv[0], uv[1], depth_a),
+          PointConsistencyCostFunction::Create(BackprojectPixel(k_a, uv[0], uv[1], depth_a),
                                               BackprojectPixel(k_b, uv[2], uv[3], depth_b), s),
           loss, Pose(a), Pose(b)));
     }
@@ -71,7 +71,7 @@ void ProblemBuilder::AddLandmarks() {
       const int f = data_.track_obs_frame(i);
       const double* kf = data_.cameras.row(data_.frame_camera(f));
       term.ids.push_back(problem_->AddResidualBlock(
-          LandmarkReprojectionCostFunctor::Create(
+          LandmarkReprojectionCostFunction::Create(
               Eigen::Vector2d(data_.track_obs_uv(i, 0), data_.track_obs_uv(i, 1)),
               Eigen::Vector4d(kf[0], kf[1], kf[2], kf[3]), term.sqrt_weight),
           loss, Pose(f), state_->track_points.data() + 3 * data_.track_obs_point(i)));

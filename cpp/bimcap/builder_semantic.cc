@@ -27,7 +27,7 @@ void ProblemBuilder::AddPlaneTerm(int term_id, const ArrayRef<int32_t>& frame,
     } else {
       const double* pl = data_.planes.row(plane(i));
       term.ids.push_back(problem_->AddResidualBlock(
-          PointToPlaneCostFunctor::Create(p, Eigen::Vector4d(pl[0], pl[1], pl[2], pl[3]),
+          PointToPlaneCostFunction::Create(p, Eigen::Vector4d(pl[0], pl[1], pl[2], pl[3]),
                                           term.sqrt_weight),
           loss, Pose(frame(i))));
     }
@@ -57,7 +57,7 @@ void ProblemBuilder::AddSegmentTerm(int term_id, const ArrayRef<int32_t>& frame,
     if (s < 0) continue;
     const double* seg = data_.segments.row(s);
     term.ids.push_back(problem_->AddResidualBlock(
-        PointToSegmentCostFunctor::Create(
+        PointToSegmentCostFunction::Create(
             Eigen::Vector3d(p_in_cam(i, 0), p_in_cam(i, 1), p_in_cam(i, 2)),
             Eigen::Vector4d(seg[0], seg[1], seg[2], seg[3]), term.sqrt_weight),
         loss, Pose(frame(i))));

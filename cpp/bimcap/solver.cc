@@ -6,6 +6,7 @@
 #include <cmath>
 #include <memory>
 #include <sstream>
+#include <vector>
 
 #include <ceres/covariance.h>
 #include <ceres/solver.h>
@@ -35,20 +36,36 @@ struct TermCosts {
   double sq_sum = 0.0;  // Σ ‖r‖² of the raw residuals
 };
 
-// Per-term cost (with the loss) and raw squared sum (without it, divided by s²).
-std::array<TermCosts, kNumTerms> EvaluateTerms(ProblemBuilder& builder) {
+// Per-term cost (with the loss) and raw squared sum (without it, divided by s²), from one
+// evaluation of the term's residuals: cost = ½ Σ_blocks ρ(‖r_block‖²), as Ceres computes it.
+std::array<TermCosts, kNumTerms> EvaluateTerms(ProblemBuilder& builder, int num_threads) {
   std::array<TermCosts, kNumTerms> out;
+  std::vector<double> residuals;
   for (int t = 0; t < kNumTerms; ++t) {
     const TermBlocks& term = builder.terms()[t];
     if (!term.active || term.ids.empty()) continue;
     ceres::Problem::EvaluateOptions eval;
     eval.residual_blocks = term.ids;
-    eval.apply_loss_function = true;
-    builder.problem().Evaluate(eval, &out[t].cost, nullptr, nullptr, nullptr);
     eval.apply_loss_function = false;
+    eval.num_threads = num_threads;
     double plain = 0.0;
-    builder.problem().Evaluate(eval, &plain, nullptr, nullptr, nullptr);
+    builder.problem().Evaluate(eval, &plain, &residuals, nullptr, nullptr);
     out[t].sq_sum = 2.0 * plain / (term.sqrt_weight * term.sqrt_weight);
+    const ceres::LossFunction* loss = builder.loss(t);
+    if (loss == nullptr) {
+      out[t].cost = plain;
+      continue;
+    }
+    const size_t size = static_cast<size_t>(term.residual_size);
+    double cost = 0.0;
+    for (size_t b = 0; b + size <= residuals.size(); b += size) {
+      double sq = 0.0;
+      for (size_t k = 0; k < size; ++k) sq += residuals[b + k] * residuals[b + k];
+      double rho[3];
+      loss->Evaluate(sq, rho);
+      cost += 0.5 * rho[0];
+    }
+    out[t].cost = cost;
   }
   return out;
 }
@@ -216,8 +233,16 @@ SolveResult Solve(const ProblemData& data, const SolverOptions& options) {
 
   associate(true);
   for (auto& a : summary.association) a.final = a.initial;
-  builder.Build();
-  Record(EvaluateTerms(builder), builder, options, true, &summary);
+  // The association the current problem was built with: a problem built on the same association
+  // is the same problem (the residual blocks point into state.poses), so it is not rebuilt.
+  std::vector<int> built_wall, built_column;
+  auto build = [&]() {
+    builder.Build();
+    built_wall = state.wall_segment;
+    built_column = state.column_segment;
+  };
+  build();
+  Record(EvaluateTerms(builder, options.num_threads), builder, options, true, &summary);
 
   ceres::Solver::Options solver_options;
   solver_options.max_num_iterations = options.max_iterations;
@@ -232,7 +257,7 @@ SolveResult Solve(const ProblemData& data, const SolverOptions& options) {
   const bool reassociate = use_wall || use_column;
   double remaining_time = options.max_time_s;
   for (int round = 0; round < options.outer_iterations; ++round) {
-    if (round > 0) builder.Build();
+    if (round > 0) build();
     solver_options.linear_solver_type = ChooseLinearSolver(options, builder.has_landmarks());
     solver_options.linear_solver_ordering = builder.has_landmarks() ? builder.ordering() : nullptr;
     solver_options.max_solver_time_in_seconds = std::max(remaining_time, 1e-3);
@@ -260,8 +285,8 @@ SolveResult Solve(const ProblemData& data, const SolverOptions& options) {
   }
 
   // Final costs on the final association.
-  builder.Build();
-  Record(EvaluateTerms(builder), builder, options, false, &summary);
+  if (state.wall_segment != built_wall || state.column_segment != built_column) build();
+  Record(EvaluateTerms(builder, options.num_threads), builder, options, false, &summary);
   summary.num_free_poses = builder.num_free_poses();
   for (const TermSummary& t : summary.terms) {
     summary.num_residual_blocks += t.num_residual_blocks;

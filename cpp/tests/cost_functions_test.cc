@@ -307,5 +307,115 @@ TEST_F(GradientTest, AllFunctors) {
   }
 }
 
+// The hand-written cost functions the builder uses equal their autodiff functors (values and
+// ambient Jacobians, to 1e-9) on random inputs, including quaternions off the unit sphere (the
+// ambient Jacobian's radial part follows Eigen's formula) and both pieces of the segment distance.
+void ExpectSameAsAutoDiff(const ceres::CostFunction& analytic, const ceres::CostFunction& autodiff,
+                          const std::vector<const double*>& blocks) {
+  ASSERT_EQ(analytic.num_residuals(), autodiff.num_residuals());
+  ASSERT_EQ(analytic.parameter_block_sizes(), autodiff.parameter_block_sizes());
+  const int m = analytic.num_residuals();
+  std::vector<double> r1(m), r2(m);
+  std::vector<std::vector<double>> j1, j2;
+  std::vector<double*> p1, p2;
+  for (int size : analytic.parameter_block_sizes()) {
+    j1.emplace_back(m * size, std::nan(""));
+    j2.emplace_back(m * size, std::nan(""));
+  }
+  for (size_t b = 0; b < j1.size(); ++b) {
+    p1.push_back(j1[b].data());
+    p2.push_back(j2[b].data());
+  }
+  ASSERT_TRUE(analytic.Evaluate(blocks.data(), r1.data(), p1.data()));
+  ASSERT_TRUE(autodiff.Evaluate(blocks.data(), r2.data(), p2.data()));
+  for (int r = 0; r < m; ++r) EXPECT_NEAR(r1[r], r2[r], 1e-9 * std::max(1.0, std::abs(r2[r])));
+  for (size_t b = 0; b < j1.size(); ++b) {
+    for (size_t k = 0; k < j1[b].size(); ++k) {
+      EXPECT_NEAR(j1[b][k], j2[b][k], 1e-9 * std::max(1.0, std::abs(j2[b][k])))
+          << "block " << b << " entry " << k;
+    }
+  }
+  // Residuals only, and one Jacobian left out.
+  std::vector<double> r3(m);
+  ASSERT_TRUE(analytic.Evaluate(blocks.data(), r3.data(), nullptr));
+  for (int r = 0; r < m; ++r) EXPECT_EQ(r3[r], r1[r]);
+  if (p1.size() > 1) {
+    std::vector<double> only(j1[1].size(), 0.0);
+    std::vector<double*> partial = {nullptr, only.data()};
+    ASSERT_TRUE(analytic.Evaluate(blocks.data(), r3.data(), partial.data()));
+    for (size_t k = 0; k < only.size(); ++k) EXPECT_EQ(only[k], j1[1][k]);
+  }
+}
+
+TEST(AnalyticJacobians, MatchAutoDiff) {
+  std::mt19937 rng(7);
+  std::normal_distribution<double> g(0.0, 1.0);
+  std::uniform_real_distribution<double> scale(0.7, 1.3);
+  int interior = 0, past_end = 0;
+  for (int trial = 0; trial < 200; ++trial) {
+    Pose7 a = RandomPose(&rng), b = RandomPose(&rng);
+    if (trial % 2 == 1) {  // off the unit sphere
+      const double sa = scale(rng), sb = scale(rng);
+      for (int k = 3; k < 7; ++k) { a[k] *= sa; b[k] *= sb; }
+    }
+    const Eigen::Vector3d p_a(g(rng), g(rng), 2.0 + g(rng)), p_b(g(rng), g(rng), 2.0 + g(rng));
+    const double s = 0.1 + std::abs(g(rng));
+    const Eigen::Vector3d n = Eigen::Vector3d(g(rng), g(rng), g(rng)).normalized();
+    const Eigen::Vector4d plane(n.x(), n.y(), n.z(), g(rng));
+    {
+      SCOPED_TRACE("point to plane");
+      std::unique_ptr<ceres::CostFunction> x(PointToPlaneCostFunction::Create(p_a, plane, s));
+      std::unique_ptr<ceres::CostFunction> y(PointToPlaneCostFunctor::Create(p_a, plane, s));
+      ExpectSameAsAutoDiff(*x, *y, {a.data()});
+    }
+    {
+      SCOPED_TRACE("point consistency");
+      std::unique_ptr<ceres::CostFunction> x(PointConsistencyCostFunction::Create(p_a, p_b, s));
+      std::unique_ptr<ceres::CostFunction> y(PointConsistencyCostFunctor::Create(p_a, p_b, s));
+      ExpectSameAsAutoDiff(*x, *y, {a.data(), b.data()});
+    }
+    {
+      SCOPED_TRACE("point to segment");
+      const Eigen::Vector3d world = Eigen::Map<const Eigen::Quaterniond>(a.data() + 3) * p_a +
+                                    Eigen::Map<const Eigen::Vector3d>(a.data());
+      // Segments around the point: random ends within ±2 m, so both pieces occur.
+      const Eigen::Vector4d seg(world.x() + 2 * g(rng), world.y() + 2 * g(rng),
+                                world.x() + 2 * g(rng), world.y() + 2 * g(rng));
+      const double dx = seg[2] - seg[0], dy = seg[3] - seg[1];
+      const double along = ((world.x() - seg[0]) * dx + (world.y() - seg[1]) * dy) / (dx * dx + dy * dy);
+      (along >= 0 && along <= 1 ? interior : past_end) += 1;
+      std::unique_ptr<ceres::CostFunction> x(PointToSegmentCostFunction::Create(p_a, seg, s));
+      std::unique_ptr<ceres::CostFunction> y(PointToSegmentCostFunctor::Create(p_a, seg, s));
+      ExpectSameAsAutoDiff(*x, *y, {a.data()});
+      // A degenerate segment (a = b): the distance to its point.
+      const Eigen::Vector4d dot(seg[0], seg[1], seg[0], seg[1]);
+      std::unique_ptr<ceres::CostFunction> x0(PointToSegmentCostFunction::Create(p_a, dot, s));
+      std::unique_ptr<ceres::CostFunction> y0(PointToSegmentCostFunctor::Create(p_a, dot, s));
+      ExpectSameAsAutoDiff(*x0, *y0, {a.data()});
+    }
+  }
+  for (int trial = 0; trial < 200; ++trial) {
+    SCOPED_TRACE("landmark reprojection");
+    Pose7 a = RandomPose(&rng);
+    if (trial % 2 == 1) {
+      const double sa = scale(rng);
+      for (int k = 3; k < 7; ++k) a[k] *= sa;
+    }
+    // Mostly in front of the camera, some behind (zero residual and Jacobians).
+    const Eigen::Vector3d p_in_cam(g(rng), g(rng), trial % 10 == 0 ? -1.0 : 1.0 + std::abs(g(rng)));
+    const Eigen::Vector3d x = Eigen::Map<const Eigen::Quaterniond>(a.data() + 3).normalized() * p_in_cam +
+                              Eigen::Map<const Eigen::Vector3d>(a.data());
+    const double point[3] = {x.x(), x.y(), x.z()};
+    const Eigen::Vector2d uv(300 + 50 * g(rng), 200 + 50 * g(rng));
+    const Eigen::Vector4d k(500 + g(rng), 480 + g(rng), 320, 240);
+    const double s = 0.1 + std::abs(g(rng));
+    std::unique_ptr<ceres::CostFunction> y(LandmarkReprojectionCostFunctor::Create(uv, k, s));
+    std::unique_ptr<ceres::CostFunction> z(LandmarkReprojectionCostFunction::Create(uv, k, s));
+    ExpectSameAsAutoDiff(*z, *y, {a.data(), point});
+  }
+  EXPECT_GT(interior, 20);
+  EXPECT_GT(past_end, 20);
+}
+
 }  // namespace
 }  // namespace bimcap

@@ -4,6 +4,7 @@
 
 #include <Eigen/Core>
 #include <ceres/autodiff_cost_function.h>
+#include <ceres/sized_cost_function.h>
 
 #include "bimcap/pose.h"
 
@@ -45,6 +46,49 @@ struct PointConsistencyCostFunctor {
   const Eigen::Vector3d p_a_in_cam;
   const Eigen::Vector3d p_b_in_cam;
   const double sqrt_weight;
+};
+
+// PointConsistencyCostFunctor with hand-written Jacobians (what the builder uses: the term is hot):
+//   ∂r/∂pose_a = s [I, ∂(R_a p_a)/∂q_a],   ∂r/∂pose_b = −s [I, ∂(R_b p_b)/∂q_b]   (3 x 7 each).
+class PointConsistencyCostFunction final : public ceres::SizedCostFunction<3, kPoseSize, kPoseSize> {
+ public:
+  PointConsistencyCostFunction(const Eigen::Vector3d& p_a_in_cam, const Eigen::Vector3d& p_b_in_cam,
+                               double sqrt_weight)
+      : p_a_in_cam_(p_a_in_cam), p_b_in_cam_(p_b_in_cam), sqrt_weight_(sqrt_weight) {}
+
+  static ceres::CostFunction* Create(const Eigen::Vector3d& p_a_in_cam,
+                                     const Eigen::Vector3d& p_b_in_cam, double sqrt_weight) {
+    return new PointConsistencyCostFunction(p_a_in_cam, p_b_in_cam, sqrt_weight);
+  }
+
+  bool Evaluate(double const* const* parameters, double* residuals,
+                double** jacobians) const override {
+    const bool jac_a = jacobians != nullptr && jacobians[0] != nullptr;
+    const bool jac_b = jacobians != nullptr && jacobians[1] != nullptr;
+    Eigen::Matrix<double, 3, 4> d_a, d_b;
+    const Eigen::Vector3d p_a_in_world =
+        CamToWorldWithJacobian(parameters[0], p_a_in_cam_, jac_a ? &d_a : nullptr);
+    const Eigen::Vector3d p_b_in_world =
+        CamToWorldWithJacobian(parameters[1], p_b_in_cam_, jac_b ? &d_b : nullptr);
+    Eigen::Map<Eigen::Vector3d> r(residuals);
+    r = sqrt_weight_ * (p_a_in_world - p_b_in_world);
+    if (jac_a) {
+      Eigen::Map<Eigen::Matrix<double, 3, kPoseSize, Eigen::RowMajor>> j(jacobians[0]);
+      j.leftCols<3>() = sqrt_weight_ * Eigen::Matrix3d::Identity();
+      j.rightCols<4>() = sqrt_weight_ * d_a;
+    }
+    if (jac_b) {
+      Eigen::Map<Eigen::Matrix<double, 3, kPoseSize, Eigen::RowMajor>> j(jacobians[1]);
+      j.leftCols<3>() = -sqrt_weight_ * Eigen::Matrix3d::Identity();
+      j.rightCols<4>() = -sqrt_weight_ * d_b;
+    }
+    return true;
+  }
+
+ private:
+  const Eigen::Vector3d p_a_in_cam_;
+  const Eigen::Vector3d p_b_in_cam_;
+  const double sqrt_weight_;
 };
 
 // The camera-frame point at z-depth `depth` through undistorted pixel (u, v) of a pinhole camera

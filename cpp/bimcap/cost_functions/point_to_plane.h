@@ -4,6 +4,7 @@
 
 #include <Eigen/Core>
 #include <ceres/autodiff_cost_function.h>
+#include <ceres/sized_cost_function.h>
 
 #include "bimcap/pose.h"
 
@@ -38,6 +39,41 @@ struct PointToPlaneCostFunctor {
   const Eigen::Vector3d p_in_cam;
   const Eigen::Vector4d plane;
   const double sqrt_weight;
+};
+
+// PointToPlaneCostFunctor with hand-written Jacobians (what the builder uses: the term is hot).
+// The ambient Jacobian is [s n, s nᵀ ∂(R p)/∂q], equal to the autodiff one to rounding.
+class PointToPlaneCostFunction final : public ceres::SizedCostFunction<1, kPoseSize> {
+ public:
+  PointToPlaneCostFunction(const Eigen::Vector3d& p_in_cam, const Eigen::Vector4d& plane,
+                           double sqrt_weight)
+      : p_in_cam_(p_in_cam), plane_(plane), sqrt_weight_(sqrt_weight) {}
+
+  static ceres::CostFunction* Create(const Eigen::Vector3d& p_in_cam, const Eigen::Vector4d& plane,
+                                     double sqrt_weight) {
+    return new PointToPlaneCostFunction(p_in_cam, plane, sqrt_weight);
+  }
+
+  bool Evaluate(double const* const* parameters, double* residuals,
+                double** jacobians) const override {
+    const bool jac = jacobians != nullptr && jacobians[0] != nullptr;
+    Eigen::Matrix<double, 3, 4> d_dq;
+    const Eigen::Vector3d p_in_world =
+        CamToWorldWithJacobian(parameters[0], p_in_cam_, jac ? &d_dq : nullptr);
+    const Eigen::Vector3d n = plane_.head<3>();
+    residuals[0] = sqrt_weight_ * (n.dot(p_in_world) + plane_[3]);
+    if (jac) {
+      Eigen::Map<Eigen::Matrix<double, 1, kPoseSize>> j(jacobians[0]);
+      j.head<3>() = sqrt_weight_ * n.transpose();
+      j.tail<4>() = sqrt_weight_ * (n.transpose() * d_dq);
+    }
+    return true;
+  }
+
+ private:
+  const Eigen::Vector3d p_in_cam_;
+  const Eigen::Vector4d plane_;
+  const double sqrt_weight_;
 };
 
 // FACaP mode: the plane is a variable shared by all points of the term (flatness only; the

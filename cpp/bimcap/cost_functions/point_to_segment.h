@@ -6,6 +6,7 @@
 
 #include <Eigen/Core>
 #include <ceres/autodiff_cost_function.h>
+#include <ceres/sized_cost_function.h>
 
 #include "bimcap/pose.h"
 
@@ -36,6 +37,41 @@ T PointToSegmentDistance2D(const T& qx, const T& qy, const Eigen::Vector4d& segm
   if (along >= T(0.0) && along <= T(1.0)) return cross;
   const T end = along > T(1.0) ? norm(qx - T(segment[2]), qy - T(segment[3])) : norm(ex, ey);
   return cross < T(0.0) ? T(-end) : end;
+}
+
+// PointToSegmentDistance2D with its gradient (∂/∂qx, ∂/∂qy), written piece by piece as autodiff
+// differentiates it (a zero gradient where the end-point distance is exactly 0).
+inline double PointToSegmentDistance2DWithGradient(double qx, double qy,
+                                                   const Eigen::Vector4d& segment,
+                                                   Eigen::Vector2d* gradient) {
+  const double ax = segment[0], ay = segment[1];
+  const double dx = segment[2] - ax, dy = segment[3] - ay;
+  const double length2 = dx * dx + dy * dy;
+  const double ex = qx - ax, ey = qy - ay;
+  auto norm = [gradient](double x, double y) {
+    const double d2 = x * x + y * y;
+    if (!(d2 > 0.0)) {
+      gradient->setZero();
+      return 0.0;
+    }
+    const double d = std::sqrt(d2);
+    *gradient = Eigen::Vector2d(x / d, y / d);
+    return d;
+  };
+  if (length2 <= 1e-18) return norm(ex, ey);
+  const double length = std::sqrt(length2);
+  const double cross = (dx * ey - dy * ex) / length;
+  const double along = (ex * dx + ey * dy) / length2;
+  if (along >= 0.0 && along <= 1.0) {
+    *gradient = Eigen::Vector2d(-dy / length, dx / length);
+    return cross;
+  }
+  const double end = along > 1.0 ? norm(qx - segment[2], qy - segment[3]) : norm(ex, ey);
+  if (cross < 0.0) {
+    *gradient = -*gradient;
+    return -end;
+  }
+  return end;
 }
 
 // A wall (column) point seen in the camera, mapped to the world and projected onto the floor
@@ -69,6 +105,41 @@ struct PointToSegmentCostFunctor {
   const Eigen::Vector3d p_in_cam;
   const Eigen::Vector4d segment;
   const double sqrt_weight;
+};
+
+// PointToSegmentCostFunctor with hand-written Jacobians (what the builder uses: the term is hot).
+class PointToSegmentCostFunction final : public ceres::SizedCostFunction<1, kPoseSize> {
+ public:
+  PointToSegmentCostFunction(const Eigen::Vector3d& p_in_cam, const Eigen::Vector4d& segment,
+                             double sqrt_weight)
+      : p_in_cam_(p_in_cam), segment_(segment), sqrt_weight_(sqrt_weight) {}
+
+  static ceres::CostFunction* Create(const Eigen::Vector3d& p_in_cam,
+                                     const Eigen::Vector4d& segment, double sqrt_weight) {
+    return new PointToSegmentCostFunction(p_in_cam, segment, sqrt_weight);
+  }
+
+  bool Evaluate(double const* const* parameters, double* residuals,
+                double** jacobians) const override {
+    const bool jac = jacobians != nullptr && jacobians[0] != nullptr;
+    Eigen::Matrix<double, 3, 4> d_dq;
+    const Eigen::Vector3d p_in_world =
+        CamToWorldWithJacobian(parameters[0], p_in_cam_, jac ? &d_dq : nullptr);
+    Eigen::Vector2d g;
+    residuals[0] = sqrt_weight_ *
+                   PointToSegmentDistance2DWithGradient(p_in_world.x(), p_in_world.y(), segment_, &g);
+    if (jac) {
+      Eigen::Map<Eigen::Matrix<double, 1, kPoseSize>> j(jacobians[0]);
+      g *= sqrt_weight_;
+      j << g.x(), g.y(), 0.0, g.transpose() * d_dq.topRows<2>();
+    }
+    return true;
+  }
+
+ private:
+  const Eigen::Vector3d p_in_cam_;
+  const Eigen::Vector4d segment_;
+  const double sqrt_weight_;
 };
 
 }  // namespace bimcap

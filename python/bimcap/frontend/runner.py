@@ -679,6 +679,7 @@ class _Progress:
     def __init__(self, total: int, label: str, enabled: bool) -> None:
         self.total, self.label, self.enabled = total, label, enabled and total > 0
         self.done = 0
+        self._tenth = -1
         self.t0 = time.perf_counter()
 
     def step(self, n: int = 1) -> None:
@@ -688,11 +689,14 @@ class _Progress:
         frac = self.done / self.total
         bar = "#" * int(30 * frac)
         rate = self.done / max(time.perf_counter() - self.t0, 1e-9)
-        sys.stderr.write(
-            f"\r{self.label:>8} [{bar:<30}] {self.done}/{self.total} {rate:6.2f}/s"
-        )
-        if self.done >= self.total:
-            sys.stderr.write("\n")
+        line = f"{self.label:>8} [{bar:<30}] {self.done}/{self.total} {rate:6.2f}/s"
+        if sys.stderr.isatty():
+            sys.stderr.write("\r" + line + ("\n" if self.done >= self.total else ""))
+        else:  # a log file: one line per tenth, not one per step
+            tenth = int(10 * frac)
+            if tenth > self._tenth or self.done >= self.total:
+                self._tenth = tenth
+                sys.stderr.write(line + "\n")
         sys.stderr.flush()
 
 

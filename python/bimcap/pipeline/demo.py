@@ -2,7 +2,7 @@
 
 Generate a building (design IFC + as-built variant) → simulate a camera + LiDAR sequence in the
 as-built world → apply the paper's ``exp2`` drift → BIM reference → front end with the
-no-weights paths (LiDAR + classical completion, geometric segmenter) → FACaP and BIMCaP solves →
+no-weights paths (LiDAR + linear interpolation, geometric segmenter) → FACaP and BIMCaP solves →
 metrics → before/after table and an HTML report.
 """
 
