@@ -27,7 +27,7 @@ def add_config_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--segmentation-model", metavar="MODEL.onnx", help="for --segmentation onnx")
     g.add_argument("--labels-dir", metavar="DIR", help="for --segmentation disk")
     g.add_argument("--coarse", action=argparse.BooleanOptionalAction, default=None,
-                   help="coarse registration to the floor plan before the bundle adjustment")
+                   help="coarse registration to the floor plan before the bundle adjustment (default on)")
     g.add_argument("--rotation-first", action=argparse.BooleanOptionalAction, default=None,
                    help="refine rotations first, then everything")
     g.add_argument("--window", type=int, help="match each frame with its next N frames")
