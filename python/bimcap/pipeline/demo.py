@@ -134,7 +134,7 @@ def run_demo(out_dir: str | Path, opts: DemoOptions | None = None, quiet: bool =
     metrics = {"initial": tm0}
     extra = []
     if o.facap:
-        fcfg = replace(o.config, method=Method.FACAP, terms=None, weighting=None)
+        fcfg = replace(o.config, method=Method.FACAP, terms=None, weighting=None, coarse=False)
         facap = solve_prepared(prepared, fcfg, quiet)
         tm, mm = evaluate_run(prepared, facap.refined, gt)
         metrics["FACaP"] = tm

@@ -145,7 +145,9 @@ def run_experiment(out_dir: str | Path, opts: ExperimentOptions | None = None,
             tm, mm = evaluate_run(prepared, prepared.init, gt)
             records.append(RunRecord(exp, seed, "initial", "-", _values(tm, mm), 0.0))
             for method, terms in o.ablations:
-                cfg = replace(o.config, method=method, terms=terms, weighting=None)
+                # FACaP rows are the peers' method: no coarse stage in front of them.
+                cfg = replace(o.config, method=method, terms=terms, weighting=None,
+                              coarse=o.config.coarse and method is Method.BIMCAP)
                 t0 = time.perf_counter()
                 try:
                     res = solve_prepared(prepared, cfg, quiet=True)
