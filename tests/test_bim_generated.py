@@ -81,3 +81,47 @@ def test_floor_plan_matches_generator_oracle(generated: tuple[object, BimModel, 
             v = v[2:] - v[:2]
             cos = abs(u @ v) / np.linalg.norm(u) / np.linalg.norm(v)
             assert np.degrees(np.arccos(min(1.0, cos))) <= 1.0
+
+
+def test_free_side_normals_point_out_of_the_wall_solids(
+        generated: tuple[object, BimModel, BimReference]) -> None:
+    """The solver's visibility test trusts each face's free-side normal: checked against the
+    generator's wall solids (centre line ± thickness/2), for every face longer than 0.5 m (door
+    jambs, a wall thickness long, are left out: their free side is the opening). At least 90 %
+    of those faces must get a side; a face left undecided is only seen from both sides."""
+    from bimcap.registration.plan_maps import free_normals_by_storey
+
+    g, _, ref = generated
+    normals = free_normals_by_storey(ref.segments, ref.segment_class, ref.segment_z)
+    walls = g.truth.walls  # type: ignore[attr-defined]
+
+    def inside_wall(q: np.ndarray, z: float) -> np.ndarray:
+        hit = np.zeros(len(q), dtype=bool)
+        for w in walls:
+            if not (w.z_min <= z <= w.z_max):
+                continue
+            d, n = w.direction, w.normal
+            along = (q - np.asarray(w.start)) @ d
+            across = (q - np.asarray(w.start)) @ n
+            length = float(np.linalg.norm(np.subtract(w.end, w.start)))
+            hit |= ((along >= -w.thickness / 2) & (along <= length + w.thickness / 2)
+                    & (np.abs(across) < w.thickness / 2))
+        return hit
+
+    seg = ref.segments
+    length = np.linalg.norm(seg[:, 2:] - seg[:, :2], axis=1)
+    rows = np.flatnonzero((ref.segment_class == Label.WALL) & (length > 0.5))
+    decided = rows[np.abs(normals[rows]).sum(1) > 0]
+    assert len(decided) >= 0.9 * len(rows), (len(decided), len(rows))
+    for zc in np.unique(ref.segment_z.mean(1)):
+        r = decided[np.isclose(ref.segment_z[decided].mean(1), zc)]
+        # Five points along each face (a perpendicular partition may meet it at one of them):
+        # most must be in a solid just behind the face and in free space just in front of it.
+        behind = np.zeros(len(r), int)
+        front = np.zeros(len(r), int)
+        for t in (0.2, 0.35, 0.5, 0.65, 0.8):
+            p = seg[r, :2] + t * (seg[r, 2:] - seg[r, :2])
+            behind += inside_wall(p - 0.03 * normals[r], zc)
+            front += ~inside_wall(p + 0.03 * normals[r], zc)
+        assert (behind >= 3).all(), seg[r[behind < 3]]
+        assert (front >= 3).all(), seg[r[front < 3]]

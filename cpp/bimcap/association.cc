@@ -13,8 +13,9 @@ constexpr int64_t kMaxCellsPerAxis = 2048;
 }  // namespace
 
 SegmentIndex::SegmentIndex(const ArrayRef<double>& segments, const ArrayRef<int32_t>& segment_class,
-                           const ArrayRef<double>& segment_z, int32_t label, double gate)
-    : segments_(segments), segment_z_(segment_z), gate_(gate) {
+                           const ArrayRef<double>& segment_z,
+                           const ArrayRef<double>& segment_normal, int32_t label, double gate)
+    : segments_(segments), segment_z_(segment_z), segment_normal_(segment_normal), gate_(gate) {
   double xmin = std::numeric_limits<double>::infinity(), ymin = xmin;
   double xmax = -xmin, ymax = -xmin;
   for (int64_t s = 0; s < segments.rows; ++s) {
@@ -66,7 +67,8 @@ SegmentIndex::SegmentIndex(const ArrayRef<double>& segments, const ArrayRef<int3
   }
 }
 
-int SegmentIndex::Nearest(double x, double y, double z, double* distance) const {
+int SegmentIndex::Nearest(double x, double y, double z, double cam_x, double cam_y,
+                          double* distance) const {
   if (ids_.empty() || !std::isfinite(x) || !std::isfinite(y)) return -1;
   const double fx = std::floor((x - x0_) / cell_), fy = std::floor((y - y0_) / cell_);
   if (fx < 0 || fy < 0 || fx >= static_cast<double>(nx_) || fy >= static_cast<double>(ny_)) {
@@ -78,6 +80,13 @@ int SegmentIndex::Nearest(double x, double y, double z, double* distance) const 
   for (int64_t i = cell_start_[cell]; i < cell_start_[cell + 1]; ++i) {
     const int s = cell_items_[i];
     if (z < segment_z_(s, 0) || z > segment_z_(s, 1)) continue;
+    if (!segment_normal_.empty()) {
+      const double nx = segment_normal_(s, 0), ny = segment_normal_(s, 1);
+      if ((nx != 0.0 || ny != 0.0) &&
+          nx * (cam_x - segments_(s, 0)) + ny * (cam_y - segments_(s, 1)) <= 0.0) {
+        continue;  // the camera is behind this face: it cannot have seen it
+      }
+    }
     const Eigen::Vector4d seg(segments_(s, 0), segments_(s, 1), segments_(s, 2), segments_(s, 3));
     const double d = std::abs(PointToSegmentDistance2D(x, y, seg));
     // Ties go to the lower index so that the association is deterministic.
@@ -99,9 +108,10 @@ std::vector<int> AssociatePoints(const SegmentIndex& index, const ArrayRef<int32
   double sum = 0.0;
   for (int64_t i = 0; i < frame.rows; ++i) {
     const Eigen::Vector3d p(p_in_cam(i, 0), p_in_cam(i, 1), p_in_cam(i, 2));
-    const Eigen::Vector3d w = CamToWorld(poses + kPoseSize * frame(i), p);
+    const double* pose = poses + kPoseSize * frame(i);  // tx ty tz qx qy qz qw
+    const Eigen::Vector3d w = CamToWorld(pose, p);
     double d = 0.0;
-    assoc[i] = index.Nearest(w.x(), w.y(), w.z(), &d);
+    assoc[i] = index.Nearest(w.x(), w.y(), w.z(), pose[0], pose[1], &d);
     if (assoc[i] >= 0) {
       ++s.num_associated;
       sum += d;

@@ -5,6 +5,12 @@
 // provided that distance is at most the gate. A uniform xy grid with cells of about the gate's
 // size holds, in each cell, every segment whose gate-inflated bounding box touches the cell, so
 // that one lookup returns every candidate: O(points × segments-per-cell), not points × segments.
+//
+// Visibility: with free-side normals n_s (optional `segment_normal`, unit, or zero for a face
+// seen from both sides), segment s = (a, b) is admissible for a point observed from camera
+// centre c only if c lies on its free side, n_s · (c_xy − a) > 0. A wall point can then never
+// be associated with the far face of its wall (the outer face of an exterior wall is a
+// wall-thickness alias, 0.2 m away, that the solver would otherwise settle into).
 #ifndef BIMCAP_ASSOCIATION_H_
 #define BIMCAP_ASSOCIATION_H_
 
@@ -17,20 +23,24 @@ namespace bimcap {
 
 class SegmentIndex {
  public:
-  // `segments` (S, 4), `segment_class` (S,), `segment_z` (S, 2) as in ProblemData; only segments
-  // of class `label` are indexed. gate > 0 in metres.
+  // `segments` (S, 4), `segment_class` (S,), `segment_z` (S, 2), `segment_normal` (S, 2) or
+  // empty (no visibility test) as in ProblemData; only segments of class `label` are indexed.
+  // gate > 0 in metres.
   SegmentIndex(const ArrayRef<double>& segments, const ArrayRef<int32_t>& segment_class,
-               const ArrayRef<double>& segment_z, int32_t label, double gate);
+               const ArrayRef<double>& segment_z, const ArrayRef<double>& segment_normal,
+               int32_t label, double gate);
 
-  // The index of the nearest admissible segment within the gate, or -1. `distance` receives its
-  // unsigned xy distance when found.
-  int Nearest(double x, double y, double z, double* distance) const;
+  // The index of the nearest admissible segment within the gate for the world point (x, y, z)
+  // seen from the camera centre (cam_x, cam_y), or -1. `distance` receives its unsigned xy
+  // distance when found.
+  int Nearest(double x, double y, double z, double cam_x, double cam_y, double* distance) const;
 
   int64_t num_segments() const { return static_cast<int64_t>(ids_.size()); }
 
  private:
   ArrayRef<double> segments_;
   ArrayRef<double> segment_z_;
+  ArrayRef<double> segment_normal_;
   double gate_ = 0.0;
   double cell_ = 1.0;
   double x0_ = 0.0, y0_ = 0.0;
@@ -43,7 +53,7 @@ class SegmentIndex {
 struct AssociationStats {
   int64_t num_points = 0;
   int64_t num_associated = 0;
-  int64_t num_rejected = 0;      // no segment of the class within the gate (xy) and z range
+  int64_t num_rejected = 0;      // no visible segment of the class within the gate and z range
   int64_t num_changed = 0;       // associations that differ from the previous round
   double mean_distance = 0.0;    // over associated points, metres
 };

@@ -84,6 +84,7 @@ const std::vector<FieldSpec>& ProblemFields() {
       BIMCAP_F64(segments, 4, false),
       BIMCAP_I32(segment_class, 0, false),
       BIMCAP_F64(segment_z, 2, false),
+      BIMCAP_F64(segment_normal, 2, false),
   };
   return fields;
 }
@@ -203,6 +204,18 @@ void ValidateProblem(const ProblemData& p) {
     }
     if (p.segment_z(i, 0) > p.segment_z(i, 1)) {
       throw ProblemError("segment_z", "row " + Str(i) + ": zmin > zmax");
+    }
+  }
+  // Optional: absent (no visibility test) or one free-side normal per segment, unit or zero.
+  if (!p.segment_normal.empty()) {
+    CheckShape(p.segment_normal, "segment_normal", s, 2);
+    CheckFinite(p.segment_normal, "segment_normal");
+    for (int64_t i = 0; i < s; ++i) {
+      const double norm = std::hypot(p.segment_normal(i, 0), p.segment_normal(i, 1));
+      if (norm != 0.0 && std::abs(norm - 1.0) > 1e-6) {
+        throw ProblemError("segment_normal", "row " + Str(i) + " has norm " +
+                                                 std::to_string(norm) + ", expected 1 or 0");
+      }
     }
   }
 }

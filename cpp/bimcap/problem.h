@@ -75,6 +75,7 @@ struct ProblemData {
   ArrayRef<double> segments;           // (S, 4) x1 y1 x2 y2
   ArrayRef<int32_t> segment_class;     // (S,) 1 wall / 4 column
   ArrayRef<double> segment_z;          // (S, 2) zmin zmax
+  ArrayRef<double> segment_normal;     // (S, 2) free-side unit normal, (0, 0) = both; optional
 
   // Keeps the memory behind the views alive (a file buffer); may be empty.
   std::shared_ptr<const void> owner;

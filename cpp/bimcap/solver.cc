@@ -196,13 +196,14 @@ SolveResult Solve(const ProblemData& data, const SolverOptions& options) {
   std::unique_ptr<SegmentIndex> wall_index, column_index;
   if (use_wall) {
     wall_index = std::make_unique<SegmentIndex>(data.segments, data.segment_class, data.segment_z,
-                                                kLabelWall, options.association_gate);
+                                                data.segment_normal, kLabelWall,
+                                                options.association_gate);
     summary.association.push_back({"W", wall_index->num_segments(), {}, {}});
   }
   if (use_column) {
     column_index = std::make_unique<SegmentIndex>(data.segments, data.segment_class,
-                                                  data.segment_z, kLabelColumn,
-                                                  options.association_gate);
+                                                  data.segment_z, data.segment_normal,
+                                                  kLabelColumn, options.association_gate);
     summary.association.push_back({"Co", column_index->num_segments(), {}, {}});
   }
   // Returns whether more than association_change_tolerance of the points changed segment.

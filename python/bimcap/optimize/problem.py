@@ -49,6 +49,7 @@ FIELDS: dict[str, tuple[type, int, bool]] = {
     "segments": (np.float64, 4, False),
     "segment_class": (np.int32, 0, False),
     "segment_z": (np.float64, 2, False),
+    "segment_normal": (np.float64, 2, False),
 }
 
 
@@ -79,6 +80,9 @@ class Problem:
     wall_frame (W,) i32, wall_p_in_cam (W, 3): W; column_* likewise: Co.
     segments (S, 4) [x1 y1 x2 y2] m, segment_class (S,) i32 (1 wall, 4 column),
     segment_z (S, 2) [zmin zmax] m: the floor plan.
+    segment_normal (S, 2) or (0, 2): optional free-side unit normal of each segment ((0, 0) =
+        visible from both sides); when given, a wall/column point is associated only with
+        segments whose free side faces its camera (no far-face / wall-thickness aliases).
     """
 
     poses: F64
@@ -108,6 +112,7 @@ class Problem:
     segments: F64 = _f("segments")
     segment_class: I32 = _f("segment_class")
     segment_z: F64 = _f("segment_z")
+    segment_normal: F64 = _f("segment_normal")
 
     def __post_init__(self) -> None:
         n = len(np.asarray(self.poses)) if np.ndim(self.poses) == 2 else 0
@@ -269,3 +274,11 @@ def _validate(a: dict[str, NDArray[Any]], path: str | PathLike[str] | None, erro
     if s and (a["segment_z"][:, 0] > a["segment_z"][:, 1]).any():
         i = int(np.flatnonzero(a["segment_z"][:, 0] > a["segment_z"][:, 1])[0])
         fail("segment_z", f"row {i}: zmin > zmax")
+    if a["segment_normal"].shape[0]:
+        rows("segment_normal", s)
+        finite("segment_normal")
+        norm = np.hypot(a["segment_normal"][:, 0], a["segment_normal"][:, 1])
+        bad = (norm != 0.0) & (np.abs(norm - 1.0) > 1e-6)
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            fail("segment_normal", f"row {i} has norm {norm[i]:.6g}, expected 1 or 0")

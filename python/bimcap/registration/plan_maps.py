@@ -73,7 +73,8 @@ def _on_closed_curves(segments: F64, tol_m: float = 1e-4) -> NDArray[np.bool_]:
 
 
 def free_normals(segments: NDArray[np.float64], segment_class: NDArray[np.int32],
-                 eps_m: float = 0.01, max_thickness_m: float = 1.2) -> F64:
+                 eps_m: float = 0.01, max_thickness_m: float = 1.2, pair_fallback: bool = True,
+                 max_pair_gap_m: float = 0.6) -> F64:
     """(S, 2) unit normal of each segment pointing into free space; zero where undecided.
 
     The outlines of each class are treated as closed curves: a point just beside a segment is
@@ -84,7 +85,10 @@ def free_normals(segments: NDArray[np.float64], segment_class: NDArray[np.int32]
     zero normal too, since parity means nothing there. Finally a face is trusted only if the
     point just inside it is within ``max_thickness_m / 2`` of another segment (walls and
     columns are thin; a room drawn as a closed loop of single lines would otherwise look like
-    a solid).
+    a solid). With ``pair_fallback`` (default) a face with a parallel partner face (the other
+    side of its wall, gap up to ``max_pair_gap_m``: :func:`_paired_face_normals`) takes its side
+    from the pair, which open outlines (door openings) do not confuse; parity decides faces
+    without a partner, and a face the two disagree on gets a zero normal.
     """
     seg = np.asarray(segments, dtype=np.float64).reshape(-1, 4)
     out = np.zeros((len(seg), 2))
@@ -111,7 +115,65 @@ def free_normals(segments: NDArray[np.float64], segment_class: NDArray[np.int32]
             g = np.flatnonzero(good)
             clear[g] = _inside_clearance(mid[g] - eps_m * free[g], g, s)
             good &= clear <= 0.5 * max_thickness_m
-        out[rows[good]] = free[good]
+        parity = np.where(good[:, None], free, 0.0)
+        if pair_fallback:
+            paired = _paired_face_normals(s, min_gap_m=eps_m, max_gap_m=max_pair_gap_m)
+            has_pair, has_parity = paired.any(1), parity.any(1)
+            agree = (paired * parity).sum(1) > 0
+            # Pairs first (parity rays slip through door gaps); parity where a face has no
+            # partner; a face the two methods disagree on stays visible from both sides.
+            parity = np.where((has_pair & (~has_parity | agree))[:, None], paired,
+                              np.where((has_pair & has_parity & ~agree)[:, None], 0.0, parity))
+        out[rows] = parity
+    return out
+
+
+def _paired_face_normals(s: F64, min_gap_m: float, max_gap_m: float,
+                         max_angle_deg: float = 3.0) -> F64:
+    """(S, 2) free-side normals from face pairs: a wall is drawn as two parallel faces a
+    thickness apart, so a face whose parallel, overlapping partners (gap in ``[min_gap_m,
+    max_gap_m]``) all lie on one side has its solid on that side and its free side on the other.
+    Zero where a face has no partner or partners on both sides. Works where the outlines are
+    open (door openings break the closed curves :func:`free_normals` needs)."""
+    a, b = s[:, :2], s[:, 2:]
+    e = b - a
+    length = np.linalg.norm(e, axis=1)
+    u = e / np.maximum(length, 1e-12)[:, None]
+    n = np.c_[-u[:, 1], u[:, 0]]
+    parallel = np.abs(u @ u.T) >= np.cos(np.radians(max_angle_deg))
+    mid = 0.5 * (a + b)
+    off = ((mid[None, :, :] - a[:, None, :]) * n[:, None, :]).sum(-1)      # (S, S): t's side of s
+    # Overlap of t's extent with s's along s's direction.
+    ta = ((a[None, :, :] - a[:, None, :]) * u[:, None, :]).sum(-1)
+    tb = ((b[None, :, :] - a[:, None, :]) * u[:, None, :]).sum(-1)
+    lo, hi = np.minimum(ta, tb), np.maximum(ta, tb)
+    overlap = np.minimum(hi, length[:, None]) - np.maximum(lo, 0.0)
+    partner = (parallel & (np.abs(off) >= min_gap_m) & (np.abs(off) <= max_gap_m)
+               & (overlap > 0.05) & (length[:, None] > 1e-9))
+    np.fill_diagonal(partner, False)
+    plus = (partner & (off > 0)).any(1)
+    minus = (partner & (off < 0)).any(1)
+    out = np.zeros((len(s), 2))
+    out[plus & ~minus] = -n[plus & ~minus]
+    out[minus & ~plus] = n[minus & ~plus]
+    return out
+
+
+def free_normals_by_storey(segments: NDArray[np.float64], segment_class: NDArray[np.int32],
+                           segment_z: NDArray[np.float64] | None = None, **kwargs: float) -> F64:
+    """(S, 2) :func:`free_normals` computed separately for each storey (each distinct
+    ``segment_z`` row), so that the outlines of storeys stacked over each other do not cross
+    each other's parity rays. ``segment_z`` None treats all segments as one storey."""
+    seg = np.asarray(segments, dtype=np.float64).reshape(-1, 4)
+    cls = np.asarray(segment_class, dtype=np.int32).reshape(-1)
+    out = np.zeros((len(seg), 2))
+    if segment_z is None or len(seg) == 0:
+        return free_normals(seg, cls, **kwargs) if len(seg) else out
+    z = np.asarray(segment_z, dtype=np.float64).reshape(-1, 2)
+    _, storey = np.unique(np.round(z, 6), axis=0, return_inverse=True)
+    for k in np.unique(storey):
+        rows = np.flatnonzero(storey.reshape(-1) == k)
+        out[rows] = free_normals(seg[rows], cls[rows], **kwargs)
     return out
 
 
