@@ -119,3 +119,51 @@ def test_config_from_toml_and_errors(tmp_path: Path) -> None:
         RefineConfig(completion=DepthSource.HYBRID)
     with pytest.raises(ConfigError, match="labels_dir"):
         RefineConfig(segmentation=LabelSource.DISK)
+
+
+def test_schedule_for_maps_config_onto_stages() -> None:
+    from bimcap.optimize.options import RefineMode
+    from bimcap.pipeline.refine import schedule_for, solver_options, stage_options
+
+    names = lambda c: [s.name for s in schedule_for(c).stages]  # noqa: E731
+    assert names(RefineConfig()) == ["coarse", "all"]
+    assert names(RefineConfig(coarse=False)) == ["all"]
+    assert names(RefineConfig(staged=True)) == ["coarse", "bim", "all"]
+    assert names(RefineConfig(coarse=False, rotation_first=True)) == ["all_rotation",
+                                                                      "all_translation", "all"]
+    assert names(RefineConfig(staged=True, rotation_first=True)) == [
+        "coarse", "bim_rotation", "bim_translation", "bim", "all"]
+    cfg = RefineConfig(staged=True, terms="G+F+W")
+    base = solver_options(cfg)
+    bim, full = [s for s in schedule_for(cfg).stages if s.name != "coarse"]
+    o = stage_options(base, bim, cfg)
+    assert o is not None
+    assert (o.geometric.enabled, o.floor.enabled, o.wall.enabled, o.column.enabled) == (
+        False, True, True, False)  # the BIM terms of the configured ones only
+    assert o.wall.loss_scale == pytest.approx(4 * base.wall.loss_scale)
+    assert base.wall.loss_scale == pytest.approx(stage_options(base, full, cfg).wall.loss_scale)
+    rot = schedule_for(RefineConfig(coarse=False, rotation_first=True)).stages[0]
+    assert stage_options(base, rot, cfg).refine_mode is RefineMode.ROTATION
+    # A BIM-only stage with no BIM term configured is skipped, not an error.
+    g_only = RefineConfig(staged=True, terms="G")
+    assert stage_options(solver_options(g_only), bim, g_only) is None
+
+
+@pytest.mark.slow
+def test_staged_and_rotation_first_runs(tiny_demo) -> None:
+    """The issue-7 schedule end to end: coarse → BIM terms with wide losses → all terms, each
+    stage rotation first; every stage reports and the rotation error still falls."""
+    from bimcap.dataset import read_sequence
+    from bimcap.evaluation.metrics import AlignMode, trajectory_metrics
+    from bimcap.pipeline.refine import prepare, solve_prepared
+
+    out = tiny_demo.out_dir
+    seq = read_sequence(out / "sequence")
+    cfg = RefineConfig(workers=1, staged=True, rotation_first=True)
+    prep = prepare(seq, None, None, cfg, out / "refine", quiet=True)
+    res = solve_prepared(prep, cfg, quiet=True)
+    assert len(res.summaries) == 4  # bim_rotation, bim_translation, bim, all
+    gt = seq.trajectory("gt").poses
+    before = trajectory_metrics(prep.init.poses, gt, AlignMode.NONE).ate_rot_deg.rmse
+    after = trajectory_metrics(res.refined.poses, gt, AlignMode.NONE).ate_rot_deg.rmse
+    assert after < 0.3 * before

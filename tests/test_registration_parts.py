@@ -204,7 +204,9 @@ def test_schedule_default_and_rotation_first() -> None:
     r = Schedule.default(coarse=False, rotation_first=True)
     assert [(st.kind, st.pose_block) for st in r.stages] == [
         (StageKind.BIM_ONLY, PoseBlock.ROTATION), (StageKind.BIM_ONLY, PoseBlock.TRANSLATION),
-        (StageKind.ALL_TERMS, PoseBlock.ROTATION), (StageKind.ALL_TERMS, PoseBlock.TRANSLATION)]
+        (StageKind.BIM_ONLY, PoseBlock.FULL), (StageKind.ALL_TERMS, PoseBlock.FULL)]
+    u = Schedule.default(coarse=False, rotation_first=True, staged=False)
+    assert [st.name for st in u.stages] == ["all_rotation", "all_translation", "all"]
     assert not r.has_coarse
     assert Schedule.from_dict(r.to_dict()) == r
     with pytest.raises(RegistrationInputError, match="terms"):

@@ -29,7 +29,9 @@ def add_config_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--coarse", action=argparse.BooleanOptionalAction, default=None,
                    help="coarse registration to the floor plan before the bundle adjustment (default on)")
     g.add_argument("--rotation-first", action=argparse.BooleanOptionalAction, default=None,
-                   help="refine rotations first, then everything")
+                   help="rotations first (translations held), then translations, then both")
+    g.add_argument("--staged", action=argparse.BooleanOptionalAction, default=None,
+                   help="solve with the BIM terms only and 4x wider robust losses before all terms")
     g.add_argument("--window", type=int, help="match each frame with its next N frames")
     g.add_argument("--max-match-distance", type=float,
                    help="drop matches whose points are further apart under the initial poses (m)")
@@ -39,7 +41,7 @@ def add_config_arguments(p: argparse.ArgumentParser) -> None:
 def config_from_args(args: argparse.Namespace) -> RefineConfig:
     keys = ("method", "terms", "weighting", "loss", "geometric_mode", "completion",
             "completion_model", "segmentation", "segmentation_model", "labels_dir", "coarse",
-            "rotation_first", "window", "max_match_distance", "workers")
+            "rotation_first", "staged", "window", "max_match_distance", "workers")
     overrides: dict[str, Any] = {k: getattr(args, k) for k in keys if getattr(args, k, None) is not None}
     if args.config:
         return RefineConfig.from_toml(args.config, **overrides)

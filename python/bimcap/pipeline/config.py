@@ -92,7 +92,10 @@ class RefineConfig:
     coarse: run the coarse registration to the floor plan before the bundle adjustment (on by
         default: it levels each frame on its floor, finds its yaw on the walls, tracks the
         translation, and returns the poses unchanged when the drift is already small).
-    rotation_first: refine rotations first, then everything (the paper's Exp. 3 remedy).
+    rotation_first: the first solver stage refines rotations first (translations held), then
+        translations (rotations held), then both: the paper's Exp. 3 remedy.
+    staged: before the solve with every term, solve with the BIM terms only (F, Ce, W, Co) and
+        robust-loss scales widened 4× (``bimcap.registration.Schedule.default``).
     window: match each frame with its next ``window`` frames.
     max_match_distance: the peers' filter on matches (metres between the two back-projected
         points under the initial poses; the paper used 0.4). None (default) keeps every
@@ -113,6 +116,7 @@ class RefineConfig:
     labels_dir: str | None = None
     coarse: bool = True
     rotation_first: bool = False
+    staged: bool = False
     window: int = 4
     max_match_distance: float | None = None
     workers: int | None = None

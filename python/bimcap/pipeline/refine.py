@@ -261,13 +261,17 @@ def filter_matches_by_distance(arrays: dict[str, Any], poses: F64, camera: Any,
 
 
 def build_problem(prepared: Prepared, init_poses: F64 | None = None,
-                  max_match_distance: float | None = None) -> tuple[Any, ProblemStats]:
+                  max_match_distance: float | None = None,
+                  visibility: bool = True) -> tuple[Any, ProblemStats]:
     """Assemble the solver problem from the front end, the BIM reference and the initial poses.
 
     Floor (ceiling) samples are assigned the BIM floor (ceiling) plane under them at the initial
     poses (``BimReference.plane_under``); samples over no plane of their kind are dropped and
     counted. Wall and column samples are associated with floor-plan segments inside the solver,
-    which re-associates them as the poses move.
+    which re-associates them as the poses move; with ``visibility`` each segment carries its
+    free-side normal and a point is only associated with faces its camera is in front of (the
+    far face of a wall, one wall thickness away, is otherwise a local minimum). The peers'
+    FACaP associates with the nearest segment (``visibility=False``).
     """
     from bimcap.optimize import Problem
 
@@ -298,6 +302,12 @@ def build_problem(prepared: Prepared, init_poses: F64 | None = None,
         arrays[f"{name}_frame"] = frames[keep]
         arrays[f"{name}_p_in_cam"] = p_cam[keep]
         arrays[f"{name}_plane"] = idx[keep].astype(np.int32)
+    if visibility:
+        from bimcap.registration.plan_maps import free_normals_by_storey
+
+        # Free-side normals: a wall point may only land on a face its camera can see.
+        arrays["segment_normal"] = free_normals_by_storey(ref.segments, ref.segment_class,
+                                                          ref.segment_z)
     arrays.update(
         poses=poses,
         timestamps=prepared.init.timestamps,
@@ -382,33 +392,72 @@ class SolveOutcome:
         }
 
 
-def solve_prepared(prepared: Prepared, config: RefineConfig, quiet: bool = False) -> SolveOutcome:
-    """Step 2: build the problem and solve it (with the configured schedule)."""
-    from bimcap.optimize import solve
+def schedule_for(config: RefineConfig) -> Any:
+    """The :class:`bimcap.registration.Schedule` a config asks for: [coarse →] [BIM terms with
+    wide losses (``staged``) →] all terms, the first solver stage preceded by rotation-only and
+    translation-only stages with ``rotation_first``."""
+    from bimcap.registration import Schedule
+
+    return Schedule.default(coarse=config.coarse, rotation_first=config.rotation_first,
+                            staged=config.staged)
+
+
+def stage_options(base: Any, stage: Any, config: RefineConfig) -> Any | None:
+    """Solver options of one schedule stage: the config's terms that the stage allows, its pose
+    block, its loss-scale factor and iteration cap; None when no configured term is allowed."""
+    import copy
+
     from bimcap.optimize.options import RefineMode
+    from bimcap.registration import PoseBlock, Term
+
+    terms = [t for t in config.effective_terms.split("+") if Term(t) in stage.terms]
+    if not terms:
+        return None
+    opts = copy.deepcopy(base).with_terms("+".join(terms))
+    opts.refine_mode = {PoseBlock.FULL: base.refine_mode, PoseBlock.ROTATION: RefineMode.ROTATION,
+                        PoseBlock.TRANSLATION: RefineMode.TRANSLATION}[stage.pose_block]
+    if stage.loss_scale_factor != 1.0:
+        for attr in ("geometric", "depth", "floor", "ceiling", "wall", "column"):
+            term = copy.deepcopy(getattr(opts, attr))
+            term.loss_scale *= stage.loss_scale_factor
+            setattr(opts, attr, term)
+    if stage.max_iterations is not None:
+        opts.max_iterations = stage.max_iterations
+    opts.check()
+    return opts
+
+
+def solve_prepared(prepared: Prepared, config: RefineConfig, quiet: bool = False) -> SolveOutcome:
+    """Step 2: build the problem and solve it, stage by stage (:func:`schedule_for`)."""
+    from bimcap.optimize import solve
+    from bimcap.registration import StageKind
 
     t0 = time.perf_counter()
     poses = prepared.init.poses.copy()
     coarse_info = None
-    if config.coarse:
-        poses, coarse_info = _coarse(prepared, poses, quiet)
-    opts = solver_options(config)
-    stages = [RefineMode.ROTATION, RefineMode.FULL] if config.rotation_first else [opts.refine_mode]
+    base = solver_options(config)
     summaries = []
     stats = None
     max_dist = 0.4 if config.method is Method.FACAP else None
-    for mode in stages:
-        problem, stats = build_problem(prepared, poses, max_dist)
-        opts.refine_mode = mode
-        log(f"solving {config.method.value} {config.effective_terms} "
-            f"({config.effective_weighting}, {mode.value.lower()}): {stats.to_dict()}", quiet)
+    for stage in schedule_for(config).stages:
+        if stage.kind is StageKind.COARSE:
+            poses, coarse_info = _coarse(prepared, poses, quiet)
+            continue
+        opts = stage_options(base, stage, config)
+        if opts is None:
+            continue
+        problem, stats = build_problem(prepared, poses, max_dist,
+                                       visibility=config.method is not Method.FACAP)
+        log(f"solving {config.method.value} stage {stage.name} ({opts.refine_mode.value.lower()}, "
+            f"{config.effective_weighting}): {stats.to_dict()}", quiet)
         result = solve(problem, opts, check=False)
         summaries.append(result.summary)
         if not result.summary.success:
-            raise PipelineError(f"the solve failed: {result.summary.termination}: "
+            raise PipelineError(f"the solve failed ({stage.name}): {result.summary.termination}: "
                                 f"{result.summary.message}")
         poses = result.poses
-    assert stats is not None
+    if stats is None:
+        raise PipelineError("the schedule has no solver stage for the configured terms")
     refined = Trajectory(prepared.init.timestamps, poses)
     return SolveOutcome(refined, summaries, stats, coarse_info, time.perf_counter() - t0)
 
