@@ -167,3 +167,35 @@ def test_staged_and_rotation_first_runs(tiny_demo) -> None:
     before = trajectory_metrics(prep.init.poses, gt, AlignMode.NONE).ate_rot_deg.rmse
     after = trajectory_metrics(res.refined.poses, gt, AlignMode.NONE).ate_rot_deg.rmse
     assert after < 0.3 * before
+
+
+@pytest.mark.slow
+def test_experiment_tables_on_a_tiny_world(tmp_path: Path) -> None:
+    """``bimcap experiment`` end to end on the tiny world: one preset, one seed, two rows."""
+    import csv
+
+    from bimcap.pipeline.experiment import ExperimentOptions, run_experiment
+
+    opts = ExperimentOptions(experiments=("exp2",), seeds=(1,),
+                             ablations=((Method.BIMCAP, "G+F+W+Co+Ce"), (Method.FACAP, "G+F+W")),
+                             preset="tiny", frames=12, scale=0.125,
+                             config=RefineConfig(workers=1))
+    records = run_experiment(tmp_path, opts, quiet=True)
+    assert [(r.method, r.terms) for r in records] == [
+        ("initial", "-"), ("bimcap", "G+F+W+Co+Ce"), ("facap", "G+F+W")]
+    assert all(r.ok for r in records), [r.message for r in records]
+    init, bimcap, facap = records
+    assert init.values["ate_rot_deg"] == pytest.approx(8.82, abs=0.01)
+    assert bimcap.values["ate_rot_deg"] < 0.3 * init.values["ate_rot_deg"]
+    assert 0.0 < bimcap.coarse_seconds < bimcap.seconds  # BIMCaP rows run the coarse stage
+    assert facap.coarse_seconds == 0.0  # FACaP rows are the peers' method
+    with (tmp_path / "results.csv").open(newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == 3 and float(rows[1]["coarse_seconds"]) == pytest.approx(
+        bimcap.coarse_seconds)
+    t1 = (tmp_path / "table1.md").read_text()
+    t2 = (tmp_path / "table2.md").read_text()
+    assert "## exp2" in t1
+    assert "| bimcap | ✓ | ✓ | ✓ | ✓ | ✓ |" in t1 and "| facap | ✓ | ✓ | ✓ | – | – |" in t1
+    assert "| exp2 | bimcap |" in t2 and "| exp2 | initial | 30.30 [30.30] |" in t2
+    assert (tmp_path / "ate.png").stat().st_size > 1000
