@@ -128,6 +128,8 @@ def test_schedule_for_maps_config_onto_stages() -> None:
     names = lambda c: [s.name for s in schedule_for(c).stages]  # noqa: E731
     assert names(RefineConfig()) == ["coarse", "all"]
     assert names(RefineConfig(coarse=False)) == ["all"]
+    assert names(RefineConfig(method=Method.FACAP)) == ["all"]  # the peers' method: no coarse
+    assert names(RefineConfig(method=Method.FACAP, coarse=True)) == ["coarse", "all"]
     assert names(RefineConfig(staged=True)) == ["coarse", "bim", "all"]
     assert names(RefineConfig(coarse=False, rotation_first=True)) == ["all_rotation",
                                                                       "all_translation", "all"]

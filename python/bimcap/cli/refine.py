@@ -27,7 +27,8 @@ def add_config_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--segmentation-model", metavar="MODEL.onnx", help="for --segmentation onnx")
     g.add_argument("--labels-dir", metavar="DIR", help="for --segmentation disk")
     g.add_argument("--coarse", action=argparse.BooleanOptionalAction, default=None,
-                   help="coarse registration to the floor plan before the bundle adjustment (default on)")
+                   help="coarse registration to the floor plan before the bundle adjustment "
+                        "(default: on for BIMCaP, off for FACaP)")
     g.add_argument("--rotation-first", action=argparse.BooleanOptionalAction, default=None,
                    help="rotations first (translations held), then translations, then both")
     g.add_argument("--staged", action=argparse.BooleanOptionalAction, default=None,

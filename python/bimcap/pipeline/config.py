@@ -89,9 +89,10 @@ class RefineConfig:
         the nearest return) completion biases depth towards the camera, which moved the refined
         cameras 1.9 cm forward on average (ATE_pos 2.7 cm vs 1.15 cm with linear, Exp 2).
     segmentation, segmentation_model, labels_dir: label source; the ONNX model or label folder.
-    coarse: run the coarse registration to the floor plan before the bundle adjustment (on by
-        default: it levels each frame on its floor, finds its yaw on the walls, tracks the
-        translation, and returns the poses unchanged when the drift is already small).
+    coarse: run the coarse registration to the floor plan before the bundle adjustment. None
+        (default): on for BIMCaP (it levels each frame on its floor, finds its yaw on the walls,
+        tracks the translation, and returns the poses unchanged when the drift is already
+        small), off for FACaP (the peers' method has none).
     rotation_first: the first solver stage refines rotations first (translations held), then
         translations (rotations held), then both: the paper's Exp. 3 remedy.
     staged: before the solve with every term, solve with the BIM terms only (F, Ce, W, Co) and
@@ -114,7 +115,7 @@ class RefineConfig:
     segmentation: LabelSource = LabelSource.GEOMETRIC
     segmentation_model: str | None = None
     labels_dir: str | None = None
-    coarse: bool = True
+    coarse: bool | None = None
     rotation_first: bool = False
     staged: bool = False
     window: int = 4
@@ -148,6 +149,12 @@ class RefineConfig:
         return self.terms or FULL_TERMS[self.method]
 
     @property
+    def effective_coarse(self) -> bool:
+        if self.coarse is not None:
+            return bool(self.coarse)
+        return self.method is Method.BIMCAP
+
+    @property
     def effective_weighting(self) -> str:
         if self.weighting:
             return self.weighting.lower()
@@ -164,6 +171,7 @@ class RefineConfig:
         d["segmentation"] = self.segmentation.value
         d["effective_terms"] = self.effective_terms
         d["effective_weighting"] = self.effective_weighting
+        d["effective_coarse"] = self.effective_coarse
         return d
 
     @classmethod

@@ -148,7 +148,7 @@ def run_experiment(out_dir: str | Path, opts: ExperimentOptions | None = None,
             for method, terms in o.ablations:
                 # FACaP rows are the peers' method: no coarse stage in front of them.
                 cfg = replace(o.config, method=method, terms=terms, weighting=None,
-                              coarse=o.config.coarse and method is Method.BIMCAP)
+                              coarse=o.config.effective_coarse and method is Method.BIMCAP)
                 t0 = time.perf_counter()
                 try:
                     res = solve_prepared(prepared, cfg, quiet=True)

@@ -398,7 +398,7 @@ def schedule_for(config: RefineConfig) -> Any:
     translation-only stages with ``rotation_first``."""
     from bimcap.registration import Schedule
 
-    return Schedule.default(coarse=config.coarse, rotation_first=config.rotation_first,
+    return Schedule.default(coarse=config.effective_coarse, rotation_first=config.rotation_first,
                             staged=config.staged)
 
 
