@@ -11,17 +11,23 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bimcap.optimize import Problem, SolverInputError, SolverOptions, read_problem, solve, write_problem
+from _solver_helpers import core
+from bimcap.optimize import (
+    Problem,
+    SolverInputError,
+    SolverOptions,
+    read_problem,
+    solve,
+    write_problem,
+)
 from bimcap.optimize.synthetic import make_synthetic_problem, pose_errors
 from bimcap.registration.plan_maps import free_normals
-
-from _solver_helpers import core
 
 WALL_THICKNESS = 0.2
 
 
 @pytest.fixture(scope="module")
-def thick_walled():  # noqa: ANN201
+def thick_walled():
     """The synthetic room with its walls given their outer faces too, and the faces' normals."""
     core()
     sp = make_synthetic_problem(num_frames=30, seed=1, drift_translation_sigma=0.0,
@@ -38,7 +44,7 @@ def thick_walled():  # noqa: ANN201
     return sp, dataclasses.replace(p, segments=seg, segment_class=cls, segment_z=z), normals
 
 
-def test_free_normals_of_the_room(thick_walled) -> None:  # noqa: ANN001
+def test_free_normals_of_the_room(thick_walled) -> None:
     sp, p, normals = thick_walled
     lx, ly = sp.config.size
     centre = np.array([lx / 2, ly / 2])
@@ -51,7 +57,7 @@ def test_free_normals_of_the_room(thick_walled) -> None:  # noqa: ANN001
     assert len(inner) == len(outer) == 4
 
 
-def test_far_faces_are_not_a_minimum_with_normals(thick_walled) -> None:  # noqa: ANN001
+def test_far_faces_are_not_a_minimum_with_normals(thick_walled) -> None:
     sp, p, normals = thick_walled
     init = sp.gt_poses.copy()
     init[:, 0] -= 0.17  # the west wall's points land 3 cm from its outer face
@@ -67,7 +73,7 @@ def test_far_faces_are_not_a_minimum_with_normals(thick_walled) -> None:  # noqa
     assert assoc["W"].final.num_associated >= 0.95 * assoc["W"].final.num_points
 
 
-def test_segment_normal_round_trips_and_is_validated(tmp_path: Path, thick_walled) -> None:  # noqa: ANN001
+def test_segment_normal_round_trips_and_is_validated(tmp_path: Path, thick_walled) -> None:
     _, p, normals = thick_walled
     q = dataclasses.replace(p, segment_normal=normals)
     path = tmp_path / "vis.bimcap"

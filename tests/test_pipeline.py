@@ -125,7 +125,9 @@ def test_schedule_for_maps_config_onto_stages() -> None:
     from bimcap.optimize.options import RefineMode
     from bimcap.pipeline.refine import schedule_for, solver_options, stage_options
 
-    names = lambda c: [s.name for s in schedule_for(c).stages]  # noqa: E731
+    def names(c: RefineConfig) -> list[str]:
+        return [s.name for s in schedule_for(c).stages]
+
     assert names(RefineConfig()) == ["coarse", "all"]
     assert names(RefineConfig(coarse=False)) == ["all"]
     assert names(RefineConfig(method=Method.FACAP)) == ["all"]  # the peers' method: no coarse
