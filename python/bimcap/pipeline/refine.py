@@ -481,8 +481,13 @@ def _coarse(prepared: Prepared, poses: F64, quiet: bool) -> tuple[F64, dict[str,
     res = coarse_register(poses, samples, plan, CoarseOptions(frame_orientation=True))
     info = res.to_dict()
     info["seconds"] = time.perf_counter() - t0
-    log(f"coarse registration: {int(res.accepted.sum())}/{len(res.accepted)} frames accepted "
-        f"({info['seconds']:.1f} s)", quiet)
+    fl = res.frame_level
+    if fl is not None and not res.accepted.any() and np.array_equal(res.poses, poses):
+        log(f"coarse registration: tracked drift {fl.drift_m:.2f} m is within the bundle "
+            f"adjustment's reach; poses unchanged ({info['seconds']:.1f} s)", quiet)
+    else:
+        log(f"coarse registration: {int(res.accepted.sum())}/{len(res.accepted)} frames "
+            f"accepted by the window search ({info['seconds']:.1f} s)", quiet)
     return np.asarray(res.poses, np.float64), info
 
 
