@@ -94,9 +94,14 @@ class RefineConfig:
         tracks the translation, and returns the poses unchanged when the drift is already
         small), off for FACaP (the peers' method has none).
     rotation_first: the first solver stage refines rotations first (translations held), then
-        translations (rotations held), then both: the paper's Exp. 3 remedy.
+        translations (rotations held), then both: the paper's Exp. 3 remedy. Off by default:
+        on the demo world (Exp. 1–3, seeds 1–3) it reached the same 1.1 cm / 0.35° in 8 of 9
+        runs, missed one (Exp. 3 seed 1: 0.27 m / 2.5°) and took 1–3× as long; the joint
+        solve invents no translation here (Exp. 3: 1.1 cm).
     staged: before the solve with every term, solve with the BIM terms only (F, Ce, W, Co) and
-        robust-loss scales widened 4× (``bimcap.registration.Schedule.default``).
+        robust-loss scales widened 4× (``bimcap.registration.Schedule.default``). Off by
+        default: without G each frame fits the plan on its own and corridor frames slide, so
+        on the demo world it failed 3 of 9 runs (0.25–0.79 m) that the single solve converges.
     window: match each frame with its next ``window`` frames.
     max_match_distance: the peers' filter on matches (metres between the two back-projected
         points under the initial poses; the paper used 0.4). None (default) keeps every
