@@ -203,3 +203,21 @@ def test_experiment_tables_on_a_tiny_world(tmp_path: Path) -> None:
     assert "| bimcap | ✓ | ✓ | ✓ | ✓ | ✓ |" in t1 and "| facap | ✓ | ✓ | ✓ | – | – |" in t1
     assert "| exp2 | bimcap |" in t2 and "| exp2 | initial | 30.30 [30.30] |" in t2
     assert (tmp_path / "ate.png").stat().st_size > 1000
+
+
+def test_schedule_flags_reach_the_config(tmp_path: Path) -> None:
+    import argparse
+
+    from bimcap.cli.refine import add_config_arguments, config_from_args
+
+    p = argparse.ArgumentParser()
+    add_config_arguments(p)
+    cfg = config_from_args(p.parse_args(["--staged", "--rotation-first", "--no-coarse"]))
+    assert (cfg.staged, cfg.rotation_first, cfg.coarse, cfg.effective_coarse) == (
+        True, True, False, False)
+    assert config_from_args(p.parse_args([])).effective_coarse  # BIMCaP: on by default
+    toml = tmp_path / "run.toml"
+    toml.write_text('method = "facap"\nstaged = true\n')
+    cfg = config_from_args(p.parse_args(["--config", str(toml)]))
+    assert cfg.staged and not cfg.effective_coarse  # FACaP: off unless asked
+    assert cfg.to_dict()["effective_coarse"] is False
