@@ -218,3 +218,13 @@ def build_simple_building(
         columns_rect=[(2.0, 3.0)] if with_walls else [],
         columns_round=[(6.0, 3.0)] if with_walls else [],
     )
+
+
+def dist_to_segments(p: np.ndarray, segs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distance of points (P, 2) to segments (S, 4) and the index of the nearest one (brute
+    force: the tests' own oracle)."""
+    a, b = segs[:, :2], segs[:, 2:]
+    ab = b - a
+    t = np.clip(((p[:, None] - a[None]) * ab[None]).sum(-1) / (ab * ab).sum(-1)[None], 0, 1)
+    d = np.linalg.norm(p[:, None] - (a[None] + t[..., None] * ab[None]), axis=-1)
+    return d.min(axis=1), d.argmin(axis=1)

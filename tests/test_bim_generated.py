@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _bim_building import dist_to_segments
 
 from bimcap.bim.ingest import BimModel, load_model
 from bimcap.bim.reference import BimReference, build_reference
@@ -23,14 +24,6 @@ def generated(tmp_path_factory: pytest.TempPathFactory) -> tuple[object, BimMode
     g = building.generate_building(building.BuildingSpec(storeys=2), seed=3, ifc_path=path)
     model = load_model(Path(path))
     return g, model, build_reference(model)
-
-
-def _dist_to_segments(p: np.ndarray, segs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    a, b = segs[:, :2], segs[:, 2:]
-    ab = b - a
-    t = np.clip(((p[:, None] - a[None]) * ab[None]).sum(-1) / (ab * ab).sum(-1)[None], 0, 1)
-    d = np.linalg.norm(p[:, None] - (a[None] + t[..., None] * ab[None]), axis=-1)
-    return d.min(axis=1), d.argmin(axis=1)
 
 
 def test_counts_round_trip(generated: tuple[object, BimModel, BimReference]) -> None:
@@ -74,7 +67,7 @@ def test_floor_plan_matches_generator_oracle(generated: tuple[object, BimModel, 
         walls = sp.segments[sp.segment_class == Label.WALL]
         for face in oracle.segments[oracle.segment_class == Label.WALL]:
             p, _ = sample_segments(face[None], 0.01)
-            d, j = _dist_to_segments(p, walls)
+            d, j = dist_to_segments(p, walls)
             assert d.max() <= 0.01, (k, face, d.max())
             u = face[2:] - face[:2]
             v = walls[np.bincount(j).argmax()]

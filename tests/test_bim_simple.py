@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from _bim_building import SimpleBuilding, build_simple_building
+from _bim_building import SimpleBuilding, build_simple_building, dist_to_segments
 
 from bimcap.bim.floorplan import FloorPlanOptions, Vectorizer, build_floor_plan
 from bimcap.bim.ingest import BimModel, load_model
@@ -30,15 +30,6 @@ def building(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFa
 @pytest.fixture(scope="module")
 def reference(building: tuple[SimpleBuilding, BimModel]) -> BimReference:
     return build_reference(building[1], ReferenceOptions(density_per_m2=50.0, seed=1))
-
-
-def _dist_to_segments(p: np.ndarray, segs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Distance of points (P, 2) to segments (S, 4) and the index of the nearest one."""
-    a, b = segs[:, :2], segs[:, 2:]
-    ab = b - a
-    t = np.clip(((p[:, None] - a[None]) * ab[None]).sum(-1) / (ab * ab).sum(-1)[None], 0, 1)
-    d = np.linalg.norm(p[:, None] - (a[None] + t[..., None] * ab[None]), axis=-1)
-    return d.min(axis=1), d.argmin(axis=1)
 
 
 def test_element_counts_and_storeys(building: tuple[SimpleBuilding, BimModel]) -> None:
@@ -103,7 +94,7 @@ def test_floor_plan_reproduces_known_walls(building: tuple[SimpleBuilding, BimMo
         faces = b.wall_faces(k, CUT)
         for face in faces:
             p, _ = sample_segments(face[None], 0.01)
-            d, j = _dist_to_segments(p, walls)
+            d, j = dist_to_segments(p, walls)
             assert d.max() <= 0.01, f"storey {k}: face {face} off by {d.max():.4f} m"
             u = face[2:] - face[:2]
             for s in walls[np.unique(j)]:
@@ -112,11 +103,11 @@ def test_floor_plan_reproduces_known_walls(building: tuple[SimpleBuilding, BimMo
                 assert np.degrees(np.arccos(min(1.0, cos))) <= 1.0
         # Precision against the known faces: every detected wall point lies on a known face.
         p, _ = sample_segments(walls, 0.01)
-        d, _ = _dist_to_segments(p, faces)
+        d, _ = dist_to_segments(p, faces)
         assert d.max() <= 0.01
         # The door gap in the interior wall stays open.
         door_mid = b.site_from_local @ np.array([4.0, 2.45, 1.0])
-        d, _ = _dist_to_segments(door_mid[None, :2], walls)
+        d, _ = dist_to_segments(door_mid[None, :2], walls)
         assert d[0] > 0.05
 
 
@@ -127,7 +118,7 @@ def test_columns_outlined(building: tuple[SimpleBuilding, BimModel],
                               & (reference.segment_z[:, 0] == 0.0)]
     rect = b.column_faces()
     p, _ = sample_segments(rect, 0.01)
-    d, _ = _dist_to_segments(p, cols)
+    d, _ = dist_to_segments(p, cols)
     assert d.max() <= 0.01
     # The round column: every outline vertex within 1 cm of the 0.15 m circle, all around it.
     c = b.site_from_local @ np.array([6.0, 3.0, 1.0])

@@ -262,16 +262,16 @@ def filter_matches_by_distance(arrays: dict[str, Any], poses: F64, camera: Any,
 
 def build_problem(prepared: Prepared, init_poses: F64 | None = None,
                   max_match_distance: float | None = None,
-                  visibility: bool = True) -> tuple[Any, ProblemStats]:
+                  segment_normal: F64 | None = None) -> tuple[Any, ProblemStats]:
     """Assemble the solver problem from the front end, the BIM reference and the initial poses.
 
     Floor (ceiling) samples are assigned the BIM floor (ceiling) plane under them at the initial
     poses (``BimReference.plane_under``); samples over no plane of their kind are dropped and
     counted. Wall and column samples are associated with floor-plan segments inside the solver,
-    which re-associates them as the poses move; with ``visibility`` each segment carries its
-    free-side normal and a point is only associated with faces its camera is in front of (the
-    far face of a wall, one wall thickness away, is otherwise a local minimum). The peers'
-    FACaP associates with the nearest segment (``visibility=False``).
+    which re-associates them as the poses move; with ``segment_normal`` ((S, 2), from
+    :func:`segment_free_normals`) a point is only associated with faces its camera is in front
+    of (the far face of a wall, one wall thickness away, is otherwise a local minimum); without
+    it, with the nearest face, as the peers' FACaP did.
     """
     from bimcap.optimize import Problem
 
@@ -302,12 +302,8 @@ def build_problem(prepared: Prepared, init_poses: F64 | None = None,
         arrays[f"{name}_frame"] = frames[keep]
         arrays[f"{name}_p_in_cam"] = p_cam[keep]
         arrays[f"{name}_plane"] = idx[keep].astype(np.int32)
-    if visibility:
-        from bimcap.registration.plan_maps import free_normals_by_storey
-
-        # Free-side normals: a wall point may only land on a face its camera can see.
-        arrays["segment_normal"] = free_normals_by_storey(ref.segments, ref.segment_class,
-                                                          ref.segment_z)
+    if segment_normal is not None:
+        arrays["segment_normal"] = segment_normal
     arrays.update(
         poses=poses,
         timestamps=prepared.init.timestamps,
@@ -392,6 +388,15 @@ class SolveOutcome:
         }
 
 
+def segment_free_normals(reference: Any) -> F64:
+    """(S, 2) free-side unit normal of each floor-plan segment of a ``BimReference``, (0, 0)
+    where undecided (``registration.plan_maps.free_normals_by_storey``)."""
+    from bimcap.registration.plan_maps import free_normals_by_storey
+
+    return free_normals_by_storey(reference.segments, reference.segment_class,
+                                  reference.segment_z)
+
+
 def schedule_for(config: RefineConfig) -> Any:
     """The :class:`bimcap.registration.Schedule` a config asks for: [coarse →] [BIM terms with
     wide losses (``staged``) →] all terms, the first solver stage preceded by rotation-only and
@@ -405,22 +410,20 @@ def schedule_for(config: RefineConfig) -> Any:
 def stage_options(base: Any, stage: Any, config: RefineConfig) -> Any | None:
     """Solver options of one schedule stage: the config's terms that the stage allows, its pose
     block, its loss-scale factor and iteration cap; None when no configured term is allowed."""
-    import copy
+    from dataclasses import replace
 
-    from bimcap.optimize.options import RefineMode
+    from bimcap.optimize.options import TERM_ATTRIBUTES, RefineMode
     from bimcap.registration import PoseBlock, Term
 
     terms = [t for t in config.effective_terms.split("+") if Term(t) in stage.terms]
     if not terms:
         return None
-    opts = copy.deepcopy(base).with_terms("+".join(terms))
+    opts = base.with_terms("+".join(terms))  # a copy
     opts.refine_mode = {PoseBlock.FULL: base.refine_mode, PoseBlock.ROTATION: RefineMode.ROTATION,
                         PoseBlock.TRANSLATION: RefineMode.TRANSLATION}[stage.pose_block]
-    if stage.loss_scale_factor != 1.0:
-        for attr in ("geometric", "depth", "floor", "ceiling", "wall", "column"):
-            term = copy.deepcopy(getattr(opts, attr))
-            term.loss_scale *= stage.loss_scale_factor
-            setattr(opts, attr, term)
+    for attr in TERM_ATTRIBUTES.values():
+        term = getattr(opts, attr)
+        setattr(opts, attr, replace(term, loss_scale=term.loss_scale * stage.loss_scale_factor))
     if stage.max_iterations is not None:
         opts.max_iterations = stage.max_iterations
     opts.check()
@@ -439,6 +442,8 @@ def solve_prepared(prepared: Prepared, config: RefineConfig, quiet: bool = False
     summaries = []
     stats = None
     max_dist = 0.4 if config.method is Method.FACAP else None
+    # BIMCaP associates with visible faces only; FACaP with the nearest face, as the peers did.
+    normals = None if config.method is Method.FACAP else segment_free_normals(prepared.reference)
     for stage in schedule_for(config).stages:
         if stage.kind is StageKind.COARSE:
             poses, coarse_info = _coarse(prepared, poses, quiet)
@@ -446,8 +451,7 @@ def solve_prepared(prepared: Prepared, config: RefineConfig, quiet: bool = False
         opts = stage_options(base, stage, config)
         if opts is None:
             continue
-        problem, stats = build_problem(prepared, poses, max_dist,
-                                       visibility=config.method is not Method.FACAP)
+        problem, stats = build_problem(prepared, poses, max_dist, normals)
         log(f"solving {config.method.value} stage {stage.name} ({opts.refine_mode.value.lower()}, "
             f"{config.effective_weighting}): {stats.to_dict()}", quiet)
         result = solve(problem, opts, check=False)

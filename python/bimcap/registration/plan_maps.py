@@ -129,33 +129,33 @@ def free_normals(segments: NDArray[np.float64], segment_class: NDArray[np.int32]
 
 
 def _paired_face_normals(s: F64, min_gap_m: float, max_gap_m: float,
-                         max_angle_deg: float = 3.0) -> F64:
+                         max_angle_deg: float = 3.0, chunk: int = 512) -> F64:
     """(S, 2) free-side normals from face pairs: a wall is drawn as two parallel faces a
     thickness apart, so a face whose parallel, overlapping partners (gap in ``[min_gap_m,
     max_gap_m]``) all lie on one side has its solid on that side and its free side on the other.
     Zero where a face has no partner or partners on both sides. Works where the outlines are
-    open (door openings break the closed curves :func:`free_normals` needs)."""
+    open (door openings break the closed curves :func:`free_normals` needs). Faces are compared
+    ``chunk`` at a time against all others (memory O(chunk × S))."""
     a, b = s[:, :2], s[:, 2:]
-    e = b - a
-    length = np.linalg.norm(e, axis=1)
-    u = e / np.maximum(length, 1e-12)[:, None]
+    length = np.linalg.norm(b - a, axis=1)
+    u = (b - a) / np.maximum(length, 1e-12)[:, None]
     n = np.c_[-u[:, 1], u[:, 0]]
-    parallel = np.abs(u @ u.T) >= np.cos(np.radians(max_angle_deg))
     mid = 0.5 * (a + b)
-    off = ((mid[None, :, :] - a[:, None, :]) * n[:, None, :]).sum(-1)      # (S, S): t's side of s
-    # Overlap of t's extent with s's along s's direction.
-    ta = ((a[None, :, :] - a[:, None, :]) * u[:, None, :]).sum(-1)
-    tb = ((b[None, :, :] - a[:, None, :]) * u[:, None, :]).sum(-1)
-    lo, hi = np.minimum(ta, tb), np.maximum(ta, tb)
-    overlap = np.minimum(hi, length[:, None]) - np.maximum(lo, 0.0)
-    partner = (parallel & (np.abs(off) >= min_gap_m) & (np.abs(off) <= max_gap_m)
-               & (overlap > 0.05) & (length[:, None] > 1e-9))
-    np.fill_diagonal(partner, False)
-    plus = (partner & (off > 0)).any(1)
-    minus = (partner & (off < 0)).any(1)
+    cos_max = np.cos(np.radians(max_angle_deg))
     out = np.zeros((len(s), 2))
-    out[plus & ~minus] = -n[plus & ~minus]
-    out[minus & ~plus] = n[minus & ~plus]
+    for k in range(0, len(s), chunk):
+        r = slice(k, min(k + chunk, len(s)))
+        a0, u0, n0 = a[r, None, :], u[r, None, :], n[r, None, :]
+        off = ((mid[None] - a0) * n0).sum(-1)  # (c, S): which side of face i face j lies on
+        # Overlap of face j's extent with face i's, along face i.
+        ta, tb = ((a[None] - a0) * u0).sum(-1), ((b[None] - a0) * u0).sum(-1)
+        overlap = np.minimum(np.maximum(ta, tb), length[r, None]) - np.maximum(np.minimum(ta, tb), 0.0)
+        partner = ((np.abs(u[r] @ u.T) >= cos_max) & (np.abs(off) >= min_gap_m)
+                   & (np.abs(off) <= max_gap_m) & (overlap > 0.05) & (length[r, None] > 1e-9))
+        partner[np.arange(r.stop - r.start), np.arange(r.start, r.stop)] = False
+        plus, minus = (partner & (off > 0)).any(1), (partner & (off < 0)).any(1)
+        out[r][plus & ~minus] = -n[r][plus & ~minus]
+        out[r][minus & ~plus] = n[r][minus & ~plus]
     return out
 
 
