@@ -28,6 +28,12 @@ void ProblemBuilder::AddGeometric() {
   term.num_skipped = skipped;
   ceres::LossFunction* loss = losses_[kTermG].get();
   const double s = term.sqrt_weight;
+  // Reprojection in robust weighting whitens each error by its keypoint depth's noise
+  // (depth.sigma, see reprojection.h); the peers' weighting keeps the plain error.
+  const double pixel_sigma = options_.pixel_sigma;
+  const double depth_sigma = (options_.weighting == Weighting::kRobust && options_.depth.enabled)
+                                 ? options_.depth.sigma
+                                 : 0.0;
   for (int64_t i = 0; i < m; ++i) {
     const int a = data_.match_frames(i, 0), b = data_.match_frames(i, 1);
     const double* uv = data_.match_uv.row(i);
@@ -39,14 +45,16 @@ void ProblemBuilder::AddGeometric() {
         term.ids.push_back(problem_->AddResidualBlock(
             ReprojectionCostFunctor::Create(BackprojectPixel(k_a, uv[0], uv[1], depth_a),
                                             Eigen::Vector2d(uv[2], uv[3]),
-                                            Eigen::Vector4d(k_b[0], k_b[1], k_b[2], k_b[3]), s),
+                                            Eigen::Vector4d(k_b[0], k_b[1], k_b[2], k_b[3]), s,
+                                            pixel_sigma, depth_sigma),
             loss, Pose(a), Pose(b)));
       }
       if (depth_b > 0) {
         term.ids.push_back(problem_->AddResidualBlock(
             ReprojectionCostFunctor::Create(BackprojectPixel(k_b, uv[2], uv[3], depth_b),
                                             Eigen::Vector2d(uv[0], uv[1]),
-                                            Eigen::Vector4d(k_a[0], k_a[1], k_a[2], k_a[3]), s),
+                                            Eigen::Vector4d(k_a[0], k_a[1], k_a[2], k_a[3]), s,
+                                            pixel_sigma, depth_sigma),
             loss, Pose(b), Pose(a)));
       }
     } else if (depth_a > 0 && depth_b > 0) {

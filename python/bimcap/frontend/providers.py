@@ -5,7 +5,7 @@
   ``bimcap.fusion.complete_depth`` (linear, classical, ONNX or the paper's hybrid).
 * :class:`SegmenterLabelProvider`: any ``bimcap.segmentation`` provider (``segment(FrameInput)``:
   label images from disk, an ONNX model, the no-weights geometric segmenter).
-* :class:`PlanarDepthRefiner`: ``bimcap.fusion.smooth_planar_regions`` on floor / ceiling, run
+* :class:`PlanarDepthRefiner`: ``bimcap.fusion.smooth_planar_regions`` on floor, ceiling and walls, run
   after the labels (the paper's smoothing).
 
 The ground-truth providers for simulated sequences are
@@ -51,6 +51,16 @@ class LidarDepthProvider:
     completion: CompletionOptions | None = None
     support_radius: float | None = 0.03
 
+    def __post_init__(self) -> None:
+        # Concrete defaults, so that the repr (which keys the front-end cache) changes whenever
+        # a default does.
+        from bimcap.fusion import CompletionOptions, ProjectionOptions
+
+        if self.projection is None:
+            object.__setattr__(self, "projection", ProjectionOptions())
+        if self.completion is None:
+            object.__setattr__(self, "completion", CompletionOptions())
+
     def __call__(self, ctx: FrameContext) -> NDArray[np.float32]:
         from bimcap.fusion import complete_depth, project_lidar
 
@@ -61,6 +71,7 @@ class LidarDepthProvider:
             )
         scan = seq.load_lidar(ctx.index)
         sparse = project_lidar(scan, seq.cam_from_lidar, ctx.camera, self.projection, distort=False)
+        ctx.measured_depth = np.asarray(sparse.depth, np.float32)
         dense = np.array(complete_depth(sparse, self.completion, image=ctx.image), np.float32)
         method = getattr(self.completion, "method", None)
         learned = method is not None and method.name in ("ONNX", "HYBRID")
@@ -119,6 +130,12 @@ class PlanarDepthRefiner:
 
     options: PlanarSmoothingOptions | None = None
     seed: int = 0
+
+    def __post_init__(self) -> None:
+        from bimcap.fusion import PlanarSmoothingOptions  # concrete defaults key the cache
+
+        if self.options is None:
+            object.__setattr__(self, "options", PlanarSmoothingOptions())
 
     def __call__(self, ctx: FrameContext, labels: NDArray[np.integer]) -> NDArray[np.float32]:
         from bimcap.fusion import smooth_planar_regions

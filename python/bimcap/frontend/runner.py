@@ -59,6 +59,7 @@ from bimcap.features.tracks import (
 from bimcap.frontend.cache import ResultCache, frame_cache_key, stable_hash
 from bimcap.frontend.semantic_map import (
     SEMANTIC_CLASSES,
+    SampleSource,
     SemanticMap,
     SemanticSamplingOptions,
     build_semantic_map,
@@ -175,6 +176,9 @@ class FrameContext:
     undistorter: resamples raw-image maps into the pinhole image.
     world_from_cam: (7,) TUM-order initial pose of the frame.
     depth: (H, W) float32 dense depth once the depth provider has run (None before).
+    measured_depth: (H, W) float32 depth of the sensor's own returns at their pixels (0
+        elsewhere), set by depth providers that have them (the LiDAR's z-buffer); None when the
+        provider has no such thing (ground truth, a learned model alone).
     """
 
     sequence: Any
@@ -185,6 +189,7 @@ class FrameContext:
     undistorter: Undistorter
     world_from_cam: NDArray[np.float64]
     depth: NDArray[np.float32] | None = None
+    measured_depth: NDArray[np.float32] | None = None
 
 
 class DepthProvider(Protocol):
@@ -637,7 +642,13 @@ def compute_frame(job: _FrameJob) -> dict[str, NDArray[Any]]:
         feats = {k: job.features[k] for k in FEATURE_ARRAYS}
         sift_time = 0.0
     kp_depth = lookup_depth(depth, np.asarray(feats["uv"]), cfg.depth_lookup)
-    samples = sample_semantic_points(labels, depth, und.pinhole, i, cfg.sampling)
+    # The BIM terms' samples come from the completed depth, or from the returns themselves
+    # (SampleSource.RETURNS) when the provider has them: no interpolation across edges.
+    sample_depth = depth
+    if cfg.sampling.source is SampleSource.RETURNS and ctx.measured_depth is not None:
+        sample_depth = np.asarray(ctx.measured_depth, np.float32)
+        _check_map(sample_depth, und.pinhole, i, "measured depth (from the depth provider)")
+    samples = sample_semantic_points(labels, sample_depth, und.pinhole, i, cfg.sampling)
     out: dict[str, NDArray[Any]] = {**feats, "depth": kp_depth}
     for lab, prefix in SEMANTIC_CLASSES.items():
         out[f"{prefix}_p_in_cam"] = samples[lab]

@@ -378,7 +378,7 @@ def complete_depth(
 
 # ----------------------------------------------------------------------------- planar smoothing
 class PlanarSmoothing(Enum):
-    PLANE_FIT = "plane_fit"  #: robust 3-D plane per connected region, depth replaced by the plane's
+    PLANE_FIT = "plane_fit"  #: robust 3-D planes per connected region, depth moved onto them
     BLUR = "blur"  #: the paper's: normalised Gaussian blur inside the region
 
 
@@ -386,18 +386,29 @@ class PlanarSmoothing(Enum):
 class PlanarSmoothingOptions:
     """Settings of :func:`smooth_planar_regions`.
 
-    labels: classes smoothed. min_region_px: smaller connected regions are left alone.
-    ransac_threshold_m: inlier distance; ransac_iterations; sample_size: points per region used
-    for the fit. max_change_rel: pixels whose depth would change by more than this fraction keep
-    their depth (a labelling error should not drag depth onto the plane). blur_sigma_px: BLUR.
+    labels: classes smoothed. Walls are planar in a BIM too: smoothing them takes the range noise
+        out of the keypoint depths and wall samples (on the demo world, from ground-truth poses,
+        the wall samples' noise drops from 2.3 cm to about 0.3 cm).
+    min_region_px: smaller connected regions (and smaller planes) are left alone.
+    ransac_threshold_m: inlier distance of the RANSAC fits; ransac_iterations; sample_size:
+        points per region used for the fits.
+    max_planes: planes fitted per connected region, one after the other on the pixels the
+        earlier planes did not explain (two walls meeting in a corner, a floor with a step).
+    assign_threshold_m: a pixel moves onto its nearest plane (3-D distance of its back-projected
+        point) only when it is within this distance; others keep their depth (a labelling error
+        or an object in front of the wall should not be dragged onto the plane).
+    max_change_rel: nor when its depth would change by more than this fraction.
+    blur_sigma_px: BLUR.
     """
 
     mode: PlanarSmoothing = PlanarSmoothing.PLANE_FIT
-    labels: tuple[Label, ...] = (Label.FLOOR, Label.CEILING)
+    labels: tuple[Label, ...] = (Label.FLOOR, Label.CEILING, Label.WALL)
     min_region_px: int = 500
     ransac_threshold_m: float = 0.03
     ransac_iterations: int = 64
     sample_size: int = 3000
+    max_planes: int = 4
+    assign_threshold_m: float = 0.08
     max_change_rel: float = 0.15
     blur_sigma_px: float = 5.0
 
@@ -433,6 +444,49 @@ def fit_plane_ransac(
     return plane, inl
 
 
+def _region_planes(points: F64, opts: PlanarSmoothingOptions, rng: np.random.Generator) -> list[F64]:
+    """Up to ``opts.max_planes`` planes ``(4,)`` through ``points`` (N, 3), by RANSAC, each on the
+    points further than ``assign_threshold_m`` from the earlier ones; a plane needs
+    ``opts.min_region_px`` inliers."""
+    planes: list[F64] = []
+    left = points
+    while len(planes) < opts.max_planes and len(left) >= opts.min_region_px:
+        pick = rng.choice(len(left), size=min(opts.sample_size, len(left)), replace=False)
+        fit = fit_plane_ransac(left[pick], opts.ransac_threshold_m, opts.ransac_iterations, rng)
+        if fit is None:
+            break
+        plane = fit[0]
+        dist = np.abs(left @ plane[:3] + plane[3])
+        if (dist < opts.ransac_threshold_m).sum() < opts.min_region_px:
+            break
+        planes.append(plane)
+        # Drop everything the plane may claim, not only its RANSAC inliers: the noise tail of
+        # a big wall would otherwise make a ghost plane parallel to it a few centimetres away.
+        left = left[dist > opts.assign_threshold_m]
+    return planes
+
+
+def _smooth_region(out: F32, depth: F32, rows: NDArray[np.int64], cols: NDArray[np.int64],
+                   camera: Camera, opts: PlanarSmoothingOptions, rng: np.random.Generator) -> None:
+    """Move the depth of one connected region's pixels onto the nearest of its planes, in place."""
+    uv = np.stack([cols, rows], 1).astype(np.float64)
+    cur = depth[rows, cols].astype(np.float64)
+    pts = camera.backproject(uv, cur, distorted=False)
+    planes = _region_planes(pts, opts, rng)
+    if not planes:
+        return
+    pl = np.stack(planes)  # (K, 4)
+    dist = np.abs(pts @ pl[:, :3].T + pl[:, 3])  # (N, K)
+    best = np.argmin(dist, axis=1)
+    near = dist[np.arange(len(pts)), best] <= opts.assign_threshold_m
+    rays = camera.rays(uv, distorted=False)
+    denom = (rays * pl[best, :3]).sum(1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z_plane = -pl[best, 3] / denom
+    ok = near & np.isfinite(z_plane) & (z_plane > 0) & (np.abs(z_plane - cur) <= opts.max_change_rel * cur)
+    out[rows[ok], cols[ok]] = z_plane[ok].astype(np.float32)
+
+
 def smooth_planar_regions(
     depth: ArrayLike,
     labels: ArrayLike,
@@ -440,7 +494,7 @@ def smooth_planar_regions(
     options: PlanarSmoothingOptions | None = None,
     seed: int = 0,
 ) -> F32:
-    """Smooth dense depth inside floor/ceiling regions.
+    """Smooth dense depth inside planar regions (floor, ceiling, walls).
 
     Parameters
     ----------
@@ -448,9 +502,10 @@ def smooth_planar_regions(
     labels: (H, W) uint8 label ids.
     camera: the pinhole camera of ``depth`` (its distortion is ignored).
     options: :class:`PlanarSmoothingOptions`; ``PLANE_FIT`` fits, per connected region of each
-        class, a RANSAC plane to the back-projected pixels and replaces their depth by the
-        plane's depth along each pixel ray; ``BLUR`` is the paper's blur (normalised Gaussian,
-        so that nothing outside the region or unknown leaks in).
+        class, up to ``max_planes`` RANSAC planes to the back-projected pixels and moves each
+        pixel that lies within ``assign_threshold_m`` of its nearest plane onto it (its depth
+        becomes the plane's along the pixel ray); ``BLUR`` is the paper's blur (normalised
+        Gaussian, so that nothing outside the region or unknown leaks in).
     seed: RANSAC seed.
 
     Returns
@@ -485,19 +540,6 @@ def smooth_planar_regions(
             rows, cols = np.nonzero(comp == c)
             if len(rows) < opts.min_region_px:
                 continue
-            pick = rng.choice(len(rows), size=min(opts.sample_size, len(rows)), replace=False)
-            uv = np.stack([cols[pick], rows[pick]], 1).astype(np.float64)
-            pts = camera.backproject(uv, d[rows[pick], cols[pick]], distorted=False)
-            fit = fit_plane_ransac(pts, opts.ransac_threshold_m, opts.ransac_iterations, rng)
-            if fit is None:
-                continue
-            plane, _ = fit
-            rays = camera.rays(np.stack([cols, rows], 1).astype(np.float64), distorted=False)
-            denom = rays @ plane[:3]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                z_plane = -plane[3] / denom
-            cur = d[rows, cols]
-            ok = np.isfinite(z_plane) & (z_plane > 0) & (np.abs(z_plane - cur) <= opts.max_change_rel * cur)
-            out[rows[ok], cols[ok]] = z_plane[ok].astype(np.float32)
+            _smooth_region(out, d, rows, cols, camera, opts, rng)
     return out
 

@@ -123,6 +123,7 @@ class RefineConfig:
     coarse: bool | None = None
     rotation_first: bool = False
     staged: bool = False
+    samples: str = "dense"
     window: int = 4
     max_match_distance: float | None = None
     workers: int | None = None
@@ -148,6 +149,9 @@ class RefineConfig:
             raise ConfigError("segmentation disk needs labels_dir", field="labels_dir")
         if self.window < 1:
             raise ConfigError(f"window must be >= 1, got {self.window}", field="window")
+        if self.samples not in ("dense", "returns"):
+            raise ConfigError(f"samples must be dense or returns, got {self.samples!r}",
+                              field="samples")
 
     @property
     def effective_terms(self) -> str:

@@ -15,11 +15,14 @@ and tracks each frame's translation (the caller decides how much of it to apply)
    hypotheses); a single frame often sees only one or two walls, so its translation may be
    unconstrained, but the direction of the walls fixes the yaw. The yaw is kept when the fit
    has enough points and inliers;
-3. **translation**: frames are searched in order about a prediction (the median of the last
-   kept translations: the position drift is a random walk); a frame's translation is kept
-   when its fit is well constrained, scores well and stays near the prediction, then checked
-   against its kept neighbours; the others, and the heights of frames without a floor fit,
-   are interpolated.
+3. **translation**: every frame keeps its best few x-y-yaw hypotheses, each searched on its
+   own about its input pose (so that no single frame decides for the others); the translation
+   path is then the cheapest walk through them (:func:`track_translations`): the position
+   drift is a random walk (a Gaussian step from frame to frame, growing with the square root of
+   the frames between), starts near zero (a Gaussian prior on the first correction), and a
+   frame's fit costs the more the lower its score; a frame may also be left out (a fixed
+   cost), which is how an alias that fits one frame well but no neighbour is passed over. The
+   frames left out, and the heights of frames without a floor fit, are interpolated.
 
 Arrays follow docs/architecture.md: poses ``(N, 7)`` TUM order, metres, radians inside.
 """
@@ -57,14 +60,19 @@ class FrameLevelOptions:
     min_inlier_ratio: inliers (within ``inlier_m``) the best fit needs for its yaw to be kept.
     min_floor_points: floor points a frame needs for a tilt.
     max_points: random subsample of a frame's wall/column points.
-    track_xy_range_m: the translation search once a frame has been placed: the frames are
-        searched in order about the last placed frame's translation correction (the drift of
-        the position is a random walk), growing with the square root of the frames since it.
-    track_max_step_m: a frame's translation is kept only if it moves less than this (times
-        the same square root) from that prediction, and if it lies within this of the median
-        of its kept neighbours (± 3 frames).
-    track_history: the prediction is the median of the last this many kept translations (one
-        wrong match does not pull the next frames onto an alias of a repetitive wall).
+    track_step_sigma_m: standard deviation of the translation correction's step from one frame
+        to the next (times the square root of the frames between): the drift's random walk
+        plus the fits' own noise.
+    track_prior_sigma_m: standard deviation of the first frame's translation correction (the
+        drift starts small).
+    track_score_weight: cost of a fit per unit of score below 1 (the score is the fraction of
+        points on the plan); a score 0.1 lower costs as much as a 1.4-sigma step with the
+        default of 10.
+    track_skip_cost: cost of leaving out a frame that has informative hypotheses: more than a fit
+        of the minimum score on the path costs (``track_score_weight × (1 − min_score)`` = 5),
+        less than an alias 1 m off the path (about 11 in steps to its two neighbours).
+    track_max_step_m: a kept translation further than this from the median of its kept
+        neighbours (± 3 frames) is dropped after the path is chosen.
     min_constraint, min_score: a frame's translation is kept only with this translation
         constraint (not a bare corridor wall) and fine score; the others interpolate.
     max_tilt_deg, min_floor_spread_m: a tilt fit is kept only up to this size and when the
@@ -79,9 +87,11 @@ class FrameLevelOptions:
     min_inlier_ratio: float = 0.5
     min_floor_points: int = 30
     max_points: int = 1500
-    track_xy_range_m: float = 1.0
+    track_step_sigma_m: float = 0.3
+    track_prior_sigma_m: float = 1.5
+    track_score_weight: float = 10.0
+    track_skip_cost: float = 6.0
     track_max_step_m: float = 0.6
-    track_history: int = 3
     min_constraint: float = 0.02
     min_score: float = 0.5
     max_tilt_deg: float = 20.0
@@ -155,8 +165,6 @@ def level_frames(
     -------
     FrameLevelResult
     """
-    from bimcap.labels import Label
-
     n = len(cam_xyz)
     out = np.tile(np.eye(4), (n, 1, 1))
     tilt_ok = np.zeros(n, dtype=bool)
@@ -166,14 +174,13 @@ def level_frames(
     step = np.deg2rad(opt.yaw_step_deg)
     k = int(np.floor(np.deg2rad(opt.yaw_range_deg) / step + 1e-9))
     yaws = np.arange(-k, k + 1) * step
-    t_pred = np.zeros(2)          # the running translation correction (drift is a random walk)
     t_frame = np.zeros((n, 2))
-    t_ok = np.zeros(n, dtype=bool)
     scores = np.zeros(n)
     constraints = np.zeros(n)
     dz = np.zeros(n)              # height corrections (from the floor; interpolated elsewhere)
-    dz_pred = 0.0
-    last = -1                     # the last frame whose translation was kept
+    dz_last = 0.0
+    tilts: list[F64] = []
+    candidates: list[list[Candidate]] = []
     for i in range(n):
         cam = np.asarray(cam_xyz[i], dtype=np.float64)
         pts = frame_points(i)
@@ -188,67 +195,16 @@ def level_frames(
                     and np.sqrt(max(spread, 0.0)) >= opt.min_floor_spread_m):
                 m[:3, :3] = lv.rotation
                 m[:3, 3] = cam - lv.rotation @ cam
-                dz[i] = dz_pred = lv.dz
+                dz[i] = dz_last = lv.dz
                 tilt_ok[i] = True
                 tilt_deg[i] = tilt
-        ceil_z = ceiling_z_of(floor_z)
-        xy, cls_ = [], []
-        for c, lab in (("wall", Label.WALL), ("column", Label.COLUMN)):
-            q = pts[c] @ m[:3, :3].T + m[:3, 3] + np.array([0.0, 0.0, dz_pred])
-            keep = np.ones(len(q), dtype=bool)
-            if floor_z is not None and wall_band_m > 0:
-                keep &= q[:, 2] > floor_z + wall_band_m
-                if ceil_z is not None:
-                    keep &= q[:, 2] < ceil_z - wall_band_m
-            xy.append(q[keep, :2] + t_pred)
-            cls_.append(np.full(int(keep.sum()), int(lab), np.int32))
-        p_xy, p_cls = np.concatenate(xy), np.concatenate(cls_)
-        pivot = cam[:2] + t_pred
-        best: tuple[float, Correction2D, float] | None = None
-        if len(p_xy) >= opt.min_points:
-            if len(p_xy) > opt.max_points:
-                sel = np.sort(rng.choice(len(p_xy), opt.max_points, replace=False))
-                p_xy, p_cls = p_xy[sel], p_cls[sel]
-            maps = maps_of(floor_z)
-            view = p_xy - pivot
-            gap = i - last if last >= 0 else 0
-            rng_m = (opt.xy_range_m if last < 0
-                     else min(opt.xy_range_m, opt.track_xy_range_m * np.sqrt(gap)))
-            vol, res, nn = score_volume(p_xy, p_cls, view, maps, pivot, yaws, rng_m)
-            hyps = top_hypotheses(vol, yaws, res, nn, opt.top_k, 0.3, np.deg2rad(3.0))
-
-            def associate(q: F64, q_class: I32, v: F64, maps: PlanMaps = maps
-                          ) -> tuple[F64, F64]:
-                return maps.nearest(q, maps.layer_of(q_class, v))
-
-            for h in hyps:
-                fit = icp_2d(p_xy, p_cls, associate, Correction2D(h.yaw, h.t, pivot), view,
-                             **icp)
-                corr = fit.correction
-                sc, _ = maps.fine_eval(corr.apply(p_xy),
-                                       maps.layer_of(p_cls, view @ rot2(corr.yaw).T))
-                score = float(sc.mean())
-                if (fit.inlier_ratio >= opt.min_inlier_ratio
-                        and abs(corr.yaw) <= np.deg2rad(opt.yaw_range_deg)
-                        and (best is None or score > best[0])):
-                    best = (score, corr, fit.constraint)
-        if best is not None:
-            score, corr, constraint = best
-            r = Rotation.from_rotvec([0.0, 0.0, corr.yaw]).as_matrix()
-            m = np.r_[np.c_[r, cam - r @ cam], [[0.0, 0.0, 0.0, 1.0]]] @ m
-            yaw_ok[i] = True
-            yaw_deg[i] = float(np.rad2deg(corr.yaw))
-            scores[i] = score
-            constraints[i] = constraint
-            if (constraint >= opt.min_constraint and score >= opt.min_score
-                    and (last < 0 or np.linalg.norm(corr.t)
-                         <= opt.track_max_step_m * np.sqrt(gap))):
-                last = i
-                t_ok[i] = True
-                t_frame[i] = t_pred + corr.t
-                recent = np.flatnonzero(t_ok[:i + 1])[-opt.track_history:]
-                t_pred = np.median(t_frame[recent], axis=0)
-        out[i] = m
+        tilts.append(m)
+        points = _plan_points(pts, m, dz_last, floor_z, ceiling_z_of(floor_z), wall_band_m)
+        candidates.append(_frame_candidates(points, cam, floor_z, maps_of, yaws, icp, opt, rng))
+    path = track_translations(candidates, opt)
+    t_ok = path >= 0
+    for i in np.flatnonzero(t_ok):
+        t_frame[i] = candidates[i][path[i]].correction.t
     # Translations and heights: trusted frames keep theirs, the others are interpolated
     # between them. A kept translation far from the median of its kept neighbours is a wrong match.
     for i in np.flatnonzero(t_ok):
@@ -259,8 +215,21 @@ def level_frames(
             t_ok[i] = False
     if t_ok.any():
         idx = np.flatnonzero(t_ok)
-        for k in range(2):
-            t_frame[:, k] = np.interp(np.arange(n), idx, t_frame[idx, k])
+        for c in range(2):
+            t_frame[:, c] = np.interp(np.arange(n), idx, t_frame[idx, c])
+    # Each frame's yaw comes from its hypothesis on the path, or the one nearest to it.
+    for i in range(n):
+        pick = _yaw_candidate(candidates[i], int(path[i]) if t_ok[i] else -1, t_frame[i], opt)
+        m = tilts[i]
+        if pick is not None:
+            cam = np.asarray(cam_xyz[i], dtype=np.float64)
+            r = Rotation.from_rotvec([0.0, 0.0, pick.correction.yaw]).as_matrix()
+            m = np.r_[np.c_[r, cam - r @ cam], [[0.0, 0.0, 0.0, 1.0]]] @ m
+            yaw_ok[i] = True
+            yaw_deg[i] = float(np.rad2deg(pick.correction.yaw))
+            scores[i] = pick.score
+            constraints[i] = pick.constraint
+        out[i] = m
     if tilt_ok.any():
         idx = np.flatnonzero(tilt_ok)
         dz = np.interp(np.arange(n), idx, dz[idx])
@@ -268,3 +237,136 @@ def level_frames(
     drift = float(np.median(np.linalg.norm(t3[t_ok], axis=1))) if t_ok.any() else 0.0
     return FrameLevelResult(out, tilt_ok, yaw_ok, yaw_deg, tilt_deg, t_ok, scores, constraints,
                             t3, drift)
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One x-y-yaw hypothesis of a frame against the plan (after ICP).
+
+    Attributes
+    ----------
+    correction: the 2-D correction (yaw about the camera, translation), metres / radians.
+    score: fine score (fraction of points on the plan, 0–1).
+    constraint: ICP's translation constraint (smallest eigenvalue share; a bare corridor wall
+        has about 0).
+    informative: whether its translation may be used (constraint and score high enough).
+    """
+
+    correction: Correction2D
+    score: float
+    constraint: float
+    informative: bool
+
+
+def _plan_points(pts: dict[str, F64], m: F64, dz: float, floor_z: float | None,
+                 ceil_z: float | None, wall_band_m: float) -> tuple[F64, I32]:
+    """A frame's wall and column points after its tilt ``m`` and height ``dz``, without those
+    within ``wall_band_m`` of the floor or ceiling: ``(xy (M, 2), class (M,))``."""
+    from bimcap.labels import Label
+
+    xy, cls_ = [], []
+    for c, lab in (("wall", Label.WALL), ("column", Label.COLUMN)):
+        q = pts[c] @ m[:3, :3].T + m[:3, 3] + np.array([0.0, 0.0, dz])
+        keep = np.ones(len(q), dtype=bool)
+        if floor_z is not None and wall_band_m > 0:
+            keep &= q[:, 2] > floor_z + wall_band_m
+            if ceil_z is not None:
+                keep &= q[:, 2] < ceil_z - wall_band_m
+        xy.append(q[keep, :2])
+        cls_.append(np.full(int(keep.sum()), int(lab), np.int32))
+    p_xy = np.concatenate(xy) if xy else np.zeros((0, 2))
+    return p_xy, np.concatenate(cls_).astype(np.int32)
+
+
+def _frame_candidates(points: tuple[F64, I32], cam: F64, floor_z: float | None,
+                      maps_of: Callable[[float | None], PlanMaps], yaws: F64,
+                      icp: dict[str, float], opt: FrameLevelOptions,
+                      rng: np.random.Generator) -> list[Candidate]:
+    """The top ``opt.top_k`` x-y-yaw hypotheses of one frame about its input pose, each refined
+    by ICP; those with too few inliers or a yaw outside the range are dropped."""
+    p_xy, p_cls = points
+    if len(p_xy) < opt.min_points:
+        return []
+    if len(p_xy) > opt.max_points:
+        sel = np.sort(rng.choice(len(p_xy), opt.max_points, replace=False))
+        p_xy, p_cls = p_xy[sel], p_cls[sel]
+    maps = maps_of(floor_z)
+    pivot = cam[:2]
+    view = p_xy - pivot
+    vol, res, nn = score_volume(p_xy, p_cls, view, maps, pivot, yaws, opt.xy_range_m)
+    hyps = top_hypotheses(vol, yaws, res, nn, opt.top_k, 0.3, np.deg2rad(3.0))
+
+    def associate(q: F64, q_class: I32, v: F64, maps: PlanMaps = maps) -> tuple[F64, F64]:
+        return maps.nearest(q, maps.layer_of(q_class, v))
+
+    out = []
+    for h in hyps:
+        fit = icp_2d(p_xy, p_cls, associate, Correction2D(h.yaw, h.t, pivot), view, **icp)
+        corr = fit.correction
+        sc, _ = maps.fine_eval(corr.apply(p_xy), maps.layer_of(p_cls, view @ rot2(corr.yaw).T))
+        score = float(sc.mean())
+        if fit.inlier_ratio >= opt.min_inlier_ratio and abs(corr.yaw) <= np.deg2rad(opt.yaw_range_deg):
+            informative = fit.constraint >= opt.min_constraint and score >= opt.min_score
+            out.append(Candidate(corr, score, float(fit.constraint), bool(informative)))
+    return out
+
+
+def track_translations(candidates: list[list[Candidate]], opt: FrameLevelOptions,
+                       lookback: int = 12) -> NDArray[np.int64]:
+    """The translation path through the frames' hypotheses: for each frame the index of its
+    chosen :class:`Candidate`, or -1 (left out).
+
+    The path minimises ``Σ prior + Σ steps + Σ fits + Σ skips`` over the informative hypotheses:
+    ``|t_first|² / 2σ_prior²``; ``|t_j − t_i|² / (2 σ_step² (j − i))`` between consecutive chosen
+    frames i < j; ``w (1 − score)`` per chosen hypothesis; ``skip`` per frame with informative
+    hypotheses that the path leaves out. A shortest path in a DAG (frames in order, up to
+    ``lookback`` informative frames back), so every frame's choice weighs all the others.
+    """
+    n = len(candidates)
+    path = np.full(n, -1, dtype=np.int64)
+    frames = [i for i in range(n) if any(c.informative for c in candidates[i])]
+    if not frames:
+        return path
+    opts_t = [np.array([c.correction.t for c in candidates[i] if c.informative]) for i in frames]
+    opts_k = [np.array([k for k, c in enumerate(candidates[i]) if c.informative]) for i in frames]
+    emit = [opt.track_score_weight * (1.0 - np.array([candidates[i][k].score for k in ks]))
+            for i, ks in zip(frames, opts_k, strict=True)]
+    m = len(frames)
+    cost: list[F64] = []
+    back: list[NDArray[np.int64]] = []   # (predecessor position in `frames`, its hypothesis)
+    for j in range(m):
+        t_j = opts_t[j]
+        best = (0.5 * (t_j ** 2).sum(1) / opt.track_prior_sigma_m ** 2 + opt.track_skip_cost * j)
+        arg = np.full((len(t_j), 2), -1, dtype=np.int64)
+        for i in range(max(0, j - lookback), j):
+            gap = frames[j] - frames[i]
+            d2 = ((t_j[None, :, :] - opts_t[i][:, None, :]) ** 2).sum(-1)  # (k_i, k_j)
+            via = (cost[i][:, None] + 0.5 * d2 / (opt.track_step_sigma_m ** 2 * gap)
+                   + opt.track_skip_cost * (j - i - 1))
+            g = np.argmin(via, axis=0)
+            v = via[g, np.arange(len(t_j))]
+            better = v < best
+            best = np.where(better, v, best)
+            arg[better] = np.stack([np.full(int(better.sum()), i), g[better]], 1)
+        cost.append(best + emit[j])
+        back.append(arg)
+    total = [cost[j] + opt.track_skip_cost * (m - 1 - j) for j in range(m)]
+    j = int(np.argmin([t.min() for t in total]))
+    h = int(np.argmin(total[j]))
+    while j >= 0:
+        path[frames[j]] = int(opts_k[j][h])
+        j, h = (int(back[j][h, 0]), int(back[j][h, 1]))
+    return path
+
+
+def _yaw_candidate(cands: list[Candidate], chosen: int, t_path: F64,
+                   opt: FrameLevelOptions) -> Candidate | None:
+    """The hypothesis whose yaw a frame keeps: the one on the path; else the one nearest the
+    path's (interpolated) translation, if within ``2 · track_max_step_m``."""
+    if chosen >= 0:
+        return cands[chosen]
+    if not cands:
+        return None
+    d = [float(np.linalg.norm(c.correction.t - t_path)) for c in cands]
+    k = int(np.argmin(d))
+    return cands[k] if d[k] <= 2.0 * opt.track_max_step_m else None
