@@ -42,7 +42,7 @@ def test_solve_recovers_the_truth(synthetic) -> None:  # noqa: ANN001
     s = result.summary
     assert s.success and s.final_cost < s.initial_cost
     # The paper's terms, plus the pose prior that ROBUST weighting adds by default.
-    assert {t.name for t in s.terms if t.active} == {"G", "F", "Ce", "W", "Co", "prior"}
+    assert {t.name for t in s.terms if t.active} == {"G", "F", "Ce", "W", "Co", "prior", "odometry"}
     assert s.term("W").num_residual_blocks == len(synthetic.problem.wall_frame)
     np.testing.assert_allclose(np.linalg.norm(result.poses[:, 3:], axis=1), 1.0, atol=1e-12)
     np.testing.assert_array_equal(result.poses[0], synthetic.problem.poses[0])  # fixed
@@ -225,4 +225,5 @@ def test_solve_demo_command(capsys: pytest.CaptureFixture[str], tmp_path: Path) 
     assert "pose error (RMSE vs ground truth): before" in out
     assert (tmp_path / "refined.tum").is_file() and (tmp_path / "problem.bimcap").is_file()
     summary = json.loads((tmp_path / "summary.json").read_text())
-    assert {t["name"] for t in summary["terms"] if t["active"]} == {"G", "F", "W", "prior"}
+    assert {t["name"] for t in summary["terms"] if t["active"]} == {"G", "F", "W", "prior",
+                                                                     "odometry"}

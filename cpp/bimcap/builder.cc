@@ -5,6 +5,7 @@
 #include <Eigen/Eigenvalues>
 
 #include "bimcap/cost_functions/pose_prior.h"
+#include "bimcap/cost_functions/relative_pose.h"
 
 namespace bimcap {
 
@@ -74,7 +75,8 @@ void ProblemBuilder::Build() {
   AddPlaneTerm(kTermCe, data_.ceiling_frame, data_.ceiling_p_in_cam, data_.ceiling_plane, 1);
   AddSegmentTerm(kTermW, data_.wall_frame, data_.wall_p_in_cam, state_->wall_segment);
   AddSegmentTerm(kTermCo, data_.column_frame, data_.column_p_in_cam, state_->column_segment);
-  AddPosePrior();  // last: it anchors only the poses the terms above put into the problem
+  AddPosePrior();  // it anchors only the poses the terms above put into the problem
+  AddOdometry();
 
   // 2. Manifolds, 3. gauge. A pose without residuals is not in the problem and stays as it is.
   num_free_poses_ = 0;
@@ -134,6 +136,32 @@ void ProblemBuilder::AddPosePrior() {
         PosePriorCostFunctor::Create(data_.poses.row(i), sigma_t, sigma_r), loss, Pose(i)));
   }
   term.num_residual_blocks = static_cast<int64_t>(free.size());
+}
+
+void ProblemBuilder::AddOdometry() {
+  // Never in PAPER weighting (Check() holds odometry.paper_weight at 0). The functor whitens.
+  std::vector<int64_t> pairs;  // a of each consecutive pair (a, a + 1)
+  for (int64_t a = 0; a + 1 < data_.num_poses(); ++a) {
+    if (data_.pose_fixed(a) != 0 && data_.pose_fixed(a + 1) != 0) continue;
+    pairs.push_back(a);
+  }
+  if (options_.weighting == Weighting::kPaper) {
+    terms_[kTermOdometry] = TermBlocks();
+    losses_[kTermOdometry].reset();
+    return;
+  }
+  if (!Prepare(kTermOdometry, static_cast<int64_t>(pairs.size()), 1.0, 6)) return;
+  TermBlocks& term = terms_[kTermOdometry];
+  ceres::LossFunction* loss = losses_[kTermOdometry].get();
+  const double sigma_t = options_.odometry.sigma;
+  const double sigma_r = options_.odometry_sigma_r_deg * M_PI / 180.0;
+  for (const int64_t a : pairs) {
+    term.ids.push_back(problem_->AddResidualBlock(
+        RelativePoseCostFunctor::Create(data_.poses.row(a), data_.poses.row(a + 1), sigma_t,
+                                        sigma_r),
+        loss, Pose(a), Pose(a + 1)));
+  }
+  term.num_residual_blocks = static_cast<int64_t>(pairs.size());
 }
 
 void ProblemBuilder::InitFacapPlanes() {

@@ -2,7 +2,7 @@
 //   1. residuals of each enabled term (G or its landmark form + depth prior, F, Ce, W, Co), each
 //      with the term's square-root weight inside the functor and the term's loss; then (ROBUST
 //      weighting only) one pose prior per free pose those terms reached, centred on the input
-//      pose;
+//      pose, and one odometry residual per pair of consecutive frames (not both fixed);
 //   2. manifolds: poses (CreatePoseManifold(refine_mode)), FACaP planes (CreatePlaneManifold());
 //   3. gauge: poses with pose_fixed = 1 held constant;
 //   4. for landmark BA, an elimination ordering with the landmarks first (Schur complement).
@@ -74,6 +74,7 @@ class ProblemBuilder {
   void AddSegmentTerm(int term, const ArrayRef<int32_t>& frame, const ArrayRef<double>& p_in_cam,
                       const std::vector<int>& association);
   void AddPosePrior();
+  void AddOdometry();
   // Loss and square-root weight of a term for `count` observations; false = leave it out.
   bool Prepare(int term, int64_t count, double sigma, int residual_size);
   double* Pose(int64_t frame) { return state_->poses.data() + kPoseSize * frame; }

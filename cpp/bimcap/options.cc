@@ -8,10 +8,11 @@
 namespace bimcap {
 namespace {
 
-const char* const kTermNames[kNumTerms] = {"G", "depth", "F", "Ce", "W", "Co", "prior"};
+const char* const kTermNames[kNumTerms] = {"G", "depth", "F", "Ce", "W", "Co", "prior",
+                                           "odometry"};
 // The prefix of each term's keys.
 const char* const kTermKeys[kNumTerms] = {"geometric", "depth", "floor", "ceiling",
-                                          "wall",      "column", "prior"};
+                                          "wall",      "column", "prior", "odometry"};
 
 template <typename E>
 struct EnumNames;
@@ -119,6 +120,7 @@ TermOptions& SolverOptions::term(int id) {
     case kTermCe: return ceiling;
     case kTermW: return wall;
     case kTermCo: return column;
+    case kTermOdometry: return odometry;
     default: return prior;
   }
 }
@@ -144,6 +146,11 @@ void SolverOptions::Check() const {
                        "must be 0: the pose prior is not part of the paper's objective");
   }
   CheckPositive("prior_sigma_r_deg", prior_sigma_r_deg);
+  if (odometry.paper_weight != 0.0) {
+    throw OptionsError("odometry.paper_weight",
+                       "must be 0: the odometry is not part of the paper's objective");
+  }
+  CheckPositive("odometry_sigma_r_deg", odometry_sigma_r_deg);
   CheckPositive("pixel_sigma", pixel_sigma);
   CheckPositive("association_gate", association_gate);
   if (outer_iterations < 1) throw OptionsError("outer_iterations", "must be >= 1");
@@ -179,6 +186,7 @@ std::map<std::string, std::string> OptionsToKeyValues(const SolverOptions& o) {
     kv[p + "loss_scale"] = FormatDouble(term.loss_scale);
   }
   kv["prior_sigma_r_deg"] = FormatDouble(o.prior_sigma_r_deg);
+  kv["odometry_sigma_r_deg"] = FormatDouble(o.odometry_sigma_r_deg);
   kv["pixel_sigma"] = FormatDouble(o.pixel_sigma);
   kv["association_gate"] = FormatDouble(o.association_gate);
   kv["outer_iterations"] = std::to_string(o.outer_iterations);
@@ -208,6 +216,8 @@ SolverOptions OptionsFromKeyValues(const std::map<std::string, std::string>& val
       o.refine_mode = EnumFromString<RefineMode>(key, value);
     } else if (key == "prior_sigma_r_deg") {
       o.prior_sigma_r_deg = ParseDouble(key, value);
+    } else if (key == "odometry_sigma_r_deg") {
+      o.odometry_sigma_r_deg = ParseDouble(key, value);
     } else if (key == "pixel_sigma") {
       o.pixel_sigma = ParseDouble(key, value);
     } else if (key == "association_gate") {

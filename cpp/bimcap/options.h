@@ -41,7 +41,7 @@ struct TermOptions {
 };
 
 // The terms, in summary order: the paper's (G with its depth prior, F, Ce, W, Co), then the pose
-// prior (not a paper term: never in PAPER weighting nor in the paper objective).
+// prior and the odometry (not paper terms: never in PAPER weighting nor in the paper objective).
 enum TermId {
   kTermG = 0,
   kTermDepth = 1,
@@ -50,9 +50,10 @@ enum TermId {
   kTermW = 4,
   kTermCo = 5,
   kTermPrior = 6,
+  kTermOdometry = 7,
 };
-inline constexpr int kNumTerms = 7;
-const char* TermName(int term);  // "G", "depth", "F", "Ce", "W", "Co", "prior"
+inline constexpr int kNumTerms = 8;
+const char* TermName(int term);  // "G", "depth", "F", "Ce", "W", "Co", "prior", "odometry"
 
 struct SolverOptions {
   GeometricMode geometric_mode = GeometricMode::kPoint;
@@ -73,6 +74,11 @@ struct SolverOptions {
   // paper_weight must be 0 (it is not part of the peers' objective).
   TermOptions prior{true, 0.0, 1.0, 2.0, LossType::kNone, 1.0};
   double prior_sigma_r_deg = 20.0;
+  // Odometry (kRobust only): consecutive free frames keep the input's relative motion, the
+  // translation with `odometry.sigma` (m, in the earlier frame), the rotation with
+  // `odometry_sigma_r_deg`; plain L2. Its paper_weight must be 0.
+  TermOptions odometry{true, 0.0, 1.0, 0.3, LossType::kNone, 1.0};
+  double odometry_sigma_r_deg = 15.0;
   double pixel_sigma = 1.0;
 
   // W / Co association: a point's nearest same-class segment within `association_gate` metres

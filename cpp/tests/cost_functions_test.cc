@@ -13,6 +13,7 @@
 #include "bimcap/cost_functions/point_to_plane.h"
 #include "bimcap/cost_functions/point_to_segment.h"
 #include "bimcap/cost_functions/pose_prior.h"
+#include "bimcap/cost_functions/relative_pose.h"
 #include "bimcap/cost_functions/reprojection.h"
 #include "bimcap/pose.h"
 
@@ -121,6 +122,35 @@ TEST(Reprojection, HandValues) {
   EXPECT_NEAR(r[1], -2.0, 1e-10);
 }
 
+TEST(Reprojection, DepthNoiseWhitensAlongTheEpipolarLine) {
+  // a at the origin, b 0.5 m to its right (t = (0.5, 0, 0)), both unrotated; a point 1 m ahead.
+  // A depth error moves its image in b along u only (the epipolar line is the row v = cy), with
+  // j = ∂u/∂z = fx · 0.5 / z² = 250 px/m at z = 1.
+  const Pose7 a = MakePose({0, 0, 0}, Eigen::Quaterniond::Identity());
+  const Pose7 b = MakePose({0.5, 0, 0}, Eigen::Quaterniond::Identity());
+  const Eigen::Vector4d k(500, 500, 320, 240);
+  const Eigen::Vector3d p_a(0.0, 0.0, 1.0);  // projects at (70, 240) in b
+  const double s = 0.5, sigma_px = 2.0, sigma_z = 0.02;
+  std::unique_ptr<ceres::CostFunction> plain(
+      ReprojectionCostFunctor::Create(p_a, {74.0, 243.0}, k, s));
+  std::unique_ptr<ceres::CostFunction> zero(
+      ReprojectionCostFunctor::Create(p_a, {74.0, 243.0}, k, s, sigma_px, 0.0));
+  std::unique_ptr<ceres::CostFunction> white(
+      ReprojectionCostFunctor::Create(p_a, {74.0, 243.0}, k, s, sigma_px, sigma_z));
+  const auto rp = Evaluate(*plain, {a.data(), b.data()});
+  const auto r0 = Evaluate(*zero, {a.data(), b.data()});
+  const auto rw = Evaluate(*white, {a.data(), b.data()});
+  // σ_z = 0 is the plain error s · e, e = (−4, −3).
+  EXPECT_NEAR(r0[0], s * -4.0, 1e-12);
+  EXPECT_NEAR(r0[1], s * -3.0, 1e-12);
+  EXPECT_NEAR(rp[0], r0[0], 1e-15);
+  // Across the epipolar line (v) unchanged; along it (u) scaled by σ_px / q, q = √(σ_px² + (σ_z j)²).
+  const double j = 500.0 * 0.5 / 1.0;
+  const double q = std::sqrt(sigma_px * sigma_px + sigma_z * sigma_z * j * j);
+  EXPECT_NEAR(rw[1], s * -3.0, 1e-10);
+  EXPECT_NEAR(rw[0], s * -4.0 * sigma_px / q, 1e-10);
+}
+
 TEST(Reprojection, BehindTheCameraIsZero) {
   const Pose7 a = MakePose({0, 0, 0}, Eigen::Quaterniond::Identity());
   const Pose7 b = MakePose({0, 0, 5}, Eigen::Quaterniond::Identity());
@@ -217,6 +247,38 @@ TEST(PosePrior, HandValues) {
   for (int k = 0; k < 6; ++k) EXPECT_NEAR(r2[k], r[k], 1e-15) << k;
 }
 
+TEST(RelativePose, HandValues) {
+  const double sigma_t = 0.3, sigma_r = 15.0 * M_PI / 180.0;
+  const Eigen::Quaterniond qa(Eigen::AngleAxisd(0.4, Eigen::Vector3d(0, 0, 1)));
+  const Eigen::Quaterniond qb(Eigen::AngleAxisd(0.6, Eigen::Vector3d(0, 0, 1)));
+  const Pose7 a0 = MakePose({1, 2, 1.5}, qa), b0 = MakePose({1.5, 2.2, 1.5}, qb);
+  std::unique_ptr<ceres::CostFunction> cost(
+      RelativePoseCostFunctor::Create(a0.data(), b0.data(), sigma_t, sigma_r));
+  ASSERT_EQ(cost->num_residuals(), 6);
+  // Zero at the input, and for any rigid motion of both frames together.
+  for (double r : Evaluate(*cost, {a0.data(), b0.data()})) EXPECT_NEAR(r, 0.0, 1e-14);
+  const Eigen::Quaterniond g(Eigen::AngleAxisd(1.1, Eigen::Vector3d(1, 2, 3).normalized()));
+  const Eigen::Vector3d gt(0.3, -4.0, 2.0);
+  auto moved = [&](const Pose7& p) {
+    const Eigen::Quaterniond q(p[6], p[3], p[4], p[5]);
+    return MakePose(g * Eigen::Vector3d(p[0], p[1], p[2]) + gt, g * q);
+  };
+  const Pose7 a1 = moved(a0), b1 = moved(b0);
+  for (double r : Evaluate(*cost, {a1.data(), b1.data()})) EXPECT_NEAR(r, 0.0, 1e-12);
+  // b moved 0.1 m along a's own x axis: 0.1 / sigma_t in r[0] only.
+  const Eigen::Vector3d step = qa * Eigen::Vector3d(0.1, 0, 0);
+  const Pose7 b2 = MakePose(Eigen::Vector3d(b0[0], b0[1], b0[2]) + step, qb);
+  const auto r = Evaluate(*cost, {a0.data(), b2.data()});
+  EXPECT_NEAR(r[0], 0.1 / sigma_t, 1e-12);
+  for (int k = 1; k < 6; ++k) EXPECT_NEAR(r[k], 0.0, 1e-12);
+  // b turned 5° more about z: 2 sin(2.5°) / sigma_r in r[5].
+  const double yaw = 5.0 * M_PI / 180.0;
+  const Pose7 b3 = MakePose({1.5, 2.2, 1.5}, qb * Eigen::Quaterniond(Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ())));
+  const auto r3 = Evaluate(*cost, {a0.data(), b3.data()});
+  for (int k = 0; k < 5; ++k) EXPECT_NEAR(r3[k], 0.0, 1e-12);
+  EXPECT_NEAR(r3[5], 2.0 * std::sin(yaw / 2) / sigma_r, 1e-12);
+}
+
 class GradientTest : public ::testing::Test {
  protected:
   std::mt19937 rng{42};
@@ -283,6 +345,25 @@ TEST_F(GradientTest, AllFunctors) {
       SCOPED_TRACE(seg[0] < world.x() ? "c7 interior" : "c7 past the end");
       ExpectGradientsMatch(*c7, {a.data()}, /*trust_checker=*/false);
     }
+    }
+    // The whitened reprojection (depth noise), and the odometry between a and b.
+    std::unique_ptr<ceres::CostFunction> c9(
+        ReprojectionCostFunctor::Create(p_a, {300, 200}, {500, 480, 320, 240}, 0.7, 2.0, 0.03));
+    {
+      SCOPED_TRACE("c9");
+      ExpectGradientsMatch(*c9, {a.data(), b_front.data()}, /*trust_checker=*/false);
+    }
+    // (evaluated 0.01–0.07 away from the input pair, away from δq's 180° sign switch)
+    Pose7 a0 = a, b0 = b;
+    for (int k = 0; k < 7; ++k) {
+      a0[k] += 0.01 * (k + 1);
+      b0[k] -= 0.01 * (7 - k);
+    }
+    std::unique_ptr<ceres::CostFunction> c10(
+        RelativePoseCostFunctor::Create(a0.data(), b0.data(), 0.3, 0.25));
+    {
+      SCOPED_TRACE("c10");
+      ExpectGradientsMatch(*c10, {a.data(), b.data()});
     }
     // Pose prior centred on a, at 100° from a (about a random axis; away from the 180° sign switch
     // of δq) with the quaternion in either sign, and at a nearby pose.

@@ -3,8 +3,8 @@
 The options cross into C++ as a flat ``{key: str}`` dict (:meth:`SolverOptions.to_flat`), the same
 ``key=value`` text that a problem file stores. Keys: ``geometric_mode``, ``weighting``,
 ``plane_mode``, ``refine_mode``, per term ``<term>.enabled|paper_weight|weight|sigma|loss|
-loss_scale`` with ``<term>`` in ``geometric, depth, floor, ceiling, wall, column, prior``, then
-``prior_sigma_r_deg``, ``pixel_sigma``, ``association_gate``, ``outer_iterations``, ``association_change_tolerance``, ``max_iterations``,
+loss_scale`` with ``<term>`` in ``geometric, depth, floor, ceiling, wall, column, prior,
+odometry``, then ``prior_sigma_r_deg``, ``odometry_sigma_r_deg``, ``pixel_sigma``, ``association_gate``, ``outer_iterations``, ``association_change_tolerance``, ``max_iterations``,
 ``function_tolerance``, ``gradient_tolerance``, ``parameter_tolerance``, ``max_time_s``,
 ``num_threads``, ``linear_solver``, ``compute_covariance``, ``verbose``.
 """
@@ -100,8 +100,10 @@ TERM_ATTRIBUTES: dict[str, str] = {
 #: The pose prior's name (in the summary) and option attribute: not one of the paper's terms, so
 #: :meth:`SolverOptions.with_terms` leaves it as it is.
 PRIOR_TERM = "prior"
+#: The odometry's name and option attribute: not a paper term either.
+ODOMETRY_TERM = "odometry"
 #: Every attribute that holds a :class:`TermOptions`.
-_TERM_OPTION_ATTRIBUTES: tuple[str, ...] = (*TERM_ATTRIBUTES.values(), PRIOR_TERM)
+_TERM_OPTION_ATTRIBUTES: tuple[str, ...] = (*TERM_ATTRIBUTES.values(), PRIOR_TERM, ODOMETRY_TERM)
 
 
 @dataclass
@@ -127,6 +129,15 @@ class SolverOptions:
     )
     #: The pose prior's rotation scale, degrees.
     prior_sigma_r_deg: float = 20.0
+    #: Odometry (ROBUST weighting only, like the prior): each pair of consecutive frames keeps the
+    #: input's relative motion, r = [(t_ab - t_ab0) / sigma (m, in frame a) ;
+    #: 2 vec(q_ab0^-1 q_ab) / odometry_sigma_r_deg (rad)], plain L2. A frame that neither the BIM
+    #: nor G can place follows its neighbours instead of staying where the drift put it.
+    odometry: TermOptions = field(
+        default_factory=lambda: TermOptions(True, 0.0, 1.0, 0.3, Loss.NONE, 1.0)
+    )
+    #: The odometry's rotation scale, degrees.
+    odometry_sigma_r_deg: float = 15.0
     #: G's noise scale in pixels (REPROJECTION, LANDMARK).
     pixel_sigma: float = 1.0
     #: W / Co: the largest xy distance (m) at which a point is associated with a segment.
@@ -155,7 +166,8 @@ class SolverOptions:
     def with_terms(self, terms: str) -> SolverOptions:
         """A copy with exactly the listed terms on, e.g. ``"G+F+W"`` or ``"G,F,Ce,W,Co"``.
 
-        ``depth`` follows G. The pose prior (``prior``) is not a paper term and keeps its setting.
+        ``depth`` follows G. The pose prior (``prior``) and the odometry are not paper terms and
+        keep their settings.
         """
         wanted = {t.strip() for t in terms.replace("+", ",").split(",") if t.strip()}
         unknown = wanted - set(TERM_ATTRIBUTES)
@@ -170,9 +182,11 @@ class SolverOptions:
         return out
 
     def term(self, name: str) -> TermOptions:
-        """The options of term ``name`` (``"G"``, ``"F"`` ..., or ``"prior"``)."""
+        """The options of term ``name`` (``"G"``, ``"F"`` ..., ``"prior"`` or ``"odometry"``)."""
         if name == PRIOR_TERM:
             return self.prior
+        if name == ODOMETRY_TERM:
+            return self.odometry
         return getattr(self, TERM_ATTRIBUTES[name])
 
     # --------------------------------------------------------------- validation
@@ -204,6 +218,12 @@ class SolverOptions:
                 field="prior.paper_weight",
             )
         positive("prior_sigma_r_deg", self.prior_sigma_r_deg)
+        if self.odometry.paper_weight != 0:
+            raise SolverInputError(
+                "must be 0: the odometry is not part of the paper's objective",
+                field="odometry.paper_weight",
+            )
+        positive("odometry_sigma_r_deg", self.odometry_sigma_r_deg)
         positive("pixel_sigma", self.pixel_sigma)
         positive("association_gate", self.association_gate)
         positive("max_time_s", self.max_time_s)

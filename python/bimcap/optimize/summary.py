@@ -12,10 +12,11 @@ from typing import Any
 
 @dataclass
 class TermSummary:
-    """One term (``G``, ``depth``, ``F``, ``Ce``, ``W``, ``Co``, then the pose prior ``prior``).
+    """One term (``G``, ``depth``, ``F``, ``Ce``, ``W``, ``Co``, then the pose prior ``prior`` and
+    the ``odometry``).
 
     Costs are Ceres costs (½ Σ ρ(‖s r‖²)); rms values are of the raw residuals in the term's unit
-    (m, or px for reprojection / landmark G; the prior's are whitened, in sigmas);
+    (m, or px for reprojection / landmark G; the prior's and odometry's are whitened, in sigmas);
     ``*_paper_objective`` is λ · mean ‖r‖², the term's share of the peers' objective (always 0
     for the prior).
     """

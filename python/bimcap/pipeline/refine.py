@@ -381,6 +381,7 @@ class SolveOutcome:
     coarse: dict[str, Any] | None
     seconds: float
     observability: Any = None
+    repair: dict[str, Any] | None = None
 
     @property
     def summary(self) -> Any:
@@ -393,6 +394,7 @@ class SolveOutcome:
             "coarse": self.coarse,
             "seconds": self.seconds,
             "observability": None if self.observability is None else self.observability.to_dict(),
+            "repair": self.repair,
         }
 
 
@@ -473,13 +475,43 @@ def solve_prepared(prepared: Prepared, config: RefineConfig, quiet: bool = False
         last = (problem, opts, result)
     if stats is None or last is None:
         raise PipelineError("the schedule has no solver stage for the configured terms")
+    repair = None
+    if config.method is Method.BIMCAP:
+        problem, opts, result = last
+        poses, repair, redo = _repair(problem, opts, result, quiet)
+        if redo is not None:
+            summaries.append(redo.summary)
+            last = (problem, opts, redo)
     problem, opts, result = last
     observability = bim_observability(problem.arrays(), result.poses, opts, result.wall_segment,
                                       result.column_segment, planes=result.planes)
     log(observability.summary_line(), quiet)
     refined = Trajectory(prepared.init.timestamps, poses)
     return SolveOutcome(refined, summaries, stats, coarse_info, time.perf_counter() - t0,
-                        observability)
+                        observability, repair)
+
+
+def _repair(problem: Any, opts: Any, result: Any, quiet: bool) -> tuple[F64, Any, Any]:
+    """Frames the solve left inconsistent with their neighbours' matches, re-placed from them by
+    PnP (``registration.odometry``) and solved again. Returns the poses, the repair's record and
+    the new solve's result (None when no frame needed it)."""
+    from bimcap.optimize import solve
+    from bimcap.registration.odometry import repair_inconsistent_frames
+
+    a = problem.arrays()
+    rep = repair_inconsistent_frames(result.poses, a["match_frames"], a["match_uv"],
+                                     a["match_depth"], a["cameras"][0])
+    if not rep.repaired:
+        return result.poses, rep.to_dict(), None
+    log(f"{len(rep.repaired)} frame(s) disagreed with their neighbours' matches (median "
+        f"reprojection error > 10 px) and were re-placed from them: {rep.repaired}", quiet)
+    from dataclasses import replace
+
+    redo = solve(replace(problem, poses=rep.poses), opts, check=False)
+    if not redo.summary.success:
+        raise PipelineError(f"the solve after the repair failed: {redo.summary.termination}: "
+                            f"{redo.summary.message}")
+    return redo.poses, rep.to_dict(), redo
 
 
 def _coarse(prepared: Prepared, poses: F64, quiet: bool) -> tuple[F64, dict[str, Any]]:

@@ -1,0 +1,184 @@
+"""Frames the bundle adjustment left inconsistent with their neighbours, re-placed from them.
+
+The G term's robust loss makes the bundle adjustment ignore matches whose reprojection errors
+are far out in its tail. A frame that starts several degrees off and that the BIM terms cannot
+place (it sees one wall from half a metre, its labels are wrong) therefore keeps its error: all
+its matches are outliers from the start. Its neighbours, placed by the BIM, know where it is:
+their keypoints, back-projected with their depth, are 3-D points the frame's own keypoints see.
+:func:`repair_inconsistent_frames` finds the frames whose matches disagree with their
+neighbours (median reprojection error above ``max_median_px``), and re-places each from the
+points of its consistent neighbours by PnP inside RANSAC (OpenCV's ``solvePnPRansac``, iterative
+refinement on the inliers). Frames are repaired one after the other, so a run of bad frames is
+repaired from its ends inwards. The caller solves again from the repaired poses.
+
+Arrays follow docs/architecture.md: poses ``(N, 7)`` TUM order ``world_from_cam``; matches in
+undistorted pinhole pixels of one camera ``[fx, fy, cx, cy]``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from bimcap.geometry.poses import invert, matrix_to_pose, pose_to_matrix, transform_points
+
+F64 = NDArray[np.float64]
+I32 = NDArray[np.int32]
+
+
+@dataclass(frozen=True)
+class RepairOptions:
+    """Settings of :func:`repair_inconsistent_frames`.
+
+    Attributes
+    ----------
+    max_median_px: a frame whose matches' median reprojection error (both directions, under the
+        current poses) exceeds this is inconsistent.
+    min_matches: a frame needs this many matches with depth to be judged, and PnP this many
+        correspondences from consistent neighbours.
+    ransac_px: RANSAC inlier threshold (pixels).
+    min_inliers, min_inlier_ratio: a PnP pose is used only with this many inliers and this
+        share of the correspondences.
+    ransac_iterations: RANSAC iterations; seed: its seed.
+    """
+
+    max_median_px: float = 10.0
+    min_matches: int = 8
+    ransac_px: float = 4.0
+    min_inliers: int = 8
+    min_inlier_ratio: float = 0.4
+    ransac_iterations: int = 300
+    seed: int = 0
+
+
+@dataclass
+class RepairResult:
+    """What :func:`repair_inconsistent_frames` did.
+
+    Attributes
+    ----------
+    poses: (N, 7) the poses with the repaired frames re-placed.
+    median_px: (N,) each frame's median reprojection error before (NaN: too few matches).
+    inconsistent: frames judged inconsistent; repaired: those re-placed by PnP.
+    inliers: (frame → PnP inliers) of the repaired frames.
+    """
+
+    poses: F64
+    median_px: F64
+    inconsistent: list[int] = field(default_factory=list)
+    repaired: list[int] = field(default_factory=list)
+    inliers: dict[int, int] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"inconsistent": self.inconsistent, "repaired": self.repaired,
+                "inliers": {str(k): v for k, v in self.inliers.items()},
+                "median_px": [None if not np.isfinite(v) else float(v) for v in self.median_px]}
+
+
+def _directed(match_frames: I32, match_uv: F64, match_depth: F64) -> tuple[I32, I32, F64, F64, F64]:
+    """Both directions of every match with a source depth: (src, dst, uv_src, depth_src, uv_dst)."""
+    fa, fb = match_frames[:, 0], match_frames[:, 1]
+    src = np.concatenate([fa, fb])
+    dst = np.concatenate([fb, fa])
+    uv_src = np.concatenate([match_uv[:, :2], match_uv[:, 2:]])
+    uv_dst = np.concatenate([match_uv[:, 2:], match_uv[:, :2]])
+    depth = np.concatenate([match_depth[:, 0], match_depth[:, 1]])
+    ok = depth > 0
+    return src[ok], dst[ok], uv_src[ok], depth[ok], uv_dst[ok]
+
+
+def _backproject(k: F64, uv: F64, depth: F64) -> F64:
+    return np.column_stack([(uv[:, 0] - k[2]) / k[0] * depth, (uv[:, 1] - k[3]) / k[1] * depth,
+                            depth])
+
+
+def reprojection_medians(poses: F64, match_frames: I32, match_uv: F64, match_depth: F64,
+                         intrinsics: F64, min_matches: int = 8) -> F64:
+    """(N,) each frame's median reprojection error (pixels) over its matches, both directions,
+    under ``poses``; NaN where it has fewer than ``min_matches``."""
+    n = len(poses)
+    src, dst, uv_src, depth, uv_dst = _directed(match_frames, match_uv, match_depth)
+    out = np.full(n, np.nan)
+    if len(src) == 0:
+        return out
+    p_world = transform_points(poses[src], _backproject(intrinsics, uv_src, depth))
+    p_dst = transform_points(invert(poses[dst]), p_world)
+    front = p_dst[:, 2] > 1e-6
+    z = np.where(front, p_dst[:, 2], 1.0)
+    proj = np.column_stack([intrinsics[0] * p_dst[:, 0] / z + intrinsics[2],
+                            intrinsics[1] * p_dst[:, 1] / z + intrinsics[3]])
+    err = np.where(front, np.linalg.norm(proj - uv_dst, axis=1), 1e6)
+    for f in range(n):
+        e = err[(src == f) | (dst == f)]
+        if len(e) >= min_matches:
+            out[f] = float(np.median(e))
+    return out
+
+
+def repair_inconsistent_frames(poses: F64, match_frames: I32, match_uv: F64, match_depth: F64,
+                               intrinsics: F64, options: RepairOptions | None = None) -> RepairResult:
+    """Re-place the frames whose matches disagree with their neighbours (module docstring).
+
+    Parameters
+    ----------
+    poses: (N, 7) current world_from_cam, TUM order.
+    match_frames, match_uv, match_depth: (M, 2) i32, (M, 4), (M, 2) the G term's matches
+        (depth <= 0: unknown).
+    intrinsics: (4,) ``fx fy cx cy`` of the undistorted pinhole camera of the matches.
+    options: :class:`RepairOptions`.
+
+    Returns
+    -------
+    :class:`RepairResult`; frames that cannot be repaired keep their pose.
+    """
+    import cv2
+
+    opt = options or RepairOptions()
+    k = np.asarray(intrinsics, np.float64)
+    out = np.array(poses, np.float64, copy=True)
+    medians = reprojection_medians(out, match_frames, match_uv, match_depth, k, opt.min_matches)
+    bad = set(int(f) for f in np.flatnonzero(medians > opt.max_median_px))
+    result = RepairResult(out, medians, sorted(bad))
+    if not bad:
+        return result
+    src, dst, uv_src, depth, uv_dst = _directed(np.asarray(match_frames), np.asarray(match_uv),
+                                                np.asarray(match_depth))
+    cam_k = np.array([[k[0], 0.0, k[2]], [0.0, k[1], k[3]], [0.0, 0.0, 1.0]])
+    cv2.setRNGSeed(opt.seed)
+    pending = set(bad)
+    progress = True
+    while pending and progress:
+        progress = False
+        # the frame with the most correspondences from consistent frames first
+        counts = {f: int(((dst == f) & ~np.isin(src, list(pending))).sum()) for f in pending}
+        for f in sorted(pending, key=lambda g: -counts[g]):
+            sel = (dst == f) & ~np.isin(src, list(pending))
+            if sel.sum() < opt.min_matches:
+                continue
+            p_world = transform_points(out[src[sel]], _backproject(k, uv_src[sel], depth[sel]))
+            cam_from_world = pose_to_matrix(invert(out[f]))
+            rvec, _ = cv2.Rodrigues(cam_from_world[:3, :3])
+            ok, rvec, tvec, inl = cv2.solvePnPRansac(
+                p_world.astype(np.float64), uv_dst[sel].astype(np.float64), cam_k, None,
+                rvec=rvec, tvec=cam_from_world[:3, 3].reshape(3, 1).copy(),
+                useExtrinsicGuess=False, iterationsCount=opt.ransac_iterations,
+                reprojectionError=opt.ransac_px, confidence=0.999, flags=cv2.SOLVEPNP_ITERATIVE)
+            n_inl = 0 if inl is None else len(inl)
+            if not ok or n_inl < opt.min_inliers or n_inl < opt.min_inlier_ratio * sel.sum():
+                continue
+            rot, _ = cv2.Rodrigues(rvec)
+            m = np.eye(4)
+            m[:3, :3] = rot
+            m[:3, 3] = tvec.ravel()
+            out[f] = matrix_to_pose(np.linalg.inv(m))
+            pending.discard(f)
+            result.repaired.append(f)
+            result.inliers[f] = n_inl
+            progress = True
+            break  # recount: this frame now helps its neighbours
+    result.repaired.sort()
+    result.poses = out
+    return result
