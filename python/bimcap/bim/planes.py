@@ -106,8 +106,8 @@ class PlaneOptions:
         ones (ramps, pitched roofs) give no plane (module docstring).
     height_tol_m: visible faces whose heights differ by less than this share one plane.
     hide_gap_m: a top face is hidden where another element's bottom face lies within this above
-        it (a finish floor on its structural slab, a raised floor), a bottom face where another
-        element's top face lies within this below it (a slab over its ceiling covering).
+        it (a finish floor on its structural slab, a raised floor, a wall), a bottom face where
+        another element's top face lies within this below it (a slab over its ceiling covering).
     min_area_m2: smaller pieces are dropped.
     simplify_m: polygon simplification tolerance.
     """
@@ -228,26 +228,50 @@ def _visible_planes(
     """(height, shapely polygon, guids) of every connected visible piece of the top faces
     (``top``) or bottom faces of ``faces``.
 
-    A top face is hidden where a bottom face of ``hiders`` lies 0..``hide_gap_m`` above it; a
-    bottom face where a top face of ``hiders`` lies 0..``hide_gap_m`` below it. Faces are cut at
-    1 mm height bins before they are grouped by ``height_tol_m``.
+    A top face at height h is hidden where another element of ``hiders`` stands on it or passes
+    through it: that element rises above h and has a bottom face at most ``hide_gap_m`` above h
+    (a finish floor on its slab, a wall, a column; its bottom faces leave out the door openings
+    cut to the floor). A bottom face is hidden likewise by another element that reaches below it
+    with a top face at most ``hide_gap_m`` below it (a covering under a slab, a wall holding it).
+    Faces are cut at 1 mm height bins before they are grouped by ``height_tol_m``.
     """
     sel = faces.select(faces.top if top else ~faces.top)
     cover = hiders.select(~hiders.top if top else hiders.top)
+    # how far each hider reaches beyond its covering face: up (zmax) for floors, down for ceilings
+    reach = np.array([e.zmax if top else -e.zmin for e in elements], np.float64)
+    import shapely
+
+    footprint: dict[int, Any] = {}  # per hiding element, the union of its covering faces
+
+    def cover_of(owners: NDArray[np.int64]) -> Any:
+        for o in owners:
+            if o not in footprint:
+                footprint[o] = union_xy(cover.tris[cover.owner == o])
+        return shapely.union_all([footprint[o] for o in owners])
+
     bins = np.round(sel.z / 1e-3).astype(np.int64)
     pieces: list[tuple[float, Any, set[str]]] = []
     for b in np.unique(bins):
-        idx = np.flatnonzero(bins == b)
         z = float(b * 1e-3)
-        geom = union_xy(sel.tris[idx])
-        dz = (cover.z - z) if top else (z - cover.z)
-        hide = (dz > -1e-3) & (dz <= opts.hide_gap_m)
-        # an element never hides itself (its own bottom under a thin top is not "above" it)
-        hide &= ~np.isin(cover.owner, sel.owner[idx]) | (np.abs(dz) > 1e-3)
-        if hide.any():
-            geom = geom.difference(union_xy(cover.tris[hide]))
-        if geom.area > 0.0:
-            pieces.append((z, geom, {elements[k].guid for k in sel.owner[idx]}))
+        if top:
+            near = (cover.z <= z + opts.hide_gap_m) & (reach[cover.owner] > z + 0.01)
+        else:
+            near = (cover.z >= z - opts.hide_gap_m) & (reach[cover.owner] > -z + 0.01)
+        near_owners = np.unique(cover.owner[near])
+        common = cover_of(near_owners) if len(near_owners) else None
+        in_bin = np.flatnonzero(bins == b)
+        for owner in np.unique(sel.owner[in_bin]):
+            idx = in_bin[sel.owner[in_bin] == owner]
+            geom = union_xy(sel.tris[idx])
+            if owner in near_owners:  # an element never hides itself (a stepped slab)
+                others = near_owners[near_owners != owner]
+                hide = cover_of(others) if len(others) else None
+            else:
+                hide = common
+            if hide is not None and not hide.is_empty:
+                geom = geom.difference(hide)
+            if geom.area > 0.0:
+                pieces.append((z, geom, {elements[owner].guid}))
     out = []
     zs = np.array([p[0] for p in pieces])
     for group in _height_groups(zs, opts.height_tol_m):
@@ -320,9 +344,12 @@ def extract_planes(model: BimModel, opts: PlaneOptions | None = None) -> list[Re
     floors_src = model.by_label(Label.FLOOR)
     ceil_elems = model.by_label(Label.CEILING)
     slabs = [e for e in model.elements if _is_slab(e) and e.label != Label.FLOOR]
-    elements = floors_src + ceil_elems + slabs
+    # walls and columns only hide: the slab top under a wall, the underside a wall holds up
+    solids = model.by_label(Label.WALL, Label.COLUMN)
+    elements = floors_src + ceil_elems + slabs + solids
     faces = oriented_horizontal_faces(elements, opts.max_tilt_deg)
     n_floor, n_ceil = len(floors_src), len(floors_src) + len(ceil_elems)
+    n_slab = n_ceil + len(slabs)
 
     # ---- floors: visible tops of slabs and floor coverings
     of_floor = faces.select(faces.owner < n_floor)
@@ -373,7 +400,8 @@ def extract_planes(model: BimModel, opts: PlaneOptions | None = None) -> list[Re
         covered[st] = poly if st not in covered else covered[st].union(poly)
 
     # ---- ceilings from the undersides of slabs, where no covering is
-    of_slab = faces.select((faces.owner < n_floor) | (faces.owner >= n_ceil))
+    of_slab = faces.select((faces.owner < n_floor) | ((faces.owner >= n_ceil)
+                                                      & (faces.owner < n_slab)))
     slab_owner = np.array([_is_slab(elements[k]) for k in range(len(elements))], bool)
     of_slab = of_slab.select(slab_owner[of_slab.owner]) if len(of_slab.owner) else of_slab
     for h, poly, guids in _visible_planes(of_slab, False, faces, elements, opts):
