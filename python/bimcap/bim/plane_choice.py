@@ -453,8 +453,11 @@ class PlaneTermCheck:
     term: ``"F"`` or ``"Ce"``.
     samples: samples in the term. median_abs_m, p90_abs_m: of |signed distance| to their plane.
     far: samples farther than ``far_m`` from their plane.
-    limit_m: the median above which the term fails. far_m: the distance counted as far.
-    failed: median_abs_m > limit_m.
+    limit_m: the median |distance| above which the term, or one of its planes, fails.
+    far_m: the distance counted as far.
+    failed_planes: planes holding at least ``min_plane_share`` of the term's samples (and at
+        least ``min_plane_samples``) whose median |distance| exceeds ``limit_m``.
+    failed: the term's median exceeds ``limit_m``, or some plane failed.
     worst_planes: up to 5 planes with the largest median |distance|: index, samples, median.
     """
 
@@ -465,6 +468,7 @@ class PlaneTermCheck:
     far: int
     limit_m: float
     far_m: float
+    failed_planes: list[int]
     failed: bool
     worst_planes: list[dict[str, Any]]
 
@@ -475,9 +479,14 @@ class PlaneTermCheck:
         if self.median_abs_m is None:
             return f"{self.term}: no samples"
         state = "FAILED" if self.failed else "ok"
-        return (f"{self.term} plane check {state}: median |residual| {100 * self.median_abs_m:.1f} cm"
-                f" (limit {100 * self.limit_m:.0f} cm), {self.far}/{self.samples} samples beyond "
-                f"{100 * self.far_m:.0f} cm")
+        text = (f"{self.term} plane check {state}: median |residual| "
+                f"{100 * self.median_abs_m:.1f} cm (limit {100 * self.limit_m:.0f} cm), "
+                f"{self.far}/{self.samples} samples beyond {100 * self.far_m:.0f} cm")
+        for w in self.worst_planes:
+            if w["plane"] in self.failed_planes:
+                text += (f"; plane {w['plane']}: median {100 * w['median_abs_m']:.1f} cm over "
+                         f"{w['samples']} samples")
+        return text
 
 
 def plane_residual_check(
@@ -489,6 +498,8 @@ def plane_residual_check(
     world_from_cam: F64,
     limit_m: float = 0.05,
     far_m: float = 0.15,
+    min_plane_share: float = 0.05,
+    min_plane_samples: int = 20,
 ) -> PlaneTermCheck:
     """Signed distances of a plane term's samples to their planes at ``world_from_cam``.
 
@@ -497,24 +508,32 @@ def plane_residual_check(
     term: name for the report (``"F"``, ``"Ce"``).
     frames: (M,) frame per sample; p_in_cam: (M, 3) metres; plane_index: (M,) into
     plane_array (Q, 4). world_from_cam: (N, 7) TUM-order poses (e.g. the refined ones).
-    limit_m: the term fails when the median |distance| exceeds this.
+    limit_m: the term, or a plane with enough of its samples, fails when its median |distance|
+        exceeds this (a whole room's floor on the wrong plane is a failure even when the rest
+        of the term is right).
     far_m: distance from which a sample counts as far.
+    min_plane_share, min_plane_samples: what "enough samples" means for a plane.
     """
     from bimcap.geometry.poses import transform_points
 
     frames = np.asarray(frames, np.int64).reshape(-1)
     idx = np.asarray(plane_index, np.int64).reshape(-1)
     if len(frames) == 0:
-        return PlaneTermCheck(term, 0, None, None, 0, limit_m, far_m, False, [])
+        return PlaneTermCheck(term, 0, None, None, 0, limit_m, far_m, [], False, [])
     p = transform_points(np.asarray(world_from_cam)[frames], np.asarray(p_in_cam, np.float64))
     pl = np.asarray(plane_array, np.float64)[idx]
     r = np.abs(np.einsum("ij,ij->i", p, pl[:, :3]) + pl[:, 3])
     med = float(np.median(r))
-    worst = []
+    per_plane = []
+    failed_planes = []
+    enough = max(min_plane_samples, min_plane_share * len(r))
     for q in np.unique(idx):
         rq = r[idx == q]
-        worst.append({"plane": int(q), "samples": int(len(rq)),
-                      "median_abs_m": float(np.median(rq))})
-    worst.sort(key=lambda d: -d["median_abs_m"])
+        per_plane.append({"plane": int(q), "samples": int(len(rq)),
+                          "median_abs_m": float(np.median(rq))})
+        if len(rq) >= enough and per_plane[-1]["median_abs_m"] > limit_m:
+            failed_planes.append(int(q))
+    per_plane.sort(key=lambda d: -d["median_abs_m"])
     return PlaneTermCheck(term, int(len(r)), med, float(np.percentile(r, 90)),
-                          int((r > far_m).sum()), limit_m, far_m, med > limit_m, worst[:5])
+                          int((r > far_m).sum()), limit_m, far_m, failed_planes,
+                          med > limit_m or bool(failed_planes), per_plane[:5])

@@ -8,11 +8,25 @@ unit normal n and signed distance ``n·p + d``.
 * **ceiling** planes have the normal **down** (0, 0, −1), pointing into the room: d = +z_ceiling,
   points below the ceiling (inside the room) are positive.
 
-Sources: floors are the up-facing faces of floor slabs (IfcSlab FLOOR / BASESLAB / LANDING,
-IfcCovering FLOORING); ceilings are the down-facing faces of IfcCovering CEILING and, where no
-ceiling covering lies, the undersides of the slabs above. Faces of all elements of one kind are
-grouped by height (within ``height_tol``), merged in xy, and each connected piece becomes its own
-plane, so split levels, landings and several slabs per storey each get the plane under them.
+Sources: only surfaces one can see become planes. Floors are the **top** faces of floor slabs
+(IfcSlab FLOOR / BASESLAB / LANDING, IfcCovering FLOORING); ceilings are the **bottom** faces of
+IfcCovering CEILING and, where no ceiling covering lies, the undersides of the slabs above. Top
+and bottom are decided from each element's solid (a vertical ray's crossings of its own shell,
+:func:`oriented_horizontal_faces`), not from the triangle winding, which exporters get wrong
+(Revit's coverings in Duplex_A / Office_A come with their tops wound like undersides). A face
+is hidden, and gives no plane, where another element rests on it or passes through it (a
+finish floor on its structural slab, a wall or column on a slab, a slab over its covering,
+within ``hide_gap_m``). The visible faces are cut in 1 mm height bins, grouped by height
+(within ``height_tol_m``), merged in xy, and each connected piece becomes its own plane, so
+split levels, sunken areas, landings, basements and several slabs per storey each get the plane
+that is really there.
+
+Ramps and pitched roofs (faces steeper than ``max_tilt_deg``, 1°) give **no** plane: the F and
+Ce terms use horizontal planes only (the coarse registration levels on them), and a sample on a
+ramp finds no plane over its xy and is dropped and counted
+(:func:`bimcap.bim.plane_choice.choose_planes`), rather than pulled onto a horizontal plane it
+is not on.
+
 A storey that has walls but no floor slab gets floors from its IfcSpace bottoms (or, without
 spaces, a plane at the storey elevation over the walls' convex hull) and a
 :class:`~bimcap.bim.errors.MissingFloorWarning`.

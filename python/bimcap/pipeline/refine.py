@@ -441,11 +441,16 @@ class SolveOutcome:
     coarse: dict[str, Any] | None
     seconds: float
     plane_checks: list[Any] = field(default_factory=list)
-    plane_rounds: list[dict[str, int]] = field(default_factory=list)
+    plane_rounds: list[dict[str, int]] = field(default_factory=list)  # changed, samples, resolved
 
     @property
     def summary(self) -> Any:
         return self.summaries[-1]
+
+    @property
+    def plane_resolves(self) -> int:
+        """How often the last stage was solved again because samples changed plane."""
+        return max(0, sum(1 for r in self.plane_rounds if r.get("resolved")))
 
     @property
     def plane_check_failed(self) -> list[str]:
@@ -568,8 +573,9 @@ def solve_prepared(prepared: Prepared, config: RefineConfig, quiet: bool = False
         for _ in range(max_plane_rounds):
             again = choose_sample_planes(prepared, poses, converged)
             changed, total = changed_planes(chosen, again)
-            rounds.append({"changed": changed, "samples": total})
-            if changed <= plane_change_tolerance * max(total, 1):
+            resolve = changed > plane_change_tolerance * max(total, 1)
+            rounds.append({"changed": changed, "samples": total, "resolved": int(resolve)})
+            if not resolve:
                 break
             log(f"{changed}/{total} floor/ceiling samples changed plane at the refined poses: "
                 f"solving stage {last[0].name} again", quiet)

@@ -4,11 +4,14 @@ Planning happens on a 2-D grid over the storey:
 
 1. **Region** (:class:`FreeSpace`): the cells that are inside the walkable space — rasterised from
    free-space polygons (rooms, corridors, door passages; e.g. the building generator's sidecar),
-   or, for an arbitrary IFC, derived from the meshes (a cell is inside when a ray cast down from
-   1 m above the storey floor hits the floor and a ray cast up hits a roof or ceiling).
-2. **Clearance**: the exact 3-D distance from each cell, at several heights of the walking band,
-   to the nearest triangle of the world (Open3D ``compute_distance``), capped by the distance to
-   the region's border. Cells with clearance below ``min_clearance_m`` are not walkable.
+   or, for an arbitrary IFC, derived from the meshes by :mod:`bimcap.sim.walkable` (a floor
+   under the cell, a roof over it, walls around it; the local floor height per cell in
+   ``FreeSpace.floor_z``, door footprints as ``FreeSpace.passage``).
+2. **Clearance**: the exact 3-D distance from each cell, at several heights above its floor, to
+   the nearest triangle of the world (Open3D ``compute_distance``), capped by the distance to
+   the region's border. Cells with clearance below ``min_clearance_m`` (``door_clearance_m`` in
+   door passages) are not walkable; neighbouring cells whose floors differ by more than
+   ``max_step_m`` are not connected.
 3. **Tour**: way-points are spread over the well-clear cells (farthest-point sampling); the walker
    goes from one to the nearest unvisited one (geodesic, Dijkstra on the 8-connected grid with a
    cost that prefers clearance), so rooms are entered through their doors, until the path is long
@@ -18,7 +21,8 @@ Planning happens on a 2-D grid over the storey:
    ``speed_mps`` (slower in turns, with a slow speed variation).
 5. **Orientation**: yaw looks ahead along the path, plus occasional head turns toward the wall on
    the more open side; yaw rate is limited so consecutive frames overlap; pitch and roll sway at
-   the step frequency plus slow drifts; the camera height stays within ``height_range_m``.
+   the step frequency plus slow drifts; the camera height stays within ``height_range_m`` above
+   the local floor (smoothed along the path, so a step down is taken, not jumped).
 
 Poses are ``world_from_cam`` in the OpenCV optical convention (x right, y down, z forward): with
 yaw ψ (heading in the world xy plane, from +x toward +y), pitch θ (positive = looking up) and
