@@ -235,7 +235,8 @@ def _fit_tilt(e: F64, u: F64, sample: NDArray[np.int64], side: F64, h_pair: F64,
     # the prior: large corrections need more agreement (a catch-all plane a storey away, e.g. a
     # floor guessed over a whole storey, contains a few more samples than the real one)
     size = np.abs(h[:, 0]) + 3.0 * np.linalg.norm(h[:, 1:], axis=1)
-    score = (support - opts.behind_weight * impossible) * (1.0 - size / (2.0 * opts.max_offset_m))
+    raw = support - opts.behind_weight * impossible
+    score = np.where(raw > 0, raw * (1.0 - size / (2.0 * opts.max_offset_m)), raw)
     best = int(np.argmax(score - 1e-6 * size))
     model = h[best]
     # least squares on the inliers (the closest pair per sample), a light ridge on g

@@ -371,13 +371,18 @@ def choose_sample_planes(prepared: Prepared, poses: F64, plane_options: Any | No
                          plane_options or PlaneChoiceOptions())
 
 
-def changed_planes(a: Any, b: Any) -> tuple[int, int]:
-    """(samples whose plane differs, samples) between two ``PlaneChoiceResult``."""
+def changed_planes(a: Any, b: Any, planes: F64) -> tuple[int, int]:
+    """(samples whose plane differs, samples) between two ``PlaneChoiceResult``; a sample that
+    moves to another piece of the same plane (a neighbouring room's floor at the same height,
+    ``planes`` (Q, 4) within 1 mm) has not changed."""
     changed = total = 0
     for kind, ca in a.choices.items():
-        cb = b.choices[kind]
-        changed += int((ca.plane != cb.plane).sum())
-        total += len(ca.plane)
+        pa, pb = ca.plane, b.choices[kind].plane
+        both = (pa >= 0) & (pb >= 0)
+        same = (pa < 0) & (pb < 0)
+        same[both] = np.all(np.abs(planes[pa[both]] - planes[pb[both]]) < 1e-3, axis=1)
+        changed += int((~same).sum())
+        total += len(pa)
     return changed, total
 
 
@@ -572,7 +577,7 @@ def solve_prepared(prepared: Prepared, config: RefineConfig, quiet: bool = False
         converged = PlaneChoiceOptions(frame_model=False)
         for _ in range(max_plane_rounds):
             again = choose_sample_planes(prepared, poses, converged)
-            changed, total = changed_planes(chosen, again)
+            changed, total = changed_planes(chosen, again, prepared.reference.planes)
             resolve = changed > plane_change_tolerance * max(total, 1)
             rounds.append({"changed": changed, "samples": total, "resolved": int(resolve)})
             if not resolve:
