@@ -45,14 +45,23 @@ def test_element_counts_and_storeys(building: tuple[SimpleBuilding, BimModel]) -
 
 
 def test_planes_at_known_heights(reference: BimReference) -> None:
-    got = sorted((p.kind.name, p.storey, round(p.height, 6), p.source, round(p.area_m2, 3))
+    """The visible surfaces: each room's floor and ceiling, without the footprints of the walls
+    and columns that stand on the slab or pass through the covering."""
+    got = sorted((p.kind.name, p.storey, round(p.height, 6), p.source, round(p.area_m2, 2))
                  for p in reference.plane_info)
+    room = 3.7 * 5.6  # clear area of each room (x 0.2..3.9 and 4.1..7.8, y 0.2..5.8)
+    left = round(room - 0.3 * 0.3, 2)  # the square column
+    right = round(room - np.pi * 0.15**2, 2)  # the round column
     assert got == [
-        ("CEILING", "Storey 0", 2.6, "covering", round(3.8 * 5.6, 3)),
-        ("CEILING", "Storey 0", 2.8, "slab-above", round(48.0 - 3.8 * 5.6, 3)),
-        ("CEILING", "Storey 1", 5.8, "slab-above", 48.0),
-        ("FLOOR", "Storey 0", 0.0, "slab", 48.0),
-        ("FLOOR", "Storey 1", 3.0, "slab", 48.0),
+        # the covering spans x 0.2..4.0: its last 0.1 m lies inside the interior wall
+        ("CEILING", "Storey 0", 2.6, "covering", left),
+        ("CEILING", "Storey 0", 2.8, "slab-above", right),
+        ("CEILING", "Storey 1", 5.8, "slab-above", left),
+        ("CEILING", "Storey 1", 5.8, "slab-above", right),
+        ("FLOOR", "Storey 0", 0.0, "slab", left),
+        ("FLOOR", "Storey 0", 0.0, "slab", right),
+        ("FLOOR", "Storey 1", 3.0, "slab", left),
+        ("FLOOR", "Storey 1", 3.0, "slab", right),
     ]
     for p, row in zip(reference.plane_info, reference.planes):
         assert np.linalg.norm(row[:3]) == pytest.approx(1.0)

@@ -78,6 +78,11 @@ def test_refine_cli_outputs_and_never_overwrites(tiny_demo, tmp_path: Path) -> N
     assert rc == 0
     result = json.loads((out / "result.json").read_text())
     assert result["config"]["effective_terms"] == "F+W+Co+Ce"
+    # the plane terms are checked after the solve and the check is in result.json
+    check = result["solve"]["plane_check"]
+    assert check["failed"] == [] and set(check["terms"]) <= {"F", "Ce"}
+    assert check["terms"]["F"]["samples"] > 0 and check["terms"]["F"]["median_abs_m"] < 0.05
+    assert result["solve"]["problem"]["plane_choice"]["floor"]["assigned"] > 0
     for name in ("refined.tum", "summary.json", "map_before.ply", "map_after.ply"):
         assert (out / name).is_file()
     assert (seq / "poses" / "gt.tum").read_bytes() == gt_before
@@ -166,7 +171,8 @@ def test_staged_and_rotation_first_runs(tiny_demo) -> None:
     cfg = RefineConfig(workers=1, staged=True, rotation_first=True)
     prep = prepare(seq, None, None, cfg, out / "refine", quiet=True)
     res = solve_prepared(prep, cfg, quiet=True)
-    assert len(res.summaries) == 4  # bim_rotation, bim_translation, bim, all
+    # bim_rotation, bim_translation, bim, all (+ the re-solves after samples changed plane)
+    assert len(res.summaries) == 4 + res.plane_resolves
     gt = seq.trajectory("gt").poses
     before = trajectory_metrics(prep.init.poses, gt, AlignMode.NONE).ate_rot_deg.rmse
     after = trajectory_metrics(res.refined.poses, gt, AlignMode.NONE).ate_rot_deg.rmse

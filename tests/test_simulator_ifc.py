@@ -96,5 +96,9 @@ def test_simulate_real_ifc_with_mesh_free_space(tmp_path: Path, ifc_dir: Path) -
                    seed=0)
     assert seq.source["free_space"] == "meshes"
     assert seq.source["z_floor"] == pytest.approx(0.0, abs=0.05)  # Erdgeschoss at 0 m
+    assert seq.source["storey"] == "Erdgeschoss"
+    surveys = {s["name"]: s for s in seq.source["walkable"]["surveys"]}
+    assert set(surveys) == {"Erdgeschoss", "Dachgeschoss"}
+    assert surveys["Erdgeschoss"]["walkable_m2"] > surveys["Dachgeschoss"]["walkable_m2"]
     lab = seq.load_labels(0)
     assert lab is not None and (lab == Label.WALL).any()

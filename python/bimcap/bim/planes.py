@@ -8,11 +8,25 @@ unit normal n and signed distance ``n·p + d``.
 * **ceiling** planes have the normal **down** (0, 0, −1), pointing into the room: d = +z_ceiling,
   points below the ceiling (inside the room) are positive.
 
-Sources: floors are the up-facing faces of floor slabs (IfcSlab FLOOR / BASESLAB / LANDING,
-IfcCovering FLOORING); ceilings are the down-facing faces of IfcCovering CEILING and, where no
-ceiling covering lies, the undersides of the slabs above. Faces of all elements of one kind are
-grouped by height (within ``height_tol``), merged in xy, and each connected piece becomes its own
-plane, so split levels, landings and several slabs per storey each get the plane under them.
+Sources: only surfaces one can see become planes. Floors are the **top** faces of floor slabs
+(IfcSlab FLOOR / BASESLAB / LANDING, IfcCovering FLOORING); ceilings are the **bottom** faces of
+IfcCovering CEILING and, where no ceiling covering lies, the undersides of the slabs above. Top
+and bottom are decided from each element's solid (a vertical ray's crossings of its own shell,
+:func:`oriented_horizontal_faces`), not from the triangle winding, which exporters get wrong
+(Revit's coverings in Duplex_A / Office_A come with their tops wound like undersides). A face
+is hidden, and gives no plane, where another element rests on it or passes through it (a
+finish floor on its structural slab, a wall or column on a slab, a slab over its covering,
+within ``hide_gap_m``). The visible faces are cut in 1 mm height bins, grouped by height
+(within ``height_tol_m``), merged in xy, and each connected piece becomes its own plane, so
+split levels, sunken areas, landings, basements and several slabs per storey each get the plane
+that is really there.
+
+Ramps and pitched roofs (faces steeper than ``max_tilt_deg``, 1°) give **no** plane: the F and
+Ce terms use horizontal planes only (the coarse registration levels on them), and a sample on a
+ramp finds no plane over its xy and is dropped and counted
+(:func:`bimcap.bim.plane_choice.choose_planes`), rather than pulled onto a horizontal plane it
+is not on.
+
 A storey that has walls but no floor slab gets floors from its IfcSpace bottoms (or, without
 spaces, a plane at the storey elevation over the walls' convex hull) and a
 :class:`~bimcap.bim.errors.MissingFloorWarning`.
@@ -102,38 +116,189 @@ class PlaneOptions:
 
     Attributes
     ----------
-    max_tilt_deg: faces within this angle of horizontal count as floor / ceiling faces.
-    height_tol_m: faces whose heights differ by less than this share one plane.
+    max_tilt_deg: faces within this angle of horizontal count as floor / ceiling faces; steeper
+        ones (ramps, pitched roofs) give no plane (module docstring).
+    height_tol_m: visible faces whose heights differ by less than this share one plane.
+    hide_gap_m: a top face is hidden where another element's bottom face lies within this above
+        it (a finish floor on its structural slab, a raised floor, a wall), a bottom face where
+        another element's top face lies within this below it (a slab over its ceiling covering).
     min_area_m2: smaller pieces are dropped.
     simplify_m: polygon simplification tolerance.
     """
 
-    max_tilt_deg: float = 5.0
+    max_tilt_deg: float = 1.0
     height_tol_m: float = 0.02
+    hide_gap_m: float = 0.25
     min_area_m2: float = 0.25
     simplify_m: float = 0.005
 
 
-def _horizontal_faces(
-    elements: list[BimElement], up: bool, cos_tilt: float
-) -> tuple[NDArray[np.float64], NDArray[np.float64], list[int]]:
-    """Triangles facing up (or down) of ``elements``: (T, 3, 3) xyz, (T,) z, owner index list."""
-    tris, owners = [], []
+@dataclass
+class _Faces:
+    """Horizontal triangles of some elements with their true side: (T, 3, 3) xyz, (T,) centroid
+    z, (T,) owner element index, (T,) True where the face is a top face (material below)."""
+
+    tris: NDArray[np.float64]
+    z: NDArray[np.float64]
+    owner: NDArray[np.int64]
+    top: NDArray[np.bool_]
+
+    def select(self, mask: NDArray[np.bool_]) -> _Faces:
+        return _Faces(self.tris[mask], self.z[mask], self.owner[mask], self.top[mask])
+
+
+def _crossings_below(q: NDArray[np.float64], tris: NDArray[np.float64],
+                     chunk: int = 256) -> NDArray[np.int64]:
+    """(M,) number of distinct surfaces of ``tris`` (N, 3, 3) that the downward vertical ray
+    from each point ``q`` (M, 3) crosses (distinct heights, so that a ray through an edge shared
+    by two triangles of one face counts once)."""
+    a, b, c = tris[:, 0, :2], tris[:, 1, :2], tris[:, 2, :2]
+    det = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
+    ok = np.abs(det) > 1e-12  # vertical faces are never crossed by a vertical ray
+    a, b, c, det, za = a[ok], b[ok], c[ok], det[ok], tris[ok][:, :, 2]
+    out = np.zeros(len(q), np.int64)
+    for s in range(0, len(q), chunk):
+        p = q[s:s + chunk]
+        px = p[:, None, 0] - a[None, :, 0]
+        py = p[:, None, 1] - a[None, :, 1]
+        u = (px * (c[None, :, 1] - a[None, :, 1]) - py * (c[None, :, 0] - a[None, :, 0])) / det
+        v = (py * (b[None, :, 0] - a[None, :, 0]) - px * (b[None, :, 1] - a[None, :, 1])) / det
+        inside = (u >= -1e-9) & (v >= -1e-9) & (u + v <= 1.0 + 1e-9)
+        z = za[None, :, 0] + u * (za[None, :, 1] - za[None, :, 0]) + v * (za[None, :, 2] - za[None, :, 0])
+        below = inside & (z < p[:, None, 2] - 1e-4)
+        none = 1e18  # beyond any height in 0.1 mm units; not inf, whose differences are NaN
+        zz = np.sort(np.where(below, np.round(z / 1e-4), none), axis=1)
+        fin = zz < none
+        distinct = fin[:, :1].sum(axis=1) + ((np.diff(zz, axis=1) != 0) & fin[:, 1:]).sum(axis=1)
+        out[s:s + chunk] = distinct
+    return out
+
+
+def oriented_horizontal_faces(elements: list[BimElement], max_tilt_deg: float) -> _Faces:
+    """The horizontal triangles of ``elements`` and whether each is a top or a bottom face.
+
+    IFC tessellations do not orient their triangles consistently (a covering's underside may
+    come with its normal up), so the side is decided from the solid itself: a vertical ray cast
+    down from a point of the face crosses the element's other surfaces an odd number of times
+    exactly when there is material right below it (a top face). An element whose shell is not
+    closed falls back to its normals.
+    """
+    cos_tilt = float(np.cos(np.deg2rad(max_tilt_deg)))
+    tris, zs, owners, tops = [], [], [], []
+    w = np.array([0.31, 0.33, 0.36])  # a point inside the face, off its medians and edges
     for i, e in enumerate(elements):
-        t = e.vertices[e.faces]
+        t = np.asarray(e.vertices, np.float64)[np.asarray(e.faces)]
+        if len(t) == 0:
+            continue
         n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
         norm = np.linalg.norm(n, axis=1)
-        ok = norm > 1e-12
-        nz = np.zeros(len(t))
-        nz[ok] = n[ok, 2] / norm[ok]
-        sel = nz > cos_tilt if up else nz < -cos_tilt
-        if sel.any():
-            tris.append(t[sel])
-            owners.extend([i] * int(sel.sum()))
+        nz = np.where(norm > 1e-12, n[:, 2] / np.maximum(norm, 1e-300), 0.0)
+        hor = np.abs(nz) >= cos_tilt
+        if not hor.any():
+            continue
+        th = t[hor]
+        q = (w[None, :, None] * th).sum(axis=1)
+        parity = _crossings_below(q, t) % 2 == 1
+        # A closed shell has as many top as bottom faces' area over each xy; where the parity
+        # says all faces are tops (or all bottoms) the shell is open: trust the normals then.
+        area = 0.5 * norm[hor]
+        up_area = area[parity].sum()
+        if up_area < 1e-9 or up_area > area.sum() - 1e-9:
+            parity = nz[hor] > 0
+        tris.append(th)
+        zs.append(th[:, :, 2].mean(axis=1))
+        owners.append(np.full(len(th), i, np.int64))
+        tops.append(parity)
     if not tris:
-        return np.zeros((0, 3, 3)), np.zeros(0), []
-    allt = np.concatenate(tris)
-    return allt, allt[:, :, 2].mean(axis=1), owners
+        return _Faces(np.zeros((0, 3, 3)), np.zeros(0), np.zeros(0, np.int64), np.zeros(0, bool))
+    return _Faces(np.concatenate(tris), np.concatenate(zs), np.concatenate(owners),
+                  np.concatenate(tops))
+
+
+def union_xy(tris: NDArray[np.float64]) -> Any:
+    """The xy union of triangles (T, 3, 3) as one shapely geometry (empty when none)."""
+    import shapely
+
+    if len(tris) == 0:
+        return shapely.Polygon()
+    polys = shapely.polygons(tris[:, :, :2])
+    polys = polys[shapely.area(polys) > 1e-10]
+    if len(polys) == 0:
+        return shapely.Polygon()
+    # A tiny buffer welds triangles that share an edge only up to round-off.
+    merged = shapely.union_all(shapely.buffer(polys, 1e-4, join_style="mitre"))
+    return shapely.buffer(merged, -1e-4, join_style="mitre")
+
+
+def _polygons(geom: Any, simplify: float) -> list[Any]:
+    geom = geom.simplify(simplify) if not geom.is_empty else geom
+    geoms = list(getattr(geom, "geoms", [geom]))
+    return [g for g in geoms if g.geom_type == "Polygon" and not g.is_empty]
+
+
+def _visible_planes(
+    faces: _Faces, top: bool, hiders: _Faces, elements: list[BimElement], opts: PlaneOptions
+) -> list[tuple[float, Any, list[str]]]:
+    """(height, shapely polygon, guids) of every connected visible piece of the top faces
+    (``top``) or bottom faces of ``faces``.
+
+    A top face at height h is hidden where another element of ``hiders`` stands on it or passes
+    through it: that element rises above h and has a bottom face at most ``hide_gap_m`` above h
+    (a finish floor on its slab, a wall, a column; its bottom faces leave out the door openings
+    cut to the floor). A bottom face is hidden likewise by another element that reaches below it
+    with a top face at most ``hide_gap_m`` below it (a covering under a slab, a wall holding it).
+    Faces are cut at 1 mm height bins before they are grouped by ``height_tol_m``.
+    """
+    sel = faces.select(faces.top if top else ~faces.top)
+    cover = hiders.select(~hiders.top if top else hiders.top)
+    # how far each hider reaches beyond its covering face: up (zmax) for floors, down for ceilings
+    reach = np.array([e.zmax if top else -e.zmin for e in elements], np.float64)
+    import shapely
+
+    footprint: dict[int, Any] = {}  # per hiding element, the union of its covering faces
+
+    def cover_of(owners: NDArray[np.int64]) -> Any:
+        for o in owners:
+            if o not in footprint:
+                footprint[o] = union_xy(cover.tris[cover.owner == o])
+        return shapely.union_all([footprint[o] for o in owners])
+
+    bins = np.round(sel.z / 1e-3).astype(np.int64)
+    pieces: list[tuple[float, Any, set[str]]] = []
+    for b in np.unique(bins):
+        z = float(b * 1e-3)
+        if top:
+            near = (cover.z <= z + opts.hide_gap_m) & (reach[cover.owner] > z + 0.01)
+        else:
+            near = (cover.z >= z - opts.hide_gap_m) & (reach[cover.owner] > -z + 0.01)
+        near_owners = np.unique(cover.owner[near])
+        common = cover_of(near_owners) if len(near_owners) else None
+        in_bin = np.flatnonzero(bins == b)
+        for owner in np.unique(sel.owner[in_bin]):
+            idx = in_bin[sel.owner[in_bin] == owner]
+            geom = union_xy(sel.tris[idx])
+            if owner in near_owners:  # an element never hides itself (a stepped slab)
+                others = near_owners[near_owners != owner]
+                hide = cover_of(others) if len(others) else None
+            else:
+                hide = common
+            if hide is not None and not hide.is_empty:
+                geom = geom.difference(hide)
+            if geom.area > 0.0:
+                pieces.append((z, geom, {elements[owner].guid}))
+    out = []
+    zs = np.array([p[0] for p in pieces])
+    for group in _height_groups(zs, opts.height_tol_m):
+        import shapely
+
+        areas = np.array([pieces[k][1].area for k in group])
+        height = float((zs[group] * areas).sum() / max(areas.sum(), 1e-12))
+        geom = shapely.union_all([pieces[k][1] for k in group])
+        guids = sorted(set().union(*[pieces[k][2] for k in group]))
+        for poly in _polygons(geom, opts.simplify_m):
+            if poly.area >= opts.min_area_m2:
+                out.append((height, poly, guids))
+    return out
 
 
 def _height_groups(z: NDArray[np.float64], tol: float) -> list[NDArray[np.int64]]:
@@ -143,45 +308,6 @@ def _height_groups(z: NDArray[np.float64], tol: float) -> list[NDArray[np.int64]
     order = np.argsort(z, kind="stable")
     cuts = np.nonzero(np.diff(z[order]) >= tol)[0] + 1
     return list(np.split(order, cuts))
-
-
-def _pieces(tris: NDArray[np.float64], simplify: float) -> list[Any]:
-    """Connected xy polygons covered by triangles (T, 3, 3)."""
-    import shapely
-
-    polys = shapely.polygons(tris[:, :, :2])
-    polys = polys[shapely.area(polys) > 1e-10]
-    if len(polys) == 0:
-        return []
-    # A tiny buffer welds triangles that share an edge only up to round-off.
-    merged = shapely.union_all(shapely.buffer(polys, 1e-4, join_style="mitre"))
-    merged = shapely.buffer(merged, -1e-4, join_style="mitre").simplify(simplify)
-    geoms = list(getattr(merged, "geoms", [merged]))
-    return [g for g in geoms if g.geom_type == "Polygon" and not g.is_empty]
-
-
-def _planes_from_faces(
-    elements: list[BimElement], up: bool, opts: PlaneOptions
-) -> list[tuple[float, Any, list[str]]]:
-    """(height, shapely polygon, guids) of every connected horizontal piece of the up-facing
-    (``up``) or down-facing faces of ``elements``."""
-    cos_tilt = float(np.cos(np.deg2rad(opts.max_tilt_deg)))
-    tris, z, owners = _horizontal_faces(elements, up, cos_tilt)
-    out = []
-    own = np.asarray(owners, dtype=np.int64)
-    for idx in _height_groups(z, opts.height_tol_m):
-        t = tris[idx]
-        e1 = t[:, 1, :2] - t[:, 0, :2]
-        e2 = t[:, 2, :2] - t[:, 0, :2]
-        area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
-        if area.sum() < opts.min_area_m2:
-            continue
-        height = float((z[idx] * area).sum() / max(area.sum(), 1e-12))
-        guids = sorted({elements[k].guid for k in own[idx]})
-        for poly in _pieces(t, opts.simplify_m):
-            if poly.area >= opts.min_area_m2:
-                out.append((height, poly, guids))
-    return out
 
 
 def _make_plane(
@@ -207,8 +333,18 @@ def storey_for_height(model: BimModel, z: float, below_by: float) -> str | None:
     return name
 
 
+def _is_slab(e: BimElement) -> bool:
+    return e.ifc_class in ("IfcSlab", "IfcRoof") or (
+        e.label == Label.FLOOR and e.ifc_class.startswith("IfcSlab"))
+
+
 def extract_planes(model: BimModel, opts: PlaneOptions | None = None) -> list[ReferencePlane]:
     """Floor and ceiling planes of every storey (see the module docstring for the conventions).
+
+    Only faces that can be seen become planes: the top faces of floor elements not covered by
+    another element resting on them, the bottom faces of ceiling coverings, and the undersides
+    of slabs where no covering hangs below them; top and bottom are decided from the solids
+    (:func:`oriented_horizontal_faces`), not from the exporter's triangle winding.
 
     Warns :class:`MissingFloorWarning` for each storey with walls but no floor slab, and
     :class:`MissingCeilingWarning` for each storey with walls and no ceiling at all.
@@ -218,9 +354,20 @@ def extract_planes(model: BimModel, opts: PlaneOptions | None = None) -> list[Re
     opts = opts or PlaneOptions()
     planes: list[ReferencePlane] = []
 
-    # ---- floors from slabs / floor coverings
+    # every element that can carry or hide a floor or a ceiling surface
     floors_src = model.by_label(Label.FLOOR)
-    for h, poly, guids in _planes_from_faces(floors_src, True, opts):
+    ceil_elems = model.by_label(Label.CEILING)
+    slabs = [e for e in model.elements if _is_slab(e) and e.label != Label.FLOOR]
+    # walls and columns only hide: the slab top under a wall, the underside a wall holds up
+    solids = model.by_label(Label.WALL, Label.COLUMN)
+    elements = floors_src + ceil_elems + slabs + solids
+    faces = oriented_horizontal_faces(elements, opts.max_tilt_deg)
+    n_floor, n_ceil = len(floors_src), len(floors_src) + len(ceil_elems)
+    n_slab = n_ceil + len(slabs)
+
+    # ---- floors: visible tops of slabs and floor coverings
+    of_floor = faces.select(faces.owner < n_floor)
+    for h, poly, guids in _visible_planes(of_floor, True, faces, elements, opts):
         planes.append(
             _make_plane(Label.FLOOR, h, poly, storey_for_height(model, h, -0.5), "slab", guids)
         )
@@ -235,7 +382,9 @@ def extract_planes(model: BimModel, opts: PlaneOptions | None = None) -> list[Re
         spaces = read_spaces(model)
         for st in missing:
             mine = [sp for sp in spaces if sp.storey == st.name]
-            got = _planes_from_faces(mine, False, opts)
+            sp_faces = oriented_horizontal_faces(mine, opts.max_tilt_deg)
+            got = _visible_planes(sp_faces, False, _Faces(*(a[:0] for a in (
+                sp_faces.tris, sp_faces.z, sp_faces.owner, sp_faces.top))), mine, opts)
             if got:
                 for h, poly, guids in got:
                     planes.append(_make_plane(Label.FLOOR, h, poly, st.name, "space", guids))
@@ -256,19 +405,20 @@ def extract_planes(model: BimModel, opts: PlaneOptions | None = None) -> list[Re
                 stacklevel=2,
             )
 
-    # ---- ceilings from coverings
-    ceil_elems = model.by_label(Label.CEILING)
-    cover = _planes_from_faces(ceil_elems, False, opts)
+    # ---- ceilings from coverings (their visible undersides)
+    of_ceil = faces.select((faces.owner >= n_floor) & (faces.owner < n_ceil))
     covered: dict[str | None, Any] = {}
-    for h, poly, guids in cover:
+    for h, poly, guids in _visible_planes(of_ceil, False, faces, elements, opts):
         st = storey_for_height(model, h, 1.0)
         planes.append(_make_plane(Label.CEILING, h, poly, st, "covering", guids))
         covered[st] = poly if st not in covered else covered[st].union(poly)
 
     # ---- ceilings from the undersides of slabs, where no covering is
-    slabs = [e for e in model.elements if e.ifc_class in ("IfcSlab", "IfcRoof")
-             or (e.label == Label.FLOOR and e.ifc_class.startswith("IfcSlab"))]
-    for h, poly, guids in _planes_from_faces(slabs, False, opts):
+    of_slab = faces.select((faces.owner < n_floor) | ((faces.owner >= n_ceil)
+                                                      & (faces.owner < n_slab)))
+    slab_owner = np.array([_is_slab(elements[k]) for k in range(len(elements))], bool)
+    of_slab = of_slab.select(slab_owner[of_slab.owner]) if len(of_slab.owner) else of_slab
+    for h, poly, guids in _visible_planes(of_slab, False, faces, elements, opts):
         st = storey_for_height(model, h, 1.0)
         if st is None:
             continue

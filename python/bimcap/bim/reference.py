@@ -42,7 +42,7 @@ from bimcap.io.atomic import atomic_write_bytes, atomic_write_json
 from bimcap.labels import Label
 
 FORMAT = "bimcap-bim-reference"
-VERSION = 1
+VERSION = 2  # 2: planes are the visible surfaces only (bimcap.bim.planes); caches of 1 are rebuilt
 
 
 @dataclass(frozen=True)

@@ -30,8 +30,14 @@ def register(subparsers: Any) -> None:
     p.add_argument("--no-lidar", action="store_true", help="write empty LiDAR scans")
     p.add_argument("--no-depth", action="store_true", help="do not write ground-truth depth")
     p.add_argument("--speed", type=float, default=1.0, help="walking speed in m/s (default 1)")
+    p.add_argument("--storey", default=None, metavar="NAME",
+                   help="walk this storey of the model (its IfcBuildingStorey name); default: "
+                   "the generator's sidecar storey, or for any other IFC the storey with the "
+                   "largest connected walkable area (floor under foot, roof overhead, walls "
+                   "around, 0.42 m clearance, doors passable)")
     p.add_argument("--z-floor", type=float, default=None,
-                   help="floor height of the storey to walk (default: the sidecar's or the lowest)")
+                   help="walk the floor at this height in metres instead of a storey "
+                   "(overrides --storey)")
     p.add_argument("--workers", type=int, default=2,
                    help="render processes (default 2; 0 = one per CPU; 1 = in-process)")
     p.add_argument("--overwrite", action="store_true",
@@ -58,6 +64,7 @@ def run(args: argparse.Namespace) -> int:
         lidar=None if args.no_lidar else LidarConfig(),
         walk=replace(WalkConfig(), speed_mps=args.speed),
         z_floor=args.z_floor,
+        storey=args.storey,
         write_depth=not args.no_depth,
         workers=args.workers,
         threads_per_worker=1 if args.workers != 1 else 0,
@@ -70,4 +77,12 @@ def run(args: argparse.Namespace) -> int:
         f"wrote {len(seq.frames)} frames ({cam.width}x{cam.height}, "
         f"{span:.1f} s at {args.fps:g} Hz) to {seq.root}"
     )
+    walkable = seq.source.get("walkable")
+    if walkable:
+        chosen = next(s for s in walkable["surveys"] if s["name"] == walkable["storey"])
+        print(f"walked storey {walkable['storey']!r} (floor at {walkable['z_floor']:+.2f} m, "
+              f"{chosen['walkable_m2']:.0f} m² walkable; free space found in "
+              f"{walkable['seconds']:.1f} s)")
+    for note in seq.source.get("synthetic_floors", []):
+        print(f"note: {note}")
     return 0

@@ -231,7 +231,14 @@ def prepare(
 # ------------------------------------------------------------------------ step 2: solve
 @dataclass
 class ProblemStats:
-    """What :func:`build_problem` kept and dropped."""
+    """What :func:`build_problem` kept and dropped.
+
+    ``floor_without_plane`` / ``ceiling_without_plane`` count every sample dropped for want of
+    a plane; ``floor_rejected_height`` / ``ceiling_rejected_height`` the part of them that had a
+    plane over their xy but none within the height tolerance (``bimcap.bim.plane_choice``).
+    ``plane_choice`` is the choice's summary (per kind counts, frames whose up came from their
+    own floor or ceiling, frame offsets).
+    """
 
     frames: int
     matches: int
@@ -241,9 +248,16 @@ class ProblemStats:
     column: int
     floor_without_plane: int
     ceiling_without_plane: int
+    floor_rejected_height: int = 0
+    ceiling_rejected_height: int = 0
+    plane_choice: dict[str, Any] = field(default_factory=dict)
 
-    def to_dict(self) -> dict[str, int]:
+    def to_dict(self) -> dict[str, Any]:
         return dict(self.__dict__)
+
+    def brief(self) -> dict[str, int]:
+        """The counts alone (for log lines)."""
+        return {k: v for k, v in self.__dict__.items() if isinstance(v, int)}
 
 
 def filter_matches_by_distance(arrays: dict[str, Any], poses: F64, camera: Any,
@@ -264,17 +278,24 @@ def filter_matches_by_distance(arrays: dict[str, Any], poses: F64, camera: Any,
 
 def build_problem(prepared: Prepared, init_poses: F64 | None = None,
                   max_match_distance: float | None = None,
-                  segment_normal: F64 | None = None) -> tuple[Any, ProblemStats]:
+                  segment_normal: F64 | None = None,
+                  plane_options: Any | None = None,
+                  planes_chosen: Any | None = None) -> tuple[Any, ProblemStats]:
     """Assemble the solver problem from the front end, the BIM reference and the initial poses.
 
-    Floor (ceiling) samples are assigned the BIM floor (ceiling) plane under them at the initial
-    poses (``BimReference.plane_under``); samples over no plane of their kind are dropped and
-    counted. Wall and column samples are associated with floor-plan segments inside the solver,
-    which re-associates them as the poses move; with ``segment_normal`` ((S, 2), from
-    :func:`segment_free_normals`) a point is only associated with faces its camera is in front
-    of (the far face of a wall, one wall thickness away, is otherwise a local minimum); without
-    it, with the nearest face, as the peers' FACaP did.
+    Floor (ceiling) samples are given the BIM floor (ceiling) plane they lie on at the initial
+    poses, verified with their own height (:func:`bimcap.bim.plane_choice.choose_planes`: per
+    frame, the up direction from the frame's own floor, the vertical offset most samples agree
+    on, then per sample the nearest plane over its xy within ``plane_options.tolerance_m``);
+    samples over no plane or too far from every plane are dropped and counted. Wall and column
+    samples are associated with floor-plan segments inside the solver, which re-associates them
+    as the poses move; with ``segment_normal`` ((S, 2), from :func:`segment_free_normals`) a
+    point is only associated with faces its camera is in front of (the far face of a wall, one
+    wall thickness away, is otherwise a local minimum); without it, with the nearest face, as
+    the peers' FACaP did. ``planes_chosen`` (from :func:`choose_sample_planes` at ``init_poses``)
+    skips the choice.
     """
+    from bimcap.bim.plane_choice import Rejection
     from bimcap.optimize import Problem
 
     fe, ref = prepared.frontend, prepared.reference
@@ -284,23 +305,16 @@ def build_problem(prepared: Prepared, init_poses: F64 | None = None,
     n = len(poses)
     if max_match_distance is not None:
         filter_matches_by_distance(arrays, poses, cam, max_match_distance)
-    dropped = {}
-    for name, kind in (("floor", Label.FLOOR), ("ceiling", Label.CEILING)):
-        frames = np.asarray(arrays.get(f"{name}_frame", np.zeros(0, np.int32)), np.int32)
-        p_cam = np.asarray(arrays.get(f"{name}_p_in_cam", np.zeros((0, 3))), np.float64)
-        if len(frames):
-            p_world = transform_points(poses[frames], p_cam)
-            idx = ref.plane_under(p_world, kind)
-            # Drift can put a point on the wrong side of its plane; look again from 1 m inside
-            # the room (above a floor, below a ceiling) for the plane over the same xy.
-            lost = idx < 0
-            if lost.any():
-                lift = np.array([0.0, 0.0, 1.0 if kind is Label.FLOOR else -1.0])
-                idx[lost] = ref.plane_under(p_world[lost] + lift, kind)
-        else:
-            idx = np.zeros(0, np.int32)
+    kinds = {"floor": Label.FLOOR, "ceiling": Label.CEILING}
+    samples = _plane_samples(arrays)
+    chosen = planes_chosen or choose_sample_planes(prepared, poses, plane_options, arrays)
+    dropped, rejected = {}, {}
+    for name, kind in kinds.items():
+        frames, p_cam = samples[kind]
+        idx = chosen.choices[kind].plane
         keep = idx >= 0
         dropped[name] = int((~keep).sum())
+        rejected[name] = int((chosen.choices[kind].rejection == Rejection.HEIGHT).sum())
         arrays[f"{name}_frame"] = frames[keep]
         arrays[f"{name}_p_in_cam"] = p_cam[keep]
         arrays[f"{name}_plane"] = idx[keep].astype(np.int32)
@@ -327,8 +341,65 @@ def build_problem(prepared: Prepared, init_poses: F64 | None = None,
         column=len(arrays.get("column_frame", ())),
         floor_without_plane=dropped["floor"],
         ceiling_without_plane=dropped["ceiling"],
+        floor_rejected_height=rejected["floor"],
+        ceiling_rejected_height=rejected["ceiling"],
+        plane_choice=chosen.to_dict(),
     )
     return problem, stats
+
+
+def _plane_samples(arrays: dict[str, Any], evidence: bool = False
+                   ) -> dict[Label, tuple[NDArray[np.int32], F64]]:
+    """The floor and ceiling samples (and, with ``evidence``, the wall and column samples)."""
+    names = [("floor", Label.FLOOR), ("ceiling", Label.CEILING)]
+    if evidence:
+        names += [("wall", Label.WALL), ("column", Label.COLUMN)]
+    return {
+        kind: (np.asarray(arrays.get(f"{name}_frame", np.zeros(0, np.int32)), np.int32),
+               np.asarray(arrays.get(f"{name}_p_in_cam", np.zeros((0, 3))), np.float64))
+        for name, kind in names
+    }
+
+
+def choose_sample_planes(prepared: Prepared, poses: F64, plane_options: Any | None = None,
+                         arrays: dict[str, Any] | None = None) -> Any:
+    """The BIM plane of every floor / ceiling sample of the front end at ``poses``
+    (:func:`bimcap.bim.plane_choice.choose_planes`); a ``PlaneChoiceResult``."""
+    from bimcap.bim.plane_choice import PlaneChoiceOptions, choose_planes
+
+    arrays = arrays if arrays is not None else prepared.frontend.to_problem_arrays()
+    ref = prepared.reference
+    return choose_planes(ref.plane_info, ref.planes, _plane_samples(arrays, evidence=True), poses,
+                         plane_options or PlaneChoiceOptions())
+
+
+def changed_planes(a: Any, b: Any, planes: F64) -> tuple[int, int]:
+    """(samples whose plane differs, samples) between two ``PlaneChoiceResult``; a sample that
+    moves to another piece of the same plane (a neighbouring room's floor at the same height,
+    ``planes`` (Q, 4) within 1 mm) has not changed."""
+    changed = total = 0
+    for kind, ca in a.choices.items():
+        pa, pb = ca.plane, b.choices[kind].plane
+        both = (pa >= 0) & (pb >= 0)
+        same = (pa < 0) & (pb < 0)
+        same[both] = np.all(np.abs(planes[pa[both]] - planes[pb[both]]) < 1e-3, axis=1)
+        changed += int((~same).sum())
+        total += len(pa)
+    return changed, total
+
+
+def plane_checks(problem: Any, poses: F64, limit_m: float = 0.05) -> list[Any]:
+    """The F and Ce terms' residual checks at ``poses``
+    (:func:`bimcap.bim.plane_choice.plane_residual_check`), one per term with samples."""
+    from bimcap.bim.plane_choice import plane_residual_check
+
+    a = problem.arrays()
+    out = []
+    for term, name in (("F", "floor"), ("Ce", "ceiling")):
+        if len(a.get(f"{name}_frame", ())):
+            out.append(plane_residual_check(term, a[f"{name}_frame"], a[f"{name}_p_in_cam"],
+                                            a[f"{name}_plane"], a["planes"], poses, limit_m))
+    return out
 
 
 def solver_options(config: RefineConfig) -> Any:
@@ -380,6 +451,8 @@ class SolveOutcome:
     problem_stats: ProblemStats
     coarse: dict[str, Any] | None
     seconds: float
+    plane_checks: list[Any] = field(default_factory=list)
+    plane_rounds: list[dict[str, int]] = field(default_factory=list)  # changed, samples, resolved
     observability: Any = None
     repair: dict[str, Any] | None = None
 
@@ -387,12 +460,27 @@ class SolveOutcome:
     def summary(self) -> Any:
         return self.summaries[-1]
 
+    @property
+    def plane_resolves(self) -> int:
+        """How often the last stage was solved again because samples changed plane."""
+        return max(0, sum(1 for r in self.plane_rounds if r.get("resolved")))
+
+    @property
+    def plane_check_failed(self) -> list[str]:
+        """The plane terms (``"F"``, ``"Ce"``) whose samples sit far from their planes."""
+        return [c.term for c in self.plane_checks if c.failed]
+
     def to_dict(self) -> dict[str, Any]:
         return {
             "summaries": [json.loads(s.to_json()) for s in self.summaries],
             "problem": self.problem_stats.to_dict(),
             "coarse": self.coarse,
             "seconds": self.seconds,
+            "plane_check": {
+                "failed": self.plane_check_failed,
+                "terms": {c.term: c.to_dict() for c in self.plane_checks},
+                "rechoice_rounds": self.plane_rounds,
+            },
             "observability": None if self.observability is None else self.observability.to_dict(),
             "repair": self.repair,
         }
@@ -440,8 +528,19 @@ def stage_options(base: Any, stage: Any, config: RefineConfig) -> Any | None:
     return opts
 
 
-def solve_prepared(prepared: Prepared, config: RefineConfig, quiet: bool = False) -> SolveOutcome:
-    """Step 2: build the problem and solve it, stage by stage (:func:`schedule_for`)."""
+def solve_prepared(prepared: Prepared, config: RefineConfig, quiet: bool = False,
+                   max_plane_rounds: int = 2, plane_change_tolerance: float = 0.005,
+                   plane_check_limit_m: float = 0.05) -> SolveOutcome:
+    """Step 2: build the problem and solve it, stage by stage (:func:`schedule_for`).
+
+    Floor and ceiling samples get their planes at the poses each stage starts from. After the
+    last stage (BIMCaP) the planes are chosen again at the refined poses, now trusted
+    (``PlaneChoiceOptions.frame_model`` off: no per-frame tilt or offset); when more than
+    ``plane_change_tolerance`` of the samples change plane, the last stage runs again, at most
+    ``max_plane_rounds`` times. Then every plane term is checked
+    (:func:`bimcap.bim.plane_choice.plane_residual_check`): a median |residual| above
+    ``plane_check_limit_m`` is reported in the outcome and logged, not hidden by the robust loss.
+    """
     from bimcap.optimize import solve
     from bimcap.optimize.observability import bim_observability
     from bimcap.registration import StageKind
@@ -452,10 +551,24 @@ def solve_prepared(prepared: Prepared, config: RefineConfig, quiet: bool = False
     base = solver_options(config)
     summaries = []
     stats = None
-    last = None
+    result = None
     max_dist = 0.4 if config.method is Method.FACAP else None
     # BIMCaP associates with visible faces only; FACaP with the nearest face, as the peers did.
     normals = None if config.method is Method.FACAP else segment_free_normals(prepared.reference)
+    last: tuple[Any, Any] | None = None  # (stage, options) of the last solver stage
+    chosen = problem = None
+
+    def run_stage(stage: Any, opts: Any, chosen: Any) -> tuple[Any, ProblemStats, Any]:
+        problem, stats = build_problem(prepared, poses, max_dist, normals, planes_chosen=chosen)
+        log(f"solving {config.method.value} stage {stage.name} ({opts.refine_mode.value.lower()}, "
+            f"{config.effective_weighting}): {stats.brief()}", quiet)
+        result = solve(problem, opts, check=False)
+        summaries.append(result.summary)
+        if not result.summary.success:
+            raise PipelineError(f"the solve failed ({stage.name}): {result.summary.termination}: "
+                                f"{result.summary.message}")
+        return problem, stats, result
+
     for stage in schedule_for(config).stages:
         if stage.kind is StageKind.COARSE:
             poses, coarse_info = _coarse(prepared, poses, quiet)
@@ -463,38 +576,53 @@ def solve_prepared(prepared: Prepared, config: RefineConfig, quiet: bool = False
         opts = stage_options(base, stage, config)
         if opts is None:
             continue
-        problem, stats = build_problem(prepared, poses, max_dist, normals)
-        log(f"solving {config.method.value} stage {stage.name} ({opts.refine_mode.value.lower()}, "
-            f"{config.effective_weighting}): {stats.to_dict()}", quiet)
-        result = solve(problem, opts, check=False)
-        summaries.append(result.summary)
-        if not result.summary.success:
-            raise PipelineError(f"the solve failed ({stage.name}): {result.summary.termination}: "
-                                f"{result.summary.message}")
+        chosen = choose_sample_planes(prepared, poses)
+        problem, stats, result = run_stage(stage, opts, chosen)
         poses = result.poses
-        last = (problem, opts, result)
-    if stats is None or last is None:
+        last = (stage, opts)
+    if stats is None or last is None or result is None:
         raise PipelineError("the schedule has no solver stage for the configured terms")
+    rounds: list[dict[str, int]] = []
+    checks: list[Any] = []
     repair = None
-    if config.method is Method.BIMCAP:
-        problem, opts, result = last
-        poses, repair, redo = _repair(problem, opts, result, quiet)
+    if config.method is not Method.FACAP:
+        from bimcap.bim.plane_choice import PlaneChoiceOptions
+
+        converged = PlaneChoiceOptions(frame_model=False)
+        for _ in range(max_plane_rounds):
+            again = choose_sample_planes(prepared, poses, converged)
+            changed, total = changed_planes(chosen, again, prepared.reference.planes)
+            resolve = changed > plane_change_tolerance * max(total, 1)
+            rounds.append({"changed": changed, "samples": total, "resolved": int(resolve)})
+            if not resolve:
+                break
+            log(f"{changed}/{total} floor/ceiling samples changed plane at the refined poses: "
+                f"solving stage {last[0].name} again", quiet)
+            chosen = again
+            problem, stats, result = run_stage(last[0], last[1], chosen)
+            poses = result.poses
+        repair, redo = _repair(problem, last[1], result, quiet)
         if redo is not None:
             summaries.append(redo.summary)
-            last = (problem, opts, redo)
-    problem, opts, result = last
-    observability = bim_observability(problem.arrays(), result.poses, opts, result.wall_segment,
+            result = redo
+            poses = result.poses
+        checks = plane_checks(problem, poses, plane_check_limit_m)
+        for c in checks:
+            log(("WARNING: " if c.failed else "") + c.message(), quiet)
+    observability = bim_observability(problem.arrays(), poses, last[1], result.wall_segment,
                                       result.column_segment, planes=result.planes)
     log(observability.summary_line(), quiet)
     refined = Trajectory(prepared.init.timestamps, poses)
     return SolveOutcome(refined, summaries, stats, coarse_info, time.perf_counter() - t0,
-                        observability, repair)
+                        checks, rounds, observability, repair)
 
 
-def _repair(problem: Any, opts: Any, result: Any, quiet: bool) -> tuple[F64, Any, Any]:
+def _repair(problem: Any, opts: Any, result: Any, quiet: bool) -> tuple[dict[str, Any], Any]:
     """Frames the solve left inconsistent with their neighbours' matches, re-placed from them by
-    PnP (``registration.odometry``) and solved again. Returns the poses, the repair's record and
-    the new solve's result (None when no frame needed it)."""
+    PnP (``registration.odometry``) and solved again. Returns the repair's record and the new
+    solve's result (None when no frame needed it)."""
+    from dataclasses import replace
+
     from bimcap.optimize import solve
     from bimcap.registration.odometry import repair_inconsistent_frames
 
@@ -502,16 +630,14 @@ def _repair(problem: Any, opts: Any, result: Any, quiet: bool) -> tuple[F64, Any
     rep = repair_inconsistent_frames(result.poses, a["match_frames"], a["match_uv"],
                                      a["match_depth"], a["cameras"][0])
     if not rep.repaired:
-        return result.poses, rep.to_dict(), None
+        return rep.to_dict(), None
     log(f"{len(rep.repaired)} frame(s) disagreed with their neighbours' matches (median "
         f"reprojection error > 10 px) and were re-placed from them: {rep.repaired}", quiet)
-    from dataclasses import replace
-
     redo = solve(replace(problem, poses=rep.poses), opts, check=False)
     if not redo.summary.success:
         raise PipelineError(f"the solve after the repair failed: {redo.summary.termination}: "
                             f"{redo.summary.message}")
-    return redo.poses, rep.to_dict(), redo
+    return rep.to_dict(), redo
 
 
 def _coarse(prepared: Prepared, poses: F64, quiet: bool) -> tuple[F64, dict[str, Any]]:

@@ -196,7 +196,8 @@ def place_clutter(
         if len(idx) == 0:
             continue
         c = xy[idx[int(rng.integers(len(idx)))]]
-        part = MeshPart(part.name, part.label, part.vertices + [c[0], c[1], 0.0], part.faces,
+        dz = float(free.floor_at(c[None, :])[0]) - free.z_floor  # stands on the local floor
+        part = MeshPart(part.name, part.label, part.vertices + [c[0], c[1], dz], part.faces,
                         part.material)
         # the object was built around the origin; its yaw pivot moved with it
         placed.append(ClutterObject(kind, (float(c[0]), float(c[1])), radius, part))

@@ -49,6 +49,7 @@ from bimcap.sim.lidar import LidarConfig, LidarSimulator
 from bimcap.sim.render import MeshPart, Renderer, ShadingConfig, SimError, World
 from bimcap.sim.texture import TextureBank
 from bimcap.sim.walk import FreeSpace, Walk, WalkConfig, plan_walk
+from bimcap.sim.walkable import Level, WalkableOptions, choose_free_space, door_footprints
 
 F64 = NDArray[np.float64]
 
@@ -83,7 +84,9 @@ class SimulatorConfig:
     shading: the photometric model.
     clutter_density_per_m2: clutter objects per m² of free floor (when clutter is on).
     remove_doors: drop door leaves (IfcDoor meshes) so that doorways can be walked through.
-    z_floor: storey floor height to walk on; None = the lowest large floor of the model.
+    z_floor: floor height to walk on; None = a storey (``storey``, or the one with the largest
+        connected walkable area, :func:`bimcap.sim.walkable.choose_free_space`).
+    storey: name of the storey to walk (ignored when ``z_floor`` is given); None = choose.
     write_labels, write_depth: write the ground-truth label and depth images.
     png_compression: zlib level of the PNG files (0–9; 1 is fast).
     texture_seed: seed of the baked surface textures (element texture offsets follow ``seed``).
@@ -101,6 +104,7 @@ class SimulatorConfig:
     clutter_density_per_m2: float = 0.08
     remove_doors: bool = True
     z_floor: float | None = None
+    storey: str | None = None
     write_labels: bool = True
     write_depth: bool = True
     png_compression: int = 1
@@ -264,7 +268,11 @@ def load_ifc_parts(path: str | PathLike[str]) -> list[MeshPart]:
     """
     from bimcap.bim import load_model
 
-    model = load_model(Path(path))
+    return model_parts(load_model(Path(path)))
+
+
+def model_parts(model: Any) -> list[MeshPart]:
+    """Mesh parts of every element of a :class:`bimcap.bim.BimModel`, sorted by GUID."""
     parts = [
         MeshPart(e.guid, Label(e.label), np.asarray(e.vertices, np.float64),
                  np.asarray(e.faces, np.int32))
@@ -272,6 +280,70 @@ def load_ifc_parts(path: str | PathLike[str]) -> list[MeshPart]:
     ]
     parts.sort(key=lambda q: q.name)
     return parts
+
+
+def missing_floor_parts(model: Any, thickness_m: float = 0.1, close_m: float = 0.35,
+                        min_area_m2: float = 4.0) -> tuple[list[MeshPart], list[str]]:
+    """Floor slabs for the storeys a model leaves without one (Office_A has no floor IfcSlab).
+
+    The floors are the model's own reference floors (:func:`bimcap.bim.planes.extract_planes`,
+    source ``"space"``: the bottoms of the storey's IfcSpace volumes), so the BIM reference and
+    the rendered world agree. Per storey and height the space outlines are united and closed by
+    ``close_m`` (the sills of the doors between two spaces lie under no space), triangulated and
+    given ``thickness_m``; where a slab or covering already lies at that height (a roof storey's
+    space on the roof slab) no floor is laid, nor in pieces under ``min_area_m2``.
+
+    Returns
+    -------
+    (parts, notes): FLOOR mesh parts named ``synthetic-floor-…`` and one note per storey.
+    """
+    import warnings
+
+    import shapely
+
+    from bimcap.bim.planes import extract_planes, union_xy
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the missing floors are exactly what is handled here
+        planes = extract_planes(model)
+    groups: dict[tuple[str | None, float], list[Any]] = {}
+    for p in planes:
+        if p.kind == Label.FLOOR and p.source == "space":
+            groups.setdefault((p.storey, round(p.height, 3)), []).append(p.shape())
+    parts: list[MeshPart] = []
+    notes: list[str] = []
+    for k, ((storey, z), polys) in enumerate(sorted(groups.items(), key=lambda kv: kv[0][1])):
+        geom = shapely.union_all(polys).buffer(close_m, join_style="mitre").buffer(
+            -close_m, join_style="mitre")
+        # where a slab or covering already bounds the space from below (a roof storey's space
+        # on the roof slab), the model is not missing a floor there
+        near = [e for e in model.elements
+                if e.label in (Label.FLOOR, Label.CEILING) or e.ifc_class in ("IfcSlab", "IfcRoof")]
+        near = [e for e in near if e.zmin <= z + 0.05 and e.zmax >= z - 0.3]
+        if near:
+            geom = geom.difference(union_xy(np.concatenate([e.vertices[e.faces] for e in near])))
+            geom = geom.buffer(-0.25, join_style="mitre").buffer(0.25, join_style="mitre")
+        geom = shapely.union_all([g for g in getattr(geom, "geoms", [geom]) if g.area >= min_area_m2])
+        if geom.is_empty:
+            continue
+        tris = shapely.constrained_delaunay_triangles(geom)
+        xy = np.array([np.asarray(t.exterior.coords)[:3] for t in tris.geoms], np.float64)
+        if len(xy) == 0:
+            continue
+        m = len(xy)
+        top = np.concatenate([xy, np.full((m, 3, 1), z)], axis=2)
+        bottom = np.concatenate([xy, np.full((m, 3, 1), z - thickness_m)], axis=2)
+        # top faces wound counter-clockwise seen from above (normal up), bottoms the other way
+        ccw = ((xy[:, 1, 0] - xy[:, 0, 0]) * (xy[:, 2, 1] - xy[:, 0, 1])
+               - (xy[:, 2, 0] - xy[:, 0, 0]) * (xy[:, 1, 1] - xy[:, 0, 1])) > 0
+        top[~ccw] = top[~ccw][:, ::-1]
+        bottom[ccw] = bottom[ccw][:, ::-1]
+        v = np.concatenate([top, bottom]).reshape(-1, 3)
+        f = np.arange(len(v), dtype=np.int32).reshape(-1, 3)
+        parts.append(MeshPart(f"synthetic-floor-{k:02d}", Label.FLOOR, v, f))
+        notes.append(f"storey {storey!r} has no floor slab: laid a floor at z {z:+.3f} m "
+                     f"({geom.area:.0f} m²) from its IfcSpace bottoms")
+    return parts, notes
 
 
 def sidecar_free_space(ifc: str | PathLike[str], storey: int = 0
@@ -379,6 +451,8 @@ def simulate_world(
     ifc_path: str | PathLike[str] | None = None,
     overwrite: bool = False,
     source: dict[str, Any] | None = None,
+    levels: Sequence[Level] | None = None,
+    model_name: str = "the world",
 ) -> SimulationResult:
     """Simulate a sequence in a world given as mesh parts (see :func:`simulate` for IFC input).
 
@@ -390,10 +464,16 @@ def simulate_world(
     config: simulator settings (default :class:`SimulatorConfig`).
     seed: the seed of every random choice.
     free_polygons, doors_xy: free-space polygons (each (K, 2) world xy) and door centres (D, 2);
-        None = derive the free space from the meshes (:meth:`FreeSpace.from_world`).
+        None = derive the free space from the meshes: survey ``levels`` (the model's storeys)
+        and walk ``config.storey``, ``config.z_floor`` or the level with the largest connected
+        walkable area (:func:`bimcap.sim.walkable.choose_free_space`, door leaves' footprints
+        are passages).
     clutter: add clutter objects off the walking path.
     ifc_path: the BIM the manifest refers to (the design model).
     source: extra provenance merged into the manifest's ``source`` block.
+    levels: candidate storeys for the mesh-derived free space (default: floor heights found in
+        the world).
+    model_name: named in error messages (the IFC file).
     """
     cfg = config or SimulatorConfig()
     out = Path(out_dir)
@@ -402,10 +482,12 @@ def simulate_world(
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     parts = list(parts)
+    doors = door_footprints([p for p in parts if p.label == Label.DOOR])
     if cfg.remove_doors:
         parts = [p for p in parts if p.label != Label.DOOR]
     world = World.from_parts(parts, seed=seed)
     z_floor = cfg.z_floor
+    walkable: dict[str, Any] | None = None
     if free_polygons is not None:
         if z_floor is None:
             from bimcap.sim.walk import detect_floor_height
@@ -414,7 +496,12 @@ def simulate_world(
         free = FreeSpace.from_polygons(world, free_polygons, z_floor, doors_xy,
                                        resolution=cfg.walk.grid_m)
     else:
-        free = FreeSpace.from_world(world, z_floor, resolution=cfg.walk.grid_m)
+        choice = choose_free_space(
+            world, list(levels or []), cfg.storey, z_floor, doors if cfg.remove_doors else (),
+            cfg.walk, WalkableOptions(resolution_m=cfg.walk.grid_m), model_name,
+        )
+        free = choice.free
+        walkable = choice.to_dict()
     timings["free_space"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -470,7 +557,9 @@ def simulate_world(
             "config": cfg.to_dict(),
             "clutter": [c.to_dict() for c in placed],
             "z_floor": free.z_floor,
+            "storey": free.storey,
             "free_space": "polygons" if free_polygons is not None else "meshes",
+            **({"walkable": walkable} if walkable is not None else {}),
             **(source or {}),
         },
     )
@@ -496,21 +585,40 @@ def simulate(
     space of the generator's JSON sidecar when one sits next to the rendered IFC, else free space
     derived from the meshes. Returns the written sequence (validated; ``.root`` is ``out_dir``).
     """
+    from bimcap.bim import load_model
+
     ifc = Path(ifc_path)
     seen = Path(as_built_ifc) if as_built_ifc is not None else ifc
     out = Path(out_dir)
     check_not_input(out / "manifest.json", [ifc, seen])
-    parts = load_ifc_parts(seen)
+    if (out / MANIFEST).exists() and not overwrite:
+        raise SimError(f"{out}: already holds a sequence (manifest.json); choose another folder")
+    model = load_model(seen)
+    parts = model_parts(model)
     cfg = config or SimulatorConfig()
-    sidecar = sidecar_free_space(seen) or sidecar_free_space(ifc)
+    storey_index = 0
+    if cfg.storey is not None:
+        names = [s.name for s in model.storeys]
+        if cfg.storey not in names:
+            raise SimError(f"{seen}: no storey named {cfg.storey!r} (storeys: "
+                           f"{', '.join(repr(n) for n in names) or 'none'})")
+        storey_index = names.index(cfg.storey)
+    sidecar = sidecar_free_space(seen, storey_index) or sidecar_free_space(ifc, storey_index)
     polygons = None
+    extra: dict[str, Any] = {"as_built_ifc": None if as_built_ifc is None else str(as_built_ifc)}
     if sidecar is not None:
         polygons, z_floor = sidecar
         if cfg.z_floor is None:
             cfg = replace(cfg, z_floor=z_floor)
+    else:
+        floors, notes = missing_floor_parts(model)
+        parts += floors
+        if notes:
+            extra["synthetic_floors"] = notes
+    levels = [Level(s.name, s.elevation_m) for s in model.storeys]
     result = simulate_world(
-        parts, out, cfg, seed, polygons, None, clutter, ifc, overwrite,
-        source={"as_built_ifc": None if as_built_ifc is None else str(as_built_ifc)},
+        parts, out, cfg, seed, polygons, None, clutter, ifc, overwrite, source=extra,
+        levels=levels, model_name=str(seen),
     )
     return result.sequence
 

@@ -4,11 +4,14 @@ Planning happens on a 2-D grid over the storey:
 
 1. **Region** (:class:`FreeSpace`): the cells that are inside the walkable space — rasterised from
    free-space polygons (rooms, corridors, door passages; e.g. the building generator's sidecar),
-   or, for an arbitrary IFC, derived from the meshes (a cell is inside when a ray cast down from
-   1 m above the storey floor hits the floor and a ray cast up hits a roof or ceiling).
-2. **Clearance**: the exact 3-D distance from each cell, at several heights of the walking band,
-   to the nearest triangle of the world (Open3D ``compute_distance``), capped by the distance to
-   the region's border. Cells with clearance below ``min_clearance_m`` are not walkable.
+   or, for an arbitrary IFC, derived from the meshes by :mod:`bimcap.sim.walkable` (a floor
+   under the cell, a roof over it, walls around it; the local floor height per cell in
+   ``FreeSpace.floor_z``, door footprints as ``FreeSpace.passage``).
+2. **Clearance**: the exact 3-D distance from each cell, at several heights above its floor, to
+   the nearest triangle of the world (Open3D ``compute_distance``), capped by the distance to
+   the region's border. Cells with clearance below ``min_clearance_m`` (``door_clearance_m`` in
+   door passages) are not walkable; neighbouring cells whose floors differ by more than
+   ``max_step_m`` are not connected.
 3. **Tour**: way-points are spread over the well-clear cells (farthest-point sampling); the walker
    goes from one to the nearest unvisited one (geodesic, Dijkstra on the 8-connected grid with a
    cost that prefers clearance), so rooms are entered through their doors, until the path is long
@@ -18,7 +21,8 @@ Planning happens on a 2-D grid over the storey:
    ``speed_mps`` (slower in turns, with a slow speed variation).
 5. **Orientation**: yaw looks ahead along the path, plus occasional head turns toward the wall on
    the more open side; yaw rate is limited so consecutive frames overlap; pitch and roll sway at
-   the step frequency plus slow drifts; the camera height stays within ``height_range_m``.
+   the step frequency plus slow drifts; the camera height stays within ``height_range_m`` above
+   the local floor (smoothed along the path, so a step down is taken, not jumped).
 
 Poses are ``world_from_cam`` in the OpenCV optical convention (x right, y down, z forward): with
 yaw ψ (heading in the world xy plane, from +x toward +y), pitch θ (positive = looking up) and
@@ -30,6 +34,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -50,6 +55,9 @@ class WalkConfig:
     speed_mps: nominal walking speed.
     height_range_m: (min, max) camera height above the storey floor.
     min_clearance_m: hard minimum distance from the camera path to any surface.
+    door_clearance_m: the minimum in door passages (``FreeSpace.passage``): a walker squeezes
+        through a 0.76 m door whose middle is 0.38 m from the jambs.
+    max_step_m: largest floor-height difference between neighbouring cells the walker steps over.
     preferred_clearance_m: clearance below which the path cost rises (keeps to the middle).
     grid_m: planning grid cell size.
     max_yaw_rate_dps: yaw rate limit (degrees per second).
@@ -64,6 +72,8 @@ class WalkConfig:
     speed_mps: float = 1.0
     height_range_m: tuple[float, float] = (1.2, 1.7)
     min_clearance_m: float = 0.42
+    door_clearance_m: float = 0.28
+    max_step_m: float = 0.2
     preferred_clearance_m: float = 0.9
     grid_m: float = 0.1
     max_yaw_rate_dps: float = 35.0
@@ -89,7 +99,12 @@ class FreeSpace:
     clearance: (H, W) float32 metres to the nearest surface (0 outside the region).
     origin_xy: (2,) world xy of the centre of cell (0, 0).
     resolution: cell size in metres.
-    z_floor: storey floor height (world z, metres).
+    z_floor: storey floor height (world z, metres): the reference height, and the floor
+        wherever ``floor_z`` does not say otherwise.
+    floor_z: (H, W) float32 local floor height per cell (NaN outside the region), or None for a
+        flat floor at ``z_floor``.
+    passage: (H, W) bool door cells, where ``WalkConfig.door_clearance_m`` suffices; None = none.
+    storey: name of the storey (or level) walked, if known.
     """
 
     region: NDArray[np.bool_]
@@ -97,6 +112,9 @@ class FreeSpace:
     origin_xy: F64
     resolution: float
     z_floor: float
+    floor_z: NDArray[np.float32] | None = None
+    passage: NDArray[np.bool_] | None = None
+    storey: str | None = None
 
     def cell_centres(self) -> F64:
         """(H, W, 2) world xy of every cell centre."""
@@ -115,6 +133,47 @@ class FreeSpace:
 
         rc = ((np.asarray(xy) - self.origin_xy) / self.resolution)[:, ::-1]
         return map_coordinates(self.clearance, rc.T, order=1, mode="constant", cval=0.0)
+
+    def floor_at(self, xy: F64) -> F64:
+        """(M,) local floor height (metres) at world points (M, 2): the nearest cell's, and
+        ``z_floor`` outside the grid or the region."""
+        xy = np.asarray(xy, np.float64).reshape(-1, 2)
+        out = np.full(len(xy), self.z_floor, np.float64)
+        if self.floor_z is None:
+            return out
+        rc = self.to_cell(xy)
+        h, w = self.region.shape
+        ok = (rc[:, 0] >= 0) & (rc[:, 0] < h) & (rc[:, 1] >= 0) & (rc[:, 1] < w)
+        z = self.floor_z[rc[ok, 0], rc[ok, 1]].astype(np.float64)
+        out[np.flatnonzero(ok)[np.isfinite(z)]] = z[np.isfinite(z)]
+        return out
+
+    def required_clearance(self, config: WalkConfig) -> NDArray[np.float32]:
+        """(H, W) clearance a cell needs to be walkable: ``min_clearance_m``, and
+        ``door_clearance_m`` in door passages."""
+        req = np.full(self.region.shape, config.min_clearance_m, np.float32)
+        if self.passage is not None:
+            req[self.passage] = min(config.door_clearance_m, config.min_clearance_m)
+        return req
+
+    def walkable(self, config: WalkConfig) -> NDArray[np.bool_]:
+        """(H, W) cells inside the region with the clearance they need."""
+        return self.region & (self.clearance >= self.required_clearance(config))
+
+    def components(self, config: WalkConfig) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """Connected pieces of the walkable cells (8-neighbours whose floors differ by at most
+        ``max_step_m``): (H, W) piece index per cell (-1 = not walkable) and (K,) cell counts."""
+        from scipy.sparse.csgraph import connected_components
+
+        walkable = self.walkable(config)
+        graph, node = _grid_graph(walkable, self.clearance, self.resolution,
+                                  config.preferred_clearance_m, self.floor_z, config.max_step_m)
+        comp = np.full(walkable.shape, -1, np.int64)
+        if graph.shape[0] == 0:
+            return comp, np.zeros(0, np.int64)
+        _, labels = connected_components(graph, directed=False)
+        comp[node >= 0] = labels[node[node >= 0]]
+        return comp, np.bincount(labels)
 
     @classmethod
     def from_polygons(
@@ -155,28 +214,24 @@ class FreeSpace:
         z_floor: float | None = None,
         resolution: float = 0.1,
         heights_m: Sequence[float] = (0.5, 1.0, 1.3, 1.6),
+        door_polygons: Sequence[F64] = (),
+        config: WalkConfig | None = None,
     ) -> FreeSpace:
         """Region derived from the meshes of an arbitrary building (no polygons available).
 
-        ``z_floor`` defaults to :func:`detect_floor_height`. A cell is inside when a ray cast down
-        from ``z_floor + 1`` hits a surface 0.85–1.15 m below and a ray cast up hits anything
-        within 8 m (a roof or ceiling), i.e. it is indoors on this storey.
+        ``z_floor`` defaults to :func:`detect_floor_height`. A cell is inside when a ray cast
+        down from ``z_floor + 1.2`` first hits a FLOOR surface near ``z_floor``, a ray cast up
+        hits a roof or ceiling, and horizontal rays find walls around it
+        (:func:`bimcap.sim.walkable.survey_level`, which also explains ``door_polygons``).
         """
+        from bimcap.sim.walkable import Level, WalkableOptions, survey_level
+
         if z_floor is None:
             z_floor = detect_floor_height(world)
-        v = world.vertices
-        lo = v[:, :2].min(axis=0).astype(np.float64) - 0.5
-        hi = v[:, :2].max(axis=0).astype(np.float64) + 0.5
-        shape = tuple(np.ceil((hi - lo) / resolution).astype(int)[::-1] + 1)
-        h, w = shape
-        ys, xs = np.mgrid[0:h, 0:w]
-        xy = np.stack([xs.ravel(), ys.ravel()], axis=-1) * resolution + lo
-        origins = np.concatenate([xy, np.full((len(xy), 1), z_floor + 1.0)], axis=1)
-        down = world.cast(origins, np.tile([0.0, 0.0, -1.0], (len(xy), 1)))["t_hit"]
-        up = world.cast(origins, np.tile([0.0, 0.0, 1.0], (len(xy), 1)))["t_hit"]
-        inside = (down > 0.85) & (down < 1.15) & (up < 8.0)
-        region = inside.reshape(shape)
-        return cls._with_clearance(world, region, lo, resolution, z_floor, heights_m)
+        opts = WalkableOptions(resolution_m=resolution, heights_m=tuple(heights_m))
+        _, free = survey_level(world, Level(f"z={z_floor:+.2f}", float(z_floor)), door_polygons,
+                               config, opts)
+        return free
 
     @classmethod
     def _with_clearance(
@@ -187,20 +242,27 @@ class FreeSpace:
         resolution: float,
         z_floor: float,
         heights_m: Sequence[float],
+        floor_z: NDArray[np.float32] | None = None,
+        passage: NDArray[np.bool_] | None = None,
     ) -> FreeSpace:
+        """Clearance of the ``region`` cells at ``heights_m`` above the floor (``floor_z`` per
+        cell, or ``z_floor``), capped by the distance to the region's border."""
         from scipy.ndimage import distance_transform_edt
 
         h, w = region.shape
         rows, cols = np.nonzero(region)
         xy = np.stack([cols, rows], axis=-1) * resolution + origin_xy
-        dist = np.full(len(xy), np.inf, np.float32)
-        for hz in heights_m:
-            q = np.concatenate([xy, np.full((len(xy), 1), z_floor + hz)], axis=1)
-            dist = np.minimum(dist, world.distance(q))
-        border = distance_transform_edt(np.pad(region, 1)).astype(np.float32)[1:-1, 1:-1]
+        base = (np.full(len(xy), z_floor) if floor_z is None
+                else floor_z[rows, cols].astype(np.float64))
         clearance = np.zeros((h, w), np.float32)
-        clearance[rows, cols] = np.minimum(dist, (border[rows, cols] - 0.5) * resolution)
-        return cls(region, clearance, np.asarray(origin_xy, np.float64), resolution, z_floor)
+        if len(xy):
+            q = np.concatenate([np.tile(xy, (len(heights_m), 1)),
+                                np.concatenate([base + hz for hz in heights_m])[:, None]], axis=1)
+            dist = world.distance(q).reshape(len(heights_m), -1).min(axis=0)
+            border = distance_transform_edt(np.pad(region, 1)).astype(np.float32)[1:-1, 1:-1]
+            clearance[rows, cols] = np.minimum(dist, (border[rows, cols] - 0.5) * resolution)
+        return cls(region, clearance, np.asarray(origin_xy, np.float64), resolution, z_floor,
+                   floor_z, passage)
 
 
 def detect_floor_height(world: World, min_share: float = 0.2) -> float:
@@ -290,8 +352,10 @@ def camera_rotation(yaw: F64, pitch: F64, roll: F64) -> F64:
 
 
 def _grid_graph(walkable: NDArray[np.bool_], clearance: NDArray[np.float32], res: float,
-                preferred: float) -> tuple[object, NDArray[np.int64]]:
-    """8-connected graph over walkable cells: (CSR matrix, node id per cell, -1 = none)."""
+                preferred: float, floor_z: NDArray[np.float32] | None = None,
+                max_step: float = np.inf) -> tuple[Any, NDArray[np.int64]]:
+    """8-connected graph over walkable cells whose floors (``floor_z``, if given) differ by at
+    most ``max_step``: (CSR matrix, node id per cell, -1 = none)."""
     from scipy.sparse import coo_matrix
 
     h, w = walkable.shape
@@ -304,6 +368,8 @@ def _grid_graph(walkable: NDArray[np.bool_], clearance: NDArray[np.float32], res
         r2, c2 = rr + dr, cc + dc
         ok = (r2 >= 0) & (r2 < h) & (c2 >= 0) & (c2 < w)
         ok[ok] &= walkable[r2[ok], c2[ok]]
+        if floor_z is not None:
+            ok[ok] &= np.abs(floor_z[rr[ok], cc[ok]] - floor_z[r2[ok], c2[ok]]) <= max_step
         a = node[rr[ok], cc[ok]]
         b = node[r2[ok], c2[ok]]
         step = res * np.hypot(dr, dc)
@@ -312,6 +378,8 @@ def _grid_graph(walkable: NDArray[np.bool_], clearance: NDArray[np.float32], res
         dst_l += [b, a]
         wt_l += [cost, cost]
     n = len(rr)
+    if n == 0:
+        return coo_matrix((0, 0)).tocsr(), node
     graph = coo_matrix(
         (np.concatenate(wt_l), (np.concatenate(src_l), np.concatenate(dst_l))), shape=(n, n)
     ).tocsr()
@@ -332,20 +400,21 @@ def plan_walk(
     free: FreeSpace, duration_s: float, rng: np.random.Generator, config: WalkConfig | None = None
 ) -> Walk:
     """Plan a handheld walk of ``duration_s`` seconds through ``free`` (module docstring)."""
-    from scipy.ndimage import gaussian_filter1d, label
+    from scipy.ndimage import gaussian_filter1d
     from scipy.sparse.csgraph import dijkstra
 
     cfg = config or WalkConfig()
     res = free.resolution
-    walkable = free.region & (free.clearance >= cfg.min_clearance_m)
-    comp, n_comp = label(walkable, structure=np.ones((3, 3)))
-    if n_comp == 0:
+    comp, sizes = free.components(cfg)
+    if len(sizes) == 0:
+        where = f" on storey {free.storey!r}" if free.storey else ""
         raise SimError(
-            f"no cell has {cfg.min_clearance_m} m clearance: the free space is too narrow to walk"
+            f"no cell{where} has {cfg.min_clearance_m} m clearance: the free space is too narrow "
+            "to walk"
         )
-    sizes = np.bincount(comp.ravel())[1:]
-    walkable = comp == (1 + int(np.argmax(sizes)))
-    graph, node = _grid_graph(walkable, free.clearance, res, cfg.preferred_clearance_m)
+    walkable = comp == int(np.argmax(sizes))
+    graph, node = _grid_graph(walkable, free.clearance, res, cfg.preferred_clearance_m,
+                              free.floor_z, cfg.max_step_m)
     rr, cc = np.nonzero(walkable)
     clear = free.clearance[rr, cc]
     # way-point candidates: the well-clear cells; farthest-point sampling spreads them out
@@ -401,8 +470,10 @@ def plan_walk(
     s_new = np.arange(0.0, s[-1], 0.05)
     raw_rs = np.stack([np.interp(s_new, s, raw[:, 0]), np.interp(s_new, s, raw[:, 1])], axis=1)
     path = gaussian_filter1d(raw_rs, sigma=10.0, axis=0, mode="nearest")
+    required = free.required_clearance(cfg)
     for _ in range(12):
-        bad = free.clearance_at(path) < cfg.min_clearance_m + 0.03
+        need = required[tuple(np.clip(free.to_cell(path), 0, np.array(required.shape) - 1).T)]
+        bad = free.clearance_at(path) < need + 0.03
         if not bad.any():
             break
         bad = np.convolve(bad.astype(float), np.ones(9), mode="same") > 0
@@ -471,5 +542,8 @@ def plan_walk(
     h_mid = rng.uniform(h_lo + 0.15, h_hi - 0.15)
     height = h_mid + _smooth_signal(rng, t, 0.05, 0.01, 0.1) + 0.015 * np.sin(phase)
     height = np.clip(height, h_lo + 0.01, h_hi - 0.01)
-    xyz = np.concatenate([xy, (free.z_floor + height)[:, None]], axis=1)
+    # the local floor under the walker, smoothed over ~0.3 m of path: a step is climbed, not jumped
+    floor = gaussian_filter1d(free.floor_at(xy), sigma=0.3 / max(cfg.speed_mps, 0.1) / dt,
+                              mode="nearest")
+    xyz = np.concatenate([xy, (floor + height)[:, None]], axis=1)
     return Walk(t, xyz, yaw, pitch, roll, path)
