@@ -960,7 +960,7 @@ def add_trajectory(
     if name == "gt":
         raise SequenceError("refusing to overwrite the ground truth", target, "poses.gt")
     if target.exists() and not overwrite:
-        raise SequenceError("already exists (use overwrite / --force)", target, f"poses.{name}")
+        raise SequenceError("already exists (use overwrite / --overwrite)", target, f"poses.{name}")
     if (
         len(trajectory) != len(s.frames)
         or (np.abs(trajectory.timestamps - s.timestamps) > TIMESTAMP_TOLERANCE_S).any()
