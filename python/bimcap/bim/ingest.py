@@ -498,25 +498,42 @@ GEOMETRY_LEVEL_PREFIX = "geometry-"
 def check_units(elements: list[BimElement], ifc: Any, unit_scale: float, path: Path) -> None:
     """Raise :class:`BimInputError` when the walls' median height is implausible for the file's
     length unit (:data:`WALL_HEIGHT_RANGE_M`): a unit prefix changed without rescaling."""
-    heights = [e.zmax - e.zmin for e in elements if e.label == Label.WALL and len(e.vertices)]
-    if not heights:
+    walls = [e for e in elements if e.label == Label.WALL and len(e.vertices)]
+    if not walls:
         return
+    heights = [e.zmax - e.zmin for e in walls]
+    xy = np.concatenate([e.vertices[:, :2] for e in walls])
+    span = float(np.linalg.norm(xy.max(axis=0) - xy.min(axis=0)))
     median = float(np.median(heights))
     lo, hi = WALL_HEIGHT_RANGE_M
     if lo <= median <= hi:
         return
-    unit = _length_unit_name(ifc)
-    walls = [e for e in elements if e.label == Label.WALL and len(e.vertices)]
-    xy = np.concatenate([e.vertices[:, :2] for e in walls])
-    span = float(np.linalg.norm(xy.max(axis=0) - xy.min(axis=0)))
     raise BimInputError(
         f"the walls are {median:.4g} m tall (median of {len(heights)}) and span {span:.4g} m with "
-        f"the file's length unit {unit} ({unit_scale:g} m per unit): implausible for a building "
-        f"(walls between {lo:g} and {hi:g} m). Was the unit changed without rescaling the "
-        "coordinates?",
+        f"the file's length unit {_length_unit_name(ifc)} ({unit_scale:g} m per unit): "
+        f"implausible for a building (walls between {lo:g} and {hi:g} m). Was the unit changed "
+        "without rescaling the coordinates?",
         path,
         "IfcUnitAssignment LENGTHUNIT",
     )
+
+
+def _sample_walls(ifc: Any, walls: list[Any], count: int = 8) -> list[BimElement]:
+    """A few walls tessellated one by one (for :func:`check_units` before the whole model)."""
+    import ifcopenshell.geom
+
+    settings = ifcopenshell.geom.settings()
+    settings.set("use-world-coords", True)
+    out = []
+    for wall in walls[:count]:
+        try:
+            shape = ifcopenshell.geom.create_shape(settings, wall)
+        except Exception:  # noqa: BLE001  (the full pass reports it)
+            continue
+        verts, faces = _shape_arrays(shape.geometry)
+        if len(faces):
+            out.append(BimElement(wall.GlobalId, wall.is_a(), Label.WALL, None, verts, faces))
+    return out
 
 
 def _length_unit_name(ifc: Any) -> str:
@@ -763,6 +780,8 @@ def load_model(
     records = [_StoreyRecord(s.name, s.guid, by_guid[s.guid].attribute_m,
                              by_guid[s.guid].placement_m) for s in stated]
     storey_names = {ifc.by_guid(s.guid).id(): s.name for s in stated}
+    # A wrong length unit shows on a few walls: refuse before tessellating the whole model.
+    check_units(_sample_walls(ifc, walls), ifc, unit_scale, p)
     damaged = damage.any
     n_threads = 1 if damaged else (threads or multiprocessing.cpu_count() or 1)
 

@@ -486,8 +486,8 @@ def _read_frame_trajectory(
     if (diff > TIMESTAMP_TOLERANCE_S).any():
         i = int(np.argmax(diff))
         raise SequenceError(
-            f"{path.name}: pose {i} has timestamp {traj.timestamps[i]!r}, "
-            f"frame {i} has {timestamps[i]!r}",
+            f"{path.name}: pose {i} has timestamp {float(traj.timestamps[i])!r}, "
+            f"frame {i} has {float(timestamps[i])!r}",
             manifest or path,
             field_name,
         )

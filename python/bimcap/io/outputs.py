@@ -17,7 +17,8 @@ directory. :class:`OutputSet` makes them a set:
    files under one ``result.json``. :func:`verify_outputs` checks a directory against its
    ``result.json``.
 4. :meth:`OutputSet.abort` (on failure): removes the staging directory, and the output directory
-   itself when the run created it and left it empty.
+   itself when the run created it and left no file in it. Caches written before the failure
+   stay (a rerun reuses them).
 
 Caches (``bim/``, ``cache/``) live beside the outputs and are not part of the set.
 
@@ -275,6 +276,10 @@ class OutputSet:
                 shutil.rmtree(p)
             else:
                 p.unlink()
+        for name in self.names:
+            d = self.directory / name
+            if name.endswith("/") and d.is_dir() and not any(d.iterdir()):
+                d.rmdir()
         # 3. The new files, by rename.
         for p in staged:
             rel = p.relative_to(self.stage)
@@ -291,12 +296,10 @@ class OutputSet:
 
     def abort(self) -> None:
         """Remove the staging directory, and the output directory when this run created it and
-        nothing else is in it."""
+        left no file in it (empty cache directories included)."""
         if self.stage is not None:
             shutil.rmtree(self.stage, ignore_errors=True)
             self.stage = None
-        if self.created:
-            try:
-                self.directory.rmdir()  # only when empty
-            except OSError:
-                pass
+        if self.created and self.directory.is_dir():
+            if not any(p.is_file() or p.is_symlink() for p in self.directory.rglob("*")):
+                shutil.rmtree(self.directory, ignore_errors=True)
