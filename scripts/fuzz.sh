@@ -16,8 +16,8 @@ if ! command -v "$CXX_FUZZ" >/dev/null 2>&1; then
 fi
 probe=$(mktemp -d)
 trap 'rm -rf "$probe"' EXIT
-printf 'extern "C" int LLVMFuzzerTestOneInput(const unsigned char*, unsigned long) { return 0; }\n' \
-  > "$probe/probe.cc"
+printf '%s\n' 'extern "C" int LLVMFuzzerTestOneInput(const unsigned char*, unsigned long) {' \
+  '  return 0;' '}' > "$probe/probe.cc"
 if ! "$CXX_FUZZ" -fsanitize=fuzzer,address,undefined "$probe/probe.cc" -o "$probe/probe" \
      >/dev/null 2>&1; then
   echo "==> fuzz: skipped ($CXX_FUZZ has no libFuzzer runtime; apt-get install libclang-rt-14-dev)"
@@ -25,8 +25,9 @@ if ! "$CXX_FUZZ" -fsanitize=fuzzer,address,undefined "$probe/probe.cc" -o "$prob
 fi
 
 echo "==> fuzz: building cpp/fuzz/problem_file_fuzzer with $CXX_FUZZ (libFuzzer, ASan, UBSan)"
-cmake -S . -B build/fuzz -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_CXX_COMPILER="$CXX_FUZZ" \
-      -DBIMCAP_FUZZ=ON -DBIMCAP_BUILD_TESTS=OFF -DBIMCAP_PYTHON=OFF >/dev/null
+cmake -S . -B build/fuzz -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
+      -DCMAKE_CXX_COMPILER="$CXX_FUZZ" -DBIMCAP_FUZZ=ON -DBIMCAP_BUILD_TESTS=OFF \
+      -DBIMCAP_PYTHON=OFF >/dev/null
 cmake --build build/fuzz --target problem_file_fuzzer -j "$(nproc)"
 mkdir -p build/fuzz/corpus build/fuzz/artifacts
 echo "==> fuzz: running for ${SECONDS_BUDGET} s on cpp/fuzz/corpus/"

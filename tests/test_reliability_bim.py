@@ -161,7 +161,8 @@ def test_generated_cut_file_is_refused_with_counts(generated: Path, tmp_path: Pa
 
 
 def test_generated_malformed_line_is_refused(generated: Path, tmp_path: Path) -> None:
-    bad = _variant(generated, tmp_path, "unknown", lambda t: rename_class(t, "IFCWALL", "IFCWALLXX"))
+    bad = _variant(generated, tmp_path, "unknown",
+                   lambda t: rename_class(t, "IFCWALL", "IFCWALLXX"))
     with pytest.raises(BimInputError, match=r"lost 1 of 17 building elements .*1 unreadable"):
         from bimcap.bim.ingest import load_model
 
@@ -234,4 +235,5 @@ def test_empty_floor_plan_or_cloud_is_an_error(generated: Path) -> None:
         empty_plan.check_usable()
     assert str(generated) in str(info.value) and "S0 0.000 m" in str(info.value)
     with pytest.raises(BimInputError, match="empty semantic cloud"):
-        dataclasses.replace(ref, points=np.zeros((0, 3)), labels=np.zeros(0, np.uint8)).check_usable()
+        no_cloud = dataclasses.replace(ref, points=np.zeros((0, 3)), labels=np.zeros(0, np.uint8))
+        no_cloud.check_usable()

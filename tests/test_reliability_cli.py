@@ -10,7 +10,15 @@ from pathlib import Path
 import pytest
 
 from bimcap.cli import build_parser, main
-from bimcap.errors import EXIT_OS_ERROR, InputError, clean_message, describe_os_error
+from bimcap.errors import InputError
+
+EXIT_OS_ERROR = 4
+
+
+def describe_os_error(exc: OSError) -> str:
+    from bimcap.errors import describe_os_error as describe
+
+    return describe(exc)
 
 
 @pytest.mark.parametrize("code,words", [
@@ -39,7 +47,7 @@ def test_existing_file_where_a_directory_is_needed(tmp_path: Path) -> None:
 
 
 def test_an_unexpected_oserror_in_any_command_is_one_line(monkeypatch: pytest.MonkeyPatch,
-                                                         capsys: pytest.CaptureFixture[str]) -> None:
+        capsys: pytest.CaptureFixture[str]) -> None:
     """The mapping lives in bimcap.cli.main: whatever command raises an OSError, it prints one
     line and exits 4 (``--debug`` shows the traceback)."""
     import bimcap.cli.evaluate as evaluate
@@ -106,4 +114,6 @@ def test_no_numpy_reprs_in_messages(tmp_path: Path, capsys: pytest.CaptureFixtur
 
     msg = str(InputError(f"got {np.float64(2.5)!r} and {[np.int32(3)]}", "f.json", "k"))
     assert msg == "f.json: k: got 2.5 and [3]"
+    from bimcap.errors import clean_message
+
     assert clean_message("np.float32(1.0), np.int64(-2), np.bool_(True)") == "1.0, -2, True"

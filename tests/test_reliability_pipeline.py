@@ -112,7 +112,7 @@ CASES = ("unknown term", "short gt", "init timestamps", "missing onnx model", "b
 @pytest.mark.parametrize("case", CASES)
 def test_settings_and_inputs_are_checked_before_any_work(world: dict[str, Path], tmp_path: Path,
                                                           case: str,
-                                                          capsys: pytest.CaptureFixture[str]) -> None:
+        capsys: pytest.CaptureFixture[str]) -> None:
     args, words = _bad_settings(world, tmp_path)[case]
     out = tmp_path / "out"
     rc = main(["refine", str(world["seq"]), "-o", str(out), "-q", "--workers", "1", *args])
@@ -126,8 +126,8 @@ def test_settings_and_inputs_are_checked_before_any_work(world: dict[str, Path],
 # ----------------------------------------------------------------------------- item 2: the IFC
 @pytest.mark.parametrize("edit,words", [(length_unit_prefix, ["LENGTHUNIT", "MILLIMETRE"]),
                                         (lambda t: cut(t, 0.6), ["damaged IFC file"])])
-def test_unusable_ifc_fails_before_the_front_end(world: dict[str, Path], tmp_path: Path, edit,  # noqa: ANN001
-                                                 words: list[str],
+def test_unusable_ifc_fails_before_the_front_end(world: dict[str, Path], tmp_path: Path,
+                                                 edit, words: list[str],  # noqa: ANN001
                                                  capsys: pytest.CaptureFixture[str]) -> None:
     bad = tmp_path / "bad.ifc"
     bad.write_text(edit(world["design"].read_text()))
@@ -225,7 +225,7 @@ def test_an_interrupted_rerun_leaves_the_earlier_set_whole(first_run: Path,
 
 @pytest.mark.slow
 def test_demo_writes_a_consistent_set_and_keeps_users_files(tmp_path: Path,
-                                                            capsys: pytest.CaptureFixture[str]) -> None:
+        capsys: pytest.CaptureFixture[str]) -> None:
     args = ["demo", "-o", str(tmp_path / "demo"), "--preset", "tiny", "--frames", "8",
             "--scale", "0.125", "--no-facap", "-q", "--workers", "1"]
     assert main(args) == 0
@@ -242,7 +242,8 @@ def test_demo_writes_a_consistent_set_and_keeps_users_files(tmp_path: Path,
     assert verify_outputs(run) == []
 
 
-def test_demo_settings_are_checked_first(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_demo_settings_are_checked_first(tmp_path: Path,
+                                         capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "demo"
     assert main(["demo", "-o", str(out), "--preset", "tiny", "--terms", "G+X", "-q"]) == 2
     assert "unknown term" in _err_line(capsys)
@@ -273,7 +274,7 @@ def test_output_path_is_an_existing_file(world: dict[str, Path], tmp_path: Path,
 def test_os_errors_while_writing_are_one_line_and_exit_4(world: dict[str, Path], tmp_path: Path,
                                                          code: int, words: str,
                                                          monkeypatch: pytest.MonkeyPatch,
-                                                         capsys: pytest.CaptureFixture[str]) -> None:
+        capsys: pytest.CaptureFixture[str]) -> None:
     """The OSError a full disk / read-only file system / denied directory raises at the write,
     injected where bimcap's atomic writer flushes (os.fsync): every command maps it alike, and
     no temporary file stays behind."""
@@ -335,6 +336,18 @@ def test_read_only_directory_for_real(world: dict[str, Path], tmp_path: Path) ->
             assert r.returncode == 4, (args, r.stderr)
             lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
             assert len(lines) == 1 and f"{ro}: permission denied" in lines[0], r.stderr
+        # bimcap_solve: the same exit status and words.
+        from _solver_helpers import bimcap_solve_binary
+
+        from bimcap.optimize import SolverOptions, write_problem
+        from bimcap.optimize.synthetic import make_synthetic_problem
+
+        problem = tmp_path / "p.bcp"
+        write_problem(problem, make_synthetic_problem(num_frames=4, seed=1).problem,
+                      SolverOptions(max_iterations=2))
+        r = subprocess.run([*prefix, str(bimcap_solve_binary()), str(problem), "-o", str(ro)],
+                           capture_output=True, text=True, timeout=60)
+        assert r.returncode == 4 and "permission denied" in r.stderr, r.stderr
         assert list(ro.iterdir()) == []
     finally:
         ro.chmod(0o755)

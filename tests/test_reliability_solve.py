@@ -36,7 +36,8 @@ EXIT_OUTPUT = 4
 @pytest.fixture(scope="module")
 def arrays() -> dict[str, np.ndarray]:
     core()
-    return {k: v.copy() for k, v in make_synthetic_problem(num_frames=8, seed=3).problem.arrays().items()}
+    problem = make_synthetic_problem(num_frames=8, seed=3).problem
+    return {k: v.copy() for k, v in problem.arrays().items()}
 
 
 def _overflowing(arrays: dict[str, np.ndarray], case: str) -> tuple[Problem, SolverOptions, str]:
@@ -130,7 +131,8 @@ def test_bimcap_solve_on_a_full_disk_leaves_no_tmp(arrays: dict[str, np.ndarray]
 
 
 @pytest.mark.skipif(not Path("/dev/full").exists(), reason="/dev/full is not available")
-def test_bimcap_solve_enospc_through_dev_full(arrays: dict[str, np.ndarray], tmp_path: Path) -> None:
+def test_bimcap_solve_enospc_through_dev_full(arrays: dict[str, np.ndarray],
+                                              tmp_path: Path) -> None:
     """A real ENOSPC without privileges: the temporary file bimcap_solve writes is a symlink to
     /dev/full, whose every write fails with ENOSPC."""
     exe = bimcap_solve_binary()

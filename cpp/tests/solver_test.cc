@@ -291,8 +291,10 @@ TEST_F(SolverTest, NonFiniteInitialCostIsAFailureNamingTheTermAndFrame) {
     const char* term;
     const char* frame;  // expected in the message, or null
   };
-  for (const Case& c : {Case{"pose", "G (geometric)", "4"}, Case{"focal", "G (geometric)", nullptr},
-                        Case{"sigma", "W (wall)", nullptr}, Case{"floor point", "F (floor)", nullptr}}) {
+  for (const Case& c : {Case{"pose", "G (geometric)", "4"},
+                        Case{"focal", "G (geometric)", nullptr},
+                        Case{"sigma", "W (wall)", nullptr},
+                        Case{"floor point", "F (floor)", nullptr}}) {
     SCOPED_TRACE(c.name);
     OwnedProblem p = problem;
     SolverOptions o;
@@ -311,7 +313,8 @@ TEST_F(SolverTest, NonFiniteInitialCostIsAFailureNamingTheTermAndFrame) {
     EXPECT_FALSE(r.summary.success);
     EXPECT_EQ(r.summary.termination, "NON_FINITE_COST");
     EXPECT_EQ(r.summary.iterations, 0);
-    EXPECT_NE(r.summary.message.find("initial cost is not finite"), std::string::npos) << r.summary.message;
+    EXPECT_NE(r.summary.message.find("initial cost is not finite"), std::string::npos)
+        << r.summary.message;
     EXPECT_NE(r.summary.message.find(c.term), std::string::npos) << r.summary.message;
     if (c.frame != nullptr) {  // "(frames 3, 4)" or "(frame 4)"
       const std::string m = r.summary.message;

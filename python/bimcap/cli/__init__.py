@@ -114,12 +114,33 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _warnings_as_lines(command: str) -> Any:
+    """A ``warnings.showwarning`` that prints bimcap's own warnings (a damaged IFC, storey heights
+    taken from the geometry ...) as one ``bimcap COMMAND: warning: ...`` line on stderr."""
+    import warnings
+
+    original = warnings.showwarning
+
+    def show(message: Any, category: type[Warning], filename: str, lineno: int,
+             file: Any = None, line: str | None = None) -> None:
+        if category.__module__.startswith("bimcap."):
+            print(f"bimcap {command}: warning: {clean_message(str(message))}", file=sys.stderr)
+        else:
+            original(message, category, filename, lineno, file, line)
+
+    return show
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    import warnings
+
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
         return EXIT_BAD_INPUT
+    previous = warnings.showwarning
+    warnings.showwarning = _warnings_as_lines(args.command)
     try:
         _check_outputs(args)
         return int(args.func(args) or 0)
@@ -136,6 +157,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+    finally:
+        warnings.showwarning = previous
 
 
 if __name__ == "__main__":

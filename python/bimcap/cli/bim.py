@@ -47,7 +47,8 @@ def run(args: argparse.Namespace) -> int:
     out: Path = args.output
     check_not_input(out, [args.model])
     if not 0.0 <= args.max_lost_fraction <= 1.0:
-        raise BimOptionsError(f"--max-lost-fraction must be in [0, 1], got {args.max_lost_fraction}")
+        raise BimOptionsError(
+            f"--max-lost-fraction must be in [0, 1], got {args.max_lost_fraction}")
     t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", BimWarning)

@@ -169,8 +169,8 @@ class OutputSet:
     inputs: files the run reads; an output that is one of them is always refused.
     """
 
-    def __init__(self, directory: str | PathLike[str], names: Iterable[str], overwrite: bool = False,
-                 inputs: Iterable[str | PathLike[str]] = ()) -> None:
+    def __init__(self, directory: str | PathLike[str], names: Iterable[str],
+                 overwrite: bool = False, inputs: Iterable[str | PathLike[str]] = ()) -> None:
         self.directory = Path(directory)
         self.names = [n for n in names if n != RESULT_NAME] + [RESULT_NAME]
         self.overwrite = overwrite
@@ -228,8 +228,8 @@ class OutputSet:
 
     # ------------------------------------------------------------------ the run
     def open(self) -> Path:
-        """Create the directory (if needed) and a fresh staging directory; return the latter."""
-        self.check()
+        """Create the directory (if needed) and a fresh staging directory; return the latter.
+        Call :meth:`check` first (before the expensive work); :meth:`commit` checks again."""
         if not self.directory.exists():
             self.directory.mkdir(parents=True)
             self.created = True

@@ -190,7 +190,8 @@ def run_demo(out_dir: str | Path, opts: DemoOptions | None = None, quiet: bool =
                                 facap.seconds))
             write_tum(stage / "refined_facap.tum", facap.refined,
                       header="FACaP refined world_from_cam")
-            results["facap"] = {"metrics": tm.to_dict(), "map": None if mm is None else mm.to_dict()}
+            results["facap"] = {"metrics": tm.to_dict(),
+                                "map": None if mm is None else mm.to_dict()}
         outcome = solve_prepared(prepared, o.config, quiet)
         tm1, mm1 = evaluate_run(prepared, outcome.refined, gt)
         metrics["BIMCaP"] = tm1

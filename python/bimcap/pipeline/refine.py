@@ -637,7 +637,7 @@ def validate_settings(config: RefineConfig) -> Any:
 
 
 def config_uses(config: RefineConfig, name: str) -> bool:
-    """Whether the setting ``name`` (completion_model / segmentation_model) is used by ``config``."""
+    """Whether ``config`` uses the setting ``name`` (completion_model / segmentation_model)."""
     if name == "completion_model":
         return config.completion in (DepthSource.ONNX, DepthSource.HYBRID)
     return config.segmentation is LabelSource.ONNX
@@ -672,7 +672,8 @@ def validate_run(
     traj = load_initial(seq, init)
     gt_traj = load_ground_truth(seq, gt)
     make_providers(config, seq)  # ground-truth depth / labels need them in the sequence
-    inputs = [seq.manifest_path, ifc_path, *(p for p in (init, gt) if isinstance(p, (str, PathLike)))]
+    inputs = [seq.manifest_path, ifc_path,
+              *(p for p in (init, gt) if isinstance(p, (str, PathLike)))]
     inputs += [seq.trajectory_path(name) for name in seq.poses]
     outputs = OutputSet(out_dir, REFINE_OUTPUTS, overwrite=overwrite, inputs=inputs)
     outputs.check()
@@ -722,8 +723,10 @@ def refine(
                               command=command)
         gt_traj = plan.gt
         if gt_traj is not None:
-            result.metrics_before, result.map_before = evaluate_run(prepared, prepared.init, gt_traj)
-            result.metrics_after, result.map_after = evaluate_run(prepared, outcome.refined, gt_traj)
+            result.metrics_before, result.map_before = evaluate_run(prepared, prepared.init,
+                                                                    gt_traj)
+            result.metrics_after, result.map_after = evaluate_run(prepared, outcome.refined,
+                                                                  gt_traj)
         result.timings["total"] = time.perf_counter() - t_start
         result.files = {"refined": "refined.tum", "summary": "summary.json",
                         "map_before": "map_before.ply", "map_after": "map_after.ply"}
