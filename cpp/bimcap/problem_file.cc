@@ -221,9 +221,8 @@ ProblemFile ReadProblemFile(const std::string& path) {
   // A directory opens as a stream of "unknown" size on Linux; check the kind first.
   struct stat st;
   if (::stat(path.c_str(), &st) != 0) {
-    throw ProblemFileError(path, errno == ENOENT ? std::string("no such file")
-                                                 : std::string("cannot open file: ") +
-                                                       std::strerror(errno));
+    throw ProblemFileError(path, std::string("cannot open file: ") +
+                                     (errno == ENOENT ? "no such file" : std::strerror(errno)));
   }
   if (S_ISDIR(st.st_mode)) throw ProblemFileError(path, "is a directory, not a problem file");
   if (!S_ISREG(st.st_mode)) throw ProblemFileError(path, "not a regular file");
