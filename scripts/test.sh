@@ -11,3 +11,6 @@ ctest --test-dir build/ctest --output-on-failure -j "$(nproc)"
 
 echo "==> Python tests (pytest)"
 .venv/bin/python -m pytest tests
+
+echo "==> Fuzzing the problem-file reader (skipped without clang++ / libFuzzer)"
+bash scripts/fuzz.sh

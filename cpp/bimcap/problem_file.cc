@@ -1,6 +1,9 @@
 #include "bimcap/problem_file.h"
 
+#include <sys/stat.h>
+
 #include <algorithm>
+#include <cerrno>
 #include <cstdio>
 #include <cstring>
 #include <fstream>
@@ -61,6 +64,27 @@ uint64_t AlignUp(uint64_t v) {
 
 [[noreturn]] void Fail(const std::string& field, const std::string& message) {
   throw ProblemFileError(field, message);
+}
+
+// The options text must be printable ASCII lines ending in LF: a key or value with any other byte
+// (a flipped bit, another encoding, CR) is reported here by line and column, and never reaches a
+// message as raw bytes (which Python could not decode). The numpy reader applies the same rule.
+void CheckOptionsText(const std::string& text) {
+  int line = 1, column = 0;
+  for (const char ch : text) {
+    const unsigned char c = static_cast<unsigned char>(ch);
+    ++column;
+    if (c == '\n') {
+      ++line;
+      column = 0;
+    } else if (c < 0x20 || c > 0x7e) {
+      char hex[8];
+      std::snprintf(hex, sizeof(hex), "0x%02x", c);
+      Fail(kOptionsName, "line " + std::to_string(line) + ", column " + std::to_string(column) +
+                             ": byte " + hex + " is not printable ASCII (options are key=value "
+                             "text)");
+    }
+  }
 }
 
 }  // namespace
@@ -188,11 +212,20 @@ ProblemFile ParseProblemFile(const uint8_t* bytes, size_t size) {
   }
   problem.owner = buffer;
   ValidateProblem(problem);
+  if (has_options) CheckOptionsText(file.options_text);
   file.options = has_options ? OptionsFromText(file.options_text) : SolverOptions();
   return file;
 }
 
 ProblemFile ReadProblemFile(const std::string& path) {
+  // A directory opens as a stream of "unknown" size on Linux; check the kind first.
+  struct stat st;
+  if (::stat(path.c_str(), &st) != 0) {
+    throw ProblemFileError(path, std::string("cannot open file: ") +
+                                     (errno == ENOENT ? "no such file" : std::strerror(errno)));
+  }
+  if (S_ISDIR(st.st_mode)) throw ProblemFileError(path, "is a directory, not a problem file");
+  if (!S_ISREG(st.st_mode)) throw ProblemFileError(path, "not a regular file");
   std::ifstream in(path, std::ios::binary | std::ios::ate);
   if (!in) throw ProblemFileError(path, "cannot open file");
   const std::streamoff size = in.tellg();
@@ -279,7 +312,11 @@ void WriteProblemFile(const std::string& path, const ProblemData& problem,
     std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
     if (!out) throw ProblemFileError(path, "cannot open for writing");
     out.write(reinterpret_cast<const char*>(bytes.data()), static_cast<std::streamsize>(bytes.size()));
-    if (!out) throw ProblemFileError(path, "write error");
+    out.close();
+    if (!out) {  // a full disk shows here: leave no temporary file behind
+      std::remove(tmp.c_str());
+      throw ProblemFileError(path, "write error (disk full?)");
+    }
   }
   if (std::rename(tmp.c_str(), path.c_str()) != 0) {
     std::remove(tmp.c_str());

@@ -41,7 +41,8 @@ struct AssociationSummary {
 
 struct Summary {
   bool success = false;
-  std::string termination;     // the last Ceres run's termination type
+  std::string termination;     // the last Ceres run's termination type, or NON_FINITE_COST /
+                               // NO_RESIDUALS
   std::string message;         // the last Ceres run's message
   std::string linear_solver;
   int iterations = 0;          // Ceres iterations over all outer rounds
@@ -78,7 +79,10 @@ struct SolveResult {
 };
 
 // Solves one problem. Throws ProblemError / OptionsError on invalid input (nothing is aborted);
-// a Ceres failure is reported in `summary.success` / `termination`, not thrown.
+// a Ceres failure is reported in `summary.success` / `termination`, not thrown. A non-finite
+// initial or final cost is a failure too: success = false, termination "NON_FINITE_COST", and the
+// message names the term, the first non-finite residual block and the frames it depends on (the
+// solve does not start when the initial cost is not finite; the poses come back unchanged).
 SolveResult Solve(const ProblemData& problem, const SolverOptions& options);
 
 // The summary as a JSON object (NaN / Inf as null).

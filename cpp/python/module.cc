@@ -116,7 +116,18 @@ PYBIND11_MODULE(_core, m) {
     try {
       if (p) std::rethrow_exception(p);
     } catch (const bimcap::InputError& e) {
-      py::set_error(input_error.get_stored(), e.what());
+      // A message may quote bytes from a damaged file: never let them turn into a
+      // UnicodeDecodeError; undecodable bytes are shown as \xNN.
+      const std::string what = e.what();
+      PyObject* message = PyUnicode_DecodeUTF8(what.data(), static_cast<Py_ssize_t>(what.size()),
+                                               "backslashreplace");
+      if (message == nullptr) {
+        PyErr_Clear();
+        py::set_error(input_error.get_stored(), "invalid input");
+        return;
+      }
+      PyErr_SetObject(input_error.get_stored().ptr(), message);
+      Py_DECREF(message);
     }
   });
   m.attr("PROBLEM_FILE_VERSION") = bimcap::kProblemFileVersion;

@@ -83,6 +83,27 @@ TEST_F(ProblemFileTest, WriteAndReadFile) {
   std::remove(path.c_str());
 }
 
+TEST_F(ProblemFileTest, DirectoryIsAClearError) {
+  // An ifstream opens a directory on Linux and reports an absurd size (std::bad_alloc before).
+  try {
+    ReadProblemFile(::testing::TempDir());
+    FAIL() << "a directory was accepted";
+  } catch (const ProblemFileError& e) {
+    EXPECT_NE(std::string(e.what()).find("is a directory"), std::string::npos) << e.what();
+  }
+}
+
+TEST_F(ProblemFileTest, NonAsciiOptionKeyIsAnInputError) {
+  const size_t opts = U64(Entry("options") + 56);
+  Bytes b = bytes;
+  b[opts + 1] = 0xff;  // inside the first key: not UTF-8, not ASCII
+  ExpectRejected(b, "options: line 1, column 2: byte 0xff is not printable ASCII");
+  b = bytes;
+  b[opts + 1] = 0xc3;  // valid UTF-8 ("é") is refused too: keys are ASCII names
+  b[opts + 2] = 0xa9;
+  ExpectRejected(b, "byte 0xc3");
+}
+
 TEST_F(ProblemFileTest, Truncated) {
   for (size_t size : {size_t{0}, size_t{10}, size_t{63}, size_t{64}, size_t{200}, bytes.size() - 1}) {
     Bytes b(bytes.begin(), bytes.begin() + size);

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <string>
 
 #include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
@@ -280,6 +281,61 @@ TEST_F(SolverTest, InvalidInputThrowsNamingTheField) {
   SolverOptions o;
   o.association_gate = -1;
   EXPECT_THROW(Solve(problem.View(), o), OptionsError);
+}
+
+// A value that overflows a residual (a pose at 1e300, a focal length of 1e-300, sigma = 1e-300)
+// makes the initial cost non-finite: a failure naming the term and the frame, poses unchanged.
+TEST_F(SolverTest, NonFiniteInitialCostIsAFailureNamingTheTermAndFrame) {
+  struct Case {
+    const char* name;
+    const char* term;
+    const char* frame;  // expected in the message, or null
+  };
+  for (const Case& c : {Case{"pose", "G (geometric)", "4"},
+                        Case{"focal", "G (geometric)", nullptr},
+                        Case{"sigma", "W (wall)", nullptr},
+                        Case{"floor point", "F (floor)", nullptr}}) {
+    SCOPED_TRACE(c.name);
+    OwnedProblem p = problem;
+    SolverOptions o;
+    const std::string name = c.name;
+    if (name == "pose") {
+      p.poses[7 * 4 + 0] = 1e300;
+    } else if (name == "focal") {
+      p.cameras[0] = 1e-300;
+    } else if (name == "sigma") {
+      o.wall.sigma = 1e-300;
+    } else {
+      p.floor_p_in_cam[3 * p.floor_frame.size() / 2] = 1e308;
+      o.geometric.enabled = o.wall.enabled = o.column.enabled = false;
+    }
+    const SolveResult r = Solve(p.View(), o);
+    EXPECT_FALSE(r.summary.success);
+    EXPECT_EQ(r.summary.termination, "NON_FINITE_COST");
+    EXPECT_EQ(r.summary.iterations, 0);
+    EXPECT_NE(r.summary.message.find("initial cost is not finite"), std::string::npos)
+        << r.summary.message;
+    EXPECT_NE(r.summary.message.find(c.term), std::string::npos) << r.summary.message;
+    if (c.frame != nullptr) {  // "(frames 3, 4)" or "(frame 4)"
+      const std::string m = r.summary.message;
+      const size_t open = m.find("(frame");
+      ASSERT_NE(open, std::string::npos) << m;
+      EXPECT_NE(m.substr(open, m.find(')', open) - open).find(c.frame), std::string::npos) << m;
+    }
+    EXPECT_FALSE(std::isfinite(r.summary.initial_cost));
+    for (size_t k = 0; k < p.poses.size(); ++k) {
+      if (k % 7 >= 3) continue;  // the quaternions come back normalised
+      EXPECT_EQ(r.poses[k], p.poses[k]);
+    }
+    EXPECT_NE(SummaryToJson(r.summary).find("\"success\": false"), std::string::npos);
+  }
+}
+
+TEST_F(SolverTest, FiniteProblemsStillSucceed) {
+  const SolveResult r = Solve(problem.View(), SolverOptions());
+  EXPECT_TRUE(r.summary.success) << r.summary.message;
+  EXPECT_NE(r.summary.termination, "NON_FINITE_COST");
+  EXPECT_TRUE(std::isfinite(r.summary.final_cost));
 }
 
 }  // namespace

@@ -1,17 +1,23 @@
 // bimcap_solve PROBLEM -o OUT: solve a problem file, write OUT/refined.tum and OUT/summary.json.
 //
 // Exit codes: 0 solved, 1 usage error, 2 bad input (unreadable or malformed problem file, bad
-// option), 3 the solve failed (Ceres reported an unusable solution).
+// option), 3 the solve failed (Ceres reported an unusable solution, or the cost is not finite),
+// 4 the outputs could not be written (permission denied, read-only file system, disk full, OUT is
+// a file); the same codes as the `bimcap` command line (docs/reliability.md).
+#include <fcntl.h>
+#include <unistd.h>
+
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
 #include <exception>
-#include <fstream>
 #include <iostream>
 #include <cstdlib>
 #include <map>
 #include <stdexcept>
 #include <string>
+#include <utility>
+#include <vector>
 #include <sys/stat.h>
 
 #include "bimcap/problem_file.h"
@@ -22,6 +28,31 @@ namespace {
 constexpr int kExitUsage = 1;
 constexpr int kExitBadInput = 2;
 constexpr int kExitSolveFailed = 3;
+constexpr int kExitOutput = 4;
+
+// A file-system failure while writing the outputs (exit kExitOutput).
+class OutputError : public std::runtime_error {
+ public:
+  OutputError(const std::string& path, int error)
+      : std::runtime_error(path + ": " + Reason(error)) {}
+
+  static std::string Reason(int error) {
+    switch (error) {
+      case EACCES:
+      case EPERM: return "permission denied";
+      case EROFS: return "read-only file system";
+      case ENOSPC: return "no space left on the device (disk full)";
+#ifdef EDQUOT
+      case EDQUOT: return "disk quota exceeded";
+#endif
+      case EFBIG: return "file too large (file-size limit reached)";
+      case ENOTDIR: return "not a directory (a file is in the way)";
+      case EISDIR: return "is a directory";
+      case ENOENT: return "no such file or directory";
+      default: return std::strerror(error);
+    }
+  }
+};
 
 const char kUsage[] =
     "usage: bimcap_solve PROBLEM -o OUT [--set KEY=VALUE ...] [--threads N] [--quiet]\n"
@@ -37,18 +68,50 @@ const char kUsage[] =
     "  --threads N        shorthand for --set num_threads=N\n"
     "  --quiet            do not print the summary line\n"
     "\n"
-    "exit codes: 0 ok, 1 usage, 2 bad input, 3 solve failed\n";
+    "exit codes: 0 ok, 1 usage, 2 bad input, 3 solve failed, 4 cannot write the outputs\n";
 
-void WriteText(const std::string& path, const std::string& text) {
+// Writes `text` into the temporary file `path`.tmp, flushed to the disk, and returns its name.
+// On any failure (a full disk shows at write or fsync) the temporary file is removed and
+// OutputError names `path` and the reason.
+std::string WriteTemporary(const std::string& path, const std::string& text) {
   const std::string tmp = path + ".tmp";
-  {
-    std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
-    if (!out) throw std::runtime_error("cannot write " + path);
-    out << text;
-    if (!out) throw std::runtime_error("cannot write " + path);
+  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0666);
+  if (fd < 0) throw OutputError(path, errno);
+  auto fail = [&](int error) {
+    ::close(fd);
+    ::unlink(tmp.c_str());
+    throw OutputError(path, error);
+  };
+  size_t done = 0;
+  while (done < text.size()) {
+    const ssize_t n = ::write(fd, text.data() + done, text.size() - done);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) fail(n < 0 ? errno : ENOSPC);
+    done += static_cast<size_t>(n);
   }
-  if (std::rename(tmp.c_str(), path.c_str()) != 0) {
-    throw std::runtime_error("cannot rename into " + path);
+  if (::fsync(fd) != 0) fail(errno);
+  if (::close(fd) != 0) {
+    const int error = errno;
+    ::unlink(tmp.c_str());
+    throw OutputError(path, error);
+  }
+  return tmp;
+}
+
+// Writes every (path, text) pair as one set: all temporary files first, then the renames, so a
+// failure (a full disk) leaves the earlier outputs as they were and no temporary file behind.
+void WriteOutputs(const std::vector<std::pair<std::string, std::string>>& files) {
+  std::vector<std::string> written;
+  try {
+    for (const auto& [path, text] : files) written.push_back(WriteTemporary(path, text));
+    for (size_t i = 0; i < files.size(); ++i) {
+      if (std::rename(written[i].c_str(), files[i].first.c_str()) != 0) {
+        throw OutputError(files[i].first, errno);
+      }
+    }
+  } catch (...) {
+    for (const std::string& tmp : written) ::unlink(tmp.c_str());
+    throw;
   }
 }
 
@@ -148,13 +211,16 @@ int main(int argc, char** argv) {
 
   try {
     if (::mkdir(output_dir.c_str(), 0777) != 0 && errno != EEXIST) {
-      throw std::runtime_error("cannot create " + output_dir + ": " + std::strerror(errno));
+      throw OutputError(output_dir, errno);
     }
-    WriteText(output_dir + "/refined.tum", TumText(file.problem, result.poses));
-    WriteText(output_dir + "/summary.json", bimcap::SummaryToJson(result.summary));
+    struct stat st;
+    if (::stat(output_dir.c_str(), &st) != 0) throw OutputError(output_dir, errno);
+    if (!S_ISDIR(st.st_mode)) throw OutputError(output_dir, ENOTDIR);
+    WriteOutputs({{output_dir + "/refined.tum", TumText(file.problem, result.poses)},
+                  {output_dir + "/summary.json", bimcap::SummaryToJson(result.summary)}});
   } catch (const std::exception& e) {
-    std::cerr << "bimcap_solve: error: " << e.what() << "\n";
-    return kExitBadInput;
+    std::cerr << "bimcap_solve: error: cannot write the outputs: " << e.what() << "\n";
+    return kExitOutput;
   }
   const bimcap::Summary& s = result.summary;
   if (!quiet) {

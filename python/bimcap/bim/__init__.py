@@ -11,7 +11,14 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from bimcap.bim.errors import BimError, BimInputError, BimWarning, MissingFloorWarning
+from bimcap.bim.errors import (
+    BimError,
+    BimInputError,
+    BimWarning,
+    DamagedModelWarning,
+    MissingFloorWarning,
+    StoreyHeightWarning,
+)
 
 if TYPE_CHECKING:
     from bimcap.bim.ingest import BimElement, BimModel, Storey, load_model
@@ -24,9 +31,11 @@ __all__ = [
     "BimModel",
     "BimReference",
     "BimWarning",
+    "DamagedModelWarning",
     "MissingFloorWarning",
     "ReferenceOptions",
     "Storey",
+    "StoreyHeightWarning",
     "build_reference",
     "load_model",
 ]

@@ -31,3 +31,15 @@ class MissingFloorWarning(BimWarning):
 
 class MissingCeilingWarning(BimWarning):
     """A storey with walls has neither a ceiling covering nor a slab above it: no ceiling plane."""
+
+
+class DamagedModelWarning(BimWarning):
+    """The IFC file is damaged (instances IfcOpenShell could not read, references to instances
+    that are missing, elements without geometry), but it lost no more than the allowed share of
+    its elements; the message gives the counts."""
+
+
+class StoreyHeightWarning(BimWarning):
+    """A storey's ``Elevation`` disagrees with the height its own elements stand at (a
+    georeferenced model moved up, a wrong attribute), or the model has no ``IfcBuildingStorey``:
+    the storey heights were taken from the geometry instead."""

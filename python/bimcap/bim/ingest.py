@@ -22,12 +22,33 @@ anything else (stairs, beams, roofs, ...)    UNKNOWN ("other")
 
 Walls come tessellated with their openings already cut; doors and windows are their own elements.
 Elements that fail to tessellate are listed in :attr:`BimModel.failed` by GUID and skipped.
+
+Loading also checks that the model is usable (issue 12), and says what it did:
+
+* **Damage.** The file's text is scanned for its entity instances (``#N=CLASS(...)``) and the
+  instances they reference. Instances IfcOpenShell could not read (a malformed line, an unknown
+  class), references to instances that are missing (a cut file with the trailer re-appended) and
+  elements whose geometry failed are counted per element (:class:`ModelDamage`). More than
+  ``max_lost_fraction`` of the building elements lost is a :class:`BimInputError` with the
+  counts; any smaller loss a :class:`DamagedModelWarning` with the counts. A damaged file is
+  tessellated in one thread, element by element where IfcOpenShell's iterator gives up.
+* **Storey heights.** A storey's height is its ``Elevation`` when that agrees (within
+  :data:`STOREY_TOLERANCE_M`) with the height its own walls (or slabs) stand at, else its
+  placement's world z when that agrees, else the geometry's (a georeferenced model moved up,
+  a wrong attribute); a model without ``IfcBuildingStorey`` gets levels from the heights of its
+  wall bases. Each correction is a :class:`StoreyHeightWarning`.
+* **Units.** A median wall height outside :data:`WALL_HEIGHT_RANGE_M` means the length unit is
+  wrong (a prefix changed without rescaling the coordinates): a :class:`BimInputError` naming
+  the unit.
 """
 
 from __future__ import annotations
 
 import multiprocessing
 import os
+import re
+import warnings
+from collections import Counter
 from dataclasses import dataclass, field
 from os import PathLike
 from pathlib import Path
@@ -36,11 +57,21 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from bimcap.bim.errors import BimInputError
+from bimcap.bim.errors import BimInputError, DamagedModelWarning, StoreyHeightWarning
 from bimcap.labels import Label
 
 #: IFC classes never tessellated as elements (voids, and spaces which are read separately).
 EXCLUDED_CLASSES: tuple[str, ...] = ("IfcOpeningElement", "IfcSpace", "IfcAnnotation", "IfcGrid")
+
+#: A storey's Elevation (or placement z) further than this from the height its own walls stand
+#: at is replaced by the geometry's height (metres).
+STOREY_TOLERANCE_M = 1.0
+#: Without IfcBuildingStorey, wall bases further apart than this start a new level (metres).
+LEVEL_GAP_M = 1.5
+#: Plausible median wall height in metres; outside it the file's length unit is wrong.
+WALL_HEIGHT_RANGE_M = (0.3, 50.0)
+#: Default largest share of the building elements a damaged file may lose (load_model).
+DEFAULT_MAX_LOST_FRACTION = 0.02
 
 _WALL_CLASSES = ("IfcWall", "IfcCurtainWall")  # IfcWall covers StandardCase/ElementedCase
 _FLOOR_SLAB_TYPES = {"FLOOR", "BASESLAB", "LANDING", "NOTDEFINED", "USERDEFINED", None}
@@ -63,6 +94,78 @@ class Storey:
 
     def to_dict(self) -> dict[str, Any]:
         return {"name": self.name, "elevation_m": self.elevation_m, "guid": self.guid}
+
+
+@dataclass
+class ModelDamage:
+    """What a damaged IFC file lost (counts; see :func:`load_model`).
+
+    Attributes
+    ----------
+    instances: entity instances written in the file (``#N=...``).
+    unread: instances IfcOpenShell could not read, per class name as written in the file.
+    dangling: ids that instances reference but no instance defines (a cut file).
+    parser_messages: errors and warnings IfcOpenShell logged while reading the file.
+    elements_total: building elements (IfcElement except openings) read, plus those lost unread
+        or missing.
+    elements_unread: elements among the unread instances (by class, or listed in the spatial
+        structure).
+    elements_missing: elements the spatial structure (IfcRelContainedInSpatialStructure) lists
+        but no instance defines.
+    elements_failed: elements read whose tessellation produced no geometry.
+    examples: a few of the lost instances, e.g. ``"#15042 IFCWALLXX (unread)"``.
+    """
+
+    instances: int
+    unread: dict[str, int]
+    dangling: int
+    parser_messages: int
+    elements_total: int
+    elements_unread: int
+    elements_missing: int
+    elements_failed: int = 0
+    examples: list[str] = field(default_factory=list)
+
+    @property
+    def elements_lost(self) -> int:
+        return self.elements_unread + self.elements_missing + self.elements_failed
+
+    @property
+    def lost_fraction(self) -> float:
+        """Share of the building elements lost."""
+        return self.elements_lost / max(self.elements_total, 1)
+
+    @property
+    def any(self) -> bool:
+        return bool(self.unread or self.dangling or self.elements_lost or self.parser_messages)
+
+    def describe(self) -> str:
+        """One line with every count."""
+        unread = sum(self.unread.values())
+        top = ", ".join(f"{k} {v}" for k, v in Counter(self.unread).most_common(4))
+        parts = [
+            f"lost {self.elements_lost} of {self.elements_total} building elements "
+            f"({100 * self.lost_fraction:.1f} %: {self.elements_unread} unreadable, "
+            f"{self.elements_missing} missing from the file, {self.elements_failed} without "
+            "geometry)",
+            f"{unread} of {self.instances} instances IfcOpenShell could not read"
+            + (f" ({top})" if top else ""),
+            f"{self.dangling} references to instances that are not in the file",
+        ]
+        if self.parser_messages:
+            parts.append(f"{self.parser_messages} parser messages")
+        if self.examples:
+            parts.append("e.g. " + ", ".join(self.examples[:4]))
+        return "; ".join(parts)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "instances": self.instances, "unread": dict(self.unread), "dangling": self.dangling,
+            "parser_messages": self.parser_messages, "elements_total": self.elements_total,
+            "elements_unread": self.elements_unread, "elements_missing": self.elements_missing,
+            "elements_failed": self.elements_failed, "elements_lost": self.elements_lost,
+            "lost_fraction": self.lost_fraction, "examples": list(self.examples),
+        }
 
 
 @dataclass
@@ -112,6 +215,8 @@ class BimModel:
     storeys: sorted by elevation.
     failed: ``(guid, reason)`` of elements that have a body but could not be tessellated.
     spaces: tessellated IfcSpace volumes (label UNKNOWN), read only when ``load_spaces`` is set.
+    damage: what a damaged file lost (None for an intact file).
+    notes: what loading corrected (storey heights from the geometry ...), one line each.
     """
 
     path: Path
@@ -121,6 +226,8 @@ class BimModel:
     storeys: list[Storey]
     failed: list[tuple[str, str]] = field(default_factory=list)
     spaces: list[BimElement] = field(default_factory=list)
+    damage: ModelDamage | None = None
+    notes: list[str] = field(default_factory=list)
 
     def by_label(self, *labels: Label) -> list[BimElement]:
         """The elements whose label is one of ``labels``."""
@@ -244,21 +351,42 @@ def _storey_of(
     return result
 
 
-def _read_storeys(ifc: Any, unit_scale: float) -> list[Storey]:
+@dataclass(frozen=True)
+class _StoreyRecord:
+    """A storey as the file states it: ``Elevation`` and placement z in metres (None if unset)."""
+
+    name: str
+    guid: str
+    attribute_m: float | None
+    placement_m: float | None
+
+    @property
+    def stated_m(self) -> float:
+        """The height bimcap used before looking at the geometry: Elevation, else placement z."""
+        if self.attribute_m is not None:
+            return self.attribute_m
+        return self.placement_m if self.placement_m is not None else 0.0
+
+
+def _read_storey_records(ifc: Any, unit_scale: float) -> list[_StoreyRecord]:
     import ifcopenshell.util.placement as up
 
-    storeys = []
+    records = []
     for st in ifc.by_type("IfcBuildingStorey"):
-        name = st.Name or st.GlobalId
-        if st.Elevation is not None:
-            elev = float(st.Elevation) * unit_scale
-        elif st.ObjectPlacement is not None:
-            elev = float(up.get_local_placement(st.ObjectPlacement)[2, 3]) * unit_scale
-        else:
-            elev = 0.0
-        storeys.append(Storey(name=name, elevation_m=elev, guid=st.GlobalId))
-    storeys.sort(key=lambda s: s.elevation_m)
-    # Storey names are keys: make duplicates unique.
+        attribute = float(st.Elevation) * unit_scale if st.Elevation is not None else None
+        placement = None
+        if st.ObjectPlacement is not None:
+            try:
+                placement = float(up.get_local_placement(st.ObjectPlacement)[2, 3]) * unit_scale
+            except Exception:  # noqa: BLE001  (a damaged placement: the attribute is all there is)
+                placement = None
+        records.append(_StoreyRecord(st.Name or st.GlobalId, st.GlobalId, attribute, placement))
+    return records
+
+
+def _unique_storeys(storeys: list[Storey]) -> list[Storey]:
+    """Sorted by elevation; duplicate names made unique (storey names are keys)."""
+    storeys = sorted(storeys, key=lambda s: s.elevation_m)
     seen: dict[str, int] = {}
     unique = []
     for s in storeys:
@@ -268,9 +396,278 @@ def _read_storeys(ifc: Any, unit_scale: float) -> list[Storey]:
     return unique
 
 
+def _geometry_height(elements: list[BimElement]) -> tuple[float | None, str]:
+    """The height a storey's own elements stand at: the median base of its walls and columns,
+    else the median top of its floor slabs; None without either."""
+    bases = [e.zmin for e in elements if e.label in (Label.WALL, Label.COLUMN) and len(e.vertices)]
+    if bases:
+        return float(np.median(bases)), f"its {len(bases)} walls/columns stand at"
+    tops = [e.zmax for e in elements if e.label == Label.FLOOR and len(e.vertices)]
+    if tops:
+        return float(np.median(tops)), f"its {len(tops)} floor slabs' tops are at"
+    return None, ""
+
+
+def reconcile_storeys(
+    records: list[_StoreyRecord], elements: list[BimElement], path: Path
+) -> tuple[list[Storey], list[str]]:
+    """Storey heights that agree with the geometry, and one note per correction.
+
+    For each storey with walls, columns or floor slabs of its own: its ``Elevation`` when within
+    :data:`STOREY_TOLERANCE_M` of the height they stand at, else its placement's world z when
+    that is, else that height. A storey without such elements keeps its ``Elevation`` unless the
+    others had to be corrected: then it takes its placement z when the others did, else its
+    ``Elevation`` shifted by the others' median correction.
+    """
+    by_storey: dict[str, list[BimElement]] = {}
+    for e in elements:
+        if e.storey is not None:
+            by_storey.setdefault(e.storey, []).append(e)
+    chosen: dict[str, tuple[float, str]] = {}
+    notes: list[str] = []
+    for r in records:
+        g, what = _geometry_height(by_storey.get(r.name, []))
+        if g is None:
+            continue
+        if r.attribute_m is not None and abs(r.attribute_m - g) <= STOREY_TOLERANCE_M:
+            chosen[r.name] = (r.attribute_m, "attribute")
+            continue
+        if r.placement_m is not None and abs(r.placement_m - g) <= STOREY_TOLERANCE_M:
+            chosen[r.name] = (r.placement_m, "placement")
+            how = f"its placement's height {r.placement_m:.3f} m"
+        else:
+            chosen[r.name] = (g, "geometry")
+            how = f"the geometry's {g:.3f} m"
+        stated = "no Elevation" if r.attribute_m is None else f"Elevation {r.attribute_m:.3f} m"
+        notes.append(f"{path.name}: storey {r.name!r}: {stated}, but {what} {g:.3f} m; "
+                     f"using {how}")
+    corrected = [r for r in records if r.name in chosen and chosen[r.name][1] != "attribute"]
+    offsets = [chosen[r.name][0] - r.attribute_m for r in corrected if r.attribute_m is not None]
+    use_placement = bool(corrected) and all(chosen[r.name][1] == "placement" for r in corrected)
+    storeys = []
+    for r in records:
+        if r.name in chosen:
+            z = chosen[r.name][0]
+        elif corrected and use_placement and r.placement_m is not None:
+            z = r.placement_m
+            notes.append(f"{path.name}: storey {r.name!r} (no walls or slabs of its own): using "
+                         f"its placement's height {z:.3f} m like the other storeys")
+        elif corrected and offsets and r.attribute_m is not None:
+            z = r.attribute_m + float(np.median(offsets))
+            notes.append(f"{path.name}: storey {r.name!r} (no walls or slabs of its own): "
+                         f"Elevation shifted by the other storeys' correction to {z:.3f} m")
+        else:
+            z = r.stated_m
+        storeys.append(Storey(r.name, z, r.guid))
+    return _unique_storeys(storeys), notes
+
+
+def levels_from_geometry(elements: list[BimElement], path: Path) -> tuple[list[Storey], list[str]]:
+    """Storeys for a model without ``IfcBuildingStorey``: the bases of its walls and columns
+    grouped into levels wherever consecutive bases are more than :data:`LEVEL_GAP_M` apart, each
+    at its group's median base; every element without a storey goes to the highest level at or
+    below its base (+0.5 m)."""
+    bases = np.sort([e.zmin for e in elements if e.label in (Label.WALL, Label.COLUMN)])
+    if len(bases) == 0:
+        return [], []
+    groups = np.split(bases, np.flatnonzero(np.diff(bases) > LEVEL_GAP_M) + 1)
+    storeys = [Storey(f"Level {k + 1} (from geometry)", float(np.median(g)),
+                      f"{GEOMETRY_LEVEL_PREFIX}{k + 1}")
+               for k, g in enumerate(groups)]
+    assign_by_height(elements, storeys)
+    described = ", ".join(f"{st.name} at {st.elevation_m:.3f} m ({len(g)} walls/columns)"
+                          for st, g in zip(storeys, groups))
+    note = (f"{path.name}: the model has no IfcBuildingStorey; {len(storeys)} level(s) from the "
+            f"heights of its wall bases: {described}")
+    return storeys, [note]
+
+
+def assign_by_height(elements: list[BimElement], storeys: list[Storey]) -> None:
+    """Give every element without a storey the highest of ``storeys`` (sorted by elevation) at
+    or below its base + 0.5 m (the lowest when it is below them all)."""
+    heights = np.array([st.elevation_m for st in storeys])
+    for e in elements:
+        if e.storey is None and len(e.vertices) and len(storeys):
+            k = int(np.searchsorted(heights, e.zmin + 0.5, side="right")) - 1
+            e.storey = storeys[max(k, 0)].name
+
+
+GEOMETRY_LEVEL_PREFIX = "geometry-"
+
+
+def check_units(elements: list[BimElement], ifc: Any, unit_scale: float, path: Path) -> None:
+    """Raise :class:`BimInputError` when the walls' median height is implausible for the file's
+    length unit (:data:`WALL_HEIGHT_RANGE_M`): a unit prefix changed without rescaling."""
+    walls = [e for e in elements if e.label == Label.WALL and len(e.vertices)]
+    if not walls:
+        return
+    heights = [e.zmax - e.zmin for e in walls]
+    xy = np.concatenate([e.vertices[:, :2] for e in walls])
+    span = float(np.linalg.norm(xy.max(axis=0) - xy.min(axis=0)))
+    median = float(np.median(heights))
+    lo, hi = WALL_HEIGHT_RANGE_M
+    if lo <= median <= hi:
+        return
+    raise BimInputError(
+        f"the walls are {median:.4g} m tall (median of {len(heights)}) and span {span:.4g} m with "
+        f"the file's length unit {_length_unit_name(ifc)} ({unit_scale:g} m per unit): "
+        f"implausible for a building (walls between {lo:g} and {hi:g} m). Was the unit changed "
+        "without rescaling the coordinates?",
+        path,
+        "IfcUnitAssignment LENGTHUNIT",
+    )
+
+
+def _sample_walls(ifc: Any, walls: list[Any], count: int = 8) -> list[BimElement]:
+    """A few walls tessellated one by one (for :func:`check_units` before the whole model)."""
+    import ifcopenshell.geom
+
+    settings = ifcopenshell.geom.settings()
+    settings.set("use-world-coords", True)
+    out = []
+    for wall in walls[:count]:
+        try:
+            shape = ifcopenshell.geom.create_shape(settings, wall)
+        except Exception:  # noqa: BLE001  (the full pass reports it)
+            continue
+        verts, faces = _shape_arrays(shape.geometry)
+        if len(faces):
+            out.append(BimElement(wall.GlobalId, wall.is_a(), Label.WALL, None, verts, faces))
+    return out
+
+
+def _length_unit_name(ifc: Any) -> str:
+    try:
+        import ifcopenshell.util.unit as uu
+
+        unit = uu.get_project_unit(ifc, "LENGTHUNIT")
+    except Exception:  # noqa: BLE001
+        unit = None
+    if unit is None:
+        return "(none: metres assumed)"
+    if unit.is_a("IfcSIUnit"):
+        return f"{unit.Prefix or ''}{unit.Name}"
+    return str(getattr(unit, "Name", unit.is_a()))
+
+
+# ----------------------------------------------------------------------------- damage
+
+
+_STEP_STRING = re.compile(rb"'(?:[^']|'')*'")
+_STEP_DEFINITION = re.compile(rb"^[ \t]*#(\d+)[ \t]*=[ \t]*([A-Za-z0-9_]+)", re.M)
+_STEP_REFERENCE = re.compile(rb"#(\d+)")
+_STEP_CONTAINED = re.compile(rb"=[ \t]*IFCRELCONTAINEDINSPATIALSTRUCTURE[ \t]*\(([^;]*)",
+                             re.I)
+
+
+@dataclass
+class _StepText:
+    """What the file's text says, independent of IfcOpenShell."""
+
+    classes: dict[int, str]  # instance id → class name as written
+    dangling: set[int]  # referenced ids that no instance defines
+    contained: set[int]  # ids listed by IfcRelContainedInSpatialStructure statements
+
+
+def _scan_step_text(path: Path) -> _StepText:
+    """The instances, dangling references and spatially contained ids of a STEP file's DATA
+    section (string literals blanked first, so that ``'#12'`` in a name is no reference)."""
+    data = path.read_bytes()
+    start = data.find(b"DATA;")
+    body = _STEP_STRING.sub(b"''", data[start if start >= 0 else 0:])
+    classes = {int(m.group(1)): m.group(2).decode("ascii").upper()
+               for m in _STEP_DEFINITION.finditer(body)}
+    referenced = set(map(int, _STEP_REFERENCE.findall(body)))
+    dangling = referenced - classes.keys()
+    contained: set[int] = set()
+    for m in _STEP_CONTAINED.finditer(body):
+        contained.update(map(int, _STEP_REFERENCE.findall(m.group(1))))
+    return _StepText(classes, dangling, contained)
+
+
+def _is_element_class(schema: Any, name: str, cache: dict[str, bool | None]) -> bool | None:
+    """Whether the class ``name`` is an IfcElement other than an opening; None if the schema
+    does not know it."""
+    if name not in cache:
+        try:
+            decl = schema.declaration_by_name(name)
+        except RuntimeError:
+            cache[name] = None
+            return None
+        chain = []
+        while decl is not None:
+            chain.append(decl.name())
+            decl = decl.supertype()
+        cache[name] = "IfcElement" in chain and "IfcFeatureElement" not in chain
+    return cache[name]
+
+
+def assess_damage(ifc: Any, text: _StepText, parser_messages: int) -> ModelDamage:
+    """Compare what IfcOpenShell read with the file's text (:class:`ModelDamage`)."""
+    import ifcopenshell.ifcopenshell_wrapper as wrapper
+
+    read_ids = {e.id() for e in ifc}
+    unread_ids = sorted(set(text.classes) - read_ids)
+    unread = Counter(text.classes[i] for i in unread_ids)
+    try:
+        schema = wrapper.schema_by_name(str(ifc.schema))
+    except Exception:  # noqa: BLE001
+        schema = None
+    cache: dict[str, bool | None] = {}
+    elements_unread = []
+    for i in unread_ids:
+        is_element = None if schema is None else _is_element_class(schema, text.classes[i], cache)
+        if is_element or i in text.contained:
+            elements_unread.append(i)
+    missing = sorted(text.dangling & text.contained)
+    read_elements = [e for e in ifc.by_type("IfcElement") if not e.is_a("IfcFeatureElement")]
+    examples = [f"#{i} {text.classes[i]} (unreadable)" for i in elements_unread[:3]]
+    examples += [f"#{i} (listed in a storey, missing from the file)" for i in missing[:3]]
+    return ModelDamage(
+        instances=len(text.classes),
+        unread=dict(unread),
+        dangling=len(text.dangling),
+        parser_messages=parser_messages,
+        elements_total=len(read_elements) + len(elements_unread) + len(missing),
+        elements_unread=len(elements_unread),
+        elements_missing=len(missing),
+        examples=examples,
+    )
+
+
+def check_damage(damage: ModelDamage, path: Path, max_lost_fraction: float) -> None:
+    """Raise :class:`BimInputError` when the model lost more than ``max_lost_fraction`` of its
+    building elements; warn (:class:`DamagedModelWarning`) with the counts for any smaller loss
+    or any other damage."""
+    if damage.lost_fraction > max_lost_fraction:
+        raise BimInputError(
+            f"damaged IFC file: {damage.describe()}; more than the allowed "
+            f"{100 * max_lost_fraction:g} % (--max-lost-fraction). Re-export the model, or raise "
+            "the limit to use what is left",
+            path,
+            "DATA",
+        )
+    if damage.any:
+        warnings.warn(f"{path.name}: DAMAGED IFC FILE: {damage.describe()}", DamagedModelWarning,
+                      stacklevel=3)
+
+
+def _shape_arrays(geom: Any) -> tuple[NDArray[np.float64], NDArray[np.int32]]:
+    verts = np.frombuffer(geom.verts_buffer, dtype=np.float64).reshape(-1, 3).copy()
+    faces = np.frombuffer(geom.faces_buffer, dtype=np.int32).reshape(-1, 3).copy()
+    return verts, faces
+
+
 def _tessellate(
     ifc: Any, threads: int, include: list[Any] | None, exclude: list[str] | None
 ) -> list[tuple[int, NDArray[np.float64], NDArray[np.int32]]]:
+    """(id, vertices, faces) of every product with geometry, in world metres.
+
+    IfcOpenShell's iterator stops at the first element it cannot process (a malformed
+    attribute raises in ``next()``; with several threads it can wait forever, so damaged files
+    come here with ``threads=1``): the products it did not reach are then tessellated one by
+    one, and those that fail are left to :attr:`BimModel.failed`.
+    """
     import ifcopenshell.geom
 
     settings = ifcopenshell.geom.settings()
@@ -282,17 +679,33 @@ def _tessellate(
     else:
         it = ifcopenshell.geom.iterator(settings, ifc, threads, exclude=exclude)
     out = []
-    if not it.initialize():
-        return out
-    while True:
-        shape = it.get()
-        geom = shape.geometry
-        verts = np.frombuffer(geom.verts_buffer, dtype=np.float64).reshape(-1, 3).copy()
-        faces = np.frombuffer(geom.faces_buffer, dtype=np.int32).reshape(-1, 3).copy()
-        if len(faces):
-            out.append((int(shape.id), verts, faces))
-        if not it.next():
-            break
+    try:
+        if not it.initialize():
+            return out
+        while True:
+            shape = it.get()
+            verts, faces = _shape_arrays(shape.geometry)
+            if len(faces):
+                out.append((int(shape.id), verts, faces))
+            if not it.next():
+                break
+    except RuntimeError:
+        done = {eid for eid, _, _ in out}
+        if include is not None:
+            rest = [e for e in include if e.id() not in done]
+        else:
+            skip = tuple(exclude or ())
+            rest = [e for e in ifc.by_type("IfcProduct")
+                    if e.id() not in done and getattr(e, "Representation", None) is not None
+                    and not any(e.is_a(c) for c in skip)]
+        for element in rest:
+            try:
+                shape = ifcopenshell.geom.create_shape(settings, element)
+            except Exception:  # noqa: BLE001  (listed in BimModel.failed by the caller)
+                continue
+            verts, faces = _shape_arrays(shape.geometry)
+            if len(faces):
+                out.append((int(element.id()), verts, faces))
     return out
 
 
@@ -302,53 +715,81 @@ def load_model(
     threads: int | None = None,
     load_spaces: bool = False,
     include_furniture: bool = True,
+    max_lost_fraction: float = DEFAULT_MAX_LOST_FRACTION,
 ) -> BimModel:
     """Open an IFC file and tessellate every element in world coordinates, in metres.
 
     Parameters
     ----------
     path: an IFC2X3 or IFC4 STEP file (``.ifc``).
-    threads: geometry threads (default: ``multiprocessing.cpu_count()``).
+    threads: geometry threads (default: ``multiprocessing.cpu_count()``; one for a damaged file).
     load_spaces: also tessellate IfcSpace volumes into :attr:`BimModel.spaces` (used to derive
         floor planes when a storey has no floor slab).
     include_furniture: tessellate IfcFurnishingElement (label "other") too. Furniture plays no
         part in planes, floor plan or cloud; leaving it out saves most of the time on furnished
         models (Duplex: 3.7 s → 1.2 s of tessellation).
+    max_lost_fraction: the largest share of the building elements a damaged file may lose
+        (unreadable, missing from the file, without geometry) before it is refused.
 
     Raises
     ------
-    BimInputError: the file is missing, not IFC, truncated, unreadable, or has no walls.
+    BimInputError: the file is missing, not IFC, truncated, unreadable, has no walls, lost more
+        than ``max_lost_fraction`` of its elements, or its walls' size says that its length
+        unit is wrong.
+
+    Warns
+    -----
+    DamagedModelWarning: a damaged file that lost less (the counts). StoreyHeightWarning: storey
+    heights taken from the geometry (they disagree with it, or the model has no storeys).
     """
     import ifcopenshell
+    import ifcopenshell.util.element as ue
     import ifcopenshell.util.unit
 
     p = Path(path)
     check_ifc_file(p)
+    ifcopenshell.get_log()  # reading the log empties it: start from a clean one
     try:
         ifc = ifcopenshell.open(str(p))
     except Exception as exc:  # IfcOpenShell raises several unrelated types on bad files
         raise BimInputError(f"IfcOpenShell cannot read the file: {exc}", p) from exc
+    log = ifcopenshell.get_log()
+    parser_messages = sum(1 for line in log.splitlines()
+                          if line.startswith(("[error]", "[warning]")))
     try:
         walls = ifc.by_type("IfcWall") + ifc.by_type("IfcCurtainWall")
     except RuntimeError as exc:
         raise BimInputError(f"unsupported IFC schema: {exc}", p, "FILE_SCHEMA") from exc
+    # Damage, before the expensive tessellation: what the text has and IfcOpenShell did not read.
+    damage = assess_damage(ifc, _scan_step_text(p), parser_messages)
     if not walls:
+        if damage.any:
+            raise BimInputError(f"the model has no walls left: damaged IFC file: "
+                                f"{damage.describe()}", p, "IfcWall")
         raise BimInputError(
             "the model has no walls: a BIM reference needs IfcWall / IfcCurtainWall elements",
             p,
             "IfcWall",
         )
+    if damage.lost_fraction > max_lost_fraction:
+        check_damage(damage, p, max_lost_fraction)  # refused before tessellating
     unit_scale = float(ifcopenshell.util.unit.calculate_unit_scale(ifc))
-    storeys = _read_storeys(ifc, unit_scale)
-    storey_names = {ifc.by_guid(s.guid).id(): s.name for s in storeys}
-    n_threads = threads or multiprocessing.cpu_count() or 1
+    raw = _read_storey_records(ifc, unit_scale)
+    stated = _unique_storeys([Storey(r.name, r.stated_m, r.guid) for r in raw])
+    by_guid = {r.guid: r for r in raw}
+    records = [_StoreyRecord(s.name, s.guid, by_guid[s.guid].attribute_m,
+                             by_guid[s.guid].placement_m) for s in stated]
+    storey_names = {ifc.by_guid(s.guid).id(): s.name for s in stated}
+    # A wrong length unit shows on a few walls: refuse before tessellating the whole model.
+    check_units(_sample_walls(ifc, walls), ifc, unit_scale, p)
+    damaged = damage.any
+    n_threads = 1 if damaged else (threads or multiprocessing.cpu_count() or 1)
 
     excluded = EXCLUDED_CLASSES + (() if include_furniture else ("IfcFurnishingElement",))
     shapes = _tessellate(ifc, n_threads, None, list(excluded))
     cache: dict[int, str | None] = {}
     elements: list[BimElement] = []
     done: set[int] = set()
-    import ifcopenshell.util.element as ue
 
     for eid, verts, faces in shapes:
         ent = ifc.by_id(eid)
@@ -367,19 +808,39 @@ def load_model(
             )
         )
     failed = []
+    failed_elements = 0
     for prod in ifc.by_type("IfcProduct"):
         if prod.id() in done or any(prod.is_a(c) for c in excluded):
             continue
         rep = getattr(prod, "Representation", None)
         if rep is None:
             continue
-        bodies = [r for r in rep.Representations if (r.RepresentationIdentifier or "") == "Body"]
+        try:
+            bodies = [r for r in rep.Representations
+                      if (r.RepresentationIdentifier or "") == "Body"]
+        except Exception:  # noqa: BLE001  (a damaged representation counts as failed)
+            bodies = [rep]
         if bodies and not prod.is_a("IfcSpatialStructureElement"):
             failed.append((prod.GlobalId, f"{prod.is_a()}: tessellation produced no geometry"))
+            failed_elements += int(prod.is_a("IfcElement") and not prod.is_a("IfcFeatureElement"))
+    damage.elements_failed = failed_elements
+    if damage.elements_failed:
+        damage.examples += [f"{g} {why}" for g, why in failed[:2]]
+    check_damage(damage, p, max_lost_fraction)
+    check_units(elements, ifc, unit_scale, p)
+
+    if records:
+        storeys, notes = reconcile_storeys(records, elements, p)
+    else:
+        storeys, notes = levels_from_geometry(elements, p)
+    for note in notes:
+        warnings.warn(note, StoreyHeightWarning, stacklevel=2)
 
     spaces: list[BimElement] = []
     if load_spaces:
         spaces = load_spaces_of(ifc, None, storey_names, n_threads)
+        if not records:
+            assign_by_height(spaces, storeys)
     return BimModel(
         path=p,
         schema=str(ifc.schema),
@@ -388,6 +849,8 @@ def load_model(
         storeys=storeys,
         failed=failed,
         spaces=spaces,
+        damage=damage if damage.any else None,
+        notes=notes,
     )
 
 
@@ -426,6 +889,10 @@ def read_spaces(model: BimModel, threads: int | None = None) -> list[BimElement]
     import ifcopenshell
 
     ifc = ifcopenshell.open(str(model.path))
-    storey_names = {ifc.by_guid(s.guid).id(): s.name for s in model.storeys}
-    model.spaces = load_spaces_of(ifc, None, storey_names, threads or os.cpu_count() or 1)
+    real = [s for s in model.storeys if not s.guid.startswith(GEOMETRY_LEVEL_PREFIX)]
+    storey_names = {ifc.by_guid(s.guid).id(): s.name for s in real}
+    threads = 1 if model.damage is not None else (threads or os.cpu_count() or 1)
+    model.spaces = load_spaces_of(ifc, None, storey_names, threads)
+    if len(real) < len(model.storeys):
+        assign_by_height(model.spaces, model.storeys)
     return model.spaces

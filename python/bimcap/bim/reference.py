@@ -143,6 +143,32 @@ class BimReference:
             "floorplan_storeys": fp.get("storeys", []),
         }
 
+    def check_usable(self, ifc: str | PathLike[str] | None = None) -> None:
+        """Raise :class:`BimInputError` naming the IFC (``ifc``, else :attr:`source`) when the
+        reference cannot serve the solver: an empty floor plan (no wall or column cut by any
+        storey's band), an empty semantic cloud, or non-finite arrays."""
+        where = Path(ifc) if ifc is not None else (Path(self.source) if self.source else None)
+        storeys = ", ".join(f"{st.name} {st.elevation_m:.3f} m" for st in self.storeys) or "none"
+        if len(self.segments) == 0:
+            raise BimInputError(
+                "empty floor plan: no wall or column is cut by any storey's floor-plan band "
+                f"(storeys: {storeys}); check the storey heights against the walls and the "
+                "file's length unit",
+                where,
+                "floor plan",
+            )
+        if len(self.points) == 0:
+            raise BimInputError(
+                "empty semantic cloud: sampling the walls, floors and ceilings gave no point "
+                "(are the elements' surfaces degenerate, or the length unit wrong?)",
+                where,
+                "semantic cloud",
+            )
+        for name in ("planes", "segments", "segment_z", "points"):
+            arr = getattr(self, name)
+            if not np.isfinite(arr).all():
+                raise BimInputError(f"{name} of the BIM reference are not finite", where, name)
+
     # ------------------------------------------------------------------ files
 
     def save(self, directory: str | PathLike[str]) -> None:
@@ -248,6 +274,10 @@ def build_reference(model: BimModel, options: ReferenceOptions | None = None) ->
     :class:`BimReference`. Floor planes have normals up, ceiling planes normals down (into the
     room); signed distance ``n·p + d``.
 
+    Raises
+    ------
+    BimInputError: an empty floor plan or cloud (:meth:`BimReference.check_usable`).
+
     Warns
     -----
     MissingFloorWarning / MissingCeilingWarning for storeys with walls but no floor / ceiling.
@@ -258,7 +288,7 @@ def build_reference(model: BimModel, options: ReferenceOptions | None = None) ->
               else np.zeros((0, 4), dtype=np.float64))
     fp = build_floor_plan(model, opts.floorplan)
     points, labels = sample_model(model, opts.density_per_m2, opts.seed, opts.cloud_labels)
-    return BimReference(
+    ref = BimReference(
         planes=np.ascontiguousarray(planes, dtype=np.float64),
         plane_info=plane_info,
         segments=np.ascontiguousarray(fp.segments, dtype=np.float64),
@@ -274,6 +304,8 @@ def build_reference(model: BimModel, options: ReferenceOptions | None = None) ->
         counts=model.counts(),
         failed=list(model.failed),
     )
+    ref.check_usable(model.path)
+    return ref
 
 
 def slug(name: str) -> str:

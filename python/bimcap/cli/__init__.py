@@ -1,8 +1,18 @@
 """The ``bimcap`` command line. Each sub-command lives in its own module here and exposes
 ``register(subparsers)``; this module imports everything, and nothing imports it.
 
-Errors a user can cause (:class:`bimcap.errors.BimcapError`) print one clear line and exit with
-status 2; a failed solve exits with 3. No traceback unless ``--debug``.
+Every failure prints one clear line and exits with a documented status (``bimcap.errors``,
+docs/reliability.md): 2 bad input or settings (:class:`bimcap.errors.BimcapError`), 3 a failed
+solve or pipeline step, 4 the operating system refused a file operation (any :class:`OSError`:
+permission denied, read-only file system, disk full, a file where a directory is needed; mapped in
+one place, :func:`bimcap.errors.describe_os_error`), 130 interrupted. No traceback unless
+``--debug``.
+
+Sub-commands declare their outputs and inputs with ``set_defaults(output_dirs=[...],
+output_files=[...], input_paths=[...])`` (names of ``args`` attributes): before the command runs,
+:func:`main` checks that no output is an input and that each can be written
+(:func:`bimcap.io.outputs.check_output_dir` / ``check_output_file``), so that a read-only or
+mistyped ``-o`` fails at once, not after the expensive stages.
 """
 
 from __future__ import annotations
@@ -11,9 +21,18 @@ import argparse
 import importlib
 import sys
 from collections.abc import Sequence
+from typing import Any
 
 from bimcap import __version__
-from bimcap.errors import BimcapError
+from bimcap.errors import (
+    EXIT_BAD_INPUT,
+    EXIT_FAILED,
+    EXIT_INTERRUPTED,
+    EXIT_OS_ERROR,
+    BimcapError,
+    clean_message,
+    describe_os_error,
+)
 
 #: Sub-command modules, in the order ``bimcap --help`` lists them. A name whose module is not
 #: part of this build is skipped (any other import error is raised).
@@ -30,8 +49,50 @@ COMMANDS: tuple[str, ...] = (
     "solve_demo",
 )
 
-EXIT_BAD_INPUT = 2
-EXIT_SOLVE_FAILED = 3
+EXIT_SOLVE_FAILED = EXIT_FAILED
+
+__all__ = ["EXIT_BAD_INPUT", "EXIT_OS_ERROR", "EXIT_SOLVE_FAILED", "add_overwrite_argument",
+           "build_parser", "main"]
+
+
+class _DeprecatedAlias(argparse.Action):
+    """A store_true flag kept under an old name: says which name to use instead."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str, new: str = "", **kw: Any) -> None:
+        self.new = new
+        super().__init__(option_strings, dest, nargs=0, default=False, **kw)
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: Any, option_string: str | None = None) -> None:
+        print(f"bimcap: warning: {option_string} is deprecated, use {self.new}", file=sys.stderr)
+        setattr(namespace, self.dest, True)
+
+
+def add_overwrite_argument(p: argparse.ArgumentParser, what: str,
+                           deprecated_force: bool = False) -> None:
+    """The one flag that lets a command replace existing outputs: ``--overwrite`` (``--force``
+    kept as a deprecated alias where a command had it)."""
+    p.add_argument("--overwrite", action="store_true", help=f"replace {what}")
+    if deprecated_force:
+        p.add_argument("--force", dest="overwrite", action=_DeprecatedAlias, new="--overwrite",
+                       help="deprecated alias of --overwrite")
+
+
+def _check_outputs(args: argparse.Namespace) -> None:
+    """The outputs a command declared: never one of its declared inputs (exit 2), and writable
+    (the OSError the write would meet, exit 4)."""
+    from bimcap.io.atomic import check_not_input
+    from bimcap.io.outputs import check_output_dir, check_output_file
+
+    inputs = [v for v in (getattr(args, n, None) for n in getattr(args, "input_paths", ()))
+              if v is not None]
+    for names, check in ((getattr(args, "output_dirs", ()), check_output_dir),
+                         (getattr(args, "output_files", ()), check_output_file)):
+        for name in names:
+            value = getattr(args, name, None)
+            if value is not None:
+                check_not_input(value, inputs)
+                check(value)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -53,22 +114,51 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _warnings_as_lines(command: str) -> Any:
+    """A ``warnings.showwarning`` that prints bimcap's own warnings (a damaged IFC, storey heights
+    taken from the geometry ...) as one ``bimcap COMMAND: warning: ...`` line on stderr."""
+    import warnings
+
+    original = warnings.showwarning
+
+    def show(message: Any, category: type[Warning], filename: str, lineno: int,
+             file: Any = None, line: str | None = None) -> None:
+        if category.__module__.startswith("bimcap."):
+            print(f"bimcap {command}: warning: {clean_message(str(message))}", file=sys.stderr)
+        else:
+            original(message, category, filename, lineno, file, line)
+
+    return show
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    import warnings
+
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
         return EXIT_BAD_INPUT
+    previous = warnings.showwarning
+    warnings.showwarning = _warnings_as_lines(args.command)
     try:
+        _check_outputs(args)
         return int(args.func(args) or 0)
     except BimcapError as exc:
         if args.debug:
             raise
-        print(f"bimcap {args.command}: error: {exc}", file=sys.stderr)
+        print(f"bimcap {args.command}: error: {clean_message(str(exc))}", file=sys.stderr)
         return getattr(exc, "exit_code", EXIT_BAD_INPUT)
+    except OSError as exc:
+        if args.debug:
+            raise
+        print(f"bimcap {args.command}: error: {describe_os_error(exc)}", file=sys.stderr)
+        return EXIT_OS_ERROR
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
+    finally:
+        warnings.showwarning = previous
 
 
 if __name__ == "__main__":

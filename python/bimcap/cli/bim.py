@@ -28,11 +28,16 @@ def register(sub: Any) -> None:
                    help="rough line detector (hough)")
     p.add_argument("--meshes", action="store_true",
                    help="also write one OBJ mesh per class (furniture included in 'other')")
-    p.set_defaults(func=run)
+    p.add_argument("--max-lost-fraction", type=float, default=0.02, metavar="F",
+                   help="refuse a damaged IFC that lost more than this share of its building "
+                        "elements (default 0.02); a smaller loss is a warning with the counts")
+    p.set_defaults(func=run, output_dirs=["output"], input_paths=["model"])
 
 
 def run(args: argparse.Namespace) -> int:
-    from bimcap.bim.errors import BimWarning
+    import sys
+
+    from bimcap.bim.errors import BimOptionsError, BimWarning, DamagedModelWarning
     from bimcap.bim.floorplan import FloorPlanOptions, Vectorizer
     from bimcap.bim.ingest import load_model
     from bimcap.bim.reference import ReferenceOptions, build_reference
@@ -41,10 +46,17 @@ def run(args: argparse.Namespace) -> int:
 
     out: Path = args.output
     check_not_input(out, [args.model])
+    if not 0.0 <= args.max_lost_fraction <= 1.0:
+        raise BimOptionsError(
+            f"--max-lost-fraction must be in [0, 1], got {args.max_lost_fraction}")
     t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", BimWarning)
-        model = load_model(args.model, include_furniture=args.meshes)
+        model = load_model(args.model, include_furniture=args.meshes,
+                           max_lost_fraction=args.max_lost_fraction)
+        for w in caught:
+            if issubclass(w.category, DamagedModelWarning):  # loudly, before anything else
+                print(f"bimcap bim: WARNING: {w.message}", file=sys.stderr)
         t1 = time.perf_counter()
         opts = ReferenceOptions(
             density_per_m2=args.density,
@@ -80,7 +92,8 @@ def run(args: argparse.Namespace) -> int:
               f"precision {a['precision']:.3f} (tol {a['tol_m']:.2f} m)")
     print(f"cloud: {s['points']} points")
     for w in caught:
-        print(f"warning: {w.message}")
+        if not issubclass(w.category, DamagedModelWarning):
+            print(f"warning: {w.message}")
     print(f"time: load {t1 - t0:.1f} s, reference {t2 - t1:.1f} s, write {t3 - t2:.1f} s; "
           f"written to {out}")
     return 0

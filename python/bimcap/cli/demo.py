@@ -26,8 +26,10 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--drift", default="exp2", choices=["exp1", "exp2", "exp3"])
     p.add_argument("--no-facap", action="store_true", help="skip the FACaP comparison")
     p.add_argument("-q", "--quiet", action="store_true")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace files in OUT/refine that bimcap did not write (default: refuse)")
     add_config_arguments(p)
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, output_dirs=["out"])
 
 
 def run(args: argparse.Namespace) -> int:
@@ -35,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
 
     opts = DemoOptions(preset=args.preset, seed=args.seed, frames=args.frames, scale=args.scale,
                        drift=args.drift, config=config_from_args(args), facap=not args.no_facap)
-    res = run_demo(args.out, opts, quiet=args.quiet)
+    res = run_demo(args.out, opts, quiet=args.quiet, overwrite=args.overwrite)
     print(res.table)
     print(f"demo finished in {res.seconds:.1f} s; report: {res.report}")
     return 0

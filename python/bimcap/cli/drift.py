@@ -2,7 +2,8 @@
 
 Reads the sequence's ground truth (``poses/gt.tum``), writes ``poses/init.tum`` (listed in the
 manifest) and ``poses/init.drift.json`` (seed, σs, model, preset, calibration scales, resulting
-ATE). ``gt.tum`` is never overwritten; an existing ``init.tum`` only with ``--force``. With
+ATE). ``gt.tum`` is never overwritten; an existing ``init.tum`` only with ``--overwrite``
+(``--force``: deprecated alias). With
 ``-o FILE.tum`` the trajectory goes there instead (and ``FILE.drift.json`` beside it) and the
 sequence is left untouched.
 """
@@ -15,6 +16,7 @@ from typing import Any
 
 
 def register(subparsers: Any) -> None:
+    from bimcap.cli import add_overwrite_argument
     from bimcap.sim.drift import PRESETS, DriftModel
 
     presets = ", ".join(f"{k} ({v.description})" for k, v in PRESETS.items())
@@ -67,8 +69,8 @@ def register(subparsers: Any) -> None:
         metavar="FILE.tum",
         help="write here instead of into the sequence",
     )
-    p.add_argument("--force", action="store_true", help="replace an existing output trajectory")
-    p.set_defaults(func=run)
+    add_overwrite_argument(p, "an existing output trajectory", deprecated_force=True)
+    p.set_defaults(func=run, output_files=["output"])
 
 
 def _params(args: argparse.Namespace) -> Any:
@@ -113,12 +115,12 @@ def run(args: argparse.Namespace) -> int:
         f"seed {params.seed}, ATE_pos {result.ate_pos:.6f} m, ATE_rot {result.ate_rot:.6f} deg"
     )
     if args.output is None:
-        tum = add_trajectory(seq, args.name, result.init, header=header, overwrite=args.force)
+        tum = add_trajectory(seq, args.name, result.init, header=header, overwrite=args.overwrite)
     else:
         tum = args.output
         check_not_input(tum, [gt_path, seq.manifest_path])
-        if tum.exists() and not args.force:
-            raise SequenceError("already exists (use --force to replace it)", tum)
+        if tum.exists() and not args.overwrite:
+            raise SequenceError("already exists (use --overwrite to replace it)", tum)
         write_tum(tum, result.init, header=header)
     info = tum.with_name(tum.name.removesuffix(".tum") + ".drift.json")
     check_not_input(info, [gt_path, seq.manifest_path])

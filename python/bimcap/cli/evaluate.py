@@ -90,7 +90,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument(
         "-o", "--output", type=Path, metavar="metrics.json", help="write the metrics JSON"
     )
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, output_files=["output"], input_paths=["est", "gt", "map", "reference"])
 
 
 def run(args: argparse.Namespace) -> int:

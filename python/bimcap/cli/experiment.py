@@ -26,7 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--world-seed", type=int, default=0)
     p.add_argument("-q", "--quiet", action="store_true")
     add_config_arguments(p)
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, output_dirs=["out"])
 
 
 def run(args: argparse.Namespace) -> int:

@@ -38,21 +38,36 @@ def register(subparsers: Any) -> None:
                    help="as-built wall shift / column offset sigma in metres (default 0.03)")
     p.add_argument("--missing-fraction", type=float, default=0.1,
                    help="as-built fraction of removable elements left out (default 0.1)")
-    p.set_defaults(func=run)
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace existing IFC files and their .truth.json sidecars")
+    p.set_defaults(func=run, output_files=["output", "as_built"])
 
 
 def run(args: argparse.Namespace) -> int:
     from bimcap.io.atomic import check_not_input
-    from bimcap.sim.building import PRESETS, as_built, generate_building, replace_spec
+    from bimcap.sim.building import (
+        PRESETS,
+        BuildingSpecError,
+        as_built,
+        generate_building,
+        replace_spec,
+        truth_path_for,
+    )
 
-    changes = {name: getattr(args, name) for _, name, _ in _OVERRIDES
-               if getattr(args, name) is not None}
-    spec = replace_spec(PRESETS[args.preset], **changes)
-    design = generate_building(spec, args.seed)
     outputs = [args.output]
     if args.as_built is not None:
         check_not_input(args.as_built, [args.output])
         outputs.append(args.as_built)
+    if not args.overwrite:
+        for path in outputs:
+            for target in (path, truth_path_for(path)):
+                if target.exists():
+                    raise BuildingSpecError("already exists (use --overwrite to replace it)",
+                                            target, "-o" if path == args.output else "--as-built")
+    changes = {name: getattr(args, name) for _, name, _ in _OVERRIDES
+               if getattr(args, name) is not None}
+    spec = replace_spec(PRESETS[args.preset], **changes)
+    design = generate_building(spec, args.seed)
     design.write(args.output)
     _summary(design)
     if args.as_built is not None:

@@ -8,6 +8,8 @@ from typing import Any
 
 
 def register(subparsers: Any) -> None:
+    from bimcap.cli import add_overwrite_argument
+
     p = subparsers.add_parser(
         "import-conslam",
         help="import a ConSLAM ROS1 bag (RGB, VLP-16, camera_info, GT poses) as a sequence",
@@ -63,8 +65,8 @@ def register(subparsers: Any) -> None:
         metavar="0-9",
         help="PNG compression level of the images (default: OpenCV's)",
     )
-    p.add_argument("--force", action="store_true", help="replace an existing sequence at -o")
-    p.set_defaults(func=run)
+    add_overwrite_argument(p, "an existing sequence at -o", deprecated_force=True)
+    p.set_defaults(func=run, output_dirs=["output"], input_paths=["bag"])
 
 
 def run(args: argparse.Namespace) -> int:
@@ -83,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
         ifc=args.ifc,
         stride=args.stride,
         max_frames=args.max_frames,
-        overwrite=args.force,
+        overwrite=args.overwrite,
         png_compression=args.png_compression,
     )
     seq = result.sequence

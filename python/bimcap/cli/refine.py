@@ -37,12 +37,20 @@ def add_config_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--max-match-distance", type=float,
                    help="drop matches whose points are further apart under the initial poses (m)")
     g.add_argument("--workers", type=int, help="front-end processes (default: all cores)")
+    g.add_argument("--lidar-nan", choices=["raise", "drop"],
+                   help="a LiDAR scan with NaN/inf points: stop with an error naming the scan "
+                        "(raise, default) or drop those points (drop; a scan without any valid "
+                        "point gives its frame no depth)")
+    g.add_argument("--max-lost-fraction", type=float, metavar="F",
+                   help="refuse an IFC that lost more than this share of its building elements "
+                        "to damage (default 0.02); smaller losses are warnings")
 
 
 def config_from_args(args: argparse.Namespace) -> RefineConfig:
     keys = ("method", "terms", "weighting", "loss", "geometric_mode", "completion",
             "completion_model", "segmentation", "segmentation_model", "labels_dir", "coarse",
-            "rotation_first", "staged", "window", "max_match_distance", "workers")
+            "rotation_first", "staged", "window", "max_match_distance", "workers", "lidar_nan",
+            "max_lost_fraction")
     overrides: dict[str, Any] = {k: getattr(args, k) for k in keys if getattr(args, k, None) is not None}
     if args.config:
         return RefineConfig.from_toml(args.config, **overrides)
@@ -56,7 +64,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         description=(
             "Refine the initial trajectory of a sequence directory against the building's IFC: "
             "BIM reference, front end (depth, labels, matches), Ceres bundle adjustment. Writes "
-            "refined.tum, summary.json, result.json, map_before/after.ply and report.html into OUT."
+            "refined.tum, summary.json, map_before/after.ply, report.html and result.json (every "
+            "file of the run with its SHA-256) into OUT as one set. Every setting and input is "
+            "checked before any expensive stage."
         ),
     )
     p.add_argument("sequence", help="sequence directory (bimcap simulate / import-conslam)")
@@ -66,8 +76,10 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--gt", help="ground truth TUM for metrics (default: SEQUENCE/poses/gt.tum if any)")
     p.add_argument("--no-report", action="store_true", help="skip the HTML report")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace files in OUT that bimcap did not write (default: refuse)")
     add_config_arguments(p)
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, output_dirs=["out"])
 
 
 def run(args: argparse.Namespace) -> int:
@@ -75,7 +87,8 @@ def run(args: argparse.Namespace) -> int:
 
     cfg = config_from_args(args)
     result = refine(args.sequence, args.out, cfg, ifc=args.ifc, init=args.init, gt=args.gt,
-                    report=not args.no_report, quiet=args.quiet, command=command_line())
+                    report=not args.no_report, quiet=args.quiet, command=command_line(),
+                    overwrite=args.overwrite)
     print(result.outcome.summary.table())
     if result.metrics_after is not None:
         print(summary_table({"initial": result.metrics_before, "refined": result.metrics_after}))

@@ -42,7 +42,7 @@ def register(subparsers: Any) -> None:
                    help="render processes (default 2; 0 = one per CPU; 1 = in-process)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace an existing sequence in the output directory")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, output_dirs=["output"], input_paths=["model", "as_built"])
 
 
 def run(args: argparse.Namespace) -> int:

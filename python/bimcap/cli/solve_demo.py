@@ -23,7 +23,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     p.add_argument("--drift", type=float, default=0.03, help="translation drift per frame, m")
     p.add_argument("--drift-yaw", type=float, default=0.3, help="yaw drift per frame, degrees")
     p.add_argument("-o", "--output", type=Path, help="also write problem.bimcap, refined.tum, summary.json here")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, output_dirs=["output"])
 
 
 def run(args: argparse.Namespace) -> int:

@@ -417,7 +417,7 @@ def import_conslam(
     if max_frames is not None and max_frames < 1:
         raise ConslamError(f"max_frames must be >= 1, got {max_frames}", field="max_frames")
     if (Path(output) / MANIFEST).exists() and not overwrite:
-        raise ConslamError("already a sequence directory (use overwrite / --force)", output)
+        raise ConslamError("already a sequence directory (use overwrite / --overwrite)", output)
     extrinsic = (
         CONSLAM_CAM_FROM_LIDAR if cam_from_lidar is None else np.asarray(cam_from_lidar, float)
     )

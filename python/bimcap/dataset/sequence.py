@@ -486,8 +486,8 @@ def _read_frame_trajectory(
     if (diff > TIMESTAMP_TOLERANCE_S).any():
         i = int(np.argmax(diff))
         raise SequenceError(
-            f"{path.name}: pose {i} has timestamp {traj.timestamps[i]!r}, "
-            f"frame {i} has {timestamps[i]!r}",
+            f"{path.name}: pose {i} has timestamp {float(traj.timestamps[i])!r}, "
+            f"frame {i} has {float(timestamps[i])!r}",
             manifest or path,
             field_name,
         )
@@ -960,7 +960,7 @@ def add_trajectory(
     if name == "gt":
         raise SequenceError("refusing to overwrite the ground truth", target, "poses.gt")
     if target.exists() and not overwrite:
-        raise SequenceError("already exists (use overwrite / --force)", target, f"poses.{name}")
+        raise SequenceError("already exists (use overwrite / --overwrite)", target, f"poses.{name}")
     if (
         len(trajectory) != len(s.frames)
         or (np.abs(trajectory.timestamps - s.timestamps) > TIMESTAMP_TOLERANCE_S).any()

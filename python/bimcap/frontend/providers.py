@@ -62,7 +62,8 @@ class LidarDepthProvider:
             object.__setattr__(self, "completion", CompletionOptions())
 
     def __call__(self, ctx: FrameContext) -> NDArray[np.float32]:
-        from bimcap.fusion import complete_depth, project_lidar
+        from bimcap.fusion import NanPolicy, complete_depth, project_lidar
+        from bimcap.fusion.projection import FusionInputError
 
         seq = ctx.sequence
         if not hasattr(seq, "load_lidar") or not hasattr(seq, "cam_from_lidar"):
@@ -70,7 +71,18 @@ class LidarDepthProvider:
                 "the sequence has no LiDAR (load_lidar / cam_from_lidar)", None, "lidar"
             )
         scan = seq.load_lidar(ctx.index)
-        sparse = project_lidar(scan, seq.cam_from_lidar, ctx.camera, self.projection, distort=False)
+        drop = self.projection is not None and self.projection.nan_policy is NanPolicy.DROP
+        xyz = np.asarray(scan)[:, :3] if np.ndim(scan) == 2 else np.zeros((0, 3))
+        valid = int(np.isfinite(xyz).all(axis=1).sum())
+        if drop and valid == 0:
+            # Nothing to project: this frame gets no depth (its samples and keypoints drop out).
+            return np.zeros((ctx.camera.height, ctx.camera.width), np.float32)
+        try:
+            sparse = project_lidar(scan, seq.cam_from_lidar, ctx.camera, self.projection,
+                                   distort=False)
+        except FusionInputError as exc:
+            raise FrontendInputError(_scan_message(len(xyz), valid, exc), _lidar_path(ctx),
+                                     f"frames[{ctx.index}].lidar") from None
         ctx.measured_depth = np.asarray(sparse.depth, np.float32)
         dense = np.array(complete_depth(sparse, self.completion, image=ctx.image), np.float32)
         method = getattr(self.completion, "method", None)
@@ -82,6 +94,26 @@ class LidarDepthProvider:
             far = cv2.distanceTransform((sparse.depth <= 0).astype(np.uint8), cv2.DIST_L2, 5)
             dense[far > self.support_radius * float(np.hypot(w, h))] = 0.0
         return dense
+
+
+def _lidar_path(ctx: FrameContext) -> Any:
+    """The scan file of the frame (None for sequences that are not directories)."""
+    frame = ctx.sequence.frames[ctx.index]
+    rel = frame.get("lidar") if isinstance(frame, dict) else getattr(frame, "lidar", None)
+    root = getattr(ctx.sequence, "root", None)
+    return None if rel is None or root is None else Path(root) / str(rel)
+
+
+def _scan_message(points: int, valid: int, exc: Exception) -> str:
+    """What is wrong with a scan, and the command-line option that handles it."""
+    hint = ("bimcap refine --lidar-nan drop drops non-finite points and gives a frame without any "
+            "valid return no depth")
+    if points == 0:
+        return f"the LiDAR scan is empty (0 points); {hint}"
+    if valid < points:
+        return (f"{points - valid} of {points} LiDAR points are NaN/inf"
+                f"{' (all of them)' if valid == 0 else ''}; {hint}")
+    return f"{exc}"
 
 
 def _frame_stem(ctx: FrameContext) -> str | None:

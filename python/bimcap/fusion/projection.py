@@ -227,7 +227,8 @@ def project_lidar(
         if opts.nan_policy is NanPolicy.RAISE:
             bad = int((~finite).sum())
             raise FusionInputError(
-                f"{bad} of {n_input} points are NaN/inf (use NanPolicy.DROP to drop them)",
+                f"{bad} of {n_input} points are NaN/inf (ProjectionOptions.nan_policy DROP drops "
+                "them)",
                 field="points_in_lidar",
             )
     index = np.flatnonzero(finite)

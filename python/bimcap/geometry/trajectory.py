@@ -80,7 +80,7 @@ def validate_poses(
         if (steps <= 0).any():
             i = int(np.flatnonzero(steps <= 0)[0]) + 1
             raise TrajectoryError(
-                f"timestamps must increase strictly; entry {i} ({timestamps[i]!r}) does not",
+                f"timestamps must increase strictly; entry {i} ({float(timestamps[i])!r}) does not",
                 path,
                 "timestamps",
             )

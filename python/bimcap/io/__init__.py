@@ -1,4 +1,5 @@
-"""Low-level file helpers shared by every stage (atomic writes, input protection)."""
+"""Low-level file helpers shared by every stage (atomic writes, input protection, output sets:
+``bimcap.io.outputs``)."""
 
 from __future__ import annotations
 

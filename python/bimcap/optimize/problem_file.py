@@ -47,6 +47,20 @@ class ProblemFileError(SolverInputError):
     """A malformed problem file (names the file and the field)."""
 
 
+def _options_text(raw: bytes, fail: Any) -> str:
+    """The options text; any byte other than printable ASCII and the line feed is an error naming
+    its line and column, as in the C++ reader."""
+    line, column = 1, 0
+    for c in raw:
+        column += 1
+        if c == 0x0A:
+            line, column = line + 1, 0
+        elif c < 0x20 or c > 0x7E:
+            fail("options", f"line {line}, column {column}: byte 0x{c:02x} is not printable ASCII "
+                            "(options are key=value text)")
+    return raw.decode("ascii")
+
+
 def _align(n: int) -> int:
     return (n + ALIGNMENT - 1) // ALIGNMENT * ALIGNMENT
 
@@ -95,8 +109,12 @@ def read_problem(
     ProblemFileError: naming the file and field, for every malformed input.
     """
     p = Path(path)
-    if not p.is_file():
+    if p.is_dir():
+        raise ProblemFileError("is a directory, not a problem file", p)
+    if not p.exists():
         raise ProblemFileError("no such file", p)
+    if not p.is_file():
+        raise ProblemFileError("not a regular file", p)
     size = os.path.getsize(p)
     if size < HEADER_SIZE:
         raise ProblemFileError(f"file too short for a header ({size} bytes)", p, "header")
@@ -175,7 +193,7 @@ def parse_problem_buffer(
         if name == "options":
             if code != 3 or ndim != 1:
                 fail(name, "must be a 1-D uint8 array")
-            options_text = bytes(view).decode("utf-8", errors="replace")
+            options_text = _options_text(bytes(view), fail)
             continue
         if name not in FIELDS:
             fail(name, "unknown array")

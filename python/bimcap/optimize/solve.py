@@ -62,8 +62,9 @@ def solve(problem: Problem, options: SolverOptions | None = None, *, check: bool
     ----------
     problem: the arrays (validated on construction).
     options: how to solve; the defaults when None (ROBUST weighting, all terms on).
-    check: raise :class:`SolverError` when Ceres reports an unusable solution (else only
-        ``summary.success`` says so).
+    check: raise :class:`SolverError` when the solve failed: Ceres reports an unusable solution,
+        or the initial or final cost is not finite (termination ``NON_FINITE_COST``, the message
+        names the term, the residual block and its frames); else only ``summary.success`` says so.
 
     Raises
     ------

@@ -107,6 +107,12 @@ class RefineConfig:
         points under the initial poses; the paper used 0.4). None (default) keeps every
         geometrically verified match: with per-frame rotation drift the filter drops most of them.
     workers: front-end processes (None: all cores).
+    lidar_nan: what a LiDAR scan with NaN / inf points does: ``"raise"`` (default: stop, naming
+        the scan file and frame) or ``"drop"`` (drop those points; a scan with no valid point
+        gives its frame no depth).
+    max_lost_fraction: the largest share of the IFC's building elements that may be lost to a
+        damaged file (unreadable, missing, or without geometry) before the BIM reference is
+        refused (``bimcap.bim.ingest.load_model``); any loss below it is a loud warning.
     solver: overrides of ``bimcap.optimize.SolverOptions`` fields (nested dicts for terms).
     """
 
@@ -127,6 +133,8 @@ class RefineConfig:
     window: int = 4
     max_match_distance: float | None = None
     workers: int | None = None
+    lidar_nan: str = "raise"
+    max_lost_fraction: float = 0.02
     solver: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -152,6 +160,19 @@ class RefineConfig:
         if self.samples not in ("dense", "returns"):
             raise ConfigError(f"samples must be dense or returns, got {self.samples!r}",
                               field="samples")
+        if self.workers is not None and self.workers < 1:
+            raise ConfigError(f"workers must be >= 1, got {self.workers}", field="workers")
+        if self.max_match_distance is not None and not self.max_match_distance > 0:
+            raise ConfigError(f"max_match_distance must be > 0 m, got {self.max_match_distance}",
+                              field="max_match_distance")
+        if self.lidar_nan not in ("raise", "drop"):
+            raise ConfigError(f"lidar_nan must be raise or drop, got {self.lidar_nan!r}",
+                              field="lidar_nan")
+        if not 0.0 <= self.max_lost_fraction <= 1.0:
+            raise ConfigError(f"max_lost_fraction must be in [0, 1], got {self.max_lost_fraction}",
+                              field="max_lost_fraction")
+        if not isinstance(self.solver, dict):
+            raise ConfigError("solver must be a table of SolverOptions fields", field="solver")
 
     @property
     def effective_terms(self) -> str:

@@ -107,9 +107,49 @@ class DemoResult:
     results: dict[str, Any]
 
 
-def run_demo(out_dir: str | Path, opts: DemoOptions | None = None, quiet: bool = False) -> DemoResult:
-    """Run the demo into ``out_dir`` (re-running reuses what is already there)."""
+#: The files the demo's refine step writes into ``OUT/refine`` (as a set with ``result.json``).
+DEMO_OUTPUTS = ("refined.tum", "refined_facap.tum", "report.html", "figures/")
+
+
+def validate_demo(opts: DemoOptions) -> None:
+    """Every setting of the demo, before anything is generated: the building and drift presets,
+    frame count and scale, and the BIMCaP and FACaP solver settings."""
+    from bimcap.pipeline.refine import validate_settings
+    from bimcap.sim.building import PRESETS
+    from bimcap.sim.drift import PRESETS as DRIFT_PRESETS
+
+    if opts.preset not in PRESETS:
+        raise InputError(f"unknown building preset {opts.preset!r}; use one of {sorted(PRESETS)}",
+                         field="preset")
+    if opts.drift not in DRIFT_PRESETS:
+        raise InputError(f"unknown drift preset {opts.drift!r}; use one of "
+                         f"{sorted(DRIFT_PRESETS)}", field="drift")
+    if opts.frames < 2:
+        raise InputError(f"need at least 2 frames, got {opts.frames}", field="frames")
+    if not opts.scale > 0 or not opts.fps > 0:
+        raise InputError(f"scale and fps must be > 0, got {opts.scale} and {opts.fps}",
+                         field="scale/fps")
+    validate_settings(opts.config)
+    if opts.facap:
+        validate_settings(facap_config(opts.config))
+
+
+def facap_config(config: RefineConfig) -> RefineConfig:
+    """The FACaP run beside BIMCaP: the same front end, FACaP's objective and schedule."""
+    return replace(config, method=Method.FACAP, terms=None, weighting=None, coarse=False)
+
+
+def run_demo(out_dir: str | Path, opts: DemoOptions | None = None, quiet: bool = False,
+             overwrite: bool = False) -> DemoResult:
+    """Run the demo into ``out_dir`` (re-running reuses what is already there).
+
+    Settings are checked first (:func:`validate_demo`) and so is ``OUT/refine``: a file there
+    that bimcap did not write is replaced only with ``overwrite``. The refine outputs
+    (``refined.tum``, ``refined_facap.tum``, ``report.html``, ``figures/``) are written as one set
+    with ``OUT/refine/result.json`` (:class:`bimcap.io.outputs.OutputSet`).
+    """
     from bimcap.geometry import write_tum
+    from bimcap.io.outputs import OutputSet
     from bimcap.pipeline.refine import (
         RefineResult,
         evaluate_run,
@@ -120,41 +160,66 @@ def run_demo(out_dir: str | Path, opts: DemoOptions | None = None, quiet: bool =
     from bimcap.pipeline.report import RunRow, write_refine_report
 
     o = opts or DemoOptions()
+    validate_demo(o)
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
-    design, built = make_world(out, o, quiet)
-    seq_dir = make_sequence(out, design, built, o, quiet)
     run_dir = out / "refine"
-    prepared = prepare(seq_dir, design, None, o.config, run_dir, quiet)
-    gt = prepared.sequence.trajectory("gt")
+    # A demo directory of a bimcap before output sets (demo.json, no refine/result.json): its
+    # refine files are the demo's own.
+    legacy = (out / "demo.json").is_file() and not (run_dir / "result.json").exists()
+    outputs = OutputSet(run_dir, DEMO_OUTPUTS, overwrite=overwrite or legacy)
+    outputs.check()
+    created = not out.exists()
+    out.mkdir(parents=True, exist_ok=True)
+    try:
+        t0 = time.perf_counter()
+        design, built = make_world(out, o, quiet)
+        seq_dir = make_sequence(out, design, built, o, quiet)
+        prepared = prepare(seq_dir, design, None, o.config, run_dir, quiet)
+        gt = prepared.sequence.trajectory("gt")
+        stage = outputs.open()
 
-    results: dict[str, Any] = {}
-    tm0, mm0 = evaluate_run(prepared, prepared.init, gt)
-    metrics = {"initial": tm0}
-    extra = []
-    if o.facap:
-        fcfg = replace(o.config, method=Method.FACAP, terms=None, weighting=None, coarse=False)
-        facap = solve_prepared(prepared, fcfg, quiet)
-        tm, mm = evaluate_run(prepared, facap.refined, gt)
-        metrics["FACaP"] = tm
-        extra.append(RunRow("facap G+F+W", facap.refined.poses, tm, mm, facap.summary, facap.seconds))
-        write_tum(run_dir / "refined_facap.tum", facap.refined, header="FACaP refined world_from_cam")
-        results["facap"] = {"metrics": tm.to_dict(), "map": None if mm is None else mm.to_dict()}
-    outcome = solve_prepared(prepared, o.config, quiet)
-    tm1, mm1 = evaluate_run(prepared, outcome.refined, gt)
-    metrics["BIMCaP"] = tm1
-    write_tum(run_dir / "refined.tum", outcome.refined, header="BIMCaP refined world_from_cam")
-    result = RefineResult(run_dir, o.config, prepared.init, outcome.refined, outcome, tm0, tm1,
-                          mm0, mm1, timings={**prepared.timings, "solve": outcome.seconds},
-                          command=f"bimcap demo -o {out} --preset {o.preset} --seed {o.seed} "
-                                  f"--frames {o.frames} --scale {o.scale} --drift {o.drift}")
-    report = write_refine_report(result, prepared, gt, extra)
-    table = summary_table(metrics)
-    seconds = time.perf_counter() - t0
-    results.update(options=o.to_dict(), initial={"metrics": tm0.to_dict()},
-                   bimcap={"metrics": tm1.to_dict(), "map": None if mm1 is None else mm1.to_dict(),
-                           "summary": outcome.to_dict()},
-                   seconds=seconds)
-    atomic_write_json(out / "demo.json", results)
+        results: dict[str, Any] = {}
+        tm0, mm0 = evaluate_run(prepared, prepared.init, gt)
+        metrics = {"initial": tm0}
+        extra = []
+        if o.facap:
+            facap = solve_prepared(prepared, facap_config(o.config), quiet)
+            tm, mm = evaluate_run(prepared, facap.refined, gt)
+            metrics["FACaP"] = tm
+            extra.append(RunRow("facap G+F+W", facap.refined.poses, tm, mm, facap.summary,
+                                facap.seconds))
+            write_tum(stage / "refined_facap.tum", facap.refined,
+                      header="FACaP refined world_from_cam")
+            results["facap"] = {"metrics": tm.to_dict(),
+                                "map": None if mm is None else mm.to_dict()}
+        outcome = solve_prepared(prepared, o.config, quiet)
+        tm1, mm1 = evaluate_run(prepared, outcome.refined, gt)
+        metrics["BIMCaP"] = tm1
+        write_tum(stage / "refined.tum", outcome.refined, header="BIMCaP refined world_from_cam")
+        result = RefineResult(stage, o.config, prepared.init, outcome.refined, outcome, tm0, tm1,
+                              mm0, mm1, timings={**prepared.timings, "solve": outcome.seconds},
+                              command=f"bimcap demo -o {out} --preset {o.preset} --seed {o.seed} "
+                                      f"--frames {o.frames} --scale {o.scale} --drift {o.drift}")
+        report = run_dir / write_refine_report(result, prepared, gt, extra).name
+        result.out_dir = run_dir
+        result.files = {"refined": "refined.tum", "report": report.name}
+        if o.facap:
+            result.files["refined_facap"] = "refined_facap.tum"
+        outputs.commit(result.to_dict())
+        table = summary_table(metrics)
+        seconds = time.perf_counter() - t0
+        results.update(options=o.to_dict(), initial={"metrics": tm0.to_dict()},
+                       bimcap={"metrics": tm1.to_dict(),
+                               "map": None if mm1 is None else mm1.to_dict(),
+                               "summary": outcome.to_dict()},
+                       seconds=seconds)
+        atomic_write_json(out / "demo.json", results)
+    except BaseException:
+        outputs.abort()
+        if created:
+            try:
+                out.rmdir()  # only when the failed run left it empty
+            except OSError:
+                pass
+        raise
     return DemoResult(out, report, table, seconds, results)

@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 
 from bimcap.errors import InputError
 from bimcap.geometry import Trajectory, read_tum, transform_points, write_tum
-from bimcap.io.atomic import atomic_write_json, check_not_input
+from bimcap.io.atomic import atomic_write_json
 from bimcap.labels import Label
 from bimcap.pipeline.config import (
     DepthSource,
@@ -76,9 +76,12 @@ def _fingerprint(path: Path) -> str:
     return h.hexdigest()[:16]
 
 
-def bim_reference(ifc_path: str | PathLike[str], cache_dir: str | PathLike[str] | None) -> Any:
+def bim_reference(ifc_path: str | PathLike[str], cache_dir: str | PathLike[str] | None,
+                  max_lost_fraction: float = 0.02) -> Any:
     """The BIM reference of ``ifc_path``, loaded from ``cache_dir`` when it was built from the same
-    file content (and written there otherwise)."""
+    file content (and written there otherwise). An unusable model (damaged beyond
+    ``max_lost_fraction``, an empty floor plan or cloud, an implausible unit) raises
+    ``BimInputError`` naming the IFC; a cached reference is checked the same way."""
     from bimcap.bim import ingest
     from bimcap.bim.reference import BimReference, build_reference
 
@@ -91,10 +94,13 @@ def bim_reference(ifc_path: str | PathLike[str], cache_dir: str | PathLike[str] 
         stamp = cdir / "source.sha1"
         if stamp.is_file() and stamp.read_text().strip() == key:
             try:
-                return BimReference.load(cdir)
+                ref = BimReference.load(cdir)
             except Exception:  # noqa: BLE001  (a damaged cache is rebuilt, never fatal)
                 pass
-    ref = build_reference(ingest.load_model(ifc))
+            else:
+                ref.check_usable(ifc)
+                return ref
+    ref = build_reference(ingest.load_model(ifc, max_lost_fraction=max_lost_fraction))
     if cache_dir is not None:
         cdir = Path(cache_dir)
         ref.save(cdir)
@@ -123,7 +129,13 @@ def make_providers(config: RefineConfig, sequence: Any) -> tuple[Any, Any, Any]:
 
             onnx_opts = OnnxCompletionOptions(model_path=str(config.completion_model))
         method = CompletionMethod[config.completion.name]
-        depth = LidarDepthProvider(completion=CompletionOptions(method=method, onnx=onnx_opts))
+        projection = None
+        if config.lidar_nan == "drop":
+            from bimcap.fusion import NanPolicy, ProjectionOptions
+
+            projection = ProjectionOptions(nan_policy=NanPolicy.DROP)
+        depth = LidarDepthProvider(projection=projection,
+                                   completion=CompletionOptions(method=method, onnx=onnx_opts))
 
     refiner = None
     if config.segmentation is LabelSource.GROUND_TRUTH:
@@ -159,18 +171,34 @@ def load_initial(sequence: Any, init: str | PathLike[str] | Trajectory | None) -
     if init is None:
         if not sequence.has_trajectory("init"):
             raise InputError("no --init given and the sequence has no poses/init.tum", sequence.root)
-        traj = sequence.trajectory("init")
-        where: Any = sequence.trajectory_path("init")
-    elif isinstance(init, Trajectory):
-        traj, where = init, None
-    else:
-        traj, where = read_tum(init), init
+        return check_trajectory(sequence, sequence.trajectory("init"),
+                                sequence.trajectory_path("init"), "initial")
+    if isinstance(init, Trajectory):
+        return check_trajectory(sequence, init, None, "initial")
+    return check_trajectory(sequence, read_tum(init), init, "initial")
+
+
+def load_ground_truth(sequence: Any, gt: str | PathLike[str] | None) -> Trajectory | None:
+    """The ground truth for the metrics: ``gt`` (a TUM file) or the sequence's ``poses/gt.tum``
+    when present (None otherwise); one pose per frame at the frames' timestamps."""
+    if gt is not None:
+        return check_trajectory(sequence, read_tum(gt), gt, "ground-truth")
+    if sequence.has_trajectory("gt"):
+        return check_trajectory(sequence, sequence.trajectory("gt"),
+                                sequence.trajectory_path("gt"), "ground-truth")
+    return None
+
+
+def check_trajectory(sequence: Any, traj: Trajectory, where: Any, what: str) -> Trajectory:
+    """``traj`` if it has one pose per frame of ``sequence`` at the frame's timestamp (within
+    1 ms); else an :class:`InputError` naming the file ``where``."""
     ts = sequence.timestamps
     if len(traj) != len(ts):
-        raise InputError(f"{len(traj)} initial poses for {len(ts)} frames", where, "poses")
+        raise InputError(f"{len(traj)} {what} poses for {len(ts)} frames of {sequence.root}: "
+                         "give one pose per frame", where, "poses")
     worst = float(np.max(np.abs(traj.timestamps - ts))) if len(ts) else 0.0
     if worst > 1e-3:
-        raise InputError(f"initial poses' timestamps differ from the frames' by up to {worst:.4f} s",
+        raise InputError(f"{what} poses' timestamps differ from the frames' by up to {worst:.4f} s",
                          where, "timestamps")
     return traj
 
@@ -203,12 +231,13 @@ def prepare(
     ifc_path = Path(ifc) if ifc is not None else seq.ifc_path
     if ifc_path is None:
         raise InputError("no --ifc given and the sequence manifest names none", seq.manifest_path, "ifc")
+    validate_settings(config)
     traj = load_initial(seq, init)
     work = Path(work_dir)
 
     t0 = time.perf_counter()
     log(f"BIM reference of {ifc_path}", quiet)
-    ref = bim_reference(ifc_path, work / "bim")
+    ref = bim_reference(ifc_path, work / "bim", config.max_lost_fraction)
     timings["bim"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -734,6 +763,97 @@ def evaluate_run(
     return tm, mm
 
 
+#: Every file a refine run may write into its output directory (``figures/``: the report's PNGs);
+#: ``result.json`` lists the ones a run wrote, with their SHA-256 (``bimcap.io.outputs``).
+REFINE_OUTPUTS = ("refined.tum", "summary.json", "map_before.ply", "map_after.ply", "report.html",
+                  "figures/")
+
+
+@dataclass
+class RunPlan:
+    """What :func:`validate_run` checked, ready for the run (nothing expensive was done).
+
+    Attributes
+    ----------
+    sequence: the read sequence. ifc: the IFC file. init: the initial trajectory (one pose per
+    frame). gt: the ground truth or None. options: the base solver options. outputs: the output
+    set (checked, not yet opened).
+    """
+
+    sequence: Any
+    ifc: Path
+    init: Trajectory
+    gt: Trajectory | None
+    options: Any
+    outputs: Any
+
+
+def validate_settings(config: RefineConfig) -> Any:
+    """Every setting of ``config`` that can be checked without data: the terms, the solver
+    overrides, each schedule stage's options, the front-end sources' files. Returns the base
+    ``SolverOptions``; raises :class:`bimcap.errors.InputError` naming the setting."""
+    from bimcap.pipeline.config import ConfigError
+    from bimcap.registration import StageKind
+
+    base = solver_options(config)
+    solver_stages = [stage_options(base, stage, config) for stage in schedule_for(config).stages
+                     if stage.kind is not StageKind.COARSE]
+    if all(o is None for o in solver_stages):
+        raise ConfigError(f"no solver stage runs any of the terms {config.effective_terms}",
+                          field="terms")
+    for name, value in (("completion_model", config.completion_model),
+                        ("segmentation_model", config.segmentation_model)):
+        if value is not None and config_uses(config, name) and not Path(value).is_file():
+            raise ConfigError("no such model file", value, name)
+    if config.segmentation is LabelSource.DISK and not Path(str(config.labels_dir)).is_dir():
+        raise ConfigError("no such label directory", config.labels_dir, "labels_dir")
+    return base
+
+
+def config_uses(config: RefineConfig, name: str) -> bool:
+    """Whether ``config`` uses the setting ``name`` (completion_model / segmentation_model)."""
+    if name == "completion_model":
+        return config.completion in (DepthSource.ONNX, DepthSource.HYBRID)
+    return config.segmentation is LabelSource.ONNX
+
+
+def validate_run(
+    sequence: str | PathLike[str] | Any,
+    out_dir: str | PathLike[str],
+    config: RefineConfig,
+    ifc: str | PathLike[str] | None = None,
+    init: str | PathLike[str] | Trajectory | None = None,
+    gt: str | PathLike[str] | None = None,
+    overwrite: bool = False,
+) -> RunPlan:
+    """One validation pass before any expensive stage of :func:`refine`: the settings
+    (:func:`validate_settings`), the sequence, the IFC (present and a complete STEP file), the
+    initial poses and the ground truth (one pose per frame, at the frames' timestamps; errors name
+    the file), the front-end sources the sequence must provide, and the output directory
+    (:class:`bimcap.io.outputs.OutputSet`: nothing the user wrote is replaced without
+    ``overwrite``)."""
+    from bimcap.bim.ingest import check_ifc_file
+    from bimcap.dataset import read_sequence
+    from bimcap.io.outputs import OutputSet
+
+    base = validate_settings(config)
+    seq = read_sequence(sequence) if isinstance(sequence, (str, PathLike)) else sequence
+    ifc_path = Path(ifc) if ifc is not None else seq.ifc_path
+    if ifc_path is None:
+        raise InputError("no --ifc given and the sequence manifest names none",
+                         seq.manifest_path, "ifc")
+    check_ifc_file(ifc_path)
+    traj = load_initial(seq, init)
+    gt_traj = load_ground_truth(seq, gt)
+    make_providers(config, seq)  # ground-truth depth / labels need them in the sequence
+    inputs = [seq.manifest_path, ifc_path,
+              *(p for p in (init, gt) if isinstance(p, (str, PathLike)))]
+    inputs += [seq.trajectory_path(name) for name in seq.poses]
+    outputs = OutputSet(out_dir, REFINE_OUTPUTS, overwrite=overwrite, inputs=inputs)
+    outputs.check()
+    return RunPlan(seq, ifc_path, traj, gt_traj, base, outputs)
+
+
 def refine(
     sequence: str | PathLike[str],
     out_dir: str | PathLike[str],
@@ -744,52 +864,55 @@ def refine(
     report: bool = True,
     quiet: bool = False,
     command: str = "",
+    overwrite: bool = False,
 ) -> RefineResult:
     """Refine a sequence's trajectory against its BIM and write every output into ``out_dir``.
 
-    Outputs: ``refined.tum``, ``summary.json`` (solver), ``result.json`` (settings, metrics,
-    timings), ``map_before.ply`` / ``map_after.ply`` (semantic maps), ``report.html`` and its
-    figures; caches in ``bim/`` and ``cache/``. Ground truth: ``gt`` or the sequence's
-    ``poses/gt.tum`` when present.
+    Outputs: ``refined.tum``, ``summary.json`` (solver), ``map_before.ply`` / ``map_after.ply``
+    (semantic maps), ``report.html`` and its ``figures/``, and ``result.json`` (settings, metrics,
+    timings, and every file of the run with its SHA-256), written as one set
+    (:class:`bimcap.io.outputs.OutputSet`: staged, then moved into place, ``result.json`` last);
+    caches in ``bim/`` and ``cache/``. Ground truth: ``gt`` or the sequence's ``poses/gt.tum``
+    when present. Everything is validated first (:func:`validate_run`); a file in ``out_dir``
+    that bimcap did not write is replaced only with ``overwrite``; a failed run leaves no staging
+    directory and, when it created ``out_dir``, no empty ``out_dir``.
     """
-    from bimcap.dataset import read_sequence
-
     cfg = config or RefineConfig()
     out = Path(out_dir)
-    seq = read_sequence(sequence)
-    inputs = [seq.manifest_path, *(p for p in (ifc, init, gt) if p is not None)]
-    inputs += [seq.trajectory_path(name) for name in seq.poses]
-    for name in ("refined.tum", "summary.json", "result.json", "map_before.ply", "map_after.ply"):
-        check_not_input(out / name, inputs)
-    out.mkdir(parents=True, exist_ok=True)
-    t_start = time.perf_counter()
-    prepared = prepare(seq, ifc, init, cfg, out, quiet)
-    outcome = solve_prepared(prepared, cfg, quiet)
+    plan = validate_run(sequence, out, cfg, ifc, init, gt, overwrite)
+    stage = plan.outputs.open()
+    try:
+        t_start = time.perf_counter()
+        prepared = prepare(plan.sequence, plan.ifc, plan.init, cfg, out, quiet)
+        outcome = solve_prepared(prepared, cfg, quiet)
 
-    header = f"bimcap {cfg.method.value} {cfg.effective_terms} refined world_from_cam"
-    write_tum(out / "refined.tum", outcome.refined, header=header)
-    atomic_write_json(out / "summary.json", outcome.to_dict())
-    prepared.frontend.write_semantic_map(out / "map_before.ply", prepared.init.poses)
-    prepared.frontend.write_semantic_map(out / "map_after.ply", outcome.refined.poses)
+        header = f"bimcap {cfg.method.value} {cfg.effective_terms} refined world_from_cam"
+        write_tum(stage / "refined.tum", outcome.refined, header=header)
+        atomic_write_json(stage / "summary.json", outcome.to_dict())
+        prepared.frontend.write_semantic_map(stage / "map_before.ply", prepared.init.poses)
+        prepared.frontend.write_semantic_map(stage / "map_after.ply", outcome.refined.poses)
 
-    result = RefineResult(out, cfg, prepared.init, outcome.refined, outcome,
-                          timings={**prepared.timings, "solve": outcome.seconds}, command=command)
-    gt_traj = None
-    if gt is not None:
-        gt_traj = read_tum(gt)
-    elif seq.has_trajectory("gt"):
-        gt_traj = seq.trajectory("gt")
-    if gt_traj is not None:
-        result.metrics_before, result.map_before = evaluate_run(prepared, prepared.init, gt_traj)
-        result.metrics_after, result.map_after = evaluate_run(prepared, outcome.refined, gt_traj)
-    result.timings["total"] = time.perf_counter() - t_start
-    result.files = {"refined": "refined.tum", "summary": "summary.json",
-                    "map_before": "map_before.ply", "map_after": "map_after.ply"}
-    if report:
-        from bimcap.pipeline.report import write_refine_report
+        result = RefineResult(stage, cfg, prepared.init, outcome.refined, outcome,
+                              timings={**prepared.timings, "solve": outcome.seconds},
+                              command=command)
+        gt_traj = plan.gt
+        if gt_traj is not None:
+            result.metrics_before, result.map_before = evaluate_run(prepared, prepared.init,
+                                                                    gt_traj)
+            result.metrics_after, result.map_after = evaluate_run(prepared, outcome.refined,
+                                                                  gt_traj)
+        result.timings["total"] = time.perf_counter() - t_start
+        result.files = {"refined": "refined.tum", "summary": "summary.json",
+                        "map_before": "map_before.ply", "map_after": "map_after.ply"}
+        if report:
+            from bimcap.pipeline.report import write_refine_report
 
-        result.files["report"] = write_refine_report(result, prepared, gt_traj).name
-    atomic_write_json(out / "result.json", result.to_dict())
+            result.files["report"] = write_refine_report(result, prepared, gt_traj).name
+        result.out_dir = out
+        plan.outputs.commit(result.to_dict())
+    except BaseException:
+        plan.outputs.abort()
+        raise
     return result
 
 
