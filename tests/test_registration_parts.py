@@ -239,3 +239,70 @@ def test_floor_plan_from_planes_reads_heights() -> None:
     plan = FloorPlan.from_planes(SEGMENTS, np.ones(3), None, planes, kind)
     np.testing.assert_allclose(plan.floor_heights, [0.0, 3.1])
     np.testing.assert_allclose(plan.ceiling_heights, [2.8])
+
+
+def _candidate(t: tuple[float, float], score: float, informative: bool = True):  # type: ignore[no-untyped-def]
+    from bimcap.registration.frame_level import Candidate
+
+    return Candidate(Correction2D(0.0, np.array(t, float), np.zeros(2)), score, 0.3, informative)
+
+
+def test_track_translations_passes_over_an_alias_of_the_first_frame() -> None:
+    """The first frame's best fit is an alias 3 m away; every later frame fits near zero. The
+    path follows the later frames (a tracker that locks onto the first fit follows the alias)."""
+    from bimcap.registration.frame_level import FrameLevelOptions, track_translations
+
+    opt = FrameLevelOptions()
+    cands = [[_candidate((2.2, 2.5), 0.9), _candidate((0.05, 0.0), 0.7)]]
+    for i in range(1, 12):
+        cands.append([_candidate((0.02 * i, -0.01 * i), 0.75), _candidate((2.4, 2.3), 0.55)])
+    path = track_translations(cands, opt)
+    assert path[0] == 1 and (path[1:] == 0).all()
+    # Brute force over the 2^12 paths (no frame left out) agrees on the best one.
+    def cost(choice: tuple[int, ...]) -> float:
+        t = [cands[i][k].correction.t for i, k in enumerate(choice)]
+        c = 0.5 * float(t[0] @ t[0]) / opt.track_prior_sigma_m ** 2
+        c += sum(opt.track_score_weight * (1 - cands[i][k].score) for i, k in enumerate(choice))
+        c += sum(0.5 * float((t[i] - t[i - 1]) @ (t[i] - t[i - 1])) / opt.track_step_sigma_m ** 2
+                 for i in range(1, len(t)))
+        return c
+    best = min(itertools.product((0, 1), repeat=len(cands)), key=cost)
+    assert tuple(path) == best
+
+
+def test_track_translations_leaves_out_a_lone_alias_and_empty_frames() -> None:
+    from bimcap.registration.frame_level import FrameLevelOptions, track_translations
+
+    cands = [[_candidate((0.0, 0.1 * i), 0.8)] for i in range(8)]
+    cands[4] = [_candidate((3.0, -2.0), 0.95)]  # fits its frame well, no neighbour agrees
+    cands[6] = []  # no hypothesis at all
+    cands[7] = [_candidate((0.0, 0.7), 0.8, informative=False)]  # a bare corridor wall
+    path = track_translations(cands, FrameLevelOptions())
+    assert path.tolist() == [0, 0, 0, 0, -1, 0, -1, -1]
+
+
+def test_repair_replaces_a_frame_whose_matches_all_disagree() -> None:
+    """A frame turned 10° after the solve (its reprojection errors are all far out in a robust
+    loss's tail) is put back from its neighbours' depth by PnP; the others are left alone."""
+    from scipy.spatial.transform import Rotation
+
+    from bimcap.optimize.synthetic import make_synthetic_problem
+    from bimcap.registration.odometry import repair_inconsistent_frames, reprojection_medians
+
+    syn = make_synthetic_problem(num_frames=12, seed=2)
+    a = syn.problem.arrays()
+    poses = syn.gt_poses.copy()
+    k = 6
+    turn = Rotation.from_euler("z", 10.0, degrees=True)
+    poses[k, 3:] = (turn * Rotation.from_quat(poses[k, 3:])).as_quat()
+    med = reprojection_medians(poses, a["match_frames"], a["match_uv"], a["match_depth"],
+                               a["cameras"][0])
+    assert med[k] > 10.0 and np.nanmax(np.delete(med, k)) < med[k]
+    rep = repair_inconsistent_frames(poses, a["match_frames"], a["match_uv"], a["match_depth"],
+                                     a["cameras"][0])
+    assert k in rep.inconsistent and k in rep.repaired
+    err = Rotation.from_quat(rep.poses[k, 3:]) * Rotation.from_quat(syn.gt_poses[k, 3:]).inv()
+    assert np.degrees(err.magnitude()) < 0.3
+    assert np.linalg.norm(rep.poses[k, :3] - syn.gt_poses[k, :3]) < 0.03
+    others = [i for i in range(len(poses)) if i not in rep.repaired]
+    np.testing.assert_array_equal(rep.poses[others], poses[others])
