@@ -1,0 +1,273 @@
+"""Accuracy on worlds bimcap was not tuned on: generated buildings of several layouts and sizes,
+every real IFC in ``../shared/data/ifc`` as a simulated world, standard and hard sensor settings,
+the paper's Exp. 1/2/3 drifts, 60- and 250-frame walks, and the fixed point.
+
+Per world (built once into ``--work`` and reused):
+
+* generated buildings (``gen-<layout>-s<seed>``): a design IFC and its as-built variant (walls
+  shifted by σ 3 cm, a partition missing); the sequence is simulated in the as-built world;
+* real IFCs (``ifc-<name>``): the sequence is simulated in the model itself (the simulator finds
+  the storey and the region to walk).
+
+Per world, frame count and setting, the default ``bimcap refine`` configuration is run:
+
+* ``fixed``: from the ground truth, with the reference the world was rendered from (the as-built
+  IFC, or the real IFC): how far the refinement moves poses that are already right;
+* ``exp1``, ``exp2``, ``exp3``: from the paper's drift presets (seed = world seed + 1), BIMCaP
+  against the same reference, and FACaP on the same front end (BIMCaP must beat it);
+* ``design`` (generated buildings only): exp2 against the *design* IFC, i.e. with the 3 cm
+  as-built deviations of the walls left in the BIM: how far the deviations move the result.
+
+Settings: ``standard`` is the demo's rig (516×386, VLP-16 with 3 cm range noise, 12° down-look,
+geometric segmenter); ``hard`` has 8 cm range noise with 20 % dropouts, a 1.5× focal length
+(narrower view), and (when the simulator offers it) 15 % wrong labels used through
+``--segmentation ground_truth``.
+
+Usage (resumable: rows already in the CSV are skipped)::
+
+    PYTHONPATH=python python bench/bench_generalization.py --work /tmp/gen --out docs/generalization.csv \
+        --worlds gen-demo-s11,gen-small-s3,ifc-Duplex_A_20110907 --frames 60 --settings standard
+    PYTHONPATH=python python bench/bench_generalization.py --summarise docs/generalization.csv
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+FIELDS = ("world", "kind", "frames", "setting", "run", "method", "init_pos_m", "init_rot_deg",
+          "pos_m", "rot_deg", "yaw_deg", "pitch_deg", "roll_deg", "fully_observed",
+          "frames_total", "solve_s")
+
+#: Generated layouts: BuildingSpec changes (1 and 2 storeys, small to large).
+LAYOUTS: dict[str, dict[str, Any]] = {
+    "demo": {},
+    "small": {"corridor_length_m": 9.0, "rooms_north": 2, "rooms_south": 2,
+              "room_depth_north_m": 3.5, "room_depth_south_m": 3.8, "corridor_columns": 1},
+    "large": {"corridor_length_m": 22.0, "corridor_width_m": 3.0, "rooms_north": 4,
+              "rooms_south": 5, "room_depth_north_m": 5.0, "room_depth_south_m": 4.6,
+              "corridor_columns": 3},
+    "twostorey": {"storeys": 2},
+}
+DEFAULT_WORLDS = ("gen-demo-s11,gen-demo-s23,gen-small-s3,gen-small-s8,gen-large-s4,"
+                  "gen-twostorey-s6,ifc-AC20-FZK-Haus,ifc-SampleHouse4,ifc-Duplex_A_20110907,"
+                  "ifc-Office_A_20110811")
+
+
+def _shared_ifc_dir() -> Path:
+    return Path(__file__).resolve().parents[1].parent / "shared" / "data" / "ifc"
+
+
+def _sim_config(setting: str, frames: int) -> Any:
+    from bimcap.sim.lidar import LidarConfig
+    from bimcap.sim.simulator import CONSLAM_CAMERA, SimulatorConfig
+    from bimcap.sim.walk import WalkConfig
+
+    camera = CONSLAM_CAMERA.scaled(0.25)
+    lidar = LidarConfig()
+    if setting == "hard":
+        camera = replace(camera, fx=camera.fx * 1.5, fy=camera.fy * 1.5)
+        lidar = replace(lidar, range_noise_m=0.08, dropout=0.2)
+    return SimulatorConfig(camera=camera, frames=frames, fps=2.0, lidar=lidar,
+                           walk=WalkConfig(pitch_deg=-12.0), workers=0)
+
+
+def make_world(work: Path, world: str, frames: int, setting: str) -> tuple[Path, Path, Path | None]:
+    """(sequence dir, reference IFC the world was rendered from, design IFC or None)."""
+    from bimcap.sim.building import BuildingSpec, as_built, generate_building
+    from bimcap.sim.simulator import simulate
+
+    root = work / world
+    seq = root / f"seq_{frames}_{setting}"
+    kind, _, rest = world.partition("-")
+    if kind == "gen":
+        layout, _, seed_text = rest.rpartition("-s")
+        seed = int(seed_text)
+        design, built = root / "design.ifc", root / "as_built.ifc"
+        if not built.is_file():
+            root.mkdir(parents=True, exist_ok=True)
+            spec = BuildingSpec(**LAYOUTS[layout])
+            gb = generate_building(spec, seed=seed, ifc_path=design)
+            as_built(gb, seed=seed + 1, ifc_path=built)
+        if not (seq / "manifest.json").is_file():
+            simulate(design, seq, _sim_config(setting, frames), seed=seed, as_built_ifc=built)
+        return seq, built, design
+    ifc = _shared_ifc_dir() / f"{rest}.ifc"
+    if not ifc.is_file():
+        raise SystemExit(f"{ifc}: not found (the real IFCs live in ../shared/data/ifc)")
+    if not (seq / "manifest.json").is_file():
+        simulate(ifc, seq, _sim_config(setting, frames), seed=1)
+    return seq, ifc, None
+
+
+def _row(world: str, frames: int, setting: str, run: str, method: str, init: Any, gt: Any,
+         outcome: Any) -> dict[str, Any]:
+    from bimcap.evaluation.metrics import AlignMode, trajectory_metrics
+
+    m0 = trajectory_metrics(init.poses, gt.poses, AlignMode.NONE)
+    m = trajectory_metrics(outcome.refined.poses, gt.poses, AlignMode.NONE)
+    obs = outcome.observability
+    return {"world": world, "kind": world.split("-")[0], "frames": frames, "setting": setting,
+            "run": run, "method": method, "init_pos_m": m0.ate_pos_m.rmse,
+            "init_rot_deg": m0.ate_rot_deg.rmse, "pos_m": m.ate_pos_m.rmse,
+            "rot_deg": m.ate_rot_deg.rmse, "yaw_deg": m.yaw_rmse_deg,
+            "pitch_deg": m.pitch_rmse_deg, "roll_deg": m.roll_rmse_deg,
+            "fully_observed": obs.fully_observed() if obs is not None else -1,
+            "frames_total": len(gt), "solve_s": outcome.seconds}
+
+
+def run(args: argparse.Namespace) -> None:
+    from bimcap.dataset import read_sequence
+    from bimcap.pipeline.config import LabelSource, Method, RefineConfig
+    from bimcap.pipeline.refine import prepare, solve_prepared
+    from bimcap.sim.drift import DriftParams, apply_drift
+
+    work = Path(args.work)
+    out = Path(args.out)
+    done: set[tuple[str, ...]] = set()
+    if out.exists():
+        with out.open(newline="") as fh:
+            done = {(r["world"], r["frames"], r["setting"], r["run"], r["method"])
+                    for r in csv.DictReader(fh)}
+    new = not out.exists()
+    with out.open("a", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=FIELDS)
+        if new:
+            w.writeheader()
+        for world in args.worlds.split(","):
+            for frames in (int(f) for f in args.frames.split(",")):
+                for setting in args.settings.split(","):
+                    t0 = time.perf_counter()
+                    seq_dir, reference, design = make_world(work, world, frames, setting)
+                    seq = read_sequence(seq_dir)
+                    gt = seq.trajectory("gt")
+                    seed = int(world.rpartition("-s")[2]) if world.startswith("gen") else 1
+                    base = RefineConfig(workers=args.workers)
+                    if setting == "hard" and seq.has_labels and _labels_are_noisy(seq):
+                        base = replace(base, segmentation=LabelSource.GROUND_TRUTH)
+                    runs: list[tuple[str, Any, Path]] = [("fixed", gt, reference)]
+                    runs += [(e, apply_drift(gt, DriftParams.from_preset(e, seed=seed + 1)).init,
+                              reference) for e in ("exp1", "exp2", "exp3")]
+                    if design is not None:
+                        runs.append(("design", runs[2][1], design))
+                    for name, init, ifc in runs:
+                        methods = ["bimcap"] + (["facap"] if name.startswith("exp") else [])
+                        for method in methods:
+                            key = (world, str(frames), setting, name, method)
+                            if key in done:
+                                continue
+                            cfg = base if method == "bimcap" else replace(
+                                base, method=Method.FACAP)
+                            tag = "design" if name == "design" else "ref"
+                            prep = prepare(seq, ifc, init, cfg,
+                                           work / world / f"run_{frames}_{setting}_{tag}",
+                                           quiet=True)
+                            outcome = solve_prepared(prep, cfg, quiet=True)
+                            row = _row(world, frames, setting, name, method, init, gt, outcome)
+                            w.writerow(row)
+                            fh.flush()
+                            print(f"{world:28s} {frames:4d} {setting:8s} {name:6s} {method:6s} "
+                                  f"{row['init_pos_m']:.3f} m/{row['init_rot_deg']:.2f}° → "
+                                  f"{row['pos_m'] * 100:.2f} cm/{row['rot_deg']:.3f}° "
+                                  f"({row['solve_s']:.1f} s)", flush=True)
+                    print(f"{world} {frames} {setting}: {time.perf_counter() - t0:.0f} s", flush=True)
+
+
+def _labels_are_noisy(seq: Any) -> bool:
+    """Whether the simulator wrote wrong labels on purpose (its provenance says so)."""
+    src = getattr(seq, "source", None) or {}
+    sim = src.get("simulator", src) if isinstance(src, dict) else {}
+    noise = sim.get("label_noise") if isinstance(sim, dict) else None
+    if isinstance(noise, dict):
+        return float(noise.get("fraction", 0.0) or 0.0) > 0
+    return bool(noise)
+
+
+def summarise(paths: list[str]) -> None:
+    rows: list[dict[str, Any]] = []
+    for p in paths:
+        with open(p, newline="") as fh:
+            rows += list(csv.DictReader(fh))
+    for r in rows:
+        for k in ("pos_m", "rot_deg", "init_pos_m", "init_rot_deg", "solve_s"):
+            r[k] = float(r[k])
+    groups = sorted({(r["setting"], int(r["frames"])) for r in rows})
+    print("| setting | frames | runs | BIMCaP Exp 1/2/3: mean ATE_pos / ATE_rot | worst run "
+          "| fixed point: mean / worst | design IFC (exp2): mean / worst | BIMCaP beats FACaP |")
+    print("|---|---|---|---|---|---|---|---|")
+    for setting, frames in groups:
+        g = [r for r in rows if r["setting"] == setting and int(r["frames"]) == frames]
+        exp = [r for r in g if r["run"].startswith("exp") and r["method"] == "bimcap"]
+        fix = [r for r in g if r["run"] == "fixed"]
+        des = [r for r in g if r["run"] == "design"]
+        worst = max(exp, key=lambda r: (r["pos_m"], r["rot_deg"])) if exp else None
+        worst_rot = max(exp, key=lambda r: r["rot_deg"]) if exp else None
+        beats = total = 0
+        for r in exp:
+            f = [q for q in g if q["world"] == r["world"] and q["run"] == r["run"]
+                 and q["method"] == "facap"]
+            if f:
+                total += 1
+                beats += int(r["pos_m"] < f[0]["pos_m"] and r["rot_deg"] < f[0]["rot_deg"])
+
+        def mean(rs: list[dict[str, Any]]) -> str:
+            if not rs:
+                return "–"
+            return (f"{np.mean([r['pos_m'] for r in rs]) * 100:.2f} cm / "
+                    f"{np.mean([r['rot_deg'] for r in rs]):.3f}°")
+
+        def worst_of(rs: list[dict[str, Any]]) -> str:
+            if not rs:
+                return "–"
+            return (f"{max(r['pos_m'] for r in rs) * 100:.2f} cm / "
+                    f"{max(r['rot_deg'] for r in rs):.3f}°")
+
+        wtext = "–" if worst is None else (
+            f"{worst['pos_m'] * 100:.2f} cm ({worst['world']} {worst['run']}); "
+            f"{worst_rot['rot_deg']:.3f}° ({worst_rot['world']} {worst_rot['run']})")
+        print(f"| {setting} | {frames} | {len(exp)} | {mean(exp)} | {wtext} | {mean(fix)} / "
+              f"{worst_of(fix)} | {mean(des)} / {worst_of(des)} | {beats}/{total} |")
+    print()
+    print("| world | frames | setting | fixed | exp1 | exp2 | exp3 | FACaP exp2 | design exp2 |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    keys = sorted({(r["world"], int(r["frames"]), r["setting"]) for r in rows})
+    for world, frames, setting in keys:
+        g = {(r["run"], r["method"]): r for r in rows
+             if r["world"] == world and int(r["frames"]) == frames and r["setting"] == setting}
+
+        def cell(run: str, method: str = "bimcap") -> str:
+            r = g.get((run, method))
+            return "–" if r is None else f"{r['pos_m'] * 100:.2f} cm / {r['rot_deg']:.3f}°"
+
+        print(f"| {world} | {frames} | {setting} | {cell('fixed')} | {cell('exp1')} | "
+              f"{cell('exp2')} | {cell('exp3')} | {cell('exp2', 'facap')} | {cell('design')} |")
+    if any(math.isnan(r["pos_m"]) for r in rows):
+        print("(some runs gave NaN)")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--work", default="/tmp/bimcap_generalization", help="worlds and caches")
+    ap.add_argument("--worlds", default=DEFAULT_WORLDS, help="comma list (see the module doc)")
+    ap.add_argument("--frames", default="60", help="comma list of walk lengths, e.g. 60,250")
+    ap.add_argument("--settings", default="standard", help="standard, hard or both")
+    ap.add_argument("--workers", type=int, default=None, help="front-end processes")
+    ap.add_argument("--out", default="generalization.csv", help="CSV, appended to (resumable)")
+    ap.add_argument("--summarise", nargs="+", metavar="CSV", help="only print the tables")
+    args = ap.parse_args()
+    if args.summarise:
+        summarise(args.summarise)
+    else:
+        run(args)
+        summarise([args.out])
+
+
+if __name__ == "__main__":
+    main()
