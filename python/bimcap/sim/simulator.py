@@ -22,8 +22,7 @@ z axis is the camera's −y axis (up when the camera is level) and its x axis th
 Determinism: everything random derives from ``seed`` through ``numpy.random.default_rng`` with a
 fixed key per use (walk, clutter, element texture offsets, frame ``i`` image noise, frame ``i``
 LiDAR noise, frame ``i`` label noise; the texture tiles come from ``config.texture_seed``), so the
-same seed and
-configuration give byte-identical files whatever the number of worker processes.
+same seed and configuration give byte-identical files whatever the number of worker processes.
 """
 
 from __future__ import annotations
@@ -68,9 +67,9 @@ __all__ = [
     "SimulationResult",
     "SimulatorConfig",
     "corridor_building",
+    "focal_scale_for_hfov",
     "simulate",
     "simulate_world",
-    "focal_scale_for_hfov",
     "with_focal_scale",
 ]
 
