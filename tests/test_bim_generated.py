@@ -47,7 +47,8 @@ def test_planes_at_known_heights(generated: tuple[object, BimModel, BimReference
         assert floors and np.allclose(floors, st.floor_z, atol=1e-6)
         # One ceiling plane per suspended ceiling (IfcCovering CEILING): the corridor's and
         # every room's, at the covering's underside, none from the slab above.
-        coverings = [c for c in g.truth.coverings if c.storey == st.index]  # type: ignore[attr-defined]
+        truth = g.truth  # type: ignore[attr-defined]
+        coverings = [c for c in truth.coverings if c.storey == st.index]
         assert len(ceils) == len(coverings) == 8
         assert sorted(ceils) == pytest.approx(sorted(c.z_min for c in coverings), abs=1e-6)
         assert not [p for p in ref.plane_info

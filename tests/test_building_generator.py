@@ -406,7 +406,8 @@ def test_suspended_ceiling_per_room_and_corridor(demo: GeneratedBuilding, demo_b
     area = sum(np.prod(p.max(0) - p.min(0)) for p in polys)
     walls_inside = sum(w.length * w.thickness for w in built.truth.walls
                        if w.kind is not WallKind.EXTERIOR)
-    outer = np.asarray(next(s for s in built.truth.slabs if s.predefined_type == "BASESLAB").polygon)
+    base = next(s for s in built.truth.slabs if s.predefined_type == "BASESLAB")
+    outer = np.asarray(base.polygon)
     inner_area = np.prod(outer.max(0) - outer.min(0) - 2 * spec.exterior_wall_thickness_m)
     assert area + walls_inside == pytest.approx(inner_area)
     with pytest.raises(BuildingSpecError, match="corridor_ceiling_height_m"):
