@@ -478,6 +478,14 @@ def test_cli_writes_design_and_as_built(tmp_path: Path, capsys: pytest.CaptureFi
     assert cli_main(["generate-building", "-o", str(tmp_path / "c.ifc"), "--rooms-north",
                      "0"]) == 2
     assert cli_main(["generate-building", "-o", str(out), "--as-built", str(out)]) == 2
+    # the ceiling heights are one flag away
+    assert cli_main(["generate-building", "-o", str(tmp_path / "d.ifc"), "--preset", "tiny",
+                     "--ceiling-height", "2.6", "--corridor-ceiling-height", "2.4"]) == 0
+    assert "suspended ceilings at 2.400, 2.600 m" in capsys.readouterr().out
+    d = load_building_truth(truth_path_for(tmp_path / "d.ifc"))
+    assert sorted(c.z_min for c in d.coverings) == pytest.approx([2.4, 2.6, 2.6])
+    assert cli_main(["generate-building", "-o", str(tmp_path / "e.ifc"),
+                     "--corridor-ceiling-height", "3.0"]) == 2
 
 
 def test_same_bytes_in_another_process(tmp_path: Path) -> None:
