@@ -45,12 +45,22 @@ def test_planes_at_known_heights(generated: tuple[object, BimModel, BimReference
         ceils = [p.height for p in ref.plane_info
                  if p.kind == Label.CEILING and p.storey == name and p.source == "covering"]
         assert floors and np.allclose(floors, st.floor_z, atol=1e-6)
-        assert ceils and np.allclose(ceils, st.ceiling_z, atol=1e-6)
-        # A point in the middle of the corridor: floor and ceiling under / over it.
-        p = np.array([[7.5, 0.0, st.floor_z + 1.0]])
-        fl, ce = ref.plane_under(p, Label.FLOOR), ref.plane_under(p, Label.CEILING)
-        assert ref.plane_info[fl[0]].height == pytest.approx(st.floor_z)
-        assert ref.plane_info[ce[0]].height == pytest.approx(st.ceiling_z)
+        # One ceiling plane per suspended ceiling (IfcCovering CEILING): the corridor's and
+        # every room's, at the covering's underside, none from the slab above.
+        truth = g.truth  # type: ignore[attr-defined]
+        coverings = [c for c in truth.coverings if c.storey == st.index]
+        assert len(ceils) == len(coverings) == 8
+        assert sorted(ceils) == pytest.approx(sorted(c.z_min for c in coverings), abs=1e-6)
+        assert not [p for p in ref.plane_info
+                    if p.kind == Label.CEILING and p.storey == name and p.source != "covering"]
+        # A point in the middle of each covering: the floor under it, its own ceiling over it.
+        for c in coverings:
+            xy = np.asarray(c.polygon).mean(axis=0)
+            p = np.array([[xy[0], xy[1], st.floor_z + 1.0]])
+            fl, ce = ref.plane_under(p, Label.FLOOR), ref.plane_under(p, Label.CEILING)
+            assert ref.plane_info[fl[0]].height == pytest.approx(st.floor_z)
+            assert ref.plane_info[ce[0]].height == pytest.approx(c.z_min), c.id
+            assert c.guid in ref.plane_info[ce[0]].guids
 
 
 def test_floor_plan_matches_generator_oracle(generated: tuple[object, BimModel, BimReference]

@@ -12,6 +12,7 @@ import pytest
 ifcopenshell = pytest.importorskip("ifcopenshell")
 import ifcopenshell.geom  # noqa: E402
 import ifcopenshell.guid  # noqa: E402
+import ifcopenshell.util.element  # noqa: E402
 import ifcopenshell.util.placement  # noqa: E402
 import ifcopenshell.util.unit  # noqa: E402
 
@@ -82,12 +83,13 @@ def test_demo_counts_read_back_from_file(demo: GeneratedBuilding) -> None:
     f = ifcopenshell.open(str(demo.ifc_path))
     assert f.schema == "IFC4"
     # Hand count: 4 exterior + 2 corridor + 2 north + 3 south partitions; 7 rooms -> 7 doors + the
-    # entrance, 7 windows + the corridor end; 2 corridor columns + the hall; base slab + roof.
-    assert _counts(f) == {"IfcBuildingStorey": 1, "IfcWall": 11, "IfcSlab": 2, "IfcCovering": 1,
+    # entrance, 7 windows + the corridor end; 2 corridor columns + the hall; base slab + roof;
+    # a suspended ceiling per room and the corridor.
+    assert _counts(f) == {"IfcBuildingStorey": 1, "IfcWall": 11, "IfcSlab": 2, "IfcCovering": 8,
                           "IfcColumn": 3, "IfcDoor": 8, "IfcWindow": 8, "IfcOpeningElement": 16}
     assert demo.truth.counts == _counts(f) == expected_counts(demo.spec)
     assert sorted(s.PredefinedType for s in f.by_type("IfcSlab")) == ["BASESLAB", "ROOF"]
-    assert [c.PredefinedType for c in f.by_type("IfcCovering")] == ["CEILING"]
+    assert [c.PredefinedType for c in f.by_type("IfcCovering")] == ["CEILING"] * 8
     assert len(f.by_type("IfcRelVoidsElement")) == 16
     assert len(f.by_type("IfcRelFillsElement")) == 16
 
@@ -98,10 +100,10 @@ def test_preset_counts(preset: str, tmp_path: Path) -> None:
     b = generate_building(spec, 3, tmp_path / "b.ifc")
     counts = _counts(ifcopenshell.open(str(tmp_path / "b.ifc")))
     if preset == "tiny":  # 6 walls, 2 room doors + entrance, 2 windows + corridor end, 2 columns
-        assert counts == {"IfcBuildingStorey": 1, "IfcWall": 6, "IfcSlab": 2, "IfcCovering": 1,
+        assert counts == {"IfcBuildingStorey": 1, "IfcWall": 6, "IfcSlab": 2, "IfcCovering": 3,
                           "IfcColumn": 2, "IfcDoor": 3, "IfcWindow": 3, "IfcOpeningElement": 6}
     else:  # three demo storeys, one entrance, one roof
-        assert counts == {"IfcBuildingStorey": 3, "IfcWall": 33, "IfcSlab": 4, "IfcCovering": 3,
+        assert counts == {"IfcBuildingStorey": 3, "IfcWall": 33, "IfcSlab": 4, "IfcCovering": 24,
                           "IfcColumn": 9, "IfcDoor": 22, "IfcWindow": 24,
                           "IfcOpeningElement": 46}
     assert counts == b.truth.counts
@@ -140,11 +142,13 @@ def test_storey_elevations(tmp_path: Path) -> None:
     for s in storeys:
         z = ifcopenshell.util.placement.get_local_placement(s.ObjectPlacement)[2, 3]
         assert z == pytest.approx(s.Elevation)
-    assert [s.ceiling_z for s in b.truth.storeys] == pytest.approx([2.8, 6.1, 9.4])
+    assert [s.ceiling_z for s in b.truth.storeys] == pytest.approx([2.7, 6.0, 9.3])
     bounds = _bounds(f)
     for s in b.truth.storeys:  # the floor slab's top is the elevation, the ceiling is on time
         assert bounds[f"S{s.index}/slab/floor"][1][2] == pytest.approx(s.floor_z, abs=1e-6)
-        assert bounds[f"S{s.index}/ceiling"][0][2] == pytest.approx(s.ceiling_z, abs=1e-6)
+        assert bounds[f"S{s.index}/ceiling/north-1"][0][2] == pytest.approx(s.ceiling_z, abs=1e-6)
+        assert bounds[f"S{s.index}/ceiling/corridor"][0][2] == pytest.approx(
+            s.floor_z + spec.corridor_ceiling_height_m, abs=1e-6)
         for w in (w for w in b.truth.walls if w.storey == s.index):
             lo, hi = bounds[w.id]
             assert (lo[2], hi[2]) == pytest.approx((s.floor_z, s.wall_top_z), abs=1e-6)
@@ -229,7 +233,7 @@ def test_demo_world_shape(demo: GeneratedBuilding) -> None:
     # Walls in both directions constrain x, y and yaw.
     dirs = {tuple(np.abs(w.direction).round()) for w in demo.truth.walls}
     assert dirs == {(1.0, 0.0), (0.0, 1.0)}
-    assert demo.truth.storeys[0].ceiling_z == pytest.approx(2.8)
+    assert demo.truth.storeys[0].ceiling_z == pytest.approx(2.7)
 
 
 # --- determinism -------------------------------------------------------------------------------
@@ -361,14 +365,53 @@ def test_rooms_do_not_overlap_walls(demo: GeneratedBuilding) -> None:
             assert min(overlap) <= 1e-9, (r.id, w.id)
     area = sum((r.rect[2] - r.rect[0]) * (r.rect[3] - r.rect[1]) for r in fs.regions
                if r.kind in ("room", "corridor"))
-    inner = np.asarray(demo.truth.coverings[0].polygon)
+    outer = np.asarray(next(s for s in demo.truth.slabs if s.predefined_type == "BASESLAB").polygon)
     walls_inside = sum(w.length * w.thickness for w in demo.truth.walls
                        if w.kind is not WallKind.EXTERIOR)
-    inner_area = np.prod(inner.max(0) - inner.min(0))
+    inner_area = np.prod(outer.max(0) - outer.min(0) - 2 * demo.spec.exterior_wall_thickness_m)
     assert area + walls_inside == pytest.approx(inner_area)  # rooms + walls tile the interior
 
 
 # --- files, errors, CLI --------------------------------------------------------------------------
+
+
+def test_suspended_ceiling_per_room_and_corridor(demo: GeneratedBuilding, demo_bounds: dict,
+                                                 tmp_path: Path) -> None:
+    """Every room and the corridor has its own IfcCovering CEILING below the slab, filling the
+    room wall face to wall face, at the spec's heights; the as-built's ceilings close up where a
+    partition is missing."""
+    spec = demo.spec
+    f = ifcopenshell.open(str(demo.ifc_path))
+    ceilings = {c.Name: c for c in f.by_type("IfcCovering") if c.PredefinedType == "CEILING"}
+    regions = {r.id.split("/")[-1]: r for r in demo.truth.free_space[0].regions
+               if r.kind in ("room", "corridor")}
+    assert set(ceilings) == {f"S0/ceiling/{k}" for k in regions} and len(regions) == 8
+    st = demo.truth.storeys[0]
+    for key, region in regions.items():
+        name = f"S0/ceiling/{key}"
+        lo, hi = demo_bounds[name]
+        np.testing.assert_allclose([*lo[:2], *hi[:2]], region.rect, atol=1e-6)
+        want = spec.corridor_ceiling_height_m if key == "corridor" else spec.ceiling_height_m
+        assert lo[2] == pytest.approx(st.floor_z + want, abs=1e-6)
+        assert hi[2] == pytest.approx(st.floor_z + want + spec.ceiling_thickness_m, abs=1e-6)
+        assert hi[2] < st.wall_top_z  # below the structural slab
+        storey = ifcopenshell.util.element.get_container(ceilings[name])
+        assert storey.Name == "S0"
+    assert (spec.ceiling_height_m, spec.corridor_ceiling_height_m) == (2.7, 2.5)
+    # As built: a missing partition leaves no gap in the ceiling of the two rooms it split.
+    built = as_built(demo, 3, missing_fraction=1.0, shift_sigma_m=0.0)
+    gone = [m for m in built.truth.deviations.missing if "/wall/part-" in m]
+    assert gone
+    polys = [np.asarray(c.polygon) for c in built.truth.coverings]
+    area = sum(np.prod(p.max(0) - p.min(0)) for p in polys)
+    walls_inside = sum(w.length * w.thickness for w in built.truth.walls
+                       if w.kind is not WallKind.EXTERIOR)
+    base = next(s for s in built.truth.slabs if s.predefined_type == "BASESLAB")
+    outer = np.asarray(base.polygon)
+    inner_area = np.prod(outer.max(0) - outer.min(0) - 2 * spec.exterior_wall_thickness_m)
+    assert area + walls_inside == pytest.approx(inner_area)
+    with pytest.raises(BuildingSpecError, match="corridor_ceiling_height_m"):
+        BuildingSpec(corridor_ceiling_height_m=2.0)
 
 
 def test_explicit_room_widths(tmp_path: Path) -> None:
@@ -435,6 +478,14 @@ def test_cli_writes_design_and_as_built(tmp_path: Path, capsys: pytest.CaptureFi
     assert cli_main(["generate-building", "-o", str(tmp_path / "c.ifc"), "--rooms-north",
                      "0"]) == 2
     assert cli_main(["generate-building", "-o", str(out), "--as-built", str(out)]) == 2
+    # the ceiling heights are one flag away
+    assert cli_main(["generate-building", "-o", str(tmp_path / "d.ifc"), "--preset", "tiny",
+                     "--ceiling-height", "2.6", "--corridor-ceiling-height", "2.4"]) == 0
+    assert "suspended ceilings at 2.400, 2.600 m" in capsys.readouterr().out
+    d = load_building_truth(truth_path_for(tmp_path / "d.ifc"))
+    assert sorted(c.z_min for c in d.coverings) == pytest.approx([2.4, 2.6, 2.6])
+    assert cli_main(["generate-building", "-o", str(tmp_path / "e.ifc"),
+                     "--corridor-ceiling-height", "3.0"]) == 2
 
 
 def test_same_bytes_in_another_process(tmp_path: Path) -> None:

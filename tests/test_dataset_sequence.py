@@ -403,3 +403,34 @@ def test_frames_written_by_workers_then_registered(tmp_path: Path) -> None:
         assert seq.load_depth(i) is None
     with pytest.raises(SequenceError, match=r"frames\[0\]\.image"):
         write_frame(root, 0, 0.0, CAMERA, np.zeros((H, W), np.uint8), data[0]["lidar"])
+
+
+def test_true_labels_beside_noisy_ones(tmp_path: Path) -> None:
+    """``labels_gt`` (the simulator's label noise): written, listed, read, validated."""
+    from bimcap.dataset import write_frame
+
+    rng = np.random.default_rng(5)
+    data = [_frame_data(rng, i) for i in range(2)]
+    root = tmp_path / "noisy"
+    w = SequenceWriter(root, CAMERA, CAM_FROM_LIDAR)
+    truth = [rng.integers(0, 8, size=(H, W), dtype=np.uint8) for _ in range(2)]
+    for i, d in enumerate(data):
+        w.register_frame(write_frame(root, i, d["timestamp"], CAMERA, d["image"], d["lidar"],
+                                     d["labels"], labels_gt=truth[i] if i == 0 else None))
+    w.add_trajectory("gt", _poses(rng, 2))
+    seq = w.close()
+    doc = json.loads((root / MANIFEST).read_text())
+    assert doc["frames"][0]["labels_gt"] == "labels_gt/000000.png"
+    assert "labels_gt" not in doc["frames"][1]  # absent, not null: old manifests unchanged
+    np.testing.assert_array_equal(seq.load_labels(0, truth=True), truth[0])
+    np.testing.assert_array_equal(seq.load_labels(0), data[0]["labels"])
+    np.testing.assert_array_equal(seq.load_labels(1, truth=True), data[1]["labels"])
+    (root / "labels_gt" / "000000.png").unlink()
+    with pytest.raises(SequenceError, match=r"frames\[0\]\.labels_gt"):
+        read_sequence(root)
+    with pytest.raises(SequenceError, match="labels_gt"):
+        write_frame(root, 5, 9.0, CAMERA, data[0]["image"], data[0]["lidar"], None,
+                    labels_gt=truth[0])
+    with pytest.raises(SequenceError, match="labels_gt"):
+        write_frame(root, 5, 9.0, CAMERA, data[0]["image"], data[0]["lidar"], data[0]["labels"],
+                    labels_gt=truth[0][:, :3])

@@ -140,13 +140,16 @@ def test_lidar_pattern_and_noise() -> None:
     cos_el = np.sqrt(1.0 - (pts[fwd, 2] / rng_fwd) ** 2)
     assert np.all(np.abs(rng_fwd * cos_el - 4.0) < 0.12)
     # noise statistics of the floor returns behind the LiDAR (away from the wall at x = 4):
-    # the floor is 1.5 m below, so a beam of elevation e has true range 1.5 / sin(-e)
+    # the floor is 1.5 m below, so a beam of elevation e has true range 1.5 / sin(-e) and meets
+    # the floor at cos(incidence) = sin(-e); the residuals follow the model's sigma(r, incidence)
     down = (pts[:, 2] < -0.2) & (pts[:, 0] < 0)
     r = np.linalg.norm(pts[down, :3], axis=1)
     sin_el = -pts[down, 2] / r
     resid = r - 1.5 / sin_el  # true range to the floor plane
-    assert 0.02 < np.std(resid) < 0.04
-    assert abs(np.mean(resid)) < 0.005
+    sigma = LidarConfig().range_sigma(1.5 / sin_el, sin_el)
+    assert sigma.min() >= 0.03 and sigma.max() > 2 * sigma.min()  # more at grazing incidence
+    assert 0.9 < np.std(resid / sigma) < 1.1
+    assert abs(np.mean(resid / sigma)) < 0.05
 
 
 # ------------------------------------------------------------------------------------ walk

@@ -15,6 +15,8 @@ _OVERRIDES: tuple[tuple[str, str, type], ...] = (
     ("--rooms-north", "rooms_north", int),
     ("--rooms-south", "rooms_south", int),
     ("--corridor-columns", "corridor_columns", int),
+    ("--ceiling-height", "ceiling_height_m", float),
+    ("--corridor-ceiling-height", "corridor_ceiling_height_m", float),
 )
 
 
@@ -82,8 +84,10 @@ def _summary(b: Any) -> None:
     counts = ", ".join(f"{k[3:]} {v}" for k, v in t.counts.items())
     print(f"{b.ifc_path}: {t.variant.value}, seed {b.seed}: {counts}")
     for s in t.storeys:
+        ceilings = sorted({c.z_min for c in t.coverings if c.storey == s.index})
         print(f"  storey {s.name}: elevation {s.elevation:.3f} m, floor {s.floor_z:.3f} m, "
-              f"ceiling {s.ceiling_z:.3f} m")
+              f"suspended ceilings at {', '.join(f'{z:.3f}' for z in ceilings)} m, "
+              f"slab above from {s.wall_top_z:.3f} m")
     if t.deviations is not None:
         d = t.deviations
         worst = max((abs(v) for v in d.wall_shifts.values()), default=0.0)

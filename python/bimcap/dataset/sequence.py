@@ -6,6 +6,7 @@ Layout (``docs/architecture.md`` "Sequence directory")::
     SEQ/images/NNNNNN.png  8-bit RGB, raw (distorted) as the camera gives it
     SEQ/lidar/NNNNNN.bin   little-endian float32 (M, 4) x y z intensity, LiDAR frame, metres
     SEQ/labels/NNNNNN.png  uint8 label ids of :class:`bimcap.labels.Label` (optional)
+    SEQ/labels_gt/NNNNNN.png  the true labels when labels/ holds noisy ones (optional; simulator)
     SEQ/depth/NNNNNN.npy   float32 (H, W) z-depth in metres of the raw image, 0 = unknown (optional)
     SEQ/poses/NAME.tum     ``world_from_cam`` TUM trajectories, one pose per frame (gt, init, ...)
 
@@ -19,7 +20,8 @@ Manifest (version 1)::
                "azimuth_step_deg": 0.2, "rate_hz": 10, "max_range_m": 100, ...extra keys kept},
      "ifc": "path/relative/to/SEQ/or/absolute.ifc" | null,
      "frames": [{"timestamp": t, "image": "images/000000.png", "lidar": "lidar/000000.bin",
-                 "labels": "labels/000000.png" | null, "depth": "depth/000000.npy" | null}, ...],
+                 "labels": "labels/000000.png" | null, "depth": "depth/000000.npy" | null,
+                 "labels_gt": "labels_gt/000000.png" (only when present)}, ...],
      "poses": {"gt": "poses/gt.tum", "init": "poses/init.tum"},
      "source": {...free-form provenance...}}
 
@@ -184,6 +186,8 @@ class FrameInfo:
     lidar: path of the LiDAR scan.
     labels: path of the label image, or None.
     depth: path of the depth array, or None.
+    labels_gt: path of the true label image when ``labels`` holds noisy ones (the simulator's
+        label noise), or None.
     """
 
     index: int
@@ -192,15 +196,19 @@ class FrameInfo:
     lidar: str
     labels: str | None = None
     depth: str | None = None
+    labels_gt: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        return {
+        d: dict[str, Any] = {
             "timestamp": self.timestamp,
             "image": self.image,
             "lidar": self.lidar,
             "labels": self.labels,
             "depth": self.depth,
         }
+        if self.labels_gt is not None:
+            d["labels_gt"] = self.labels_gt
+        return d
 
 
 # --------------------------------------------------------------------------- the sequence
@@ -284,15 +292,20 @@ class Sequence:
             )
         return np.frombuffer(data, dtype=_LIDAR_DTYPE).reshape(-1, 4).astype(np.float32)
 
-    def load_labels(self, i: int) -> NDArray[np.uint8] | None:
-        """The label image of frame ``i`` (H, W) uint8 ids of :class:`Label`, or None."""
+    def load_labels(self, i: int, truth: bool = False) -> NDArray[np.uint8] | None:
+        """The label image of frame ``i`` (H, W) uint8 ids of :class:`Label`, or None.
+
+        With ``truth``, the true labels: ``labels_gt`` when the sequence has them (``labels``
+        then holds noisy ones), else ``labels``.
+        """
         import cv2
 
-        rel = self.frames[i].labels
+        key = "labels_gt" if truth and self.frames[i].labels_gt is not None else "labels"
+        rel = getattr(self.frames[i], key)
         if rel is None:
             return None
         path = self.root / rel
-        where = f"frames[{self.frames[i].index}].labels"
+        where = f"frames[{self.frames[i].index}].{key}"
         lab = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
         if lab is None:
             raise SequenceError("cannot decode label image", path, where)
@@ -596,7 +609,10 @@ def _parse_frames(value: Any, root: Path, mp: Path) -> list[FrameInfo]:
         depth = f.get("depth")
         if depth is not None:
             depth = _relative_file(depth, root, mp, f"{where}.depth")
-        frames.append(FrameInfo(i, t, image, lidar, labels, depth))
+        labels_gt = f.get("labels_gt")
+        if labels_gt is not None:
+            labels_gt = _relative_file(labels_gt, root, mp, f"{where}.labels_gt")
+        frames.append(FrameInfo(i, t, image, lidar, labels, depth, labels_gt))
     return frames
 
 
@@ -743,7 +759,7 @@ class SequenceWriter:
                 f"frames[{info.index}]",
             )
         self._check_next(info.timestamp)
-        for key in ("image", "lidar", "labels", "depth"):
+        for key in ("image", "lidar", "labels", "depth", "labels_gt"):
             rel = getattr(info, key)
             if rel is not None:
                 _relative_file(rel, self.root, self.root, f"frames[{info.index}].{key}")
@@ -835,7 +851,8 @@ class SequenceWriter:
 
 
 def frame_info(
-    index: int, timestamp: float, labels: bool = False, depth: bool = False
+    index: int, timestamp: float, labels: bool = False, depth: bool = False,
+    labels_gt: bool = False,
 ) -> FrameInfo:
     """The standard file names of frame ``index`` (``images/NNNNNN.png`` etc.)."""
     name = f"{index:06d}"
@@ -846,6 +863,7 @@ def frame_info(
         f"lidar/{name}.bin",
         f"labels/{name}.png" if labels else None,
         f"depth/{name}.npy" if depth else None,
+        f"labels_gt/{name}.png" if labels_gt else None,
     )
 
 
@@ -859,12 +877,14 @@ def write_frame(
     labels: NDArray[np.uint8] | None = None,
     depth: NDArray[np.floating[Any]] | None = None,
     png_compression: int | None = None,
+    labels_gt: NDArray[np.uint8] | None = None,
 ) -> FrameInfo:
     """Check and write the files of frame ``index`` atomically; return its :class:`FrameInfo`.
 
     Stateless (safe in worker processes); :meth:`SequenceWriter.register_frame` then adds the
     returned info in order. Arguments as in :meth:`SequenceWriter.add_frame`; ``png_compression``
-    is OpenCV's PNG level 0-9 (None = OpenCV's default).
+    is OpenCV's PNG level 0-9 (None = OpenCV's default); ``labels_gt`` (H, W) uint8 the true
+    labels when ``labels`` are noisy (written to ``labels_gt/``; needs ``labels``).
 
     Raises
     ------
@@ -890,19 +910,25 @@ def write_frame(
             out,
             f"{where}.lidar",
         )
-    lab = None
-    if labels is not None:
-        lab = np.asarray(labels)
-        if lab.dtype != np.uint8 or lab.shape != hw:
-            raise SequenceError(
-                f"expected a {hw} uint8 label image, got {lab.shape} {lab.dtype}",
-                out,
-                f"{where}.labels",
-            )
-        if lab.size and int(lab.max()) > max(Label):
-            raise SequenceError(
-                f"label id {int(lab.max())} is not a bimcap.labels.Label", out, f"{where}.labels"
-            )
+    checked: dict[str, NDArray[np.uint8] | None] = {}
+    for key, value in (("labels", labels), ("labels_gt", labels_gt)):
+        lab = None
+        if value is not None:
+            lab = np.asarray(value)
+            if lab.dtype != np.uint8 or lab.shape != hw:
+                raise SequenceError(
+                    f"expected a {hw} uint8 label image, got {lab.shape} {lab.dtype}",
+                    out,
+                    f"{where}.{key}",
+                )
+            if lab.size and int(lab.max()) > max(Label):
+                raise SequenceError(
+                    f"label id {int(lab.max())} is not a bimcap.labels.Label", out, f"{where}.{key}"
+                )
+        checked[key] = lab
+    lab, lab_gt = checked["labels"], checked["labels_gt"]
+    if lab_gt is not None and lab is None:
+        raise SequenceError("true labels given without labels", out, f"{where}.labels_gt")
     dep = None
     if depth is not None:
         dep = np.asarray(depth)
@@ -916,11 +942,13 @@ def write_frame(
         if not np.isfinite(dep).all() or (dep < 0).any():
             raise SequenceError("depth must be finite and >= 0", out, f"{where}.depth")
     params = [] if png_compression is None else [cv2.IMWRITE_PNG_COMPRESSION, int(png_compression)]
-    info = frame_info(index, timestamp, lab is not None, dep is not None)
+    info = frame_info(index, timestamp, lab is not None, dep is not None, lab_gt is not None)
     atomic_write_bytes(out / info.image, _encode_png(cv2, img[:, :, ::-1], params))
     atomic_write_bytes(out / info.lidar, pts.astype(_LIDAR_DTYPE).tobytes())
     if lab is not None and info.labels is not None:
         atomic_write_bytes(out / info.labels, _encode_png(cv2, lab, params))
+    if lab_gt is not None and info.labels_gt is not None:
+        atomic_write_bytes(out / info.labels_gt, _encode_png(cv2, lab_gt, params))
     if dep is not None and info.depth is not None:
         buf = io.BytesIO()
         np.save(buf, dep, allow_pickle=False)

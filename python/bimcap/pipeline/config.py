@@ -60,7 +60,7 @@ class LabelSource(str, Enum):
     GEOMETRIC = "geometric"  #: the built-in no-weights segmenter
     DISK = "disk"  #: label images (or BIMCaP-style masks) from a folder
     ONNX = "onnx"  #: any ONNX segmentation model with a class map
-    GROUND_TRUTH = "ground_truth"  #: the sequence's labels/ (simulated sequences only)
+    GROUND_TRUTH = "ground_truth"  #: the sequence's labels/ (simulated; noisy with --label-noise)
 
 
 #: The terms of each method's full objective.

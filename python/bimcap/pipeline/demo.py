@@ -17,6 +17,7 @@ from bimcap.errors import InputError
 from bimcap.io.atomic import atomic_write_json
 from bimcap.pipeline.config import Method, RefineConfig
 from bimcap.pipeline.refine import log
+from bimcap.sim.walk import DEFAULT_PITCH_DEG
 
 
 @dataclass(frozen=True)
@@ -31,7 +32,9 @@ class DemoOptions:
     scale: image size relative to ConSLAM's 2064×1544.
     fps: camera frame rate (Hz).
     pitch_deg: mean camera pitch of the handheld walk (negative looks down; ConSLAM's narrow field
-        of view sees the floor only when the camera looks a little down).
+        of view sees the floor only when the camera looks a little down); the walk's default,
+        :data:`bimcap.sim.walk.DEFAULT_PITCH_DEG`, which ``bimcap simulate`` uses too. The walk
+        glances up now and then (``WalkConfig.pitch_amplitude_deg``), which shows the ceiling.
     drift: drift preset (``exp1``, ``exp2``, ``exp3``).
     config: the BIMCaP run's settings (FACaP runs with ``method=facap`` on the same front end).
     facap: also solve with FACaP, for the side-by-side table.
@@ -42,7 +45,7 @@ class DemoOptions:
     frames: int = 60
     scale: float = 0.25
     fps: float = 2.0
-    pitch_deg: float = -12.0
+    pitch_deg: float = DEFAULT_PITCH_DEG
     drift: str = "exp2"
     config: RefineConfig = field(default_factory=RefineConfig)
     facap: bool = True

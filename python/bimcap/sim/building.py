@@ -21,8 +21,11 @@ and the union of their footprints is exactly the plan. Rectangular columns stand
 "hall"). Every room has a door to the corridor (IfcOpeningElement + IfcDoor) and a window in its
 exterior wall (IfcOpeningElement + IfcWindow); the corridor has an entrance door in the west wall
 (ground floor) and a window in the east wall. Each storey has a floor slab (BASESLAB on the
-ground floor, FLOOR above) whose top is the storey elevation and a suspended ceiling
-(IfcCovering CEILING); a ROOF slab closes the top storey.
+ground floor, FLOOR above) whose top is the storey elevation; every room and the corridor has its
+own suspended ceiling (IfcCovering CEILING, a thin plate whose underside is
+``ceiling_height_m`` above the floor in the rooms and ``corridor_ceiling_height_m`` in the
+corridor, below the structural slab as in real models), filling the room's clear rectangle from
+wall face to wall face; a ROOF slab closes the top storey.
 
 :func:`generate_building` writes the design IFC and its ground truth
 (:class:`~bimcap.sim.building_truth.BuildingTruth`, a JSON sidecar ``NAME.truth.json``);
@@ -94,13 +97,18 @@ class BuildingSpec:
 
     The default is the demo world: one storey, a 15 m x 2.4 m corridor, 3 rooms north (4.0 m
     deep) and 4 south (4.4 m deep) with seeded unequal widths, 2 rectangular corridor columns and
-    a round one in the widest south room.
+    a round one in the widest south room, suspended ceilings at 2.7 m in the rooms and 2.5 m in
+    the corridor (the storey is 3.1 m, the slab 0.2 m: the walls go up to the slab at 2.9 m).
+
+    ``ceiling_height_m`` / ``corridor_ceiling_height_m`` are the heights of the ceilings'
+    undersides above the storey floor; ``ceiling_thickness_m`` the plates' thickness.
     """
 
     storeys: int = 1
     storey_height_m: float = 3.1
     slab_thickness_m: float = 0.2
-    ceiling_height_m: float = 2.8
+    ceiling_height_m: float = 2.7
+    corridor_ceiling_height_m: float = 2.5
     ceiling_thickness_m: float = 0.03
     corridor_length_m: float = 15.0
     corridor_width_m: float = 2.4
@@ -160,11 +168,14 @@ class BuildingSpec:
         if self.corridor_columns < 0:
             raise bad("corridor_columns", "must be >= 0")
         wall_top = self.storey_height_m - self.slab_thickness_m
-        if not self.door_height_m < self.ceiling_height_m < wall_top - self.ceiling_thickness_m:
-            raise bad("ceiling_height_m",
-                      f"must lie between the door height and {wall_top - self.ceiling_thickness_m}")
-        if self.window_sill_m + self.window_height_m >= self.ceiling_height_m:
-            raise bad("window_height_m", "window top must stay below the ceiling")
+        for name in ("ceiling_height_m", "corridor_ceiling_height_m"):
+            if not self.door_height_m < getattr(self, name) < wall_top - self.ceiling_thickness_m:
+                raise bad(name, "must lie between the door height and "
+                                f"{wall_top - self.ceiling_thickness_m:g} (the slab above minus "
+                                "the ceiling thickness)")
+        if self.window_sill_m + self.window_height_m >= min(self.ceiling_height_m,
+                                                            self.corridor_ceiling_height_m):
+            raise bad("window_height_m", "window top must stay below the ceilings")
         min_room = self.door_width_m + 2 * ROOM_LOOP_MARGIN_M + 0.2
         for side, n in (("north", self.rooms_north), ("south", self.rooms_south)):
             clear = self.corridor_length_m - (n - 1) * self.interior_wall_thickness_m
@@ -243,7 +254,7 @@ def expected_counts(spec: BuildingSpec) -> dict[str, int]:
         "IfcBuildingStorey": spec.storeys,
         "IfcWall": spec.storeys * walls,
         "IfcSlab": spec.storeys + 1,
-        "IfcCovering": spec.storeys,
+        "IfcCovering": spec.storeys * (n_rooms + 1),  # a ceiling per room and the corridor
         "IfcColumn": columns,
         "IfcDoor": doors,
         "IfcWindow": windows,
@@ -468,13 +479,12 @@ def _storey_content(spec: BuildingSpec, plan: _Plan, k: int, pos: dict[str, floa
                           elev + o.sill, elev + o.sill + o.height)
         (st.doors if o.kind == "door" else st.windows).append(ot)
     te = spec.exterior_wall_thickness_m
-    # Slabs and ceilings follow the design shell (they are not shifted in the as-built).
+    # Slabs follow the design shell (they are not shifted in the as-built); the ceilings are
+    # fitted between the walls as built (see _ceilings).
     xw, xe = plan.positions["ext-west"], plan.positions["ext-east"]
     ys, yn = plan.positions["ext-south"], plan.positions["ext-north"]
     outer = ((xw - te / 2, ys - te / 2), (xe + te / 2, ys - te / 2), (xe + te / 2, yn + te / 2),
              (xw - te / 2, yn + te / 2))
-    inner = ((xw + te / 2, ys + te / 2), (xe - te / 2, ys + te / 2), (xe - te / 2, yn - te / 2),
-             (xw + te / 2, yn - te / 2))
     sid = f"{name}/slab/floor"
     st.slabs.append(SlabTruth(sid, _guid(design_seed, sid), k, "IfcSlab",
                               "BASESLAB" if k == 0 else "FLOOR", outer,
@@ -484,12 +494,37 @@ def _storey_content(spec: BuildingSpec, plan: _Plan, k: int, pos: dict[str, floa
         top = elev + spec.storey_height_m
         st.slabs.append(SlabTruth(rid, _guid(design_seed, rid), k, "IfcSlab", "ROOF", outer,
                                   top - spec.slab_thickness_m, top))
-    cid = f"{name}/ceiling"
-    st.coverings.append(SlabTruth(cid, _guid(design_seed, cid), k, "IfcCovering", "CEILING",
-                                  inner, elev + spec.ceiling_height_m,
-                                  elev + spec.ceiling_height_m + spec.ceiling_thickness_m))
     st.free_space = _free_space(spec, plan, k, pos, lines, st, missing)
+    st.coverings += _ceilings(spec, k, st.free_space, design_seed)
     return st
+
+
+def _ceilings(spec: BuildingSpec, k: int, free: FreeSpace, design_seed: int) -> list[SlabTruth]:
+    """One suspended ceiling (IfcCovering CEILING) per room and one for the corridor.
+
+    Each fills its room's clear rectangle (wall face to wall face, as the walls stand in this
+    variant: a ceiling is fitted after the walls are built); where an as-built partition is
+    missing, the room west (south) of it takes the strip the wall would have stood on, so the
+    ceiling stays closed. Ids ``S{k}/ceiling/corridor``, ``S{k}/ceiling/north-1`` ...
+    """
+    name = f"S{k}"
+    rects = {r.id.split("/")[-1]: r.rect for r in free.regions if r.kind in ("room", "corridor")}
+    for r in free.regions:
+        if r.kind != "removed_wall":
+            continue
+        side, i = r.id.split("/")[-1].split("-")[1:]  # "part-north-2" -> north, 2
+        x0, y0, _, y1 = rects[f"{side}-{i}"]
+        rects[f"{side}-{i}"] = (x0, y0, r.rect[2], y1)
+    out = []
+    for key in sorted(rects, key=lambda q: (q != "corridor", q)):
+        x0, y0, x1, y1 = (float(v) for v in rects[key])
+        z = k * spec.storey_height_m + (spec.corridor_ceiling_height_m if key == "corridor"
+                                        else spec.ceiling_height_m)
+        cid = f"{name}/ceiling/{key}"
+        out.append(SlabTruth(cid, _guid(design_seed, cid), k, "IfcCovering", "CEILING",
+                             ((x0, y0), (x1, y0), (x1, y1), (x0, y1)), z,
+                             z + spec.ceiling_thickness_m))
+    return out
 
 
 def _free_space(spec: BuildingSpec, plan: _Plan, k: int, pos: dict[str, float],

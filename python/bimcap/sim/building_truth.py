@@ -27,7 +27,9 @@ Sidecar ``NAME.truth.json`` (read it with :func:`load_building_truth`)::
                   (host direction), "width", "height", "z_min", "z_max"}],
      "slabs": [{"id", "guid", "storey", "ifc_class": "IfcSlab", "predefined_type": "BASESLAB" |
                 "FLOOR" | "ROOF", "polygon": [[x, y], ...], "z_min", "z_max"}],
-     "coverings": [same, "ifc_class": "IfcCovering", "predefined_type": "CEILING"],
+     "coverings": [same, "ifc_class": "IfcCovering", "predefined_type": "CEILING"; one per
+                   room ("S0/ceiling/north-1") and corridor ("S0/ceiling/corridor"), z_min its
+                   underside],
      "free_space": [{"storey", "floor_z",
                      "regions": [{"id", "kind": "room" | "corridor" | "door" | "removed_wall",
                                   "rect": [x_min, y_min, x_max, y_max], "polygon": 4 x [x, y]}],
@@ -260,7 +262,9 @@ class SlabTruth:
 @dataclass(frozen=True)
 class StoreyTruth:
     """One storey: ``floor_z`` is the top of its floor slab (= elevation), ``ceiling_z`` the
-    underside of its ceiling covering, ``wall_top_z`` the underside of the slab above."""
+    underside of its rooms' ceiling coverings (the corridor's may be lower: each covering in
+    ``BuildingTruth.coverings`` has its own ``z_min``), ``wall_top_z`` the underside of the
+    slab above."""
 
     index: int
     name: str

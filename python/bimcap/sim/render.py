@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from bimcap.errors import BimcapError
+from bimcap.errors import BimcapError, InputError
 from bimcap.geometry.camera import Camera
 from bimcap.geometry.poses import quat_to_rotmat
 from bimcap.labels import Label
@@ -36,6 +36,10 @@ F64 = NDArray[np.float64]
 
 class SimError(BimcapError):
     """The simulator cannot run (empty world, no free space to walk in, bad configuration)."""
+
+
+class SimConfigError(SimError, InputError):
+    """A simulator setting out of range; names the setting (``field``)."""
 
 
 #: Default material of each label (indexed by label id).

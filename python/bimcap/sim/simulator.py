@@ -6,7 +6,14 @@ not have off the walking path (:mod:`bimcap.sim.clutter`), and ray-casts, per fr
 image with procedural texture, its ground-truth label image and z-depth (:mod:`bimcap.sim.render`)
 and one LiDAR sweep at ConSLAM's LiDAR→camera extrinsic (:mod:`bimcap.sim.lidar`). It writes a
 sequence directory (docs/architecture.md): ``manifest.json``, ``images/``, ``labels/``,
-``depth/``, ``lidar/`` and ``poses/gt.tum`` (``world_from_cam``).
+``depth/``, ``lidar/`` and ``poses/gt.tum`` (``world_from_cam``). With label noise
+(:mod:`bimcap.sim.label_noise`) ``labels/`` holds the corrupted labels a segmenter might give
+and ``labels_gt/`` the true ones.
+
+Realism settings (all in :class:`SimulatorConfig`, all recorded in the manifest's ``source``):
+the camera (its field of view through its focal length, :func:`with_focal_scale`), the walk's
+pitch and its glances up (:class:`~bimcap.sim.walk.WalkConfig`), the LiDAR's range noise and
+dropouts (:class:`~bimcap.sim.lidar.LidarConfig`), the amount of clutter and the label noise.
 
 Rig: ``world_from_lidar = world_from_cam ∘ cam_from_lidar``. With ConSLAM's extrinsic the LiDAR's
 z axis is the camera's −y axis (up when the camera is level) and its x axis the camera's z axis
@@ -14,8 +21,8 @@ z axis is the camera's −y axis (up when the camera is level) and its x axis th
 
 Determinism: everything random derives from ``seed`` through ``numpy.random.default_rng`` with a
 fixed key per use (walk, clutter, element texture offsets, frame ``i`` image noise, frame ``i``
-LiDAR noise; the texture tiles come from ``config.texture_seed``), so the same seed and
-configuration give byte-identical files whatever the number of worker processes.
+LiDAR noise, frame ``i`` label noise; the texture tiles come from ``config.texture_seed``), so the
+same seed and configuration give byte-identical files whatever the number of worker processes.
 """
 
 from __future__ import annotations
@@ -45,8 +52,9 @@ from bimcap.geometry.trajectory import Trajectory
 from bimcap.io.atomic import check_not_input
 from bimcap.labels import Label
 from bimcap.sim.clutter import ClutterObject, box_mesh, place_clutter
+from bimcap.sim.label_noise import LabelNoiseConfig, corrupt_labels
 from bimcap.sim.lidar import LidarConfig, LidarSimulator
-from bimcap.sim.render import MeshPart, Renderer, ShadingConfig, SimError, World
+from bimcap.sim.render import MeshPart, Renderer, ShadingConfig, SimConfigError, SimError, World
 from bimcap.sim.texture import TextureBank
 from bimcap.sim.walk import FreeSpace, Walk, WalkConfig, plan_walk
 from bimcap.sim.walkable import Level, WalkableOptions, choose_free_space, door_footprints
@@ -60,8 +68,10 @@ __all__ = [
     "SimulationResult",
     "SimulatorConfig",
     "corridor_building",
+    "focal_scale_for_hfov",
     "simulate",
     "simulate_world",
+    "with_focal_scale",
 ]
 
 #: ConSLAM's calibration (DESIGN §3), defined once in the importer: the RGB camera at full
@@ -83,6 +93,7 @@ class SimulatorConfig:
     walk: the walking model.
     shading: the photometric model.
     clutter_density_per_m2: clutter objects per m² of free floor (when clutter is on).
+    label_noise: wrong labels written to ``labels/`` (the truth then goes to ``labels_gt/``).
     remove_doors: drop door leaves (IfcDoor meshes) so that doorways can be walked through.
     z_floor: floor height to walk on; None = a storey (``storey``, or the one with the largest
         connected walkable area, :func:`bimcap.sim.walkable.choose_free_space`).
@@ -102,6 +113,7 @@ class SimulatorConfig:
     walk: WalkConfig = field(default_factory=WalkConfig)
     shading: ShadingConfig = field(default_factory=ShadingConfig)
     clutter_density_per_m2: float = 0.08
+    label_noise: LabelNoiseConfig = field(default_factory=LabelNoiseConfig)
     remove_doors: bool = True
     z_floor: float | None = None
     storey: str | None = None
@@ -123,6 +135,11 @@ class SimulatorConfig:
             raise SimError("png_compression must be in 0..9")
         if self.workers < 0:
             raise SimError("workers must be >= 0")
+        if not (np.isfinite(self.clutter_density_per_m2) and self.clutter_density_per_m2 >= 0):
+            raise SimConfigError(f"must be finite and >= 0 (got {self.clutter_density_per_m2!r})",
+                                 None, "clutter_density_per_m2")
+        if self.label_noise.enabled and not self.write_labels:
+            raise SimConfigError("label noise needs write_labels", None, "label_noise")
 
     @classmethod
     def small(cls, **overrides: Any) -> SimulatorConfig:
@@ -140,6 +157,7 @@ class SimulatorConfig:
         d["lidar"] = None if self.lidar is None else self.lidar.to_dict()
         d["cam_from_lidar"] = list(self.cam_from_lidar)
         d["walk"] = self.walk.to_dict()
+        d["label_noise"] = self.label_noise.to_dict()
         d.pop("workers")
         d.pop("threads_per_worker")
         return d
@@ -404,8 +422,10 @@ def _init_worker(job: _RenderJob) -> None:
     )
 
 
-def _render_one(args: tuple[int, float, F64]) -> tuple[FrameInfo, dict[str, float]]:
-    """Render, scan and write frame ``i``; returns its info, wall and CPU seconds per stage."""
+def _render_one(args: tuple[int, float, F64]
+                ) -> tuple[FrameInfo, dict[str, float], dict[str, float]]:
+    """Render, scan and write frame ``i``; returns its info, wall and CPU seconds per stage, and
+    the label-noise statistics (empty without label noise)."""
     i, timestamp, world_from_cam = args
     job: _RenderJob = _WORKER["job"]
     cfg = job.config
@@ -424,11 +444,18 @@ def _render_one(args: tuple[int, float, F64]) -> tuple[FrameInfo, dict[str, floa
         )
     t1 = time.perf_counter()
     c2 = time.process_time()
+    labels, labels_gt, noise_stats = frame.labels, None, {}
+    if cfg.write_labels and cfg.label_noise.enabled:
+        labels, noise_stats = corrupt_labels(
+            frame.labels, cfg.label_noise, np.random.default_rng([job.seed, 303, i])
+        )
+        labels_gt = frame.labels
     info = write_frame(
         job.out_dir, i, timestamp, cfg.camera, frame.rgb, scan,
-        frame.labels if cfg.write_labels else None,
+        labels if cfg.write_labels else None,
         frame.depth if cfg.write_depth else None,
         png_compression=cfg.png_compression,
+        labels_gt=labels_gt,
     )
     c3 = time.process_time()
     timings["lidar"] = t1 - t0
@@ -436,7 +463,7 @@ def _render_one(args: tuple[int, float, F64]) -> tuple[FrameInfo, dict[str, floa
     timings["cpu_image"] = c1 - c0
     timings["cpu_lidar"] = c2 - c1
     timings["cpu_write"] = c3 - c2
-    return info, timings
+    return info, timings, noise_stats
 
 
 # ---------------------------------------------------------------------------------- simulation
@@ -538,7 +565,7 @@ def simulate_world(
         with ProcessPoolExecutor(workers, mp.get_context("spawn"), _init_worker, (job,)) as pool:
             chunk = max(1, cfg.frames // (4 * workers))
             results = list(pool.map(_render_one, tasks, chunksize=chunk))
-    for _, r in results:
+    for _, r, _ in results:
         for k, v in r.items():
             stage[k] = stage.get(k, 0.0) + v
     timings["render_wall"] = time.perf_counter() - t0
@@ -549,12 +576,24 @@ def simulate_world(
     ifc_ref = None
     if ifc_path is not None:
         ifc_ref = os.path.relpath(Path(ifc_path).resolve(), out.resolve())
+    noise = [n for _, _, n in results if n]
+    measured = None
+    if noise:
+        wrong = np.array([n["wrong_fraction"] for n in noise])
+        measured = {"wrong_fraction_mean": float(wrong.mean()),
+                    "wrong_fraction_min": float(wrong.min()),
+                    "wrong_fraction_max": float(wrong.max()),
+                    "boundary_fraction_mean": float(np.mean([n["boundary_fraction"]
+                                                             for n in noise])),
+                    "true_labels": "labels_gt/"}
     sequence = _finish_sequence(
-        out, cfg, [info for info, _ in results], world_from_cam, ifc_ref,
+        out, cfg, [info for info, _, _ in results], world_from_cam, ifc_ref,
         {
             "generator": "bimcap simulate",
             "seed": seed,
             "config": cfg.to_dict(),
+            "clutter_enabled": bool(clutter),
+            "label_noise_measured": measured,
             "clutter": [c.to_dict() for c in placed],
             "z_floor": free.z_floor,
             "storey": free.storey,
@@ -577,13 +616,15 @@ def simulate(
     as_built_ifc: str | PathLike[str] | None = None,
     clutter: bool = True,
     overwrite: bool = False,
+    source: dict[str, Any] | None = None,
 ) -> SequenceDir:
     """Simulate a sequence directory for the building ``ifc_path``.
 
     The sensors see ``as_built_ifc`` if given (the generator's as-built variant), else the design
     model itself; the manifest's ``ifc`` always names the design model. The walk uses the free
     space of the generator's JSON sidecar when one sits next to the rendered IFC, else free space
-    derived from the meshes. Returns the written sequence (validated; ``.root`` is ``out_dir``).
+    derived from the meshes. ``source`` is extra provenance for the manifest (e.g. the command
+    line). Returns the written sequence (validated; ``.root`` is ``out_dir``).
     """
     from bimcap.bim import load_model
 
@@ -617,10 +658,28 @@ def simulate(
             extra["synthetic_floors"] = notes
     levels = [Level(s.name, s.elevation_m) for s in model.storeys]
     result = simulate_world(
-        parts, out, cfg, seed, polygons, None, clutter, ifc, overwrite, source=extra,
-        levels=levels, model_name=str(seen),
+        parts, out, cfg, seed, polygons, None, clutter, ifc, overwrite,
+        source={**extra, **(source or {})}, levels=levels, model_name=str(seen),
     )
     return result.sequence
+
+
+def with_focal_scale(camera: Camera, factor: float) -> Camera:
+    """``camera`` with its focal lengths multiplied by ``factor`` (same image size, principal
+    point and distortion): ``factor`` > 1 narrows the field of view (a longer lens)."""
+    if not (np.isfinite(factor) and 0.2 <= factor <= 5.0):
+        raise SimConfigError(f"must be in [0.2, 5] (got {factor!r})", None, "focal_scale")
+    return replace(camera, fx=camera.fx * factor, fy=camera.fy * factor)
+
+
+def focal_scale_for_hfov(camera: Camera, hfov_deg: float) -> float:
+    """The focal scale that gives ``camera`` a horizontal field of view of ``hfov_deg`` degrees
+    (pinhole model across the image width: ``hfov = 2·atan(W / (2·fx))``; the lens distortion
+    changes the raw image's field of view slightly)."""
+    if not (np.isfinite(hfov_deg) and 5.0 <= hfov_deg <= 170.0):
+        raise SimConfigError(f"must be in [5, 170] degrees (got {hfov_deg!r})", None, "hfov_deg")
+    fx = camera.width / 2.0 / np.tan(np.deg2rad(hfov_deg) / 2.0)
+    return float(fx / camera.fx)
 
 
 def with_frames(config: SimulatorConfig, frames: int) -> SimulatorConfig:

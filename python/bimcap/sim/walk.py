@@ -21,8 +21,12 @@ Planning happens on a 2-D grid over the storey:
    ``speed_mps`` (slower in turns, with a slow speed variation).
 5. **Orientation**: yaw looks ahead along the path, plus occasional head turns toward the wall on
    the more open side; yaw rate is limited so consecutive frames overlap; pitch and roll sway at
-   the step frequency plus slow drifts; the camera height stays within ``height_range_m`` above
-   the local floor (smoothed along the path, so a step down is taken, not jumped).
+   the step frequency plus slow drifts around the walking pitch ``pitch_deg`` (a little down, so
+   that the floor is in view), and now and then the walker looks up (a smooth glance of up to
+   ``pitch_amplitude_deg`` above the walking pitch, every ``look_up_interval_s`` on average), as
+   people do, so that the camera and the rigidly mounted LiDAR see the ceiling; the camera
+   height stays within ``height_range_m`` above the local floor (smoothed along the path, so a
+   step down is taken, not jumped).
 
 Poses are ``world_from_cam`` in the OpenCV optical convention (x right, y down, z forward): with
 yaw ψ (heading in the world xy plane, from +x toward +y), pitch θ (positive = looking up) and
@@ -41,9 +45,15 @@ from numpy.typing import NDArray
 
 from bimcap.geometry.poses import rotmat_to_quat
 from bimcap.labels import Label
-from bimcap.sim.render import SimError, World
+from bimcap.sim.render import SimConfigError, SimError, World
 
 F64 = NDArray[np.float64]
+
+
+#: The walking pitch of the handheld camera, degrees (negative = looking down). One default for
+#: the simulator, its command line and ``bimcap demo``: a ConSLAM-like narrow view (about ±18°
+#: vertically) sees the floor a few metres ahead only when it looks a little down.
+DEFAULT_PITCH_DEG = -12.0
 
 
 @dataclass(frozen=True)
@@ -64,7 +74,11 @@ class WalkConfig:
     look_ahead_m: how far along the path the walker looks.
     head_turn_interval_s: mean time between head turns (toward the wall on the more open side).
     head_turn_deg: (min, max) head-turn amplitude.
-    pitch_deg: mean pitch (negative = looking down).
+    pitch_deg: mean pitch while walking (negative = looking down), :data:`DEFAULT_PITCH_DEG`.
+    pitch_amplitude_deg: largest upward glance above ``pitch_deg`` (each glance draws its peak
+        uniformly in [0.6, 1] × this); 0 = never look up.
+    look_up_interval_s: mean time between glances up (exponential gaps).
+    look_up_s: (min, max) duration of a glance (up and back down, a sin² profile).
     sway_pitch_deg, sway_roll_deg: amplitudes of the step-frequency sway.
     step_hz: step frequency at nominal speed.
     """
@@ -80,10 +94,29 @@ class WalkConfig:
     look_ahead_m: float = 1.5
     head_turn_interval_s: float = 9.0
     head_turn_deg: tuple[float, float] = (20.0, 45.0)
-    pitch_deg: float = -4.0
+    pitch_deg: float = DEFAULT_PITCH_DEG
+    pitch_amplitude_deg: float = 25.0
+    look_up_interval_s: float = 8.0
+    look_up_s: tuple[float, float] = (2.5, 4.5)
     sway_pitch_deg: float = 1.0
     sway_roll_deg: float = 1.5
     step_hz: float = 1.8
+
+    def __post_init__(self) -> None:
+        def bad(name: str, why: str) -> SimConfigError:
+            return SimConfigError(f"{why} (got {getattr(self, name)!r})", None, f"walk.{name}")
+
+        if not -60.0 <= self.pitch_deg <= 60.0:
+            raise bad("pitch_deg", "must be in [-60, 60] degrees")
+        if not 0.0 <= self.pitch_amplitude_deg <= 80.0:
+            raise bad("pitch_amplitude_deg", "must be in [0, 80] degrees")
+        if not self.look_up_interval_s > 0:
+            raise bad("look_up_interval_s", "must be > 0")
+        lo, hi = self.look_up_s
+        if not 0 < lo <= hi:
+            raise bad("look_up_s", "need 0 < min <= max")
+        if not self.speed_mps > 0:
+            raise bad("speed_mps", "must be > 0")
 
     def to_dict(self) -> dict[str, object]:
         return asdict(self)
@@ -542,6 +575,19 @@ def plan_walk(
     h_mid = rng.uniform(h_lo + 0.15, h_hi - 0.15)
     height = h_mid + _smooth_signal(rng, t, 0.05, 0.01, 0.1) + 0.015 * np.sin(phase)
     height = np.clip(height, h_lo + 0.01, h_hi - 0.01)
+    # glances up (drawn last, so that the path, yaw and the rest of the motion do not depend on
+    # whether the walker looks up)
+    if cfg.pitch_amplitude_deg > 0 and cfg.look_up_interval_s > 0:
+        look = np.zeros(n_t)
+        t_next = rng.exponential(cfg.look_up_interval_s)
+        while t_next < duration_s:
+            length_s = rng.uniform(*cfg.look_up_s)
+            amp = rng.uniform(0.6, 1.0) * cfg.pitch_amplitude_deg
+            tau = (t - t_next) / length_s
+            inside = (tau >= 0.0) & (tau <= 1.0)
+            look[inside] += amp * np.sin(np.pi * tau[inside]) ** 2
+            t_next += length_s + rng.exponential(cfg.look_up_interval_s)
+        pitch = pitch + np.deg2rad(look)
     # the local floor under the walker, smoothed over ~0.3 m of path: a step is climbed, not jumped
     floor = gaussian_filter1d(free.floor_at(xy), sigma=0.3 / max(cfg.speed_mps, 0.1) / dt,
                               mode="nearest")
