@@ -53,9 +53,10 @@ def test_planes_at_known_heights(generated: tuple[object, BimModel, BimReference
         assert sorted(ceils) == pytest.approx(sorted(c.z_min for c in coverings), abs=1e-6)
         assert not [p for p in ref.plane_info
                     if p.kind == Label.CEILING and p.storey == name and p.source != "covering"]
-        # A point in the middle of each covering: the floor under it, its own ceiling over it.
+        # A point in each covering (off its centre, where a room's round column stands): the
+        # floor under it, its own ceiling over it.
         for c in coverings:
-            xy = np.asarray(c.polygon).mean(axis=0)
+            xy = np.asarray(c.polygon).mean(axis=0) + 0.6
             p = np.array([[xy[0], xy[1], st.floor_z + 1.0]])
             fl, ce = ref.plane_under(p, Label.FLOOR), ref.plane_under(p, Label.CEILING)
             assert ref.plane_info[fl[0]].height == pytest.approx(st.floor_z)

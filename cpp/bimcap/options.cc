@@ -8,11 +8,14 @@
 namespace bimcap {
 namespace {
 
-const char* const kTermNames[kNumTerms] = {"G", "depth", "F", "Ce", "W", "Co", "prior",
+constexpr const char* kTermNames[] = {"G", "depth", "F", "Ce", "W", "Co", "prior",
                                            "odometry"};
 // The prefix of each term's keys.
-const char* const kTermKeys[kNumTerms] = {"geometric", "depth", "floor", "ceiling",
+constexpr const char* kTermKeys[] = {"geometric", "depth", "floor", "ceiling",
                                           "wall",      "column", "prior", "odometry"};
+// Sized by their initialisers: a term added without its name and key fails to compile.
+static_assert(sizeof(kTermNames) / sizeof(kTermNames[0]) == kNumTerms, "one name per term");
+static_assert(sizeof(kTermKeys) / sizeof(kTermKeys[0]) == kNumTerms, "one key per term");
 
 template <typename E>
 struct EnumNames;

@@ -100,8 +100,10 @@ NonFinite FindNonFinite(ProblemBuilder& builder, const SolverState& state) {
 }
 
 std::string TermLabel(int term) {
-  static const char* const kWhat[kNumTerms] = {"geometric", "landmark depth", "floor", "ceiling",
-                                               "wall", "column", "pose prior"};
+  // Sized by its initialiser: a term added without its description here fails to compile.
+  static constexpr const char* kWhat[] = {"geometric", "landmark depth", "floor", "ceiling",
+                                          "wall",      "column",         "pose prior", "odometry"};
+  static_assert(sizeof(kWhat) / sizeof(kWhat[0]) == kNumTerms, "one description per term");
   return std::string(TermName(term)) + " (" + kWhat[term] + ")";
 }
 

@@ -13,7 +13,7 @@ from os import PathLike
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from bimcap.evaluation.errors import EvaluationError
 from bimcap.evaluation.metrics import FrameErrors
@@ -258,4 +258,47 @@ def plot_term_costs(summary: Mapping[str, Any], path: str | PathLike[str] | None
     ax.set_title("Per-term cost before / after")
     ax.grid(True, axis="y", lw=0.3)
     ax.legend(fontsize=8)
+    return _finish(fig, path)
+
+
+def plot_observability(
+    sigma: NDArray[np.float64],
+    max_sigma_m: float,
+    max_sigma_deg: float,
+    path: str | PathLike[str] | None = None,
+) -> Figure:
+    """Per frame, how well the BIM terms alone pin each degree of freedom.
+
+    Parameters
+    ----------
+    sigma: (N, 6) standard deviations of along, across, up (m) and roll, pitch, yaw (deg), ``inf``
+        where the BIM does not observe the degree of freedom
+        (``bimcap.optimize.observability.Observability.sigma()``).
+    max_sigma_m, max_sigma_deg: the thresholds below which a degree of freedom counts as observed
+        (drawn as dashed lines).
+    path: PNG to write, or None.
+    """
+    fig, axes = _new_figure(nrows=2, size=(8.0, 5.5))
+    s = np.asarray(sigma, dtype=np.float64).reshape(-1, 6)
+    frames = np.arange(len(s))
+    panels = ((axes[0, 0], slice(0, 3), ("along", "across", "up"), max_sigma_m, "σ [m]"),
+              (axes[1, 0], slice(3, 6), ("roll", "pitch", "yaw"), max_sigma_deg, "σ [deg]"))
+    for ax, cols, names, limit, ylabel in panels:
+        block = s[:, cols]
+        finite = block[np.isfinite(block)]
+        top = max(float(finite.max()) if finite.size else limit, limit) * 3.0
+        for k, (name, colour) in enumerate(zip(names, ("tab:blue", "tab:orange", "tab:green"),
+                                               strict=True)):
+            v = block[:, k]
+            ok = np.isfinite(v)
+            ax.semilogy(frames[ok], v[ok], "o-", ms=2.5, lw=0.8, color=colour, label=name)
+            if (~ok).any():  # unobserved: a mark at the top of the panel
+                ax.plot(frames[~ok], np.full(int((~ok).sum()), top * 1.4 ** k), "v", ms=4,
+                        color=colour)
+        ax.axhline(limit, color="k", ls="--", lw=0.8, label=f"observed below {limit:g}")
+        ax.set_ylabel(ylabel)
+        ax.grid(True, which="both", lw=0.3)
+        ax.legend(loc="upper left", fontsize=7, ncol=4)
+    axes[1, 0].set_xlabel("frame")
+    axes[0, 0].set_title("What the BIM terms pin, per frame (lower is better; ▼ = not at all)")
     return _finish(fig, path)

@@ -394,10 +394,13 @@ class PlanarSmoothingOptions:
         points per region used for the fits.
     max_planes: planes fitted per connected region, one after the other on the pixels the
         earlier planes did not explain (two walls meeting in a corner, a floor with a step).
-    assign_threshold_m: a pixel moves onto its nearest plane (3-D distance of its back-projected
-        point) only when it is within this distance; others keep their depth (a labelling error
-        or an object in front of the wall should not be dragged onto the plane).
-    max_change_rel: nor when its depth would change by more than this fraction.
+    assign_threshold_m: in a region with several planes a pixel moves onto its nearest plane
+        (3-D distance of its back-projected point) only when it is within this distance; the
+        others keep their depth (near a corner, a pixel of one wall must not be dragged onto the
+        other's extension). A region with one plane moves every pixel (as the paper's
+        smoothing does: interpolation across the region's edges is what it takes out).
+    max_change_rel: no pixel moves when its depth would change by more than this fraction (a
+        labelling error should not drag depth onto the plane).
     blur_sigma_px: BLUR.
     """
 
@@ -478,7 +481,8 @@ def _smooth_region(out: F32, depth: F32, rows: NDArray[np.int64], cols: NDArray[
     pl = np.stack(planes)  # (K, 4)
     dist = np.abs(pts @ pl[:, :3].T + pl[:, 3])  # (N, K)
     best = np.argmin(dist, axis=1)
-    near = dist[np.arange(len(pts)), best] <= opts.assign_threshold_m
+    near = np.ones(len(pts), dtype=bool) if len(pl) == 1 else (
+        dist[np.arange(len(pts)), best] <= opts.assign_threshold_m)
     rays = camera.rays(uv, distorted=False)
     denom = (rays * pl[best, :3]).sum(1)
     with np.errstate(divide="ignore", invalid="ignore"):

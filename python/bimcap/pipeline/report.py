@@ -50,6 +50,7 @@ class ReportInput:
     settings: dict[str, Any] = field(default_factory=dict)
     reproduce: str = ""
     notes: list[str] = field(default_factory=list)
+    observability: Any = None  #: bimcap.optimize.observability.Observability of the refined run
 
 
 def _fmt(x: Any, digits: int = 4) -> str:
@@ -160,6 +161,18 @@ def write_report(inp: ReportInput, name: str = "report.html") -> Path:
                                  title=f"Floor and ceiling points: {label}")
             parts.append(_img(p, f"side view, {label}"))
 
+    if inp.observability is not None and inp.observability.frames:
+        obs = inp.observability
+        p = figs / "observability.png"
+        plots.plot_observability(obs.sigma(), obs.options.max_sigma_m, obs.options.max_sigma_deg, p)
+        parts.append("<h2>What the BIM observes, per frame</h2>")
+        parts.append(f"<p>{html.escape(obs.summary_line())}. Standard deviations of each degree of "
+                     "freedom from the BIM terms alone (F, Ce, W, Co, with their noise scales and "
+                     "robust weights), in a frame aligned with the camera's heading. Degrees of "
+                     "freedom the BIM does not pin are held by G (the neighbouring frames), the "
+                     "odometry and the pose prior.</p>")
+        parts.append(_img(p, "BIM observability per frame"))
+
     solved = [r for r in inp.rows if r.summary is not None]
     if solved:
         parts.append("<h2>Solver</h2>")
@@ -222,5 +235,6 @@ def write_refine_report(result: Any, prepared: Any, gt: Any, extra: list[RunRow]
         settings={"config": result.config.to_dict(), "problem": result.outcome.problem_stats.to_dict(),
                   "timings_s": result.timings},
         reproduce=result.command,
+        observability=result.outcome.observability,
     )
     return write_report(inp)
