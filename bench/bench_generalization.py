@@ -44,7 +44,7 @@ import numpy as np
 
 FIELDS = ("world", "kind", "frames", "setting", "run", "method", "init_pos_m", "init_rot_deg",
           "pos_m", "rot_deg", "yaw_deg", "pitch_deg", "roll_deg", "fully_observed",
-          "frames_total", "solve_s")
+          "frames_total", "solve_s", "blind_frames", "pos_seen_m", "rot_seen_deg")
 
 #: Generated layouts: BuildingSpec changes (1 and 2 storeys, small to large).
 LAYOUTS: dict[str, dict[str, Any]] = {
@@ -108,19 +108,29 @@ def make_world(work: Path, world: str, frames: int, setting: str) -> tuple[Path,
 
 
 def _row(world: str, frames: int, setting: str, run: str, method: str, init: Any, gt: Any,
-         outcome: Any) -> dict[str, Any]:
+         outcome: Any, frontend: Any) -> dict[str, Any]:
     from bimcap.evaluation.metrics import AlignMode, trajectory_metrics
 
     m0 = trajectory_metrics(init.poses, gt.poses, AlignMode.NONE)
     m = trajectory_metrics(outcome.refined.poses, gt.poses, AlignMode.NONE)
     obs = outcome.observability
+    # "blind" frames: no feature match and no associated BIM sample, nothing but the input's pose
+    # (and the odometry) to go by; the ATE over the other frames is reported beside the full one.
+    seen = np.zeros(len(gt), dtype=bool)
+    for f in (frontend.match_frames, frontend.track_obs_frame):
+        seen[np.asarray(f, dtype=np.int64).ravel()] = True
+    if obs is not None:
+        seen[[f.frame for f in obs.frames if sum(f.samples.values()) > 0]] = True
+    ms = trajectory_metrics(outcome.refined.poses[seen], gt.poses[seen], AlignMode.NONE)
     return {"world": world, "kind": world.split("-")[0], "frames": frames, "setting": setting,
             "run": run, "method": method, "init_pos_m": m0.ate_pos_m.rmse,
             "init_rot_deg": m0.ate_rot_deg.rmse, "pos_m": m.ate_pos_m.rmse,
             "rot_deg": m.ate_rot_deg.rmse, "yaw_deg": m.yaw_rmse_deg,
             "pitch_deg": m.pitch_rmse_deg, "roll_deg": m.roll_rmse_deg,
             "fully_observed": obs.fully_observed() if obs is not None else -1,
-            "frames_total": len(gt), "solve_s": outcome.seconds}
+            "frames_total": len(gt), "solve_s": outcome.seconds,
+            "blind_frames": int((~seen).sum()), "pos_seen_m": ms.ate_pos_m.rmse,
+            "rot_seen_deg": ms.ate_rot_deg.rmse}
 
 
 def run(args: argparse.Namespace) -> None:
@@ -136,6 +146,7 @@ def run(args: argparse.Namespace) -> None:
         with out.open(newline="") as fh:
             done = {(r["world"], r["frames"], r["setting"], r["run"], r["method"])
                     for r in csv.DictReader(fh)}
+    _upgrade_header(out)
     new = not out.exists()
     with out.open("a", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=FIELDS)
@@ -170,14 +181,32 @@ def run(args: argparse.Namespace) -> None:
                                            work / world / f"run_{frames}_{setting}_{tag}",
                                            quiet=True)
                             outcome = solve_prepared(prep, cfg, quiet=True)
-                            row = _row(world, frames, setting, name, method, init, gt, outcome)
+                            row = _row(world, frames, setting, name, method, init, gt, outcome,
+                                       prep.frontend)
                             w.writerow(row)
                             fh.flush()
                             print(f"{world:28s} {frames:4d} {setting:8s} {name:6s} {method:6s} "
                                   f"{row['init_pos_m']:.3f} m/{row['init_rot_deg']:.2f}° → "
                                   f"{row['pos_m'] * 100:.2f} cm/{row['rot_deg']:.3f}° "
-                                  f"({row['solve_s']:.1f} s)", flush=True)
+                                  f"({row['solve_s']:.1f} s; {row['blind_frames']} blind frames, seen "
+                                  f"{row['pos_seen_m'] * 100:.2f} cm/{row['rot_seen_deg']:.3f}°)",
+                                  flush=True)
                     print(f"{world} {frames} {setting}: {time.perf_counter() - t0:.0f} s", flush=True)
+
+
+def _upgrade_header(out: Path) -> None:
+    """Rewrite a CSV written before columns were added with the current header (blanks)."""
+    if not out.exists():
+        return
+    with out.open(newline="") as fh:
+        reader = csv.DictReader(fh)
+        if reader.fieldnames is not None and list(reader.fieldnames) == list(FIELDS):
+            return
+        rows = list(reader)
+    with out.open("w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=FIELDS, restval="")
+        w.writeheader()
+        w.writerows(rows)
 
 
 def _labels_are_noisy(seq: Any) -> bool:
@@ -198,10 +227,13 @@ def summarise(paths: list[str]) -> None:
     for r in rows:
         for k in ("pos_m", "rot_deg", "init_pos_m", "init_rot_deg", "solve_s"):
             r[k] = float(r[k])
+        for k in ("pos_seen_m", "rot_seen_deg"):
+            r[k] = float(r[k]) if r.get(k) not in (None, "") else None
     groups = sorted({(r["setting"], int(r["frames"])) for r in rows})
     print("| setting | frames | runs | BIMCaP Exp 1/2/3: mean ATE_pos / ATE_rot | worst run "
-          "| fixed point: mean / worst | design IFC (exp2): mean / worst | BIMCaP beats FACaP |")
-    print("|---|---|---|---|---|---|---|---|")
+          "| without blind frames: mean / worst | fixed point: mean / worst "
+          "| design IFC (exp2): mean / worst | BIMCaP beats FACaP |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for setting, frames in groups:
         g = [r for r in rows if r["setting"] == setting and int(r["frames"]) == frames]
         exp = [r for r in g if r["run"].startswith("exp") and r["method"] == "bimcap"]
@@ -232,7 +264,10 @@ def summarise(paths: list[str]) -> None:
         wtext = "–" if worst is None else (
             f"{worst['pos_m'] * 100:.2f} cm ({worst['world']} {worst['run']}); "
             f"{worst_rot['rot_deg']:.3f}° ({worst_rot['world']} {worst_rot['run']})")
-        print(f"| {setting} | {frames} | {len(exp)} | {mean(exp)} | {wtext} | {mean(fix)} / "
+        seen = [{**r, "pos_m": r["pos_seen_m"], "rot_deg": r["rot_seen_deg"]} for r in exp
+                if r["pos_seen_m"] is not None]
+        print(f"| {setting} | {frames} | {len(exp)} | {mean(exp)} | {wtext} | "
+              f"{mean(seen)} / {worst_of(seen)} ({len(seen)} runs) | {mean(fix)} / "
               f"{worst_of(fix)} | {mean(des)} / {worst_of(des)} | {beats}/{total} |")
     print()
     print("| world | frames | setting | fixed | exp1 | exp2 | exp3 | FACaP exp2 | design exp2 |")
