@@ -1,4 +1,4 @@
-"""The fusion / segmentation adapters driving the runner (skipped until those stages are merged)."""
+"""The fusion / segmentation adapters driving the runner."""
 
 from __future__ import annotations
 
@@ -13,9 +13,6 @@ from bimcap.frontend.providers import LidarDepthProvider, PlanarDepthRefiner, Se
 from bimcap.features import MatchFilterOptions, RequireDepth, SiftOptions
 from bimcap.geometry.poses import transform_points
 
-fusion = pytest.importorskip("bimcap.fusion")
-if not hasattr(fusion, "project_lidar"):
-    pytest.skip("bimcap.fusion is not merged on this branch yet", allow_module_level=True)
 
 CONFIG = FrontendConfig(sift=SiftOptions(max_num_features=1500), window=2)
 

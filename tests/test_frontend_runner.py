@@ -264,11 +264,9 @@ def test_provider_size_and_pose_count_errors(seq: SceneSequence) -> None:
 
 
 def test_with_a_bimcap_dataset_sequence(seq: SceneSequence, tmp_path: Path) -> None:
-    """The real sequence reader (bimcap.dataset, once merged) drives the runner the same way."""
-    try:
-        from bimcap.dataset import SequenceWriter, read_sequence
-    except ImportError:
-        pytest.skip("bimcap.dataset.read_sequence not available on this branch yet")
+    """The real sequence reader (bimcap.dataset) drives the runner the same way."""
+    from bimcap.dataset import SequenceWriter, read_sequence
+
     root = tmp_path / "ds"
     with SequenceWriter(root, seq.camera, [0.0, 0, 0, 0, 0, 0, 1]) as w:
         for i in range(3):
@@ -309,12 +307,10 @@ def test_maps_are_written(seq: SceneSequence, result: FrontendResult, tmp_path: 
 
 
 def test_on_a_simulated_sequence(tmp_path: Path) -> None:
-    """The simulator's sequence (bimcap.sim, once merged): matches agree with its ground truth."""
-    try:
-        from bimcap.dataset import read_sequence
-        from bimcap.sim.simulator import SimulatorConfig, corridor_building, simulate_world
-    except ImportError:
-        pytest.skip("bimcap.sim / bimcap.dataset not merged on this branch yet")
+    """The simulator's sequence: matches agree with its ground truth."""
+    from bimcap.dataset import read_sequence
+    from bimcap.sim.simulator import SimulatorConfig, corridor_building, simulate_world
+
     parts, polys, doors = corridor_building(rooms_per_side=2)
     out = tmp_path / "sim"
     simulate_world(parts, out, SimulatorConfig.small(frames=4), seed=3, free_polygons=polys, doors_xy=doors)
@@ -332,10 +328,8 @@ def test_on_a_simulated_sequence(tmp_path: Path) -> None:
 
 def test_arrays_pass_the_solvers_validation(seq: SceneSequence, result: FrontendResult) -> None:
     """Oracle: bimcap.optimize.Problem (the solver side's own checks) accepts the arrays."""
-    try:
-        from bimcap.optimize import Problem
-    except ImportError:
-        pytest.skip("bimcap.optimize.Problem not available")
+    from bimcap.optimize import Problem
+
     arrays = result.to_problem_arrays()
     n = result.num_frames
     arrays.update(

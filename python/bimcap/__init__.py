@@ -1,6 +1,6 @@
 """bimcap: snap a drifting camera + LiDAR trajectory onto the building's BIM.
 
-Conventions (see the README and DESIGN): world = the IFC frame, z up, metres; poses are
+Conventions (see the README): world = the IFC frame, z up, metres; poses are
 ``world_from_cam`` arrays of shape (N, 7) in TUM order ``[tx, ty, tz, qx, qy, qz, qw]``;
 camera frame is OpenCV optical (x right, y down, z forward); label ids are :class:`bimcap.labels.Label`.
 """

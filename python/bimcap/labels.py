@@ -1,4 +1,4 @@
-"""Semantic label ids (DESIGN §2), shared by label images, point clouds and the solver."""
+"""Semantic label ids, shared by label images, point clouds and the solver."""
 
 from __future__ import annotations
 

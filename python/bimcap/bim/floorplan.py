@@ -1,6 +1,6 @@
 """The vectorized semantic floor plan: wall and column outlines as segments in metres.
 
-Per storey (DESIGN §1 step 2):
+Per storey (step 2 of the pipeline, docs/architecture.md):
 
 1. **Cut** the wall and column meshes in a horizontal band, by default ±0.2 m around 1.2 m above
    the storey elevation (above usual window sills, below door heads; clipped to the storey's own
@@ -188,7 +188,7 @@ class FloorPlan:
         return [s.storey for s in self.storeys for _ in range(len(s.segments))]
 
     def to_dict(self) -> dict[str, Any]:
-        """The floor-plan JSON (DESIGN §3): segments with class and storey, band, resolution,
+        """The floor-plan JSON: segments with class and storey, band, resolution,
         origin, plus each storey's coverage / precision."""
         segs = []
         for s in self.storeys:

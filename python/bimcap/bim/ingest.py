@@ -6,7 +6,7 @@ frame (z up) converted to **metres**, whatever the file's length unit, plus its 
 returns metres by default (``convert-back-units`` is off); storey ``Elevation`` attributes are in
 the file's unit and are scaled with :func:`ifcopenshell.util.unit.calculate_unit_scale`.
 
-Classes (DESIGN §2 labels):
+Classes (bimcap.labels):
 
 =========================================  ================
 IFC class                                   label

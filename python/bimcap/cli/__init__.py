@@ -34,8 +34,8 @@ from bimcap.errors import (
     describe_os_error,
 )
 
-#: Sub-command modules, in the order ``bimcap --help`` lists them. A name whose module is not
-#: part of this build is skipped (any other import error is raised).
+#: Sub-command modules, in the order ``bimcap --help`` lists them. Every one must import: a
+#: missing module is a broken install, never a silently missing command.
 COMMANDS: tuple[str, ...] = (
     "demo",
     "refine",
@@ -104,12 +104,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMANDS:
-        try:
-            module = importlib.import_module(f"bimcap.cli.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name == f"bimcap.cli.{name}":
-                continue
-            raise
+        module = importlib.import_module(f"bimcap.cli.{name}")  # a missing one is an error
         module.register(sub)
     return parser
 

@@ -28,7 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "evaluate",
         help="ATE, yaw/pitch/roll RMSE, MME/MPV/NND of an estimate against the ground truth",
         description=(
-            "Trajectory metrics (DESIGN §4) of EST against GT, both TUM files "
+            "Trajectory metrics of EST against GT, both TUM files "
             "(timestamp tx ty tz qx qy qz qw, world_from_cam), matched by timestamp. "
             "ATE_pos/ATE_rot equal evo's APE (translation part / rotation angle in degrees); "
             "yaw/pitch/roll: E = R_est R_gt^T split with scipy as_euler('ZYX'). "

@@ -56,7 +56,7 @@ TOPIC_IMAGE = "pp_rgb/synced2points"
 TOPIC_POINTS = "pp_points/synced2rgb"
 TOPIC_CAMERA_INFO = "pp_rgb/camera_info"
 
-#: ConSLAM's RGB camera (DESIGN §3): 2064×1544, plumb_bob.
+#: ConSLAM's RGB camera: 2064×1544, plumb_bob.
 CONSLAM_CAMERA = Camera(
     2064,
     1544,

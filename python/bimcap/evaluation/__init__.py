@@ -1,4 +1,4 @@
-"""Metrics (ATE, yaw/pitch/roll, MME, MPV, NND) and plots (DESIGN §4).
+"""Metrics (ATE, yaw/pitch/roll, MME, MPV, NND) and plots.
 
 Modules (imported explicitly; nothing heavy is imported here):
 

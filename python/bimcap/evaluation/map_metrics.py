@@ -1,4 +1,4 @@
-"""Map-quality metrics of DESIGN §4: MME, MPV (no ground truth needed) and NND (needs a reference).
+"""Map-quality metrics: MME, MPV (no ground truth needed) and NND (needs a reference).
 
 MME and MPV reproduce the ``map-metrics`` 0.0.5 package (Skoltech) to 1e-9:
 
@@ -265,7 +265,7 @@ def nearest_neighbour_distance(
 
     ConSLAM's ``tools/constrained_RMSE`` ignores nearest neighbours at a distance >= the threshold
     (0.3 m) and reports ``sqrt(mean d²)`` over the rest; EXCLUDE mode does the same selection and
-    reports both the mean (DESIGN §4's NND) and that RMSE.
+    reports both the mean (the NND of the paper) and that RMSE.
 
     Parameters
     ----------

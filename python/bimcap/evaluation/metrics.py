@@ -1,4 +1,4 @@
-"""Trajectory metrics of DESIGN §4: ATE (position, rotation) and yaw/pitch/roll RMSE.
+"""Trajectory metrics: ATE (position, rotation) and yaw/pitch/roll RMSE.
 
 Conventions
 -----------

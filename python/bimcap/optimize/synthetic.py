@@ -6,7 +6,7 @@ A camera (640 × 480 pinhole, OpenCV optical frame) walks an elliptic loop at ab
 looking along its path with some yaw wobble, pitch and roll. From the ground-truth poses every term
 gets observations with noise: G (keypoint matches between frames i and i + k with depths, or
 landmark tracks), F / Ce (floor / ceiling points in the camera frame), W / Co (wall / column points).
-The initial poses are the ground truth with a drift (DESIGN §5): a random walk in translation and
+The initial poses are the ground truth with a drift: a random walk in translation and
 in yaw / pitch, zero at frame 0.
 """
 

@@ -37,7 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from bimcap.registration.correlative import score_volume, top_hypotheses
+from bimcap.registration.correlative import Hypothesis, score_volume, top_hypotheses
 from bimcap.registration.gravity import level_window
 from bimcap.registration.icp import Correction2D, icp_2d, rot2
 from bimcap.registration.plan_maps import PlanMaps
@@ -295,6 +295,10 @@ def _frame_candidates(points: tuple[F64, I32], cam: F64, floor_z: float | None,
     view = p_xy - pivot
     vol, res, nn = score_volume(p_xy, p_cls, view, maps, pivot, yaws, opt.xy_range_m)
     hyps = top_hypotheses(vol, yaws, res, nn, opt.top_k, 0.3, np.deg2rad(3.0))
+    # The input pose is always a hypothesis: the track may then keep it, at its own score,
+    # instead of choosing between aliases when the input is already right.
+    if not any(np.linalg.norm(h.t) < 0.3 and abs(h.yaw) < np.deg2rad(3.0) for h in hyps):
+        hyps.append(Hypothesis(0.0, np.zeros(2), 0.0))
 
     def associate(q: F64, q_class: I32, v: F64, maps: PlanMaps = maps) -> tuple[F64, F64]:
         return maps.nearest(q, maps.layer_of(q_class, v))

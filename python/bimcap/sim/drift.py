@@ -1,4 +1,4 @@
-"""The drift generator: synthetic "SLAM output" made from ground-truth poses (DESIGN §5).
+"""The drift generator: synthetic "SLAM output" made from ground-truth poses.
 
 Two models (:class:`DriftModel`), both seeded:
 
@@ -34,7 +34,7 @@ search). The effective σs are the nominal ones times the scales; both are repor
 random walk's magnitude grows with the number of frames, the scales absorb the sequence length:
 any sequence gets the paper's magnitudes. Without targets the scales are 1 and the σs are exact.
 
-ATE here is the plain RMSE without alignment (DESIGN §4): ATE_pos = sqrt(mean ‖t_init − t_gt‖²)
+ATE here is the plain RMSE without alignment: ATE_pos = sqrt(mean ‖t_init − t_gt‖²)
 in metres, ATE_rot = sqrt(mean θ²) in degrees with θ the angle of R_initᵀ R_gt.
 """
 

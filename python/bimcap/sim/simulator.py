@@ -74,7 +74,7 @@ __all__ = [
     "with_focal_scale",
 ]
 
-#: ConSLAM's calibration (DESIGN §3), defined once in the importer: the RGB camera at full
+#: ConSLAM's calibration, defined once in the importer: the RGB camera at full
 #: resolution, the LiDAR→camera extrinsic as published (3×4) and as a TUM-order pose.
 CONSLAM_CAM_FROM_LIDAR_3X4 = CONSLAM_CAM_FROM_LIDAR_MATRIX
 
@@ -279,7 +279,7 @@ def corridor_building(
 
 
 def load_ifc_parts(path: str | PathLike[str]) -> list[MeshPart]:
-    """Mesh parts of every element of an IFC (world metres, labels of DESIGN §2).
+    """Mesh parts of every element of an IFC (world metres, labels of bimcap.labels).
 
     Tessellation and classification are :func:`bimcap.bim.load_model`'s; parts are sorted by
     GUID so that the world (and hence every output byte) does not depend on thread scheduling.
