@@ -73,3 +73,30 @@ def test_malformed_config_exits_2(tmp_path: Path) -> None:
 def test_no_command_prints_help(capsys: pytest.CaptureFixture[str]) -> None:
     assert main([]) == 2
     assert "usage: bimcap" in capsys.readouterr().out
+
+
+HEAVY = ("numpy", "scipy", "open3d", "cv2", "map_metrics", "ifcopenshell", "onnxruntime",
+         "pycolmap", "matplotlib", "bimcap._core")
+
+
+def test_top_level_help_imports_no_stage() -> None:
+    # `bimcap --help` lists the commands from their modules' NAME and HELP: no numpy, no stage.
+    code = ("import sys, runpy; sys.argv = ['bimcap', '--help']\n"
+            "try:\n    runpy.run_module('bimcap', run_name='__main__')\n"
+            "except SystemExit:\n    pass\n"
+            f"print('HEAVY', sorted(m for m in {HEAVY!r} if m in sys.modules))")
+    env = {"PYTHONPATH": str(REPO / "python"), "PATH": "/usr/bin:/bin"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
+                         timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert "HEAVY []" in out.stdout, out.stdout[-400:]
+    for name in COMMANDS:
+        assert name.replace("_", "-") in out.stdout
+
+
+def test_a_command_registers_only_itself_in_full() -> None:
+    parser = build_parser("drift")
+    sub = next(a for a in parser._actions if a.dest == "command")
+    drift = {o for a in sub.choices["drift"]._actions for o in a.option_strings}
+    refine = {o for a in sub.choices["refine"]._actions for o in a.option_strings}
+    assert "--preset" in drift and refine == {"-h", "--help"}

@@ -50,12 +50,12 @@ def test_an_unexpected_oserror_in_any_command_is_one_line(monkeypatch: pytest.Mo
         capsys: pytest.CaptureFixture[str]) -> None:
     """The mapping lives in bimcap.cli.main: whatever command raises an OSError, it prints one
     line and exits 4 (``--debug`` shows the traceback)."""
-    import bimcap.cli.evaluate as evaluate
+    import bimcap.geometry.trajectory as trajectory  # evaluate imports read_tum when it runs
 
     def boom(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
         raise OSError(errno.EIO, "Input/output error", "/mnt/nas/gt.tum")
 
-    monkeypatch.setattr(evaluate, "read_tum", boom)
+    monkeypatch.setattr(trajectory, "read_tum", boom)
     assert main(["evaluate", "a.tum", "b.tum"]) == EXIT_OS_ERROR
     err = capsys.readouterr().err.strip()
     assert err == "bimcap evaluate: error: /mnt/nas/gt.tum: input/output error (a failing disk " \

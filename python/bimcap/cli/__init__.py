@@ -95,7 +95,18 @@ def _check_outputs(args: argparse.Namespace) -> None:
                 check(value)
 
 
-def build_parser() -> argparse.ArgumentParser:
+#: ``build_parser``'s default: register every sub-command in full.
+ALL = "*"
+
+
+def build_parser(command: str | None = ALL) -> argparse.ArgumentParser:
+    """The ``bimcap`` parser.
+
+    ``command`` is the sub-command to register in full (its options, which may import its stage);
+    the others get their name and one-line help only, from their modules' ``NAME`` and ``HELP``
+    (the modules import nothing heavy at module level). ``None`` registers none in full, as
+    ``bimcap --help`` needs; :data:`ALL` (the default) registers all.
+    """
     parser = argparse.ArgumentParser(
         prog="bimcap",
         description="Refine a drifting camera + LiDAR trajectory against the building's BIM (IFC).",
@@ -105,8 +116,17 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMANDS:
         module = importlib.import_module(f"bimcap.cli.{name}")  # a missing one is an error
-        module.register(sub)
+        if command == ALL or command == module.NAME:
+            module.register(sub)
+        else:
+            sub.add_parser(module.NAME, help=module.HELP)
     return parser
+
+
+def _command_in(argv: Sequence[str]) -> str | None:
+    """The sub-command named in ``argv``: its first argument that is not an option (the top-level
+    options take no value)."""
+    return next((a for a in argv if not a.startswith("-")), None)
 
 
 def _warnings_as_lines(command: str) -> Any:
@@ -129,7 +149,7 @@ def _warnings_as_lines(command: str) -> Any:
 def main(argv: Sequence[str] | None = None) -> int:
     import warnings
 
-    parser = build_parser()
+    parser = build_parser(_command_in(sys.argv[1:] if argv is None else argv))
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()

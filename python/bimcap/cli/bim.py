@@ -8,11 +8,14 @@ import warnings
 from pathlib import Path
 from typing import Any
 
+NAME = "bim"
+HELP = "IFC → semantic cloud, floor/ceiling planes, vectorized floor plan (metres)"
+
 
 def register(sub: Any) -> None:
     p = sub.add_parser(
-        "bim",
-        help="IFC → semantic cloud, floor/ceiling planes, vectorized floor plan (metres)",
+        NAME,
+        help=HELP,
         description="Ingest an IFC model and write its BIM reference: semantic point cloud (PLY), "
         "floor/ceiling planes (JSON), vectorized floor plan (JSON, SVG, PNG) and arrays (NPZ).",
     )

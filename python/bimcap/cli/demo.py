@@ -6,11 +6,14 @@ import argparse
 
 from bimcap.cli.refine import add_config_arguments, config_from_args
 
+NAME = "demo"
+HELP = "end-to-end demo on a generated building (no data needed)"
+
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = sub.add_parser(
-        "demo",
-        help="end-to-end demo on a generated building (no data needed)",
+        NAME,
+        help=HELP,
         description=(
             "Generate a building, simulate a camera + LiDAR walk through its as-built variant, "
             "drift the trajectory (exp2 by default), refine it with FACaP and BIMCaP, and print "

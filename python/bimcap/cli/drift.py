@@ -14,6 +14,9 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+NAME = "drift"
+HELP = "write a drifted initial trajectory poses/init.tum from the ground truth"
+
 
 def register(subparsers: Any) -> None:
     from bimcap.cli import add_overwrite_argument
@@ -21,8 +24,8 @@ def register(subparsers: Any) -> None:
 
     presets = ", ".join(f"{k} ({v.description})" for k, v in PRESETS.items())
     p = subparsers.add_parser(
-        "drift",
-        help="write a drifted initial trajectory poses/init.tum from the ground truth",
+        NAME,
+        help=HELP,
         description="Sample the paper's drift model (translation random walk, pitch/yaw offsets) "
         "or a smooth SLAM-like drift on a sequence's ground truth. Presets: " + presets + ". "
         "Preset sigmas are rescaled so that the ATE hits the preset's target exactly.",

@@ -8,25 +8,22 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from bimcap.evaluation.errors import EvaluationError
-from bimcap.evaluation.map_metrics import (
-    DEFAULT_MIN_NEIGHBOURS,
-    DEFAULT_NND_CUTOFF,
-    DEFAULT_RADIUS,
-    CutoffMode,
-    map_metrics,
-    map_metrics_with_reference,
-    read_ply_points,
-)
-from bimcap.evaluation.metrics import DEFAULT_MAX_DT, AlignMode, evaluate_trajectory
-from bimcap.geometry.trajectory import read_tum
-from bimcap.io.atomic import atomic_write_json, check_not_input
+NAME = "evaluate"
+HELP = "ATE, yaw/pitch/roll RMSE, MME/MPV/NND of an estimate against the ground truth"
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    from bimcap.evaluation.map_metrics import (
+        DEFAULT_MIN_NEIGHBOURS,
+        DEFAULT_NND_CUTOFF,
+        DEFAULT_RADIUS,
+        CutoffMode,
+    )
+    from bimcap.evaluation.metrics import DEFAULT_MAX_DT, AlignMode
+
     p = sub.add_parser(
-        "evaluate",
-        help="ATE, yaw/pitch/roll RMSE, MME/MPV/NND of an estimate against the ground truth",
+        NAME,
+        help=HELP,
         description=(
             "Trajectory metrics of EST against GT, both TUM files "
             "(timestamp tx ty tz qx qy qz qw, world_from_cam), matched by timestamp. "
@@ -94,6 +91,17 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
 
 def run(args: argparse.Namespace) -> int:
+    from bimcap.evaluation.errors import EvaluationError
+    from bimcap.evaluation.map_metrics import (
+        CutoffMode,
+        map_metrics,
+        map_metrics_with_reference,
+        read_ply_points,
+    )
+    from bimcap.evaluation.metrics import AlignMode, evaluate_trajectory
+    from bimcap.geometry.trajectory import read_tum
+    from bimcap.io.atomic import atomic_write_json, check_not_input
+
     inputs = [p for p in (args.est, args.gt, args.map, args.reference) if p is not None]
     if args.output is not None:
         check_not_input(args.output, inputs)

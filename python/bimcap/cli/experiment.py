@@ -6,11 +6,14 @@ import argparse
 
 from bimcap.cli.refine import add_config_arguments, config_from_args
 
+NAME = "experiment"
+HELP = "the paper's experiments (drift presets x ablations x seeds) on the synthetic world"
+
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = sub.add_parser(
-        "experiment",
-        help="the paper's experiments (drift presets x ablations x seeds) on the synthetic world",
+        NAME,
+        help=HELP,
         description=(
             "For each drift preset and seed, drift the simulated sequence, run the front end once "
             "and solve every ablation row of the paper's Table 1 (BIMCaP and FACaP). Writes "

@@ -6,6 +6,9 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+NAME = "generate-building"
+HELP = "write a parametric IFC4 building (corridor, rooms, columns, doors, windows)"
+
 #: Spec fields the command line can override, with their flags.
 _OVERRIDES: tuple[tuple[str, str, type], ...] = (
     ("--storeys", "storeys", int),
@@ -22,8 +25,8 @@ _OVERRIDES: tuple[tuple[str, str, type], ...] = (
 
 def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
-        "generate-building",
-        help="write a parametric IFC4 building (corridor, rooms, columns, doors, windows)",
+        NAME,
+        help=HELP,
         description="Write a parametric IFC4 building and NAME.truth.json (walls, columns, "
         "openings, storey heights, walkable space in metres). Same seed, same bytes.",
     )

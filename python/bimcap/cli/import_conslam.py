@@ -6,13 +6,16 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+NAME = "import-conslam"
+HELP = "import a ConSLAM ROS1 bag (RGB, VLP-16, camera_info, GT poses) as a sequence"
+
 
 def register(subparsers: Any) -> None:
     from bimcap.cli import add_overwrite_argument
 
     p = subparsers.add_parser(
-        "import-conslam",
-        help="import a ConSLAM ROS1 bag (RGB, VLP-16, camera_info, GT poses) as a sequence",
+        NAME,
+        help=HELP,
         description="Read pp_rgb/synced2points, pp_points/synced2rgb and pp_rgb/camera_info with "
         "rosbags (no ROS needed), pair images and scans by nearest header stamp, attach ground "
         "truth (LiDAR poses converted to camera poses with the LiDAR->camera extrinsic) and write "

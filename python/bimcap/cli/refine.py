@@ -9,6 +9,9 @@ from typing import Any
 
 from bimcap.pipeline.config import DepthSource, LabelSource, Method, RefineConfig
 
+NAME = "refine"
+HELP = "refine a sequence's trajectory against the BIM"
+
 
 def add_config_arguments(p: argparse.ArgumentParser) -> None:
     """The flags shared by ``refine`` and ``demo`` (each overrides the config file)."""
@@ -59,8 +62,8 @@ def config_from_args(args: argparse.Namespace) -> RefineConfig:
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = sub.add_parser(
-        "refine",
-        help="refine a sequence's trajectory against the BIM",
+        NAME,
+        help=HELP,
         description=(
             "Refine the initial trajectory of a sequence directory against the building's IFC: "
             "BIM reference, front end (depth, labels, matches), Ceres bundle adjustment. Writes "

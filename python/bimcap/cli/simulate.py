@@ -6,6 +6,9 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+NAME = "simulate"
+HELP = "simulate a camera + LiDAR sequence (raw RGB, labels, depth, VLP-16) in a building"
+
 
 def register(subparsers: Any) -> None:
     from bimcap.sim.lidar import LidarConfig
@@ -13,8 +16,8 @@ def register(subparsers: Any) -> None:
 
     walk, lidar = WalkConfig(), LidarConfig()
     p = subparsers.add_parser(
-        "simulate",
-        help="simulate a camera + LiDAR sequence (raw RGB, labels, depth, VLP-16) in a building",
+        NAME,
+        help=HELP,
         description="Walk a handheld ConSLAM-like rig (raw RGB through the distorted camera, "
         "VLP-16 LiDAR at ConSLAM's extrinsic) through the building and write a sequence "
         "directory with ground-truth poses, label images and depth. Same seed, same files. "

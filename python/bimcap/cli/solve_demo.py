@@ -5,13 +5,14 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from bimcap.optimize.errors import SolverError
+NAME = "solve-demo"
+HELP = "solve a generated room/corridor problem and print the pose errors before and after"
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = subparsers.add_parser(
-        "solve-demo",
-        help="solve a generated room/corridor problem and print the pose errors before and after",
+        NAME,
+        help=HELP,
         description="Generate a synthetic BIM + trajectory + drift (bimcap.optimize.synthetic), "
         "refine it with the C++ Ceres core and print the pose errors and the per-term summary.",
     )
@@ -30,6 +31,7 @@ def run(args: argparse.Namespace) -> int:
     from bimcap.geometry.trajectory import Trajectory, write_tum
     from bimcap.io.atomic import atomic_write_text
     from bimcap.optimize import GeometricMode, SolverOptions, Weighting, solve, write_problem
+    from bimcap.optimize.errors import SolverError
     from bimcap.optimize.synthetic import make_synthetic_problem, pose_errors
 
     synthetic = make_synthetic_problem(
