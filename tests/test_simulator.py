@@ -177,7 +177,9 @@ def test_walk_never_collides_and_respects_height(building) -> None:
 def test_walk_from_meshes_without_polygons(building) -> None:
     parts, _, _ = building
     world = World.from_parts(parts)
-    free = FreeSpace.from_world(world)
+    from bimcap.sim.walkable import free_space_from_world
+
+    free = free_space_from_world(world)
     assert free.z_floor == pytest.approx(0.0)
     walk = plan_walk(free, 40.0, np.random.default_rng(1))
     poses = walk.poses(np.arange(0.0, walk.duration, 0.1))

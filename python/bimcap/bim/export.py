@@ -116,7 +116,6 @@ def storey_png(sp: StoreyPlan, px_per_m: float = 40.0, max_px: int = 2400) -> by
 
 def write_pictures(fp: FloorPlan, directory: str | PathLike[str]) -> list[Path]:
     """Write ``floorplan_NN_<storey>.svg`` and ``.png`` for every storey; returns the paths."""
-    from bimcap.bim.reference import slug
 
     d = Path(directory)
     out = []
@@ -126,3 +125,10 @@ def write_pictures(fp: FloorPlan, directory: str | PathLike[str]) -> list[Path]:
         atomic_write_bytes(stem.with_suffix(".png"), storey_png(sp))
         out += [stem.with_suffix(".svg"), stem.with_suffix(".png")]
     return out
+
+
+def slug(name: str) -> str:
+    """A file-name-safe version of a storey name."""
+    import re
+
+    return re.sub(r"[^A-Za-z0-9]+", "_", name).strip("_") or "storey"

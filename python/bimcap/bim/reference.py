@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import io
 import json
-import re
 from dataclasses import asdict, dataclass, field
 from os import PathLike
 from pathlib import Path
@@ -308,9 +307,4 @@ def build_reference(model: BimModel, options: ReferenceOptions | None = None) ->
     return ref
 
 
-def slug(name: str) -> str:
-    """A file-name-safe version of a storey name."""
-    return re.sub(r"[^A-Za-z0-9]+", "_", name).strip("_") or "storey"
-
-
-__all__ = ["BimReference", "ReferenceOptions", "Vectorizer", "build_reference", "slug"]
+__all__ = ["BimReference", "ReferenceOptions", "Vectorizer", "build_reference"]

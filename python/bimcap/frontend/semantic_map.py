@@ -22,6 +22,7 @@ import struct
 from dataclasses import asdict, dataclass
 from enum import Enum
 from os import PathLike
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -228,6 +229,19 @@ class SemanticMap:
     points: F64
     labels: NDArray[np.uint8]
     frame: I32
+
+
+def semantic_points(frontend: Any, poses: F64) -> tuple[F64, NDArray[np.uint8]]:
+    """A front end's semantic samples (``frontend.semantic_samples()``: label → (frames (K,),
+    p_in_cam (K, 3))) mapped to the world with ``poses`` (N, 7): (P, 3) points, (P,) labels."""
+    pts, labs = [], []
+    for label, (frames, p_cam) in frontend.semantic_samples().items():
+        if len(frames):
+            pts.append(transform_points(poses[frames], p_cam))
+            labs.append(np.full(len(frames), int(label), np.uint8))
+    if not pts:
+        return np.zeros((0, 3)), np.zeros(0, np.uint8)
+    return np.concatenate(pts), np.concatenate(labs)
 
 
 def build_semantic_map(

@@ -33,6 +33,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from bimcap.fusion.projection import FusionInputError, SparseDepth
+from bimcap.fusion.sparse import downsample_sparse
 from bimcap.geometry import Camera
 from bimcap.labels import Label
 
@@ -134,39 +135,6 @@ def _sparse_arrays(sparse: SparseDepth | ArrayLike) -> tuple[F32, F64, F64]:
 def _require_points(z: F64, need: int = 1) -> None:
     if len(z) < need:
         raise FusionInputError(f"sparse depth has {len(z)} returns, need at least {need}", field="sparse_depth")
-
-
-def scatter_nearest(uv: F64, z: F64, shape: tuple[int, int]) -> tuple[F32, NDArray[np.int64]]:
-    """Depth map (h, w) with each return at its nearest pixel, the nearest return kept per pixel.
-
-    Returns (depth (h, w) float32, indices (K',) of the kept returns)."""
-    h, w = shape
-    col = np.clip(np.rint(uv[:, 0]).astype(np.int64), 0, w - 1)
-    row = np.clip(np.rint(uv[:, 1]).astype(np.int64), 0, h - 1)
-    lin = row * w + col
-    order = np.lexsort((z, lin))
-    ls = lin[order]
-    first = np.ones(len(order), dtype=bool)
-    first[1:] = ls[1:] != ls[:-1]
-    keep = order[first]
-    out = np.zeros(h * w, dtype=np.float32)
-    out[lin[keep]] = z[keep]
-    return out.reshape(h, w), keep
-
-
-def resize_sparse(uv: F64, z: F64, shape: tuple[int, int], new_shape: tuple[int, int]) -> tuple[F32, F64, F64]:
-    """Move sparse returns (pixel-centre convention) from ``shape`` to a grid of ``new_shape``
-    without losing any to interpolation: (depth (h, w) float32, uv (K', 2), z (K',))."""
-    sy, sx = new_shape[0] / shape[0], new_shape[1] / shape[1]
-    uv_s = np.stack([(uv[:, 0] + 0.5) * sx - 0.5, (uv[:, 1] + 0.5) * sy - 0.5], 1)
-    depth, keep = scatter_nearest(uv_s, z, new_shape)
-    return depth, uv_s[keep], z[keep]
-
-
-def downsample_sparse(uv: F64, z: F64, shape: tuple[int, int], scale: float) -> tuple[F32, F64, F64]:
-    """:func:`resize_sparse` to ``round(scale × shape)``."""
-    new_shape = (max(1, int(round(shape[0] * scale))), max(1, int(round(shape[1] * scale))))
-    return resize_sparse(uv, z, shape, new_shape)
 
 
 def _resize_to(depth: F32, shape: tuple[int, int]) -> F32:

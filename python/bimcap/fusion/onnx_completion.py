@@ -125,7 +125,7 @@ def check_completion_model(sess: Any, opts: OnnxCompletionOptions) -> tuple[str,
 def _resize_depth(depth: F32, hw: tuple[int, int]) -> F32:
     import cv2
 
-    from bimcap.fusion.completion import resize_sparse
+    from bimcap.fusion.sparse import resize_sparse
 
     if depth.shape == hw:
         return depth

@@ -730,18 +730,6 @@ class RefineResult:
         }
 
 
-def semantic_map_points(prepared: Prepared, poses: F64) -> tuple[F64, NDArray[np.uint8]]:
-    """The front end's semantic samples mapped to the world with ``poses``: (P, 3), (P,) labels."""
-    pts, labs = [], []
-    for label, (frames, p_cam) in prepared.frontend.semantic_samples().items():
-        if len(frames):
-            pts.append(transform_points(poses[frames], p_cam))
-            labs.append(np.full(len(frames), int(label), np.uint8))
-    if not pts:
-        return np.zeros((0, 3)), np.zeros(0, np.uint8)
-    return np.concatenate(pts), np.concatenate(labs)
-
-
 def evaluate_run(
     prepared: Prepared, est: Trajectory, gt: Trajectory, radius: float = 0.2, min_neighbours: int = 5,
     nnd_cutoff: float = 0.3,
@@ -750,10 +738,11 @@ def evaluate_run(
     ``est`` (MME/MPV with ``radius``, NND against the map built with the ground truth)."""
     from bimcap.evaluation.map_metrics import map_metrics_with_reference
     from bimcap.evaluation.metrics import AlignMode, trajectory_metrics
+    from bimcap.frontend.semantic_map import semantic_points
 
     tm = trajectory_metrics(est.poses, gt.poses, AlignMode.NONE)
-    pts, _ = semantic_map_points(prepared, est.poses)
-    ref_pts, _ = semantic_map_points(prepared, gt.poses)
+    pts, _ = semantic_points(prepared.frontend, est.poses)
+    ref_pts, _ = semantic_points(prepared.frontend, gt.poses)
     mm = None
     if len(pts) > 10:
         mm = map_metrics_with_reference(

@@ -213,7 +213,7 @@ def bim_heights(reference: Any) -> dict[str, float]:
 
 def write_refine_report(result: Any, prepared: Any, gt: Any, extra: list[RunRow] | None = None) -> Path:
     """The report of one ``bimcap refine`` run (``extra`` rows, e.g. FACaP, are shown beside)."""
-    from bimcap.pipeline.refine import semantic_map_points
+    from bimcap.frontend.semantic_map import semantic_points
 
     rows = [RunRow("initial", result.init.poses, result.metrics_before, result.map_before)]
     rows += list(extra or [])
@@ -221,8 +221,8 @@ def write_refine_report(result: Any, prepared: Any, gt: Any, extra: list[RunRow]
                        result.refined.poses, result.metrics_after, result.map_after,
                        result.outcome.summary, result.outcome.seconds))
     ref = prepared.reference
-    maps = {"before": semantic_map_points(prepared, result.init.poses),
-            "after": semantic_map_points(prepared, result.refined.poses)}
+    maps = {"before": semantic_points(prepared.frontend, result.init.poses),
+            "after": semantic_points(prepared.frontend, result.refined.poses)}
     inp = ReportInput(
         title="bimcap refinement report",
         out_dir=result.out_dir,

@@ -241,32 +241,6 @@ class FreeSpace:
         return cls._with_clearance(world, region.astype(bool), lo, resolution, z_floor, heights_m)
 
     @classmethod
-    def from_world(
-        cls,
-        world: World,
-        z_floor: float | None = None,
-        resolution: float = 0.1,
-        heights_m: Sequence[float] = (0.5, 1.0, 1.3, 1.6),
-        door_polygons: Sequence[F64] = (),
-        config: WalkConfig | None = None,
-    ) -> FreeSpace:
-        """Region derived from the meshes of an arbitrary building (no polygons available).
-
-        ``z_floor`` defaults to :func:`detect_floor_height`. A cell is inside when a ray cast
-        down from ``z_floor + 1.2`` first hits a FLOOR surface near ``z_floor``, a ray cast up
-        hits a roof or ceiling, and horizontal rays find walls around it
-        (:func:`bimcap.sim.walkable.survey_level`, which also explains ``door_polygons``).
-        """
-        from bimcap.sim.walkable import Level, WalkableOptions, survey_level
-
-        if z_floor is None:
-            z_floor = detect_floor_height(world)
-        opts = WalkableOptions(resolution_m=resolution, heights_m=tuple(heights_m))
-        _, free = survey_level(world, Level(f"z={z_floor:+.2f}", float(z_floor)), door_polygons,
-                               config, opts)
-        return free
-
-    @classmethod
     def _with_clearance(
         cls,
         world: World,

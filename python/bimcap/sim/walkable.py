@@ -338,3 +338,28 @@ def choose_free_space(
             f"{cfg.min_clearance_m} m clearance ({tried})"
         )
     return WalkableChoice(results[best][1], todo[best], surveys, time.perf_counter() - t0)
+
+
+def free_space_from_world(
+    world: World,
+    z_floor: float | None = None,
+    resolution: float = 0.1,
+    heights_m: Sequence[float] = (0.5, 1.0, 1.3, 1.6),
+    door_polygons: Sequence[F64] = (),
+    config: WalkConfig | None = None,
+) -> FreeSpace:
+    """The walkable region of an arbitrary building at one floor height (no polygons available).
+
+    ``z_floor`` defaults to :func:`bimcap.sim.walk.detect_floor_height`. A cell is inside when a
+    ray cast down from ``z_floor + 1.2`` first hits a FLOOR surface near ``z_floor``, a ray cast up
+    hits a roof or ceiling, and horizontal rays find walls around it (:func:`survey_level`, which
+    also explains ``door_polygons``).
+    """
+    from bimcap.sim.walk import detect_floor_height
+
+    if z_floor is None:
+        z_floor = detect_floor_height(world)
+    opts = WalkableOptions(resolution_m=resolution, heights_m=tuple(heights_m))
+    _, free = survey_level(world, Level(f"z={z_floor:+.2f}", float(z_floor)), door_polygons,
+                           config, opts)
+    return free
