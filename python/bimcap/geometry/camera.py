@@ -94,9 +94,19 @@ class Camera:
     @classmethod
     def from_dict(cls, d: dict[str, object]) -> Camera:
         try:
-            fx, fy, cx, cy = (float(x) for x in d["K"])  # type: ignore[union-attr]
-            dist = tuple(float(x) for x in d.get("dist", [0.0] * 5))  # type: ignore[union-attr]
-            return cls(int(d["width"]), int(d["height"]), fx, fy, cx, cy, dist)  # type: ignore[arg-type]
+            k = d["K"]
+            dist_in = d.get("dist", [0.0] * 5)
+            if not isinstance(k, list | tuple) or not isinstance(dist_in, list | tuple):
+                raise TypeError("K and dist must be lists of numbers")
+            fx, fy, cx, cy = (float(x) for x in k)
+            if len(dist_in) != 5:
+                raise ValueError(f"dist needs 5 coefficients, got {len(dist_in)}")
+            k1, k2, p1, p2, k3 = (float(x) for x in dist_in)
+            dist = (k1, k2, p1, p2, k3)
+            width, height = d["width"], d["height"]
+            if not isinstance(width, int | float | str) or not isinstance(height, int | float | str):
+                raise TypeError("width and height must be numbers")
+            return cls(int(width), int(height), fx, fy, cx, cy, dist)
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"malformed camera: {exc}", field="camera") from None
 

@@ -37,14 +37,14 @@ def quat_to_rotmat(q_xyzw: ArrayLike) -> F64:
     """
     q = np.asarray(q_xyzw, dtype=np.float64)
     flat = q.reshape(-1, 4)
-    mats = Rotation.from_quat(flat).as_matrix()
+    mats: F64 = Rotation.from_quat(flat).as_matrix()
     return mats.reshape(q.shape[:-1] + (3, 3))
 
 
 def rotmat_to_quat(rotmats: ArrayLike) -> F64:
     """Quaternions (x, y, z, w) with w >= 0 from rotation matrices of shape (..., 3, 3)."""
     r = np.asarray(rotmats, dtype=np.float64)
-    q = Rotation.from_matrix(r.reshape(-1, 3, 3)).as_quat()
+    q: F64 = Rotation.from_matrix(r.reshape(-1, 3, 3)).as_quat()
     q[q[:, 3] < 0] *= -1.0
     return q.reshape(r.shape[:-2] + (4,))
 
@@ -101,7 +101,9 @@ def transform_points(a_from_b: ArrayLike, p_in_b: ArrayLike) -> F64:
         raise ValueError(f"points must have shape (..., 3), got {p.shape}")
     if single:
         flat = p.reshape(-1, 3)
-        return (Rotation.from_quat(pose[0, 3:7]).apply(flat) + pose[0, :3]).reshape(p.shape)
+        moved: F64 = Rotation.from_quat(pose[0, 3:7]).apply(flat) + pose[0, :3]
+        return moved.reshape(p.shape)
     if p.shape != (len(pose), 3):
         raise ValueError(f"{len(pose)} poses need points of shape ({len(pose)}, 3), got {p.shape}")
-    return Rotation.from_quat(pose[:, 3:7]).apply(p) + pose[:, :3]
+    out: F64 = Rotation.from_quat(pose[:, 3:7]).apply(p) + pose[:, :3]
+    return out

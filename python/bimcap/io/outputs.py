@@ -271,19 +271,18 @@ class OutputSet:
             result_path.unlink()
         # 2. The earlier run's files (checked above: bimcap's, or --overwrite).
         for rel in self.existing():
-            p = self.directory / rel
-            if p.is_dir() and not p.is_symlink():
-                shutil.rmtree(p)
+            stale = self.directory / rel
+            if stale.is_dir() and not stale.is_symlink():
+                shutil.rmtree(stale)
             else:
-                p.unlink()
+                stale.unlink()
         for name in self.names:
             d = self.directory / name
             if name.endswith("/") and d.is_dir() and not any(d.iterdir()):
                 d.rmdir()
         # 3. The new files, by rename.
         for p in staged:
-            rel = p.relative_to(self.stage)
-            target = self.directory / rel
+            target = self.directory / p.relative_to(self.stage)
             target.parent.mkdir(parents=True, exist_ok=True)
             os.replace(p, target)
         shutil.rmtree(self.stage, ignore_errors=True)
