@@ -9,8 +9,8 @@ cmake -S . -B build/ctest -G Ninja -DCMAKE_BUILD_TYPE=Release -DBIMCAP_BUILD_TES
 cmake --build build/ctest -j "$(nproc)"
 ctest --test-dir build/ctest --output-on-failure -j "$(nproc)"
 
-echo "==> Type checks (mypy, strict on the packages listed in pyproject.toml that pass so far)"
-.venv/bin/python -m mypy python/bimcap/geometry python/bimcap/evaluation python/bimcap/io
+echo "==> Type checks (mypy, strict on bimcap.optimize, .geometry, .evaluation, .io: see pyproject.toml)"
+.venv/bin/python -m mypy python/bimcap/optimize python/bimcap/geometry python/bimcap/evaluation python/bimcap/io
 
 echo "==> Python tests (pytest)"
 .venv/bin/python -m pytest tests

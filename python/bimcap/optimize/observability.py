@@ -258,7 +258,7 @@ def bim_observability(
         normals, dist = _segment_normals(p_world[:, :2], segments[seg[ok]])
         _add_term(info, counts, frames, p_world, normals, dist, centres, term)
 
-    total = sum(i for i, _ in per_term.values())
+    total: F64 = sum((i for i, _ in per_term.values()), np.zeros((n, 6, 6)))
     out = []
     for f in range(n):
         basis = _heading_frame(poses[f])

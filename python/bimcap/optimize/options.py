@@ -187,7 +187,8 @@ class SolverOptions:
             return self.prior
         if name == ODOMETRY_TERM:
             return self.odometry
-        return getattr(self, TERM_ATTRIBUTES[name])
+        options: TermOptions = getattr(self, TERM_ATTRIBUTES[name])
+        return options
 
     # --------------------------------------------------------------- validation
     def check(self) -> None:

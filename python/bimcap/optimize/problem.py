@@ -7,6 +7,7 @@ undistorted pinhole ``(u, v) = (column, row)``; metres throughout.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from os import PathLike
 from typing import Any
@@ -137,7 +138,7 @@ class Problem:
 
     @classmethod
     def from_arrays(
-        cls, arrays: dict[str, ArrayLike], path: str | PathLike[str] | None = None
+        cls, arrays: Mapping[str, ArrayLike], path: str | PathLike[str] | None = None
     ) -> Problem:
         """Build from a dict of arrays; unknown names raise SolverInputError."""
         unknown = set(arrays) - set(FIELDS)

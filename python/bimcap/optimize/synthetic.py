@@ -12,7 +12,9 @@ in yaw / pitch, zero at frame 0.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -21,6 +23,7 @@ from scipy.spatial.transform import Rotation
 from bimcap.labels import Label
 from bimcap.optimize.problem import Problem
 
+_T = TypeVar("_T", bound=np.generic)
 F64 = NDArray[np.float64]
 
 #: cam → world rotation of a camera looking along +x with z up: x_cam → −y, y_cam → −z, z_cam → +x.
@@ -139,7 +142,8 @@ class _Camera:
         self.max_depth = cfg.max_depth
 
     def to_cam(self, pose: F64, p_in_world: F64) -> F64:
-        return Rotation.from_quat(pose[3:]).inv().apply(p_in_world - pose[:3])
+        p_in_cam: F64 = Rotation.from_quat(pose[3:]).inv().apply(p_in_world - pose[:3])
+        return p_in_cam
 
     def project(self, p_in_cam: F64) -> tuple[F64, NDArray[np.bool_]]:
         z = p_in_cam[:, 2]
@@ -185,7 +189,7 @@ def make_synthetic_problem(config: SyntheticConfig | None = None, **overrides: o
     """Generate a problem; ``overrides`` replace fields of ``config`` (e.g. ``num_frames=300``)."""
     cfg = config if config is not None else SyntheticConfig()
     if overrides:
-        cfg = SyntheticConfig(**{**cfg.__dict__, **overrides})  # type: ignore[arg-type]
+        cfg = SyntheticConfig(**{**cfg.__dict__, **overrides})
     rng = np.random.default_rng(cfg.seed)
     segments, segment_class, segment_z, planes = _building(cfg)
     gt = _trajectory(cfg, rng)
@@ -323,7 +327,8 @@ def make_synthetic_problem(config: SyntheticConfig | None = None, **overrides: o
     return SyntheticProblem(problem=problem, gt_poses=gt, gt_track_points=gt_points, config=cfg)
 
 
-def _cat(parts: list[NDArray[np.generic]], dtype: type, tail: tuple[int, ...]) -> NDArray[np.generic]:
+def _cat(parts: Sequence[NDArray[_T]], dtype: type[_T], tail: tuple[int, ...]) -> NDArray[_T]:
+    """The parts stacked along axis 0 as one contiguous ``dtype`` array ((0, *tail) if none)."""
     if not parts:
         return np.zeros((0, *tail), dtype=dtype)
     return np.ascontiguousarray(np.concatenate(parts), dtype=dtype)
