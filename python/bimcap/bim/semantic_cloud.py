@@ -14,15 +14,10 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from bimcap.bim.errors import BimInputError
 from bimcap.bim.ingest import BimModel, concatenate_meshes, label_name
-from bimcap.io.atomic import atomic_write_bytes, atomic_write_text
-from bimcap.labels import LABEL_COLORS, Label
-
-_PLY_DTYPE = np.dtype(
-    [("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
-     ("red", "u1"), ("green", "u1"), ("blue", "u1"), ("label", "u1")]
-)
+from bimcap.io.atomic import atomic_write_text
+from bimcap.io.ply import Precision, read_labelled_ply, write_labelled_ply
+from bimcap.labels import Label
 
 
 def sample_surface(
@@ -81,42 +76,16 @@ def sample_model(
 def write_ply(
     path: str | PathLike[str], points: NDArray[np.float64], labels: NDArray[np.uint8]
 ) -> None:
-    """Write a labelled, coloured binary PLY atomically (see the module docstring)."""
-    n = len(points)
-    rec = np.empty(n, dtype=_PLY_DTYPE)
-    rec["x"], rec["y"], rec["z"] = (points[:, i].astype(np.float32) for i in range(3))
-    col = LABEL_COLORS[np.clip(labels, 0, len(LABEL_COLORS) - 1)]
-    rec["red"], rec["green"], rec["blue"] = col[:, 0], col[:, 1], col[:, 2]
-    rec["label"] = labels
-    header = (
-        "ply\nformat binary_little_endian 1.0\n"
-        "comment bimcap semantic cloud: world frame (IFC), metres; label = bimcap.labels.Label\n"
-        f"element vertex {n}\n"
-        "property float x\nproperty float y\nproperty float z\n"
-        "property uchar red\nproperty uchar green\nproperty uchar blue\nproperty uchar label\n"
-        "end_header\n"
-    )
-    atomic_write_bytes(path, header.encode("ascii") + rec.tobytes())
+    """Write the semantic cloud: (P, 3) points, (P,) labels, float32 coordinates, atomically
+    (:func:`bimcap.io.ply.write_labelled_ply`)."""
+    write_labelled_ply(path, points, labels, Precision.FLOAT32,
+                       "bimcap semantic cloud: world frame (IFC), metres; "
+                       "label = bimcap.labels.Label")
 
 
 def read_ply(path: str | PathLike[str]) -> tuple[NDArray[np.float64], NDArray[np.uint8]]:
-    """Read a PLY written by :func:`write_ply`: (P, 3) float64 points, (P,) uint8 labels."""
-    p = Path(path)
-    data = p.read_bytes()
-    end = data.find(b"end_header\n")
-    if not data.startswith(b"ply\n") or end < 0:
-        raise BimInputError("not a PLY file", p, "header")
-    header = data[:end].decode("ascii", "replace")
-    if "property uchar label" not in header or "binary_little_endian" not in header:
-        raise BimInputError("not a bimcap semantic cloud (label property missing)", p, "header")
-    n = int(next(line.split()[2] for line in header.splitlines()
-                 if line.startswith("element vertex")))
-    body = data[end + len(b"end_header\n"):]
-    if len(body) != n * _PLY_DTYPE.itemsize:
-        raise BimInputError(f"expected {n} vertices, file size disagrees", p, "vertex")
-    rec = np.frombuffer(body, dtype=_PLY_DTYPE)
-    pts = np.stack([rec["x"], rec["y"], rec["z"]], axis=1).astype(np.float64)
-    return pts, rec["label"].copy()
+    """Read a cloud written by :func:`write_ply`: (P, 3) float64 points, (P,) uint8 labels."""
+    return read_labelled_ply(path)
 
 
 def write_class_meshes(model: BimModel, directory: str | PathLike[str]) -> list[Path]:

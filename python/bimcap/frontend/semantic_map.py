@@ -17,8 +17,6 @@ A per-frame cap per class bounds the cost of one frame. Random choices use a gen
 
 from __future__ import annotations
 
-import os
-import struct
 from dataclasses import asdict, dataclass
 from enum import Enum
 from os import PathLike
@@ -30,8 +28,8 @@ from numpy.typing import NDArray
 from bimcap.errors import BimcapError
 from bimcap.geometry.camera import Camera
 from bimcap.geometry.poses import transform_points
-from bimcap.io.atomic import atomic_write_bytes
-from bimcap.labels import LABEL_COLORS, Label
+from bimcap.io.ply import PlyError, Precision, read_labelled_ply, write_labelled_ply
+from bimcap.labels import Label
 
 F64 = NDArray[np.float64]
 I32 = NDArray[np.int32]
@@ -271,56 +269,16 @@ def build_semantic_map(
 def write_semantic_ply(
     path: str | PathLike[str], points: F64, labels: NDArray[np.integer]
 ) -> None:
-    """Write a binary little-endian PLY with ``x y z`` (double), ``red green blue`` and ``label``.
-
-    Colours are :data:`bimcap.labels.LABEL_COLORS`. Written atomically.
-
-    Parameters
-    ----------
-    points: (P, 3) world coordinates in metres.
-    labels: (P,) label ids in 0..7.
-    """
-    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    lab = np.asarray(labels).reshape(-1)
-    if len(lab) != len(p):
-        raise SemanticMapError(f"{len(p)} points but {len(lab)} labels", path)
-    if len(lab) and (lab.min() < 0 or lab.max() >= len(LABEL_COLORS)):
-        raise SemanticMapError(f"label ids must be in 0..{len(LABEL_COLORS) - 1}", path)
-    lab8 = lab.astype(np.uint8)
-    rec = np.empty(
-        len(p),
-        dtype=[("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("red", "u1"), ("green", "u1"),
-               ("blue", "u1"), ("label", "u1")],
-    )
-    rec["x"], rec["y"], rec["z"] = p[:, 0], p[:, 1], p[:, 2]
-    rgb = LABEL_COLORS[lab8]
-    rec["red"], rec["green"], rec["blue"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
-    rec["label"] = lab8
-    header = (
-        "ply\nformat binary_little_endian 1.0\ncomment bimcap semantic map (label ids: "
-        "0 unknown 1 wall 2 floor 3 ceiling 4 column 5 door 6 window 7 clutter)\n"
-        f"element vertex {len(p)}\n"
-        "property double x\nproperty double y\nproperty double z\n"
-        "property uchar red\nproperty uchar green\nproperty uchar blue\n"
-        "property uchar label\nend_header\n"
-    )
-    atomic_write_bytes(os.fspath(path), header.encode("ascii") + rec.tobytes())
+    """Write the semantic map: (P, 3) world points in metres, (P,) label ids in 0..7, float64
+    coordinates, atomically (:func:`bimcap.io.ply.write_labelled_ply`)."""
+    try:
+        write_labelled_ply(path, points, labels, Precision.FLOAT64,
+                           "bimcap semantic map (label ids: 0 unknown 1 wall 2 floor 3 ceiling "
+                           "4 column 5 door 6 window 7 clutter)")
+    except PlyError as exc:
+        raise SemanticMapError(str(exc)) from None
 
 
 def read_semantic_ply(path: str | PathLike[str]) -> tuple[F64, NDArray[np.uint8]]:
     """Read back a PLY written by :func:`write_semantic_ply`: points (P, 3), labels (P,)."""
-    with open(path, "rb") as fh:
-        data = fh.read()
-    end = data.find(b"end_header\n")
-    if not data.startswith(b"ply\n") or end < 0:
-        raise SemanticMapError("not a PLY file", path)
-    header = data[:end].decode("ascii", errors="replace").splitlines()
-    n = next((int(h.split()[2]) for h in header if h.startswith("element vertex")), None)
-    if n is None or "format binary_little_endian 1.0" not in header:
-        raise SemanticMapError("expected a binary little-endian PLY with vertices", path)
-    size = struct.calcsize("<3d4B")
-    body = data[end + len(b"end_header\n") :]
-    if len(body) != n * size:
-        raise SemanticMapError(f"expected {n * size} bytes of vertices, got {len(body)}", path)
-    rec = np.frombuffer(body, dtype=[("xyz", "<f8", 3), ("rgb", "u1", 3), ("label", "u1")])
-    return rec["xyz"].astype(np.float64), rec["label"].copy()
+    return read_labelled_ply(path)
