@@ -5,7 +5,6 @@ of the demo world's Exp 1 0.19 m off)."""
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -41,7 +40,7 @@ def thick_walled():
     cls = np.r_[p.segment_class, np.full(4, 1, np.int32)]
     z = np.r_[p.segment_z, np.tile([0.0, sp.config.height], (4, 1))]
     normals = free_normals(seg, cls)
-    return sp, dataclasses.replace(p, segments=seg, segment_class=cls, segment_z=z), normals
+    return sp, p.replace(segments=seg, segment_class=cls, segment_z=z), normals
 
 
 def test_free_normals_of_the_room(thick_walled) -> None:
@@ -62,8 +61,8 @@ def test_far_faces_are_not_a_minimum_with_normals(thick_walled) -> None:
     init = sp.gt_poses.copy()
     init[:, 0] -= 0.17  # the west wall's points land 3 cm from its outer face
     opts = SolverOptions().with_terms("G+F+W")
-    without = solve(dataclasses.replace(p, poses=init), opts)
-    with_normals = solve(dataclasses.replace(p, poses=init, segment_normal=normals), opts)
+    without = solve(p.replace(poses=init), opts)
+    with_normals = solve(p.replace(poses=init, segment_normal=normals), opts)
     err_without, _ = pose_errors(without.poses, sp.gt_poses)
     err_with, rot_with = pose_errors(with_normals.poses, sp.gt_poses)
     assert err_without > 0.08, "negative control: without normals the alias should hold"
@@ -75,7 +74,7 @@ def test_far_faces_are_not_a_minimum_with_normals(thick_walled) -> None:
 
 def test_segment_normal_round_trips_and_is_validated(tmp_path: Path, thick_walled) -> None:
     _, p, normals = thick_walled
-    q = dataclasses.replace(p, segment_normal=normals)
+    q = p.replace(segment_normal=normals)
     path = tmp_path / "vis.bimcap"
     write_problem(path, q, SolverOptions())
     back, _ = read_problem(path)

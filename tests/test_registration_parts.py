@@ -8,17 +8,16 @@ import numpy as np
 import pytest
 
 from bimcap.labels import Label
+from bimcap.optimize import RefineMode
 from bimcap.registration import (
     BIM_TERMS,
     CoarseOptions,
     FloorPlan,
-    PoseBlock,
     RegistrationInputError,
     Schedule,
     ScheduleStage,
     SemanticSamples,
     StageKind,
-    Term,
     coarse_register,
 )
 from bimcap.registration.continuity import transition_cost, viterbi_chain
@@ -203,14 +202,14 @@ def test_schedule_default_and_rotation_first() -> None:
     assert s.stages[1].terms == BIM_TERMS and s.stages[1].loss_scale_factor > 1
     r = Schedule.default(coarse=False, rotation_first=True)
     assert [(st.kind, st.pose_block) for st in r.stages] == [
-        (StageKind.BIM_ONLY, PoseBlock.ROTATION), (StageKind.BIM_ONLY, PoseBlock.TRANSLATION),
-        (StageKind.BIM_ONLY, PoseBlock.FULL), (StageKind.ALL_TERMS, PoseBlock.FULL)]
+        (StageKind.BIM_ONLY, RefineMode.ROTATION), (StageKind.BIM_ONLY, RefineMode.TRANSLATION),
+        (StageKind.BIM_ONLY, RefineMode.FULL), (StageKind.ALL_TERMS, RefineMode.FULL)]
     u = Schedule.default(coarse=False, rotation_first=True, staged=False)
     assert [st.name for st in u.stages] == ["all_rotation", "all_translation", "all"]
     assert not r.has_coarse
     assert Schedule.from_dict(r.to_dict()) == r
     with pytest.raises(RegistrationInputError, match="terms"):
-        ScheduleStage("bad", StageKind.BIM_ONLY, terms=frozenset({Term.G}))
+        ScheduleStage("bad", StageKind.BIM_ONLY, terms=frozenset({"G"}))
     with pytest.raises(RegistrationInputError, match="first"):
         Schedule((ScheduleStage("all", StageKind.ALL_TERMS),
                   ScheduleStage("c", StageKind.COARSE, terms=frozenset())))

@@ -4,8 +4,7 @@
 
 #include <Eigen/Eigenvalues>
 
-#include "bimcap/cost_functions/pose_prior.h"
-#include "bimcap/cost_functions/relative_pose.h"
+#include "bimcap/terms.h"
 
 namespace bimcap {
 
@@ -29,6 +28,12 @@ ProblemBuilder::ProblemBuilder(const ProblemData& problem, const SolverOptions& 
     : data_(problem), options_(options), state_(state) {
   pose_manifold_ = CreatePoseManifold(options.refine_mode);
   plane_manifold_ = CreatePlaneManifold();
+  const size_t num_terms = Terms().size();
+  terms_.resize(num_terms);
+  losses_.resize(num_terms);
+  state_->facap_planes.resize(4 * num_terms, std::nan(""));
+  state_->facap_plane_valid.resize(num_terms, false);
+  state_->segment_of.resize(num_terms);
 }
 
 bool ProblemBuilder::Prepare(int term, int64_t count, double sigma, int residual_size) {
@@ -39,6 +44,7 @@ bool ProblemBuilder::Prepare(int term, int64_t count, double sigma, int residual
   const TermOptions& o = options_.term(term);
   if (!o.enabled || count == 0) return false;
   if (options_.weighting == Weighting::kPaper) {
+    if (!Terms()[term].paper_term) return false;  // the pose prior and the odometry
     // The peers' λ · mean over N observations of ‖r‖²: λ / N per squared residual, plain L2.
     // Ceres minimises ½ Σ ‖s r‖², so s² = λ / N reproduces ½ × the paper's objective.
     if (o.paper_weight == 0.0) return false;
@@ -65,18 +71,8 @@ void ProblemBuilder::Build() {
   has_landmarks_ = false;
   for (auto& t : terms_) t = TermBlocks();
 
-  // 1. Residuals.
-  if (options_.geometric_mode == GeometricMode::kLandmark) {
-    AddLandmarks();
-  } else {
-    AddGeometric();
-  }
-  AddPlaneTerm(kTermF, data_.floor_frame, data_.floor_p_in_cam, data_.floor_plane, 0);
-  AddPlaneTerm(kTermCe, data_.ceiling_frame, data_.ceiling_p_in_cam, data_.ceiling_plane, 1);
-  AddSegmentTerm(kTermW, data_.wall_frame, data_.wall_p_in_cam, state_->wall_segment);
-  AddSegmentTerm(kTermCo, data_.column_frame, data_.column_p_in_cam, state_->column_segment);
-  AddPosePrior();  // it anchors only the poses the terms above put into the problem
-  AddOdometry();
+  // 1. Residuals, term by term in registry order.
+  for (int t = 0; t < NumTerms(); ++t) Terms()[t].add(*this, t);
 
   // 2. Manifolds, 3. gauge. A pose without residuals is not in the problem and stays as it is.
   num_free_poses_ = 0;
@@ -90,15 +86,15 @@ void ProblemBuilder::Build() {
       ++num_free_poses_;
     }
   }
-  for (int slot = 0; slot < 2; ++slot) {
-    double* plane = state_->facap_planes.data() + 4 * slot;
+  for (int t = 0; t < NumTerms(); ++t) {
+    double* plane = FacapPlane(t);
     if (problem_->HasParameterBlock(plane)) problem_->SetManifold(plane, plane_manifold_.get());
   }
 
   // 4. Landmarks are eliminated first.
   if (has_landmarks_) {
     ordering_ = std::make_shared<ceres::ParameterBlockOrdering>();
-    const int64_t num_points = data_.track_points.rows;
+    const int64_t num_points = static_cast<int64_t>(state_->track_points.size() / 3);
     for (int64_t j = 0; j < num_points; ++j) {
       double* x = state_->track_points.data() + 3 * j;
       if (problem_->HasParameterBlock(x)) ordering_->AddElementToGroup(x, 0);
@@ -106,77 +102,27 @@ void ProblemBuilder::Build() {
     for (int64_t i = 0; i < data_.num_poses(); ++i) {
       if (problem_->HasParameterBlock(Pose(i))) ordering_->AddElementToGroup(Pose(i), 1);
     }
-    for (int slot = 0; slot < 2; ++slot) {
-      double* plane = state_->facap_planes.data() + 4 * slot;
+    for (int t = 0; t < NumTerms(); ++t) {
+      double* plane = FacapPlane(t);
       if (problem_->HasParameterBlock(plane)) ordering_->AddElementToGroup(plane, 1);
     }
   }
 }
 
-void ProblemBuilder::AddPosePrior() {
-  std::vector<int64_t> free;
-  for (int64_t i = 0; i < data_.num_poses(); ++i) {
-    if (data_.pose_fixed(i) == 0 && problem_->HasParameterBlock(Pose(i))) free.push_back(i);
-  }
-  // Never in PAPER weighting (the peers' objective); Prepare also leaves it out there because
-  // Check() holds prior.paper_weight at 0. The functor whitens, so s = 1.
-  if (options_.weighting == Weighting::kPaper) {
-    terms_[kTermPrior] = TermBlocks();
-    losses_[kTermPrior].reset();
-    return;
-  }
-  if (!Prepare(kTermPrior, static_cast<int64_t>(free.size()), 1.0, 6)) return;
-  TermBlocks& term = terms_[kTermPrior];
-  ceres::LossFunction* loss = losses_[kTermPrior].get();
-  const double sigma_t = options_.prior.sigma;
-  const double sigma_r = options_.prior_sigma_r_deg * M_PI / 180.0;
-  for (const int64_t i : free) {
-    // The prior mean is the input pose (data_ is never written; the state is a copy).
-    term.ids.push_back(problem_->AddResidualBlock(
-        PosePriorCostFunctor::Create(data_.poses.row(i), sigma_t, sigma_r), loss, Pose(i)));
-  }
-  term.num_residual_blocks = static_cast<int64_t>(free.size());
-}
-
-void ProblemBuilder::AddOdometry() {
-  // Never in PAPER weighting (Check() holds odometry.paper_weight at 0). The functor whitens.
-  std::vector<int64_t> pairs;  // a of each consecutive pair (a, a + 1)
-  for (int64_t a = 0; a + 1 < data_.num_poses(); ++a) {
-    if (data_.pose_fixed(a) != 0 && data_.pose_fixed(a + 1) != 0) continue;
-    pairs.push_back(a);
-  }
-  if (options_.weighting == Weighting::kPaper) {
-    terms_[kTermOdometry] = TermBlocks();
-    losses_[kTermOdometry].reset();
-    return;
-  }
-  if (!Prepare(kTermOdometry, static_cast<int64_t>(pairs.size()), 1.0, 6)) return;
-  TermBlocks& term = terms_[kTermOdometry];
-  ceres::LossFunction* loss = losses_[kTermOdometry].get();
-  const double sigma_t = options_.odometry.sigma;
-  const double sigma_r = options_.odometry_sigma_r_deg * M_PI / 180.0;
-  for (const int64_t a : pairs) {
-    term.ids.push_back(problem_->AddResidualBlock(
-        RelativePoseCostFunctor::Create(data_.poses.row(a), data_.poses.row(a + 1), sigma_t,
-                                        sigma_r),
-        loss, Pose(a), Pose(a + 1)));
-  }
-  term.num_residual_blocks = static_cast<int64_t>(pairs.size());
-}
-
 void ProblemBuilder::InitFacapPlanes() {
-  const ArrayRef<int32_t>* frames[2] = {&data_.floor_frame, &data_.ceiling_frame};
-  const ArrayRef<double>* points[2] = {&data_.floor_p_in_cam, &data_.ceiling_p_in_cam};
-  for (int slot = 0; slot < 2; ++slot) {
-    const int64_t n = frames[slot]->rows;
-    state_->facap_plane_valid[slot] = false;
-    for (int k = 0; k < 4; ++k) state_->facap_planes[4 * slot + k] = std::nan("");
+  for (int t = 0; t < NumTerms(); ++t) {
+    const TermSpec& spec = Terms()[t];
+    state_->facap_plane_valid[t] = false;
+    for (int k = 0; k < 4; ++k) FacapPlane(t)[k] = std::nan("");
+    if (!spec.facap_plane) continue;
+    const ArrayRef<int32_t> frames = data_.I32(std::string(spec.points) + "_frame");
+    const ArrayRef<double> points = data_.F64(std::string(spec.points) + "_p_in_cam");
+    const int64_t n = frames.rows;
     if (n < 3) continue;
     Eigen::Vector3d mean = Eigen::Vector3d::Zero();
     std::vector<Eigen::Vector3d> world(n);
     for (int64_t i = 0; i < n; ++i) {
-      const Eigen::Vector3d p((*points[slot])(i, 0), (*points[slot])(i, 1), (*points[slot])(i, 2));
-      world[i] = CamToWorld(Pose((*frames[slot])(i)), p);
+      world[i] = CamToWorld(Pose(frames(i)), Eigen::Vector3d(points(i, 0), points(i, 1), points(i, 2)));
       mean += world[i];
     }
     mean /= static_cast<double>(n);
@@ -185,11 +131,12 @@ void ProblemBuilder::InitFacapPlanes() {
     const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(cov);
     Eigen::Vector3d normal = eig.eigenvectors().col(0);  // smallest eigenvalue
     if (normal.z() < 0) normal = -normal;                // a sign convention: normals point up
-    state_->facap_planes[4 * slot + 0] = normal.x();
-    state_->facap_planes[4 * slot + 1] = normal.y();
-    state_->facap_planes[4 * slot + 2] = normal.z();
-    state_->facap_planes[4 * slot + 3] = -normal.dot(mean);
-    state_->facap_plane_valid[slot] = true;
+    double* plane = FacapPlane(t);
+    plane[0] = normal.x();
+    plane[1] = normal.y();
+    plane[2] = normal.z();
+    plane[3] = -normal.dot(mean);
+    state_->facap_plane_valid[t] = true;
   }
 }
 

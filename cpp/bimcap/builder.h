@@ -1,8 +1,8 @@
 // Builds the ceres::Problem for one Ceres run, in a fixed order:
-//   1. residuals of each enabled term (G or its landmark form + depth prior, F, Ce, W, Co), each
-//      with the term's square-root weight inside the functor and the term's loss; then (ROBUST
-//      weighting only) one pose prior per free pose those terms reached, centred on the input
-//      pose, and one odometry residual per pair of consecutive frames (not both fixed);
+//   1. residuals of each enabled term, in registry order (terms.h: G or its landmark form, the
+//      landmark depth prior, F, Ce, W, Co, then the pose prior, which anchors only the poses the
+//      terms before it reached, and the odometry), each added by its TermSpec::add with the
+//      term's square-root weight inside the functor and the term's loss;
 //   2. manifolds: poses (CreatePoseManifold(refine_mode)), FACaP planes (CreatePlaneManifold());
 //   3. gauge: poses with pose_fixed = 1 held constant;
 //   4. for landmark BA, an elimination ordering with the landmarks first (Schur complement).
@@ -11,7 +11,6 @@
 #ifndef BIMCAP_BUILDER_H_
 #define BIMCAP_BUILDER_H_
 
-#include <array>
 #include <memory>
 #include <vector>
 
@@ -27,12 +26,13 @@ namespace bimcap {
 
 // What the solver changes: poses, landmarks, the FACaP planes, the W / Co associations.
 struct SolverState {
-  std::vector<double> poses;           // (N, 7) flat, world_from_cam TUM order
-  std::vector<double> track_points;    // (P, 3) flat
-  std::array<double, 8> facap_planes;  // floor [0:4], ceiling [4:8]: n, d
-  std::array<bool, 2> facap_plane_valid{false, false};
-  std::vector<int> wall_segment;       // (W,) associated segment or -1
-  std::vector<int> column_segment;     // (W',)
+  std::vector<double> poses;             // (N, 7) flat, world_from_cam TUM order
+  std::vector<double> track_points;      // (P, 3) flat
+  // Per term (registry order): its FACaP plane [n, d] (terms with facap_plane) and whether it
+  // was fitted, and its points' associated segments (terms with a segment_class; -1 = none).
+  std::vector<double> facap_planes;      // (num terms, 4) flat
+  std::vector<bool> facap_plane_valid;   // (num terms,)
+  std::vector<std::vector<int>> segment_of;  // (num terms,) of (points,)
 };
 
 // Per term, what went into the problem.
@@ -55,7 +55,7 @@ class ProblemBuilder {
   void Build();
 
   ceres::Problem& problem() { return *problem_; }
-  const std::array<TermBlocks, kNumTerms>& terms() const { return terms_; }
+  const std::vector<TermBlocks>& terms() const { return terms_; }
   // The loss of a term's residual blocks (null: plain squares).
   const ceres::LossFunction* loss(int term) const { return losses_[term].get(); }
   // Elimination ordering for Schur solvers, or null when there are no landmarks.
@@ -63,28 +63,33 @@ class ProblemBuilder {
   bool has_landmarks() const { return has_landmarks_; }
   int64_t num_free_poses() const { return num_free_poses_; }
 
-  // Fits the FACaP floor / ceiling planes to the initial world points of each term.
+  // Fits the FACaP plane of each term with facap_plane to the initial world points.
   void InitFacapPlanes();
 
- private:
-  void AddGeometric();
-  void AddLandmarks();
-  void AddPlaneTerm(int term, const ArrayRef<int32_t>& frame, const ArrayRef<double>& p_in_cam,
-                    const ArrayRef<int32_t>& plane, int facap_slot);
-  void AddSegmentTerm(int term, const ArrayRef<int32_t>& frame, const ArrayRef<double>& p_in_cam,
-                      const std::vector<int>& association);
-  void AddPosePrior();
-  void AddOdometry();
-  // Loss and square-root weight of a term for `count` observations; false = leave it out.
+  // ---- For the terms' add functions (TermSpec::add).
+  const ProblemData& data() const { return data_; }
+  const SolverOptions& options() const { return options_; }
+  SolverState& state() { return *state_; }
+  // Loss and square-root weight of a term for `count` observations (N of the paper's mean),
+  // `sigma` the whitening scale (ROBUST), `residual_size` the functor's residual size; false:
+  // leave the term out (disabled, no observation, zero weight, or not a paper term in PAPER
+  // weighting).
   bool Prepare(int term, int64_t count, double sigma, int residual_size);
+  TermBlocks& blocks(int term) { return terms_[term]; }
+  ceres::LossFunction* mutable_loss(int term) { return losses_[term].get(); }
   double* Pose(int64_t frame) { return state_->poses.data() + kPoseSize * frame; }
+  double* TrackPoint(int64_t point) { return state_->track_points.data() + 3 * point; }
+  double* FacapPlane(int term) { return state_->facap_planes.data() + 4 * term; }
+  // A term that added landmark blocks: the solver eliminates them first (Schur).
+  void MarkLandmarks() { has_landmarks_ = true; }
 
+ private:
   const ProblemData& data_;
   const SolverOptions& options_;
   SolverState* state_;
   std::unique_ptr<ceres::Problem> problem_;
-  std::array<TermBlocks, kNumTerms> terms_;
-  std::array<std::unique_ptr<ceres::LossFunction>, kNumTerms> losses_;
+  std::vector<TermBlocks> terms_;
+  std::vector<std::unique_ptr<ceres::LossFunction>> losses_;
   std::unique_ptr<ceres::Manifold> pose_manifold_;
   std::unique_ptr<ceres::Manifold> plane_manifold_;
   std::shared_ptr<ceres::ParameterBlockOrdering> ordering_;

@@ -1,5 +1,8 @@
 #include "bimcap/options.h"
 
+#include "bimcap/terms.h"
+
+#include <algorithm>
 #include <cerrno>
 #include <cmath>
 #include <cstdlib>
@@ -8,14 +11,11 @@
 namespace bimcap {
 namespace {
 
-constexpr const char* kTermNames[] = {"G", "depth", "F", "Ce", "W", "Co", "prior",
-                                           "odometry"};
-// The prefix of each term's keys.
-constexpr const char* kTermKeys[] = {"geometric", "depth", "floor", "ceiling",
-                                          "wall",      "column", "prior", "odometry"};
-// Sized by their initialisers: a term added without its name and key fails to compile.
-static_assert(sizeof(kTermNames) / sizeof(kTermNames[0]) == kNumTerms, "one name per term");
-static_assert(sizeof(kTermKeys) / sizeof(kTermKeys[0]) == kNumTerms, "one key per term");
+// Keys renamed since problem files were first written: old key → new key (read, never written).
+const std::pair<const char*, const char*> kRenamedKeys[] = {
+    {"prior_sigma_r_deg", "prior.sigma_r_deg"},
+    {"odometry_sigma_r_deg", "odometry.sigma_r_deg"},
+};
 
 template <typename E>
 struct EnumNames;
@@ -113,29 +113,38 @@ void CheckNonNegative(const std::string& key, double v) {
 
 }  // namespace
 
-const char* TermName(int term) { return (term >= 0 && term < kNumTerms) ? kTermNames[term] : "?"; }
+double TermOptions::param(std::string_view name) const {
+  const auto it = params.find(name);
+  if (it == params.end()) throw OptionsError(std::string(name), "no such term parameter");
+  return it->second;
+}
 
-TermOptions& SolverOptions::term(int id) {
-  switch (id) {
-    case kTermG: return geometric;
-    case kTermDepth: return depth;
-    case kTermF: return floor;
-    case kTermCe: return ceiling;
-    case kTermW: return wall;
-    case kTermCo: return column;
-    case kTermOdometry: return odometry;
-    default: return prior;
+SolverOptions::SolverOptions() {
+  for (const TermSpec& spec : Terms()) {
+    terms.push_back(spec.defaults);
+    for (const ParamSpec& param : spec.params) terms.back().params[param.name] = param.default_value;
   }
 }
 
-const TermOptions& SolverOptions::term(int id) const {
-  return const_cast<SolverOptions*>(this)->term(id);
+TermOptions& SolverOptions::term(std::string_view key_or_name) {
+  const int id = TermIndex(key_or_name);
+  if (id < 0) throw OptionsError(std::string(key_or_name), "unknown term");
+  return term(id);
+}
+
+const TermOptions& SolverOptions::term(std::string_view key_or_name) const {
+  return const_cast<SolverOptions*>(this)->term(key_or_name);
 }
 
 void SolverOptions::Check() const {
-  for (int t = 0; t < kNumTerms; ++t) {
+  if (terms.size() != Terms().size()) {
+    throw OptionsError("terms", "expected " + std::to_string(Terms().size()) + " terms, got " +
+                                    std::to_string(terms.size()));
+  }
+  for (int t = 0; t < NumTerms(); ++t) {
+    const TermSpec& spec = Terms()[t];
     const TermOptions& o = term(t);
-    const std::string prefix = std::string(kTermKeys[t]) + ".";
+    const std::string prefix = std::string(spec.key) + ".";
     CheckNonNegative(prefix + "paper_weight", o.paper_weight);
     CheckNonNegative(prefix + "weight", o.weight);
     CheckPositive(prefix + "sigma", o.sigma);
@@ -143,17 +152,19 @@ void SolverOptions::Check() const {
     if (static_cast<int>(o.loss) < 0 || static_cast<int>(o.loss) > 5) {
       throw OptionsError(prefix + "loss", "unknown loss");
     }
+    if (!spec.paper_term && o.paper_weight != 0.0) {
+      throw OptionsError(prefix + "paper_weight", std::string("must be 0: the ") + spec.what +
+                                                      " is not part of the paper's objective");
+    }
+    for (const ParamSpec& param : spec.params) {
+      const auto it = o.params.find(param.name);
+      if (it == o.params.end()) throw OptionsError(prefix + param.name, "missing");
+      CheckPositive(prefix + param.name, it->second);
+    }
+    if (o.params.size() != spec.params.size()) {
+      throw OptionsError(prefix + "params", "unknown term parameter");
+    }
   }
-  if (prior.paper_weight != 0.0) {
-    throw OptionsError("prior.paper_weight",
-                       "must be 0: the pose prior is not part of the paper's objective");
-  }
-  CheckPositive("prior_sigma_r_deg", prior_sigma_r_deg);
-  if (odometry.paper_weight != 0.0) {
-    throw OptionsError("odometry.paper_weight",
-                       "must be 0: the odometry is not part of the paper's objective");
-  }
-  CheckPositive("odometry_sigma_r_deg", odometry_sigma_r_deg);
   CheckPositive("pixel_sigma", pixel_sigma);
   CheckPositive("association_gate", association_gate);
   if (outer_iterations < 1) throw OptionsError("outer_iterations", "must be >= 1");
@@ -178,18 +189,17 @@ std::map<std::string, std::string> OptionsToKeyValues(const SolverOptions& o) {
   kv["weighting"] = EnumToString(o.weighting);
   kv["plane_mode"] = EnumToString(o.plane_mode);
   kv["refine_mode"] = EnumToString(o.refine_mode);
-  for (int t = 0; t < kNumTerms; ++t) {
+  for (int t = 0; t < NumTerms(); ++t) {
     const TermOptions& term = o.term(t);
-    const std::string p = std::string(kTermKeys[t]) + ".";
+    const std::string p = std::string(Terms()[t].key) + ".";
     kv[p + "enabled"] = term.enabled ? "1" : "0";
     kv[p + "paper_weight"] = FormatDouble(term.paper_weight);
     kv[p + "weight"] = FormatDouble(term.weight);
     kv[p + "sigma"] = FormatDouble(term.sigma);
     kv[p + "loss"] = EnumToString(term.loss);
     kv[p + "loss_scale"] = FormatDouble(term.loss_scale);
+    for (const auto& [name, value] : term.params) kv[p + name] = FormatDouble(value);
   }
-  kv["prior_sigma_r_deg"] = FormatDouble(o.prior_sigma_r_deg);
-  kv["odometry_sigma_r_deg"] = FormatDouble(o.odometry_sigma_r_deg);
   kv["pixel_sigma"] = FormatDouble(o.pixel_sigma);
   kv["association_gate"] = FormatDouble(o.association_gate);
   kv["outer_iterations"] = std::to_string(o.outer_iterations);
@@ -208,7 +218,11 @@ std::map<std::string, std::string> OptionsToKeyValues(const SolverOptions& o) {
 
 SolverOptions OptionsFromKeyValues(const std::map<std::string, std::string>& values) {
   SolverOptions o;
-  for (const auto& [key, value] : values) {
+  for (const auto& [given_key, value] : values) {
+    std::string key = given_key;
+    for (const auto& [old_key, new_key] : kRenamedKeys) {
+      if (key == old_key) key = new_key;
+    }
     if (key == "geometric_mode") {
       o.geometric_mode = EnumFromString<GeometricMode>(key, value);
     } else if (key == "weighting") {
@@ -217,10 +231,6 @@ SolverOptions OptionsFromKeyValues(const std::map<std::string, std::string>& val
       o.plane_mode = EnumFromString<PlaneMode>(key, value);
     } else if (key == "refine_mode") {
       o.refine_mode = EnumFromString<RefineMode>(key, value);
-    } else if (key == "prior_sigma_r_deg") {
-      o.prior_sigma_r_deg = ParseDouble(key, value);
-    } else if (key == "odometry_sigma_r_deg") {
-      o.odometry_sigma_r_deg = ParseDouble(key, value);
     } else if (key == "pixel_sigma") {
       o.pixel_sigma = ParseDouble(key, value);
     } else if (key == "association_gate") {
@@ -249,8 +259,8 @@ SolverOptions OptionsFromKeyValues(const std::map<std::string, std::string>& val
       o.verbose = ParseBool(key, value);
     } else {
       bool found = false;
-      for (int t = 0; t < kNumTerms && !found; ++t) {
-        const std::string p = std::string(kTermKeys[t]) + ".";
+      for (int t = 0; t < NumTerms() && !found; ++t) {
+        const std::string p = std::string(Terms()[t].key) + ".";
         if (key.compare(0, p.size(), p) != 0) continue;
         const std::string sub = key.substr(p.size());
         TermOptions& term = o.term(t);
@@ -267,6 +277,8 @@ SolverOptions OptionsFromKeyValues(const std::map<std::string, std::string>& val
           term.loss = EnumFromString<LossType>(key, value);
         } else if (sub == "loss_scale") {
           term.loss_scale = ParseDouble(key, value);
+        } else if (term.params.count(sub) != 0) {
+          term.params[sub] = ParseDouble(key, value);
         } else {
           found = false;
         }
@@ -276,6 +288,33 @@ SolverOptions OptionsFromKeyValues(const std::map<std::string, std::string>& val
   }
   o.Check();
   return o;
+}
+
+std::vector<OptionSpec> OptionSpecs() {
+  const std::map<std::string, std::vector<std::string>> enums = {
+      {"geometric_mode", EnumNames<GeometricMode>::Get()},
+      {"weighting", EnumNames<Weighting>::Get()},
+      {"plane_mode", EnumNames<PlaneMode>::Get()},
+      {"refine_mode", EnumNames<RefineMode>::Get()},
+      {"linear_solver", EnumNames<LinearSolver>::Get()},
+      {"loss", EnumNames<LossType>::Get()},
+  };
+  const std::vector<std::string> ints = {"outer_iterations", "max_iterations", "num_threads"};
+  std::vector<OptionSpec> out;
+  for (const auto& [key, value] : OptionsToKeyValues(SolverOptions())) {
+    const std::string leaf = key.substr(key.find('.') == std::string::npos ? 0 : key.find('.') + 1);
+    OptionSpec spec{key, "float", value, {}};
+    if (enums.count(leaf)) {
+      spec.kind = "enum";
+      spec.choices = enums.at(leaf);
+    } else if (leaf == "enabled" || leaf == "compute_covariance" || leaf == "verbose") {
+      spec.kind = "bool";
+    } else if (std::find(ints.begin(), ints.end(), leaf) != ints.end()) {
+      spec.kind = "int";
+    }
+    out.push_back(spec);
+  }
+  return out;
 }
 
 std::string OptionsToText(const SolverOptions& options) {

@@ -6,6 +6,7 @@
 
 #include <map>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "bimcap/pose.h"
@@ -38,22 +39,11 @@ struct TermOptions {
   double sigma = 0.05;        // noise scale in the residual's unit (kRobust)
   LossType loss = LossType::kHuber;
   double loss_scale = 1.0;    // in sigmas (the loss acts on the whitened residual)
-};
+  // The term's own scalars (TermSpec::params), by name, e.g. "sigma_r_deg" of the pose prior.
+  std::map<std::string, double, std::less<>> params;
 
-// The terms, in summary order: the paper's (G with its depth prior, F, Ce, W, Co), then the pose
-// prior and the odometry (not paper terms: never in PAPER weighting nor in the paper objective).
-enum TermId {
-  kTermG = 0,
-  kTermDepth = 1,
-  kTermF = 2,
-  kTermCe = 3,
-  kTermW = 4,
-  kTermCo = 5,
-  kTermPrior = 6,
-  kTermOdometry = 7,
+  double param(std::string_view name) const;  // throws OptionsError when the term has none
 };
-inline constexpr int kNumTerms = 8;
-const char* TermName(int term);  // "G", "depth", "F", "Ce", "W", "Co", "prior", "odometry"
 
 struct SolverOptions {
   GeometricMode geometric_mode = GeometricMode::kPoint;
@@ -61,24 +51,10 @@ struct SolverOptions {
   PlaneMode plane_mode = PlaneMode::kBim;
   RefineMode refine_mode = RefineMode::kFull;
 
-  // G's sigma is used in kPoint mode (m); pixel_sigma in kReprojection / kLandmark (px).
-  TermOptions geometric{true, 1.0, 1.0, 0.05, LossType::kHuber, 1.0};
-  // Depth prior of landmarks (kLandmark only, observations with depth > 0).
-  TermOptions depth{true, 1.0, 1.0, 0.05, LossType::kHuber, 1.0};
-  TermOptions floor{true, 0.02, 1.0, 0.02, LossType::kHuber, 1.0};
-  TermOptions ceiling{true, 0.02, 1.0, 0.02, LossType::kHuber, 1.0};
-  TermOptions wall{true, 0.0007, 1.0, 0.05, LossType::kHuber, 1.0};
-  TermOptions column{true, 0.0007, 1.0, 0.05, LossType::kHuber, 1.0};
-  // Pose prior (kRobust only): each free pose held near its initial value, translation with
-  // `prior.sigma` (m), rotation with `prior_sigma_r_deg` (degrees); plain L2 by default. Its
-  // paper_weight must be 0 (it is not part of the peers' objective).
-  TermOptions prior{true, 0.0, 1.0, 2.0, LossType::kNone, 1.0};
-  double prior_sigma_r_deg = 20.0;
-  // Odometry (kRobust only): consecutive free frames keep the input's relative motion, the
-  // translation with `odometry.sigma` (m, in the earlier frame), the rotation with
-  // `odometry_sigma_r_deg`; plain L2. Its paper_weight must be 0.
-  TermOptions odometry{true, 0.0, 1.0, 0.3, LossType::kNone, 1.0};
-  double odometry_sigma_r_deg = 15.0;
+  // One TermOptions per term of the registry (terms.h), in its order, starting from each
+  // term's defaults. G's sigma is used in kPoint mode (m); pixel_sigma in kReprojection /
+  // kLandmark (px).
+  std::vector<TermOptions> terms;
   double pixel_sigma = 1.0;
 
   // W / Co association: a point's nearest same-class segment within `association_gate` metres
@@ -100,8 +76,13 @@ struct SolverOptions {
   bool compute_covariance = false;
   bool verbose = false;
 
-  TermOptions& term(int id);
-  const TermOptions& term(int id) const;
+  SolverOptions();  // every term at its registry defaults
+
+  TermOptions& term(int id) { return terms.at(static_cast<size_t>(id)); }
+  const TermOptions& term(int id) const { return terms.at(static_cast<size_t>(id)); }
+  // By key ("floor") or name ("F"); throws OptionsError for an unknown term.
+  TermOptions& term(std::string_view key_or_name);
+  const TermOptions& term(std::string_view key_or_name) const;
 
   // Throws OptionsError naming the option.
   void Check() const;
@@ -113,10 +94,21 @@ class OptionsError : public InputError {
 };
 
 // Flat "key" → "value" form: e.g. "geometric_mode" → "POINT", "floor.enabled" → "1",
-// "wall.paper_weight" → "0.0007". Unknown keys and unparsable values throw OptionsError.
+// "wall.paper_weight" → "0.0007", "prior.sigma_r_deg" → "20". Unknown keys and unparsable values
+// throw OptionsError. Keys renamed since files were written are still read (kRenamedKeys).
 std::map<std::string, std::string> OptionsToKeyValues(const SolverOptions& options);
 SolverOptions OptionsFromKeyValues(const std::map<std::string, std::string>& values);
 std::vector<std::string> OptionKeys();
+
+// What an option is, for the binding and `--print-config`: its key, kind ("enum", "bool", "int",
+// "float"), default value as text, and the allowed values of an enum.
+struct OptionSpec {
+  std::string key;
+  std::string kind;
+  std::string default_value;
+  std::vector<std::string> choices;
+};
+std::vector<OptionSpec> OptionSpecs();
 
 // "key=value\n" lines (the problem file's `options` array).
 std::string OptionsToText(const SolverOptions& options);

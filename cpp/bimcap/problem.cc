@@ -1,33 +1,40 @@
 #include "bimcap/problem.h"
 
 #include <cmath>
-#include <sstream>
+
+#include "bimcap/checks.h"
+#include "bimcap/terms.h"
 
 namespace bimcap {
 namespace {
 
-#define BIMCAP_F64(name, cols, required) \
-  FieldSpec{#name, DType::kFloat64, cols, required, &ProblemData::name, nullptr}
-#define BIMCAP_I32(name, cols, required) \
-  FieldSpec{#name, DType::kInt32, cols, required, nullptr, &ProblemData::name}
-
 std::string Str(int64_t v) { return std::to_string(v); }
 
-template <typename T>
-void CheckShape(const ArrayRef<T>& a, const char* name, int64_t rows, int64_t cols) {
-  if (a.rows != rows || a.cols != cols) {
-    std::ostringstream msg;
-    msg << "expected shape (" << rows;
-    if (cols != 1) msg << ", " << cols;
-    msg << "), got (" << a.rows;
-    if (a.cols != 1) msg << ", " << a.cols;
-    msg << ")";
-    throw ProblemError(name, msg.str());
+struct CoreField {
+  FieldSpec spec;
+  ArrayRef<double> ProblemData::*f64;
+  ArrayRef<int32_t> ProblemData::*i32;
+};
+
+// The five arrays every problem has.
+const CoreField kCoreFields[] = {
+    {{"poses", DType::kFloat64, 7, true, ""}, &ProblemData::poses, nullptr},
+    {{"timestamps", DType::kFloat64, 0, true, ""}, &ProblemData::timestamps, nullptr},
+    {{"pose_fixed", DType::kInt32, 0, true, ""}, nullptr, &ProblemData::pose_fixed},
+    {{"cameras", DType::kFloat64, 4, true, ""}, &ProblemData::cameras, nullptr},
+    {{"frame_camera", DType::kInt32, 0, true, ""}, nullptr, &ProblemData::frame_camera},
+};
+
+const CoreField* FindCore(std::string_view name) {
+  for (const CoreField& f : kCoreFields) {
+    if (name == f.spec.name) return &f;
   }
-  if (a.rows > 0 && a.data == nullptr) throw ProblemError(name, "no data");
+  return nullptr;
 }
 
-void CheckFinite(const ArrayRef<double>& a, const char* name) {
+}  // namespace
+
+void CheckFinite(const ArrayRef<double>& a, const std::string& name) {
   for (int64_t i = 0; i < a.rows * a.cols; ++i) {
     if (!std::isfinite(a.data[i])) {
       throw ProblemError(name, "row " + Str(i / a.cols) + " is not finite");
@@ -35,7 +42,7 @@ void CheckFinite(const ArrayRef<double>& a, const char* name) {
   }
 }
 
-void CheckIndex(const ArrayRef<int32_t>& a, const char* name, int64_t upper) {
+void CheckIndex(const ArrayRef<int32_t>& a, const std::string& name, int64_t upper) {
   for (int64_t i = 0; i < a.rows * a.cols; ++i) {
     if (a.data[i] < 0 || a.data[i] >= upper) {
       throw ProblemError(name, "row " + Str(i / a.cols) + ": index " + Str(a.data[i]) +
@@ -44,52 +51,60 @@ void CheckIndex(const ArrayRef<int32_t>& a, const char* name, int64_t upper) {
   }
 }
 
-// A (rows,) frame index array, a (rows, 3) point array and optionally a (rows,) plane index.
-void CheckSemantic(const ArrayRef<int32_t>& frame, const ArrayRef<double>& p_in_cam,
-                   const char* frame_name, const char* p_name, int64_t num_poses) {
-  if (frame.cols != 1) throw ProblemError(frame_name, "must be 1-D");
-  CheckShape(p_in_cam, p_name, frame.rows, 3);
-  CheckIndex(frame, frame_name, num_poses);
-  CheckFinite(p_in_cam, p_name);
+void CheckPointsInCamera(const ProblemData& p, const std::string& prefix) {
+  const ArrayRef<int32_t> frame = p.I32(prefix + "_frame");
+  const ArrayRef<double> p_in_cam = p.F64(prefix + "_p_in_cam");
+  CheckShape(frame, prefix + "_frame", frame.rows, 1);
+  CheckShape(p_in_cam, prefix + "_p_in_cam", frame.rows, 3);
+  CheckIndex(frame, prefix + "_frame", p.num_poses());
+  CheckFinite(p_in_cam, prefix + "_p_in_cam");
 }
 
-}  // namespace
+ArrayRef<double> ProblemData::F64(std::string_view name) const {
+  if (const CoreField* core = FindCore(name); core != nullptr && core->f64) return this->*(core->f64);
+  const auto it = f64.find(name);
+  return it == f64.end() ? ArrayRef<double>{} : it->second;
+}
+
+ArrayRef<int32_t> ProblemData::I32(std::string_view name) const {
+  if (const CoreField* core = FindCore(name); core != nullptr && core->i32) return this->*(core->i32);
+  const auto it = i32.find(name);
+  return it == i32.end() ? ArrayRef<int32_t>{} : it->second;
+}
+
+void ProblemData::Set(std::string_view name, ArrayRef<double> array) {
+  if (const CoreField* core = FindCore(name); core != nullptr && core->f64) {
+    this->*(core->f64) = array;
+  } else {
+    f64[std::string(name)] = array;
+  }
+}
+
+void ProblemData::Set(std::string_view name, ArrayRef<int32_t> array) {
+  if (const CoreField* core = FindCore(name); core != nullptr && core->i32) {
+    this->*(core->i32) = array;
+  } else {
+    i32[std::string(name)] = array;
+  }
+}
 
 const std::vector<FieldSpec>& ProblemFields() {
-  static const std::vector<FieldSpec> fields = {
-      BIMCAP_F64(poses, 7, true),
-      BIMCAP_F64(timestamps, 0, true),
-      BIMCAP_I32(pose_fixed, 0, true),
-      BIMCAP_F64(cameras, 4, true),
-      BIMCAP_I32(frame_camera, 0, true),
-      BIMCAP_I32(match_frames, 2, false),
-      BIMCAP_F64(match_uv, 4, false),
-      BIMCAP_F64(match_depth, 2, false),
-      BIMCAP_I32(track_obs_frame, 0, false),
-      BIMCAP_I32(track_obs_point, 0, false),
-      BIMCAP_F64(track_obs_uv, 2, false),
-      BIMCAP_F64(track_obs_depth, 0, false),
-      BIMCAP_F64(track_points, 3, false),
-      BIMCAP_I32(floor_frame, 0, false),
-      BIMCAP_F64(floor_p_in_cam, 3, false),
-      BIMCAP_I32(floor_plane, 0, false),
-      BIMCAP_I32(ceiling_frame, 0, false),
-      BIMCAP_F64(ceiling_p_in_cam, 3, false),
-      BIMCAP_I32(ceiling_plane, 0, false),
-      BIMCAP_F64(planes, 4, false),
-      BIMCAP_I32(wall_frame, 0, false),
-      BIMCAP_F64(wall_p_in_cam, 3, false),
-      BIMCAP_I32(column_frame, 0, false),
-      BIMCAP_F64(column_p_in_cam, 3, false),
-      BIMCAP_F64(segments, 4, false),
-      BIMCAP_I32(segment_class, 0, false),
-      BIMCAP_F64(segment_z, 2, false),
-      BIMCAP_F64(segment_normal, 2, false),
-  };
+  static const std::vector<FieldSpec> fields = [] {
+    std::vector<FieldSpec> out;
+    for (const CoreField& f : kCoreFields) out.push_back(f.spec);
+    for (const TermSpec& term : Terms()) {
+      for (const ArraySpec& a : term.arrays) {
+        bool seen = false;
+        for (const FieldSpec& f : out) seen = seen || std::string_view(f.name) == a.name;
+        if (!seen) out.push_back(FieldSpec{a.name, a.dtype, a.cols, false, term.key});
+      }
+    }
+    return out;
+  }();
   return fields;
 }
 
-const FieldSpec* FindField(const std::string& name) {
+const FieldSpec* FindField(std::string_view name) {
   for (const FieldSpec& f : ProblemFields()) {
     if (name == f.name) return &f;
   }
@@ -97,11 +112,20 @@ const FieldSpec* FindField(const std::string& name) {
 }
 
 void ValidateProblem(const ProblemData& p) {
-  // Declared column counts first, so that the checks below may index freely.
+  // Names and declared column counts first, so that the checks below may index freely.
+  for (const auto& [name, a] : p.f64) {
+    const FieldSpec* f = FindField(name);
+    if (f == nullptr || f->dtype != DType::kFloat64) throw ProblemError(name, "unknown float64 array");
+  }
+  for (const auto& [name, a] : p.i32) {
+    const FieldSpec* f = FindField(name);
+    if (f == nullptr || f->dtype != DType::kInt32) throw ProblemError(name, "unknown int32 array");
+  }
   for (const FieldSpec& f : ProblemFields()) {
-    const int64_t rows = f.f64 ? (p.*f.f64).rows : (p.*f.i32).rows;
-    const int64_t cols = f.f64 ? (p.*f.f64).cols : (p.*f.i32).cols;
-    const bool has_data = f.f64 ? (p.*f.f64).data != nullptr : (p.*f.i32).data != nullptr;
+    const bool f64 = f.dtype == DType::kFloat64;
+    const int64_t rows = f64 ? p.F64(f.name).rows : p.I32(f.name).rows;
+    const int64_t cols = f64 ? p.F64(f.name).cols : p.I32(f.name).cols;
+    const bool has_data = f64 ? p.F64(f.name).data != nullptr : p.I32(f.name).data != nullptr;
     if (rows < 0 || cols < 1) throw ProblemError(f.name, "negative or empty shape");
     if (rows > 0 && !has_data) throw ProblemError(f.name, "no data");
     if (rows > 0 && cols != (f.cols == 0 ? 1 : f.cols)) {
@@ -139,85 +163,8 @@ void ValidateProblem(const ProblemData& p) {
   CheckShape(p.frame_camera, "frame_camera", n, 1);
   CheckIndex(p.frame_camera, "frame_camera", c);
 
-  // G: matches.
-  const int64_t m = p.match_frames.rows;
-  CheckShape(p.match_frames, "match_frames", m, 2);
-  CheckShape(p.match_uv, "match_uv", m, 4);
-  CheckShape(p.match_depth, "match_depth", m, 2);
-  CheckIndex(p.match_frames, "match_frames", n);
-  CheckFinite(p.match_uv, "match_uv");
-  CheckFinite(p.match_depth, "match_depth");
-  for (int64_t i = 0; i < m; ++i) {
-    if (p.match_frames(i, 0) == p.match_frames(i, 1)) {
-      throw ProblemError("match_frames", "row " + Str(i) + " matches frame " +
-                                             Str(p.match_frames(i, 0)) + " with itself");
-    }
-  }
-
-  // G: tracks.
-  const int64_t k = p.track_obs_frame.rows;
-  const int64_t num_points = p.track_points.rows;
-  CheckShape(p.track_obs_frame, "track_obs_frame", k, 1);
-  CheckShape(p.track_obs_point, "track_obs_point", k, 1);
-  CheckShape(p.track_obs_uv, "track_obs_uv", k, 2);
-  CheckShape(p.track_obs_depth, "track_obs_depth", k, 1);
-  CheckShape(p.track_points, "track_points", num_points, 3);
-  CheckIndex(p.track_obs_frame, "track_obs_frame", n);
-  CheckIndex(p.track_obs_point, "track_obs_point", num_points);
-  CheckFinite(p.track_obs_uv, "track_obs_uv");
-  CheckFinite(p.track_obs_depth, "track_obs_depth");
-  CheckFinite(p.track_points, "track_points");
-
-  // F / Ce.
-  const int64_t q = p.planes.rows;
-  CheckShape(p.planes, "planes", q, 4);
-  CheckFinite(p.planes, "planes");
-  for (int64_t i = 0; i < q; ++i) {
-    const double* pl = p.planes.row(i);
-    const double norm = std::sqrt(pl[0] * pl[0] + pl[1] * pl[1] + pl[2] * pl[2]);
-    if (std::abs(norm - 1.0) > 1e-6) {
-      throw ProblemError("planes", "plane " + Str(i) + " has a normal of norm " +
-                                       std::to_string(norm) + ", expected 1");
-    }
-  }
-  CheckSemantic(p.floor_frame, p.floor_p_in_cam, "floor_frame", "floor_p_in_cam", n);
-  CheckShape(p.floor_plane, "floor_plane", p.floor_frame.rows, 1);
-  CheckIndex(p.floor_plane, "floor_plane", q);
-  CheckSemantic(p.ceiling_frame, p.ceiling_p_in_cam, "ceiling_frame", "ceiling_p_in_cam", n);
-  CheckShape(p.ceiling_plane, "ceiling_plane", p.ceiling_frame.rows, 1);
-  CheckIndex(p.ceiling_plane, "ceiling_plane", q);
-
-  // W / Co.
-  CheckSemantic(p.wall_frame, p.wall_p_in_cam, "wall_frame", "wall_p_in_cam", n);
-  CheckSemantic(p.column_frame, p.column_p_in_cam, "column_frame", "column_p_in_cam", n);
-  const int64_t s = p.segments.rows;
-  CheckShape(p.segments, "segments", s, 4);
-  CheckShape(p.segment_class, "segment_class", s, 1);
-  CheckShape(p.segment_z, "segment_z", s, 2);
-  CheckFinite(p.segments, "segments");
-  CheckFinite(p.segment_z, "segment_z");
-  for (int64_t i = 0; i < s; ++i) {
-    const int32_t cls = p.segment_class(i);
-    if (cls != kLabelWall && cls != kLabelColumn) {
-      throw ProblemError("segment_class", "row " + Str(i) + ": class " + Str(cls) +
-                                              " is neither 1 (wall) nor 4 (column)");
-    }
-    if (p.segment_z(i, 0) > p.segment_z(i, 1)) {
-      throw ProblemError("segment_z", "row " + Str(i) + ": zmin > zmax");
-    }
-  }
-  // Optional: absent (no visibility test) or one free-side normal per segment, unit or zero.
-  if (!p.segment_normal.empty()) {
-    CheckShape(p.segment_normal, "segment_normal", s, 2);
-    CheckFinite(p.segment_normal, "segment_normal");
-    for (int64_t i = 0; i < s; ++i) {
-      const double norm = std::hypot(p.segment_normal(i, 0), p.segment_normal(i, 1));
-      if (norm != 0.0 && std::abs(norm - 1.0) > 1e-6) {
-        throw ProblemError("segment_normal", "row " + Str(i) + " has norm " +
-                                                 std::to_string(norm) + ", expected 1 or 0");
-      }
-    }
-  }
+  // Each term's arrays, with the term's own checks.
+  for (const TermSpec& term : Terms()) term.validate(p);
 }
 
 }  // namespace bimcap

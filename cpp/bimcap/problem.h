@@ -5,9 +5,12 @@
 #define BIMCAP_PROBLEM_H_
 
 #include <cstdint>
+#include <functional>
+#include <map>
 #include <memory>
 #include <stdexcept>
 #include <string>
+#include <string_view>
 #include <vector>
 
 namespace bimcap {
@@ -47,64 +50,52 @@ struct ArrayRef {
 
 enum class DType : uint32_t { kFloat64 = 1, kInt32 = 2 };
 
+// The arrays of one solve. The five arrays every problem has are members; the arrays of the
+// residual terms are declared by the terms themselves (TermSpec::arrays in the registry,
+// terms.cc) and held by name. Read them with F64() / I32(), which return an empty view for an
+// absent array; write them with Set().
 struct ProblemData {
   ArrayRef<double> poses;              // (N, 7) world_from_cam, TUM order
   ArrayRef<double> timestamps;         // (N,)
   ArrayRef<int32_t> pose_fixed;        // (N,) 1 = constant
   ArrayRef<double> cameras;            // (C, 4) fx fy cx cy
   ArrayRef<int32_t> frame_camera;      // (N,)
-  ArrayRef<int32_t> match_frames;      // (M, 2)
-  ArrayRef<double> match_uv;           // (M, 4) ua va ub vb
-  ArrayRef<double> match_depth;        // (M, 2) za zb (<= 0: unknown)
-  ArrayRef<int32_t> track_obs_frame;   // (K,)
-  ArrayRef<int32_t> track_obs_point;   // (K,)
-  ArrayRef<double> track_obs_uv;       // (K, 2)
-  ArrayRef<double> track_obs_depth;    // (K,) (<= 0: none)
-  ArrayRef<double> track_points;       // (P, 3) initial landmarks
-  ArrayRef<int32_t> floor_frame;       // (F,)
-  ArrayRef<double> floor_p_in_cam;     // (F, 3)
-  ArrayRef<int32_t> floor_plane;       // (F,) index into planes
-  ArrayRef<int32_t> ceiling_frame;     // (F',)
-  ArrayRef<double> ceiling_p_in_cam;   // (F', 3)
-  ArrayRef<int32_t> ceiling_plane;     // (F',)
-  ArrayRef<double> planes;             // (Q, 4) nx ny nz d
-  ArrayRef<int32_t> wall_frame;        // (W,)
-  ArrayRef<double> wall_p_in_cam;      // (W, 3)
-  ArrayRef<int32_t> column_frame;      // (W',)
-  ArrayRef<double> column_p_in_cam;    // (W', 3)
-  ArrayRef<double> segments;           // (S, 4) x1 y1 x2 y2
-  ArrayRef<int32_t> segment_class;     // (S,) 1 wall / 4 column
-  ArrayRef<double> segment_z;          // (S, 2) zmin zmax
-  ArrayRef<double> segment_normal;     // (S, 2) free-side unit normal, (0, 0) = both; optional
+  std::map<std::string, ArrayRef<double>, std::less<>> f64;    // the terms' float64 arrays
+  std::map<std::string, ArrayRef<int32_t>, std::less<>> i32;   // the terms' int32 arrays
 
   // Keeps the memory behind the views alive (a file buffer); may be empty.
   std::shared_ptr<const void> owner;
 
   int64_t num_poses() const { return poses.rows; }
+  // Any array by name, the five members included; empty when absent.
+  ArrayRef<double> F64(std::string_view name) const;
+  ArrayRef<int32_t> I32(std::string_view name) const;
+  void Set(std::string_view name, ArrayRef<double> array);
+  void Set(std::string_view name, ArrayRef<int32_t> array);
 };
 
 // One row of the field table: name, dtype, number of columns (0 for a 1-D array), whether the
-// array must be present, and the member it fills.
+// array must be present, and the term that declared it ("" for the five core arrays).
 struct FieldSpec {
   const char* name;
   DType dtype;
   int cols;
   bool required;
-  ArrayRef<double> ProblemData::*f64;
-  ArrayRef<int32_t> ProblemData::*i32;
+  const char* term;
 };
 
-// All fields, in the order of the table in docs/architecture.md.
+// All fields: the five core arrays, then each term's arrays in registry order (an array that
+// several terms read, such as `planes` or `segments`, once).
 const std::vector<FieldSpec>& ProblemFields();
-const FieldSpec* FindField(const std::string& name);
+const FieldSpec* FindField(std::string_view name);
 
 // Label ids used by segment_class (bimcap.labels.Label).
 inline constexpr int32_t kLabelWall = 1;
 inline constexpr int32_t kLabelColumn = 4;
 
-// Checks shapes, finiteness, unit quaternions (|q| within 1e-6 of 1 after the caller's
-// normalisation is NOT assumed: within 1e-3, as the TUM reader), index ranges, positive focal
-// lengths, unit plane normals, z ranges. Throws ProblemError naming the field.
+// Checks the core arrays (shapes, finiteness, unit quaternions within 1e-3 as the TUM reader,
+// index ranges, positive focal lengths), then each term's arrays with the term's own check
+// (TermSpec::validate). Throws ProblemError naming the field.
 void ValidateProblem(const ProblemData& problem);
 
 }  // namespace bimcap

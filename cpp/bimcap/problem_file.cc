@@ -68,7 +68,7 @@ uint64_t AlignUp(uint64_t v) {
 
 // The options text must be printable ASCII lines ending in LF: a key or value with any other byte
 // (a flipped bit, another encoding, CR) is reported here by line and column, and never reaches a
-// message as raw bytes (which Python could not decode). The numpy reader applies the same rule.
+// message as raw bytes (which Python could not decode). (It is the only reader: Python calls it through _core.)
 void CheckOptionsText(const std::string& text) {
   int line = 1, column = 0;
   for (const char ch : text) {
@@ -191,14 +191,14 @@ ProblemFile ParseProblemFile(const uint8_t* bytes, size_t size) {
         Fail(name, "expected " + std::string(spec->cols == 0 ? "a 1-D array" : "a 2-D array with ") +
                        (spec->cols == 0 ? "" : std::to_string(spec->cols) + " columns"));
       }
-      if (spec->f64) {
-        problem.*(spec->f64) = ArrayRef<double>{reinterpret_cast<const double*>(data),
+      if (spec->dtype == DType::kFloat64) {
+        problem.Set(name, ArrayRef<double>{reinterpret_cast<const double*>(data),
                                                static_cast<int64_t>(info.rows),
-                                               static_cast<int64_t>(info.cols)};
+                                               static_cast<int64_t>(info.cols)});
       } else {
-        problem.*(spec->i32) = ArrayRef<int32_t>{reinterpret_cast<const int32_t*>(data),
+        problem.Set(name, ArrayRef<int32_t>{reinterpret_cast<const int32_t*>(data),
                                                 static_cast<int64_t>(info.rows),
-                                                static_cast<int64_t>(info.cols)};
+                                                static_cast<int64_t>(info.cols)});
       }
     }
     file.arrays.push_back(info);
@@ -259,14 +259,14 @@ std::vector<uint8_t> SerializeProblem(const ProblemData& problem, const SolverOp
     info.name = spec.name;
     info.ndim = spec.cols == 0 ? 1 : 2;
     const void* data = nullptr;
-    if (spec.f64) {
-      const ArrayRef<double>& a = problem.*(spec.f64);
+    if (spec.dtype == DType::kFloat64) {
+      const ArrayRef<double> a = problem.F64(spec.name);
       info.dtype = kDTypeF64;
       info.rows = static_cast<uint64_t>(a.rows);
       info.cols = spec.cols == 0 ? 1 : spec.cols;
       data = a.data;
     } else {
-      const ArrayRef<int32_t>& a = problem.*(spec.i32);
+      const ArrayRef<int32_t> a = problem.I32(spec.name);
       info.dtype = kDTypeI32;
       info.rows = static_cast<uint64_t>(a.rows);
       info.cols = spec.cols == 0 ? 1 : spec.cols;

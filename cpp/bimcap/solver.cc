@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
+#include <functional>
 #include <cmath>
 #include <limits>
 #include <memory>
@@ -15,6 +16,7 @@
 #include <ceres/solver.h>
 
 #include "bimcap/builder.h"
+#include "bimcap/terms.h"
 
 namespace bimcap {
 namespace {
@@ -64,7 +66,7 @@ NonFinite FindNonFinite(ProblemBuilder& builder, const SolverState& state) {
   const double* poses_end = poses_begin + state.poses.size();
   const double* points_begin = state.track_points.data();
   const double* points_end = points_begin + state.track_points.size();
-  for (int t = 0; t < kNumTerms; ++t) {
+  for (int t = 0; t < NumTerms(); ++t) {
     const TermBlocks& term = builder.terms()[t];
     if (!term.active) continue;
     const ceres::LossFunction* loss = builder.loss(t);
@@ -100,11 +102,7 @@ NonFinite FindNonFinite(ProblemBuilder& builder, const SolverState& state) {
 }
 
 std::string TermLabel(int term) {
-  // Sized by its initialiser: a term added without its description here fails to compile.
-  static constexpr const char* kWhat[] = {"geometric", "landmark depth", "floor", "ceiling",
-                                          "wall",      "column",         "pose prior", "odometry"};
-  static_assert(sizeof(kWhat) / sizeof(kWhat[0]) == kNumTerms, "one description per term");
-  return std::string(TermName(term)) + " (" + kWhat[term] + ")";
+  return std::string(TermName(term)) + " (" + Terms()[term].what + ")";
 }
 
 // "initial cost is not finite: term F (floor), residual block 12 of 300 (frame 3) ..."
@@ -134,10 +132,10 @@ std::string DescribeNonFinite(const NonFinite& bad, const char* when) {
 // Per-term cost (with the loss) and raw squared sum (without it, divided by s²), from one
 // evaluation of the term's residuals: cost = ½ Σ_blocks ρ(‖r_block‖²), as Ceres computes it.
 // A term whose evaluation fails (a non-finite residual) gets an infinite cost.
-std::array<TermCosts, kNumTerms> EvaluateTerms(ProblemBuilder& builder, int num_threads) {
-  std::array<TermCosts, kNumTerms> out;
+std::vector<TermCosts> EvaluateTerms(ProblemBuilder& builder, int num_threads) {
+  std::vector<TermCosts> out(Terms().size());
   std::vector<double> residuals;
-  for (int t = 0; t < kNumTerms; ++t) {
+  for (int t = 0; t < NumTerms(); ++t) {
     const TermBlocks& term = builder.terms()[t];
     if (!term.active || term.ids.empty()) continue;
     ceres::Problem::EvaluateOptions eval;
@@ -170,10 +168,10 @@ std::array<TermCosts, kNumTerms> EvaluateTerms(ProblemBuilder& builder, int num_
   return out;
 }
 
-void Record(const std::array<TermCosts, kNumTerms>& costs, const ProblemBuilder& builder,
+void Record(const std::vector<TermCosts>& costs, const ProblemBuilder& builder,
             const SolverOptions& options, bool initial, Summary* summary) {
   double total = 0.0, paper = 0.0;
-  for (int t = 0; t < kNumTerms; ++t) {
+  for (int t = 0; t < NumTerms(); ++t) {
     const TermBlocks& blocks = builder.terms()[t];
     TermSummary& ts = summary->terms[t];
     const double n = static_cast<double>(blocks.num_residual_blocks);
@@ -263,100 +261,71 @@ void ComputeCovariance(ProblemBuilder& builder, const ProblemData& data, const S
   summary.covariance_ok = true;
 }
 
-}  // namespace
+// The W / Co association: one spatial index per term with a segment_class (enabled, with
+// points), re-run after each Ceres run.
+class Associator {
+ public:
+  Associator(const ProblemData& data, const SolverOptions& options, Summary* summary)
+      : data_(data), options_(options) {
+    for (int t = 0; t < NumTerms(); ++t) {
+      const TermSpec& spec = Terms()[t];
+      if (spec.segment_class <= 0 || !options.term(t).enabled) continue;
+      if (data.I32(std::string(spec.points) + "_frame").rows == 0) continue;
+      indices_.push_back({t, std::make_unique<SegmentIndex>(
+                                 data.F64("segments"), data.I32("segment_class"),
+                                 data.F64("segment_z"), data.F64("segment_normal"),
+                                 spec.segment_class, options.association_gate)});
+      summary->association.push_back({spec.name, indices_.back().index->num_segments(), {}, {}});
+    }
+  }
 
-SolveResult Solve(const ProblemData& data, const SolverOptions& options) {
-  const auto start = Clock::now();
-  ValidateProblem(data);
-  options.Check();
+  bool empty() const { return indices_.empty(); }
 
+  // Associates every term's points under the current poses; records the statistics as the
+  // initial or the final ones. Returns whether more than association_change_tolerance of the
+  // points changed segment.
+  bool Run(SolverState* state, bool initial, Summary* summary) const {
+    int64_t changed = 0, points = 0;
+    for (size_t slot = 0; slot < indices_.size(); ++slot) {
+      const int t = indices_[slot].term;
+      const std::string prefix = Terms()[t].points;
+      AssociationStats stats;
+      state->segment_of[t] = AssociatePoints(*indices_[slot].index, data_.I32(prefix + "_frame"),
+                                             data_.F64(prefix + "_p_in_cam"), state->poses.data(),
+                                             state->segment_of[t], &stats);
+      (initial ? summary->association[slot].initial : summary->association[slot].final) = stats;
+      changed += stats.num_changed;
+      points += stats.num_points;
+    }
+    return changed > 0 && static_cast<double>(changed) >
+                              options_.association_change_tolerance * static_cast<double>(points);
+  }
+
+ private:
+  struct TermIndex {
+    int term;
+    std::unique_ptr<SegmentIndex> index;
+  };
+  const ProblemData& data_;
+  const SolverOptions& options_;
+  std::vector<TermIndex> indices_;
+};
+
+// The state the solver changes, from the input: poses (quaternions normalised), landmarks, and
+// one association and FACaP plane slot per term.
+SolverState InitialState(const ProblemData& data) {
   SolverState state;
   state.poses.assign(data.poses.data, data.poses.data + data.poses.rows * kPoseSize);
   NormalizeQuaternions(&state.poses);
-  if (data.track_points.rows > 0) {
-    state.track_points.assign(data.track_points.data,
-                              data.track_points.data + data.track_points.rows * 3);
+  const ArrayRef<double> track_points = data.F64("track_points");
+  if (track_points.rows > 0) {
+    state.track_points.assign(track_points.data, track_points.data + track_points.rows * 3);
   }
+  state.segment_of.resize(Terms().size());
+  return state;
+}
 
-  SolveResult result;
-  Summary& summary = result.summary;
-  summary.num_poses = data.num_poses();
-  summary.terms.resize(kNumTerms);
-  for (int t = 0; t < kNumTerms; ++t) {
-    summary.terms[t].name = TermName(t);
-    summary.terms[t].paper_weight = options.term(t).paper_weight;
-  }
-
-  ProblemBuilder builder(data, options, &state);
-  if (options.plane_mode == PlaneMode::kFacap) builder.InitFacapPlanes();
-
-  // W / Co association with a spatial index per class.
-  const bool use_wall = options.wall.enabled && data.wall_frame.rows > 0;
-  const bool use_column = options.column.enabled && data.column_frame.rows > 0;
-  std::unique_ptr<SegmentIndex> wall_index, column_index;
-  if (use_wall) {
-    wall_index = std::make_unique<SegmentIndex>(data.segments, data.segment_class, data.segment_z,
-                                                data.segment_normal, kLabelWall,
-                                                options.association_gate);
-    summary.association.push_back({"W", wall_index->num_segments(), {}, {}});
-  }
-  if (use_column) {
-    column_index = std::make_unique<SegmentIndex>(data.segments, data.segment_class,
-                                                  data.segment_z, data.segment_normal,
-                                                  kLabelColumn, options.association_gate);
-    summary.association.push_back({"Co", column_index->num_segments(), {}, {}});
-  }
-  // Returns whether more than association_change_tolerance of the points changed segment.
-  auto associate = [&](bool initial) {
-    int64_t changed = 0, points = 0;
-    size_t slot = 0;
-    if (use_wall) {
-      AssociationStats stats;
-      state.wall_segment = AssociatePoints(*wall_index, data.wall_frame, data.wall_p_in_cam,
-                                           state.poses.data(), state.wall_segment, &stats);
-      (initial ? summary.association[slot].initial : summary.association[slot].final) = stats;
-      changed += stats.num_changed;
-      points += stats.num_points;
-      ++slot;
-    }
-    if (use_column) {
-      AssociationStats stats;
-      state.column_segment = AssociatePoints(*column_index, data.column_frame,
-                                             data.column_p_in_cam, state.poses.data(),
-                                             state.column_segment, &stats);
-      (initial ? summary.association[slot].initial : summary.association[slot].final) = stats;
-      changed += stats.num_changed;
-      points += stats.num_points;
-    }
-    return changed > 0 &&
-           static_cast<double>(changed) > options.association_change_tolerance * static_cast<double>(points);
-  };
-
-  associate(true);
-  for (auto& a : summary.association) a.final = a.initial;
-  // The association the current problem was built with: a problem built on the same association
-  // is the same problem (the residual blocks point into state.poses), so it is not rebuilt.
-  std::vector<int> built_wall, built_column;
-  auto build = [&]() {
-    builder.Build();
-    built_wall = state.wall_segment;
-    built_column = state.column_segment;
-  };
-  build();
-  // A non-finite initial cost (a pose at 1e300, a focal length of 1e-300, sigma = 1e-300 ...)
-  // is a failed solve: Ceres would stop at once and report CONVERGENCE with the poses unchanged.
-  const NonFinite initial_bad = FindNonFinite(builder, state);
-  std::array<TermCosts, kNumTerms> initial_costs;
-  if (initial_bad.found()) {
-    // Ceres' evaluation logs a page per non-finite block: mark the terms without evaluating.
-    for (int t = 0; t < kNumTerms; ++t) {
-      if (builder.terms()[t].active) initial_costs[t] = {kInf, kInf};
-    }
-  } else {
-    initial_costs = EvaluateTerms(builder, options.num_threads);
-  }
-  Record(initial_costs, builder, options, true, &summary);
-
+ceres::Solver::Options CeresOptions(const SolverOptions& options) {
   ceres::Solver::Options solver_options;
   solver_options.max_num_iterations = options.max_iterations;
   solver_options.function_tolerance = options.function_tolerance;
@@ -365,55 +334,125 @@ SolveResult Solve(const ProblemData& data, const SolverOptions& options) {
   solver_options.num_threads = options.num_threads;
   solver_options.minimizer_progress_to_stdout = options.verbose;
   solver_options.logging_type = options.verbose ? ceres::PER_MINIMIZER_ITERATION : ceres::SILENT;
+  return solver_options;
+}
 
-  summary.success = !initial_bad.found();
-  if (initial_bad.found()) {
-    summary.termination = "NON_FINITE_COST";
-    summary.message = DescribeNonFinite(initial_bad, "initial");
-  }
-  const bool reassociate = use_wall || use_column;
+// The outer loop: Ceres, re-associate, rebuild when the association changed, until the
+// association settles, outer_iterations runs, or max_time_s.
+void RunOuterIterations(const SolverOptions& options, const Associator& associator,
+                        const std::function<void()>& build, ProblemBuilder* builder,
+                        SolverState* state, Summary* summary) {
+  ceres::Solver::Options solver_options = CeresOptions(options);
   double remaining_time = options.max_time_s;
-  for (int round = 0; round < options.outer_iterations && !initial_bad.found(); ++round) {
+  for (int round = 0; round < options.outer_iterations; ++round) {
     if (round > 0) build();
-    solver_options.linear_solver_type = ChooseLinearSolver(options, builder.has_landmarks());
-    solver_options.linear_solver_ordering = builder.has_landmarks() ? builder.ordering() : nullptr;
+    solver_options.linear_solver_type = ChooseLinearSolver(options, builder->has_landmarks());
+    solver_options.linear_solver_ordering = builder->has_landmarks() ? builder->ordering() : nullptr;
     solver_options.max_solver_time_in_seconds = std::max(remaining_time, 1e-3);
     ceres::Solver::Summary ceres_summary;
-    if (builder.problem().NumResidualBlocks() > 0) {
-      ceres::Solve(solver_options, &builder.problem(), &ceres_summary);
-      summary.iterations += std::max(0, static_cast<int>(ceres_summary.iterations.size()) - 1);
-      summary.ceres_time_s += ceres_summary.total_time_in_seconds;
+    if (builder->problem().NumResidualBlocks() > 0) {
+      ceres::Solve(solver_options, &builder->problem(), &ceres_summary);
+      summary->iterations += std::max(0, static_cast<int>(ceres_summary.iterations.size()) - 1);
+      summary->ceres_time_s += ceres_summary.total_time_in_seconds;
       remaining_time -= ceres_summary.total_time_in_seconds;
-      summary.termination = ceres::TerminationTypeToString(ceres_summary.termination_type);
-      summary.message = ceres_summary.message;
-      summary.linear_solver = ceres::LinearSolverTypeToString(solver_options.linear_solver_type);
+      summary->termination = ceres::TerminationTypeToString(ceres_summary.termination_type);
+      summary->message = ceres_summary.message;
+      summary->linear_solver = ceres::LinearSolverTypeToString(solver_options.linear_solver_type);
       if (!ceres_summary.IsSolutionUsable()) {
-        summary.success = false;
-        ++summary.outer_iterations;
-        break;
+        summary->success = false;
+        ++summary->outer_iterations;
+        return;
       }
     } else {
-      summary.termination = "NO_RESIDUALS";
-      summary.message = "no residual block: nothing to solve";
+      summary->termination = "NO_RESIDUALS";
+      summary->message = "no residual block: nothing to solve";
     }
-    ++summary.outer_iterations;
-    NormalizeQuaternions(&state.poses);
-    if (!reassociate || !associate(false) || remaining_time <= 0) break;
+    ++summary->outer_iterations;
+    NormalizeQuaternions(&state->poses);
+    if (associator.empty() || !associator.Run(state, false, summary) || remaining_time <= 0) return;
+  }
+}
+
+void MoveStateToResult(const ProblemData& data, const SolverOptions& options, SolverState* state,
+                       SolveResult* result) {
+  result->poses = std::move(state->poses);
+  result->track_points = std::move(state->track_points);
+  for (int t = 0; t < NumTerms(); ++t) {
+    if (Terms()[t].segment_class > 0) result->segment_of[Terms()[t].key] = state->segment_of[t];
+  }
+  if (options.plane_mode == PlaneMode::kFacap) {
+    for (int t = 0; t < NumTerms(); ++t) {
+      if (!Terms()[t].facap_plane) continue;
+      result->planes.insert(result->planes.end(), state->facap_planes.begin() + 4 * t,
+                            state->facap_planes.begin() + 4 * t + 4);
+      ++result->num_planes;
+    }
+  } else {
+    const ArrayRef<double> planes = data.F64("planes");
+    result->planes.assign(planes.data, planes.data + planes.rows * 4);
+    result->num_planes = planes.rows;
+  }
+}
+
+}  // namespace
+
+SolveResult Solve(const ProblemData& data, const SolverOptions& options) {
+  const auto start = Clock::now();
+  ValidateProblem(data);
+  options.Check();
+
+  SolverState state = InitialState(data);
+  SolveResult result;
+  Summary& summary = result.summary;
+  summary.num_poses = data.num_poses();
+  for (int t = 0; t < NumTerms(); ++t) {
+    summary.terms.push_back(TermSummary{});
+    summary.terms.back().name = TermName(t);
+    summary.terms.back().paper_weight = options.term(t).paper_weight;
   }
 
-  // Final costs on the final association.
+  ProblemBuilder builder(data, options, &state);
+  if (options.plane_mode == PlaneMode::kFacap) builder.InitFacapPlanes();
+  const Associator associator(data, options, &summary);
+  associator.Run(&state, true, &summary);
+  for (auto& a : summary.association) a.final = a.initial;
+  // The association the current problem was built with: a problem built on the same association
+  // is the same problem (the residual blocks point into state.poses), so it is not rebuilt.
+  std::vector<std::vector<int>> built_with;
+  const std::function<void()> build = [&]() {
+    builder.Build();
+    built_with = state.segment_of;
+  };
+  build();
+
+  // A non-finite initial cost (a pose at 1e300, a focal length of 1e-300, sigma = 1e-300 ...)
+  // is a failed solve: Ceres would stop at once and report CONVERGENCE with the poses unchanged.
+  const NonFinite initial_bad = FindNonFinite(builder, state);
+  std::vector<TermCosts> initial_costs(Terms().size());
   if (initial_bad.found()) {
+    // Ceres' evaluation logs a page per non-finite block: mark the terms without evaluating.
+    for (int t = 0; t < NumTerms(); ++t) {
+      if (builder.terms()[t].active) initial_costs[t] = {kInf, kInf};
+    }
+    summary.success = false;
+    summary.termination = "NON_FINITE_COST";
+    summary.message = DescribeNonFinite(initial_bad, "initial");
+    Record(initial_costs, builder, options, true, &summary);
     Record(initial_costs, builder, options, false, &summary);  // nothing moved
   } else {
-    if (state.wall_segment != built_wall || state.column_segment != built_column) build();
+    initial_costs = EvaluateTerms(builder, options.num_threads);
+    Record(initial_costs, builder, options, true, &summary);
+    summary.success = true;
+    RunOuterIterations(options, associator, build, &builder, &state, &summary);
+    // Final costs on the final association.
+    if (state.segment_of != built_with) build();
     Record(EvaluateTerms(builder, options.num_threads), builder, options, false, &summary);
     if (summary.success && !std::isfinite(summary.final_cost)) {
       const NonFinite final_bad = FindNonFinite(builder, state);
       summary.success = false;
       summary.termination = "NON_FINITE_COST";
-      summary.message = final_bad.found()
-                            ? DescribeNonFinite(final_bad, "final")
-                            : "final cost is not finite";
+      summary.message =
+          final_bad.found() ? DescribeNonFinite(final_bad, "final") : "final cost is not finite";
     }
   }
   summary.num_free_poses = builder.num_free_poses();
@@ -421,22 +460,10 @@ SolveResult Solve(const ProblemData& data, const SolverOptions& options) {
     summary.num_residual_blocks += t.num_residual_blocks;
     summary.num_residuals += t.num_residuals;
   }
-
   if (options.compute_covariance && summary.success) {
     ComputeCovariance(builder, data, options, &state, &result);
   }
-
-  result.poses = std::move(state.poses);
-  result.track_points = std::move(state.track_points);
-  result.wall_segment = std::move(state.wall_segment);
-  result.column_segment = std::move(state.column_segment);
-  if (options.plane_mode == PlaneMode::kFacap) {
-    result.planes.assign(state.facap_planes.begin(), state.facap_planes.end());
-    result.num_planes = 2;
-  } else {
-    result.planes.assign(data.planes.data, data.planes.data + data.planes.rows * 4);
-    result.num_planes = data.planes.rows;
-  }
+  MoveStateToResult(data, options, &state, &result);
   summary.time_s = std::chrono::duration<double>(Clock::now() - start).count();
   return result;
 }

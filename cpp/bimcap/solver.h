@@ -3,6 +3,7 @@
 #define BIMCAP_SOLVER_H_
 
 #include <cstdint>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -13,7 +14,7 @@
 namespace bimcap {
 
 struct TermSummary {
-  std::string name;                 // "G", "depth", "F", "Ce", "W", "Co", "prior"
+  std::string name;                 // TermSpec::name: "G", "depth", "F", "Ce", "W", "Co", "prior" ...
   bool active = false;
   int64_t num_residual_blocks = 0;  // observations in the final problem
   int64_t num_residuals = 0;        // scalar residuals (blocks × residual size)
@@ -70,8 +71,8 @@ struct SolveResult {
   std::vector<double> planes;        // BIM mode: the input planes (Q, 4); FACaP: (2, 4) floor,
   int64_t num_planes = 0;            //   ceiling fitted planes (NaN row when not estimated)
   std::vector<double> track_points;  // (P, 3) refined landmarks
-  std::vector<int> wall_segment;     // (W,) final association (-1 = none)
-  std::vector<int> column_segment;   // (W',)
+  // Per segment term (its key: "wall", "column"), each point's final segment (-1 = none).
+  std::map<std::string, std::vector<int>> segment_of;
   // (N, 6, 6) covariance of each pose in its tangent space [δt, δθ] (zeros for fixed or absent
   // poses); empty unless requested and computed.
   std::vector<double> covariance;

@@ -1,5 +1,5 @@
-// Problem files from Python through the C++ reader and writer (the numpy reader in
-// bimcap.optimize.problem_file is the other implementation; tests check they agree).
+// Problem files from Python through the C++ reader and writer (the only implementation;
+// bimcap.optimize.problem_file wraps them).
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
@@ -46,6 +46,21 @@ void BindProblemFile(py::module_& m) {
       },
       py::arg("path"), py::arg("arrays"), py::arg("options"),
       "Write a problem file with the C++ writer (validates first; atomic).");
+  m.def(
+      "serialize_problem",
+      [](const py::dict& arrays, const py::dict& options) {
+        std::vector<py::array> keep_alive;
+        const ProblemData problem = ProblemFromDict(arrays, &keep_alive);
+        const SolverOptions solver_options = OptionsFromDict(options);
+        std::vector<uint8_t> bytes;
+        {
+          py::gil_scoped_release release;
+          bytes = SerializeProblem(problem, solver_options);
+        }
+        return py::bytes(reinterpret_cast<const char*>(bytes.data()), bytes.size());
+      },
+      py::arg("arrays"), py::arg("options"),
+      "A problem file's bytes (validates first), as write_problem_file would write them.");
   m.def(
       "describe_problem_file",
       [](const std::string& path) { return DescribeProblemFile(ReadProblemFile(path)); },

@@ -46,9 +46,9 @@ ProblemData ProblemFromDict(const py::dict& arrays, std::vector<py::array>* keep
     const int64_t rows = array.shape(0);
     const int64_t cols = want_ndim == 2 ? array.shape(1) : 1;
     if (f64) {
-      problem.*(spec->f64) = ArrayRef<double>{static_cast<const double*>(array.data()), rows, cols};
+      problem.Set(name, ArrayRef<double>{static_cast<const double*>(array.data()), rows, cols});
     } else {
-      problem.*(spec->i32) = ArrayRef<int32_t>{static_cast<const int32_t*>(array.data()), rows, cols};
+      problem.Set(name, ArrayRef<int32_t>{static_cast<const int32_t*>(array.data()), rows, cols});
     }
     keep_alive->push_back(array);
   }
@@ -63,13 +63,13 @@ ProblemData ProblemFromDict(const py::dict& arrays, std::vector<py::array>* keep
 py::dict ProblemToDict(const ProblemData& problem) {
   py::dict out;
   for (const FieldSpec& spec : ProblemFields()) {
-    if (spec.f64) {
-      const ArrayRef<double>& a = problem.*(spec.f64);
+    if (spec.dtype == DType::kFloat64) {
+      const ArrayRef<double> a = problem.F64(spec.name);
       std::vector<py::ssize_t> shape = {a.rows};
       if (spec.cols != 0) shape.push_back(spec.cols);
       out[spec.name] = CopyToNumpy<double>(a.data, shape);
     } else {
-      const ArrayRef<int32_t>& a = problem.*(spec.i32);
+      const ArrayRef<int32_t> a = problem.I32(spec.name);
       std::vector<py::ssize_t> shape = {a.rows};
       if (spec.cols != 0) shape.push_back(spec.cols);
       out[spec.name] = CopyToNumpy<int32_t>(a.data, shape);
@@ -126,8 +126,21 @@ PYBIND11_MODULE(_core, m) {
         py::set_error(input_error.get_stored(), "invalid input");
         return;
       }
-      PyErr_SetObject(input_error.get_stored().ptr(), message);
+      // The exception carries the culprit's name as `field` ("" when none).
+      PyObject* type = input_error.get_stored().ptr();
+      PyObject* exc = PyObject_CallOneArg(type, message);
       Py_DECREF(message);
+      if (exc == nullptr) return;  // the call set its own error
+      PyObject* field = PyUnicode_DecodeUTF8(e.field().data(),
+                                             static_cast<Py_ssize_t>(e.field().size()),
+                                             "backslashreplace");
+      if (field != nullptr) {
+        PyObject_SetAttrString(exc, "field", field);
+        Py_DECREF(field);
+      }
+      PyErr_Clear();
+      PyErr_SetObject(type, exc);
+      Py_DECREF(exc);
     }
   });
   m.attr("PROBLEM_FILE_VERSION") = bimcap::kProblemFileVersion;

@@ -82,12 +82,12 @@ TEST(AssociatePointsTest, UsesEachPointsCameraCentre) {
 TEST(ValidateProblemTest, SegmentNormalIsOptionalUnitOrZero) {
   const testing::OwnedProblem owned = testing::MakeTestProblem();
   ProblemData data = owned.View();
-  const int64_t s = data.segments.rows;
+  const int64_t s = data.F64("segments").rows;
   ASSERT_GT(s, 0);
   ValidateProblem(data);  // absent: fine
   std::vector<double> normals(2 * s, 0.0);
   normals[0] = 1.0;
-  data.segment_normal = {normals.data(), s, 2};
+  data.Set("segment_normal", ArrayRef<double>{normals.data(), s, 2});
   ValidateProblem(data);  // unit or zero: fine
   normals[2] = 0.5;
   try {
@@ -96,7 +96,7 @@ TEST(ValidateProblemTest, SegmentNormalIsOptionalUnitOrZero) {
   } catch (const ProblemError& e) {
     EXPECT_EQ(e.field(), "segment_normal");
   }
-  data.segment_normal = {normals.data(), s - 1, 2};
+  data.Set("segment_normal", ArrayRef<double>{normals.data(), s - 1, 2});
   EXPECT_THROW(ValidateProblem(data), ProblemError);  // one row per segment
 }
 

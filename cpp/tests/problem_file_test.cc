@@ -65,9 +65,9 @@ TEST_F(ProblemFileTest, RoundTrip) {
   const ProblemData& p = file.problem;
   ASSERT_EQ(p.poses.rows, 6);
   for (int64_t i = 0; i < 6 * 7; ++i) EXPECT_EQ(p.poses.data[i], owned.poses[i]);
-  ASSERT_EQ(p.wall_frame.rows, static_cast<int64_t>(owned.wall_frame.size()));
-  for (size_t i = 0; i < owned.wall_frame.size(); ++i) EXPECT_EQ(p.wall_frame(i), owned.wall_frame[i]);
-  EXPECT_EQ(p.segments.rows, 8);
+  ASSERT_EQ(p.I32("wall_frame").rows, static_cast<int64_t>(owned.wall_frame.size()));
+  for (size_t i = 0; i < owned.wall_frame.size(); ++i) EXPECT_EQ(p.I32("wall_frame")(i), owned.wall_frame[i]);
+  EXPECT_EQ(p.F64("segments").rows, 8);
   // Every array is 64-byte aligned in the file.
   for (const ArrayInfo& a : file.arrays) EXPECT_EQ(a.offset % 64, 0u) << a.name;
   // Serialising again gives the same bytes.

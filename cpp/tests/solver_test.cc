@@ -9,6 +9,7 @@
 #include <Eigen/Geometry>
 #include <gtest/gtest.h>
 
+#include "bimcap/terms.h"
 #include "bimcap/cost_functions/point_to_segment.h"
 #include "bimcap/solver.h"
 #include "test_problems.h"
@@ -22,7 +23,7 @@ using testing::PoseErrors;
 
 SolverOptions OnlyTerms(std::initializer_list<int> terms) {
   SolverOptions o;
-  for (int t = 0; t < kNumTerms; ++t) o.term(t).enabled = false;
+  for (int t = 0; t < NumTerms(); ++t) o.term(t).enabled = false;
   for (int t : terms) o.term(t).enabled = true;
   return o;
 }
@@ -92,7 +93,7 @@ TEST_F(SolverTest, AllTermsRecoverTheTruth) {
   ASSERT_EQ(r.summary.association.size(), 2u);
   EXPECT_EQ(r.summary.association[0].final.num_rejected, 0);
   // The pose prior is on by default (ROBUST), one block per free pose, outside the paper objective.
-  const TermSummary& prior = r.summary.terms[kTermPrior];
+  const TermSummary& prior = r.summary.terms[TermIndex("prior")];
   EXPECT_EQ(prior.name, "prior");
   EXPECT_TRUE(prior.active);
   EXPECT_EQ(prior.num_residual_blocks, static_cast<int64_t>(problem.poses.size() / 7 - 1));
@@ -104,7 +105,7 @@ TEST_F(SolverTest, AllTermsRecoverTheTruth) {
 
 TEST_F(SolverTest, GeometricAloneRecoversRelativeMotion) {
   for (GeometricMode mode : {GeometricMode::kPoint, GeometricMode::kReprojection, GeometricMode::kLandmark}) {
-    SolverOptions o = OnlyTerms({kTermG, kTermDepth});
+    SolverOptions o = OnlyTerms({TermIndex("G"), TermIndex("depth")});
     o.geometric_mode = mode;
     const SolveResult r = Solve(problem.View(), o);
     ASSERT_TRUE(r.summary.success);
@@ -117,7 +118,7 @@ TEST_F(SolverTest, GeometricAloneRecoversRelativeMotion) {
 }
 
 TEST_F(SolverTest, FloorAloneFixesHeightAndTilt) {
-  for (int term : {kTermF, kTermCe}) {
+  for (int term : {TermIndex("F"), TermIndex("Ce")}) {
     const SolveResult r = Solve(problem.View(), OnlyTerms({term}));
     double z0, tilt0, xy0, yaw0, z, tilt, xy, yaw;
     PartialErrors(problem.poses, problem.gt_poses, &z0, &tilt0, &xy0, &yaw0);
@@ -129,7 +130,7 @@ TEST_F(SolverTest, FloorAloneFixesHeightAndTilt) {
 }
 
 TEST_F(SolverTest, WallAloneFixesPlanPositionAndYaw) {
-  const SolveResult r = Solve(problem.View(), OnlyTerms({kTermW}));
+  const SolveResult r = Solve(problem.View(), OnlyTerms({TermIndex("W")}));
   double z, tilt, xy0, yaw0, xy, yaw;
   PartialErrors(problem.poses, problem.gt_poses, &z, &tilt, &xy0, &yaw0);
   PartialErrors(r.poses, problem.gt_poses, &z, &tilt, &xy, &yaw);
@@ -139,8 +140,8 @@ TEST_F(SolverTest, WallAloneFixesPlanPositionAndYaw) {
 }
 
 TEST_F(SolverTest, ColumnAloneReducesItsResiduals) {
-  const SolveResult r = Solve(problem.View(), OnlyTerms({kTermCo}));
-  const TermSummary& co = r.summary.terms[kTermCo];
+  const SolveResult r = Solve(problem.View(), OnlyTerms({TermIndex("Co")}));
+  const TermSummary& co = r.summary.terms[TermIndex("Co")];
   ASSERT_TRUE(co.active);
   EXPECT_LT(co.final_rms, 0.5 * co.initial_rms);
   EXPECT_LT(co.final_rms, 0.02);
@@ -176,7 +177,7 @@ double PaperObjective(const OwnedProblem& p, const std::vector<double>& poses, c
   double w = 0;
   int nw = 0;
   for (size_t i = 0; i < p.wall_frame.size(); ++i) {
-    const int s = r.wall_segment[i];
+    const int s = r.segment_of.at("wall")[i];
     if (s < 0) continue;
     const Eigen::Vector3d q = world(p.wall_frame[i], &p.wall_p_in_cam[3 * i]);
     const double* seg = &p.segments[4 * s];
@@ -189,25 +190,25 @@ double PaperObjective(const OwnedProblem& p, const std::vector<double>& poses, c
 
 TEST_F(SolverTest, PaperObjectiveEqualsThePeersFormula) {
   // The prior is switched on and must still stay out: PAPER weighting is exactly the peers'.
-  SolverOptions o = OnlyTerms({kTermG, kTermF, kTermCe, kTermW, kTermPrior});
+  SolverOptions o = OnlyTerms({TermIndex("G"), TermIndex("F"), TermIndex("Ce"), TermIndex("W"), TermIndex("prior")});
   o.weighting = Weighting::kPaper;
   const SolveResult r = Solve(problem.View(), o);
   ASSERT_TRUE(r.summary.success);
-  EXPECT_FALSE(r.summary.terms[kTermPrior].active);
-  EXPECT_EQ(r.summary.terms[kTermPrior].num_residual_blocks, 0);
+  EXPECT_FALSE(r.summary.terms[TermIndex("prior")].active);
+  EXPECT_EQ(r.summary.terms[TermIndex("prior")].num_residual_blocks, 0);
   const double direct_final = PaperObjective(problem, r.poses, r);
   EXPECT_NEAR(r.summary.final_paper_objective, direct_final, 1e-9 * direct_final);
   // Ceres minimises ½ Σ ‖s r‖² with s² = λ / N: its cost is half the paper's objective.
   EXPECT_NEAR(r.summary.final_cost, 0.5 * direct_final, 1e-9 * direct_final);
   EXPECT_LT(r.summary.final_paper_objective, r.summary.initial_paper_objective);
   // Hand check of the per-term weights: s = sqrt(λ / N).
-  EXPECT_NEAR(r.summary.terms[kTermF].sqrt_weight, std::sqrt(0.02 / problem.floor_frame.size()), 1e-15);
+  EXPECT_NEAR(r.summary.terms[TermIndex("F")].sqrt_weight, std::sqrt(0.02 / problem.floor_frame.size()), 1e-15);
 }
 
 TEST_F(SolverTest, PriorHoldsWhatTheFloorDoesNotSee) {
   // F alone observes z, roll and pitch; x, y and yaw are left to the prior, which holds them at
   // their initial values while F still fixes the height.
-  const SolveResult r = Solve(problem.View(), OnlyTerms({kTermF, kTermPrior}));
+  const SolveResult r = Solve(problem.View(), OnlyTerms({TermIndex("F"), TermIndex("prior")}));
   ASSERT_TRUE(r.summary.success) << r.summary.message;
   double xy, yaw;
   MaxPlanChange(r.poses, problem.poses, &xy, &yaw);
@@ -219,15 +220,15 @@ TEST_F(SolverTest, PriorHoldsWhatTheFloorDoesNotSee) {
   PartialErrors(r.poses, problem.gt_poses, &z, &tilt, &xy1, &yaw1);
   EXPECT_LT(z, 0.02) << "from " << z0;
   EXPECT_LT(tilt, 0.3) << "from " << tilt0;
-  const TermSummary& prior = r.summary.terms[kTermPrior];
+  const TermSummary& prior = r.summary.terms[TermIndex("prior")];
   ASSERT_TRUE(prior.active);
   EXPECT_EQ(prior.num_residuals, 6 * prior.num_residual_blocks);
   // Negative control: without the prior, LM leaks steps into the unobserved yaw (the numerical
   // noise of its zero gradient over a vanishing damping; 0.7° here, 14° on the Python synthetic
   // problem). x and y do not move: their Jacobian columns are exactly zero for a level floor.
-  const SolveResult bare = Solve(problem.View(), OnlyTerms({kTermF}));
+  const SolveResult bare = Solve(problem.View(), OnlyTerms({TermIndex("F")}));
   ASSERT_TRUE(bare.summary.success);
-  EXPECT_FALSE(bare.summary.terms[kTermPrior].active);
+  EXPECT_FALSE(bare.summary.terms[TermIndex("prior")].active);
   MaxPlanChange(bare.poses, problem.poses, &xy, &yaw);
   std::printf("F alone: max xy change %.3g m, max yaw change %.3g deg\n", xy, yaw);
   EXPECT_GT(yaw, 0.1);
@@ -246,14 +247,14 @@ TEST_F(SolverTest, RefineModesHoldTheirPart) {
 }
 
 TEST_F(SolverTest, FacapPlanesAreFittedAndRefined) {
-  SolverOptions o = OnlyTerms({kTermG, kTermF, kTermCe});
+  SolverOptions o = OnlyTerms({TermIndex("G"), TermIndex("F"), TermIndex("Ce")});
   o.plane_mode = PlaneMode::kFacap;
   const SolveResult r = Solve(problem.View(), o);
   ASSERT_TRUE(r.summary.success);
   ASSERT_EQ(r.num_planes, 2);
   EXPECT_NEAR(Eigen::Vector3d(r.planes[0], r.planes[1], r.planes[2]).norm(), 1.0, 1e-9);
   EXPECT_GT(r.planes[2], 0.99);  // the floor is horizontal after refinement
-  EXPECT_LT(r.summary.terms[kTermF].final_rms, 0.02);
+  EXPECT_LT(r.summary.terms[TermIndex("F")].final_rms, 0.02);
 }
 
 TEST_F(SolverTest, CovarianceIsSymmetricPositive) {
@@ -304,10 +305,10 @@ TEST_F(SolverTest, NonFiniteInitialCostIsAFailureNamingTheTermAndFrame) {
     } else if (name == "focal") {
       p.cameras[0] = 1e-300;
     } else if (name == "sigma") {
-      o.wall.sigma = 1e-300;
+      o.term("wall").sigma = 1e-300;
     } else {
       p.floor_p_in_cam[3 * p.floor_frame.size() / 2] = 1e308;
-      o.geometric.enabled = o.wall.enabled = o.column.enabled = false;
+      o.term("geometric").enabled = o.term("wall").enabled = o.term("column").enabled = false;
     }
     const SolveResult r = Solve(p.View(), o);
     EXPECT_FALSE(r.summary.success);

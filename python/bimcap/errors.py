@@ -57,6 +57,7 @@ class InputError(BimcapError, ValueError):
     ) -> None:
         self.path = None if path is None else str(path)
         self.field = field
+        self.message = message
         where = ""
         if self.path is not None:
             where = f"{self.path}: "

@@ -1,19 +1,22 @@
 """Solver options: which terms, how they are weighted, how Ceres runs.
 
-The options cross into C++ as a flat ``{key: str}`` dict (:meth:`SolverOptions.to_flat`), the same
-``key=value`` text that a problem file stores. Keys: ``geometric_mode``, ``weighting``,
-``plane_mode``, ``refine_mode``, per term ``<term>.enabled|paper_weight|weight|sigma|loss|
-loss_scale`` with ``<term>`` in ``geometric, depth, floor, ceiling, wall, column, prior,
-odometry``, then ``prior_sigma_r_deg``, ``odometry_sigma_r_deg``, ``pixel_sigma``, ``association_gate``, ``outer_iterations``, ``association_change_tolerance``, ``max_iterations``,
-``function_tolerance``, ``gradient_tolerance``, ``parameter_tolerance``, ``max_time_s``,
-``num_threads``, ``linear_solver``, ``compute_covariance``, ``verbose``.
+One implementation: the C++ core's (``cpp/bimcap/options.h`` and its term registry
+``cpp/bimcap/terms.h``). Defaults, validation and the flat ``key=value`` form that a problem
+file stores all come from ``bimcap._core``; this module is their typed Python view. Keys:
+``geometric_mode``, ``weighting``, ``plane_mode``, ``refine_mode``, per term
+``<key>.enabled|paper_weight|weight|sigma|loss|loss_scale`` and the term's own parameters
+(``prior.sigma_r_deg``), then ``pixel_sigma``, ``association_gate``, ``outer_iterations``,
+``association_change_tolerance``, ``max_iterations``, ``function_tolerance``,
+``gradient_tolerance``, ``parameter_tolerance``, ``max_time_s``, ``num_threads``,
+``linear_solver``, ``compute_covariance``, ``verbose``; ``bimcap._core.option_specs()`` lists
+them with their kinds and defaults.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field, fields, replace
 from enum import Enum
+from functools import cache
 from typing import Any
 
 from bimcap.optimize.errors import SolverInputError
@@ -64,6 +67,48 @@ class LinearSolver(str, Enum):
     ITERATIVE_SCHUR = "ITERATIVE_SCHUR"
 
 
+@dataclass(frozen=True)
+class TermInfo:
+    """One entry of the C++ term registry (``bimcap._core.terms()``)."""
+
+    name: str  #: in summaries and term lists: "G", "F", "prior" ...
+    key: str  #: option prefix and :class:`SolverOptions` attribute: "geometric", "floor" ...
+    what: str  #: in messages
+    doc: str  #: the residual and its unit
+    paper_term: bool  #: one of the paper's terms (``with_terms``; PAPER weighting)
+    bim_term: bool  #: ties poses to the BIM (the schedule's BIM-only stage)
+    arrays: tuple[str, ...]  #: the problem arrays it reads
+    params: dict[str, float]  #: its own parameters and their defaults
+
+
+@cache
+def terms() -> tuple[TermInfo, ...]:
+    """The term registry of the C++ core, in summary order."""
+    from bimcap import _core
+
+    return tuple(
+        TermInfo(t["name"], t["key"], t["what"], t["doc"], bool(t["paper_term"]),
+                 bool(t["bim_term"]), tuple(t["arrays"]), dict(t["params"]))
+        for t in _core.terms()
+    )
+
+
+def term_info(name_or_key: str) -> TermInfo:
+    """The registry entry of a term, by name (``"F"``) or key (``"floor"``)."""
+    for t in terms():
+        if name_or_key in (t.name, t.key):
+            return t
+    known = ", ".join(t.name for t in terms())
+    raise SolverInputError(f"unknown term {name_or_key!r} (known: {known})", field="terms")
+
+
+@cache
+def _defaults() -> dict[str, str]:
+    from bimcap import _core
+
+    return dict(_core.default_options())
+
+
 @dataclass
 class TermOptions:
     """Options of one term.
@@ -78,6 +123,8 @@ class TermOptions:
         REPROJECTION / LANDMARK mode ``SolverOptions.pixel_sigma`` is used instead).
     loss: robust loss in ROBUST weighting (PAPER is always plain L2).
     loss_scale: the loss's scale, in sigmas.
+    params: the term's own parameters (the registry's ``params``), e.g. the pose prior's
+        rotation scale ``sigma_r_deg``.
     """
 
     enabled: bool = True
@@ -86,76 +133,81 @@ class TermOptions:
     sigma: float = 0.05
     loss: Loss = Loss.HUBER
     loss_scale: float = 1.0
+    params: dict[str, float] = field(default_factory=dict)
+
+    @classmethod
+    def default(cls, key: str) -> TermOptions:
+        """Term ``key``'s defaults, from the C++ registry."""
+        flat = _defaults()
+        return cls(
+            enabled=flat[f"{key}.enabled"] == "1",
+            paper_weight=float(flat[f"{key}.paper_weight"]),
+            weight=float(flat[f"{key}.weight"]),
+            sigma=float(flat[f"{key}.sigma"]),
+            loss=Loss(flat[f"{key}.loss"]),
+            loss_scale=float(flat[f"{key}.loss_scale"]),
+            params={p: float(flat[f"{key}.{p}"]) for p in term_info(key).params},
+        )
 
 
-#: Term names of the paper, mapped to the option attribute.
-TERM_ATTRIBUTES: dict[str, str] = {
-    "G": "geometric",
-    "depth": "depth",
-    "F": "floor",
-    "Ce": "ceiling",
-    "W": "wall",
-    "Co": "column",
-}
-#: The pose prior's name (in the summary) and option attribute: not one of the paper's terms, so
-#: :meth:`SolverOptions.with_terms` leaves it as it is.
-PRIOR_TERM = "prior"
-#: The odometry's name and option attribute: not a paper term either.
-ODOMETRY_TERM = "odometry"
-#: Every attribute that holds a :class:`TermOptions`.
-_TERM_OPTION_ATTRIBUTES: tuple[str, ...] = (*TERM_ATTRIBUTES.values(), PRIOR_TERM, ODOMETRY_TERM)
+def _default(key: str) -> Any:
+    """A field whose default is the C++ default of global option ``key``, as its Python type."""
+    return field(default_factory=lambda: _parse(_defaults()[key], _GLOBAL_TYPES[key]))
+
+
+def _default_terms() -> dict[str, TermOptions]:
+    return {t.key: TermOptions.default(t.key) for t in terms()}
 
 
 @dataclass
 class SolverOptions:
-    """How to solve. Validated by :meth:`check` (and again by the C++ core)."""
+    """How to solve. Every default comes from the C++ core; :meth:`check` is the core's check.
 
-    geometric_mode: GeometricMode = GeometricMode.POINT
-    weighting: Weighting = Weighting.ROBUST
-    plane_mode: PlaneMode = PlaneMode.BIM
-    refine_mode: RefineMode = RefineMode.FULL
-    geometric: TermOptions = field(default_factory=lambda: TermOptions(True, 1.0, 1.0, 0.05))
-    depth: TermOptions = field(default_factory=lambda: TermOptions(True, 1.0, 1.0, 0.05))
-    floor: TermOptions = field(default_factory=lambda: TermOptions(True, 0.02, 1.0, 0.02))
-    ceiling: TermOptions = field(default_factory=lambda: TermOptions(True, 0.02, 1.0, 0.02))
-    wall: TermOptions = field(default_factory=lambda: TermOptions(True, 0.0007, 1.0, 0.05))
-    column: TermOptions = field(default_factory=lambda: TermOptions(True, 0.0007, 1.0, 0.05))
-    #: Pose prior (ROBUST weighting only; never added in PAPER weighting): each free pose held
-    #: near its initial value by r = [(t - t0) / sigma ; 2 vec(q0^-1 q) / prior_sigma_r_deg (rad)],
-    #: plain L2. ``sigma`` is the translation scale (m); ``paper_weight`` must stay 0. It anchors
-    #: the degrees of freedom the enabled terms leave unobserved (e.g. x, y, yaw under F alone).
-    prior: TermOptions = field(
-        default_factory=lambda: TermOptions(True, 0.0, 1.0, 2.0, Loss.NONE, 1.0)
-    )
-    #: The pose prior's rotation scale, degrees.
-    prior_sigma_r_deg: float = 20.0
-    #: Odometry (ROBUST weighting only, like the prior): each pair of consecutive frames keeps the
-    #: input's relative motion, r = [(t_ab - t_ab0) / sigma (m, in frame a) ;
-    #: 2 vec(q_ab0^-1 q_ab) / odometry_sigma_r_deg (rad)], plain L2. A frame that neither the BIM
-    #: nor G can place follows its neighbours instead of staying where the drift put it.
-    odometry: TermOptions = field(
-        default_factory=lambda: TermOptions(True, 0.0, 1.0, 0.3, Loss.NONE, 1.0)
-    )
-    #: The odometry's rotation scale, degrees.
-    odometry_sigma_r_deg: float = 15.0
+    The terms are in :attr:`terms` by key, and read as attributes too: ``options.floor.sigma``.
+    """
+
+    geometric_mode: GeometricMode = _default("geometric_mode")
+    weighting: Weighting = _default("weighting")
+    plane_mode: PlaneMode = _default("plane_mode")
+    refine_mode: RefineMode = _default("refine_mode")
     #: G's noise scale in pixels (REPROJECTION, LANDMARK).
-    pixel_sigma: float = 1.0
+    pixel_sigma: float = _default("pixel_sigma")
     #: W / Co: the largest xy distance (m) at which a point is associated with a segment.
-    association_gate: float = 0.5
+    association_gate: float = _default("association_gate")
     #: W / Co: at most this many Ceres runs, re-associating in between.
-    outer_iterations: int = 5
+    outer_iterations: int = _default("outer_iterations")
     #: W / Co: stop re-associating once at most this fraction of the points changed segment.
-    association_change_tolerance: float = 1e-3
-    max_iterations: int = 100
-    function_tolerance: float = 1e-6
-    gradient_tolerance: float = 1e-10
-    parameter_tolerance: float = 1e-8
-    max_time_s: float = 1e6
-    num_threads: int = 2
-    linear_solver: LinearSolver = LinearSolver.AUTO
+    association_change_tolerance: float = _default("association_change_tolerance")
+    max_iterations: int = _default("max_iterations")
+    function_tolerance: float = _default("function_tolerance")
+    gradient_tolerance: float = _default("gradient_tolerance")
+    parameter_tolerance: float = _default("parameter_tolerance")
+    max_time_s: float = _default("max_time_s")
+    num_threads: int = _default("num_threads")
+    linear_solver: LinearSolver = _default("linear_solver")
     #: Pose covariance (N, 6, 6) in the tangent space [dt, dtheta] via ceres::Covariance.
-    compute_covariance: bool = False
-    verbose: bool = False
+    compute_covariance: bool = _default("compute_covariance")
+    verbose: bool = _default("verbose")
+    #: Every term's options by key, in the registry's order: ``geometric``, ``depth``,
+    #: ``floor``, ``ceiling``, ``wall``, ``column``, ``prior`` (pose prior, ROBUST only),
+    #: ``odometry`` (ROBUST only).
+    terms: dict[str, TermOptions] = field(default_factory=_default_terms)
+
+    def __getattr__(self, name: str) -> TermOptions:
+        # Called only for names that are not fields: the terms, by key.
+        found = self.__dict__.get("terms", {}).get(name)
+        if found is None:
+            raise AttributeError(f"SolverOptions has no option or term {name!r}")
+        return found  # type: ignore[no-any-return]
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        # A misspelt or retired option (``prior_sigma_r_deg``) must not be set silently.
+        if name not in _FIELD_NAMES:
+            raise AttributeError(
+                f"SolverOptions has no option {name!r} (a term's options: options.<key>.<name>, "
+                "its own parameters: options.<key>.params[name])"
+            )
+        object.__setattr__(self, name, value)
 
     # ------------------------------------------------------------------ helpers
     @classmethod
@@ -163,132 +215,144 @@ class SolverOptions:
         """The peers' objective: PAPER weighting, plain L2, λ = G 1, F/Ce 0.02, W/Co 0.0007."""
         return cls(weighting=Weighting.PAPER, **kwargs)
 
-    def with_terms(self, terms: str) -> SolverOptions:
-        """A copy with exactly the listed terms on, e.g. ``"G+F+W"`` or ``"G,F,Ce,W,Co"``.
+    def copy(self) -> SolverOptions:
+        """A deep copy (the terms' options included)."""
+        return replace(self, terms={k: replace(v, params=dict(v.params))
+                                    for k, v in self.terms.items()})
 
-        ``depth`` follows G. The pose prior (``prior``) and the odometry are not paper terms and
-        keep their settings.
+    def with_terms(self, terms: str) -> SolverOptions:
+        """A copy with exactly the listed paper terms on, e.g. ``"G+F+W"`` or ``"G,F,Ce,W,Co"``.
+
+        ``depth`` follows G. Terms that are not the paper's (the pose prior, the odometry) keep
+        their settings.
         """
+        paper = [t for t in _registry() if t.paper_term]
         wanted = {t.strip() for t in terms.replace("+", ",").split(",") if t.strip()}
-        unknown = wanted - set(TERM_ATTRIBUTES)
+        unknown = wanted - {t.name for t in paper}
         if unknown:
             raise SolverInputError(
-                f"unknown term(s) {sorted(unknown)}; use {sorted(TERM_ATTRIBUTES)}", field="terms"
+                f"unknown term(s) {sorted(unknown)}; use {sorted(t.name for t in paper)}",
+                field="terms",
             )
-        out = replace(self)
-        for name, attr in TERM_ATTRIBUTES.items():
-            on = name in wanted or (name == "depth" and "G" in wanted)
-            setattr(out, attr, replace(getattr(self, attr), enabled=on))
+        out = self.copy()
+        for t in paper:
+            on = t.name in wanted or (t.name == "depth" and "G" in wanted)
+            out.terms[t.key].enabled = on
         return out
 
     def term(self, name: str) -> TermOptions:
-        """The options of term ``name`` (``"G"``, ``"F"`` ..., ``"prior"`` or ``"odometry"``)."""
-        if name == PRIOR_TERM:
-            return self.prior
-        if name == ODOMETRY_TERM:
-            return self.odometry
-        options: TermOptions = getattr(self, TERM_ATTRIBUTES[name])
-        return options
+        """A term's options by name (``"G"``, ``"F"``, ``"prior"`` ...) or key (``"floor"``)."""
+        return self.terms[term_info(name).key]
 
     # --------------------------------------------------------------- validation
     def check(self) -> None:
-        """Raise :class:`SolverInputError` naming the option if a value is out of range."""
-
-        def positive(name: str, v: float) -> None:
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise SolverInputError(f"must be a finite number > 0, got {v!r}", field=name)
-
-        def non_negative(name: str, v: float) -> None:
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
-                raise SolverInputError(f"must be a finite number >= 0, got {v!r}", field=name)
-
-        for attr in _TERM_OPTION_ATTRIBUTES:
-            t = getattr(self, attr)
-            non_negative(f"{attr}.paper_weight", t.paper_weight)
-            non_negative(f"{attr}.weight", t.weight)
-            positive(f"{attr}.sigma", t.sigma)
-            positive(f"{attr}.loss_scale", t.loss_scale)
-            if not isinstance(t.loss, Loss):
-                try:
-                    t.loss = Loss(t.loss)
-                except ValueError:
-                    raise SolverInputError(f"unknown loss {t.loss!r}", field=f"{attr}.loss") from None
-        if self.prior.paper_weight != 0:
-            raise SolverInputError(
-                "must be 0: the pose prior is not part of the paper's objective",
-                field="prior.paper_weight",
-            )
-        positive("prior_sigma_r_deg", self.prior_sigma_r_deg)
-        if self.odometry.paper_weight != 0:
-            raise SolverInputError(
-                "must be 0: the odometry is not part of the paper's objective",
-                field="odometry.paper_weight",
-            )
-        positive("odometry_sigma_r_deg", self.odometry_sigma_r_deg)
-        positive("pixel_sigma", self.pixel_sigma)
-        positive("association_gate", self.association_gate)
-        positive("max_time_s", self.max_time_s)
-        non_negative("association_change_tolerance", self.association_change_tolerance)
-        for name in ("function_tolerance", "gradient_tolerance", "parameter_tolerance"):
-            non_negative(name, getattr(self, name))
-        if int(self.outer_iterations) < 1:
-            raise SolverInputError("must be >= 1", field="outer_iterations")
-        if int(self.max_iterations) < 0:
-            raise SolverInputError("must be >= 0", field="max_iterations")
-        if int(self.num_threads) < 1:
-            raise SolverInputError("must be >= 1", field="num_threads")
+        """Raise :class:`SolverInputError` naming the option if a value is out of range: the C++
+        core's ``SolverOptions::Check``."""
+        _core_check(self._flat())
 
     # ------------------------------------------------------------ serialisation
-    def to_flat(self) -> dict[str, str]:
-        """The flat ``key → str`` form the C++ core and problem files use."""
-        self.check()
-        out: dict[str, str] = {}
-        for f in fields(self):
-            value = getattr(self, f.name)
-            if isinstance(value, TermOptions):
-                for tf in fields(value):
-                    out[f"{f.name}.{tf.name}"] = _to_text(getattr(value, tf.name))
-            else:
-                out[f.name] = _to_text(value)
+    def _flat(self) -> dict[str, str]:
+        out = {f.name: _to_text(getattr(self, f.name)) for f in fields(self) if f.name != "terms"}
+        for key, t in self.terms.items():
+            for name in _TERM_TYPES:
+                out[f"{key}.{name}"] = _to_text(getattr(t, name))
+            out.update({f"{key}.{p}": _to_text(float(v)) for p, v in t.params.items()})
         return out
+
+    def to_flat(self) -> dict[str, str]:
+        """The flat ``key → str`` form the C++ core and problem files use (checked)."""
+        return _core_check(self._flat())
 
     @classmethod
     def from_flat(cls, flat: dict[str, str]) -> SolverOptions:
-        """Inverse of :meth:`to_flat`; unknown keys and bad values raise SolverInputError."""
+        """Inverse of :meth:`to_flat`, through the C++ parser: unknown keys and bad values raise
+        SolverInputError naming the key; keys renamed since a file was written are still read."""
         out = cls()
-        for key, text in flat.items():
+        for key, text in _core_check(dict(flat)).items():
             head, _, sub = key.partition(".")
-            target: Any = out
-            name = head
-            if sub:
-                if head not in _TERM_OPTION_ATTRIBUTES:
-                    raise SolverInputError("unknown option", field=key)
-                target, name = getattr(out, head), sub
-            known = {f.name: f for f in fields(target)}
-            if name not in known or isinstance(getattr(target, name), TermOptions):
-                raise SolverInputError("unknown option", field=key)
-            current = getattr(target, name)
-            try:
-                setattr(target, name, _from_text(text, current))
-            except ValueError as exc:
-                raise SolverInputError(f"bad value {text!r}: {exc}", field=key) from None
-        out.check()
+            if not sub:
+                setattr(out, key, _parse(text, _GLOBAL_TYPES[key]))
+            elif sub in _TERM_TYPES:
+                setattr(out.terms[head], sub, _parse(text, _TERM_TYPES[sub]))
+            else:
+                out.terms[head].params[sub] = float(text)
         return out
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready nested dict (enums as their names)."""
-        out: dict[str, Any] = {}
-        for f in fields(self):
-            value = getattr(self, f.name)
-            if isinstance(value, TermOptions):
-                out[f.name] = {tf.name: _plain(getattr(value, tf.name)) for tf in fields(value)}
-            else:
-                out[f.name] = _plain(value)
+        """JSON-ready nested dict (enums as their names; each term under its key)."""
+        out = {f.name: _plain(getattr(self, f.name)) for f in fields(self) if f.name != "terms"}
+        for key, t in self.terms.items():
+            out[key] = {tf.name: _plain(getattr(t, tf.name)) for tf in fields(t)}
         return out
 
 
+_FIELD_NAMES = frozenset(f.name for f in fields(SolverOptions))
+
+
+def _registry() -> tuple[TermInfo, ...]:
+    return terms()
+
+
+def _core_check(flat: dict[str, str]) -> dict[str, str]:
+    """The C++ check and normalisation of flat options; an error names the key."""
+    from bimcap import _core
+
+    try:
+        return dict(_core.check_options(flat))
+    except ValueError as exc:
+        key = getattr(exc, "field", "") or None
+        message = str(exc)
+        if key and message.startswith(f"{key}: "):
+            message = message[len(key) + 2:]
+        raise SolverInputError(message, field=key) from None
+
+
+_GLOBAL_TYPES: dict[str, type] = {
+    "geometric_mode": GeometricMode,
+    "weighting": Weighting,
+    "plane_mode": PlaneMode,
+    "refine_mode": RefineMode,
+    "pixel_sigma": float,
+    "association_gate": float,
+    "outer_iterations": int,
+    "association_change_tolerance": float,
+    "max_iterations": int,
+    "function_tolerance": float,
+    "gradient_tolerance": float,
+    "parameter_tolerance": float,
+    "max_time_s": float,
+    "num_threads": int,
+    "linear_solver": LinearSolver,
+    "compute_covariance": bool,
+    "verbose": bool,
+}
+_TERM_TYPES: dict[str, type] = {
+    "enabled": bool,
+    "paper_weight": float,
+    "weight": float,
+    "sigma": float,
+    "loss": Loss,
+    "loss_scale": float,
+}
+
+
+def _parse(text: str, kind: type) -> Any:
+    """A value of the flat form as its Python type."""
+    if kind is bool:
+        return text in ("1", "true", "True")
+    if kind is int:
+        return int(text)
+    if kind is float:
+        return float(text)
+    return kind(text)  # an Enum
+
+
 def _plain(value: Any) -> Any:
-    return value.value if isinstance(value, Enum) else value
+    if isinstance(value, Enum):
+        return value.value
+    if isinstance(value, dict):
+        return dict(value)
+    return value
 
 
 def _to_text(value: Any) -> str:
@@ -299,17 +363,3 @@ def _to_text(value: Any) -> str:
     if isinstance(value, float):
         return repr(value)
     return str(value)
-
-
-def _from_text(text: str, current: Any) -> Any:
-    if isinstance(current, Enum):
-        return type(current)(text)
-    if isinstance(current, bool):
-        if text in ("1", "true", "True"):
-            return True
-        if text in ("0", "false", "False"):
-            return False
-        raise ValueError("expected 0 or 1")
-    if isinstance(current, int):
-        return int(text)
-    return float(text)

@@ -25,7 +25,8 @@ class SolveResult:
     planes: (Q, 4) the BIM planes as given; in FACaP plane mode (2, 4) the fitted floor and
         ceiling planes (a NaN row where a term had no points).
     track_points: (P, 3) refined landmarks (LANDMARK mode; else the input).
-    wall_segment, column_segment: (W,), (W',) int32 final association (-1 = none).
+    segment_of: per segment term (its key: ``"wall"``, ``"column"``), each point's final
+        segment, int32 (-1 = none); :attr:`wall_segment` and :attr:`column_segment` read it.
     covariance: (N, 6, 6) pose covariance in the tangent space [dt (m), dtheta (rad)], zero for
         fixed poses; None unless requested and computable.
     """
@@ -34,9 +35,18 @@ class SolveResult:
     summary: SolveSummary
     planes: NDArray[np.float64]
     track_points: NDArray[np.float64]
-    wall_segment: NDArray[np.int32]
-    column_segment: NDArray[np.int32]
+    segment_of: dict[str, NDArray[np.int32]]
     covariance: NDArray[np.float64] | None = None
+
+    @property
+    def wall_segment(self) -> NDArray[np.int32]:
+        """(W,) the wall points' final segments (-1 = none)."""
+        return self.segment_of.get("wall", np.zeros(0, np.int32))
+
+    @property
+    def column_segment(self) -> NDArray[np.int32]:
+        """(W',) the column points' final segments (-1 = none)."""
+        return self.segment_of.get("column", np.zeros(0, np.int32))
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready: the summary and the poses as lists."""
@@ -46,7 +56,7 @@ class SolveResult:
 def core() -> Any:
     """The compiled module ``bimcap._core``; raises SolverUnavailableError if it is not built."""
     try:
-        from bimcap import _core  # noqa: PLC0415  (compiled, optional at import time)
+        from bimcap import _core
     except ImportError as exc:
         raise SolverUnavailableError(
             f"bimcap._core is not available ({exc}); install bimcap with pip (it builds the C++ "
@@ -77,8 +87,11 @@ def solve(problem: Problem, options: SolverOptions | None = None, *, check: bool
     try:
         out = _core.solve(problem.arrays(), flat)
     except _core.InputError as exc:
-        field, _, message = str(exc).partition(": ")
-        raise SolverInputError(message or str(exc), field=field if message else None) from None
+        field = getattr(exc, "field", "") or None
+        message = str(exc)
+        if field and message.startswith(f"{field}: "):
+            message = message[len(field) + 2:]
+        raise SolverInputError(message, field=field) from None
     summary = SolveSummary.from_dict(out["summary"])
     if check and not summary.success:
         raise SolverError(f"solve failed: {summary.termination}: {summary.message}")
@@ -87,7 +100,7 @@ def solve(problem: Problem, options: SolverOptions | None = None, *, check: bool
         summary=summary,
         planes=out["planes"],
         track_points=out["track_points"],
-        wall_segment=out["wall_segment"].astype(np.int32),
-        column_segment=out["column_segment"].astype(np.int32),
+        segment_of={k.removesuffix("_segment"): v.astype(np.int32)
+                    for k, v in out.items() if k.endswith("_segment")},
         covariance=out["covariance"],
     )

@@ -537,20 +537,17 @@ def schedule_for(config: RefineConfig) -> Any:
 def stage_options(base: Any, stage: Any, config: RefineConfig) -> Any | None:
     """Solver options of one schedule stage: the config's terms that the stage allows, its pose
     block, its loss-scale factor and iteration cap; None when no configured term is allowed."""
-    from dataclasses import replace
+    from bimcap.optimize.options import RefineMode, terms
 
-    from bimcap.optimize.options import TERM_ATTRIBUTES, RefineMode
-    from bimcap.registration import PoseBlock, Term
-
-    terms = [t for t in config.effective_terms.split("+") if Term(t) in stage.terms]
-    if not terms:
+    names = [t for t in config.effective_terms.split("+") if t in stage.terms]
+    if not names:
         return None
-    opts = base.with_terms("+".join(terms))  # a copy
-    opts.refine_mode = {PoseBlock.FULL: base.refine_mode, PoseBlock.ROTATION: RefineMode.ROTATION,
-                        PoseBlock.TRANSLATION: RefineMode.TRANSLATION}[stage.pose_block]
-    for attr in TERM_ATTRIBUTES.values():
-        term = getattr(opts, attr)
-        setattr(opts, attr, replace(term, loss_scale=term.loss_scale * stage.loss_scale_factor))
+    opts = base.with_terms("+".join(names))  # a copy
+    if stage.pose_block is not RefineMode.FULL:
+        opts.refine_mode = stage.pose_block
+    for t in terms():
+        if t.paper_term:
+            opts.terms[t.key].loss_scale *= stage.loss_scale_factor
     if stage.max_iterations is not None:
         opts.max_iterations = stage.max_iterations
     opts.check()
@@ -662,7 +659,7 @@ def _repair(problem: Any, opts: Any, result: Any, quiet: bool) -> tuple[dict[str
         return rep.to_dict(), None
     log(f"{len(rep.repaired)} frame(s) disagreed with their neighbours' matches (median "
         f"reprojection error > 10 px) and were re-placed from them: {rep.repaired}", quiet)
-    redo = solve(replace(problem, poses=rep.poses), opts, check=False)
+    redo = solve(problem.replace(poses=rep.poses), opts, check=False)
     if not redo.summary.success:
         raise PipelineError(f"the solve after the repair failed: {redo.summary.termination}: "
                             f"{redo.summary.message}")

@@ -19,11 +19,9 @@ from bimcap.registration.coarse import (
 from bimcap.registration.errors import RegistrationError, RegistrationInputError
 from bimcap.registration.schedule import (
     BIM_TERMS,
-    PoseBlock,
     Schedule,
     ScheduleStage,
     StageKind,
-    Term,
 )
 
 __all__ = [
@@ -31,14 +29,12 @@ __all__ = [
     "CoarseOptions",
     "CoarseResult",
     "FloorPlan",
-    "PoseBlock",
     "RegistrationError",
     "RegistrationInputError",
     "Schedule",
     "ScheduleStage",
     "SemanticSamples",
     "StageKind",
-    "Term",
     "WindowResult",
     "coarse_register",
 ]

@@ -5,7 +5,8 @@ Issue 7 asks for: coarse → BIM terms only with large robust-loss scales → al
 option (motivated by the paper's Exp 3, where optimising rotation and translation together
 invented 7 cm of translation) to refine rotation first and translation after. A
 :class:`Schedule` is an ordered tuple of :class:`ScheduleStage`; each says which pose
-parameters are free (:class:`PoseBlock`), which cost terms are on (:class:`Term`), how much to
+parameters are free (the solver's :class:`~bimcap.optimize.RefineMode`), which cost terms are on
+(term names of the solver's registry, ``bimcap.optimize.options.terms()``), how much to
 widen the robust losses' scales, and an iteration cap. The pipeline runs the stages in order,
 feeding each one's poses to the next; a stage of kind :attr:`StageKind.COARSE` means
 :func:`bimcap.registration.coarse_register`.
@@ -17,6 +18,8 @@ from dataclasses import dataclass
 from enum import Enum
 from typing import Any
 
+from bimcap.optimize.options import RefineMode
+from bimcap.optimize.options import terms as registry_terms
 from bimcap.registration.errors import RegistrationInputError
 
 
@@ -28,26 +31,10 @@ class StageKind(str, Enum):
     ALL_TERMS = "all_terms"  #: the solver with every term (G as well)
 
 
-class PoseBlock(str, Enum):
-    """Which pose parameters the solver may move (maps onto the solver's RefineMode)."""
-
-    FULL = "full"                #: rotation and translation
-    ROTATION = "rotation"        #: rotation only, translation held
-    TRANSLATION = "translation"  #: translation only, rotation held
-
-
-class Term(str, Enum):
-    """Cost terms of the bundle adjustment (docs/architecture.md, solver problem)."""
-
-    G = "G"    #: point consistency / reprojection between frames
-    F = "F"    #: floor points on BIM floor planes
-    CE = "Ce"  #: ceiling points on BIM ceiling planes
-    W = "W"    #: wall points on BIM wall segments
-    CO = "Co"  #: column points on BIM column segments
-
-
-BIM_TERMS: frozenset[Term] = frozenset({Term.F, Term.CE, Term.W, Term.CO})
-ALL_TERMS: frozenset[Term] = frozenset(Term)
+#: The terms that tie poses to the BIM (the registry's ``bim_term``: F, Ce, W, Co).
+BIM_TERMS: frozenset[str] = frozenset(t.name for t in registry_terms() if t.bim_term)
+#: Every paper term (G, its landmark depth prior, F, Ce, W, Co).
+ALL_TERMS: frozenset[str] = frozenset(t.name for t in registry_terms() if t.paper_term)
 
 
 @dataclass(frozen=True)
@@ -59,7 +46,7 @@ class ScheduleStage:
     name: a label for logs and reports.
     kind: what runs.
     pose_block: free pose parameters (ignored for COARSE).
-    terms: the cost terms switched on (empty for COARSE).
+    terms: the names of the cost terms switched on (empty for COARSE).
     loss_scale_factor: multiplies every robust loss scale of the solver's robust mode (> 1
         widens the basin while far from the optimum; 1 = the configured scales).
     max_iterations: solver iteration cap for this stage (None = the solver's default).
@@ -67,8 +54,8 @@ class ScheduleStage:
 
     name: str
     kind: StageKind
-    pose_block: PoseBlock = PoseBlock.FULL
-    terms: frozenset[Term] = ALL_TERMS
+    pose_block: RefineMode = RefineMode.FULL
+    terms: frozenset[str] = ALL_TERMS
     loss_scale_factor: float = 1.0
     max_iterations: int | None = None
 
@@ -77,6 +64,10 @@ class ScheduleStage:
             raise RegistrationInputError("must be > 0", None, f"{self.name}.loss_scale_factor")
         if self.max_iterations is not None and self.max_iterations < 1:
             raise RegistrationInputError("must be >= 1", None, f"{self.name}.max_iterations")
+        unknown = self.terms - ALL_TERMS
+        if unknown:
+            raise RegistrationInputError(f"unknown term(s) {sorted(unknown)}", None,
+                                         f"{self.name}.terms")
         if self.kind is not StageKind.COARSE and not self.terms:
             raise RegistrationInputError("a solver stage needs at least one term", None,
                                          f"{self.name}.terms")
@@ -85,16 +76,17 @@ class ScheduleStage:
                                          f"{self.name}.terms")
 
     def to_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "kind": self.kind.value, "pose_block": self.pose_block.value,
-                "terms": sorted(t.value for t in self.terms),
+        return {"name": self.name, "kind": self.kind.value,
+                "pose_block": self.pose_block.value.lower(), "terms": sorted(self.terms),
                 "loss_scale_factor": self.loss_scale_factor,
                 "max_iterations": self.max_iterations}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> ScheduleStage:
         try:
-            return cls(str(d["name"]), StageKind(d["kind"]), PoseBlock(d.get("pose_block", "full")),
-                       frozenset(Term(t) for t in d.get("terms", [t.value for t in Term])),
+            return cls(str(d["name"]), StageKind(d["kind"]),
+                       RefineMode(str(d.get("pose_block", "full")).upper()),
+                       frozenset(str(t) for t in d.get("terms", sorted(ALL_TERMS))),
                        float(d.get("loss_scale_factor", 1.0)), d.get("max_iterations"))
         except (KeyError, ValueError) as exc:
             raise RegistrationInputError(f"bad schedule stage: {exc}", None, "schedule") from exc
@@ -135,9 +127,9 @@ class Schedule:
         solver.append(("all", StageKind.ALL_TERMS, ALL_TERMS, 1.0))
         for k, (name, kind, terms, scale) in enumerate(solver):
             if rotation_first and k == 0:
-                for b in (PoseBlock.ROTATION, PoseBlock.TRANSLATION):
-                    stages.append(ScheduleStage(f"{name}_{b.value}", kind, b, terms, scale))
-            stages.append(ScheduleStage(name, kind, PoseBlock.FULL, terms, scale))
+                for b in (RefineMode.ROTATION, RefineMode.TRANSLATION):
+                    stages.append(ScheduleStage(f"{name}_{b.value.lower()}", kind, b, terms, scale))
+            stages.append(ScheduleStage(name, kind, RefineMode.FULL, terms, scale))
         return cls(tuple(stages))
 
     @classmethod
