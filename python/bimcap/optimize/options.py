@@ -84,7 +84,9 @@ class TermInfo:
 @cache
 def terms() -> tuple[TermInfo, ...]:
     """The term registry of the C++ core, in summary order."""
-    from bimcap import _core
+    from bimcap.optimize.core import core
+
+    _core = core()
 
     return tuple(
         TermInfo(t["name"], t["key"], t["what"], t["doc"], bool(t["paper_term"]),
@@ -104,7 +106,9 @@ def term_info(name_or_key: str) -> TermInfo:
 
 @cache
 def _defaults() -> dict[str, str]:
-    from bimcap import _core
+    from bimcap.optimize.core import core
+
+    _core = core()
 
     return dict(_core.default_options())
 
@@ -295,7 +299,9 @@ def _registry() -> tuple[TermInfo, ...]:
 
 def _core_check(flat: dict[str, str]) -> dict[str, str]:
     """The C++ check and normalisation of flat options; an error names the key."""
-    from bimcap import _core
+    from bimcap.optimize.core import core
+
+    _core = core()
 
     try:
         return dict(_core.check_options(flat))

@@ -40,7 +40,9 @@ class FieldInfo:
 @cache
 def problem_fields() -> dict[str, FieldInfo]:
     """Every problem array by name, in the core's order."""
-    from bimcap import _core
+    from bimcap.optimize.core import core
+
+    _core = core()
 
     return {
         name: FieldInfo(name, np.float64 if dtype == "float64" else np.int32, int(cols),
@@ -160,7 +162,9 @@ def validate_arrays(
 ) -> None:
     """The C++ core's ``ValidateProblem``: the first problem raises ``error(message, path,
     field)``. ``arrays`` must have the field table's dtypes and column counts."""
-    from bimcap import _core
+    from bimcap.optimize.core import core
+
+    _core = core()
 
     try:
         _core.validate_problem(dict(arrays))

@@ -48,7 +48,9 @@ def _core_call(call: Callable[[], _T], path: str | PathLike[str] | None) -> _T:
 
 def problem_to_bytes(problem: Problem, options: SolverOptions | None = None) -> bytes:
     """The file's bytes for ``problem`` and ``options`` (defaults when None)."""
-    from bimcap import _core
+    from bimcap.optimize.core import core
+
+    _core = core()
 
     flat = (options if options is not None else SolverOptions()).to_flat()
     data: bytes = _core_call(lambda: _core.serialize_problem(problem.arrays(), flat), None)
@@ -69,7 +71,9 @@ def read_problem(path: str | PathLike[str]) -> tuple[Problem, SolverOptions]:
     ------
     ProblemFileError: naming the file and field, for every malformed input.
     """
-    from bimcap import _core
+    from bimcap.optimize.core import core
+
+    _core = core()
 
     p = Path(path)
     if p.is_dir():
@@ -86,7 +90,9 @@ def parse_problem_buffer(
     buf: bytes, path: str | PathLike[str] | None = None
 ) -> tuple[dict[str, NDArray[Any]], SolverOptions]:
     """Parse a problem file's bytes with the C++ reader into arrays and options."""
-    from bimcap import _core
+    from bimcap.optimize.core import core
+
+    _core = core()
 
     arrays, flat = _core_call(lambda: _core.parse_problem_bytes(bytes(buf)), path)
     return dict(arrays), SolverOptions.from_flat(flat)

@@ -8,7 +8,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from bimcap.optimize.errors import SolverError, SolverInputError, SolverUnavailableError
+from bimcap.optimize.core import core
+from bimcap.optimize.errors import SolverError, SolverInputError
 from bimcap.optimize.options import SolverOptions
 from bimcap.optimize.problem import Problem
 from bimcap.optimize.summary import SolveSummary
@@ -51,18 +52,6 @@ class SolveResult:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready: the summary and the poses as lists."""
         return {"summary": self.summary.to_dict(), "poses": self.poses.tolist()}
-
-
-def core() -> Any:
-    """The compiled module ``bimcap._core``; raises SolverUnavailableError if it is not built."""
-    try:
-        from bimcap import _core
-    except ImportError as exc:
-        raise SolverUnavailableError(
-            f"bimcap._core is not available ({exc}); install bimcap with pip (it builds the C++ "
-            "core) or run the developer build (cmake -DBIMCAP_PYTHON=ON)"
-        ) from None
-    return _core
 
 
 def solve(problem: Problem, options: SolverOptions | None = None, *, check: bool = True) -> SolveResult:

@@ -822,8 +822,8 @@ def validate_run(
     from bimcap.dataset import read_sequence
     from bimcap.io.outputs import OutputSet
 
-    base = validate_settings(config)
     seq = read_sequence(sequence) if isinstance(sequence, (str, PathLike)) else sequence
+    base = validate_settings(config)
     ifc_path = Path(ifc) if ifc is not None else seq.ifc_path
     if ifc_path is None:
         raise InputError("no --ifc given and the sequence manifest names none",
