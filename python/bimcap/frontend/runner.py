@@ -219,7 +219,8 @@ class GroundTruthDepthProvider:
         loaded = ctx.sequence.load_depth(ctx.index)
         if loaded is None:
             raise FrontendInputError(
-                f"frame {ctx.index} has no ground-truth depth file", None, f"frames[{ctx.index}].depth"
+                f"frame {ctx.index} has no ground-truth depth file", None,
+                f"frames[{ctx.index}].depth",
             )
         raw = np.asarray(loaded, dtype=np.float32)
         _check_map(raw, ctx.camera, ctx.index, "depth")
@@ -241,7 +242,8 @@ class GroundTruthLabelProvider:
         return ctx.undistorter.nearest(raw.astype(np.uint8))
 
 
-def _check_map(arr: NDArray[Any], camera: Camera, index: int, what: str, path: object = None) -> None:
+def _check_map(arr: NDArray[Any], camera: Camera, index: int, what: str,
+               path: object = None) -> None:
     if arr.shape[:2] != (camera.height, camera.width) or arr.ndim != 2:
         raise FrontendInputError(
             f"frame {index}: {what} has shape {arr.shape}, the camera is "
@@ -470,10 +472,10 @@ class FrontendResult:
         return {
             "camera": self.camera.to_dict(),
             "num_frames": self.num_frames,
-            "num_matches": int(len(self.match_frames)),
-            "num_track_points": int(len(self.track_points)),
-            "num_track_observations": int(len(self.track_obs_frame)),
-            **{f"num_{p}": int(len(getattr(self, f"{p}_frame"))) for p in SEMANTIC_CLASSES.values()},
+            "num_matches": len(self.match_frames),
+            "num_track_points": len(self.track_points),
+            "num_track_observations": len(self.track_obs_frame),
+            **{f"num_{p}": len(getattr(self, f"{p}_frame")) for p in SEMANTIC_CLASSES.values()},
             "run": asdict(self.run),
             "frame_stats": [asdict(s) for s in self.frame_stats],
             "pair_stats": [asdict(s) for s in self.pair_stats],
@@ -568,7 +570,8 @@ def map_paths(maps_dir: str | PathLike[str], index: int) -> tuple[Path, Path]:
     return root / "depth" / f"{index:06d}.npy", root / "labels" / f"{index:06d}.png"
 
 
-def _write_maps(maps_dir: Path, index: int, depth: NDArray[np.float32], labels: NDArray[Any]) -> None:
+def _write_maps(maps_dir: Path, index: int, depth: NDArray[np.float32],
+                labels: NDArray[Any]) -> None:
     import io
 
     import cv2
@@ -650,7 +653,8 @@ def compute_frame(job: _FrameJob, *, shared: _RunShared | None = None
     t1 = time.perf_counter()
     if job.features is None:
         f = extract_sift(image, cfg.sift)
-        feats = {"uv": f.uv, "scale": f.scale, "orientation": f.orientation, "descriptors": f.descriptors}
+        feats = {"uv": f.uv, "scale": f.scale, "orientation": f.orientation,
+                 "descriptors": f.descriptors}
         sift_time = time.perf_counter() - t1
     else:
         feats = {k: job.features[k] for k in FEATURE_ARRAYS}
@@ -1087,9 +1091,9 @@ def _frame_stats(frames: list[dict[str, NDArray[Any]]], cached: list[bool]) -> l
     return [
         FrameStats(
             index=i,
-            num_keypoints=int(len(d["uv"])),
+            num_keypoints=len(d["uv"]),
             num_keypoints_with_depth=int((d["depth"] > 0).sum()),
-            **{f"num_{p}": int(len(d[f"{p}_p_in_cam"])) for p in SEMANTIC_CLASSES.values()},
+            **{f"num_{p}": len(d[f"{p}_p_in_cam"]) for p in SEMANTIC_CLASSES.values()},
             time_s=float(d["time_s"]),
             sift_time_s=float(d["sift_time_s"]),
             cached=cached[i],
@@ -1122,7 +1126,8 @@ def _assemble(
         keep = consistent_track_observations(
             t_frame, t_point, t_uv, t_depth, pinhole, init, cfg.filters.max_initial_distance_m
         )
-        keep &= np.bincount(t_point[keep], minlength=tracks.num_points)[t_point] >= cfg.min_track_length
+        keep &= (np.bincount(t_point[keep], minlength=tracks.num_points)[t_point]
+                 >= cfg.min_track_length)
         _, t_point = np.unique(t_point[keep], return_inverse=True)
         t_point = t_point.astype(np.int32).reshape(-1)
         t_frame, t_uv, t_depth = t_frame[keep], t_uv[keep], t_depth[keep]

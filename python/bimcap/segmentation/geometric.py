@@ -101,7 +101,8 @@ class _Plane:
     offset: float  # n·p + offset = 0
 
 
-def _points_and_normals(depth: NDArray[np.float32], cam: Camera, opts: GeometricOptions) -> tuple[F64, B, F64, B]:
+def _points_and_normals(depth: NDArray[np.float32], cam: Camera, opts: GeometricOptions
+                        ) -> tuple[F64, B, F64, B]:
     import cv2
 
     h, w = depth.shape
@@ -123,7 +124,8 @@ def _points_and_normals(depth: NDArray[np.float32], cam: Camera, opts: Geometric
     jump = 0.05 * zc + 0.05  # metres: neighbours farther apart in depth are across an edge
     ok[s:-s, s:-s] = (
         valid[s:-s, s:-s]
-        & (z[s:-s, 2 * s :] > 0) & (z[s:-s, : -2 * s] > 0) & (z[2 * s :, s:-s] > 0) & (z[: -2 * s, s:-s] > 0)
+        & (z[s:-s, 2 * s :] > 0) & (z[s:-s, : -2 * s] > 0)
+        & (z[2 * s :, s:-s] > 0) & (z[: -2 * s, s:-s] > 0)
         & (np.abs(z[s:-s, 2 * s :] - z[s:-s, : -2 * s]) < 2 * jump)
         & (np.abs(z[2 * s :, s:-s] - z[: -2 * s, s:-s]) < 2 * jump)
     )
@@ -145,7 +147,8 @@ def _threshold(z: F64, opts: GeometricOptions) -> F64:
     return opts.plane_threshold_m + opts.plane_threshold_rel * z
 
 
-def _ransac_horizontal(pts: F64, up: F64, cos_max: float, opts: GeometricOptions, rng: np.random.Generator) -> _Plane | None:
+def _ransac_horizontal(pts: F64, up: F64, cos_max: float, opts: GeometricOptions,
+                       rng: np.random.Generator) -> _Plane | None:
     """Plane through points (N, 3) whose normal is within acos(cos_max) of ±up."""
     n = len(pts)
     if n < 3:
@@ -176,7 +179,8 @@ def _ransac_horizontal(pts: F64, up: F64, cos_max: float, opts: GeometricOptions
     return _Plane(normal, float(-normal @ centroid))
 
 
-def _ransac_vertical(pts: F64, nrm: F64, up: F64, opts: GeometricOptions, rng: np.random.Generator) -> _Plane | None:
+def _ransac_vertical(pts: F64, nrm: F64, up: F64, opts: GeometricOptions,
+                     rng: np.random.Generator) -> _Plane | None:
     """Vertical plane (normal ⟂ up) from points (N, 3) with normals (N, 3): 1-point hypotheses."""
     n = len(pts)
     if n < 3:
@@ -488,7 +492,7 @@ def _walls_and_columns(scene: _WorkScene, state: _Labelling, up_ref: F64, top_ne
     the vertical-normal pixels (h, w) that no plane took."""
     sin_v = np.sin(np.deg2rad(opts.vertical_angle_deg))
     vert = scene.nok & ~state.assigned & (np.abs(scene.nrm @ up_ref) < sin_v)
-    remaining = vert.copy()
+    remaining: B = vert.copy()
     for _ in range(opts.max_vertical_planes):
         if remaining.sum() < scene.min_plane:
             break
@@ -649,11 +653,14 @@ def _upsample_labels(
 
 @dataclass(frozen=True)
 class GeometricSegmenter:
-    """Provider wrapper of :func:`segment_geometric` (needs ``frame.depth`` and ``frame.world_from_cam``)."""
+    """Provider wrapper of :func:`segment_geometric` (needs ``frame.depth`` and
+    ``frame.world_from_cam``)."""
 
     options: GeometricOptions = GeometricOptions()
 
     def segment(self, frame: FrameInput) -> U8:
         if frame.depth is None or frame.world_from_cam is None:
-            raise SegmentationInputError("the geometric segmenter needs dense depth and the initial pose", field="depth")
+            raise SegmentationInputError(
+                "the geometric segmenter needs dense depth and the initial pose", field="depth"
+            )
         return segment_geometric(frame.depth, frame.camera, frame.world_from_cam, self.options)

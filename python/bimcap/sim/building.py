@@ -69,10 +69,10 @@ if TYPE_CHECKING:
     import ifcopenshell
 
 __all__ = [
+    "PRESETS",
     "BuildingSpec",
     "BuildingSpecError",
     "GeneratedBuilding",
-    "PRESETS",
     "as_built",
     "expected_counts",
     "generate_building",
@@ -466,7 +466,7 @@ def _storey_content(spec: BuildingSpec, plan: _Plan, k: int, pos: dict[str, floa
         if o.ground_floor_only and k != 0:
             continue
         oid = f"{name}/{o.key}"
-        host_s, host_e, _ = lines[o.host]
+        host_s, _, _ = lines[o.host]
         if _is_x_wall(o.host):
             center = (o.axis_pos, host_s[1])
             direction = (1.0, 0.0)
@@ -949,7 +949,7 @@ def as_built(design: BuildingSpec | GeneratedBuilding, seed: int, shift_sigma_m:
         removable += [f"S{k}/wall/{key}" for key in sorted(pos) if key.startswith("part-")]
         removable += [f"S{k}/{o.key}" for o in plan.openings
                       if not (o.ground_floor_only and k != 0)]
-    n_missing = int(round(missing_fraction * len(removable)))
+    n_missing = int(round(missing_fraction * len(removable)))  # noqa: RUF046 (numpy < 2)
     missing = sorted(str(x) for x in rng.choice(removable, size=n_missing, replace=False))
     # Elements that are missing have no shift/offset to speak of.
     wall_shifts = {k: v for k, v in wall_shifts.items() if k not in missing}

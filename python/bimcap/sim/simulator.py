@@ -40,12 +40,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from bimcap.dataset import MANIFEST, FrameInfo, LidarInfo, SequenceWriter, write_frame
+from bimcap.dataset import Sequence as SequenceDir
 from bimcap.dataset.conslam import (
     CONSLAM_CAM_FROM_LIDAR,
     CONSLAM_CAM_FROM_LIDAR_MATRIX,
     CONSLAM_CAMERA,
 )
-from bimcap.dataset import Sequence as SequenceDir
 from bimcap.geometry.camera import Camera
 from bimcap.geometry.poses import compose
 from bimcap.geometry.trajectory import Trajectory
@@ -144,10 +144,10 @@ class SimulatorConfig:
     @classmethod
     def small(cls, **overrides: Any) -> SimulatorConfig:
         """A fast configuration for tests: 320×239 ConSLAM-like camera, 6 frames, 1 process."""
-        base: dict[str, Any] = dict(
-            camera=CONSLAM_CAMERA.scaled(320 / 2064), frames=6, fps=3.0, workers=1,
-            threads_per_worker=0,
-        )
+        base: dict[str, Any] = {
+            "camera": CONSLAM_CAMERA.scaled(320 / 2064), "frames": 6, "fps": 3.0, "workers": 1,
+            "threads_per_worker": 0,
+        }
         base.update(overrides)
         return cls(**base)
 
@@ -246,7 +246,7 @@ def corridor_building(
             add(Label.WALL, (xc - door_width_m / 2, y_lo, door_height_m),
                 (xc + door_width_m / 2, y_hi, hz))
         xs.append(x1)
-        for a, b in zip(xs[0::2], xs[1::2]):
+        for a, b in zip(xs[0::2], xs[1::2], strict=False):
             add(Label.WALL, (a, y_lo, 0.0), (b, y_hi, hz))
         # outer wall
         y_lo, y_hi = sorted((side * (y_out - t / 2), side * (y_out + t / 2)))
@@ -260,7 +260,7 @@ def corridor_building(
             # a column in the room corner by the outer wall, a window panel on the outer wall
             cx = i * rw + t / 2
             cy_lo = yr_lo if side > 0 else yr_hi - 0.35
-            add(Label.COLUMN, (cx, cy_lo if side > 0 else cy_lo, 0.0),
+            add(Label.COLUMN, (cx, cy_lo, 0.0),
                 (cx + 0.35, (cy_lo + 0.35), hz))
             xc = (i + 0.5) * rw
             face = side * (y_out - t / 2)
@@ -341,7 +341,8 @@ def missing_floor_parts(model: Any, thickness_m: float = 0.1, close_m: float = 0
         if near:
             geom = geom.difference(union_xy(np.concatenate([e.vertices[e.faces] for e in near])))
             geom = geom.buffer(-0.25, join_style="mitre").buffer(0.25, join_style="mitre")
-        geom = shapely.union_all([g for g in getattr(geom, "geoms", [geom]) if g.area >= min_area_m2])
+        geom = shapely.union_all([g for g in getattr(geom, "geoms", [geom])
+                                  if g.area >= min_area_m2])
         if geom.is_empty:
             continue
         tris = shapely.constrained_delaunay_triangles(geom)
@@ -387,7 +388,8 @@ def sidecar_free_space(ifc: str | PathLike[str], storey: int = 0
 
 # ------------------------------------------------------------------------------- frame writing
 def _finish_sequence(out: Path, cfg: SimulatorConfig, frames: list[FrameInfo],
-                     world_from_cam: F64, ifc_ref: str | None, source: dict[str, Any]) -> SequenceDir:
+                     world_from_cam: F64, ifc_ref: str | None,
+                     source: dict[str, Any]) -> SequenceDir:
     """Register the frames (written by the render workers with :func:`bimcap.dataset.write_frame`)
     with a :class:`bimcap.dataset.SequenceWriter`, which writes ``poses/gt.tum`` and the manifest
     last, and returns the sequence read back."""

@@ -234,7 +234,7 @@ class FreeSpace:
             # fixed-point polygon fill (4 fractional bits) so edges land on cell centres exactly
             cv2.fillPoly(region, [np.rint(px * 16).astype(np.int32)], 1, shift=4)
         if doors_xy is not None and len(doors_xy):
-            r = max(1, int(round(door_radius_m / resolution)))
+            r = max(1, int(round(door_radius_m / resolution)))  # noqa: RUF046 (numpy < 2)
             for d in np.asarray(doors_xy, np.float64).reshape(-1, 2):
                 c = np.rint((d - lo) / resolution).astype(int)
                 cv2.circle(region, (int(c[0]), int(c[1])), r, 1, -1)
