@@ -37,6 +37,7 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import asdict, dataclass, field
+from functools import partial
 from os import PathLike
 from pathlib import Path
 from typing import Any, Protocol, TypeVar, runtime_checkable
@@ -218,7 +219,8 @@ class GroundTruthDepthProvider:
         loaded = ctx.sequence.load_depth(ctx.index)
         if loaded is None:
             raise FrontendInputError(
-                f"frame {ctx.index} has no ground-truth depth file", None, f"frames[{ctx.index}].depth"
+                f"frame {ctx.index} has no ground-truth depth file", None,
+                f"frames[{ctx.index}].depth",
             )
         raw = np.asarray(loaded, dtype=np.float32)
         _check_map(raw, ctx.camera, ctx.index, "depth")
@@ -240,7 +242,8 @@ class GroundTruthLabelProvider:
         return ctx.undistorter.nearest(raw.astype(np.uint8))
 
 
-def _check_map(arr: NDArray[Any], camera: Camera, index: int, what: str, path: object = None) -> None:
+def _check_map(arr: NDArray[Any], camera: Camera, index: int, what: str,
+               path: object = None) -> None:
     if arr.shape[:2] != (camera.height, camera.width) or arr.ndim != 2:
         raise FrontendInputError(
             f"frame {index}: {what} has shape {arr.shape}, the camera is "
@@ -469,10 +472,10 @@ class FrontendResult:
         return {
             "camera": self.camera.to_dict(),
             "num_frames": self.num_frames,
-            "num_matches": int(len(self.match_frames)),
-            "num_track_points": int(len(self.track_points)),
-            "num_track_observations": int(len(self.track_obs_frame)),
-            **{f"num_{p}": int(len(getattr(self, f"{p}_frame"))) for p in SEMANTIC_CLASSES.values()},
+            "num_matches": len(self.match_frames),
+            "num_track_points": len(self.track_points),
+            "num_track_observations": len(self.track_obs_frame),
+            **{f"num_{p}": len(getattr(self, f"{p}_frame")) for p in SEMANTIC_CLASSES.values()},
             "run": asdict(self.run),
             "frame_stats": [asdict(s) for s in self.frame_stats],
             "pair_stats": [asdict(s) for s in self.pair_stats],
@@ -536,13 +539,21 @@ class _RunShared:
     depth_refiner: Any
 
 
-#: The run's shared state inside a worker process (set by :func:`_init_worker`).
-_SHARED: _RunShared | None = None
+@dataclass
+class _WorkerSlot:
+    """The run's shared state inside one worker process."""
+
+    shared: _RunShared | None = None
+
+
+#: Inside a worker process only: set once by the pool initializer (:func:`_init_worker`), so
+#: that the sequence and providers travel once per worker, not once per job. ``run_frontend``
+#: hands the shared state to the jobs it runs in its own process explicitly and never sets it.
+_WORKER = _WorkerSlot()
 
 
 def _init_worker(shared: _RunShared) -> None:
-    global _SHARED
-    _SHARED = shared
+    _WORKER.shared = shared
 
 
 @dataclass
@@ -559,7 +570,8 @@ def map_paths(maps_dir: str | PathLike[str], index: int) -> tuple[Path, Path]:
     return root / "depth" / f"{index:06d}.npy", root / "labels" / f"{index:06d}.png"
 
 
-def _write_maps(maps_dir: Path, index: int, depth: NDArray[np.float32], labels: NDArray[Any]) -> None:
+def _write_maps(maps_dir: Path, index: int, depth: NDArray[np.float32],
+                labels: NDArray[Any]) -> None:
     import io
 
     import cv2
@@ -604,16 +616,21 @@ def _load_raw_image(sequence: Any, index: int, camera: Camera) -> NDArray[np.uin
 FEATURE_ARRAYS = ("uv", "scale", "orientation", "descriptors")
 
 
-def compute_frame(job: _FrameJob) -> dict[str, NDArray[Any]]:
+def compute_frame(job: _FrameJob, *, shared: _RunShared | None = None
+                  ) -> dict[str, NDArray[Any]]:
     """All per-frame work for one frame.
+
+    ``shared`` is the run's sequence, settings and providers; None takes this worker
+    process's (set by the pool initializer).
 
     Returns the SIFT arrays (``uv, scale, orientation, descriptors``; extracted unless
     ``job.features`` holds them), the keypoint depths ``depth``, the semantic samples
     ``<class>_p_in_cam`` and the timings ``time_s`` / ``sift_time_s``.
     """
     t0 = time.perf_counter()
-    shared = _SHARED
-    if shared is None:  # pragma: no cover - set by run_frontend / the pool initializer
+    if shared is None:
+        shared = _WORKER.shared
+    if shared is None:  # pragma: no cover - passed by run_frontend / set by the pool initializer
         raise FrontendError("compute_frame called outside run_frontend")
     seq, i, cfg = shared.sequence, job.index, shared.config
     camera: Camera = seq.camera
@@ -636,7 +653,8 @@ def compute_frame(job: _FrameJob) -> dict[str, NDArray[Any]]:
     t1 = time.perf_counter()
     if job.features is None:
         f = extract_sift(image, cfg.sift)
-        feats = {"uv": f.uv, "scale": f.scale, "orientation": f.orientation, "descriptors": f.descriptors}
+        feats = {"uv": f.uv, "scale": f.scale, "orientation": f.orientation,
+                 "descriptors": f.descriptors}
         sift_time = time.perf_counter() - t1
     else:
         feats = {k: job.features[k] for k in FEATURE_ARRAYS}
@@ -767,8 +785,74 @@ def run_frontend(
     """
     t_start = time.perf_counter()
     cfg = config or FrontendConfig()
-    camera: Camera = sequence.camera
-    pinhole = camera.pinhole()
+    pinhole = sequence.camera.pinhole()
+    init = _initial_poses(sequence, init_traj)
+    nworkers = _worker_count(workers)
+    ctx = _RunContext(
+        shared=_RunShared(sequence, cfg, depth_provider, label_provider, depth_refiner),
+        init=init,
+        pinhole=pinhole,
+        cache=ResultCache(cache_dir),
+        maps_dir=None if maps_dir is None else Path(maps_dir),
+        stats=RunStats(workers=nworkers),
+    )
+    frames = _frames_from_cache(ctx)
+    pairs = _pairs_from_cache(ctx, frames.feat_keys)
+    num_jobs = len(frames.todo) + sum(not c for c in pairs.cached)
+    pool = _start_pool(ctx.shared, nworkers, num_jobs)
+    try:
+        scheduler = _Scheduler(ctx, frames, pairs, pool, 1 if pool is None else 2 * nworkers)
+        scheduler.run(_Progress(num_jobs, "frontend", progress))
+    finally:
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
+    frames_ok = [d for d in frames.data if d is not None]
+    pair_list, pair_stats = _pair_matches(pairs)
+    result = _assemble(cfg, pinhole, init, frames_ok, pair_list)
+    result.frame_stats = _frame_stats(frames_ok, frames.cached)
+    result.pair_stats = pair_stats
+    ctx.stats.wall_time_s = time.perf_counter() - t_start
+    result.run = ctx.stats
+    return result
+
+
+@dataclass
+class _RunContext:
+    """What the steps of one run share."""
+
+    shared: _RunShared  # sequence, settings and providers (what the frame jobs need)
+    init: F64  # (N, 7) initial world_from_cam, TUM order
+    pinhole: Camera  # the undistorted camera of every output
+    cache: ResultCache
+    maps_dir: Path | None  # where the frames' final depth and labels go, if anywhere
+    stats: RunStats  # what the run computed (filled in as it goes)
+
+
+@dataclass
+class _FrameSlots:
+    """Per frame: its arrays once known, and what the cache gave."""
+
+    data: list[dict[str, NDArray[Any]] | None]  # (N,) the frame's arrays (None until known)
+    cached: list[bool]  # (N,) taken whole from the cache
+    cached_feats: list[dict[str, NDArray[Any]] | None]  # (N,) cached SIFT of a frame to compute
+    todo: list[int]  # frames to compute, in order
+    feat_keys: list[str]  # (N,) cache keys of the features (empty without a cache)
+    frame_keys: list[str]  # (N,) cache keys of the frame entries (empty without a cache)
+
+
+@dataclass
+class _PairSlots:
+    """Per pair of frames within the window: its arrays once known, and what the cache gave."""
+
+    pairs: list[tuple[int, int]]  # (P,) frame indices (a, b), a < b
+    results: list[dict[str, NDArray[Any]] | None]  # (P,) the pair's arrays (None until known)
+    cached: list[bool]  # (P,) taken from the cache
+    keys: list[str]  # (P,) cache keys (empty without a cache)
+    of_frame: list[list[int]]  # (N,) per frame, the pairs to match that use it
+
+
+def _initial_poses(sequence: SequenceLike, init_traj: Trajectory | F64) -> F64:
+    """(N, 7) initial poses, checked: finite, unit quaternions, one per frame."""
     num = len(sequence.frames)
     if num == 0:
         raise FrontendInputError("the sequence has no frames", None, "frames")
@@ -778,198 +862,244 @@ def run_frontend(
     validate_poses(init, field="init_traj")
     if len(init) != num:
         raise FrontendInputError(f"{len(init)} initial poses for {num} frames", None, "init_traj")
+    return init
+
+
+def _worker_count(workers: int | None) -> int:
+    """The number of processes: ``workers``, default ``os.cpu_count()``; at least 1."""
     nworkers = int(workers if workers is not None else (os.cpu_count() or 1))
     if nworkers < 1:
         raise FrontendError(f"workers must be >= 1, got {workers}")
-    cache = ResultCache(cache_dir)
-    run = RunStats(workers=nworkers)
-    providers = (depth_provider, label_provider, depth_refiner)
-    pose_dependent = any(uses_pose(p) for p in providers if p is not None)
+    return nworkers
 
-    # ---------------------------------------------------------------- cache keys
+
+def _frame_cache_keys(ctx: _RunContext) -> tuple[list[str], list[str]]:
+    """Per frame, the cache keys of its features and of its frame entry (module docstring)."""
+    shared, cfg = ctx.shared, ctx.shared.config
+    providers = (shared.depth_provider, shared.label_provider, shared.depth_refiner)
+    pose_dependent = any(uses_pose(p) for p in providers if p is not None)
+    feat_settings = {"camera": shared.sequence.camera.to_dict(), "sift": cfg.sift.to_dict()}
+    frame_settings = {
+        "depth_lookup": cfg.depth_lookup.to_dict(),
+        "sampling": cfg.sampling.to_dict(),
+        "depth_provider": provider_token(shared.depth_provider),
+        "label_provider": provider_token(shared.label_provider),
+        "depth_refiner": (None if shared.depth_refiner is None
+                          else provider_token(shared.depth_refiner)),
+    }
     feat_keys: list[str] = []
     frame_keys: list[str] = []
-    if cache.enabled:
-        feat_settings = {"camera": camera.to_dict(), "sift": cfg.sift.to_dict()}
-        frame_settings = {
-            "depth_lookup": cfg.depth_lookup.to_dict(),
-            "sampling": cfg.sampling.to_dict(),
-            "depth_provider": provider_token(depth_provider),
-            "label_provider": provider_token(label_provider),
-            "depth_refiner": None if depth_refiner is None else provider_token(depth_refiner),
-        }
-        for i in range(num):
-            files = frame_input_files(sequence, i)
-            fk = frame_cache_key([files["image"]], feat_settings)
-            feat_keys.append(fk)
-            extra: dict[str, object] = {"index": i, "features": fk}
-            if pose_dependent:
-                extra["world_from_cam"] = [float(x) for x in init[i]]
-            frame_keys.append(frame_cache_key(list(files.values()), {**frame_settings, **extra}))
+    for i in range(len(ctx.init)):
+        files = frame_input_files(shared.sequence, i)
+        fk = frame_cache_key([files["image"]], feat_settings)
+        feat_keys.append(fk)
+        extra: dict[str, object] = {"index": i, "features": fk}
+        if pose_dependent:
+            extra["world_from_cam"] = [float(x) for x in ctx.init[i]]
+        frame_keys.append(frame_cache_key(list(files.values()), {**frame_settings, **extra}))
+    return feat_keys, frame_keys
 
-    frame_data: list[dict[str, NDArray[Any]] | None] = [None] * num
-    frame_cached = [False] * num
-    cached_feats: list[dict[str, NDArray[Any]] | None] = [None] * num
-    todo: list[int] = []
+
+def _frames_from_cache(ctx: _RunContext) -> _FrameSlots:
+    """The frames the cache holds whole (with their maps, if asked for), the cached features
+    of the others, and the frames to compute."""
+    num = len(ctx.init)
+    cache = ctx.cache
+    feat_keys, frame_keys = _frame_cache_keys(ctx) if cache.enabled else ([], [])
+    frames = _FrameSlots(data=[None] * num, cached=[False] * num, cached_feats=[None] * num,
+                         todo=[], feat_keys=feat_keys, frame_keys=frame_keys)
     for i in range(num):
         if cache.enabled:
             hit = cache.get("frame", frame_keys[i])
             feats_hit = cache.get("features", feat_keys[i])
-            maps_there = maps_dir is None or all(p.is_file() for p in map_paths(maps_dir, i))
+            maps_there = (ctx.maps_dir is None
+                          or all(p.is_file() for p in map_paths(ctx.maps_dir, i)))
             if hit is not None and feats_hit is not None and maps_there:
-                frame_data[i] = {**hit, **feats_hit}
-                frame_cached[i] = True
+                frames.data[i] = {**hit, **feats_hit}
+                frames.cached[i] = True
                 continue
-            cached_feats[i] = feats_hit
-        todo.append(i)
+            frames.cached_feats[i] = feats_hit
+        frames.todo.append(i)
+    return frames
 
-    # ---------------------------------------------------------------- pairs in the cache
-    pairs = sequential_pairs(num, cfg.window)
-    pair_settings = {"camera": camera.to_dict(), "match": cfg.match.to_dict()}
-    pair_results: list[dict[str, NDArray[Any]] | None] = [None] * len(pairs)
-    pair_cached = [False] * len(pairs)
-    pair_keys: list[str] = []
-    pairs_of_frame: list[list[int]] = [[] for _ in range(num)]
-    for k, (a, b) in enumerate(pairs):
-        if cache.enabled:
+
+def _pairs_from_cache(ctx: _RunContext, feat_keys: list[str]) -> _PairSlots:
+    """The pairs within the window, those the cache holds, and per frame the pairs to match."""
+    num = len(ctx.init)
+    cfg = ctx.shared.config
+    pair_list = sequential_pairs(num, cfg.window)
+    pair_settings = {"camera": ctx.shared.sequence.camera.to_dict(), "match": cfg.match.to_dict()}
+    pairs = _PairSlots(pairs=pair_list, results=[None] * len(pair_list),
+                       cached=[False] * len(pair_list), keys=[],
+                       of_frame=[[] for _ in range(num)])
+    for k, (a, b) in enumerate(pair_list):
+        if ctx.cache.enabled:
             key = stable_hash({"a": feat_keys[a], "b": feat_keys[b], **pair_settings})
-            pair_keys.append(key)
-            hit = cache.get("pair", key)
+            pairs.keys.append(key)
+            hit = ctx.cache.get("pair", key)
             if hit is not None:
-                pair_results[k], pair_cached[k] = hit, True
+                pairs.results[k], pairs.cached[k] = hit, True
                 continue
-        pairs_of_frame[a].append(k)
-        pairs_of_frame[b].append(k)
-    pairs_left = [len(p) for p in pairs_of_frame]
-    num_pair_jobs = sum(not c for c in pair_cached)
+        pairs.of_frame[a].append(k)
+        pairs.of_frame[b].append(k)
+    return pairs
 
-    shared = _RunShared(sequence, cfg, depth_provider, label_provider, depth_refiner)
-    pool: ProcessPoolExecutor | None = None
-    if nworkers > 1 and len(todo) + num_pair_jobs > 1:
-        # spawn, not fork: forking a process whose BLAS / pycolmap threads are running can
-        # deadlock. The sequence and providers travel once per worker, not once per job.
-        pool = ProcessPoolExecutor(
-            max_workers=min(nworkers, len(todo) + num_pair_jobs),
-            mp_context=multiprocessing.get_context("spawn"),
-            initializer=_init_worker,
-            initargs=(shared,),
-        )
-    global _SHARED
-    previous, _SHARED = _SHARED, shared  # for jobs run inline in this process
 
-    # Frames and pairs share one queue: a pair is submitted as soon as both of its frames have
-    # features (pairs first, so that descriptors can be released early: a frame keeps only
-    # keypoints, depths and samples once all of its pairs are matched). At most 2 × workers jobs
-    # are in flight, so that finished frames do not wait behind the whole frame list.
-    ready = [d is not None for d in frame_data]
-    frame_queue = deque(todo)
-    pair_queue: deque[int] = deque(
-        k for k, (a, b) in enumerate(pairs) if not pair_cached[k] and ready[a] and ready[b]
+def _start_pool(shared: _RunShared, nworkers: int, num_jobs: int) -> ProcessPoolExecutor | None:
+    """A pool of ``spawn`` workers for ``num_jobs`` jobs, or None to run them in this process."""
+    if not (nworkers > 1 and num_jobs > 1):
+        return None
+    # spawn, not fork: forking a process whose BLAS / pycolmap threads are running can
+    # deadlock. The sequence and providers travel once per worker, not once per job.
+    return ProcessPoolExecutor(
+        max_workers=min(nworkers, num_jobs),
+        mp_context=multiprocessing.get_context("spawn"),
+        initializer=_init_worker,
+        initargs=(shared,),
     )
 
-    def release(i: int) -> None:
-        d = frame_data[i]
-        if d is not None and ready[i] and pairs_left[i] == 0:
+
+class _Scheduler:
+    """Runs the frame and pair jobs of one run and stores their results (and the cache's).
+
+    Frames and pairs share one queue: a pair is submitted as soon as both of its frames have
+    features (pairs first, so that descriptors can be released early: a frame keeps only
+    keypoints, depths and samples once all of its pairs are matched). At most ``limit`` jobs
+    (2 × workers) are in flight, so that finished frames do not wait behind the whole frame list.
+    """
+
+    def __init__(self, ctx: _RunContext, frames: _FrameSlots, pairs: _PairSlots,
+                 pool: ProcessPoolExecutor | None, limit: int) -> None:
+        self.ctx, self.frames, self.pairs, self.pool, self.limit = ctx, frames, pairs, pool, limit
+        # a worker has the shared state from the pool initializer; this process passes it
+        self.frame_fn: Callable[[_FrameJob], dict[str, NDArray[Any]]] = (
+            compute_frame if pool is not None else partial(compute_frame, shared=ctx.shared)
+        )
+        self.ready = [d is not None for d in frames.data]
+        self.pairs_left = [len(p) for p in pairs.of_frame]
+        self.frame_queue = deque(frames.todo)
+        self.pair_queue: deque[int] = deque(
+            k for k, (a, b) in enumerate(pairs.pairs)
+            if not pairs.cached[k] and self.ready[a] and self.ready[b]
+        )
+        self.in_flight: dict[Future[dict[str, NDArray[Any]]], tuple[str, int]] = {}
+        for i in range(len(frames.data)):
+            self.release(i)
+
+    def release(self, i: int) -> None:
+        """Drop frame ``i``'s descriptors once it is ready and all of its pairs are matched."""
+        d = self.frames.data[i]
+        if d is not None and self.ready[i] and self.pairs_left[i] == 0:
             for name in ("descriptors", "scale", "orientation"):
                 d.pop(name, None)
 
-    for i in range(num):
-        release(i)
-    bar = _Progress(len(todo) + num_pair_jobs, "frontend", progress)
-    limit = 1 if pool is None else 2 * nworkers
-    in_flight: dict[Future[dict[str, NDArray[Any]]], tuple[str, int]] = {}
-    try:
-        while frame_queue or pair_queue or in_flight:
-            while len(in_flight) < limit and (pair_queue or frame_queue):
-                if pair_queue:
-                    k = pair_queue.popleft()
-                    a, b = pairs[k]
-                    fa, fb = frame_data[a], frame_data[b]
-                    assert fa is not None and fb is not None
-                    pjob = _PairJob(_features_of(fa), _features_of(fb), pinhole, a, b, cfg.match)
-                    in_flight[_submit(pool, compute_pair, pjob)] = ("pair", k)
-                else:
-                    i = frame_queue.popleft()
-                    fjob = _FrameJob(
-                        i, init[i], cached_feats[i], None if maps_dir is None else Path(maps_dir)
-                    )
-                    in_flight[_submit(pool, compute_frame, fjob)] = ("frame", i)
-            done, _ = wait(list(in_flight), return_when=FIRST_COMPLETED)
+    def run(self, bar: _Progress) -> None:
+        """Submit and collect jobs until every frame and pair is done."""
+        while self.frame_queue or self.pair_queue or self.in_flight:
+            self._submit_ready()
+            done, _ = wait(list(self.in_flight), return_when=FIRST_COMPLETED)
             for fut in done:
-                kind, n = in_flight.pop(fut)
-                try:
-                    res = fut.result()
-                except BrokenProcessPool as exc:
-                    raise FrontendError(
-                        f"a worker process died while computing {kind} {pairs[n] if kind == 'pair' else n} "
-                        "(out of memory, or a script that calls run_frontend without an "
-                        "`if __name__ == '__main__':` guard, which the spawn start method needs); "
-                        "run with workers=1 to see the error"
-                    ) from exc
+                kind, n = self.in_flight.pop(fut)
+                res = self._result(fut, kind, n)
                 bar.step()
                 if kind == "frame":
-                    i = n
-                    frame_data[i] = res
-                    ready[i] = True
-                    run.frames_computed += 1
-                    if cached_feats[i] is None:
-                        run.features_computed += 1
-                    if cache.enabled:
-                        if cached_feats[i] is None:
-                            cache.put("features", feat_keys[i], {k2: res[k2] for k2 in FEATURE_ARRAYS})
-                        cache.put(
-                            "frame", frame_keys[i],
-                            {k2: v for k2, v in res.items() if k2 not in FEATURE_ARRAYS},
-                        )
-                    cached_feats[i] = None  # not needed any more
-                    for k in pairs_of_frame[i]:
-                        a, b = pairs[k]
-                        if ready[a] and ready[b]:
-                            pair_queue.append(k)
-                    release(i)
+                    self._frame_done(n, res)
                 else:
-                    k = n
-                    pair_results[k] = res
-                    run.pairs_computed += 1
-                    if cache.enabled:
-                        cache.put("pair", pair_keys[k], res)
-                    for f in pairs[k]:
-                        pairs_left[f] -= 1
-                        release(f)
-    finally:
-        _SHARED = previous
-        if pool is not None:
-            pool.shutdown(wait=True, cancel_futures=True)
-    frames_ok = [d for d in frame_data if d is not None]
+                    self._pair_done(n, res)
 
+    def _submit_ready(self) -> None:
+        """Fill the in-flight slots: ready pairs first, then frames."""
+        while len(self.in_flight) < self.limit and (self.pair_queue or self.frame_queue):
+            if self.pair_queue:
+                k = self.pair_queue.popleft()
+                a, b = self.pairs.pairs[k]
+                fa, fb = self.frames.data[a], self.frames.data[b]
+                assert fa is not None and fb is not None
+                pjob = _PairJob(_features_of(fa), _features_of(fb), self.ctx.pinhole, a, b,
+                                self.ctx.shared.config.match)
+                self.in_flight[_submit(self.pool, compute_pair, pjob)] = ("pair", k)
+            else:
+                i = self.frame_queue.popleft()
+                fjob = _FrameJob(i, self.ctx.init[i], self.frames.cached_feats[i],
+                                 self.ctx.maps_dir)
+                self.in_flight[_submit(self.pool, self.frame_fn, fjob)] = ("frame", i)
+
+    def _result(self, fut: Future[dict[str, NDArray[Any]]], kind: str, n: int
+                ) -> dict[str, NDArray[Any]]:
+        """The job's arrays; a dead worker process becomes a :class:`FrontendError`."""
+        try:
+            return fut.result()
+        except BrokenProcessPool as exc:
+            what = self.pairs.pairs[n] if kind == "pair" else n
+            raise FrontendError(
+                f"a worker process died while computing {kind} {what} "
+                "(out of memory, or a script that calls run_frontend without an "
+                "`if __name__ == '__main__':` guard, which the spawn start method needs); "
+                "run with workers=1 to see the error"
+            ) from exc
+
+    def _frame_done(self, i: int, res: dict[str, NDArray[Any]]) -> None:
+        """Store frame ``i`` (and cache it), queue its pairs whose frames are both ready."""
+        frames, ctx = self.frames, self.ctx
+        frames.data[i] = res
+        self.ready[i] = True
+        ctx.stats.frames_computed += 1
+        if frames.cached_feats[i] is None:
+            ctx.stats.features_computed += 1
+        if ctx.cache.enabled:
+            if frames.cached_feats[i] is None:
+                ctx.cache.put("features", frames.feat_keys[i],
+                              {k: res[k] for k in FEATURE_ARRAYS})
+            ctx.cache.put("frame", frames.frame_keys[i],
+                          {k: v for k, v in res.items() if k not in FEATURE_ARRAYS})
+        frames.cached_feats[i] = None  # not needed any more
+        for k in self.pairs.of_frame[i]:
+            a, b = self.pairs.pairs[k]
+            if self.ready[a] and self.ready[b]:
+                self.pair_queue.append(k)
+        self.release(i)
+
+    def _pair_done(self, k: int, res: dict[str, NDArray[Any]]) -> None:
+        """Store pair ``k`` (and cache it); release its frames' descriptors when done with."""
+        self.pairs.results[k] = res
+        self.ctx.stats.pairs_computed += 1
+        if self.ctx.cache.enabled:
+            self.ctx.cache.put("pair", self.pairs.keys[k], res)
+        for f in self.pairs.pairs[k]:
+            self.pairs_left[f] -= 1
+            self.release(f)
+
+
+def _pair_matches(pairs: _PairSlots) -> tuple[list[PairMatches], list[PairStats]]:
+    """The verified matches and statistics of every pair, in pair order."""
     pair_list: list[PairMatches] = []
     pair_stats: list[PairStats] = []
-    for k, ((a, b), r) in enumerate(zip(pairs, pair_results)):
+    for k, ((a, b), r) in enumerate(zip(pairs.pairs, pairs.results, strict=True)):
         assert r is not None
         pm = PairMatches(
-            a, b, np.asarray(r["idx"], np.int32).reshape(-1, 2), int(r["num_putative"]), str(r["model"])
+            a, b, np.asarray(r["idx"], np.int32).reshape(-1, 2), int(r["num_putative"]),
+            str(r["model"]),
         )
         pair_list.append(pm)
-        pair_stats.append(
-            PairStats(a, b, pm.num_putative, len(pm.idx), pm.model, float(r["time_s"]), pair_cached[k])
-        )
-    result = _assemble(cfg, pinhole, init, frames_ok, pair_list)
-    result.frame_stats = [
+        pair_stats.append(PairStats(a, b, pm.num_putative, len(pm.idx), pm.model,
+                                    float(r["time_s"]), pairs.cached[k]))
+    return pair_list, pair_stats
+
+
+def _frame_stats(frames: list[dict[str, NDArray[Any]]], cached: list[bool]) -> list[FrameStats]:
+    """Per-frame statistics of the frames' arrays."""
+    return [
         FrameStats(
             index=i,
-            num_keypoints=int(len(d["uv"])),
+            num_keypoints=len(d["uv"]),
             num_keypoints_with_depth=int((d["depth"] > 0).sum()),
-            **{f"num_{p}": int(len(d[f"{p}_p_in_cam"])) for p in SEMANTIC_CLASSES.values()},
+            **{f"num_{p}": len(d[f"{p}_p_in_cam"]) for p in SEMANTIC_CLASSES.values()},
             time_s=float(d["time_s"]),
             sift_time_s=float(d["sift_time_s"]),
-            cached=frame_cached[i],
+            cached=cached[i],
         )
-        for i, d in enumerate(frames_ok)
+        for i, d in enumerate(frames)
     ]
-    result.pair_stats = pair_stats
-    run.wall_time_s = time.perf_counter() - t_start
-    result.run = run
-    return result
 
 
 def _assemble(
@@ -996,7 +1126,8 @@ def _assemble(
         keep = consistent_track_observations(
             t_frame, t_point, t_uv, t_depth, pinhole, init, cfg.filters.max_initial_distance_m
         )
-        keep &= np.bincount(t_point[keep], minlength=tracks.num_points)[t_point] >= cfg.min_track_length
+        keep &= (np.bincount(t_point[keep], minlength=tracks.num_points)[t_point]
+                 >= cfg.min_track_length)
         _, t_point = np.unique(t_point[keep], return_inverse=True)
         t_point = t_point.astype(np.int32).reshape(-1)
         t_frame, t_uv, t_depth = t_frame[keep], t_uv[keep], t_depth[keep]

@@ -43,7 +43,7 @@ IoU reported by the bench includes what this costs.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -101,7 +101,8 @@ class _Plane:
     offset: float  # n·p + offset = 0
 
 
-def _points_and_normals(depth: NDArray[np.float32], cam: Camera, opts: GeometricOptions) -> tuple[F64, B, F64, B]:
+def _points_and_normals(depth: NDArray[np.float32], cam: Camera, opts: GeometricOptions
+                        ) -> tuple[F64, B, F64, B]:
     import cv2
 
     h, w = depth.shape
@@ -123,7 +124,8 @@ def _points_and_normals(depth: NDArray[np.float32], cam: Camera, opts: Geometric
     jump = 0.05 * zc + 0.05  # metres: neighbours farther apart in depth are across an edge
     ok[s:-s, s:-s] = (
         valid[s:-s, s:-s]
-        & (z[s:-s, 2 * s :] > 0) & (z[s:-s, : -2 * s] > 0) & (z[2 * s :, s:-s] > 0) & (z[: -2 * s, s:-s] > 0)
+        & (z[s:-s, 2 * s :] > 0) & (z[s:-s, : -2 * s] > 0)
+        & (z[2 * s :, s:-s] > 0) & (z[: -2 * s, s:-s] > 0)
         & (np.abs(z[s:-s, 2 * s :] - z[s:-s, : -2 * s]) < 2 * jump)
         & (np.abs(z[2 * s :, s:-s] - z[: -2 * s, s:-s]) < 2 * jump)
     )
@@ -145,7 +147,8 @@ def _threshold(z: F64, opts: GeometricOptions) -> F64:
     return opts.plane_threshold_m + opts.plane_threshold_rel * z
 
 
-def _ransac_horizontal(pts: F64, up: F64, cos_max: float, opts: GeometricOptions, rng: np.random.Generator) -> _Plane | None:
+def _ransac_horizontal(pts: F64, up: F64, cos_max: float, opts: GeometricOptions,
+                       rng: np.random.Generator) -> _Plane | None:
     """Plane through points (N, 3) whose normal is within acos(cos_max) of ±up."""
     n = len(pts)
     if n < 3:
@@ -176,7 +179,8 @@ def _ransac_horizontal(pts: F64, up: F64, cos_max: float, opts: GeometricOptions
     return _Plane(normal, float(-normal @ centroid))
 
 
-def _ransac_vertical(pts: F64, nrm: F64, up: F64, opts: GeometricOptions, rng: np.random.Generator) -> _Plane | None:
+def _ransac_vertical(pts: F64, nrm: F64, up: F64, opts: GeometricOptions,
+                     rng: np.random.Generator) -> _Plane | None:
     """Vertical plane (normal ⟂ up) from points (N, 3) with normals (N, 3): 1-point hypotheses."""
     n = len(pts)
     if n < 3:
@@ -293,6 +297,48 @@ def _classify_vertical_region(
     return Label.COLUMN if _protrudes(region, pts, plane, opts) else Label.WALL
 
 
+@dataclass
+class _WorkScene:
+    """The depth at the working resolution, back-projected: what every step reads."""
+
+    pts: F64  # (h, w, 3) camera-frame points, metres
+    valid: B  # (h, w) pixels with depth
+    nrm: F64  # (h, w, 3) unit normals facing the camera (0 where ``nok`` is False)
+    nok: B  # (h, w) pixels with a normal
+    up: F64  # (3,) the pose's up, camera frame
+    height: F64  # (h, w) metres along ``up`` from the camera
+    min_plane: int  # pixels a plane needs
+    min_region: int  # pixels a region needs
+
+
+@dataclass
+class _Labelling:
+    """The labels being decided and the planar regions found so far (working resolution)."""
+
+    labels: U8  # (h, w) Label ids
+    assigned: B  # (h, w) pixels taken by a plane or a region
+    region_id: NDArray[np.int32]  # (h, w) index into ``regions``, -1 = none
+    regions: list[tuple[Label, _Plane]] = field(default_factory=list)  # planar regions
+    planes: dict[Label, _Plane] = field(default_factory=dict)  # the floor's / ceiling's plane
+    chosen: dict[Label, B] = field(default_factory=dict)  # the floor's / ceiling's pixels
+
+    @classmethod
+    def start(cls, valid: B) -> _Labelling:
+        """Clutter wherever there is depth (``valid`` (h, w)), unknown elsewhere; no regions."""
+        h, w = valid.shape
+        labels = np.full((h, w), int(Label.UNKNOWN), dtype=np.uint8)
+        labels[valid] = int(Label.CLUTTER)
+        return cls(labels=labels, assigned=np.zeros((h, w), dtype=bool),
+                   region_id=np.full((h, w), -1, dtype=np.int32))
+
+    def add_region(self, mask: B, label: Label, plane: _Plane) -> None:
+        """Label the pixels ``mask`` (h, w) as a planar region of ``plane``."""
+        self.labels[mask] = int(label)
+        self.assigned |= mask
+        self.region_id[mask] = len(self.regions)
+        self.regions.append((label, plane))
+
+
 def segment_geometric(
     depth: NDArray[np.float32],
     camera: Camera,
@@ -313,7 +359,35 @@ def segment_geometric(
     (H, W) uint8 :class:`Label` ids.
     """
     import cv2
+
     opts = options or GeometricOptions()
+    d_full, pose = _checked_inputs(depth, camera, world_from_cam)
+    rng = np.random.default_rng(opts.seed)
+    scale = min(1.0, opts.work_width / camera.width)
+    cam = camera.pinhole().scaled(scale) if scale < 1.0 else camera.pinhole()
+    d = (cv2.resize(d_full, (cam.width, cam.height), interpolation=cv2.INTER_NEAREST)
+         if scale < 1.0 else d_full)
+    scene = _work_scene(d, cam, pose, opts)
+    state = _Labelling.start(scene.valid)
+    if not scene.valid.any():
+        return cv2.resize(state.labels, (camera.width, camera.height),
+                          interpolation=cv2.INTER_NEAREST)
+    _floor_and_ceiling(scene, state, opts, rng)
+    up_ref = _refined_up(state.planes, scene.up, opts)
+    top_needed = _top_needed(scene, state, up_ref, opts)
+    remaining = _walls_and_columns(scene, state, up_ref, top_needed, opts, rng)
+    _curved_columns(scene, state, remaining, up_ref, top_needed, opts)
+    _fill_creases(scene, state, opts)
+    if scale < 1.0:
+        return _upsample_labels(state.labels, state.region_id, state.regions, d_full, camera,
+                                opts)
+    return state.labels
+
+
+def _checked_inputs(depth: NDArray[np.float32], camera: Camera, world_from_cam: F64
+                    ) -> tuple[NDArray[np.float32], F64]:
+    """``(depth (H, W) float32 metres, pose (7,))`` checked against ``camera``; raises
+    :class:`SegmentationInputError` naming the bad input."""
     d_full = np.asarray(depth, dtype=np.float32)
     if d_full.ndim != 2:
         raise SegmentationInputError(f"depth must be (H, W), got {d_full.shape}", field="depth")
@@ -322,62 +396,75 @@ def segment_geometric(
         raise SegmentationInputError("depth has NaN/inf values", field="depth")
     pose = np.asarray(world_from_cam, dtype=np.float64)
     if pose.shape != (7,) or not np.isfinite(pose).all():
-        raise SegmentationInputError(f"world_from_cam must be a finite (7,) pose, got {pose.shape}", field="world_from_cam")
-    rng = np.random.default_rng(opts.seed)
-    scale = min(1.0, opts.work_width / camera.width)
-    cam = camera.pinhole().scaled(scale) if scale < 1.0 else camera.pinhole()
-    d = cv2.resize(d_full, (cam.width, cam.height), interpolation=cv2.INTER_NEAREST) if scale < 1.0 else d_full
+        raise SegmentationInputError(
+            f"world_from_cam must be a finite (7,) pose, got {pose.shape}", field="world_from_cam"
+        )
+    return d_full, pose
+
+
+def _work_scene(d: NDArray[np.float32], cam: Camera, pose: F64, opts: GeometricOptions
+                ) -> _WorkScene:
+    """Points, normals and heights of the working-resolution depth ``d`` (h, w) seen by ``cam``."""
     pts, valid, nrm, nok = _points_and_normals(d, cam, opts)
     up = quat_to_rotmat(pose[3:]).T @ np.array([0.0, 0.0, 1.0])
     h, w = d.shape
-    labels = np.full((h, w), int(Label.UNKNOWN), dtype=np.uint8)
-    labels[valid] = int(Label.CLUTTER)
-    n_valid = int(valid.sum())
-    if n_valid == 0:
-        return cv2.resize(labels, (camera.width, camera.height), interpolation=cv2.INTER_NEAREST)
-    min_plane = max(20, int(opts.min_plane_fraction * h * w))
-    min_region = max(10, int(opts.min_region_fraction * h * w))
-    height = pts @ up
-    cos_h = np.cos(np.deg2rad(opts.horizontal_angle_deg))
-    cos_up = nrm @ up
+    return _WorkScene(
+        pts=pts, valid=valid, nrm=nrm, nok=nok, up=up, height=pts @ up,
+        min_plane=max(20, int(opts.min_plane_fraction * h * w)),
+        min_region=max(10, int(opts.min_region_fraction * h * w)),
+    )
 
-    # ---- floor and ceiling
-    assigned = np.zeros((h, w), dtype=bool)
-    planes: dict[Label, _Plane] = {}
-    regions: list[tuple[Label, _Plane]] = []  # planar regions: label and plane
-    chosen: dict[Label, B] = {}  # the floor's / ceiling's pixels
-    region_id = np.full((h, w), -1, dtype=np.int32)
+
+def _floor_and_ceiling(scene: _WorkScene, state: _Labelling, opts: GeometricOptions,
+                       rng: np.random.Generator) -> None:
+    """The floor (lowest up-facing plane) and the ceiling (highest down-facing one); the other
+    horizontal planes found (tables, sills) are left as clutter."""
+    cos_h = np.cos(np.deg2rad(opts.horizontal_angle_deg))
+    cos_up = scene.nrm @ scene.up
     for label, sign, cand in (
-        (Label.FLOOR, 1.0, nok & (cos_up > cos_h) & (height < -opts.floor_min_drop_m)),
-        (Label.CEILING, -1.0, nok & (cos_up < -cos_h) & (height > opts.ceiling_min_rise_m)),
+        (Label.FLOOR, 1.0,
+         scene.nok & (cos_up > cos_h) & (scene.height < -opts.floor_min_drop_m)),
+        (Label.CEILING, -1.0,
+         scene.nok & (cos_up < -cos_h) & (scene.height > opts.ceiling_min_rise_m)),
     ):
-        remaining = cand.copy()
-        found: list[tuple[float, _Plane, B]] = []
-        for _ in range(opts.max_horizontal_planes):
-            if remaining.sum() < min_plane:
-                break
-            plane = _ransac_horizontal(pts[remaining], up, cos_h, opts, rng)
-            if plane is None:
-                break
-            inl = _plane_inliers(pts, nrm, plane, nok & ~assigned, opts)
-            if (inl & remaining).sum() < min_plane:
-                break
-            # the plane's height along up: points p with n·p + offset = 0 → height ≈ -offset (n ≈ ±up)
-            level = float(np.median(height[inl]))
-            found.append((level, plane, inl))
-            remaining &= ~inl
+        found = _horizontal_planes(scene, state.assigned, cand, cos_h, opts, rng)
         if not found:
             continue
         found.sort(key=lambda x: sign * x[0])  # floor: lowest first; ceiling: highest first
         _, plane, inl = found[0]
-        chosen[label] = inl
-        labels[inl] = int(label)
-        assigned |= inl
-        planes[label] = plane
-        region_id[inl] = len(regions)
-        regions.append((label, plane))
+        state.chosen[label] = inl
+        state.planes[label] = plane
+        state.add_region(inl, label, plane)
         for _, _, other in found[1:]:
-            assigned |= other  # tables, sills: clutter
+            state.assigned |= other  # tables, sills: clutter
+
+
+def _horizontal_planes(scene: _WorkScene, assigned: B, cand: B, cos_h: float,
+                       opts: GeometricOptions, rng: np.random.Generator
+                       ) -> list[tuple[float, _Plane, B]]:
+    """Up to ``max_horizontal_planes`` planes through the candidate pixels ``cand`` (h, w), as
+    ``(height along up (m), plane, inliers (h, w))`` in the order found."""
+    remaining = cand.copy()
+    found: list[tuple[float, _Plane, B]] = []
+    for _ in range(opts.max_horizontal_planes):
+        if remaining.sum() < scene.min_plane:
+            break
+        plane = _ransac_horizontal(scene.pts[remaining], scene.up, cos_h, opts, rng)
+        if plane is None:
+            break
+        inl = _plane_inliers(scene.pts, scene.nrm, plane, scene.nok & ~assigned, opts)
+        if (inl & remaining).sum() < scene.min_plane:
+            break
+        # the plane's height along up: points p with n·p + offset = 0 → height ≈ -offset (n ≈ ±up)
+        level = float(np.median(scene.height[inl]))
+        found.append((level, plane, inl))
+        remaining &= ~inl
+    return found
+
+
+def _refined_up(planes: dict[Label, _Plane], up: F64, opts: GeometricOptions) -> F64:
+    """(3,) up, camera frame: the floor's (else the ceiling's) fitted normal, unless it is more
+    than ``max_up_correction_deg`` from the pose's ``up``."""
     if Label.FLOOR in planes:
         up_ref = planes[Label.FLOOR].normal * np.sign(planes[Label.FLOOR].normal @ up)
     elif Label.CEILING in planes:
@@ -387,92 +474,131 @@ def segment_geometric(
     up_ref = up_ref / np.linalg.norm(up_ref)
     if up_ref @ up < np.cos(np.deg2rad(opts.max_up_correction_deg)):
         up_ref = up  # a fitted floor this far from the pose's up is more likely wrong than the pose
+    return up_ref
 
-    # ---- walls and columns (planar); they must reach up to near the ceiling (or above the
-    # camera when no ceiling is seen), which tells them from crates and tables
-    # (heights along the refined up: the pose's up may be off by a few degrees)
-    if Label.CEILING in chosen:
-        top_needed = float(np.median(pts[chosen[Label.CEILING]] @ up_ref)) - opts.top_gap_m
-    else:
-        top_needed = opts.top_without_ceiling_m
+
+def _top_needed(scene: _WorkScene, state: _Labelling, up_ref: F64, opts: GeometricOptions
+                ) -> float:
+    """Height (m along ``up_ref`` from the camera) that walls and columns must reach: near the
+    ceiling, or ``top_without_ceiling_m`` when no ceiling is seen."""
+    if Label.CEILING in state.chosen:
+        return float(np.median(scene.pts[state.chosen[Label.CEILING]] @ up_ref)) - opts.top_gap_m
+    return opts.top_without_ceiling_m
+
+
+def _walls_and_columns(scene: _WorkScene, state: _Labelling, up_ref: F64, top_needed: float,
+                       opts: GeometricOptions, rng: np.random.Generator) -> B:
+    """Vertical planes one at a time, their regions labelled wall, column or clutter; returns
+    the vertical-normal pixels (h, w) that no plane took."""
     sin_v = np.sin(np.deg2rad(opts.vertical_angle_deg))
-    vert = nok & ~assigned & (np.abs(nrm @ up_ref) < sin_v)
-    remaining = vert.copy()
+    vert = scene.nok & ~state.assigned & (np.abs(scene.nrm @ up_ref) < sin_v)
+    remaining: B = vert.copy()
     for _ in range(opts.max_vertical_planes):
-        if remaining.sum() < min_plane:
+        if remaining.sum() < scene.min_plane:
             break
-        plane = _ransac_vertical(pts[remaining], nrm[remaining], up_ref, opts, rng)
+        plane = _ransac_vertical(scene.pts[remaining], scene.nrm[remaining], up_ref, opts, rng)
         if plane is None:
             break
-        inl = _plane_inliers(pts, nrm, plane, remaining, opts)
-        if inl.sum() < min_plane:
+        inl = _plane_inliers(scene.pts, scene.nrm, plane, remaining, opts)
+        if inl.sum() < scene.min_plane:
             break
         remaining &= ~inl
         # whether the plane reaches the ceiling is judged on all its inliers: noise may split a
         # wall into an upper and a lower region, and the lower one is no crate
-        plane_reaches = _reaches_up(inl, pts, up_ref, top_needed, opts)
-        n_comp, comp, stats, _ = cv2.connectedComponentsWithStats(inl.astype(np.uint8), connectivity=8)
-        for c in range(1, n_comp):
-            if stats[c, cv2.CC_STAT_AREA] < min_region:
-                continue
-            region = comp == c
-            lab = _classify_vertical_region(region, pts, plane, up_ref, top_needed if not plane_reaches else -np.inf, opts)
-            labels[region] = int(lab)
-            assigned |= region
-            region_id[region] = len(regions)
-            regions.append((lab, plane))
+        plane_reaches = _reaches_up(inl, scene.pts, up_ref, top_needed, opts)
+        _label_plane_regions(scene, state, inl, plane, up_ref,
+                             top_needed if not plane_reaches else -np.inf, opts)
+    return remaining
 
-    # ---- curved columns: tall, narrow left-over vertical regions
-    n_comp, comp, stats, _ = cv2.connectedComponentsWithStats(remaining.astype(np.uint8), connectivity=8)
+
+def _label_plane_regions(scene: _WorkScene, state: _Labelling, inl: B, plane: _Plane,
+                         up_ref: F64, top_needed: float, opts: GeometricOptions) -> None:
+    """Label each large enough connected region of a vertical plane's inliers ``inl`` (h, w)."""
+    import cv2
+
+    n_comp, comp, stats, _ = cv2.connectedComponentsWithStats(inl.astype(np.uint8),
+                                                              connectivity=8)
     for c in range(1, n_comp):
-        if stats[c, cv2.CC_STAT_AREA] < min_region:
+        if stats[c, cv2.CC_STAT_AREA] < scene.min_region:
             continue
         region = comp == c
-        p = pts[region]
-        hgt = p @ up_ref
-        horiz = p - np.outer(hgt, up_ref)
-        hc = horiz - horiz.mean(0)
-        extent = 2.0 * np.sqrt(max(np.linalg.eigvalsh(hc.T @ hc / len(hc))[-1], 0.0)) * 1.73  # ≈ full width of a uniform spread
-        tall = np.percentile(hgt, 98) - np.percentile(hgt, 2)
-        if extent < opts.column_max_width_m and tall > opts.column_min_height_m and _reaches_up(region, pts, up_ref, top_needed, opts):
-            # a round column stands out of its surroundings; a crease between walls does not
-            e1 = np.cross(up_ref, np.array([0.0, 0.0, 1.0]))
-            e1 = e1 / max(np.linalg.norm(e1), 1e-12) if np.linalg.norm(e1) > 1e-6 else np.array([1.0, 0.0, 0.0])
-            e2 = np.cross(up_ref, e1)
-            xy = np.stack([p @ e1, p @ e2], 1)
-            c0 = xy.mean(0)
-            _, _, vt = np.linalg.svd(xy - c0, full_matrices=False)
-            n2 = np.array([-vt[0, 1], vt[0, 0]])
-            normal = n2[0] * e1 + n2[1] * e2
-            centroid = p.mean(0)
-            if normal @ centroid > 0:
-                normal = -normal
-            # one protruding side is enough here: a curved region is no wall end
-            if not _protrudes(region, pts, _Plane(normal, float(-normal @ centroid)), replace(opts, protrusion_sides=1)):
-                continue
-            labels[region] = int(Label.COLUMN)
-            assigned |= region
+        lab = _classify_vertical_region(region, scene.pts, plane, up_ref, top_needed, opts)
+        state.add_region(region, lab, plane)
 
-    # ---- undecided pixels (no normal at depth edges, mixed normals along creases) take the label
-    # of the nearby planar region (within ``crease_px``) on whose plane they lie, nearest plane first
-    undecided = valid & (labels == int(Label.CLUTTER)) & (region_id < 0)
-    if undecided.any() and regions:
-        r, c = np.nonzero(undecided)
-        p = pts[r, c]
-        best = np.full(len(r), np.inf)
-        best_label = np.full(len(r), int(Label.CLUTTER), dtype=np.uint8)
-        kernel = np.ones((2 * opts.crease_px + 1,) * 2, np.uint8)
-        thr = 2.0 * _threshold(p[:, 2], opts)
-        for k, (lab, plane) in enumerate(regions):
-            near = cv2.dilate((region_id == k).astype(np.uint8), kernel)[r, c] > 0
-            dist = np.abs(p @ plane.normal + plane.offset)
-            take = near & (dist < thr) & (dist < best)
-            best[take] = dist[take]
-            best_label[take] = int(lab)
-        labels[r, c] = best_label
-    if scale < 1.0:
-        labels = _upsample_labels(labels, region_id, regions, d_full, camera, opts)
-    return labels
+
+def _curved_columns(scene: _WorkScene, state: _Labelling, remaining: B, up_ref: F64,
+                    top_needed: float, opts: GeometricOptions) -> None:
+    """Columns among the left-over vertical-normal regions ``remaining`` (h, w): tall, narrow
+    and protruding (a round column's normals turn, so no plane takes it)."""
+    import cv2
+
+    n_comp, comp, stats, _ = cv2.connectedComponentsWithStats(remaining.astype(np.uint8),
+                                                              connectivity=8)
+    for c in range(1, n_comp):
+        if stats[c, cv2.CC_STAT_AREA] < scene.min_region:
+            continue
+        region = comp == c
+        if _is_curved_column(region, scene.pts, up_ref, top_needed, opts):
+            state.labels[region] = int(Label.COLUMN)
+            state.assigned |= region
+
+
+def _is_curved_column(region: B, pts: F64, up_ref: F64, top_needed: float,
+                      opts: GeometricOptions) -> bool:
+    """Is the region (h, w) of points ``pts`` (h, w, 3) tall, narrow, reaching up and standing
+    out of its surroundings (a crease between walls does not)?"""
+    p = pts[region]
+    hgt = p @ up_ref
+    horiz = p - np.outer(hgt, up_ref)
+    hc = horiz - horiz.mean(0)
+    # ≈ full width of a uniform spread
+    extent = 2.0 * np.sqrt(max(np.linalg.eigvalsh(hc.T @ hc / len(hc))[-1], 0.0)) * 1.73
+    tall = np.percentile(hgt, 98) - np.percentile(hgt, 2)
+    if not (extent < opts.column_max_width_m and tall > opts.column_min_height_m
+            and _reaches_up(region, pts, up_ref, top_needed, opts)):
+        return False
+    # one protruding side is enough here: a curved region is no wall end
+    return _protrudes(region, pts, _vertical_fit(p, up_ref), replace(opts, protrusion_sides=1))
+
+
+def _vertical_fit(p: F64, up_ref: F64) -> _Plane:
+    """The vertical plane (normal ⟂ ``up_ref``, facing the camera) best fitting points (n, 3)."""
+    e1 = np.cross(up_ref, np.array([0.0, 0.0, 1.0]))
+    e1 = (e1 / max(np.linalg.norm(e1), 1e-12) if np.linalg.norm(e1) > 1e-6
+          else np.array([1.0, 0.0, 0.0]))
+    e2 = np.cross(up_ref, e1)
+    xy = np.stack([p @ e1, p @ e2], 1)
+    c0 = xy.mean(0)
+    _, _, vt = np.linalg.svd(xy - c0, full_matrices=False)
+    n2 = np.array([-vt[0, 1], vt[0, 0]])
+    normal = n2[0] * e1 + n2[1] * e2
+    centroid = p.mean(0)
+    if normal @ centroid > 0:
+        normal = -normal
+    return _Plane(normal, float(-normal @ centroid))
+
+
+def _fill_creases(scene: _WorkScene, state: _Labelling, opts: GeometricOptions) -> None:
+    """Undecided pixels (no normal at depth edges, mixed normals along creases) take the label
+    of the nearby planar region (within ``crease_px``) on whose plane they lie, nearest first."""
+    import cv2
+
+    undecided = scene.valid & (state.labels == int(Label.CLUTTER)) & (state.region_id < 0)
+    if not (undecided.any() and state.regions):
+        return
+    r, c = np.nonzero(undecided)
+    p = scene.pts[r, c]
+    best = np.full(len(r), np.inf)
+    best_label = np.full(len(r), int(Label.CLUTTER), dtype=np.uint8)
+    kernel = np.ones((2 * opts.crease_px + 1,) * 2, np.uint8)
+    thr = 2.0 * _threshold(p[:, 2], opts)
+    for k, (lab, plane) in enumerate(state.regions):
+        near = cv2.dilate((state.region_id == k).astype(np.uint8), kernel)[r, c] > 0
+        dist = np.abs(p @ plane.normal + plane.offset)
+        take = near & (dist < thr) & (dist < best)
+        best[take] = dist[take]
+        best_label[take] = int(lab)
+    state.labels[r, c] = best_label
 
 
 def _upsample_labels(
@@ -527,11 +653,14 @@ def _upsample_labels(
 
 @dataclass(frozen=True)
 class GeometricSegmenter:
-    """Provider wrapper of :func:`segment_geometric` (needs ``frame.depth`` and ``frame.world_from_cam``)."""
+    """Provider wrapper of :func:`segment_geometric` (needs ``frame.depth`` and
+    ``frame.world_from_cam``)."""
 
     options: GeometricOptions = GeometricOptions()
 
     def segment(self, frame: FrameInput) -> U8:
         if frame.depth is None or frame.world_from_cam is None:
-            raise SegmentationInputError("the geometric segmenter needs dense depth and the initial pose", field="depth")
+            raise SegmentationInputError(
+                "the geometric segmenter needs dense depth and the initial pose", field="depth"
+            )
         return segment_geometric(frame.depth, frame.camera, frame.world_from_cam, self.options)

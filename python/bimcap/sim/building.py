@@ -69,10 +69,10 @@ if TYPE_CHECKING:
     import ifcopenshell
 
 __all__ = [
+    "PRESETS",
     "BuildingSpec",
     "BuildingSpecError",
     "GeneratedBuilding",
-    "PRESETS",
     "as_built",
     "expected_counts",
     "generate_building",
@@ -466,7 +466,7 @@ def _storey_content(spec: BuildingSpec, plan: _Plan, k: int, pos: dict[str, floa
         if o.ground_floor_only and k != 0:
             continue
         oid = f"{name}/{o.key}"
-        host_s, host_e, _ = lines[o.host]
+        host_s, _, _ = lines[o.host]
         if _is_x_wall(o.host):
             center = (o.axis_pos, host_s[1])
             direction = (1.0, 0.0)
@@ -616,8 +616,46 @@ def _placement(origin: tuple[float, float, float], x_axis: tuple[float, float]
     return m
 
 
+@dataclass
+class _IfcWriter:
+    """The IFC file being written, its body context and the ``ifcopenshell.api.run`` entry."""
+
+    f: ifcopenshell.file
+    body: Any
+    run: Any
+
+    def place(self, product: Any, origin: tuple[float, float, float],
+              x_axis: tuple[float, float] = (1.0, 0.0)) -> None:
+        """Place ``product`` at ``origin`` (world metres), local x along ``x_axis``, z up."""
+        self.run("geometry.edit_object_placement", self.f, product=product,
+                 matrix=_placement(origin, x_axis), is_si=True)
+
+    def contained(self, storey: Any, ifc_class: str, name: str, predefined_type: str) -> Any:
+        """A new named element of ``ifc_class`` contained in ``storey``."""
+        el = self.run("root.create_entity", self.f, ifc_class=ifc_class, name=name,
+                      predefined_type=predefined_type)
+        self.run("spatial.assign_container", self.f, relating_structure=storey, products=[el])
+        return el
+
+    def represent(self, product: Any, usecase: str, **settings: Any) -> None:
+        """Give ``product`` a body representation made by the API usecase ``usecase``."""
+        rep = self.run(usecase, self.f, context=self.body, **settings)
+        self.run("geometry.assign_representation", self.f, product=product, representation=rep)
+
+
 def _write_ifc(spec: BuildingSpec, storeys: list[_StoreyContent], design_seed: int,
                variant: Variant) -> ifcopenshell.file:
+    """The IFC4 file of ``storeys``: spatial tree, elements, stable order and seeded GUIDs."""
+    ifc, building = _new_ifc_file(design_seed, variant)
+    for st in storeys:
+        _write_storey(ifc, building, st)
+    _sort_relations(ifc.f)
+    _assign_guids(ifc.f, design_seed, variant)
+    return ifc.f
+
+
+def _new_ifc_file(design_seed: int, variant: Variant) -> tuple[_IfcWriter, Any]:
+    """A new IFC4 file with header, project, units, contexts, site and building."""
     import ifcopenshell
     import ifcopenshell.api
 
@@ -634,101 +672,116 @@ def _write_ifc(spec: BuildingSpec, storeys: list[_StoreyContent], design_seed: i
     building = run("root.create_entity", f, ifc_class="IfcBuilding", name="building")
     run("aggregate.assign_object", f, relating_object=project, products=[site])
     run("aggregate.assign_object", f, relating_object=site, products=[building])
+    return _IfcWriter(f, body, run), building
 
-    def place(product: Any, origin: tuple[float, float, float],
-              x_axis: tuple[float, float] = (1.0, 0.0)) -> None:
-        run("geometry.edit_object_placement", f, product=product,
-            matrix=_placement(origin, x_axis), is_si=True)
 
-    for st in storeys:
-        s = st.truth
-        storey = run("root.create_entity", f, ifc_class="IfcBuildingStorey", name=s.name)
-        storey.Elevation = s.elevation
-        run("aggregate.assign_object", f, relating_object=building, products=[storey])
-        place(storey, (0.0, 0.0, s.elevation))
-        ifc_walls: dict[str, Any] = {}
-        for w in st.walls:
-            wall_type = "SOLIDWALL" if w.kind is WallKind.EXTERIOR else "PARTITIONING"
-            wall = run("root.create_entity", f, ifc_class="IfcWall", name=w.id,
-                       predefined_type=wall_type)
-            run("spatial.assign_container", f, relating_structure=storey, products=[wall])
-            d = w.direction
-            place(wall, (w.start[0], w.start[1], w.z_min), (float(d[0]), float(d[1])))
-            rep = run("geometry.add_wall_representation", f, context=body, length=w.length,
-                      height=w.z_max - w.z_min, thickness=w.thickness, offset=-w.thickness / 2)
-            run("geometry.assign_representation", f, product=wall, representation=rep)
-            ifc_walls[w.id] = wall
-        for o in (*st.doors, *st.windows):
-            host = ifc_walls.get(o.host_wall)
-            if host is None:
-                continue
-            t = next(w.thickness for w in st.walls if w.id == o.host_wall)
-            d = o.direction
-            n = (-d[1], d[0])
-            corner = (o.center[0] - d[0] * o.width / 2, o.center[1] - d[1] * o.width / 2)
-            opening = run("root.create_entity", f, ifc_class="IfcOpeningElement",
-                          name=o.id + "/opening", predefined_type="OPENING")
-            eps = 0.05
-            place(opening, (corner[0] - n[0] * (t / 2 + eps), corner[1] - n[1] * (t / 2 + eps),
-                            o.z_min), d)
-            rep = run("geometry.add_wall_representation", f, context=body, length=o.width,
-                      height=o.z_max - o.z_min, thickness=t + 2 * eps, offset=0.0)
-            run("geometry.assign_representation", f, product=opening, representation=rep)
-            run("feature.add_feature", f, feature=opening, element=host)
-            if o.fill_guid is None:
-                continue
-            cls = "IfcDoor" if o.kind == "door" else "IfcWindow"
-            fill = run("root.create_entity", f, ifc_class=cls, name=o.id,
-                       predefined_type="DOOR" if o.kind == "door" else "WINDOW")
-            run("spatial.assign_container", f, relating_structure=storey, products=[fill])
-            place(fill, (corner[0] - n[0] * t / 2, corner[1] - n[1] * t / 2, o.z_min), d)
-            height = o.z_max - o.z_min
-            if o.kind == "door":
-                rep = run("geometry.add_door_representation", f, context=body,
-                          overall_height=height, overall_width=o.width,
-                          lining_properties={"LiningDepth": t, "LiningThickness": 0.05})
-            else:
-                rep = run("geometry.add_window_representation", f, context=body,
-                          overall_height=height, overall_width=o.width,
-                          lining_properties={"LiningDepth": t, "LiningThickness": 0.05,
-                                             "LiningOffset": 0.0})
-            run("geometry.assign_representation", f, product=fill, representation=rep)
-            fill.OverallHeight = height
-            fill.OverallWidth = o.width
-            run("feature.add_filling", f, opening=opening, element=fill)
-        for c in st.columns:
-            col = run("root.create_entity", f, ifc_class="IfcColumn", name=c.id,
-                      predefined_type="COLUMN")
-            run("spatial.assign_container", f, relating_structure=storey, products=[col])
-            place(col, (c.center[0], c.center[1], c.z_min))
-            if c.shape is ColumnShape.ROUND:
-                profile = f.create_entity("IfcCircleProfileDef", ProfileType="AREA",
-                                          ProfileName=c.id, Radius=c.radius)
-            else:
-                assert c.size is not None
-                profile = f.create_entity("IfcRectangleProfileDef", ProfileType="AREA",
-                                          ProfileName=c.id, XDim=c.size[0], YDim=c.size[1])
-            rep = run("geometry.add_profile_representation", f, context=body, profile=profile,
-                      depth=c.z_max - c.z_min)
-            run("geometry.assign_representation", f, product=col, representation=rep)
-        for sl in (*st.slabs, *st.coverings):
-            el = run("root.create_entity", f, ifc_class=sl.ifc_class, name=sl.id,
-                     predefined_type=sl.predefined_type)
-            run("spatial.assign_container", f, relating_structure=storey, products=[el])
-            place(el, (0.0, 0.0, sl.z_min))
-            rep = run("geometry.add_slab_representation", f, context=body,
-                      depth=sl.z_max - sl.z_min, polyline=[tuple(p) for p in sl.polygon])
-            run("geometry.assign_representation", f, product=el, representation=rep)
+def _write_storey(ifc: _IfcWriter, building: Any, st: _StoreyContent) -> None:
+    """One IfcBuildingStorey and its walls, openings and fills, columns, slabs and coverings."""
+    s = st.truth
+    storey = ifc.run("root.create_entity", ifc.f, ifc_class="IfcBuildingStorey", name=s.name)
+    storey.Elevation = s.elevation
+    ifc.run("aggregate.assign_object", ifc.f, relating_object=building, products=[storey])
+    ifc.place(storey, (0.0, 0.0, s.elevation))
+    ifc_walls = {w.id: _write_wall(ifc, storey, w) for w in st.walls}
+    for o in (*st.doors, *st.windows):
+        host = ifc_walls.get(o.host_wall)
+        if host is None:
+            continue
+        t = next(w.thickness for w in st.walls if w.id == o.host_wall)
+        opening = _write_opening(ifc, host, o, t)
+        if o.fill_guid is not None:
+            _write_fill(ifc, storey, opening, o, t)
+    for c in st.columns:
+        _write_column(ifc, storey, c)
+    for sl in (*st.slabs, *st.coverings):
+        el = ifc.contained(storey, sl.ifc_class, sl.id, sl.predefined_type)
+        ifc.place(el, (0.0, 0.0, sl.z_min))
+        ifc.represent(el, "geometry.add_slab_representation", depth=sl.z_max - sl.z_min,
+                      polyline=[tuple(p) for p in sl.polygon])
 
-    # The API collects related elements in sets: put them in file order for stable bytes.
+
+def _write_wall(ifc: _IfcWriter, storey: Any, w: WallTruth) -> Any:
+    """An IfcWall (extruded along its axis from ``w.start``, centred on it); returns it."""
+    wall_type = "SOLIDWALL" if w.kind is WallKind.EXTERIOR else "PARTITIONING"
+    wall = ifc.contained(storey, "IfcWall", w.id, wall_type)
+    d = w.direction
+    ifc.place(wall, (w.start[0], w.start[1], w.z_min), (float(d[0]), float(d[1])))
+    ifc.represent(wall, "geometry.add_wall_representation", length=w.length,
+                  height=w.z_max - w.z_min, thickness=w.thickness, offset=-w.thickness / 2)
+    return wall
+
+
+def _opening_corner(o: OpeningTruth) -> tuple[tuple[float, float], tuple[float, float]]:
+    """``(corner, normal)``: the opening's start on the wall axis (world xy) and the wall normal."""
+    d = o.direction
+    n = (-d[1], d[0])
+    corner = (o.center[0] - d[0] * o.width / 2, o.center[1] - d[1] * o.width / 2)
+    return corner, n
+
+
+def _write_opening(ifc: _IfcWriter, host: Any, o: OpeningTruth, t: float) -> Any:
+    """An IfcOpeningElement through the host wall (``t`` m thick, 5 cm spare on each face)."""
+    corner, n = _opening_corner(o)
+    opening = ifc.run("root.create_entity", ifc.f, ifc_class="IfcOpeningElement",
+                      name=o.id + "/opening", predefined_type="OPENING")
+    eps = 0.05
+    ifc.place(opening, (corner[0] - n[0] * (t / 2 + eps), corner[1] - n[1] * (t / 2 + eps),
+                        o.z_min), o.direction)
+    ifc.represent(opening, "geometry.add_wall_representation", length=o.width,
+                  height=o.z_max - o.z_min, thickness=t + 2 * eps, offset=0.0)
+    ifc.run("feature.add_feature", ifc.f, feature=opening, element=host)
+    return opening
+
+
+def _write_fill(ifc: _IfcWriter, storey: Any, opening: Any, o: OpeningTruth, t: float) -> None:
+    """The IfcDoor or IfcWindow filling ``opening`` (lining ``t`` m deep)."""
+    corner, n = _opening_corner(o)
+    cls = "IfcDoor" if o.kind == "door" else "IfcWindow"
+    fill = ifc.contained(storey, cls, o.id, "DOOR" if o.kind == "door" else "WINDOW")
+    ifc.place(fill, (corner[0] - n[0] * t / 2, corner[1] - n[1] * t / 2, o.z_min), o.direction)
+    height = o.z_max - o.z_min
+    if o.kind == "door":
+        ifc.represent(fill, "geometry.add_door_representation", overall_height=height,
+                      overall_width=o.width,
+                      lining_properties={"LiningDepth": t, "LiningThickness": 0.05})
+    else:
+        ifc.represent(fill, "geometry.add_window_representation", overall_height=height,
+                      overall_width=o.width,
+                      lining_properties={"LiningDepth": t, "LiningThickness": 0.05,
+                                         "LiningOffset": 0.0})
+    fill.OverallHeight = height
+    fill.OverallWidth = o.width
+    ifc.run("feature.add_filling", ifc.f, opening=opening, element=fill)
+
+
+def _write_column(ifc: _IfcWriter, storey: Any, c: ColumnTruth) -> None:
+    """An IfcColumn: a circle or rectangle profile extruded from ``c.z_min`` to ``c.z_max``."""
+    col = ifc.contained(storey, "IfcColumn", c.id, "COLUMN")
+    ifc.place(col, (c.center[0], c.center[1], c.z_min))
+    if c.shape is ColumnShape.ROUND:
+        profile = ifc.f.create_entity("IfcCircleProfileDef", ProfileType="AREA",
+                                      ProfileName=c.id, Radius=c.radius)
+    else:
+        assert c.size is not None
+        profile = ifc.f.create_entity("IfcRectangleProfileDef", ProfileType="AREA",
+                                      ProfileName=c.id, XDim=c.size[0], YDim=c.size[1])
+    ifc.represent(col, "geometry.add_profile_representation", profile=profile,
+                  depth=c.z_max - c.z_min)
+
+
+def _sort_relations(f: ifcopenshell.file) -> None:
+    """Put the elements the API collects in sets into file order, for stable bytes."""
     for rel in f.by_type("IfcRelContainedInSpatialStructure"):
         rel.RelatedElements = sorted(rel.RelatedElements, key=lambda e: e.id())
     for rel in f.by_type("IfcRelAggregates"):
         rel.RelatedObjects = sorted(rel.RelatedObjects, key=lambda e: e.id())
     for units in f.by_type("IfcUnitAssignment"):
         units.Units = sorted(units.Units, key=lambda e: e.id())
-    # Seeded GUIDs: named elements keep theirs between design and as-built (hash of the id);
-    # relationships are numbered in file order.
+
+
+def _assign_guids(f: ifcopenshell.file, design_seed: int, variant: Variant) -> None:
+    """Seeded GUIDs: named elements keep theirs between design and as-built (hash of the id);
+    relationships are numbered in file order."""
     counter: dict[str, int] = {}
     for ent in sorted(f.by_type("IfcRoot"), key=lambda e: e.id()):
         name = ent.Name
@@ -737,7 +790,6 @@ def _write_ifc(spec: BuildingSpec, storeys: list[_StoreyContent], design_seed: i
             counter[cls] = counter.get(cls, 0) + 1
             name = f"{variant.value}:{cls}:{counter[cls]}"
         ent.GlobalId = _guid(design_seed, name)
-    return f
 
 
 # --------------------------------------------------------------------------------------------
@@ -897,7 +949,7 @@ def as_built(design: BuildingSpec | GeneratedBuilding, seed: int, shift_sigma_m:
         removable += [f"S{k}/wall/{key}" for key in sorted(pos) if key.startswith("part-")]
         removable += [f"S{k}/{o.key}" for o in plan.openings
                       if not (o.ground_floor_only and k != 0)]
-    n_missing = int(round(missing_fraction * len(removable)))
+    n_missing = int(round(missing_fraction * len(removable)))  # noqa: RUF046 (numpy < 2)
     missing = sorted(str(x) for x in rng.choice(removable, size=n_missing, replace=False))
     # Elements that are missing have no shift/offset to speak of.
     wall_shifts = {k: v for k, v in wall_shifts.items() if k not in missing}

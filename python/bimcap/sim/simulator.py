@@ -40,12 +40,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from bimcap.dataset import MANIFEST, FrameInfo, LidarInfo, SequenceWriter, write_frame
+from bimcap.dataset import Sequence as SequenceDir
 from bimcap.dataset.conslam import (
     CONSLAM_CAM_FROM_LIDAR,
     CONSLAM_CAM_FROM_LIDAR_MATRIX,
     CONSLAM_CAMERA,
 )
-from bimcap.dataset import Sequence as SequenceDir
 from bimcap.geometry.camera import Camera
 from bimcap.geometry.poses import compose
 from bimcap.geometry.trajectory import Trajectory
@@ -144,10 +144,10 @@ class SimulatorConfig:
     @classmethod
     def small(cls, **overrides: Any) -> SimulatorConfig:
         """A fast configuration for tests: 320×239 ConSLAM-like camera, 6 frames, 1 process."""
-        base: dict[str, Any] = dict(
-            camera=CONSLAM_CAMERA.scaled(320 / 2064), frames=6, fps=3.0, workers=1,
-            threads_per_worker=0,
-        )
+        base: dict[str, Any] = {
+            "camera": CONSLAM_CAMERA.scaled(320 / 2064), "frames": 6, "fps": 3.0, "workers": 1,
+            "threads_per_worker": 0,
+        }
         base.update(overrides)
         return cls(**base)
 
@@ -246,7 +246,7 @@ def corridor_building(
             add(Label.WALL, (xc - door_width_m / 2, y_lo, door_height_m),
                 (xc + door_width_m / 2, y_hi, hz))
         xs.append(x1)
-        for a, b in zip(xs[0::2], xs[1::2]):
+        for a, b in zip(xs[0::2], xs[1::2], strict=False):
             add(Label.WALL, (a, y_lo, 0.0), (b, y_hi, hz))
         # outer wall
         y_lo, y_hi = sorted((side * (y_out - t / 2), side * (y_out + t / 2)))
@@ -260,7 +260,7 @@ def corridor_building(
             # a column in the room corner by the outer wall, a window panel on the outer wall
             cx = i * rw + t / 2
             cy_lo = yr_lo if side > 0 else yr_hi - 0.35
-            add(Label.COLUMN, (cx, cy_lo if side > 0 else cy_lo, 0.0),
+            add(Label.COLUMN, (cx, cy_lo, 0.0),
                 (cx + 0.35, (cy_lo + 0.35), hz))
             xc = (i + 0.5) * rw
             face = side * (y_out - t / 2)
@@ -341,7 +341,8 @@ def missing_floor_parts(model: Any, thickness_m: float = 0.1, close_m: float = 0
         if near:
             geom = geom.difference(union_xy(np.concatenate([e.vertices[e.faces] for e in near])))
             geom = geom.buffer(-0.25, join_style="mitre").buffer(0.25, join_style="mitre")
-        geom = shapely.union_all([g for g in getattr(geom, "geoms", [geom]) if g.area >= min_area_m2])
+        geom = shapely.union_all([g for g in getattr(geom, "geoms", [geom])
+                                  if g.area >= min_area_m2])
         if geom.is_empty:
             continue
         tris = shapely.constrained_delaunay_triangles(geom)
@@ -387,7 +388,8 @@ def sidecar_free_space(ifc: str | PathLike[str], storey: int = 0
 
 # ------------------------------------------------------------------------------- frame writing
 def _finish_sequence(out: Path, cfg: SimulatorConfig, frames: list[FrameInfo],
-                     world_from_cam: F64, ifc_ref: str | None, source: dict[str, Any]) -> SequenceDir:
+                     world_from_cam: F64, ifc_ref: str | None,
+                     source: dict[str, Any]) -> SequenceDir:
     """Register the frames (written by the render workers with :func:`bimcap.dataset.write_frame`)
     with a :class:`bimcap.dataset.SequenceWriter`, which writes ``poses/gt.tum`` and the manifest
     last, and returns the sequence read back."""
@@ -411,62 +413,90 @@ class _RenderJob:
     seed: int
 
 
-_WORKER: dict[str, Any] = {}
+#: What one frame gives back: its info, wall and CPU seconds per stage, label-noise statistics.
+_FrameResult = tuple[FrameInfo, dict[str, float], dict[str, float]]
+
+
+class _FrameRenderer:
+    """Renders, scans and writes the frames of one job (one per process: made once)."""
+
+    def __init__(self, job: _RenderJob) -> None:
+        self.job = job
+        self.renderer = Renderer(job.world, job.config.camera, job.textures, job.config.shading)
+        self.lidar = (
+            None if job.config.lidar is None else LidarSimulator(job.world, job.config.lidar)
+        )
+
+    def __call__(self, args: tuple[int, float, F64]) -> _FrameResult:
+        """Render, scan and write frame ``i``; returns its info, wall and CPU seconds per stage,
+        and the label-noise statistics (empty without label noise)."""
+        i, timestamp, world_from_cam = args
+        job = self.job
+        cfg = job.config
+        timings: dict[str, float] = {}
+        c0 = time.process_time()
+        frame = self.renderer.render(
+            world_from_cam, np.random.default_rng([job.seed, 101, i]), cfg.threads_per_worker,
+            timings,
+        )
+        c1 = time.process_time()
+        scan = np.zeros((0, 4), np.float32)  # no LiDAR: the format still wants a (0, 4) scan
+        t0 = time.perf_counter()
+        if self.lidar is not None:
+            world_from_lidar = compose(world_from_cam, np.asarray(cfg.cam_from_lidar))
+            scan = self.lidar.scan(
+                world_from_lidar, np.random.default_rng([job.seed, 202, i]), cfg.threads_per_worker
+            )
+        t1 = time.perf_counter()
+        c2 = time.process_time()
+        labels, labels_gt, noise_stats = frame.labels, None, {}
+        if cfg.write_labels and cfg.label_noise.enabled:
+            labels, noise_stats = corrupt_labels(
+                frame.labels, cfg.label_noise, np.random.default_rng([job.seed, 303, i])
+            )
+            labels_gt = frame.labels
+        info = write_frame(
+            job.out_dir, i, timestamp, cfg.camera, frame.rgb, scan,
+            labels if cfg.write_labels else None,
+            frame.depth if cfg.write_depth else None,
+            png_compression=cfg.png_compression,
+            labels_gt=labels_gt,
+        )
+        c3 = time.process_time()
+        timings["lidar"] = t1 - t0
+        timings["write"] = time.perf_counter() - t1
+        timings["cpu_image"] = c1 - c0
+        timings["cpu_lidar"] = c2 - c1
+        timings["cpu_write"] = c3 - c2
+        return info, timings, noise_stats
+
+
+#: Inside a render worker process only: its renderer, made once by the pool initializer
+#: (:func:`_init_worker`). The main process renders inline with its own renderer and never
+#: sets this.
+_WORKER: dict[str, _FrameRenderer] = {}
 
 
 def _init_worker(job: _RenderJob) -> None:
-    _WORKER["job"] = job
-    _WORKER["renderer"] = Renderer(job.world, job.config.camera, job.textures, job.config.shading)
-    _WORKER["lidar"] = (
-        None if job.config.lidar is None else LidarSimulator(job.world, job.config.lidar)
-    )
+    _WORKER["renderer"] = _FrameRenderer(job)
 
 
-def _render_one(args: tuple[int, float, F64]
-                ) -> tuple[FrameInfo, dict[str, float], dict[str, float]]:
-    """Render, scan and write frame ``i``; returns its info, wall and CPU seconds per stage, and
-    the label-noise statistics (empty without label noise)."""
-    i, timestamp, world_from_cam = args
-    job: _RenderJob = _WORKER["job"]
-    cfg = job.config
-    timings: dict[str, float] = {}
-    c0 = time.process_time()
-    frame = _WORKER["renderer"].render(
-        world_from_cam, np.random.default_rng([job.seed, 101, i]), cfg.threads_per_worker, timings
-    )
-    c1 = time.process_time()
-    scan = np.zeros((0, 4), np.float32)  # no LiDAR: the format still wants a (0, 4) scan
-    t0 = time.perf_counter()
-    if _WORKER["lidar"] is not None:
-        world_from_lidar = compose(world_from_cam, np.asarray(cfg.cam_from_lidar))
-        scan = _WORKER["lidar"].scan(
-            world_from_lidar, np.random.default_rng([job.seed, 202, i]), cfg.threads_per_worker
-        )
-    t1 = time.perf_counter()
-    c2 = time.process_time()
-    labels, labels_gt, noise_stats = frame.labels, None, {}
-    if cfg.write_labels and cfg.label_noise.enabled:
-        labels, noise_stats = corrupt_labels(
-            frame.labels, cfg.label_noise, np.random.default_rng([job.seed, 303, i])
-        )
-        labels_gt = frame.labels
-    info = write_frame(
-        job.out_dir, i, timestamp, cfg.camera, frame.rgb, scan,
-        labels if cfg.write_labels else None,
-        frame.depth if cfg.write_depth else None,
-        png_compression=cfg.png_compression,
-        labels_gt=labels_gt,
-    )
-    c3 = time.process_time()
-    timings["lidar"] = t1 - t0
-    timings["write"] = time.perf_counter() - t1
-    timings["cpu_image"] = c1 - c0
-    timings["cpu_lidar"] = c2 - c1
-    timings["cpu_write"] = c3 - c2
-    return info, timings, noise_stats
+def _render_one(args: tuple[int, float, F64]) -> _FrameResult:
+    """Frame ``args[0]`` with this worker process's renderer (see :class:`_FrameRenderer`)."""
+    return _WORKER["renderer"](args)
 
 
 # ---------------------------------------------------------------------------------- simulation
+@dataclass
+class _WalkedWorld:
+    """The world to render (door leaves removed if asked) and the free space walked in it."""
+
+    parts: list[MeshPart]
+    world: World
+    free: FreeSpace
+    walkable: dict[str, Any] | None  # the mesh-derived free space's survey; None for polygons
+
+
 def simulate_world(
     parts: Sequence[MeshPart],
     out_dir: str | PathLike[str],
@@ -508,6 +538,51 @@ def simulate_world(
         raise SimError(f"{out}: already holds a sequence (manifest.json); choose another folder")
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
+    scene = _walked_world(parts, cfg, seed, free_polygons, doors_xy, levels, model_name)
+    timings["free_space"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    timestamps = np.arange(cfg.frames) / cfg.fps
+    walk: Walk = plan_walk(scene.free, float(timestamps[-1]) + 1e-6,
+                           np.random.default_rng([seed, 11]), cfg.walk)
+    world_from_cam = walk.poses(timestamps)
+    timings["walk"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    placed, world = _with_clutter(scene, walk.path_xy, cfg, seed, clutter)
+    textures = TextureBank.bake(cfg.texture_seed)
+    timings["world"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    out.mkdir(parents=True, exist_ok=True)
+    results = _render_frames(_RenderJob(world, textures, cfg, out, seed), timestamps,
+                             world_from_cam)
+    stage = _sum_worker_timings(results)
+    timings["render_wall"] = time.perf_counter() - t0
+    # summed over workers: "sum_<stage>" wall seconds inside workers, "cpu_<stage>" CPU seconds
+    timings.update({k if k.startswith("cpu_") else f"sum_{k}": v for k, v in stage.items()})
+
+    t0 = time.perf_counter()
+    ifc_ref = None
+    if ifc_path is not None:
+        ifc_ref = os.path.relpath(Path(ifc_path).resolve(), out.resolve())
+    manifest_source = _manifest_source(
+        cfg, seed, scene, placed, results, clutter=clutter,
+        from_polygons=free_polygons is not None, extra=source,
+    )
+    sequence = _finish_sequence(out, cfg, [info for info, _, _ in results], world_from_cam,
+                                ifc_ref, manifest_source)
+    timings["manifest"] = time.perf_counter() - t0
+    return SimulationResult(sequence=sequence, world_from_cam=world_from_cam,
+                            timestamps=timestamps, clutter=placed,
+                            world_triangles=world.n_triangles, timings=timings)
+
+
+def _walked_world(parts: Sequence[MeshPart], cfg: SimulatorConfig, seed: int,
+                  free_polygons: Sequence[F64] | None, doors_xy: F64 | None,
+                  levels: Sequence[Level] | None, model_name: str) -> _WalkedWorld:
+    """The world of ``parts`` (without door leaves if ``cfg.remove_doors``) and its free space:
+    from ``free_polygons`` if given, else surveyed from the meshes."""
     parts = list(parts)
     doors = door_footprints([p for p in parts if p.label == Label.DOOR])
     if cfg.remove_doors:
@@ -529,83 +604,78 @@ def simulate_world(
         )
         free = choice.free
         walkable = choice.to_dict()
-    timings["free_space"] = time.perf_counter() - t0
+    return _WalkedWorld(parts=parts, world=world, free=free, walkable=walkable)
 
-    t0 = time.perf_counter()
-    timestamps = np.arange(cfg.frames) / cfg.fps
-    walk: Walk = plan_walk(free, float(timestamps[-1]) + 1e-6, np.random.default_rng([seed, 11]),
-                           cfg.walk)
-    world_from_cam = walk.poses(timestamps)
-    timings["walk"] = time.perf_counter() - t0
 
-    t0 = time.perf_counter()
-    placed: list[ClutterObject] = []
-    if clutter and cfg.clutter_density_per_m2 > 0:
-        placed = place_clutter(free, walk.path_xy, np.random.default_rng([seed, 12]),
-                               cfg.clutter_density_per_m2)
-        world = World.from_parts(parts + [c.part for c in placed], seed=seed)
-    textures = TextureBank.bake(cfg.texture_seed)
-    timings["world"] = time.perf_counter() - t0
+def _with_clutter(scene: _WalkedWorld, path_xy: F64, cfg: SimulatorConfig, seed: int,
+                  clutter: bool) -> tuple[list[ClutterObject], World]:
+    """Clutter placed off the walked path ``path_xy`` (P, 2) and the world that holds it (the
+    scene's own world when there is none)."""
+    if not (clutter and cfg.clutter_density_per_m2 > 0):
+        return [], scene.world
+    placed = place_clutter(scene.free, path_xy, np.random.default_rng([seed, 12]),
+                           cfg.clutter_density_per_m2)
+    return placed, World.from_parts(scene.parts + [c.part for c in placed], seed=seed)
 
-    t0 = time.perf_counter()
-    out.mkdir(parents=True, exist_ok=True)
-    job = _RenderJob(world, textures, cfg, out, seed)
+
+def _render_frames(job: _RenderJob, timestamps: F64, world_from_cam: F64) -> list[_FrameResult]:
+    """Render every frame (timestamps (N,) s, poses (N, 7)): inline for one worker, else in
+    ``spawn`` processes; results in frame order."""
+    cfg = job.config
     tasks = [(i, float(timestamps[i]), world_from_cam[i]) for i in range(cfg.frames)]
     workers = cfg.workers or (os.cpu_count() or 1)
     workers = min(workers, cfg.frames)
-    stage: dict[str, float] = {}
     if workers <= 1:
-        _init_worker(job)
-        results = [_render_one(t) for t in tasks]
-        _WORKER.clear()
-    else:
-        import multiprocessing as mp
+        render = _FrameRenderer(job)
+        return [render(t) for t in tasks]
+    import multiprocessing as mp
 
-        # spawn, not fork: Open3D's thread pools do not survive a fork
-        with ProcessPoolExecutor(workers, mp.get_context("spawn"), _init_worker, (job,)) as pool:
-            chunk = max(1, cfg.frames // (4 * workers))
-            results = list(pool.map(_render_one, tasks, chunksize=chunk))
+    # spawn, not fork: Open3D's thread pools do not survive a fork
+    with ProcessPoolExecutor(workers, mp.get_context("spawn"), _init_worker, (job,)) as pool:
+        chunk = max(1, cfg.frames // (4 * workers))
+        return list(pool.map(_render_one, tasks, chunksize=chunk))
+
+
+def _sum_worker_timings(results: list[_FrameResult]) -> dict[str, float]:
+    """Seconds per stage summed over the frames."""
+    stage: dict[str, float] = {}
     for _, r, _ in results:
         for k, v in r.items():
             stage[k] = stage.get(k, 0.0) + v
-    timings["render_wall"] = time.perf_counter() - t0
-    # summed over workers: "sum_<stage>" wall seconds inside workers, "cpu_<stage>" CPU seconds
-    timings.update({k if k.startswith("cpu_") else f"sum_{k}": v for k, v in stage.items()})
+    return stage
 
-    t0 = time.perf_counter()
-    ifc_ref = None
-    if ifc_path is not None:
-        ifc_ref = os.path.relpath(Path(ifc_path).resolve(), out.resolve())
+
+def _manifest_source(cfg: SimulatorConfig, seed: int, scene: _WalkedWorld,
+                     placed: list[ClutterObject], results: list[_FrameResult], *, clutter: bool,
+                     from_polygons: bool, extra: dict[str, Any] | None) -> dict[str, Any]:
+    """The manifest's ``source`` block: generator, seed, settings, clutter, label noise
+    measured, the walked floor and free space, then the caller's ``extra`` provenance."""
+    return {
+        "generator": "bimcap simulate",
+        "seed": seed,
+        "config": cfg.to_dict(),
+        "clutter_enabled": bool(clutter),
+        "label_noise_measured": _label_noise_measured(results),
+        "clutter": [c.to_dict() for c in placed],
+        "z_floor": scene.free.z_floor,
+        "storey": scene.free.storey,
+        "free_space": "polygons" if from_polygons else "meshes",
+        **({"walkable": scene.walkable} if scene.walkable is not None else {}),
+        **(extra or {}),
+    }
+
+
+def _label_noise_measured(results: list[_FrameResult]) -> dict[str, Any] | None:
+    """The label noise measured over the frames (None without label noise)."""
     noise = [n for _, _, n in results if n]
-    measured = None
-    if noise:
-        wrong = np.array([n["wrong_fraction"] for n in noise])
-        measured = {"wrong_fraction_mean": float(wrong.mean()),
-                    "wrong_fraction_min": float(wrong.min()),
-                    "wrong_fraction_max": float(wrong.max()),
-                    "boundary_fraction_mean": float(np.mean([n["boundary_fraction"]
-                                                             for n in noise])),
-                    "true_labels": "labels_gt/"}
-    sequence = _finish_sequence(
-        out, cfg, [info for info, _, _ in results], world_from_cam, ifc_ref,
-        {
-            "generator": "bimcap simulate",
-            "seed": seed,
-            "config": cfg.to_dict(),
-            "clutter_enabled": bool(clutter),
-            "label_noise_measured": measured,
-            "clutter": [c.to_dict() for c in placed],
-            "z_floor": free.z_floor,
-            "storey": free.storey,
-            "free_space": "polygons" if free_polygons is not None else "meshes",
-            **({"walkable": walkable} if walkable is not None else {}),
-            **(source or {}),
-        },
-    )
-    timings["manifest"] = time.perf_counter() - t0
-    return SimulationResult(
-        sequence, world_from_cam, timestamps, placed, world.n_triangles, timings
-    )
+    if not noise:
+        return None
+    wrong = np.array([n["wrong_fraction"] for n in noise])
+    return {"wrong_fraction_mean": float(wrong.mean()),
+            "wrong_fraction_min": float(wrong.min()),
+            "wrong_fraction_max": float(wrong.max()),
+            "boundary_fraction_mean": float(np.mean([n["boundary_fraction"] for n in noise])),
+            "true_labels": "labels_gt/"}
 
 
 def simulate(

@@ -234,7 +234,7 @@ class FreeSpace:
             # fixed-point polygon fill (4 fractional bits) so edges land on cell centres exactly
             cv2.fillPoly(region, [np.rint(px * 16).astype(np.int32)], 1, shift=4)
         if doors_xy is not None and len(doors_xy):
-            r = max(1, int(round(door_radius_m / resolution)))
+            r = max(1, int(round(door_radius_m / resolution)))  # noqa: RUF046 (numpy < 2)
             for d in np.asarray(doors_xy, np.float64).reshape(-1, 2):
                 c = np.rint((d - lo) / resolution).astype(int)
                 cv2.circle(region, (int(c[0]), int(c[1])), r, 1, -1)
@@ -403,15 +403,55 @@ def _smooth_signal(rng: np.random.Generator, t: F64, amplitude: float, fmin: flo
     return amplitude * out / np.sqrt(n / 2.0)
 
 
+@dataclass
+class _WalkGraph:
+    """The walkable grid of the largest connected piece: its graph and cells."""
+
+    graph: Any  # CSR matrix over the walkable cells
+    node: NDArray[np.int64]  # (H, W) node id per cell, -1 = none
+    rr: NDArray[np.int64]  # (n,) row of each node
+    cc: NDArray[np.int64]  # (n,) column of each node
+
+    def xy(self, nodes: Any, res: float) -> F64:
+        """(k, 2) grid xy (metres, without the grid origin) of node ids ``nodes``."""
+        return np.stack([self.cc[nodes], self.rr[nodes]], axis=-1) * res
+
+
+@dataclass
+class _Timeline:
+    """The walk's 100 Hz time base and the walker's position along the path."""
+
+    dt: float  # seconds
+    t: F64  # (T,) seconds
+    s_t: F64  # (T,) arc length along the path, metres
+    xy: F64  # (T, 2) world xy, metres
+
+
 def plan_walk(
     free: FreeSpace, duration_s: float, rng: np.random.Generator, config: WalkConfig | None = None
 ) -> Walk:
     """Plan a handheld walk of ``duration_s`` seconds through ``free`` (module docstring)."""
-    from scipy.ndimage import gaussian_filter1d
-    from scipy.sparse.csgraph import dijkstra
-
     cfg = config or WalkConfig()
-    res = free.resolution
+    grid = _walk_graph(free, cfg)
+    waypoints = _spread_waypoints(free, grid, rng)
+    nodes_path = _tour(grid, waypoints, duration_s * cfg.speed_mps * 1.4 + 5.0, free.resolution,
+                       rng)
+    raw = grid.xy(nodes_path, free.resolution) + free.origin_xy
+    path, s_path = _smooth_path(free, cfg, raw)
+    heading = np.unwrap(np.arctan2(np.gradient(path[:, 1]), np.gradient(path[:, 0])))
+    tl = _walk_along(path, s_path, heading, duration_s, cfg, rng)
+    yaw = _yaw(free, tl, path, s_path, heading, duration_s, cfg, rng)
+    pitch, roll, height = _sway(tl, cfg, rng)
+    # glances up (drawn last, so that the path, yaw and the rest of the motion do not depend on
+    # whether the walker looks up)
+    if cfg.pitch_amplitude_deg > 0 and cfg.look_up_interval_s > 0:
+        pitch = pitch + np.deg2rad(_glances_up(tl, duration_s, cfg, rng))
+    xyz = _camera_centres(free, tl, height, cfg)
+    return Walk(tl.t, xyz, yaw, pitch, roll, path)
+
+
+def _walk_graph(free: FreeSpace, cfg: WalkConfig) -> _WalkGraph:
+    """The grid graph of the largest walkable piece of ``free``; raises if there is none."""
     comp, sizes = free.components(cfg)
     if len(sizes) == 0:
         where = f" on storey {free.storey!r}" if free.storey else ""
@@ -420,11 +460,18 @@ def plan_walk(
             "to walk"
         )
     walkable = comp == int(np.argmax(sizes))
-    graph, node = _grid_graph(walkable, free.clearance, res, cfg.preferred_clearance_m,
-                              free.floor_z, cfg.max_step_m)
+    graph, node = _grid_graph(walkable, free.clearance, free.resolution,
+                              cfg.preferred_clearance_m, free.floor_z, cfg.max_step_m)
     rr, cc = np.nonzero(walkable)
+    return _WalkGraph(graph, node, rr, cc)
+
+
+def _spread_waypoints(free: FreeSpace, grid: _WalkGraph, rng: np.random.Generator
+                      ) -> NDArray[np.int64]:
+    """(k,) way-point node ids: farthest-point sampling over the well-clear cells (one draw)."""
+    res = free.resolution
+    rr, cc = grid.rr, grid.cc
     clear = free.clearance[rr, cc]
-    # way-point candidates: the well-clear cells; farthest-point sampling spreads them out
     good = np.flatnonzero(clear >= min(0.75, 0.9 * float(clear.max())))
     cand_xy = np.stack([cc[good], rr[good]], axis=-1) * res
     area = len(rr) * res * res
@@ -439,11 +486,16 @@ def plan_walk(
             break
         chosen.append(nxt)
         d = np.minimum(d, np.linalg.norm(cand_xy - cand_xy[nxt], axis=1))
-    waypoints = node[rr[good[chosen]], cc[good[chosen]]]
+    return grid.node[rr[good[chosen]], cc[good[chosen]]]
 
-    need_m = duration_s * cfg.speed_mps * 1.4 + 5.0
+
+def _tour(grid: _WalkGraph, waypoints: NDArray[np.int64], need_m: float, res: float,
+          rng: np.random.Generator) -> list[int]:
+    """Node ids of a geodesic tour from way-point to a near unvisited one, ``need_m`` long."""
+    from scipy.sparse.csgraph import dijkstra
+
     current = int(waypoints[0])
-    unvisited = set(int(w) for w in waypoints[1:])
+    unvisited = {int(w) for w in waypoints[1:]}
     nodes_path = [current]
     length = 0.0
     guard = 0
@@ -452,10 +504,10 @@ def plan_walk(
         if guard > 10 * len(waypoints) + 20:
             raise SimError("walk planning did not reach the requested length")
         if not unvisited:
-            unvisited = set(int(w) for w in waypoints) - {current}
+            unvisited = {int(w) for w in waypoints} - {current}
             if not unvisited:
                 raise SimError("the walkable space has a single way-point: too small to walk")
-        dist, pred = dijkstra(graph, indices=current, return_predecessors=True)
+        dist, pred = dijkstra(grid.graph, indices=current, return_predecessors=True)
         cands = sorted((float(dist[w]), w) for w in unvisited if np.isfinite(dist[w]))
         if not cands:
             raise SimError("way-points are unreachable from each other")
@@ -464,14 +516,18 @@ def plan_walk(
         while seg[-1] != current:
             seg.append(int(pred[seg[-1]]))
         seg = seg[::-1]
-        seg_xy = np.stack([cc[seg], rr[seg]], axis=-1) * res
-        length += float(np.linalg.norm(np.diff(seg_xy, axis=0), axis=1).sum())
+        length += float(np.linalg.norm(np.diff(grid.xy(seg, res), axis=0), axis=1).sum())
         nodes_path += seg[1:]
         unvisited.discard(pick)
         current = pick
-    raw = np.stack([cc[nodes_path], rr[nodes_path]], axis=-1) * res + free.origin_xy
+    return nodes_path
 
-    # resample at 5 cm, smooth, pull back where the smoothing cuts into the clearance margin
+
+def _smooth_path(free: FreeSpace, cfg: WalkConfig, raw: F64) -> tuple[F64, F64]:
+    """Resample the raw path (P, 2) at 5 cm, smooth it, pull it back where the smoothing cuts
+    into the clearance margin; returns the path (Q, 2) and its arc length (Q,) in metres."""
+    from scipy.ndimage import gaussian_filter1d
+
     seg_len = np.linalg.norm(np.diff(raw, axis=0), axis=1)
     s = np.concatenate([[0.0], np.cumsum(seg_len)])
     s_new = np.arange(0.0, s[-1], 0.05)
@@ -487,9 +543,14 @@ def plan_walk(
         path[bad] = 0.5 * (path[bad] + raw_rs[bad])
     seg_len = np.linalg.norm(np.diff(path, axis=0), axis=1)
     s_path = np.concatenate([[0.0], np.cumsum(seg_len)])
+    return path, s_path
 
-    # heading along the path and curvature-limited speed
-    heading = np.unwrap(np.arctan2(np.gradient(path[:, 1]), np.gradient(path[:, 0])))
+
+def _walk_along(path: F64, s_path: F64, heading: F64, duration_s: float, cfg: WalkConfig,
+                rng: np.random.Generator) -> _Timeline:
+    """Walk the path (Q, 2) at a curvature-limited, slowly varying speed (draws its variation)."""
+    from scipy.ndimage import gaussian_filter1d
+
     curv = np.abs(np.gradient(gaussian_filter1d(heading, 4.0))) / 0.05  # rad per metre
     dt = 0.01
     n_t = int(np.ceil(duration_s / dt)) + 1
@@ -503,8 +564,16 @@ def plan_walk(
     if s_t[-1] > s_path[-1]:
         raise SimError("planned path shorter than the walk")
     xy = np.stack([np.interp(s_t, s_path, path[:, 0]), np.interp(s_t, s_path, path[:, 1])], axis=1)
+    return _Timeline(dt=dt, t=t, s_t=s_t, xy=xy)
 
-    # yaw: look ahead along the path, add head turns toward the nearer wall, limit the rate
+
+def _yaw(free: FreeSpace, tl: _Timeline, path: F64, s_path: F64, heading: F64,
+         duration_s: float, cfg: WalkConfig, rng: np.random.Generator) -> F64:
+    """(T,) yaw, radians: look ahead along the path, add head turns toward the nearer wall
+    (drawn here), limit the rate."""
+    from scipy.ndimage import gaussian_filter1d
+
+    s_t, xy = tl.s_t, tl.xy
     ahead = np.stack(
         [np.interp(s_t + cfg.look_ahead_m, s_path, path[:, 0]),
          np.interp(s_t + cfg.look_ahead_m, s_path, path[:, 1])], axis=1,
@@ -515,7 +584,21 @@ def plan_walk(
     if near_end.any():
         yaw_path[near_end] = np.interp(s_t[near_end], s_path, heading)
     yaw_path = np.unwrap(yaw_path)
-    turns = np.zeros(n_t)
+    turns = _head_turns(free, tl, yaw_path, duration_s, cfg, rng)
+    target = gaussian_filter1d(yaw_path + turns, sigma=0.3 / tl.dt, mode="nearest")
+    max_step = np.deg2rad(cfg.max_yaw_rate_dps) * tl.dt
+    yaw = np.empty(len(tl.t))
+    yaw[0] = target[0]
+    for i in range(1, len(tl.t)):
+        yaw[i] = yaw[i - 1] + np.clip(target[i] - yaw[i - 1], -max_step, max_step)
+    return yaw
+
+
+def _head_turns(free: FreeSpace, tl: _Timeline, yaw_path: F64, duration_s: float,
+                cfg: WalkConfig, rng: np.random.Generator) -> F64:
+    """(T,) head-turn yaw offsets, radians, at exponential gaps (drawn here)."""
+    t, dt, xy = tl.t, tl.dt, tl.xy
+    turns = np.zeros(len(t))
     t_next = rng.exponential(cfg.head_turn_interval_s)
     while t_next < duration_s:
         length_s = rng.uniform(2.0, 4.0)
@@ -530,15 +613,14 @@ def plan_walk(
         inside = (tau >= 0.0) & (tau <= 1.0)
         turns[inside] += sign * amp * np.sin(np.pi * tau[inside]) ** 2
         t_next += length_s + rng.exponential(cfg.head_turn_interval_s)
-    target = gaussian_filter1d(yaw_path + turns, sigma=0.3 / dt, mode="nearest")
-    max_step = np.deg2rad(cfg.max_yaw_rate_dps) * dt
-    yaw = np.empty(n_t)
-    yaw[0] = target[0]
-    for i in range(1, n_t):
-        yaw[i] = yaw[i - 1] + np.clip(target[i] - yaw[i - 1], -max_step, max_step)
+    return turns
 
-    # sway, bob and slow drifts
-    phase = 2.0 * np.pi * np.cumsum(cfg.step_hz * np.ones(n_t) * dt)
+
+def _sway(tl: _Timeline, cfg: WalkConfig, rng: np.random.Generator) -> tuple[F64, F64, F64]:
+    """Step sway, bob and slow drifts: (T,) pitch and roll (radians) and camera height above
+    the floor (metres), drawn in that order."""
+    t = tl.t
+    phase = 2.0 * np.pi * np.cumsum(cfg.step_hz * np.ones(len(t)) * tl.dt)
     pitch = np.deg2rad(
         cfg.pitch_deg + cfg.sway_pitch_deg * np.sin(phase) + _smooth_signal(rng, t, 2.0, 0.02, 0.2)
     )
@@ -549,21 +631,30 @@ def plan_walk(
     h_mid = rng.uniform(h_lo + 0.15, h_hi - 0.15)
     height = h_mid + _smooth_signal(rng, t, 0.05, 0.01, 0.1) + 0.015 * np.sin(phase)
     height = np.clip(height, h_lo + 0.01, h_hi - 0.01)
-    # glances up (drawn last, so that the path, yaw and the rest of the motion do not depend on
-    # whether the walker looks up)
-    if cfg.pitch_amplitude_deg > 0 and cfg.look_up_interval_s > 0:
-        look = np.zeros(n_t)
-        t_next = rng.exponential(cfg.look_up_interval_s)
-        while t_next < duration_s:
-            length_s = rng.uniform(*cfg.look_up_s)
-            amp = rng.uniform(0.6, 1.0) * cfg.pitch_amplitude_deg
-            tau = (t - t_next) / length_s
-            inside = (tau >= 0.0) & (tau <= 1.0)
-            look[inside] += amp * np.sin(np.pi * tau[inside]) ** 2
-            t_next += length_s + rng.exponential(cfg.look_up_interval_s)
-        pitch = pitch + np.deg2rad(look)
-    # the local floor under the walker, smoothed over ~0.3 m of path: a step is climbed, not jumped
-    floor = gaussian_filter1d(free.floor_at(xy), sigma=0.3 / max(cfg.speed_mps, 0.1) / dt,
+    return pitch, roll, height
+
+
+def _glances_up(tl: _Timeline, duration_s: float, cfg: WalkConfig, rng: np.random.Generator
+                ) -> F64:
+    """(T,) upward glances, degrees: sin² bumps at exponential gaps (drawn here)."""
+    t = tl.t
+    look = np.zeros(len(t))
+    t_next = rng.exponential(cfg.look_up_interval_s)
+    while t_next < duration_s:
+        length_s = rng.uniform(*cfg.look_up_s)
+        amp = rng.uniform(0.6, 1.0) * cfg.pitch_amplitude_deg
+        tau = (t - t_next) / length_s
+        inside = (tau >= 0.0) & (tau <= 1.0)
+        look[inside] += amp * np.sin(np.pi * tau[inside]) ** 2
+        t_next += length_s + rng.exponential(cfg.look_up_interval_s)
+    return look
+
+
+def _camera_centres(free: FreeSpace, tl: _Timeline, height: F64, cfg: WalkConfig) -> F64:
+    """(T, 3) camera centres: ``height`` above the local floor, smoothed over ~0.3 m of path
+    (a step is climbed, not jumped)."""
+    from scipy.ndimage import gaussian_filter1d
+
+    floor = gaussian_filter1d(free.floor_at(tl.xy), sigma=0.3 / max(cfg.speed_mps, 0.1) / tl.dt,
                               mode="nearest")
-    xyz = np.concatenate([xy, (floor + height)[:, None]], axis=1)
-    return Walk(t, xyz, yaw, pitch, roll, path)
+    return np.concatenate([tl.xy, (floor + height)[:, None]], axis=1)
