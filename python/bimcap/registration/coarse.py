@@ -42,6 +42,7 @@ frame, metres.
 
 from __future__ import annotations
 
+import itertools
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -53,18 +54,31 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from bimcap.geometry.poses import matrix_to_pose, pose_to_matrix, transform_points
 from bimcap.labels import Label
+from bimcap.registration._coarse_steps import (
+    _CLASSES,
+    _Candidate,
+    _pick_height,
+    _register_window,
+    _split_windows,
+    _StageClock,
+    _subsample,
+    _WindowFit,
+    _Windows,
+    _yaw_grid,
+    _YawGrid,
+)
 from bimcap.registration.continuity import transition_cost, viterbi_chain
-from bimcap.registration.correlative import score_volume, top_hypotheses
 from bimcap.registration.errors import RegistrationInputError
-from bimcap.registration.frame_level import FrameLevelOptions, FrameLevelResult, level_frames
-from bimcap.registration.gravity import LevelResult, level_window
-from bimcap.registration.icp import Correction2D, icp_2d, rot2
+from bimcap.registration.frame_level import (
+    FrameLevelOptions,
+    FrameLevelResult,
+    level_frames,
+)
+from bimcap.registration.icp import Correction2D, icp_2d
 from bimcap.registration.plan_maps import PlanMaps
 
 F64 = NDArray[np.float64]
 I32 = NDArray[np.int32]
-
-_CLASSES = ("wall", "column", "floor", "ceiling")
 
 
 # ------------------------------------------------------------------------------------------------
@@ -393,7 +407,7 @@ class CoarseResult:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary (per-frame arrays as lists)."""
         return {
-            "n_frames": int(len(self.poses)),
+            "n_frames": len(self.poses),
             "n_windows": len(self.windows),
             "accepted_fraction": float(self.accepted.mean()) if len(self.accepted) else 0.0,
             "poses": self.poses.tolist(),
@@ -410,14 +424,6 @@ class CoarseResult:
 
 # ------------------------------------------------------------------------------------------------
 # Internals.
-
-
-@dataclass
-class _Candidate:
-    correction: Correction2D
-    score: float
-    inlier_ratio: float
-    constraint: float
 
 
 def _ceiling_above(plan: FloorPlan, z: float | None) -> float | None:
@@ -470,37 +476,6 @@ def _build_maps(plan: FloorPlan, mask: NDArray[np.bool_], opt: CoarseOptions) ->
                           opt.xy_range_m + 3.0, opt.view_bins, opt.coarse_resolution_m,
                           opt.coarse_sigma_m, opt.fine_resolution_m, opt.fine_sigma_m,
                           opt.score_truncate)
-
-
-def _weighted_mean(values: F64, p_class: I32, column_weight: float) -> float:
-    if len(values) == 0:
-        return 0.0
-    w = np.where(p_class == Label.COLUMN, column_weight, 1.0)
-    return float((values * w).sum() / max(w.sum(), 1e-12))
-
-
-def _subsample(p_xy: F64, p_class: I32, cell: float | None, cap: int,
-               rng: np.random.Generator) -> NDArray[np.int64]:
-    """Indices of a thinned point set: with ``cell``, one point per (cell, class) grid cell (for
-    occupancy templates; this flattens the noise distribution, so ICP must not use it); then at
-    most ``cap`` points drawn uniformly at random (keeps the noise distribution)."""
-    keep = np.arange(len(p_xy))
-    if len(p_xy) and cell is not None:
-        key = np.c_[np.floor(p_xy / cell).astype(np.int64), p_class.astype(np.int64)]
-        _, keep = np.unique(key, axis=0, return_index=True)
-        keep = np.sort(keep)
-    if len(keep) > cap:
-        keep = np.sort(rng.choice(keep, cap, replace=False))
-    return keep
-
-
-def _pick_height(heights: F64, z: float, below: bool = False) -> float | None:
-    if len(heights) == 0:
-        return None
-    if below:
-        cand = heights[heights <= z]
-        return float(cand.max()) if len(cand) else float(heights.min())
-    return float(heights[np.abs(heights - z).argmin()])
 
 
 def _lift(c2: Correction2D) -> F64:
@@ -592,6 +567,203 @@ def _refine_frames(per_frame: F64, poses: F64, world_pts: dict[str, F64], frames
     return kept
 
 
+@dataclass(frozen=True)
+class _Oriented:
+    """The poses (N, 7) the windows start from, after stage 0 (or the input), and its outcome:
+    ``skip_windows`` (the input is already near the plan), ``unchanged`` (poses is the input)."""
+
+    poses: F64
+    frame_level: FrameLevelResult | None
+    skip_windows: bool
+    unchanged: bool
+
+
+def _checked_poses(world_from_cam: ArrayLike) -> F64:
+    """The (N, 7) initial poses as float64; raises :class:`RegistrationInputError` if bad."""
+    poses = np.asarray(world_from_cam, dtype=np.float64)
+    if poses.ndim != 2 or poses.shape[1] != 7 or len(poses) == 0 or not np.isfinite(poses).all():
+        raise RegistrationInputError(f"must be finite (N>0, 7), got {poses.shape}", None,
+                                     "world_from_cam")
+    return poses
+
+
+def _storey_maps(plan: FloorPlan, opt: CoarseOptions, map_cache: dict[Any, PlanMaps]
+                 ) -> Callable[[float | None], PlanMaps]:
+    """``floor_z -> PlanMaps`` of that storey's plan section, kept in ``map_cache``."""
+    plan_key = (plan.segments.tobytes(), plan.segment_class.tobytes(), opt.view_bins,
+                opt.coarse_resolution_m, opt.coarse_sigma_m, opt.fine_resolution_m,
+                opt.fine_sigma_m, opt.score_truncate, max(opt.xy_range_m, opt.frame_xy_range_m))
+
+    def maps_for(floor_z: float | None) -> PlanMaps:
+        """The plan maps of the storey whose floor is at ``floor_z`` (cached)."""
+        if plan.segment_z is not None and floor_z is not None:
+            zc = floor_z + opt.plan_cut_height_m
+            mask = (plan.segment_z[:, 0] <= zc) & (zc <= plan.segment_z[:, 1])
+        else:
+            mask = np.ones(len(plan.segments), dtype=bool)
+        key = (plan_key, None if floor_z is None else round(floor_z, 3),
+               np.packbits(mask).tobytes())
+        if key not in map_cache:
+            map_cache[key] = _build_maps(plan, mask, opt)
+        return map_cache[key]
+
+    return maps_for
+
+
+def _orient_frames(poses: F64, samples: SemanticSamples, plan: FloorPlan,
+                   maps_for: Callable[[float | None], PlanMaps], opt: CoarseOptions,
+                   rng: np.random.Generator, timings: dict[str, float]) -> _Oriented:
+    """Stage 0: per-frame orientation (tilt and yaw about each camera centre) and the part of
+    the tracked translation beyond the deadband; a no-op unless ``frame_orientation``."""
+    if not (opt.frame_orientation and opt.use_gravity):
+        return _Oriented(poses=poses, frame_level=None, skip_windows=False, unchanged=True)
+    unchanged = True
+    t0 = time.perf_counter()
+    frame_level = _level_frames(poses, samples, plan, maps_for, opt, rng)
+    m = frame_level.world_from_world.copy()
+    near = frame_level.drift_m < opt.frame_gate_m
+    if opt.frame_translation and not near:
+        # Soft threshold: the plan and the labels are good only to a few decimetres in
+        # places (a frame that sees one door jamb locks onto it), and a consistent offset
+        # over many frames is what the bundle adjustment cannot undo.
+        t3 = frame_level.translation
+        norm = np.linalg.norm(t3, axis=1)
+        shrink = np.clip(1.0 - opt.frame_deadband_m / np.maximum(norm, 1e-12), 0.0, 1.0)
+        m[:, :3, 3] += t3 * shrink[:, None]
+    skip_windows = near
+    if not near or opt.frame_rotate_when_near:
+        poses = matrix_to_pose(m @ pose_to_matrix(poses))
+        unchanged = False
+    timings["frame_orientation"] = time.perf_counter() - t0
+    return _Oriented(poses=poses, frame_level=frame_level, skip_windows=skip_windows,
+                     unchanged=unchanged)
+
+
+def _choose_hypotheses(fits: list[_WindowFit], poses: F64, wins: _Windows, opt: CoarseOptions
+                       ) -> dict[int, int]:
+    """Step 5, continuity: window -> index of its chosen hypothesis (windows with any), by
+    score alone or by the Viterbi chain over neighbouring windows' corrections."""
+    cands = [f.candidates for f in fits]
+    starts, stops = wins.starts, wins.stops
+    active = [w for w in range(len(starts)) if cands[w]]
+    choice = {w: int(np.argmax([c.score for c in cands[w]])) for w in active}
+    if opt.use_continuity and opt.continuity_weight > 0 and len(active) > 1:
+        unary = [-np.array([c.score for c in cands[w]]) / opt.score_sigma for w in active]
+        pair = []
+        for a, b in itertools.pairwise(active):
+            boundary = 0.5 * (poses[stops[a] - 1, :2] + poses[starts[b], :2])
+            gap = max((starts[b] - stops[a]) / opt.window_frames + 1.0, 1.0)
+            cost = transition_cost([c.correction for c in cands[a]],
+                                   [c.correction for c in cands[b]], boundary,
+                                   opt.continuity_sigma_t_m * np.sqrt(gap),
+                                   np.deg2rad(opt.continuity_sigma_yaw_deg) * np.sqrt(gap),
+                                   opt.continuity_cap)
+            pair.append(opt.continuity_weight * cost)
+        labels, _ = viterbi_chain(unary, pair)
+        choice = {w: int(lab) for w, lab in zip(active, labels, strict=True)}
+    return choice
+
+
+def _rejection_reason(cand: _Candidate, grid: _YawGrid, opt: CoarseOptions) -> str:
+    """Why a window's chosen hypothesis is not accepted ("" when it is)."""
+    corr = cand.correction
+    edge_t = opt.xy_range_m - opt.coarse_resolution_m
+    edge_yaw = grid.yaw_range - 0.5 * grid.step
+    if cand.inlier_ratio < opt.min_inlier_ratio:
+        return f"inlier ratio {cand.inlier_ratio:.2f} < {opt.min_inlier_ratio}"
+    if cand.score < opt.min_score:
+        return f"score {cand.score:.2f} < {opt.min_score}"
+    if cand.constraint < opt.min_constraint:
+        return f"degenerate (translation constraint {cand.constraint:.3f})"
+    if opt.use_correlative and (np.abs(corr.t).max() > edge_t or
+                                (opt.yaw_range_deg < 180 and abs(corr.yaw) > edge_yaw)):
+        return "optimum at the edge of the search range"
+    return ""
+
+
+def _judge_windows(fits: list[_WindowFit], choice: dict[int, int], poses: F64, wins: _Windows,
+                   grid: _YawGrid, skip_windows: bool, opt: CoarseOptions
+                   ) -> tuple[list[WindowResult], list[Any], list[F64]]:
+    """Step 6a: each window's result; the accepted ones' centre frames and (4, 4) corrections
+    (planar correction after levelling) as interpolation nodes."""
+    windows: list[WindowResult] = []
+    nodes, mats = [], []
+    for w, (f0, f1) in enumerate(zip(wins.starts, wins.stops, strict=True)):
+        fit = fits[w]
+        lv = fit.level
+        tilt = float(np.rad2deg(Rotation.from_matrix(lv.rotation).magnitude()))
+        common = {"start": int(f0), "stop": int(f1), "n_points": fit.meta["n_points"],
+                  "dz_m": lv.dz, "tilt_deg": tilt, "seconds": fit.meta["seconds"]}
+        if not fit.candidates:
+            few = fit.meta["n_points"] < opt.min_points
+            reason = ("input already near the plan" if skip_windows
+                      else "too few points" if few else "no hypothesis")
+            windows.append(WindowResult(
+                **common, n_hypotheses=0, yaw_deg=0.0, t_m=(0.0, 0.0),
+                pivot=tuple(poses[f0:f1, :2].mean(0)), score=0.0, inlier_ratio=0.0,
+                constraint=0.0, best_score=0.0, accepted=False, reason=reason))
+            continue
+        cand = fit.candidates[choice[w]]
+        corr = cand.correction
+        reason = _rejection_reason(cand, grid, opt)
+        accepted = reason == ""
+        windows.append(WindowResult(
+            **common, n_hypotheses=len(fit.candidates), yaw_deg=float(np.rad2deg(corr.yaw)),
+            t_m=(float(corr.t[0]), float(corr.t[1])),
+            pivot=(float(corr.pivot[0]), float(corr.pivot[1])), score=cand.score,
+            inlier_ratio=cand.inlier_ratio, constraint=cand.constraint,
+            best_score=max(c.score for c in fit.candidates), accepted=accepted, reason=reason))
+        if accepted:
+            nodes.append(0.5 * (f0 + f1 - 1))
+            mats.append(_lift(corr) @ lv.matrix())
+    return windows, nodes, mats
+
+
+def _apply_windows(windows: list[WindowResult], nodes: list[Any], mats: list[F64], n: int,
+                   opt: CoarseOptions) -> tuple[F64, NDArray[np.bool_]]:
+    """Step 6b: (N, 4, 4) per-frame corrections (interpolated between accepted windows, or the
+    window's own without ``interpolate``) and (N,) whether a frame's window was accepted."""
+    per_frame = _interpolate(np.asarray(nodes), mats, n)
+    accepted_frames = np.zeros(n, dtype=bool)
+    for wr in windows:
+        if wr.accepted:
+            accepted_frames[wr.start:wr.stop] = True
+            if not opt.interpolate:
+                per_frame[wr.start:wr.stop] = mats[nodes.index(0.5 * (wr.start + wr.stop - 1))]
+    return per_frame, accepted_frames
+
+
+def _frame_fit(out_poses: F64, samples: SemanticSamples, wins: _Windows,
+               win_maps: list[PlanMaps], opt: CoarseOptions) -> tuple[F64, F64]:
+    """Per-frame fit at the output poses (N, 7): ``(fine score (N,), inlier ratio (N,))`` of
+    each frame's wall/column points (column points weighted by ``column_weight``)."""
+    n = len(out_poses)
+    frames = wins.frames
+    frame_score = np.zeros(n)
+    frame_inl = np.zeros(n)
+    for c, lab in (("wall", Label.WALL), ("column", Label.COLUMN)):
+        fr = frames[c]
+        if not len(fr):
+            continue
+        q = transform_points(out_poses[fr], getattr(samples, f"{c}_p_in_cam"))[:, :2]
+        view = q - out_poses[fr, :2]
+        cls_ = np.full(len(fr), int(lab), np.int32)
+        wt = 1.0 if lab == Label.WALL else opt.column_weight
+        for w in range(len(wins.starts)):
+            m = wins.indices(c, w)
+            if len(m) == 0:
+                continue
+            sc, dist = win_maps[w].fine_eval(q[m], win_maps[w].layer_of(cls_[m], view[m]))
+            np.add.at(frame_score, fr[m], wt * sc)
+            np.add.at(frame_inl, fr[m], wt * (dist < opt.inlier_m))
+    count = np.zeros(n)
+    for c, lab in (("wall", Label.WALL), ("column", Label.COLUMN)):
+        np.add.at(count, frames[c], 1.0 if lab == Label.WALL else opt.column_weight)
+    frame_score = np.where(count > 0, frame_score / np.maximum(count, 1e-12), 0.0)
+    frame_inl = np.where(count > 0, frame_inl / np.maximum(count, 1e-12), 0.0)
+    return frame_score, frame_inl
+
+
 # ------------------------------------------------------------------------------------------------
 # The stage.
 
@@ -620,290 +792,49 @@ def coarse_register(
     CoarseResult
     """
     opt = CoarseOptions() if options is None else options
-    t_start, c_start = time.perf_counter(), time.process_time()
-    maps_cpu = 0.0
-    poses = np.asarray(world_from_cam, dtype=np.float64)
-    if poses.ndim != 2 or poses.shape[1] != 7 or len(poses) == 0 or not np.isfinite(poses).all():
-        raise RegistrationInputError(f"must be finite (N>0, 7), got {poses.shape}", None,
-                                     "world_from_cam")
-    n = len(poses)
+    clock = _StageClock.start()
+    input_poses = _checked_poses(world_from_cam)
+    n = len(input_poses)
     samples.check_frames(n)
     rng = np.random.default_rng(opt.seed)
-    timings = {k: 0.0 for k in ("level", "maps", "correlative", "icp", "continuity", "apply")}
-
-    map_cache: dict[Any, PlanMaps] = {} if maps_cache is None else maps_cache
-    plan_key = (plan.segments.tobytes(), plan.segment_class.tobytes(), opt.view_bins,
-                opt.coarse_resolution_m, opt.coarse_sigma_m, opt.fine_resolution_m,
-                opt.fine_sigma_m, opt.score_truncate, max(opt.xy_range_m, opt.frame_xy_range_m))
-
-    def maps_for(floor_z: float | None) -> PlanMaps:
-        """The plan maps of the storey whose floor is at ``floor_z`` (cached)."""
-        if plan.segment_z is not None and floor_z is not None:
-            zc = floor_z + opt.plan_cut_height_m
-            mask = (plan.segment_z[:, 0] <= zc) & (zc <= plan.segment_z[:, 1])
-        else:
-            mask = np.ones(len(plan.segments), dtype=bool)
-        key = (plan_key, None if floor_z is None else round(floor_z, 3),
-               np.packbits(mask).tobytes())
-        if key not in map_cache:
-            map_cache[key] = _build_maps(plan, mask, opt)
-        return map_cache[key]
-
+    timings = clock.timings
+    maps_for = _storey_maps(plan, opt, {} if maps_cache is None else maps_cache)
     # 0. per-frame orientation (tilt and yaw about each camera centre).
-    frame_level: FrameLevelResult | None = None
-    skip_windows = False
-    input_poses, unchanged = poses, True
-    if opt.frame_orientation and opt.use_gravity:
-        t0 = time.perf_counter()
-        frame_level = _level_frames(poses, samples, plan, maps_for, opt, rng)
-        m = frame_level.world_from_world.copy()
-        near = frame_level.drift_m < opt.frame_gate_m
-        if opt.frame_translation and not near:
-            # Soft threshold: the plan and the labels are good only to a few decimetres in
-            # places (a frame that sees one door jamb locks onto it), and a consistent offset
-            # over many frames is what the bundle adjustment cannot undo.
-            t3 = frame_level.translation
-            norm = np.linalg.norm(t3, axis=1)
-            shrink = np.clip(1.0 - opt.frame_deadband_m / np.maximum(norm, 1e-12), 0.0, 1.0)
-            m[:, :3, 3] += t3 * shrink[:, None]
-        skip_windows = near
-        if not near or opt.frame_rotate_when_near:
-            poses = matrix_to_pose(m @ pose_to_matrix(poses))
-            unchanged = False
-        timings["frame_orientation"] = time.perf_counter() - t0
-
-    # All labelled points in the world with the initial poses, once.
-    world_pts: dict[str, F64] = {}
-    frames: dict[str, I32] = {}
-    for c in _CLASSES:
-        fr = getattr(samples, f"{c}_frame")
-        world_pts[c] = (transform_points(poses[fr], getattr(samples, f"{c}_p_in_cam"))
-                        if len(fr) else np.zeros((0, 3)))
-        frames[c] = fr
-    starts = np.arange(0, n, opt.window_frames)
-    if len(starts) > 1 and n - starts[-1] < max(opt.window_frames // 2, 1):
-        starts = starts[:-1]  # merge a short tail into the previous window
-    stops = np.r_[starts[1:], n]
-    frame_window = np.repeat(np.arange(len(starts)), stops - starts).astype(np.int32)
-    win_of = {c: frame_window[frames[c]] for c in _CLASSES}
-    # Points of window w of class c: by_win[c][bounds[c][w]:bounds[c][w + 1]].
-    by_win = {c: np.argsort(win_of[c], kind="stable") for c in _CLASSES}
-    bounds = {c: np.searchsorted(win_of[c][by_win[c]], np.arange(len(starts) + 1))
-              for c in _CLASSES}
-
-    yaw_range = np.deg2rad(opt.yaw_range_deg)
-    step = np.deg2rad(opt.yaw_step_deg)
-    if opt.yaw_range_deg >= 180:
-        yaws = np.arange(-np.pi, np.pi, step)
-    else:
-        k = int(np.floor(yaw_range / step + 1e-9))
-        yaws = np.arange(-k, k + 1) * step
-
-    levels: list[LevelResult] = []
-    cands: list[list[_Candidate]] = []
-    win_maps: list[PlanMaps] = []
-    win_meta: list[dict[str, Any]] = []
-    for w, (f0, f1) in enumerate(zip(starts, stops)):
-        tw, cw = time.perf_counter(), time.process_time()
-        maps_before, maps_cpu_before = timings["maps"], maps_cpu
-        pivot3 = poses[f0:f1, :3].mean(0)
-        idx = {c: by_win[c][bounds[c][w]:bounds[c][w + 1]] for c in _CLASSES}
-        pts = {c: world_pts[c][idx[c]] for c in _CLASSES}
-        # 1. gravity and height.
-        t0 = time.perf_counter()
-        ref_z = float(np.median(pts["floor"][:, 2])) if len(pts["floor"]) else float(pivot3[2])
-        floor_z = _pick_height(plan.floor_heights, ref_z, below=not len(pts["floor"]))
-        ceil_z = None
-        if len(plan.ceiling_heights):
-            above = plan.ceiling_heights[plan.ceiling_heights > (floor_z if floor_z is not None
-                                                                 else ref_z)]
-            ceil_z = float(above.min()) if len(above) else None
-        level = (level_window(pts["floor"], pts["ceiling"], floor_z, ceil_z, pivot3)
-                 if opt.use_gravity else LevelResult.identity(pivot3))
-        lm = level.matrix()
-        timings["level"] += time.perf_counter() - t0
-        # 2. planar points after levelling (with the ray direction camera → point), wall band,
-        # and two thinned sets: random for ICP, one per cell for the occupancy templates.
-        planar, views, pclass = [], [], []
-        for c, lab in (("wall", Label.WALL), ("column", Label.COLUMN)):
-            q = pts[c] @ lm[:3, :3].T + lm[:3, 3]
-            cam = poses[frames[c][idx[c]], :3] @ lm[:3, :3].T + lm[:3, 3]
-            keep = np.ones(len(q), dtype=bool)
-            if floor_z is not None and opt.wall_band_m > 0:
-                keep &= q[:, 2] > floor_z + opt.wall_band_m
-                if ceil_z is not None:
-                    keep &= q[:, 2] < ceil_z - opt.wall_band_m
-            planar.append(q[keep, :2])
-            views.append(q[keep, :2] - cam[keep, :2])
-            pclass.append(np.full(int(keep.sum()), int(lab), np.int32))
-        all_xy, all_view, all_cls = (np.concatenate(planar), np.concatenate(views),
-                                     np.concatenate(pclass))
-        sel = _subsample(all_xy, all_cls, None, opt.max_points_per_window, rng)
-        p_xy, p_view, p_cls = all_xy[sel], all_view[sel], all_cls[sel]
-        occ = _subsample(all_xy, all_cls, 0.5 * opt.coarse_resolution_m,
-                         10 * opt.max_points_per_window, rng)
-        # Plan section of this storey.
-        t0 = time.perf_counter()
-        c0 = time.process_time()
-        maps = maps_for(floor_z)
-        maps_cpu += time.process_time() - c0
-        timings["maps"] += time.perf_counter() - t0
-
-        def associate(q: F64, q_class: I32, view: F64, maps: PlanMaps = maps) -> tuple[F64, F64]:
-            return maps.nearest(q, maps.layer_of(q_class, view))
-
-        pivot = pivot3[:2].copy()
-        found: list[_Candidate] = []
-        if len(p_xy) >= opt.min_points and len(maps.segments) and not skip_windows:
-            # 3. correlative search.
-            t0 = time.perf_counter()
-            if opt.use_correlative:
-                vol, res, nn = score_volume(all_xy[occ], all_cls[occ], all_view[occ], maps, pivot,
-                                            yaws, opt.xy_range_m, opt.column_weight)
-                hyps = top_hypotheses(vol, yaws, res, nn, opt.top_k, opt.nms_xy_m,
-                                      np.deg2rad(opt.nms_yaw_deg))
-                inits = [Correction2D(h.yaw, h.t, pivot) for h in hyps]
-            else:
-                inits = [Correction2D(0.0, np.zeros(2), pivot)]
-            timings["correlative"] += time.perf_counter() - t0
-            # 4. ICP and fine scoring of each hypothesis.
-            t0 = time.perf_counter()
-            for init in inits:
-                constraint = float("nan")
-                if opt.use_icp:
-                    fit = icp_2d(p_xy, p_cls, associate, init, p_view, opt.icp_radius_start_m,
-                                 opt.icp_radius_end_m, opt.icp_iterations, opt.icp_huber_m,
-                                 opt.inlier_m)
-                    corr, constraint = fit.correction, fit.constraint
-                else:
-                    corr = init
-                layer = maps.layer_of(p_cls, p_view @ rot2(corr.yaw).T)
-                sc, dist = maps.fine_eval(corr.apply(p_xy), layer)
-                cand = _Candidate(corr, _weighted_mean(sc, p_cls, opt.column_weight),
-                                  float((dist < opt.inlier_m).mean()), constraint)
-                dup = [k for k, o in enumerate(found)
-                       if abs(np.angle(np.exp(1j * (o.correction.yaw - corr.yaw))))
-                       < np.deg2rad(0.5) and np.linalg.norm(o.correction.t - corr.t) < 0.05]
-                if dup:
-                    if cand.score > found[dup[0]].score:
-                        found[dup[0]] = cand
-                else:
-                    found.append(cand)
-            timings["icp"] += time.perf_counter() - t0
-        levels.append(level)
-        cands.append(found)
-        win_maps.append(maps)
-        win_meta.append({"seconds": time.perf_counter() - tw - (timings["maps"] - maps_before),
-                         "cpu_seconds": time.process_time() - cw - (maps_cpu - maps_cpu_before),
-                         "n_points": len(p_xy), "floor_z": floor_z, "ceiling_z": ceil_z})
-
+    oriented = _orient_frames(input_poses, samples, plan, maps_for, opt, rng, timings)
+    poses = oriented.poses
+    # 1.-4. per window: gravity and height, planar points, correlative search, ICP.
+    wins = _split_windows(poses, samples, opt)
+    grid = _yaw_grid(opt)
+    fits = [_register_window(w, wins, poses, plan, maps_for, grid, oriented.skip_windows, opt,
+                             rng, clock) for w in range(len(wins.starts))]
+    win_maps, win_meta = [f.maps for f in fits], [f.meta for f in fits]
     # 5. continuity: one hypothesis per window.
     t0 = time.perf_counter()
-    active = [w for w in range(len(starts)) if cands[w]]
-    choice = {w: int(np.argmax([c.score for c in cands[w]])) for w in active}
-    if opt.use_continuity and opt.continuity_weight > 0 and len(active) > 1:
-        unary = [-np.array([c.score for c in cands[w]]) / opt.score_sigma for w in active]
-        pair = []
-        for a, b in zip(active[:-1], active[1:]):
-            boundary = 0.5 * (poses[stops[a] - 1, :2] + poses[starts[b], :2])
-            gap = max((starts[b] - stops[a]) / opt.window_frames + 1.0, 1.0)
-            cost = transition_cost([c.correction for c in cands[a]],
-                                   [c.correction for c in cands[b]], boundary,
-                                   opt.continuity_sigma_t_m * np.sqrt(gap),
-                                   np.deg2rad(opt.continuity_sigma_yaw_deg) * np.sqrt(gap),
-                                   opt.continuity_cap)
-            pair.append(opt.continuity_weight * cost)
-        labels, _ = viterbi_chain(unary, pair)
-        choice = {w: int(lab) for w, lab in zip(active, labels)}
+    choice = _choose_hypotheses(fits, poses, wins, opt)
     timings["continuity"] += time.perf_counter() - t0
-
     # 6. accept, interpolate, apply.
     t0 = time.perf_counter()
-    windows: list[WindowResult] = []
-    nodes, mats = [], []
-    for w, (f0, f1) in enumerate(zip(starts, stops)):
-        lv = levels[w]
-        tilt = float(np.rad2deg(Rotation.from_matrix(lv.rotation).magnitude()))
-        if not cands[w]:
-            few = win_meta[w]["n_points"] < opt.min_points
-            reason = ("input already near the plan" if skip_windows
-                      else "too few points" if few else "no hypothesis")
-            windows.append(WindowResult(int(f0), int(f1), win_meta[w]["n_points"], 0, 0.0,
-                                        (0.0, 0.0), tuple(poses[f0:f1, :2].mean(0)), lv.dz, tilt,
-                                        0.0, 0.0, 0.0, 0.0, False, reason,
-                                        win_meta[w]["seconds"]))
-            continue
-        cand = cands[w][choice[w]]
-        corr = cand.correction
-        reason = ""
-        edge_t = opt.xy_range_m - opt.coarse_resolution_m
-        edge_yaw = yaw_range - 0.5 * step
-        if cand.inlier_ratio < opt.min_inlier_ratio:
-            reason = f"inlier ratio {cand.inlier_ratio:.2f} < {opt.min_inlier_ratio}"
-        elif cand.score < opt.min_score:
-            reason = f"score {cand.score:.2f} < {opt.min_score}"
-        elif cand.constraint < opt.min_constraint:
-            reason = f"degenerate (translation constraint {cand.constraint:.3f})"
-        elif opt.use_correlative and (np.abs(corr.t).max() > edge_t or
-                                      (opt.yaw_range_deg < 180 and abs(corr.yaw) > edge_yaw)):
-            reason = "optimum at the edge of the search range"
-        accepted = reason == ""
-        windows.append(WindowResult(
-            int(f0), int(f1), win_meta[w]["n_points"], len(cands[w]),
-            float(np.rad2deg(corr.yaw)), (float(corr.t[0]), float(corr.t[1])),
-            (float(corr.pivot[0]), float(corr.pivot[1])), lv.dz, tilt, cand.score,
-            cand.inlier_ratio, cand.constraint, max(c.score for c in cands[w]), accepted, reason,
-            win_meta[w]["seconds"]))
-        if accepted:
-            nodes.append(0.5 * (f0 + f1 - 1))
-            mats.append(_lift(corr) @ lv.matrix())
-    per_frame = _interpolate(np.asarray(nodes), mats, n)
-    accepted_frames = np.zeros(n, dtype=bool)
-    for w, wr in enumerate(windows):
-        if wr.accepted:
-            accepted_frames[wr.start:wr.stop] = True
-            if not opt.interpolate:
-                per_frame[wr.start:wr.stop] = mats[nodes.index(0.5 * (wr.start + wr.stop - 1))]
+    windows, nodes, mats = _judge_windows(fits, choice, poses, wins, grid, oriented.skip_windows,
+                                          opt)
+    per_frame, accepted_frames = _apply_windows(windows, nodes, mats, n, opt)
     timings["apply"] += time.perf_counter() - t0
+    # 7. per-frame ICP inside the accepted windows.
     t0 = time.perf_counter()
     n_refined = 0
     if opt.refine_frames and opt.use_icp and accepted_frames.any():
-        n_refined = _refine_frames(per_frame, poses, world_pts, frames, frame_window, win_maps,
-                                   win_meta, accepted_frames, opt, rng)
+        n_refined = _refine_frames(per_frame, poses, wins.world_pts, wins.frames,
+                                   wins.frame_window, win_maps, win_meta, accepted_frames, opt,
+                                   rng)
     timings["refine_frames"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    if unchanged and not accepted_frames.any():
+    if oriented.unchanged and not accepted_frames.any():
         out_poses = input_poses.copy()  # bit for bit: no pose round trip
     else:
         out_poses = matrix_to_pose(per_frame @ pose_to_matrix(poses))
-    # Per-frame fit at the output poses.
-    frame_score = np.zeros(n)
-    frame_inl = np.zeros(n)
-    for c, lab in (("wall", Label.WALL), ("column", Label.COLUMN)):
-        fr = frames[c]
-        if not len(fr):
-            continue
-        q = transform_points(out_poses[fr], getattr(samples, f"{c}_p_in_cam"))[:, :2]
-        view = q - out_poses[fr, :2]
-        cls_ = np.full(len(fr), int(lab), np.int32)
-        wt = 1.0 if lab == Label.WALL else opt.column_weight
-        for w in range(len(starts)):
-            m = by_win[c][bounds[c][w]:bounds[c][w + 1]]
-            if len(m) == 0:
-                continue
-            sc, dist = win_maps[w].fine_eval(q[m], win_maps[w].layer_of(cls_[m], view[m]))
-            np.add.at(frame_score, fr[m], wt * sc)
-            np.add.at(frame_inl, fr[m], wt * (dist < opt.inlier_m))
-    count = np.zeros(n)
-    for c, lab in (("wall", Label.WALL), ("column", Label.COLUMN)):
-        np.add.at(count, frames[c], 1.0 if lab == Label.WALL else opt.column_weight)
-    frame_score = np.where(count > 0, frame_score / np.maximum(count, 1e-12), 0.0)
-    frame_inl = np.where(count > 0, frame_inl / np.maximum(count, 1e-12), 0.0)
+    frame_score, frame_inl = _frame_fit(out_poses, samples, wins, win_maps, opt)
     timings["apply"] += time.perf_counter() - t0
-    timings["total"] = time.perf_counter() - t_start
-    timings["cpu_total"] = time.process_time() - c_start
-    timings["cpu_per_window"] = float(np.mean([m["cpu_seconds"] for m in win_meta]))
-    timings["frames_refined"] = float(n_refined)
-    timings["per_window"] = float(np.mean([m["seconds"] for m in win_meta]))
-    return CoarseResult(out_poses, frame_score, frame_inl, accepted_frames, frame_window, windows,
-                        timings, opt, frame_level)
+    return CoarseResult(poses=out_poses, frame_score=frame_score,
+                        frame_inlier_ratio=frame_inl, accepted=accepted_frames,
+                        frame_window=wins.frame_window, windows=windows,
+                        timings=clock.finish(win_meta, n_refined), options=opt,
+                        frame_level=oriented.frame_level)

@@ -166,77 +166,24 @@ def level_frames(
     FrameLevelResult
     """
     n = len(cam_xyz)
-    out = np.tile(np.eye(4), (n, 1, 1))
-    tilt_ok = np.zeros(n, dtype=bool)
-    yaw_ok = np.zeros(n, dtype=bool)
-    yaw_deg = np.zeros(n)
-    tilt_deg = np.zeros(n)
     step = np.deg2rad(opt.yaw_step_deg)
     k = int(np.floor(np.deg2rad(opt.yaw_range_deg) / step + 1e-9))
     yaws = np.arange(-k, k + 1) * step
-    t_frame = np.zeros((n, 2))
-    scores = np.zeros(n)
-    constraints = np.zeros(n)
-    dz = np.zeros(n)              # height corrections (from the floor; interpolated elsewhere)
-    dz_last = 0.0
-    tilts: list[F64] = []
-    candidates: list[list[Candidate]] = []
-    for i in range(n):
-        cam = np.asarray(cam_xyz[i], dtype=np.float64)
-        pts = frame_points(i)
-        floor_z = floor_z_of(pts["floor"], float(cam[2]))
-        m = np.eye(4)
-        if floor_z is not None and len(pts["floor"]) >= opt.min_floor_points:
-            spread = np.linalg.eigvalsh(np.cov(pts["floor"][:, :2].T))[0]
-            lv = level_window(pts["floor"], np.zeros((0, 3)), floor_z, None, cam,
-                              min_points=opt.min_floor_points)
-            tilt = float(np.rad2deg(Rotation.from_matrix(lv.rotation).magnitude()))
-            if (lv.ok and lv.inlier_ratio >= opt.min_inlier_ratio and tilt <= opt.max_tilt_deg
-                    and np.sqrt(max(spread, 0.0)) >= opt.min_floor_spread_m):
-                m[:3, :3] = lv.rotation
-                m[:3, 3] = cam - lv.rotation @ cam
-                dz[i] = dz_last = lv.dz
-                tilt_ok[i] = True
-                tilt_deg[i] = tilt
-        tilts.append(m)
-        points = _plan_points(pts, m, dz_last, floor_z, ceiling_z_of(floor_z), wall_band_m)
-        candidates.append(_frame_candidates(points, cam, floor_z, maps_of, yaws, icp, opt, rng))
-    path = track_translations(candidates, opt)
-    t_ok = path >= 0
-    for i in np.flatnonzero(t_ok):
-        t_frame[i] = candidates[i][path[i]].correction.t
-    # Translations and heights: trusted frames keep theirs, the others are interpolated
-    # between them. A kept translation far from the median of its kept neighbours is a wrong match.
-    for i in np.flatnonzero(t_ok):
-        near = np.flatnonzero(t_ok[max(i - 3, 0):i + 4]) + max(i - 3, 0)
-        near = near[near != i]
-        if len(near) >= 2 and (np.linalg.norm(t_frame[i] - np.median(t_frame[near], axis=0))
-                               > opt.track_max_step_m):
-            t_ok[i] = False
-    if t_ok.any():
-        idx = np.flatnonzero(t_ok)
-        for c in range(2):
-            t_frame[:, c] = np.interp(np.arange(n), idx, t_frame[idx, c])
-    # Each frame's yaw comes from its hypothesis on the path, or the one nearest to it.
-    for i in range(n):
-        pick = _yaw_candidate(candidates[i], int(path[i]) if t_ok[i] else -1, t_frame[i], opt)
-        m = tilts[i]
-        if pick is not None:
-            cam = np.asarray(cam_xyz[i], dtype=np.float64)
-            r = Rotation.from_rotvec([0.0, 0.0, pick.correction.yaw]).as_matrix()
-            m = np.r_[np.c_[r, cam - r @ cam], [[0.0, 0.0, 0.0, 1.0]]] @ m
-            yaw_ok[i] = True
-            yaw_deg[i] = float(np.rad2deg(pick.correction.yaw))
-            scores[i] = pick.score
-            constraints[i] = pick.constraint
-        out[i] = m
-    if tilt_ok.any():
-        idx = np.flatnonzero(tilt_ok)
+    tilted = _tilt_and_hypotheses(cam_xyz, frame_points, floor_z_of, maps_of, wall_band_m,
+                                  ceiling_z_of, icp, yaws, opt, rng)
+    path = track_translations(tilted.candidates, opt)
+    t_ok, t_frame = _path_translations(tilted.candidates, path, opt)
+    yawed = _apply_yaws(cam_xyz, tilted, path, t_ok, t_frame, opt)
+    dz = tilted.dz
+    if tilted.tilt_ok.any():
+        idx = np.flatnonzero(tilted.tilt_ok)
         dz = np.interp(np.arange(n), idx, dz[idx])
     t3 = np.c_[t_frame, dz]
     drift = float(np.median(np.linalg.norm(t3[t_ok], axis=1))) if t_ok.any() else 0.0
-    return FrameLevelResult(out, tilt_ok, yaw_ok, yaw_deg, tilt_deg, t_ok, scores, constraints,
-                            t3, drift)
+    return FrameLevelResult(world_from_world=yawed.world_from_world, tilt_ok=tilted.tilt_ok,
+                            yaw_ok=yawed.yaw_ok, yaw_deg=yawed.yaw_deg,
+                            tilt_deg=tilted.tilt_deg, t_ok=t_ok, score=yawed.score,
+                            constraint=yawed.constraint, translation=t3, drift_m=drift)
 
 
 @dataclass(frozen=True)
@@ -256,6 +203,133 @@ class Candidate:
     score: float
     constraint: float
     informative: bool
+
+
+@dataclass(frozen=True)
+class _TiltPass:
+    """Steps 1-2 of :func:`level_frames` per frame: tilts (N of (4, 4)), tilt_ok (N,),
+    tilt_deg (N,), dz (N,) metres (0 without a floor fit) and the x-y-yaw hypotheses."""
+
+    tilts: list[F64]
+    tilt_ok: NDArray[np.bool_]
+    tilt_deg: F64
+    dz: F64
+    candidates: list[list[Candidate]]
+
+
+@dataclass(frozen=True)
+class _YawPass:
+    """The kept yaws: world_from_world (N, 4, 4), yaw_ok (N,), yaw_deg (N,), score (N,),
+    constraint (N,) of the hypothesis each frame's yaw comes from (0 without one)."""
+
+    world_from_world: F64
+    yaw_ok: NDArray[np.bool_]
+    yaw_deg: F64
+    score: F64
+    constraint: F64
+
+
+def _fit_tilt(floor_pts: F64, cam: F64, floor_z: float | None, opt: FrameLevelOptions
+              ) -> tuple[F64, float, float] | None:
+    """A frame's tilt about its camera from its (F, 3) floor points: ``(m (4, 4), dz metres,
+    tilt degrees)``, or None when there is no fit or it is not kept."""
+    if floor_z is None or len(floor_pts) < opt.min_floor_points:
+        return None
+    spread = np.linalg.eigvalsh(np.cov(floor_pts[:, :2].T))[0]
+    lv = level_window(floor_pts, np.zeros((0, 3)), floor_z, None, cam,
+                      min_points=opt.min_floor_points)
+    tilt = float(np.rad2deg(Rotation.from_matrix(lv.rotation).magnitude()))
+    if not (lv.ok and lv.inlier_ratio >= opt.min_inlier_ratio and tilt <= opt.max_tilt_deg
+            and np.sqrt(max(spread, 0.0)) >= opt.min_floor_spread_m):
+        return None
+    m = np.eye(4)
+    m[:3, :3] = lv.rotation
+    m[:3, 3] = cam - lv.rotation @ cam
+    return m, lv.dz, tilt
+
+
+def _tilt_and_hypotheses(
+    cam_xyz: F64,
+    frame_points: Callable[[int], dict[str, F64]],
+    floor_z_of: Callable[[F64, float], float | None],
+    maps_of: Callable[[float | None], PlanMaps],
+    wall_band_m: float,
+    ceiling_z_of: Callable[[float | None], float | None],
+    icp: dict[str, float],
+    yaws: F64,
+    opt: FrameLevelOptions,
+    rng: np.random.Generator,
+) -> _TiltPass:
+    """Steps 1-2, frame by frame: the tilt from the floor, then the x-y-yaw hypotheses of the
+    tilted wall/column points (``yaws`` (Y,) radians)."""
+    n = len(cam_xyz)
+    tilted = _TiltPass(tilts=[], tilt_ok=np.zeros(n, dtype=bool), tilt_deg=np.zeros(n),
+                       dz=np.zeros(n), candidates=[])
+    dz_last = 0.0
+    for i in range(n):
+        cam = np.asarray(cam_xyz[i], dtype=np.float64)
+        pts = frame_points(i)
+        floor_z = floor_z_of(pts["floor"], float(cam[2]))
+        m = np.eye(4)
+        fit = _fit_tilt(pts["floor"], cam, floor_z, opt)
+        if fit is not None:
+            m, dz_last, tilt = fit
+            tilted.dz[i] = dz_last
+            tilted.tilt_ok[i] = True
+            tilted.tilt_deg[i] = tilt
+        tilted.tilts.append(m)
+        points = _plan_points(pts, m, dz_last, floor_z, ceiling_z_of(floor_z), wall_band_m)
+        tilted.candidates.append(_frame_candidates(points, cam, floor_z, maps_of, yaws, icp, opt,
+                                                   rng))
+    return tilted
+
+
+def _path_translations(candidates: list[list[Candidate]], path: NDArray[np.int64],
+                       opt: FrameLevelOptions) -> tuple[NDArray[np.bool_], F64]:
+    """Step 3 after the path: ``(t_ok (N,), t_frame (N, 2) metres)``, outliers among the
+    kept translations dropped and the others interpolated."""
+    n = len(candidates)
+    t_frame = np.zeros((n, 2))
+    t_ok = path >= 0
+    for i in np.flatnonzero(t_ok):
+        t_frame[i] = candidates[i][path[i]].correction.t
+    # Translations and heights: trusted frames keep theirs, the others are interpolated
+    # between them. A kept translation far from the median of its kept neighbours is a wrong match.
+    for i in np.flatnonzero(t_ok):
+        near = np.flatnonzero(t_ok[max(i - 3, 0):i + 4]) + max(i - 3, 0)
+        near = near[near != i]
+        if len(near) >= 2 and (np.linalg.norm(t_frame[i] - np.median(t_frame[near], axis=0))
+                               > opt.track_max_step_m):
+            t_ok[i] = False
+    if t_ok.any():
+        idx = np.flatnonzero(t_ok)
+        for c in range(2):
+            t_frame[:, c] = np.interp(np.arange(n), idx, t_frame[idx, c])
+    return t_ok, t_frame
+
+
+def _apply_yaws(cam_xyz: F64, tilted: _TiltPass, path: NDArray[np.int64],
+                t_ok: NDArray[np.bool_], t_frame: F64, opt: FrameLevelOptions) -> _YawPass:
+    """Each frame's yaw about its camera (radians) on top of its tilt."""
+    n = len(cam_xyz)
+    yawed = _YawPass(world_from_world=np.tile(np.eye(4), (n, 1, 1)),
+                     yaw_ok=np.zeros(n, dtype=bool), yaw_deg=np.zeros(n), score=np.zeros(n),
+                     constraint=np.zeros(n))
+    # Each frame's yaw comes from its hypothesis on the path, or the one nearest to it.
+    for i in range(n):
+        pick = _yaw_candidate(tilted.candidates[i], int(path[i]) if t_ok[i] else -1, t_frame[i],
+                              opt)
+        m = tilted.tilts[i]
+        if pick is not None:
+            cam = np.asarray(cam_xyz[i], dtype=np.float64)
+            r = Rotation.from_rotvec([0.0, 0.0, pick.correction.yaw]).as_matrix()
+            m = np.r_[np.c_[r, cam - r @ cam], [[0.0, 0.0, 0.0, 1.0]]] @ m
+            yawed.yaw_ok[i] = True
+            yawed.yaw_deg[i] = float(np.rad2deg(pick.correction.yaw))
+            yawed.score[i] = pick.score
+            yawed.constraint[i] = pick.constraint
+        yawed.world_from_world[i] = m
+    return yawed
 
 
 def _plan_points(pts: dict[str, F64], m: F64, dz: float, floor_z: float | None,
@@ -309,7 +383,8 @@ def _frame_candidates(points: tuple[F64, I32], cam: F64, floor_z: float | None,
         corr = fit.correction
         sc, _ = maps.fine_eval(corr.apply(p_xy), maps.layer_of(p_cls, view @ rot2(corr.yaw).T))
         score = float(sc.mean())
-        if fit.inlier_ratio >= opt.min_inlier_ratio and abs(corr.yaw) <= np.deg2rad(opt.yaw_range_deg):
+        if (fit.inlier_ratio >= opt.min_inlier_ratio
+                and abs(corr.yaw) <= np.deg2rad(opt.yaw_range_deg)):
             informative = fit.constraint >= opt.min_constraint and score >= opt.min_score
             out.append(Candidate(corr, score, float(fit.constraint), bool(informative)))
     return out
