@@ -709,6 +709,109 @@ def _tessellate(
     return out
 
 
+def _open_ifc(path: Path) -> tuple[Any, int]:
+    """The opened IFC file and the number of errors and warnings IfcOpenShell logged."""
+    import ifcopenshell
+
+    ifcopenshell.get_log()  # reading the log empties it: start from a clean one
+    try:
+        ifc = ifcopenshell.open(str(path))
+    except Exception as exc:  # IfcOpenShell raises several unrelated types on bad files
+        raise BimInputError(f"IfcOpenShell cannot read the file: {exc}", path) from exc
+    log = ifcopenshell.get_log()
+    parser_messages = sum(1 for line in log.splitlines()
+                          if line.startswith(("[error]", "[warning]")))
+    return ifc, parser_messages
+
+
+def _walls_and_damage(
+    ifc: Any, path: Path, parser_messages: int, max_lost_fraction: float
+) -> tuple[list[Any], ModelDamage]:
+    """The model's walls and what the file lost; refuses a model without walls or one that
+    lost too much, before the expensive tessellation."""
+    try:
+        walls = ifc.by_type("IfcWall") + ifc.by_type("IfcCurtainWall")
+    except RuntimeError as exc:
+        raise BimInputError(f"unsupported IFC schema: {exc}", path, "FILE_SCHEMA") from exc
+    # Damage, before the expensive tessellation: what the text has and IfcOpenShell did not read.
+    damage = assess_damage(ifc, _scan_step_text(path), parser_messages)
+    if not walls:
+        if damage.any:
+            raise BimInputError(f"the model has no walls left: damaged IFC file: "
+                                f"{damage.describe()}", path, "IfcWall")
+        raise BimInputError(
+            "the model has no walls: a BIM reference needs IfcWall / IfcCurtainWall elements",
+            path,
+            "IfcWall",
+        )
+    if damage.lost_fraction > max_lost_fraction:
+        check_damage(damage, path, max_lost_fraction)  # refused before tessellating
+    return walls, damage
+
+
+def _stated_storeys(ifc: Any, unit_scale: float) -> tuple[list[_StoreyRecord], dict[int, str]]:
+    """The storeys as the file states them (unique names, by height) and storey id → name."""
+    raw = _read_storey_records(ifc, unit_scale)
+    stated = _unique_storeys([Storey(r.name, r.stated_m, r.guid) for r in raw])
+    by_guid = {r.guid: r for r in raw}
+    records = [_StoreyRecord(s.name, s.guid, by_guid[s.guid].attribute_m,
+                             by_guid[s.guid].placement_m) for s in stated]
+    storey_names = {ifc.by_guid(s.guid).id(): s.name for s in stated}
+    return records, storey_names
+
+
+def _bim_elements(
+    ifc: Any,
+    shapes: list[tuple[int, NDArray[np.float64], NDArray[np.int32]]],
+    storey_names: dict[int, str],
+) -> list[BimElement]:
+    """One :class:`BimElement` per tessellated ``(id, vertices (V, 3) m, faces (F, 3))``."""
+    import ifcopenshell.util.element as ue
+
+    cache: dict[int, str | None] = {}
+    elements: list[BimElement] = []
+    for eid, verts, faces in shapes:
+        ent = ifc.by_id(eid)
+        parent = ue.get_aggregate(ent)
+        elements.append(
+            BimElement(
+                guid=ent.GlobalId,
+                ifc_class=ent.is_a(),
+                label=classify(ent, parent),
+                storey=_storey_of(ent, cache, storey_names),
+                vertices=verts,
+                faces=faces,
+                predefined_type=ue.get_predefined_type(ent),
+                name=getattr(ent, "Name", None) or "",
+            )
+        )
+    return elements
+
+
+def _failed_products(
+    ifc: Any, done: set[int], excluded: tuple[str, ...]
+) -> tuple[list[tuple[str, str]], int]:
+    """``(guid, reason)`` of the products with a body that gave no geometry, and how many of
+    them are building elements."""
+    failed = []
+    failed_elements = 0
+    for prod in ifc.by_type("IfcProduct"):
+        if prod.id() in done or any(prod.is_a(c) for c in excluded):
+            continue
+        rep = getattr(prod, "Representation", None)
+        if rep is None:
+            continue
+        try:
+            bodies = [r for r in rep.Representations
+                      if (r.RepresentationIdentifier or "") == "Body"]
+        except Exception:  # noqa: BLE001  (a damaged representation counts as failed)
+            bodies = [rep]
+        if bodies and not prod.is_a("IfcSpatialStructureElement"):
+            failed.append((prod.GlobalId, f"{prod.is_a()}: tessellation produced no geometry"))
+            failed_elements += int(prod.is_a("IfcElement") and not prod.is_a("IfcFeatureElement"))
+    return failed, failed_elements
+
+
 def load_model(
     path: str | PathLike[str],
     *,
@@ -742,88 +845,23 @@ def load_model(
     DamagedModelWarning: a damaged file that lost less (the counts). StoreyHeightWarning: storey
     heights taken from the geometry (they disagree with it, or the model has no storeys).
     """
-    import ifcopenshell
-    import ifcopenshell.util.element as ue
     import ifcopenshell.util.unit
 
     p = Path(path)
     check_ifc_file(p)
-    ifcopenshell.get_log()  # reading the log empties it: start from a clean one
-    try:
-        ifc = ifcopenshell.open(str(p))
-    except Exception as exc:  # IfcOpenShell raises several unrelated types on bad files
-        raise BimInputError(f"IfcOpenShell cannot read the file: {exc}", p) from exc
-    log = ifcopenshell.get_log()
-    parser_messages = sum(1 for line in log.splitlines()
-                          if line.startswith(("[error]", "[warning]")))
-    try:
-        walls = ifc.by_type("IfcWall") + ifc.by_type("IfcCurtainWall")
-    except RuntimeError as exc:
-        raise BimInputError(f"unsupported IFC schema: {exc}", p, "FILE_SCHEMA") from exc
-    # Damage, before the expensive tessellation: what the text has and IfcOpenShell did not read.
-    damage = assess_damage(ifc, _scan_step_text(p), parser_messages)
-    if not walls:
-        if damage.any:
-            raise BimInputError(f"the model has no walls left: damaged IFC file: "
-                                f"{damage.describe()}", p, "IfcWall")
-        raise BimInputError(
-            "the model has no walls: a BIM reference needs IfcWall / IfcCurtainWall elements",
-            p,
-            "IfcWall",
-        )
-    if damage.lost_fraction > max_lost_fraction:
-        check_damage(damage, p, max_lost_fraction)  # refused before tessellating
+    ifc, parser_messages = _open_ifc(p)
+    walls, damage = _walls_and_damage(ifc, p, parser_messages, max_lost_fraction)
     unit_scale = float(ifcopenshell.util.unit.calculate_unit_scale(ifc))
-    raw = _read_storey_records(ifc, unit_scale)
-    stated = _unique_storeys([Storey(r.name, r.stated_m, r.guid) for r in raw])
-    by_guid = {r.guid: r for r in raw}
-    records = [_StoreyRecord(s.name, s.guid, by_guid[s.guid].attribute_m,
-                             by_guid[s.guid].placement_m) for s in stated]
-    storey_names = {ifc.by_guid(s.guid).id(): s.name for s in stated}
+    records, storey_names = _stated_storeys(ifc, unit_scale)
     # A wrong length unit shows on a few walls: refuse before tessellating the whole model.
     check_units(_sample_walls(ifc, walls), ifc, unit_scale, p)
-    damaged = damage.any
-    n_threads = 1 if damaged else (threads or multiprocessing.cpu_count() or 1)
+    n_threads = 1 if damage.any else (threads or multiprocessing.cpu_count() or 1)
 
     excluded = EXCLUDED_CLASSES + (() if include_furniture else ("IfcFurnishingElement",))
     shapes = _tessellate(ifc, n_threads, None, list(excluded))
-    cache: dict[int, str | None] = {}
-    elements: list[BimElement] = []
-    done: set[int] = set()
-
-    for eid, verts, faces in shapes:
-        ent = ifc.by_id(eid)
-        done.add(eid)
-        parent = ue.get_aggregate(ent)
-        elements.append(
-            BimElement(
-                guid=ent.GlobalId,
-                ifc_class=ent.is_a(),
-                label=classify(ent, parent),
-                storey=_storey_of(ent, cache, storey_names),
-                vertices=verts,
-                faces=faces,
-                predefined_type=ue.get_predefined_type(ent),
-                name=getattr(ent, "Name", None) or "",
-            )
-        )
-    failed = []
-    failed_elements = 0
-    for prod in ifc.by_type("IfcProduct"):
-        if prod.id() in done or any(prod.is_a(c) for c in excluded):
-            continue
-        rep = getattr(prod, "Representation", None)
-        if rep is None:
-            continue
-        try:
-            bodies = [r for r in rep.Representations
-                      if (r.RepresentationIdentifier or "") == "Body"]
-        except Exception:  # noqa: BLE001  (a damaged representation counts as failed)
-            bodies = [rep]
-        if bodies and not prod.is_a("IfcSpatialStructureElement"):
-            failed.append((prod.GlobalId, f"{prod.is_a()}: tessellation produced no geometry"))
-            failed_elements += int(prod.is_a("IfcElement") and not prod.is_a("IfcFeatureElement"))
-    damage.elements_failed = failed_elements
+    elements = _bim_elements(ifc, shapes, storey_names)
+    failed, damage.elements_failed = _failed_products(ifc, {eid for eid, _, _ in shapes},
+                                                      excluded)
     if damage.elements_failed:
         damage.examples += [f"{g} {why}" for g, why in failed[:2]]
     check_damage(damage, p, max_lost_fraction)
