@@ -192,7 +192,7 @@ class FloorPlan:
         origin, plus each storey's coverage / precision."""
         segs = []
         for s in self.storeys:
-            for seg, c in zip(s.segments, s.segment_class):
+            for seg, c in zip(s.segments, s.segment_class, strict=True):
                 segs.append({
                     "x1": float(seg[0]), "y1": float(seg[1]),
                     "x2": float(seg[2]), "y2": float(seg[3]),
@@ -213,7 +213,7 @@ class FloorPlan:
                     "elevation_m": s.elevation_m,
                     "band": [float(v) for v in s.band],
                     "z_range": [float(v) for v in s.z_range],
-                    "segment_count": int(len(s.segments)),
+                    "segment_count": len(s.segments),
                     "length_m": s.lengths(),
                     "agreement": {k: a.to_dict() for k, a in s.agreement.items()},
                 }
@@ -249,7 +249,7 @@ def clean(img: NDArray[np.uint8], min_component_px: int) -> NDArray[np.uint8]:
     """Remove 8-connected components smaller than ``min_component_px`` pixels."""
     import cv2
 
-    n, lab, stats, _ = cv2.connectedComponentsWithStats(img, connectivity=8)
+    _, lab, stats, _ = cv2.connectedComponentsWithStats(img, connectivity=8)
     small = np.nonzero(stats[:, cv2.CC_STAT_AREA] < min_component_px)[0]
     small = small[small != 0]
     out = img.copy()
@@ -317,7 +317,7 @@ def _runs(t: NDArray[np.float64], gap: float) -> list[tuple[float, float]]:
     cut = np.nonzero(np.diff(t) > gap)[0]
     starts = np.concatenate([[0], cut + 1])
     ends = np.concatenate([cut, [len(t) - 1]])
-    return [(float(t[a]), float(t[b])) for a, b in zip(starts, ends)]
+    return [(float(t[a]), float(t[b])) for a, b in zip(starts, ends, strict=True)]
 
 
 def _faces_in_window(off: NDArray[np.float64], bin_m: float) -> list[float]:
@@ -685,7 +685,7 @@ def storey_plan(
         top = model.storeys[index + 1].elevation_m
     else:
         tops = [e.zmax for e in model.by_label(Label.WALL)]
-        top = max([st.elevation_m + 3.0] + tops)
+        top = max([st.elevation_m + 3.0, *tops])
     # The band never leaves its storey (a low storey such as a foundation level must not pick up
     # the walls standing on the next one); the cut stays in the middle of what is left.
     lo = max(st.elevation_m + opts.cut_height_m - opts.half_band_m, st.elevation_m)

@@ -272,7 +272,9 @@ def concatenate_meshes(
         return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int32)
     offsets = np.cumsum([0] + [len(e.vertices) for e in elements[:-1]])
     verts = np.concatenate([e.vertices for e in elements])
-    faces = np.concatenate([e.faces + off for e, off in zip(elements, offsets)]).astype(np.int32)
+    faces = np.concatenate(
+        [e.faces + off for e, off in zip(elements, offsets, strict=True)]
+    ).astype(np.int32)
     return verts, faces
 
 
@@ -378,7 +380,7 @@ def _read_storey_records(ifc: Any, unit_scale: float) -> list[_StoreyRecord]:
         if st.ObjectPlacement is not None:
             try:
                 placement = float(up.get_local_placement(st.ObjectPlacement)[2, 3]) * unit_scale
-            except Exception:  # noqa: BLE001  (a damaged placement: the attribute is all there is)
+            except Exception:  # a damaged placement: the attribute is all there is
                 placement = None
         records.append(_StoreyRecord(st.Name or st.GlobalId, st.GlobalId, attribute, placement))
     return records
@@ -476,7 +478,7 @@ def levels_from_geometry(elements: list[BimElement], path: Path) -> tuple[list[S
                for k, g in enumerate(groups)]
     assign_by_height(elements, storeys)
     described = ", ".join(f"{st.name} at {st.elevation_m:.3f} m ({len(g)} walls/columns)"
-                          for st, g in zip(storeys, groups))
+                          for st, g in zip(storeys, groups, strict=True))
     note = (f"{path.name}: the model has no IfcBuildingStorey; {len(storeys)} level(s) from the "
             f"heights of its wall bases: {described}")
     return storeys, [note]
@@ -528,7 +530,7 @@ def _sample_walls(ifc: Any, walls: list[Any], count: int = 8) -> list[BimElement
     for wall in walls[:count]:
         try:
             shape = ifcopenshell.geom.create_shape(settings, wall)
-        except Exception:  # noqa: BLE001  (the full pass reports it)
+        except Exception:  # the full pass reports it
             continue
         verts, faces = _shape_arrays(shape.geometry)
         if len(faces):
@@ -541,7 +543,7 @@ def _length_unit_name(ifc: Any) -> str:
         import ifcopenshell.util.unit as uu
 
         unit = uu.get_project_unit(ifc, "LENGTHUNIT")
-    except Exception:  # noqa: BLE001
+    except Exception:
         unit = None
     if unit is None:
         return "(none: metres assumed)"
@@ -611,7 +613,7 @@ def assess_damage(ifc: Any, text: _StepText, parser_messages: int) -> ModelDamag
     unread = Counter(text.classes[i] for i in unread_ids)
     try:
         schema = wrapper.schema_by_name(str(ifc.schema))
-    except Exception:  # noqa: BLE001
+    except Exception:
         schema = None
     cache: dict[str, bool | None] = {}
     elements_unread = []
@@ -701,7 +703,7 @@ def _tessellate(
         for element in rest:
             try:
                 shape = ifcopenshell.geom.create_shape(settings, element)
-            except Exception:  # noqa: BLE001  (listed in BimModel.failed by the caller)
+            except Exception:  # listed in BimModel.failed by the caller
                 continue
             verts, faces = _shape_arrays(shape.geometry)
             if len(faces):
@@ -804,7 +806,7 @@ def _failed_products(
         try:
             bodies = [r for r in rep.Representations
                       if (r.RepresentationIdentifier or "") == "Body"]
-        except Exception:  # noqa: BLE001  (a damaged representation counts as failed)
+        except Exception:  # a damaged representation counts as failed
             bodies = [rep]
         if bodies and not prod.is_a("IfcSpatialStructureElement"):
             failed.append((prod.GlobalId, f"{prod.is_a()}: tessellation produced no geometry"))

@@ -20,9 +20,9 @@ above plane q (for every plane q of the sample's kind whose polygon contains its
    must not win by containing a few more samples than the floor they are on) and by the samples
    it puts behind their plane (``behind_weight`` each: a floor sample under the floor, a wall
    sample under the floor or over the ceiling, which is what a hypothesis that snaps a table
-   top or a lintel onto the plane does to the real floor and the walls), refined by least squares on its inliers; ``|g|`` is bounded by
-   ``max_tilt_deg`` and ``|a|`` by ``max_offset_m``. Floor and ceiling samples, and steps
-   between floors, all take part.
+   top or a lintel onto the plane does to the real floor and the walls), refined by least
+   squares on its inliers; ``|g|`` is bounded by ``max_tilt_deg`` and ``|a|`` by
+   ``max_offset_m``. Floor and ceiling samples, and steps between floors, all take part.
 2. **Neighbours.** A pose's height error drifts slowly, and a frame that sees mostly a table
    top or a lintel must not be moved by its height: when a frame's offset ``a`` is more than
    ``max_offset_jump_m`` from the median of its well-supported neighbours' (``neighbour_frames``
@@ -31,15 +31,15 @@ above plane q (for every plane q of the sample's kind whose polygon contains its
    offset (0 without neighbours).
 3. **The plane of each sample.** Among the planes containing the sample's xy, the nearest after
    the tilt and offset; a sample farther than ``tolerance_m`` (``unlevelled_tolerance_m`` in a
-   frame with too little support to measure its tilt) from every candidate is dropped and counted: it is
-   clutter, a mislabelled pixel, a ramp, or drift has put it over the wrong area.
+   frame with too little support to measure its tilt) from every candidate is dropped and
+   counted: it is clutter, a mislabelled pixel, a ramp, or drift has put it over the wrong area.
 
 The pipeline re-chooses at the poses of every solver stage, and after the last one with
 ``frame_model=False`` (the poses have converged: no tilt or offset, the strict tolerance), so
 that what drift got wrong at the start is corrected and samples that only a frame's offset made
 fit (a sofa labelled floor that a frame seeing little else snapped onto the floor) are dropped
-(``bimcap.pipeline.refine``). :func:`plane_residual_check` is the matching check after a solve: a term whose samples
-sit far from their planes is reported, not hidden by the robust loss.
+(``bimcap.pipeline.refine``). :func:`plane_residual_check` is the matching check after a solve:
+a term whose samples sit far from their planes is reported, not hidden by the robust loss.
 """
 
 from __future__ import annotations
@@ -133,7 +133,7 @@ class PlaneChoice:
     def counts(self) -> dict[str, int]:
         """Samples kept and dropped, by reason."""
         return {
-            "samples": int(len(self.plane)),
+            "samples": len(self.plane),
             "assigned": int((self.plane >= 0).sum()),
             "no_plane": int((self.rejection == Rejection.NO_PLANE).sum()),
             "rejected_height": int((self.rejection == Rejection.HEIGHT).sum()),
@@ -269,7 +269,8 @@ def _candidates(planes: list[ReferencePlane], plane_array: F64, kind: Label,
         if pl.kind != kind:
             continue
         shp = pl.shape()
-        xmin, ymin, xmax, ymax = np.asarray(shp.bounds) + [-margin, -margin, margin, margin]
+        xmin, ymin, xmax, ymax = (np.asarray(shp.bounds)
+                                  + np.array([-margin, -margin, margin, margin]))
         cand = np.flatnonzero((p_in_world[:, 0] >= xmin) & (p_in_world[:, 0] <= xmax)
                               & (p_in_world[:, 1] >= ymin) & (p_in_world[:, 1] <= ymax))
         if len(cand) == 0:
@@ -349,14 +350,15 @@ def _world_samples(planes: list[ReferencePlane], plane_array: F64,
     from bimcap.geometry.poses import transform_points
 
     n = len(poses)
-    kinds = [k for k in (Label.FLOOR, Label.CEILING) if k in samples]
-    frames = {k: np.asarray(samples[k][0], np.int64).reshape(-1) for k in kinds}
+    kinds: list[Label] = [k for k in (Label.FLOOR, Label.CEILING) if k in samples]
+    frames: dict[Label, NDArray[np.int64]] = {
+        k: np.asarray(samples[k][0], np.int64).reshape(-1) for k in kinds}
     p_cam = {k: np.asarray(samples[k][1], np.float64).reshape(-1, 3) for k in kinds}
     for k in kinds:
         if len(frames[k]) and (frames[k].min() < 0 or frames[k].max() >= n):
             raise ValueError(f"{k.name.lower()} sample frames outside 0..{n - 1}")
-    p_world = {k: transform_points(poses[frames[k]], p_cam[k]) if len(frames[k])
-               else np.zeros((0, 3)) for k in kinds}
+    p_world: dict[Label, F64] = {k: transform_points(poses[frames[k]], p_cam[k]) if len(frames[k])
+                                 else np.zeros((0, 3)) for k in kinds}
     cands = {k: _candidates(planes, plane_array, k, p_world[k], opts.edge_margin_m)
              for k in kinds}
     return _KindSamples(kinds=kinds, frames=frames, p_world=p_world, cands=cands)
@@ -620,11 +622,11 @@ def plane_residual_check(
     enough = max(min_plane_samples, min_plane_share * len(r))
     for q in np.unique(idx):
         rq = r[idx == q]
-        per_plane.append({"plane": int(q), "samples": int(len(rq)),
+        per_plane.append({"plane": int(q), "samples": len(rq),
                           "median_abs_m": float(np.median(rq))})
         if len(rq) >= enough and per_plane[-1]["median_abs_m"] > limit_m:
             failed_planes.append(int(q))
     per_plane.sort(key=lambda d: -d["median_abs_m"])
-    return PlaneTermCheck(term, int(len(r)), med, float(np.percentile(r, 90)),
+    return PlaneTermCheck(term, len(r), med, float(np.percentile(r, 90)),
                           int((r > far_m).sum()), limit_m, far_m, failed_planes,
                           med > limit_m or bool(failed_planes), per_plane[:5])

@@ -83,7 +83,7 @@ class ReferencePlane:
         """The polygon as a :class:`shapely.Polygon`."""
         import shapely
 
-        return shapely.Polygon(self.polygon, [h for h in self.holes])
+        return shapely.Polygon(self.polygon, list(self.holes))
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -164,7 +164,8 @@ def _crossings_below(q: NDArray[np.float64], tris: NDArray[np.float64],
         u = (px * (c[None, :, 1] - a[None, :, 1]) - py * (c[None, :, 0] - a[None, :, 0])) / det
         v = (py * (b[None, :, 0] - a[None, :, 0]) - px * (b[None, :, 1] - a[None, :, 1])) / det
         inside = (u >= -1e-9) & (v >= -1e-9) & (u + v <= 1.0 + 1e-9)
-        z = za[None, :, 0] + u * (za[None, :, 1] - za[None, :, 0]) + v * (za[None, :, 2] - za[None, :, 0])
+        z = (za[None, :, 0] + u * (za[None, :, 1] - za[None, :, 0])
+             + v * (za[None, :, 2] - za[None, :, 0]))
         below = inside & (z < p[:, None, 2] - 1e-4)
         none = 1e18  # beyond any height in 0.1 mm units; not inf, whose differences are NaN
         zz = np.sort(np.where(below, np.round(z / 1e-4), none), axis=1)
@@ -289,8 +290,6 @@ def _visible_planes(
     out = []
     zs = np.array([p[0] for p in pieces])
     for group in _height_groups(zs, opts.height_tol_m):
-        import shapely
-
         areas = np.array([pieces[k][1].area for k in group])
         height = float((zs[group] * areas).sum() / max(areas.sum(), 1e-12))
         geom = shapely.union_all([pieces[k][1] for k in group])

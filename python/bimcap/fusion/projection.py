@@ -20,7 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import Enum
 from functools import lru_cache
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -152,7 +152,9 @@ def undistort_image(image: ArrayLike, camera: Camera, nearest: bool = False) -> 
 def _pose_rt(pose: ArrayLike, name: str) -> tuple[F64, F64]:
     p = np.asarray(pose, dtype=np.float64)
     if p.shape != (7,) or not np.isfinite(p).all():
-        raise FusionInputError(f"expected a finite (7,) TUM-order pose, got shape {p.shape}", field=name)
+        raise FusionInputError(
+            f"expected a finite (7,) TUM-order pose, got shape {p.shape}", field=name
+        )
     if abs(np.linalg.norm(p[3:]) - 1.0) > 1e-3:
         raise FusionInputError("quaternion is not unit length", field=name)
     return quat_to_rotmat(p[3:]), p[:3]
@@ -181,7 +183,8 @@ def _fov_bounds(camera: Camera) -> tuple[float, float, float, float]:
          np.stack([np.full_like(vs, -0.5), vs], 1), np.stack([np.full_like(vs, w - 0.5), vs], 1)]
     )
     xy = camera.rays(border, distorted=True)[:, :2]
-    return float(xy[:, 0].min()), float(xy[:, 0].max()), float(xy[:, 1].min()), float(xy[:, 1].max())
+    return (float(xy[:, 0].min()), float(xy[:, 0].max()),
+            float(xy[:, 1].min()), float(xy[:, 1].max()))
 
 
 @dataclass(frozen=True)
@@ -204,20 +207,19 @@ def _checked_points(points_in_lidar: ArrayLike,
     scan, or non-finite points under ``NanPolicy.RAISE``."""
     pts = np.asarray(points_in_lidar, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] < 3:
-        raise FusionInputError(f"points must have shape (M, 3) or (M, 4), got {pts.shape}", field="points_in_lidar")
+        raise FusionInputError(f"points must have shape (M, 3) or (M, 4), got {pts.shape}",
+                               field="points_in_lidar")
     pts = pts[:, :3]
     n_input = len(pts)
     if n_input == 0:
         raise FusionInputError("the LiDAR scan is empty (0 points)", field="points_in_lidar")
-    finite = np.isfinite(pts).all(axis=1)
-    if not finite.all():
-        if opts.nan_policy is NanPolicy.RAISE:
-            bad = int((~finite).sum())
-            raise FusionInputError(
-                f"{bad} of {n_input} points are NaN/inf (ProjectionOptions.nan_policy DROP drops "
-                "them)",
-                field="points_in_lidar",
-            )
+    finite = cast(NDArray[np.bool_], np.isfinite(pts).all(axis=1))
+    if not finite.all() and opts.nan_policy is NanPolicy.RAISE:
+        bad = int((~finite).sum())
+        raise FusionInputError(
+            f"{bad} of {n_input} points are NaN/inf (ProjectionOptions.nan_policy DROP drops them)",
+            field="points_in_lidar",
+        )
     return pts, finite
 
 
@@ -302,8 +304,8 @@ def project_lidar(
     Steps: transform, keep ``min < z < max``, keep points inside the camera's field of view (only
     those are used: the normalised coordinates must lie within the undistorted raw image's
     bounds and inside the radius up to which the distortion polynomial is monotonic, so that no
-    point outside the FoV can wrap into the image through the polynomial), round to the nearest pixel, z-buffer (nearest return per pixel), parallax
-    occlusion test (module docstring).
+    point outside the FoV can wrap into the image through the polynomial), round to the nearest
+    pixel, z-buffer (nearest return per pixel), parallax occlusion test (module docstring).
 
     Raises
     ------

@@ -262,7 +262,9 @@ def bim_heights(reference: Any) -> dict[str, float]:
     return out
 
 
-def write_refine_report(result: Any, prepared: Any, gt: Any, extra: list[RunRow] | None = None) -> Path:
+def write_refine_report(
+    result: Any, prepared: Any, gt: Any, extra: list[RunRow] | None = None
+) -> Path:
     """The report of one ``bimcap refine`` run (``extra`` rows, e.g. FACaP, are shown beside)."""
     from bimcap.frontend.semantic_map import semantic_points
 
@@ -283,7 +285,8 @@ def write_refine_report(result: Any, prepared: Any, gt: Any, extra: list[RunRow]
         gt_poses=None if gt is None else gt.poses,
         map_points=maps,
         heights=bim_heights(ref),
-        settings={"config": result.config.to_dict(), "problem": result.outcome.problem_stats.to_dict(),
+        settings={"config": result.config.to_dict(),
+                  "problem": result.outcome.problem_stats.to_dict(),
                   "timings_s": result.timings},
         reproduce=result.command,
         observability=result.outcome.observability,
