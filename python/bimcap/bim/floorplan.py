@@ -192,7 +192,7 @@ class FloorPlan:
         origin, plus each storey's coverage / precision."""
         segs = []
         for s in self.storeys:
-            for seg, c in zip(s.segments, s.segment_class):
+            for seg, c in zip(s.segments, s.segment_class, strict=True):
                 segs.append({
                     "x1": float(seg[0]), "y1": float(seg[1]),
                     "x2": float(seg[2]), "y2": float(seg[3]),
@@ -213,7 +213,7 @@ class FloorPlan:
                     "elevation_m": s.elevation_m,
                     "band": [float(v) for v in s.band],
                     "z_range": [float(v) for v in s.z_range],
-                    "segment_count": int(len(s.segments)),
+                    "segment_count": len(s.segments),
                     "length_m": s.lengths(),
                     "agreement": {k: a.to_dict() for k, a in s.agreement.items()},
                 }
@@ -249,7 +249,7 @@ def clean(img: NDArray[np.uint8], min_component_px: int) -> NDArray[np.uint8]:
     """Remove 8-connected components smaller than ``min_component_px`` pixels."""
     import cv2
 
-    n, lab, stats, _ = cv2.connectedComponentsWithStats(img, connectivity=8)
+    _, lab, stats, _ = cv2.connectedComponentsWithStats(img, connectivity=8)
     small = np.nonzero(stats[:, cv2.CC_STAT_AREA] < min_component_px)[0]
     small = small[small != 0]
     out = img.copy()
@@ -317,7 +317,7 @@ def _runs(t: NDArray[np.float64], gap: float) -> list[tuple[float, float]]:
     cut = np.nonzero(np.diff(t) > gap)[0]
     starts = np.concatenate([[0], cut + 1])
     ends = np.concatenate([cut, [len(t) - 1]])
-    return [(float(t[a]), float(t[b])) for a, b in zip(starts, ends)]
+    return [(float(t[a]), float(t[b])) for a, b in zip(starts, ends, strict=True)]
 
 
 def _faces_in_window(off: NDArray[np.float64], bin_m: float) -> list[float]:
@@ -333,6 +333,144 @@ def _faces_in_window(off: NDArray[np.float64], bin_m: float) -> list[float]:
     strong = full[1:-1] >= max(3, 0.25 * full.max())
     idx = np.nonzero(peak & strong)[0]
     return [float((i + vals[0]) * bin_m) for i in idx]
+
+
+@dataclass(frozen=True)
+class _FaceSearch:
+    """What snapping rough segments needs: the band points ``pts`` (P, 2) metres, their KD-tree,
+    the raster cell ``res`` (m) and the options."""
+
+    pts: NDArray[np.float64]
+    tree: Any
+    res: float
+    opts: FloorPlanOptions
+
+
+@dataclass(frozen=True)
+class _RoughSegment:
+    """A rough segment from ``a`` (2,) to ``b`` (2,) metres, ``length`` metres long."""
+
+    a: NDArray[np.float64]
+    b: NDArray[np.float64]
+    length: float
+
+
+def _to_px(p: NDArray[np.float64], origin: NDArray[np.float64], res: float) -> NDArray[np.int64]:
+    """Pixel ``(col, row)`` of xy points (..., 2) metres."""
+    return np.floor((p - origin) / res).astype(np.int64)
+
+
+def _already_refined(seg: _RoughSegment, done: NDArray[np.uint8], origin: NDArray[np.float64],
+                     res: float) -> bool:
+    """True when the segment's pixels lie on refined segments (90 %) of ``done`` (H, W)."""
+    a, b = seg.a, seg.b
+    steps = np.linspace(0.0, 1.0, max(2, int(np.ceil(2 * seg.length / res)) + 1))
+    px = _to_px(a[None] + steps[:, None] * (b - a)[None], origin, res)
+    shape = done.shape
+    ok = (px[:, 0] >= 0) & (px[:, 0] < shape[1]) & (px[:, 1] >= 0) & (px[:, 1] < shape[0])
+    return bool(ok.all() and done[px[:, 1], px[:, 0]].mean() >= 0.9)
+
+
+def _draw_segments(done: NDArray[np.uint8], segs: list[NDArray[np.float64]],
+                   origin: NDArray[np.float64], res: float) -> None:
+    """Mark the pixels of refined segments (4,) metres in ``done`` (H, W), in place."""
+    import cv2
+
+    for s_new in segs:
+        p0, p1 = _to_px(s_new[:2], origin, res), _to_px(s_new[2:], origin, res)
+        cv2.line(done, (int(p0[0]), int(p0[1])), (int(p1[0]), int(p1[1])), 1, 1)
+
+
+def _settle_face(cand: NDArray[np.float64], near: NDArray[np.float64], seg: _RoughSegment,
+                 ctx: _FaceSearch) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+    """Line (centre (2,), unit direction (2,)) of one face refitted until it settles, or None
+    when none of its runs meets the rough segment; ``cand`` (C, 2), ``near`` (K, 2) metres."""
+    opts, res, a, b = ctx.opts, ctx.res, seg.a, seg.b
+    c, u = _fit_line(cand)
+    runs: list[tuple[float, float]] = []
+    for _ in range(4):
+        # Follow the face through the whole neighbourhood (it may run past the rough
+        # segment's ends: Hough stops short of corners), keep the runs that meet the
+        # rough segment, and refit on their points until the line settles.
+        nn = np.array([-u[1], u[0]])
+        q = near - c
+        on = np.abs(q @ nn) <= opts.fit_tol_m
+        t_on = q[on] @ u
+        ta, tb = sorted(((a - c) @ u, (b - c) @ u))
+        runs = [(lo, hi) for lo, hi in _runs(t_on, opts.gap_m)
+                if lo <= tb + res and hi >= ta - res]
+        if not runs:
+            break
+        inside = np.zeros(len(t_on), dtype=bool)
+        for lo, hi in runs:
+            inside |= (t_on >= lo) & (t_on <= hi)
+        if inside.sum() < 3:
+            runs = []
+            break
+        c_new, u_new = _fit_line(near[on][inside])
+        u_new = u_new if u_new @ u >= 0 else -u_new
+        settled = abs(float(u[0] * u_new[1] - u[1] * u_new[0])) < 1e-7 and abs(
+            float((c_new - c) @ nn)) < 1e-6
+        c, u = c_new, u_new
+        if settled:
+            break
+    return (c, u) if runs else None
+
+
+def _face_runs(c: NDArray[np.float64], u: NDArray[np.float64], near: NDArray[np.float64],
+               seg: _RoughSegment, ctx: _FaceSearch) -> list[tuple[float, float]]:
+    """The runs ``(t0, t1)`` metres along the final line (centre ``c``, direction ``u``) that
+    meet the rough segment; a run that reaches the edge of the neighbourhood ``near`` (K, 2)
+    goes on beyond it: the neighbourhood is widened until every run ends inside."""
+    opts, res, a, b = ctx.opts, ctx.res, seg.a, seg.b
+    nn = np.array([-u[1], u[0]])
+    mid = (a + b) / 2
+    radius = seg.length / 2 + opts.reach_m
+    ta, tb = sorted(((a - c) @ u, (b - c) @ u))
+    t_mid = float((mid - c) @ u)
+    while True:
+        q = near - c
+        t_on = q[np.abs(q @ nn) <= opts.fit_tol_m] @ u
+        kept = [(lo, hi) for lo, hi in _runs(t_on, opts.gap_m)
+                if lo <= tb + res and hi >= ta - res]
+        reach_edge = any(max(abs(lo - t_mid), abs(hi - t_mid)) >= radius - res
+                         for lo, hi in kept)
+        if not reach_edge:
+            return kept
+        radius *= 2
+        near = ctx.pts[np.asarray(ctx.tree.query_ball_point(mid, radius), dtype=np.int64)]
+
+
+def _refine_segment(seg: _RoughSegment, ctx: _FaceSearch) -> list[NDArray[np.float64]]:
+    """The refined segments (4,) metres of every face within 1.5 cells of one rough segment."""
+    opts, res, pts, a, b = ctx.opts, ctx.res, ctx.pts, seg.a, seg.b
+    d = (b - a) / seg.length
+    n = np.array([-d[1], d[0]])
+    idx = np.asarray(ctx.tree.query_ball_point((a + b) / 2, seg.length / 2 + opts.reach_m),
+                     dtype=np.int64)
+    if len(idx) < 3:
+        return []
+    q = pts[idx] - a
+    t = q @ d
+    off = q @ n
+    sel = (np.abs(off) <= 1.5 * res) & (t >= -res) & (t <= seg.length + res)
+    if sel.sum() < 3:
+        return []
+    local = pts[idx[sel]]
+    out: list[NDArray[np.float64]] = []
+    for face_off in _faces_in_window(off[sel], opts.fit_tol_m):
+        cand = local[np.abs(off[sel] - face_off) <= 2 * opts.fit_tol_m]
+        if len(cand) < 3:
+            continue
+        near = pts[idx]
+        line = _settle_face(cand, near, seg, ctx)
+        if line is None:
+            continue
+        c, u = line
+        for lo, hi in _face_runs(c, u, near, seg, ctx):
+            if hi - lo >= opts.min_length_m:
+                out.append(np.concatenate([c + lo * u, c + hi * u]))
+    return out
 
 
 def refine(
@@ -353,100 +491,17 @@ def refine(
     then split at gaps longer than ``gap_m``. Rough segments are taken longest first, and one
     whose pixels already lie on refined segments (90 %) is skipped: it would find them again.
     """
-    import cv2
-
+    ctx = _FaceSearch(pts=pts, tree=tree, res=res, opts=opts)
     out: list[NDArray[np.float64]] = []
-    search = 1.5 * res
     done = np.zeros(shape, dtype=np.uint8)
     lengths = np.hypot(rough[:, 2] - rough[:, 0], rough[:, 3] - rough[:, 1])
-
-    def to_px(p: NDArray[np.float64]) -> NDArray[np.int64]:
-        return np.floor((p - origin) / res).astype(np.int64)
-
     for si in np.argsort(-lengths, kind="stable"):
-        seg = rough[si]
-        a, b = seg[:2], seg[2:]
-        length = float(lengths[si])
-        if length < 1e-6:
+        seg = _RoughSegment(a=rough[si][:2], b=rough[si][2:], length=float(lengths[si]))
+        if seg.length < 1e-6 or _already_refined(seg, done, origin, res):
             continue
-        steps = np.linspace(0.0, 1.0, max(2, int(np.ceil(2 * length / res)) + 1))
-        px = to_px(a[None] + steps[:, None] * (b - a)[None])
-        ok = (px[:, 0] >= 0) & (px[:, 0] < shape[1]) & (px[:, 1] >= 0) & (px[:, 1] < shape[0])
-        if ok.all() and done[px[:, 1], px[:, 0]].mean() >= 0.9:
-            continue
-        n_out = len(out)
-        d = (b - a) / length
-        n = np.array([-d[1], d[0]])
-        idx = np.asarray(tree.query_ball_point((a + b) / 2, length / 2 + opts.reach_m),
-                         dtype=np.int64)
-        if len(idx) < 3:
-            continue
-        q = pts[idx] - a
-        t = q @ d
-        off = q @ n
-        sel = (np.abs(off) <= search) & (t >= -res) & (t <= length + res)
-        if sel.sum() < 3:
-            continue
-        local = pts[idx[sel]]
-        for face_off in _faces_in_window(off[sel], opts.fit_tol_m):
-            cand = local[np.abs(off[sel] - face_off) <= 2 * opts.fit_tol_m]
-            if len(cand) < 3:
-                continue
-            c, u = _fit_line(cand)
-            near = pts[idx]
-            runs: list[tuple[float, float]] = []
-            for _ in range(4):
-                # Follow the face through the whole neighbourhood (it may run past the rough
-                # segment's ends: Hough stops short of corners), keep the runs that meet the
-                # rough segment, and refit on their points until the line settles.
-                nn = np.array([-u[1], u[0]])
-                q = near - c
-                on = np.abs(q @ nn) <= opts.fit_tol_m
-                t_on = q[on] @ u
-                ta, tb = sorted(((a - c) @ u, (b - c) @ u))
-                runs = [(lo, hi) for lo, hi in _runs(t_on, opts.gap_m)
-                        if lo <= tb + res and hi >= ta - res]
-                if not runs:
-                    break
-                inside = np.zeros(len(t_on), dtype=bool)
-                for lo, hi in runs:
-                    inside |= (t_on >= lo) & (t_on <= hi)
-                if inside.sum() < 3:
-                    runs = []
-                    break
-                c_new, u_new = _fit_line(near[on][inside])
-                u_new = u_new if u_new @ u >= 0 else -u_new
-                settled = abs(float(u[0] * u_new[1] - u[1] * u_new[0])) < 1e-7 and abs(
-                    float((c_new - c) @ nn)) < 1e-6
-                c, u = c_new, u_new
-                if settled:
-                    break
-            if not runs:
-                continue
-            # The runs of the final line; a run that reaches the edge of the neighbourhood goes
-            # on beyond it: widen the neighbourhood until every run ends inside.
-            nn = np.array([-u[1], u[0]])
-            mid = (a + b) / 2
-            radius = length / 2 + opts.reach_m
-            ta, tb = sorted(((a - c) @ u, (b - c) @ u))
-            t_mid = float((mid - c) @ u)
-            while True:
-                q = near - c
-                t_on = q[np.abs(q @ nn) <= opts.fit_tol_m] @ u
-                kept = [(lo, hi) for lo, hi in _runs(t_on, opts.gap_m)
-                        if lo <= tb + res and hi >= ta - res]
-                reach_edge = any(max(abs(lo - t_mid), abs(hi - t_mid)) >= radius - res
-                                 for lo, hi in kept)
-                if not reach_edge:
-                    break
-                radius *= 2
-                near = pts[np.asarray(tree.query_ball_point(mid, radius), dtype=np.int64)]
-            for lo, hi in kept:
-                if hi - lo >= opts.min_length_m:
-                    out.append(np.concatenate([c + lo * u, c + hi * u]))
-        for s_new in out[n_out:]:
-            p0, p1 = to_px(s_new[:2]), to_px(s_new[2:])
-            cv2.line(done, (int(p0[0]), int(p0[1])), (int(p1[0]), int(p1[1])), 1, 1)
+        found = _refine_segment(seg, ctx)
+        out += found
+        _draw_segments(done, found, origin, res)
     return np.asarray(out, dtype=np.float64).reshape(-1, 4)
 
 
@@ -630,7 +685,7 @@ def storey_plan(
         top = model.storeys[index + 1].elevation_m
     else:
         tops = [e.zmax for e in model.by_label(Label.WALL)]
-        top = max([st.elevation_m + 3.0] + tops)
+        top = max([st.elevation_m + 3.0, *tops])
     # The band never leaves its storey (a low storey such as a foundation level must not pick up
     # the walls standing on the next one); the cut stays in the middle of what is left.
     lo = max(st.elevation_m + opts.cut_height_m - opts.half_band_m, st.elevation_m)

@@ -272,7 +272,9 @@ def concatenate_meshes(
         return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int32)
     offsets = np.cumsum([0] + [len(e.vertices) for e in elements[:-1]])
     verts = np.concatenate([e.vertices for e in elements])
-    faces = np.concatenate([e.faces + off for e, off in zip(elements, offsets)]).astype(np.int32)
+    faces = np.concatenate(
+        [e.faces + off for e, off in zip(elements, offsets, strict=True)]
+    ).astype(np.int32)
     return verts, faces
 
 
@@ -378,7 +380,7 @@ def _read_storey_records(ifc: Any, unit_scale: float) -> list[_StoreyRecord]:
         if st.ObjectPlacement is not None:
             try:
                 placement = float(up.get_local_placement(st.ObjectPlacement)[2, 3]) * unit_scale
-            except Exception:  # noqa: BLE001  (a damaged placement: the attribute is all there is)
+            except Exception:  # a damaged placement: the attribute is all there is
                 placement = None
         records.append(_StoreyRecord(st.Name or st.GlobalId, st.GlobalId, attribute, placement))
     return records
@@ -476,7 +478,7 @@ def levels_from_geometry(elements: list[BimElement], path: Path) -> tuple[list[S
                for k, g in enumerate(groups)]
     assign_by_height(elements, storeys)
     described = ", ".join(f"{st.name} at {st.elevation_m:.3f} m ({len(g)} walls/columns)"
-                          for st, g in zip(storeys, groups))
+                          for st, g in zip(storeys, groups, strict=True))
     note = (f"{path.name}: the model has no IfcBuildingStorey; {len(storeys)} level(s) from the "
             f"heights of its wall bases: {described}")
     return storeys, [note]
@@ -528,7 +530,7 @@ def _sample_walls(ifc: Any, walls: list[Any], count: int = 8) -> list[BimElement
     for wall in walls[:count]:
         try:
             shape = ifcopenshell.geom.create_shape(settings, wall)
-        except Exception:  # noqa: BLE001  (the full pass reports it)
+        except Exception:  # the full pass reports it
             continue
         verts, faces = _shape_arrays(shape.geometry)
         if len(faces):
@@ -541,7 +543,7 @@ def _length_unit_name(ifc: Any) -> str:
         import ifcopenshell.util.unit as uu
 
         unit = uu.get_project_unit(ifc, "LENGTHUNIT")
-    except Exception:  # noqa: BLE001
+    except Exception:
         unit = None
     if unit is None:
         return "(none: metres assumed)"
@@ -611,7 +613,7 @@ def assess_damage(ifc: Any, text: _StepText, parser_messages: int) -> ModelDamag
     unread = Counter(text.classes[i] for i in unread_ids)
     try:
         schema = wrapper.schema_by_name(str(ifc.schema))
-    except Exception:  # noqa: BLE001
+    except Exception:
         schema = None
     cache: dict[str, bool | None] = {}
     elements_unread = []
@@ -701,12 +703,115 @@ def _tessellate(
         for element in rest:
             try:
                 shape = ifcopenshell.geom.create_shape(settings, element)
-            except Exception:  # noqa: BLE001  (listed in BimModel.failed by the caller)
+            except Exception:  # listed in BimModel.failed by the caller
                 continue
             verts, faces = _shape_arrays(shape.geometry)
             if len(faces):
                 out.append((int(element.id()), verts, faces))
     return out
+
+
+def _open_ifc(path: Path) -> tuple[Any, int]:
+    """The opened IFC file and the number of errors and warnings IfcOpenShell logged."""
+    import ifcopenshell
+
+    ifcopenshell.get_log()  # reading the log empties it: start from a clean one
+    try:
+        ifc = ifcopenshell.open(str(path))
+    except Exception as exc:  # IfcOpenShell raises several unrelated types on bad files
+        raise BimInputError(f"IfcOpenShell cannot read the file: {exc}", path) from exc
+    log = ifcopenshell.get_log()
+    parser_messages = sum(1 for line in log.splitlines()
+                          if line.startswith(("[error]", "[warning]")))
+    return ifc, parser_messages
+
+
+def _walls_and_damage(
+    ifc: Any, path: Path, parser_messages: int, max_lost_fraction: float
+) -> tuple[list[Any], ModelDamage]:
+    """The model's walls and what the file lost; refuses a model without walls or one that
+    lost too much, before the expensive tessellation."""
+    try:
+        walls = ifc.by_type("IfcWall") + ifc.by_type("IfcCurtainWall")
+    except RuntimeError as exc:
+        raise BimInputError(f"unsupported IFC schema: {exc}", path, "FILE_SCHEMA") from exc
+    # Damage, before the expensive tessellation: what the text has and IfcOpenShell did not read.
+    damage = assess_damage(ifc, _scan_step_text(path), parser_messages)
+    if not walls:
+        if damage.any:
+            raise BimInputError(f"the model has no walls left: damaged IFC file: "
+                                f"{damage.describe()}", path, "IfcWall")
+        raise BimInputError(
+            "the model has no walls: a BIM reference needs IfcWall / IfcCurtainWall elements",
+            path,
+            "IfcWall",
+        )
+    if damage.lost_fraction > max_lost_fraction:
+        check_damage(damage, path, max_lost_fraction)  # refused before tessellating
+    return walls, damage
+
+
+def _stated_storeys(ifc: Any, unit_scale: float) -> tuple[list[_StoreyRecord], dict[int, str]]:
+    """The storeys as the file states them (unique names, by height) and storey id → name."""
+    raw = _read_storey_records(ifc, unit_scale)
+    stated = _unique_storeys([Storey(r.name, r.stated_m, r.guid) for r in raw])
+    by_guid = {r.guid: r for r in raw}
+    records = [_StoreyRecord(s.name, s.guid, by_guid[s.guid].attribute_m,
+                             by_guid[s.guid].placement_m) for s in stated]
+    storey_names = {ifc.by_guid(s.guid).id(): s.name for s in stated}
+    return records, storey_names
+
+
+def _bim_elements(
+    ifc: Any,
+    shapes: list[tuple[int, NDArray[np.float64], NDArray[np.int32]]],
+    storey_names: dict[int, str],
+) -> list[BimElement]:
+    """One :class:`BimElement` per tessellated ``(id, vertices (V, 3) m, faces (F, 3))``."""
+    import ifcopenshell.util.element as ue
+
+    cache: dict[int, str | None] = {}
+    elements: list[BimElement] = []
+    for eid, verts, faces in shapes:
+        ent = ifc.by_id(eid)
+        parent = ue.get_aggregate(ent)
+        elements.append(
+            BimElement(
+                guid=ent.GlobalId,
+                ifc_class=ent.is_a(),
+                label=classify(ent, parent),
+                storey=_storey_of(ent, cache, storey_names),
+                vertices=verts,
+                faces=faces,
+                predefined_type=ue.get_predefined_type(ent),
+                name=getattr(ent, "Name", None) or "",
+            )
+        )
+    return elements
+
+
+def _failed_products(
+    ifc: Any, done: set[int], excluded: tuple[str, ...]
+) -> tuple[list[tuple[str, str]], int]:
+    """``(guid, reason)`` of the products with a body that gave no geometry, and how many of
+    them are building elements."""
+    failed = []
+    failed_elements = 0
+    for prod in ifc.by_type("IfcProduct"):
+        if prod.id() in done or any(prod.is_a(c) for c in excluded):
+            continue
+        rep = getattr(prod, "Representation", None)
+        if rep is None:
+            continue
+        try:
+            bodies = [r for r in rep.Representations
+                      if (r.RepresentationIdentifier or "") == "Body"]
+        except Exception:  # a damaged representation counts as failed
+            bodies = [rep]
+        if bodies and not prod.is_a("IfcSpatialStructureElement"):
+            failed.append((prod.GlobalId, f"{prod.is_a()}: tessellation produced no geometry"))
+            failed_elements += int(prod.is_a("IfcElement") and not prod.is_a("IfcFeatureElement"))
+    return failed, failed_elements
 
 
 def load_model(
@@ -742,88 +847,23 @@ def load_model(
     DamagedModelWarning: a damaged file that lost less (the counts). StoreyHeightWarning: storey
     heights taken from the geometry (they disagree with it, or the model has no storeys).
     """
-    import ifcopenshell
-    import ifcopenshell.util.element as ue
     import ifcopenshell.util.unit
 
     p = Path(path)
     check_ifc_file(p)
-    ifcopenshell.get_log()  # reading the log empties it: start from a clean one
-    try:
-        ifc = ifcopenshell.open(str(p))
-    except Exception as exc:  # IfcOpenShell raises several unrelated types on bad files
-        raise BimInputError(f"IfcOpenShell cannot read the file: {exc}", p) from exc
-    log = ifcopenshell.get_log()
-    parser_messages = sum(1 for line in log.splitlines()
-                          if line.startswith(("[error]", "[warning]")))
-    try:
-        walls = ifc.by_type("IfcWall") + ifc.by_type("IfcCurtainWall")
-    except RuntimeError as exc:
-        raise BimInputError(f"unsupported IFC schema: {exc}", p, "FILE_SCHEMA") from exc
-    # Damage, before the expensive tessellation: what the text has and IfcOpenShell did not read.
-    damage = assess_damage(ifc, _scan_step_text(p), parser_messages)
-    if not walls:
-        if damage.any:
-            raise BimInputError(f"the model has no walls left: damaged IFC file: "
-                                f"{damage.describe()}", p, "IfcWall")
-        raise BimInputError(
-            "the model has no walls: a BIM reference needs IfcWall / IfcCurtainWall elements",
-            p,
-            "IfcWall",
-        )
-    if damage.lost_fraction > max_lost_fraction:
-        check_damage(damage, p, max_lost_fraction)  # refused before tessellating
+    ifc, parser_messages = _open_ifc(p)
+    walls, damage = _walls_and_damage(ifc, p, parser_messages, max_lost_fraction)
     unit_scale = float(ifcopenshell.util.unit.calculate_unit_scale(ifc))
-    raw = _read_storey_records(ifc, unit_scale)
-    stated = _unique_storeys([Storey(r.name, r.stated_m, r.guid) for r in raw])
-    by_guid = {r.guid: r for r in raw}
-    records = [_StoreyRecord(s.name, s.guid, by_guid[s.guid].attribute_m,
-                             by_guid[s.guid].placement_m) for s in stated]
-    storey_names = {ifc.by_guid(s.guid).id(): s.name for s in stated}
+    records, storey_names = _stated_storeys(ifc, unit_scale)
     # A wrong length unit shows on a few walls: refuse before tessellating the whole model.
     check_units(_sample_walls(ifc, walls), ifc, unit_scale, p)
-    damaged = damage.any
-    n_threads = 1 if damaged else (threads or multiprocessing.cpu_count() or 1)
+    n_threads = 1 if damage.any else (threads or multiprocessing.cpu_count() or 1)
 
     excluded = EXCLUDED_CLASSES + (() if include_furniture else ("IfcFurnishingElement",))
     shapes = _tessellate(ifc, n_threads, None, list(excluded))
-    cache: dict[int, str | None] = {}
-    elements: list[BimElement] = []
-    done: set[int] = set()
-
-    for eid, verts, faces in shapes:
-        ent = ifc.by_id(eid)
-        done.add(eid)
-        parent = ue.get_aggregate(ent)
-        elements.append(
-            BimElement(
-                guid=ent.GlobalId,
-                ifc_class=ent.is_a(),
-                label=classify(ent, parent),
-                storey=_storey_of(ent, cache, storey_names),
-                vertices=verts,
-                faces=faces,
-                predefined_type=ue.get_predefined_type(ent),
-                name=getattr(ent, "Name", None) or "",
-            )
-        )
-    failed = []
-    failed_elements = 0
-    for prod in ifc.by_type("IfcProduct"):
-        if prod.id() in done or any(prod.is_a(c) for c in excluded):
-            continue
-        rep = getattr(prod, "Representation", None)
-        if rep is None:
-            continue
-        try:
-            bodies = [r for r in rep.Representations
-                      if (r.RepresentationIdentifier or "") == "Body"]
-        except Exception:  # noqa: BLE001  (a damaged representation counts as failed)
-            bodies = [rep]
-        if bodies and not prod.is_a("IfcSpatialStructureElement"):
-            failed.append((prod.GlobalId, f"{prod.is_a()}: tessellation produced no geometry"))
-            failed_elements += int(prod.is_a("IfcElement") and not prod.is_a("IfcFeatureElement"))
-    damage.elements_failed = failed_elements
+    elements = _bim_elements(ifc, shapes, storey_names)
+    failed, damage.elements_failed = _failed_products(ifc, {eid for eid, _, _ in shapes},
+                                                      excluded)
     if damage.elements_failed:
         damage.examples += [f"{g} {why}" for g, why in failed[:2]]
     check_damage(damage, p, max_lost_fraction)

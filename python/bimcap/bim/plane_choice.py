@@ -20,9 +20,9 @@ above plane q (for every plane q of the sample's kind whose polygon contains its
    must not win by containing a few more samples than the floor they are on) and by the samples
    it puts behind their plane (``behind_weight`` each: a floor sample under the floor, a wall
    sample under the floor or over the ceiling, which is what a hypothesis that snaps a table
-   top or a lintel onto the plane does to the real floor and the walls), refined by least squares on its inliers; ``|g|`` is bounded by
-   ``max_tilt_deg`` and ``|a|`` by ``max_offset_m``. Floor and ceiling samples, and steps
-   between floors, all take part.
+   top or a lintel onto the plane does to the real floor and the walls), refined by least
+   squares on its inliers; ``|g|`` is bounded by ``max_tilt_deg`` and ``|a|`` by
+   ``max_offset_m``. Floor and ceiling samples, and steps between floors, all take part.
 2. **Neighbours.** A pose's height error drifts slowly, and a frame that sees mostly a table
    top or a lintel must not be moved by its height: when a frame's offset ``a`` is more than
    ``max_offset_jump_m`` from the median of its well-supported neighbours' (``neighbour_frames``
@@ -31,15 +31,15 @@ above plane q (for every plane q of the sample's kind whose polygon contains its
    offset (0 without neighbours).
 3. **The plane of each sample.** Among the planes containing the sample's xy, the nearest after
    the tilt and offset; a sample farther than ``tolerance_m`` (``unlevelled_tolerance_m`` in a
-   frame with too little support to measure its tilt) from every candidate is dropped and counted: it is
-   clutter, a mislabelled pixel, a ramp, or drift has put it over the wrong area.
+   frame with too little support to measure its tilt) from every candidate is dropped and
+   counted: it is clutter, a mislabelled pixel, a ramp, or drift has put it over the wrong area.
 
 The pipeline re-chooses at the poses of every solver stage, and after the last one with
 ``frame_model=False`` (the poses have converged: no tilt or offset, the strict tolerance), so
 that what drift got wrong at the start is corrected and samples that only a frame's offset made
 fit (a sofa labelled floor that a frame seeing little else snapped onto the floor) are dropped
-(``bimcap.pipeline.refine``). :func:`plane_residual_check` is the matching check after a solve: a term whose samples
-sit far from their planes is reported, not hidden by the robust loss.
+(``bimcap.pipeline.refine``). :func:`plane_residual_check` is the matching check after a solve:
+a term whose samples sit far from their planes is reported, not hidden by the robust loss.
 """
 
 from __future__ import annotations
@@ -133,7 +133,7 @@ class PlaneChoice:
     def counts(self) -> dict[str, int]:
         """Samples kept and dropped, by reason."""
         return {
-            "samples": int(len(self.plane)),
+            "samples": len(self.plane),
             "assigned": int((self.plane >= 0).sum()),
             "no_plane": int((self.rejection == Rejection.NO_PLANE).sum()),
             "rejected_height": int((self.rejection == Rejection.HEIGHT).sum()),
@@ -269,7 +269,8 @@ def _candidates(planes: list[ReferencePlane], plane_array: F64, kind: Label,
         if pl.kind != kind:
             continue
         shp = pl.shape()
-        xmin, ymin, xmax, ymax = np.asarray(shp.bounds) + [-margin, -margin, margin, margin]
+        xmin, ymin, xmax, ymax = (np.asarray(shp.bounds)
+                                  + np.array([-margin, -margin, margin, margin]))
         cand = np.flatnonzero((p_in_world[:, 0] >= xmin) & (p_in_world[:, 0] <= xmax)
                               & (p_in_world[:, 1] >= ymin) & (p_in_world[:, 1] <= ymax))
         if len(cand) == 0:
@@ -295,6 +296,214 @@ def _candidates(planes: list[ReferencePlane], plane_array: F64, kind: Label,
     return np.concatenate(si), np.concatenate(qi), np.concatenate(hz)
 
 
+@dataclass
+class _VotePairs:
+    """The (sample, plane) pairs of every frame, sorted by (frame, sample key).
+
+    key: (P,) sample id (unique over kinds); e: (P,) height of the sample above the plane, m;
+    u: (P, 2) sample xy relative to the camera, m; side: (P,) +1 floor, −1 ceiling;
+    h: (P,) plane height at the sample, m; cut: (N+1,) start of each frame's pairs.
+    """
+
+    key: NDArray[np.int64]
+    e: F64
+    u: F64
+    side: F64
+    h: F64
+    cut: NDArray[np.int64]
+
+
+@dataclass
+class _WallEvidence:
+    """Thinned wall / column samples sorted by frame: z (W,) m, u (W, 2) xy relative to the
+    camera in m, cut (N+1,) start of each frame's samples."""
+
+    z: F64
+    u: F64
+    cut: NDArray[np.int64]
+
+
+@dataclass
+class _KindSamples:
+    """The floor / ceiling samples in the world: per kind, frame (M,), p_in_world (M, 3) m and
+    the candidate pairs of :func:`_candidates` (sample, plane, plane height)."""
+
+    kinds: list[Label]
+    frames: dict[Label, NDArray[np.int64]]
+    p_world: dict[Label, F64]
+    cands: dict[Label, tuple[NDArray[np.int64], NDArray[np.int64], F64]]
+
+
+@dataclass
+class _FrameModel:
+    """Per frame: tilt (N, 2) m/m, offset (N,) m (NaN: not fitted), support (N,) samples."""
+
+    tilt: F64
+    offset: F64
+    support: NDArray[np.int64]
+
+
+def _world_samples(planes: list[ReferencePlane], plane_array: F64,
+                   samples: dict[Label, tuple[NDArray[np.integer], F64]], poses: F64,
+                   opts: PlaneChoiceOptions) -> _KindSamples:
+    """Floor / ceiling samples mapped to the world at ``poses`` (N, 7), with their candidates."""
+    from bimcap.geometry.poses import transform_points
+
+    n = len(poses)
+    kinds: list[Label] = [k for k in (Label.FLOOR, Label.CEILING) if k in samples]
+    frames: dict[Label, NDArray[np.int64]] = {
+        k: np.asarray(samples[k][0], np.int64).reshape(-1) for k in kinds}
+    p_cam = {k: np.asarray(samples[k][1], np.float64).reshape(-1, 3) for k in kinds}
+    for k in kinds:
+        if len(frames[k]) and (frames[k].min() < 0 or frames[k].max() >= n):
+            raise ValueError(f"{k.name.lower()} sample frames outside 0..{n - 1}")
+    p_world: dict[Label, F64] = {k: transform_points(poses[frames[k]], p_cam[k]) if len(frames[k])
+                                 else np.zeros((0, 3)) for k in kinds}
+    cands = {k: _candidates(planes, plane_array, k, p_world[k], opts.edge_margin_m)
+             for k in kinds}
+    return _KindSamples(kinds=kinds, frames=frames, p_world=p_world, cands=cands)
+
+
+def _vote_pairs(ks: _KindSamples, poses: F64, opts: PlaneChoiceOptions) -> _VotePairs:
+    """Every (sample, plane) pair of both kinds, each frame's samples evenly thinned."""
+    n = len(poses)
+    fr, key, ee, uu, sd, hh = [], [], [], [], [], []
+    base = 0
+    for k in ks.kinds:
+        si, _, hz = ks.cands[k]
+        frames, p_world = ks.frames[k], ks.p_world[k]
+        f_of = frames[si]
+        # thin each frame's samples evenly for the votes
+        counts = np.bincount(frames, minlength=n)
+        every = np.maximum(1, counts // max(opts.max_vote_samples, 1))
+        keep = (si % every[f_of]) == 0
+        fr.append(f_of[keep])
+        key.append(si[keep] + base)
+        ee.append(p_world[si[keep], 2] - hz[keep])
+        uu.append(p_world[si[keep], :2] - poses[f_of[keep], :2])
+        sd.append(np.full(int(keep.sum()), 1.0 if k == Label.FLOOR else -1.0))
+        hh.append(hz[keep])
+        base += len(frames)
+    fr_a, key_a = np.concatenate(fr), np.concatenate(key)
+    e_a, u_a, side_a = np.concatenate(ee), np.concatenate(uu), np.concatenate(sd)
+    h_a = np.concatenate(hh)
+    order = np.lexsort((key_a, fr_a))
+    return _VotePairs(key=key_a[order], e=e_a[order], u=u_a[order], side=side_a[order],
+                      h=h_a[order], cut=np.searchsorted(fr_a[order], np.arange(n + 1)))
+
+
+def _wall_evidence(samples: dict[Label, tuple[NDArray[np.integer], F64]], poses: F64,
+                   opts: PlaneChoiceOptions) -> _WallEvidence:
+    """Wall and column samples, evenly thinned per frame: evidence of where floor and ceiling
+    are."""
+    from bimcap.geometry.poses import transform_points
+
+    n = len(poses)
+    wf, wp = [], []
+    for k in (Label.WALL, Label.COLUMN):
+        if k in samples and len(samples[k][0]):
+            wf.append(np.asarray(samples[k][0], np.int64).reshape(-1))
+            wp.append(np.asarray(samples[k][1], np.float64).reshape(-1, 3))
+    if wf:
+        w_frame, w_cam = np.concatenate(wf), np.concatenate(wp)
+        counts = np.bincount(w_frame, minlength=n)
+        every = np.maximum(1, counts // max(opts.max_wall_samples, 1))
+        keep = (np.arange(len(w_frame)) % every[w_frame]) == 0
+        w_frame, w_cam = w_frame[keep], w_cam[keep]
+        o = np.argsort(w_frame, kind="stable")
+        w_frame, w_world = w_frame[o], transform_points(poses[w_frame[o]], w_cam[o])
+        wall_z, wall_u = w_world[:, 2], w_world[:, :2] - poses[w_frame, :2]
+    else:
+        w_frame, wall_z, wall_u = np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 2))
+    return _WallEvidence(z=wall_z, u=wall_u, cut=np.searchsorted(w_frame, np.arange(n + 1)))
+
+
+def _fit_frame(f: int, pairs: _VotePairs, walls: _WallEvidence, model: _FrameModel,
+               rng: np.random.Generator, opts: PlaneChoiceOptions,
+               window: tuple[float, float] | None = None) -> None:
+    """Fit frame ``f``'s tilt and offset (:func:`_fit_tilt`) into ``model``, in place."""
+    s0, s1 = pairs.cut[f], pairs.cut[f + 1]
+    w0, w1 = walls.cut[f], walls.cut[f + 1]
+    a, g, sup = _fit_tilt(pairs.e[s0:s1], pairs.u[s0:s1], pairs.key[s0:s1], pairs.side[s0:s1],
+                          pairs.h[s0:s1], (walls.z[w0:w1], walls.u[w0:w1]), rng, opts, window)
+    # the model says e = a + g·u; the offset that brings the samples onto it is -a
+    model.tilt[f], model.offset[f], model.support[f] = g, -a, sup
+
+
+def _neighbour_offsets(offset: F64, strong: NDArray[np.bool_], k: int) -> F64:
+    """(N,) median offset of each frame's strong neighbours (``k`` either side); NaN if none."""
+    n = len(offset)
+    ref_off = np.full(n, np.nan)
+    for f in range(n):
+        nb = [j for j in range(max(0, f - k), min(n, f + k + 1)) if j != f and strong[j]]
+        if nb:
+            ref_off[f] = float(np.median(offset[nb]))
+    return ref_off
+
+
+def _fit_frames(pairs: _VotePairs, walls: _WallEvidence,
+                opts: PlaneChoiceOptions) -> tuple[_FrameModel, NDArray[np.bool_]]:
+    """Steps 1 and 2: each frame's tilt and offset, held near its neighbours'; also (N,) True
+    where the tilt was measured (the strict tolerance applies)."""
+    n = len(pairs.cut) - 1
+    rng = np.random.default_rng(opts.seed)
+    model = _FrameModel(tilt=np.zeros((n, 2)), offset=np.full(n, np.nan),
+                        support=np.zeros(n, np.int64))
+    cut = pairs.cut
+    # 1. tilt and offset per frame against the BIM
+    for f in range(n):
+        if opts.frame_model and cut[f + 1] - cut[f] >= 3:
+            _fit_frame(f, pairs, walls, model, rng, opts)
+    # 2. neighbours: a frame's offset stays near theirs; weak frames take theirs
+    strong = model.support >= opts.min_support
+    ref_off = _neighbour_offsets(model.offset, strong, opts.neighbour_frames)
+    jump = opts.max_offset_jump_m
+    for f in np.flatnonzero(strong & np.isfinite(ref_off)):
+        if abs(model.offset[f] - ref_off[f]) > jump:
+            _fit_frame(int(f), pairs, walls, model, rng, opts,
+                       (-ref_off[f] - jump, -ref_off[f] + jump))
+            strong[f] = model.support[f] >= opts.min_support
+    weak = ~strong & (cut[1:] > cut[:-1])
+    model.tilt[weak] = 0.0
+    model.offset[weak] = np.where(np.isfinite(ref_off[weak]), ref_off[weak], 0.0)
+    measured = strong
+    if not opts.frame_model:
+        measured = cut[1:] > cut[:-1]  # the poses are trusted: the strict tolerance everywhere
+    return model, measured
+
+
+def _assign_kind(ks: _KindSamples, kind: Label, poses: F64, model: _FrameModel,
+                 measured: NDArray[np.bool_], opts: PlaneChoiceOptions) -> PlaneChoice:
+    """Step 3 for one kind: the nearest candidate after tilt and offset, within the tolerance."""
+    frames, p_world = ks.frames[kind], ks.p_world[kind]
+    m = len(frames)
+    plane = np.full(m, -1, np.int32)
+    rej = np.full(m, Rejection.NO_PLANE, np.uint8)
+    err = np.full(m, np.nan)
+    si, qi, hz = ks.cands[kind]
+    if len(si):
+        f_of = frames[si]
+        u = p_world[si, :2] - poses[f_of, :2]
+        e = (p_world[si, 2] - hz - np.einsum("ij,ij->i", u, model.tilt[f_of])
+             + model.offset[f_of])
+        has_offset = np.isfinite(e)
+        rej[si[~has_offset]] = Rejection.NO_OFFSET
+        si, qi, e = si[has_offset], qi[has_offset], e[has_offset]
+        # the candidate of smallest |e| per sample: sort by (sample, |e|), keep the first
+        o = np.lexsort((np.abs(e), si))
+        si, qi, e = si[o], qi[o], e[o]
+        first = np.ones(len(si), bool)
+        first[1:] = si[1:] != si[:-1]
+        si, qi, e = si[first], qi[first], e[first]
+        err[si] = e
+        tol = np.where(measured[frames[si]], opts.tolerance_m, opts.unlevelled_tolerance_m)
+        ok = np.abs(e) <= tol
+        plane[si[ok]] = qi[ok].astype(np.int32)
+        rej[si[ok]] = Rejection.NONE
+        rej[si[~ok]] = Rejection.HEIGHT
+    return PlaneChoice(plane=plane, rejection=rej, height_error_m=err)
+
+
 def choose_planes(
     planes: list[ReferencePlane],
     plane_array: F64,
@@ -317,132 +526,15 @@ def choose_planes(
     -------
     :class:`PlaneChoiceResult`; ``choices[kind].plane`` is aligned with ``samples[kind]``.
     """
-    from bimcap.geometry.poses import transform_points
-
     opts = options or PlaneChoiceOptions()
     poses = np.asarray(world_from_cam, np.float64).reshape(-1, 7)
-    n = len(poses)
-    kinds = [k for k in (Label.FLOOR, Label.CEILING) if k in samples]
-    frames = {k: np.asarray(samples[k][0], np.int64).reshape(-1) for k in kinds}
-    p_cam = {k: np.asarray(samples[k][1], np.float64).reshape(-1, 3) for k in kinds}
-    for k in kinds:
-        if len(frames[k]) and (frames[k].min() < 0 or frames[k].max() >= n):
-            raise ValueError(f"{k.name.lower()} sample frames outside 0..{n - 1}")
-    p_world = {k: transform_points(poses[frames[k]], p_cam[k]) if len(frames[k])
-               else np.zeros((0, 3)) for k in kinds}
-
-    # every (sample, plane) pair, as one list over both kinds: frame, sample key, e, u
-    fr, key, ee, uu, sd, hh = [], [], [], [], [], []
-    base = 0
-    cands = {}
-    for k in kinds:
-        si, qi, hz = _candidates(planes, plane_array, k, p_world[k], opts.edge_margin_m)
-        cands[k] = (si, qi, hz)
-        f_of = frames[k][si]
-        # thin each frame's samples evenly for the votes
-        counts = np.bincount(frames[k], minlength=n)
-        every = np.maximum(1, counts // max(opts.max_vote_samples, 1))
-        keep = (si % every[f_of]) == 0
-        fr.append(f_of[keep])
-        key.append(si[keep] + base)
-        ee.append(p_world[k][si[keep], 2] - hz[keep])
-        uu.append(p_world[k][si[keep], :2] - poses[f_of[keep], :2])
-        sd.append(np.full(int(keep.sum()), 1.0 if k == Label.FLOOR else -1.0))
-        hh.append(hz[keep])
-        base += len(frames[k])
-    fr_a, key_a = np.concatenate(fr), np.concatenate(key)
-    e_a, u_a, side_a = np.concatenate(ee), np.concatenate(uu), np.concatenate(sd)
-    h_a = np.concatenate(hh)
-    order = np.lexsort((key_a, fr_a))
-    fr_a, key_a, e_a, u_a, side_a, h_a = (fr_a[order], key_a[order], e_a[order], u_a[order],
-                                          side_a[order], h_a[order])
-    cut = np.searchsorted(fr_a, np.arange(n + 1))
-
-    # wall and column samples, evenly thinned per frame: evidence of where floor and ceiling are
-    wf, wp = [], []
-    for k in (Label.WALL, Label.COLUMN):
-        if k in samples and len(samples[k][0]):
-            wf.append(np.asarray(samples[k][0], np.int64).reshape(-1))
-            wp.append(np.asarray(samples[k][1], np.float64).reshape(-1, 3))
-    if wf:
-        w_frame, w_cam = np.concatenate(wf), np.concatenate(wp)
-        counts = np.bincount(w_frame, minlength=n)
-        every = np.maximum(1, counts // max(opts.max_wall_samples, 1))
-        keep = (np.arange(len(w_frame)) % every[w_frame]) == 0
-        w_frame, w_cam = w_frame[keep], w_cam[keep]
-        o = np.argsort(w_frame, kind="stable")
-        w_frame, w_world = w_frame[o], transform_points(poses[w_frame[o]], w_cam[o])
-        wall_z, wall_u = w_world[:, 2], w_world[:, :2] - poses[w_frame, :2]
-    else:
-        w_frame, wall_z, wall_u = np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 2))
-    wall_cut = np.searchsorted(w_frame, np.arange(n + 1))
-
-    # 1. tilt and offset per frame against the BIM
-    rng = np.random.default_rng(opts.seed)
-    tilt = np.zeros((n, 2))
-    offset = np.full(n, np.nan)
-    support = np.zeros(n, np.int64)
-
-    def fit(f: int, window: tuple[float, float] | None = None) -> None:
-        s0, s1 = cut[f], cut[f + 1]
-        w0, w1 = wall_cut[f], wall_cut[f + 1]
-        a, g, sup = _fit_tilt(e_a[s0:s1], u_a[s0:s1], key_a[s0:s1], side_a[s0:s1], h_a[s0:s1],
-                              (wall_z[w0:w1], wall_u[w0:w1]), rng, opts, window)
-        # the model says e = a + g·u; the offset that brings the samples onto it is -a
-        tilt[f], offset[f], support[f] = g, -a, sup
-
-    for f in range(n):
-        if opts.frame_model and cut[f + 1] - cut[f] >= 3:
-            fit(f)
-    # 2. neighbours: a frame's offset stays near theirs; weak frames take theirs
-    strong = support >= opts.min_support
-    k = opts.neighbour_frames
-    ref_off = np.full(n, np.nan)
-    for f in range(n):
-        nb = [j for j in range(max(0, f - k), min(n, f + k + 1)) if j != f and strong[j]]
-        if nb:
-            ref_off[f] = float(np.median(offset[nb]))
-    for f in np.flatnonzero(strong & np.isfinite(ref_off)):
-        if abs(offset[f] - ref_off[f]) > opts.max_offset_jump_m:
-            fit(int(f), (-ref_off[f] - opts.max_offset_jump_m, -ref_off[f] + opts.max_offset_jump_m))
-            strong[f] = support[f] >= opts.min_support
-    weak = ~strong & (cut[1:] > cut[:-1])
-    tilt[weak] = 0.0
-    offset[weak] = np.where(np.isfinite(ref_off[weak]), ref_off[weak], 0.0)
-    measured = strong
-    if not opts.frame_model:
-        measured = cut[1:] > cut[:-1]  # the poses are trusted: the strict tolerance everywhere
-
-    # 3. per sample: the nearest candidate after tilt and offset, within the tolerance
-    choices: dict[Label, PlaneChoice] = {}
-    for k in kinds:
-        m = len(frames[k])
-        plane = np.full(m, -1, np.int32)
-        rej = np.full(m, Rejection.NO_PLANE, np.uint8)
-        err = np.full(m, np.nan)
-        si, qi, hz = cands[k]
-        if len(si):
-            f_of = frames[k][si]
-            u = p_world[k][si, :2] - poses[f_of, :2]
-            e = (p_world[k][si, 2] - hz - np.einsum("ij,ij->i", u, tilt[f_of])
-                 + offset[f_of])
-            has_offset = np.isfinite(e)
-            rej[si[~has_offset]] = Rejection.NO_OFFSET
-            si, qi, e = si[has_offset], qi[has_offset], e[has_offset]
-            # the candidate of smallest |e| per sample: sort by (sample, |e|), keep the first
-            o = np.lexsort((np.abs(e), si))
-            si, qi, e = si[o], qi[o], e[o]
-            first = np.ones(len(si), bool)
-            first[1:] = si[1:] != si[:-1]
-            si, qi, e = si[first], qi[first], e[first]
-            err[si] = e
-            tol = np.where(measured[frames[k][si]], opts.tolerance_m, opts.unlevelled_tolerance_m)
-            ok = np.abs(e) <= tol
-            plane[si[ok]] = qi[ok].astype(np.int32)
-            rej[si[ok]] = Rejection.NONE
-            rej[si[~ok]] = Rejection.HEIGHT
-        choices[k] = PlaneChoice(plane, rej, err)
-    return PlaneChoiceResult(choices, offset, tilt, measured)
+    ks = _world_samples(planes, plane_array, samples, poses, opts)
+    pairs = _vote_pairs(ks, poses, opts)
+    walls = _wall_evidence(samples, poses, opts)
+    model, measured = _fit_frames(pairs, walls, opts)
+    choices = {k: _assign_kind(ks, k, poses, model, measured, opts) for k in ks.kinds}
+    return PlaneChoiceResult(choices=choices, frame_offset_m=model.offset,
+                             frame_tilt=model.tilt, tilt_measured=measured)
 
 
 @dataclass
@@ -530,11 +622,11 @@ def plane_residual_check(
     enough = max(min_plane_samples, min_plane_share * len(r))
     for q in np.unique(idx):
         rq = r[idx == q]
-        per_plane.append({"plane": int(q), "samples": int(len(rq)),
+        per_plane.append({"plane": int(q), "samples": len(rq),
                           "median_abs_m": float(np.median(rq))})
         if len(rq) >= enough and per_plane[-1]["median_abs_m"] > limit_m:
             failed_planes.append(int(q))
     per_plane.sort(key=lambda d: -d["median_abs_m"])
-    return PlaneTermCheck(term, int(len(r)), med, float(np.percentile(r, 90)),
+    return PlaneTermCheck(term, len(r), med, float(np.percentile(r, 90)),
                           int((r > far_m).sum()), limit_m, far_m, failed_planes,
                           med > limit_m or bool(failed_planes), per_plane[:5])

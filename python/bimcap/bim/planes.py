@@ -42,7 +42,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from bimcap.bim.errors import MissingCeilingWarning, MissingFloorWarning
-from bimcap.bim.ingest import BimElement, BimModel, read_spaces
+from bimcap.bim.ingest import BimElement, BimModel, Storey, read_spaces
 from bimcap.labels import Label
 
 
@@ -83,7 +83,7 @@ class ReferencePlane:
         """The polygon as a :class:`shapely.Polygon`."""
         import shapely
 
-        return shapely.Polygon(self.polygon, [h for h in self.holes])
+        return shapely.Polygon(self.polygon, list(self.holes))
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -164,7 +164,8 @@ def _crossings_below(q: NDArray[np.float64], tris: NDArray[np.float64],
         u = (px * (c[None, :, 1] - a[None, :, 1]) - py * (c[None, :, 0] - a[None, :, 0])) / det
         v = (py * (b[None, :, 0] - a[None, :, 0]) - px * (b[None, :, 1] - a[None, :, 1])) / det
         inside = (u >= -1e-9) & (v >= -1e-9) & (u + v <= 1.0 + 1e-9)
-        z = za[None, :, 0] + u * (za[None, :, 1] - za[None, :, 0]) + v * (za[None, :, 2] - za[None, :, 0])
+        z = (za[None, :, 0] + u * (za[None, :, 1] - za[None, :, 0])
+             + v * (za[None, :, 2] - za[None, :, 0]))
         below = inside & (z < p[:, None, 2] - 1e-4)
         none = 1e18  # beyond any height in 0.1 mm units; not inf, whose differences are NaN
         zz = np.sort(np.where(below, np.round(z / 1e-4), none), axis=1)
@@ -289,8 +290,6 @@ def _visible_planes(
     out = []
     zs = np.array([p[0] for p in pieces])
     for group in _height_groups(zs, opts.height_tol_m):
-        import shapely
-
         areas = np.array([pieces[k][1].area for k in group])
         height = float((zs[group] * areas).sum() / max(areas.sum(), 1e-12))
         geom = shapely.union_all([pieces[k][1] for k in group])
@@ -338,86 +337,114 @@ def _is_slab(e: BimElement) -> bool:
         e.label == Label.FLOOR and e.ifc_class.startswith("IfcSlab"))
 
 
-def extract_planes(model: BimModel, opts: PlaneOptions | None = None) -> list[ReferencePlane]:
-    """Floor and ceiling planes of every storey (see the module docstring for the conventions).
+@dataclass
+class _PlaneSources:
+    """Every element that can carry or hide a floor or a ceiling surface, in the order floors,
+    ceiling coverings, other slabs, walls and columns (``n_floor``, ``n_ceil``, ``n_slab``: the
+    ends of the first three groups), and their oriented horizontal faces."""
 
-    Only faces that can be seen become planes: the top faces of floor elements not covered by
-    another element resting on them, the bottom faces of ceiling coverings, and the undersides
-    of slabs where no covering hangs below them; top and bottom are decided from the solids
-    (:func:`oriented_horizontal_faces`), not from the exporter's triangle winding.
+    elements: list[BimElement]
+    faces: _Faces
+    n_floor: int
+    n_ceil: int
+    n_slab: int
 
-    Warns :class:`MissingFloorWarning` for each storey with walls but no floor slab, and
-    :class:`MissingCeilingWarning` for each storey with walls and no ceiling at all.
-    """
-    import shapely
 
-    opts = opts or PlaneOptions()
-    planes: list[ReferencePlane] = []
-
-    # every element that can carry or hide a floor or a ceiling surface
+def _plane_sources(model: BimModel, opts: PlaneOptions) -> _PlaneSources:
+    """The elements of the model that carry or hide floors and ceilings, with their faces."""
     floors_src = model.by_label(Label.FLOOR)
     ceil_elems = model.by_label(Label.CEILING)
     slabs = [e for e in model.elements if _is_slab(e) and e.label != Label.FLOOR]
     # walls and columns only hide: the slab top under a wall, the underside a wall holds up
     solids = model.by_label(Label.WALL, Label.COLUMN)
     elements = floors_src + ceil_elems + slabs + solids
-    faces = oriented_horizontal_faces(elements, opts.max_tilt_deg)
     n_floor, n_ceil = len(floors_src), len(floors_src) + len(ceil_elems)
-    n_slab = n_ceil + len(slabs)
+    return _PlaneSources(elements=elements,
+                         faces=oriented_horizontal_faces(elements, opts.max_tilt_deg),
+                         n_floor=n_floor, n_ceil=n_ceil, n_slab=n_ceil + len(slabs))
 
-    # ---- floors: visible tops of slabs and floor coverings
-    of_floor = faces.select(faces.owner < n_floor)
-    for h, poly, guids in _visible_planes(of_floor, True, faces, elements, opts):
-        planes.append(
-            _make_plane(Label.FLOOR, h, poly, storey_for_height(model, h, -0.5), "slab", guids)
-        )
 
-    # ---- storeys with walls but no real floor slab
-    wall_storeys = {e.storey for e in model.by_label(Label.WALL) if e.storey is not None}
+def _floor_planes(src: _PlaneSources, model: BimModel, opts: PlaneOptions
+                  ) -> list[ReferencePlane]:
+    """Floors: the visible tops of slabs and floor coverings."""
+    faces = src.faces
+    of_floor = faces.select(faces.owner < src.n_floor)
+    return [_make_plane(Label.FLOOR, h, poly, storey_for_height(model, h, -0.5), "slab", guids)
+            for h, poly, guids in _visible_planes(of_floor, True, faces, src.elements, opts)]
+
+
+def _storey_floor_substitute(model: BimModel, st: Storey, spaces: list[BimElement],
+                             opts: PlaneOptions) -> tuple[list[ReferencePlane], str]:
+    """Floor planes of a storey without a floor slab: its IfcSpace bottoms, else one plane at
+    its elevation over its walls' convex hull; and how they were made."""
+    import shapely
+
+    mine = [sp for sp in spaces if sp.storey == st.name]
+    sp_faces = oriented_horizontal_faces(mine, opts.max_tilt_deg)
+    got = _visible_planes(sp_faces, False, _Faces(*(a[:0] for a in (
+        sp_faces.tris, sp_faces.z, sp_faces.owner, sp_faces.top))), mine, opts)
+    if got:
+        planes = [_make_plane(Label.FLOOR, h, poly, st.name, "space", guids)
+                  for h, poly, guids in got]
+        return planes, f"{len(got)} floor plane(s) from its {len(mine)} IfcSpace bottoms"
+    pts = np.concatenate(
+        [e.vertices[:, :2] for e in model.by_label(Label.WALL) if e.storey == st.name]
+    )
+    hull = shapely.MultiPoint(pts).convex_hull
+    planes = [_make_plane(Label.FLOOR, st.elevation_m, hull, st.name, "storey-elevation", [])]
+    return planes, "one floor plane at the storey elevation over the walls' convex hull"
+
+
+def _missing_floor_planes(model: BimModel, floors: list[ReferencePlane],
+                          src: _PlaneSources, wall_storeys: set[str],
+                          opts: PlaneOptions) -> list[ReferencePlane]:
+    """Floors of the storeys with walls but no real floor slab, each with a
+    :class:`MissingFloorWarning` (attributed to the caller of :func:`extract_planes`)."""
     # A storey has a real floor when a non-landing slab's top was assigned to it by height.
-    nonlanding = {e.guid for e in floors_src if (e.predefined_type or "") != "LANDING"}
-    real_floor = {p.storey for p in planes if set(p.guids) & nonlanding}
+    nonlanding = {e.guid for e in src.elements[:src.n_floor]
+                  if (e.predefined_type or "") != "LANDING"}
+    real_floor = {p.storey for p in floors if set(p.guids) & nonlanding}
     missing = [s for s in model.storeys if s.name in wall_storeys and s.name not in real_floor]
-    if missing:
-        spaces = read_spaces(model)
-        for st in missing:
-            mine = [sp for sp in spaces if sp.storey == st.name]
-            sp_faces = oriented_horizontal_faces(mine, opts.max_tilt_deg)
-            got = _visible_planes(sp_faces, False, _Faces(*(a[:0] for a in (
-                sp_faces.tris, sp_faces.z, sp_faces.owner, sp_faces.top))), mine, opts)
-            if got:
-                for h, poly, guids in got:
-                    planes.append(_make_plane(Label.FLOOR, h, poly, st.name, "space", guids))
-                how = f"{len(got)} floor plane(s) from its {len(mine)} IfcSpace bottoms"
-            else:
-                pts = np.concatenate(
-                    [e.vertices[:, :2] for e in model.by_label(Label.WALL) if e.storey == st.name]
-                )
-                hull = shapely.MultiPoint(pts).convex_hull
-                planes.append(
-                    _make_plane(Label.FLOOR, st.elevation_m, hull, st.name, "storey-elevation", [])
-                )
-                how = "one floor plane at the storey elevation over the walls' convex hull"
-            warnings.warn(
-                f"{model.path.name}: storey {st.name!r} (elevation {st.elevation_m:.3f} m) has "
-                f"walls but no floor slab (IfcSlab FLOOR/BASESLAB); using {how}",
-                MissingFloorWarning,
-                stacklevel=2,
-            )
+    planes: list[ReferencePlane] = []
+    if not missing:
+        return planes
+    spaces = read_spaces(model)
+    for st in missing:
+        got, how = _storey_floor_substitute(model, st, spaces, opts)
+        planes += got
+        warnings.warn(
+            f"{model.path.name}: storey {st.name!r} (elevation {st.elevation_m:.3f} m) has "
+            f"walls but no floor slab (IfcSlab FLOOR/BASESLAB); using {how}",
+            MissingFloorWarning,
+            stacklevel=3,
+        )
+    return planes
 
-    # ---- ceilings from coverings (their visible undersides)
-    of_ceil = faces.select((faces.owner >= n_floor) & (faces.owner < n_ceil))
+
+def _covering_ceilings(src: _PlaneSources, model: BimModel, opts: PlaneOptions
+                       ) -> tuple[list[ReferencePlane], dict[str | None, Any]]:
+    """Ceilings from coverings (their visible undersides), and per storey the xy area they
+    cover (shapely)."""
+    faces = src.faces
+    of_ceil = faces.select((faces.owner >= src.n_floor) & (faces.owner < src.n_ceil))
+    planes: list[ReferencePlane] = []
     covered: dict[str | None, Any] = {}
-    for h, poly, guids in _visible_planes(of_ceil, False, faces, elements, opts):
+    for h, poly, guids in _visible_planes(of_ceil, False, faces, src.elements, opts):
         st = storey_for_height(model, h, 1.0)
         planes.append(_make_plane(Label.CEILING, h, poly, st, "covering", guids))
         covered[st] = poly if st not in covered else covered[st].union(poly)
+    return planes, covered
 
-    # ---- ceilings from the undersides of slabs, where no covering is
-    of_slab = faces.select((faces.owner < n_floor) | ((faces.owner >= n_ceil)
-                                                      & (faces.owner < n_slab)))
+
+def _slab_ceilings(src: _PlaneSources, model: BimModel, covered: dict[str | None, Any],
+                   opts: PlaneOptions) -> list[ReferencePlane]:
+    """Ceilings from the undersides of slabs, where no covering is."""
+    faces, elements = src.faces, src.elements
+    of_slab = faces.select((faces.owner < src.n_floor) | ((faces.owner >= src.n_ceil)
+                                                          & (faces.owner < src.n_slab)))
     slab_owner = np.array([_is_slab(elements[k]) for k in range(len(elements))], bool)
     of_slab = of_slab.select(slab_owner[of_slab.owner]) if len(of_slab.owner) else of_slab
+    planes: list[ReferencePlane] = []
     for h, poly, guids in _visible_planes(of_slab, False, faces, elements, opts):
         st = storey_for_height(model, h, 1.0)
         if st is None:
@@ -434,6 +461,13 @@ def extract_planes(model: BimModel, opts: PlaneOptions | None = None) -> list[Re
                     _make_plane(Label.CEILING, h, piece.simplify(opts.simplify_m), st,
                                 "slab-above", guids)
                 )
+    return planes
+
+
+def _warn_missing_ceilings(model: BimModel, planes: list[ReferencePlane],
+                           wall_storeys: set[str]) -> None:
+    """A :class:`MissingCeilingWarning` (attributed to the caller of :func:`extract_planes`)
+    for each storey with walls and no ceiling plane."""
     ceil_storeys = {p.storey for p in planes if p.kind == Label.CEILING}
     for st in model.storeys:
         if st.name in wall_storeys and st.name not in ceil_storeys:
@@ -441,8 +475,30 @@ def extract_planes(model: BimModel, opts: PlaneOptions | None = None) -> list[Re
                 f"{model.path.name}: storey {st.name!r} has walls but neither a ceiling covering "
                 "nor a slab above it: no ceiling plane",
                 MissingCeilingWarning,
-                stacklevel=2,
+                stacklevel=3,
             )
+
+
+def extract_planes(model: BimModel, opts: PlaneOptions | None = None) -> list[ReferencePlane]:
+    """Floor and ceiling planes of every storey (see the module docstring for the conventions).
+
+    Only faces that can be seen become planes: the top faces of floor elements not covered by
+    another element resting on them, the bottom faces of ceiling coverings, and the undersides
+    of slabs where no covering hangs below them; top and bottom are decided from the solids
+    (:func:`oriented_horizontal_faces`), not from the exporter's triangle winding.
+
+    Warns :class:`MissingFloorWarning` for each storey with walls but no floor slab, and
+    :class:`MissingCeilingWarning` for each storey with walls and no ceiling at all.
+    """
+    opts = opts or PlaneOptions()
+    src = _plane_sources(model, opts)
+    planes = _floor_planes(src, model, opts)
+    wall_storeys = {e.storey for e in model.by_label(Label.WALL) if e.storey is not None}
+    planes += _missing_floor_planes(model, planes, src, wall_storeys, opts)
+    ceilings, covered = _covering_ceilings(src, model, opts)
+    planes += ceilings
+    planes += _slab_ceilings(src, model, covered, opts)
+    _warn_missing_ceilings(model, planes, wall_storeys)
     return planes
 
 

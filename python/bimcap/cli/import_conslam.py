@@ -73,15 +73,12 @@ def register(subparsers: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from bimcap.dataset.conslam import GtFrame, import_conslam
+    from bimcap.dataset.conslam import ConslamImportOptions, GtFrame, import_conslam
     from bimcap.io.atomic import check_not_input
 
     inputs = [args.bag] + ([args.gt] if args.gt is not None else [])
     check_not_input(args.output, inputs)
-    result = import_conslam(
-        args.bag,
-        args.output,
-        args.gt,
+    options = ConslamImportOptions(
         gt_frame=GtFrame(args.gt_frame),
         tolerance_s=args.tolerance,
         gt_tolerance_s=args.gt_tolerance,
@@ -91,6 +88,7 @@ def run(args: argparse.Namespace) -> int:
         overwrite=args.overwrite,
         png_compression=args.png_compression,
     )
+    result = import_conslam(args.bag, args.output, args.gt, options=options)
     seq = result.sequence
     print(
         f"{seq.root}: {result.n_frames} frames from {result.n_images} images / {result.n_scans} "

@@ -36,7 +36,7 @@ from __future__ import annotations
 import math
 import struct
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 from enum import Enum
 from os import PathLike
 from pathlib import Path
@@ -364,21 +364,179 @@ def _norm_topic(topic: str) -> str:
     return topic.lstrip("/")
 
 
+@dataclass(frozen=True)
+class ConslamImportOptions:
+    """Settings of :func:`import_conslam`.
+
+    Attributes
+    ----------
+    gt_frame: whether the ground truth holds LiDAR poses (ConSLAM's; converted) or camera poses.
+    tolerance_s: largest |t_image − t_scan| of a pair, seconds.
+    gt_tolerance_s: largest |t_scan − t_gt| for a frame's ground truth, seconds.
+    cam_from_lidar: (7,) extrinsic, default :data:`CONSLAM_CAM_FROM_LIDAR`.
+    camera: force this camera (else camera_info, else ConSLAM's calibration).
+    ifc: IFC path to record in the manifest.
+    stride: keep every ``stride``-th frame (after pairing and GT matching).
+    max_frames: keep at most this many frames.
+    overwrite: allow replacing an existing sequence at the output.
+    png_compression: OpenCV PNG level 0-9 of the written images (None = OpenCV's default);
+        at 2064×1544, PNG encoding dominates the import time.
+    """
+
+    gt_frame: GtFrame = GtFrame.LIDAR
+    tolerance_s: float = 0.05
+    gt_tolerance_s: float = 0.05
+    cam_from_lidar: ArrayLike | None = None
+    camera: Camera | None = None
+    ifc: str | PathLike[str] | None = None
+    stride: int = 1
+    max_frames: int | None = None
+    overwrite: bool = False
+    png_compression: int | None = None
+
+
+def _import_options(options: ConslamImportOptions | None,
+                    overrides: dict[str, Any]) -> ConslamImportOptions:
+    """``options`` (default :class:`ConslamImportOptions`) with the keyword arguments given
+    to :func:`import_conslam` the old way replacing its fields."""
+    names = {f.name for f in fields(ConslamImportOptions)}
+    for key in overrides:
+        if key not in names:
+            raise TypeError(f"import_conslam() got an unexpected keyword argument {key!r}")
+    return replace(options or ConslamImportOptions(), **overrides)
+
+
+def _check_import(bag_path: Path, output: str | PathLike[str],
+                  opts: ConslamImportOptions) -> None:
+    """Refuse a missing bag, a bad stride or frame limit, or a sequence not to overwrite."""
+    if not bag_path.is_file():
+        raise ConslamError("no such bag file", bag_path)
+    if opts.stride < 1:
+        raise ConslamError(f"stride must be >= 1, got {opts.stride}", field="stride")
+    if opts.max_frames is not None and opts.max_frames < 1:
+        raise ConslamError(f"max_frames must be >= 1, got {opts.max_frames}", field="max_frames")
+    if (Path(output) / MANIFEST).exists() and not opts.overwrite:
+        raise ConslamError("already a sequence directory (use overwrite / --overwrite)", output)
+
+
+def _load_gt(
+    gt: str | PathLike[str] | Trajectory | None,
+) -> tuple[Trajectory | None, str | None]:
+    """The ground-truth trajectory (None without) and how the manifest names it."""
+    if isinstance(gt, Trajectory):
+        return gt, "<in memory>"
+    if gt is not None:
+        return read_gt(gt), str(gt)
+    return None, None
+
+
+def _provenance(bag_path: Path, gt_label: str | None, has_gt: bool,
+                opts: ConslamImportOptions) -> dict[str, Any]:
+    """The manifest's ``source`` record of an import (without the camera's source)."""
+    return {
+        "importer": "bimcap.dataset.conslam",
+        "bag": str(bag_path.resolve()),
+        "gt": gt_label,
+        "gt_frame": opts.gt_frame.value if has_gt else None,
+        "topics": [TOPIC_IMAGE, TOPIC_POINTS, TOPIC_CAMERA_INFO],
+        "tolerance_s": opts.tolerance_s,
+        "gt_tolerance_s": opts.gt_tolerance_s,
+        "stride": opts.stride,
+        "timestamps": "image header stamps (bag time where zero)",
+    }
+
+
+@dataclass(frozen=True)
+class _BagIndex:
+    """An open bag after pass 1: its reader and type store, the image, points and camera_info
+    connections, the image and scan stamps ti (I,), tp (S,) in seconds, and the camera of the
+    first camera_info message (None without a usable one)."""
+
+    path: Path
+    reader: Any
+    typestore: Any
+    con_img: Any
+    con_pts: Any
+    con_info: Any | None
+    ti: F64
+    tp: F64
+    info_camera: Camera | None
+
+
+def _index_bag(reader: Any, typestore: Any, bag_path: Path) -> _BagIndex:
+    """Find the topics (refusing a bag without images or scans) and read their stamps."""
+    by_topic = {_norm_topic(c.topic): c for c in reader.connections}
+    for topic in (TOPIC_IMAGE, TOPIC_POINTS):
+        if topic not in by_topic:
+            raise ConslamError(
+                f"topic {topic!r} not in bag (has {sorted(by_topic)})", bag_path, "topics"
+            )
+    con_img, con_pts = by_topic[TOPIC_IMAGE], by_topic[TOPIC_POINTS]
+    con_info = by_topic.get(TOPIC_CAMERA_INFO)
+    ti, tp, info_camera = _read_stamps(reader, typestore, con_img, con_pts, con_info)
+    return _BagIndex(path=bag_path, reader=reader, typestore=typestore, con_img=con_img,
+                     con_pts=con_pts, con_info=con_info, ti=ti, tp=tp, info_camera=info_camera)
+
+
+def _camera_poses(plan: _FramePlan, extrinsic: F64, gt_frame: GtFrame) -> F64 | None:
+    """(K, 7) ``world_from_cam`` of the planned frames from their ground truth (None without)."""
+    if plan.world_from_gt is None:
+        return None
+    if gt_frame is GtFrame.LIDAR:
+        return lidar_to_camera_poses(plan.world_from_gt, extrinsic)
+    return plan.world_from_gt
+
+
+def _write_frames(
+    bag: _BagIndex,
+    plan: _FramePlan,
+    output: str | PathLike[str],
+    extrinsic: F64,
+    source: dict[str, Any],
+    opts: ConslamImportOptions,
+) -> tuple[SequenceWriter | None, str]:
+    """Pass 2: write the planned frames (the camera chosen at the first image); the writer
+    (None when no frame came) and where the camera came from."""
+    writer: SequenceWriter | None = None
+    cam_source = "given"
+    for k, image, cloud in _stream_frames(
+        bag.reader, bag.typestore, bag.con_img, bag.con_pts, plan, bag.path
+    ):
+        if writer is None:
+            cam, cam_source = _choose_camera(opts.camera, bag.info_camera, image.shape, bag.path)
+            writer = SequenceWriter(
+                output,
+                cam,
+                extrinsic,
+                lidar=VLP16,
+                ifc=opts.ifc,
+                source={**source, "camera_source": cam_source},
+                overwrite=opts.overwrite,
+                png_compression=opts.png_compression,
+            )
+        writer.add_frame(float(bag.ti[plan.image_index[k]]), image, cloud)
+    return writer, cam_source
+
+
+def _finish_sequence(writer: SequenceWriter | None, plan: _FramePlan,
+                     world_from_cam: F64 | None, bag_path: Path) -> Sequence:
+    """Check that every planned frame was written, add the ground truth and close."""
+    n_planned = len(plan.image_index)
+    if writer is None or len(writer.frames) != n_planned:
+        done = 0 if writer is None else len(writer.frames)
+        raise ConslamError(f"only {done} of {n_planned} frames could be assembled", bag_path)
+    if world_from_cam is not None:
+        writer.add_trajectory("gt", world_from_cam)
+    return writer.close()
+
+
 def import_conslam(
     bag: str | PathLike[str],
     output: str | PathLike[str],
     gt: str | PathLike[str] | Trajectory | None = None,
     *,
-    gt_frame: GtFrame = GtFrame.LIDAR,
-    tolerance_s: float = 0.05,
-    gt_tolerance_s: float = 0.05,
-    cam_from_lidar: ArrayLike | None = None,
-    camera: Camera | None = None,
-    ifc: str | PathLike[str] | None = None,
-    stride: int = 1,
-    max_frames: int | None = None,
-    overwrite: bool = False,
-    png_compression: int | None = None,
+    options: ConslamImportOptions | None = None,
+    **legacy_options: Any,
 ) -> ConslamImportResult:
     """Import a ConSLAM ROS1 bag (and its ground truth) as a sequence directory.
 
@@ -388,111 +546,45 @@ def import_conslam(
     output: the sequence directory to write.
     gt: ground truth — a folder of ``<microseconds>.txt`` 4×4 files, a TUM file, or a
         :class:`Trajectory`; None for no ground truth.
-    gt_frame: whether ``gt`` holds LiDAR poses (ConSLAM's; converted) or camera poses.
-    tolerance_s: largest |t_image − t_scan| of a pair, seconds.
-    gt_tolerance_s: largest |t_scan − t_gt| for a frame's ground truth, seconds.
-    cam_from_lidar: (7,) extrinsic, default :data:`CONSLAM_CAM_FROM_LIDAR`.
-    camera: force this camera (else camera_info, else ConSLAM's calibration).
-    ifc: IFC path to record in the manifest.
-    stride: keep every ``stride``-th frame (after pairing and GT matching).
-    max_frames: keep at most this many frames.
-    overwrite: allow replacing an existing sequence at ``output``.
-    png_compression: OpenCV PNG level 0-9 of the written images (None = OpenCV's default);
-        at 2064×1544, PNG encoding dominates the import time.
+    options: :class:`ConslamImportOptions` (gt_frame, tolerance_s, gt_tolerance_s,
+        cam_from_lidar, camera, ifc, stride, max_frames, overwrite, png_compression).
+    legacy_options: the same settings as keyword arguments (``stride=2``), as before the
+        options class; they replace the fields of ``options``.
 
     Raises
     ------
     ConslamError
         If the bag lacks a topic, no pair or no GT match is found, a message cannot be decoded,
         or the camera does not fit the images.
+    TypeError
+        On a keyword argument that is not a field of :class:`ConslamImportOptions`.
     """
     from rosbags.rosbag1 import Reader, ReaderError
     from rosbags.typesys import Stores, get_typestore
 
+    opts = _import_options(options, legacy_options)
     bag_path = Path(bag)
-    if not bag_path.is_file():
-        raise ConslamError("no such bag file", bag_path)
-    if stride < 1:
-        raise ConslamError(f"stride must be >= 1, got {stride}", field="stride")
-    if max_frames is not None and max_frames < 1:
-        raise ConslamError(f"max_frames must be >= 1, got {max_frames}", field="max_frames")
-    if (Path(output) / MANIFEST).exists() and not overwrite:
-        raise ConslamError("already a sequence directory (use overwrite / --overwrite)", output)
-    extrinsic = (
-        CONSLAM_CAM_FROM_LIDAR if cam_from_lidar is None else np.asarray(cam_from_lidar, float)
-    )
+    _check_import(bag_path, output, opts)
+    extrinsic = (CONSLAM_CAM_FROM_LIDAR if opts.cam_from_lidar is None
+                 else np.asarray(opts.cam_from_lidar, float))
     typestore = get_typestore(Stores.ROS1_NOETIC)
-
-    gt_traj: Trajectory | None = None
-    gt_label: str | None = None
-    if isinstance(gt, Trajectory):
-        gt_traj, gt_label = gt, "<in memory>"
-    elif gt is not None:
-        gt_traj, gt_label = read_gt(gt), str(gt)
-
-    source = {
-        "importer": "bimcap.dataset.conslam",
-        "bag": str(bag_path.resolve()),
-        "gt": gt_label,
-        "gt_frame": gt_frame.value if gt_traj is not None else None,
-        "topics": [TOPIC_IMAGE, TOPIC_POINTS, TOPIC_CAMERA_INFO],
-        "tolerance_s": tolerance_s,
-        "gt_tolerance_s": gt_tolerance_s,
-        "stride": stride,
-        "timestamps": "image header stamps (bag time where zero)",
-    }
-    writer: SequenceWriter | None = None
-    cam_source = "given"
+    gt_traj, gt_label = _load_gt(gt)
+    source = _provenance(bag_path, gt_label, gt_traj is not None, opts)
     try:
         with Reader(bag_path) as reader:
-            by_topic = {_norm_topic(c.topic): c for c in reader.connections}
-            for topic in (TOPIC_IMAGE, TOPIC_POINTS):
-                if topic not in by_topic:
-                    raise ConslamError(
-                        f"topic {topic!r} not in bag (has {sorted(by_topic)})", bag_path, "topics"
-                    )
-            con_img, con_pts = by_topic[TOPIC_IMAGE], by_topic[TOPIC_POINTS]
-            con_info = by_topic.get(TOPIC_CAMERA_INFO)
-            ti, tp, info_camera = _read_stamps(reader, typestore, con_img, con_pts, con_info)
-            plan = _plan_frames(
-                ti, tp, tolerance_s, gt_traj, gt_tolerance_s, stride, max_frames, bag_path, gt_label
-            )
-            world_from_cam = None
-            if plan.world_from_gt is not None:
-                world_from_cam = (
-                    lidar_to_camera_poses(plan.world_from_gt, extrinsic)
-                    if gt_frame is GtFrame.LIDAR
-                    else plan.world_from_gt
-                )
-            for k, image, cloud in _stream_frames(
-                reader, typestore, con_img, con_pts, plan, bag_path
-            ):
-                if writer is None:
-                    cam, cam_source = _choose_camera(camera, info_camera, image.shape, bag_path)
-                    writer = SequenceWriter(
-                        output,
-                        cam,
-                        extrinsic,
-                        lidar=VLP16,
-                        ifc=ifc,
-                        source={**source, "camera_source": cam_source},
-                        overwrite=overwrite,
-                        png_compression=png_compression,
-                    )
-                writer.add_frame(float(ti[plan.image_index[k]]), image, cloud)
+            index = _index_bag(reader, typestore, bag_path)
+            plan = _plan_frames(index.ti, index.tp, opts.tolerance_s, gt_traj,
+                                opts.gt_tolerance_s, opts.stride, opts.max_frames, bag_path,
+                                gt_label)
+            world_from_cam = _camera_poses(plan, extrinsic, opts.gt_frame)
+            writer, cam_source = _write_frames(index, plan, output, extrinsic, source, opts)
     except ReaderError as exc:
         raise ConslamError(f"cannot read the bag ({exc})", bag_path) from None
-    n_planned = len(plan.image_index)
-    if writer is None or len(writer.frames) != n_planned:
-        done = 0 if writer is None else len(writer.frames)
-        raise ConslamError(f"only {done} of {n_planned} frames could be assembled", bag_path)
-    if world_from_cam is not None:
-        writer.add_trajectory("gt", world_from_cam)
-    seq = writer.close()
+    seq = _finish_sequence(writer, plan, world_from_cam, bag_path)
     return ConslamImportResult(
         sequence=seq,
-        n_images=len(ti),
-        n_scans=len(tp),
+        n_images=len(index.ti),
+        n_scans=len(index.tp),
         n_pairs=plan.n_pairs,
         n_without_gt=plan.n_without_gt,
         n_frames=len(seq),
@@ -500,9 +592,9 @@ def import_conslam(
         max_pair_dt_s=plan.max_pair_dt_s,
         max_gt_dt_s=plan.max_gt_dt_s,
         topics={
-            "image": con_img.topic,
-            "points": con_pts.topic,
-            "camera_info": con_info.topic if con_info is not None else "",
+            "image": index.con_img.topic,
+            "points": index.con_pts.topic,
+            "camera_info": index.con_info.topic if index.con_info is not None else "",
         },
     )
 

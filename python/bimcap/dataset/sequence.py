@@ -867,6 +867,96 @@ def frame_info(
     )
 
 
+@dataclass(frozen=True)
+class _FrameArrays:
+    """One frame's checked arrays: image (H, W, 3) uint8 RGB, lidar (M, 4) float, labels and
+    labels_gt (H, W) uint8 or None, depth (H, W) float32 metres or None."""
+
+    image: NDArray[np.uint8]
+    lidar: NDArray[Any]
+    labels: NDArray[np.uint8] | None
+    labels_gt: NDArray[np.uint8] | None
+    depth: NDArray[np.float32] | None
+
+
+def _checked_image(image: NDArray[np.uint8], hw: tuple[int, int], out: Path,
+                   where: str) -> NDArray[np.uint8]:
+    """The (H, W, 3) uint8 RGB image, or a :class:`SequenceError` naming ``where.image``."""
+    img = np.asarray(image)
+    if img.dtype != np.uint8 or img.shape != (*hw, 3):
+        raise SequenceError(
+            f"expected a {(*hw, 3)} uint8 RGB image, got {img.shape} {img.dtype}",
+            out,
+            f"{where}.image",
+        )
+    return img
+
+
+def _checked_lidar(lidar: ArrayLike, out: Path, where: str) -> NDArray[Any]:
+    """The (M, 4) float scan, or a :class:`SequenceError` naming ``where.lidar``."""
+    pts = np.asarray(lidar)
+    if pts.ndim != 2 or pts.shape[1] != 4 or not np.issubdtype(pts.dtype, np.floating):
+        raise SequenceError(
+            f"expected (M, 4) float x y z intensity, got {pts.shape} {pts.dtype}",
+            out,
+            f"{where}.lidar",
+        )
+    return pts
+
+
+def _checked_labels(value: NDArray[np.uint8] | None, hw: tuple[int, int], out: Path,
+                    where: str) -> NDArray[np.uint8] | None:
+    """The (H, W) uint8 label ids (None stays None), or a :class:`SequenceError` naming
+    ``where`` (e.g. ``frames[3].labels``)."""
+    if value is None:
+        return None
+    lab = np.asarray(value)
+    if lab.dtype != np.uint8 or lab.shape != hw:
+        raise SequenceError(
+            f"expected a {hw} uint8 label image, got {lab.shape} {lab.dtype}", out, where
+        )
+    if lab.size and int(lab.max()) > max(Label):
+        raise SequenceError(f"label id {int(lab.max())} is not a bimcap.labels.Label", out, where)
+    return lab
+
+
+def _checked_depth(depth: NDArray[np.floating[Any]] | None, hw: tuple[int, int], out: Path,
+                   where: str) -> NDArray[np.float32] | None:
+    """The (H, W) float32 depth in metres (None stays None), or a :class:`SequenceError`
+    naming ``where.depth``."""
+    if depth is None:
+        return None
+    dep = np.asarray(depth)
+    if not np.issubdtype(dep.dtype, np.floating) or dep.shape != hw:
+        raise SequenceError(
+            f"expected a {hw} float depth image, got {dep.shape} {dep.dtype}",
+            out,
+            f"{where}.depth",
+        )
+    dep = dep.astype(np.float32)
+    if not np.isfinite(dep).all() or (dep < 0).any():
+        raise SequenceError("depth must be finite and >= 0", out, f"{where}.depth")
+    return dep
+
+
+def _write_frame_files(out: Path, info: FrameInfo, arrays: _FrameArrays,
+                       png_compression: int | None) -> None:
+    """Write the files ``info`` names (relative to ``out``) atomically."""
+    import cv2
+
+    params = [] if png_compression is None else [cv2.IMWRITE_PNG_COMPRESSION, int(png_compression)]
+    atomic_write_bytes(out / info.image, _encode_png(cv2, arrays.image[:, :, ::-1], params))
+    atomic_write_bytes(out / info.lidar, arrays.lidar.astype(_LIDAR_DTYPE).tobytes())
+    if arrays.labels is not None and info.labels is not None:
+        atomic_write_bytes(out / info.labels, _encode_png(cv2, arrays.labels, params))
+    if arrays.labels_gt is not None and info.labels_gt is not None:
+        atomic_write_bytes(out / info.labels_gt, _encode_png(cv2, arrays.labels_gt, params))
+    if arrays.depth is not None and info.depth is not None:
+        buf = io.BytesIO()
+        np.save(buf, arrays.depth, allow_pickle=False)
+        atomic_write_bytes(out / info.depth, buf.getvalue())
+
+
 def write_frame(
     root: str | PathLike[str],
     index: int,
@@ -891,68 +981,19 @@ def write_frame(
     SequenceError
         On a wrong shape, dtype or value (naming ``frames[index].<file>``).
     """
-    import cv2
-
     out = Path(root)
     where = f"frames[{index}]"
     hw = (camera.height, camera.width)
-    img = np.asarray(image)
-    if img.dtype != np.uint8 or img.shape != (*hw, 3):
-        raise SequenceError(
-            f"expected a {(*hw, 3)} uint8 RGB image, got {img.shape} {img.dtype}",
-            out,
-            f"{where}.image",
-        )
-    pts = np.asarray(lidar)
-    if pts.ndim != 2 or pts.shape[1] != 4 or not np.issubdtype(pts.dtype, np.floating):
-        raise SequenceError(
-            f"expected (M, 4) float x y z intensity, got {pts.shape} {pts.dtype}",
-            out,
-            f"{where}.lidar",
-        )
-    checked: dict[str, NDArray[np.uint8] | None] = {}
-    for key, value in (("labels", labels), ("labels_gt", labels_gt)):
-        lab = None
-        if value is not None:
-            lab = np.asarray(value)
-            if lab.dtype != np.uint8 or lab.shape != hw:
-                raise SequenceError(
-                    f"expected a {hw} uint8 label image, got {lab.shape} {lab.dtype}",
-                    out,
-                    f"{where}.{key}",
-                )
-            if lab.size and int(lab.max()) > max(Label):
-                raise SequenceError(
-                    f"label id {int(lab.max())} is not a bimcap.labels.Label", out, f"{where}.{key}"
-                )
-        checked[key] = lab
-    lab, lab_gt = checked["labels"], checked["labels_gt"]
+    img = _checked_image(image, hw, out, where)
+    pts = _checked_lidar(lidar, out, where)
+    lab = _checked_labels(labels, hw, out, f"{where}.labels")
+    lab_gt = _checked_labels(labels_gt, hw, out, f"{where}.labels_gt")
     if lab_gt is not None and lab is None:
         raise SequenceError("true labels given without labels", out, f"{where}.labels_gt")
-    dep = None
-    if depth is not None:
-        dep = np.asarray(depth)
-        if not np.issubdtype(dep.dtype, np.floating) or dep.shape != hw:
-            raise SequenceError(
-                f"expected a {hw} float depth image, got {dep.shape} {dep.dtype}",
-                out,
-                f"{where}.depth",
-            )
-        dep = dep.astype(np.float32)
-        if not np.isfinite(dep).all() or (dep < 0).any():
-            raise SequenceError("depth must be finite and >= 0", out, f"{where}.depth")
-    params = [] if png_compression is None else [cv2.IMWRITE_PNG_COMPRESSION, int(png_compression)]
+    dep = _checked_depth(depth, hw, out, where)
     info = frame_info(index, timestamp, lab is not None, dep is not None, lab_gt is not None)
-    atomic_write_bytes(out / info.image, _encode_png(cv2, img[:, :, ::-1], params))
-    atomic_write_bytes(out / info.lidar, pts.astype(_LIDAR_DTYPE).tobytes())
-    if lab is not None and info.labels is not None:
-        atomic_write_bytes(out / info.labels, _encode_png(cv2, lab, params))
-    if lab_gt is not None and info.labels_gt is not None:
-        atomic_write_bytes(out / info.labels_gt, _encode_png(cv2, lab_gt, params))
-    if dep is not None and info.depth is not None:
-        buf = io.BytesIO()
-        np.save(buf, dep, allow_pickle=False)
-        atomic_write_bytes(out / info.depth, buf.getvalue())
+    arrays = _FrameArrays(image=img, lidar=pts, labels=lab, labels_gt=lab_gt, depth=dep)
+    _write_frame_files(out, info, arrays, png_compression)
     return info
 
 

@@ -20,7 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import Enum
 from functools import lru_cache
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -152,7 +152,9 @@ def undistort_image(image: ArrayLike, camera: Camera, nearest: bool = False) -> 
 def _pose_rt(pose: ArrayLike, name: str) -> tuple[F64, F64]:
     p = np.asarray(pose, dtype=np.float64)
     if p.shape != (7,) or not np.isfinite(p).all():
-        raise FusionInputError(f"expected a finite (7,) TUM-order pose, got shape {p.shape}", field=name)
+        raise FusionInputError(
+            f"expected a finite (7,) TUM-order pose, got shape {p.shape}", field=name
+        )
     if abs(np.linalg.norm(p[3:]) - 1.0) > 1e-3:
         raise FusionInputError("quaternion is not unit length", field=name)
     return quat_to_rotmat(p[3:]), p[:3]
@@ -181,7 +183,103 @@ def _fov_bounds(camera: Camera) -> tuple[float, float, float, float]:
          np.stack([np.full_like(vs, -0.5), vs], 1), np.stack([np.full_like(vs, w - 0.5), vs], 1)]
     )
     xy = camera.rays(border, distorted=True)[:, :2]
-    return float(xy[:, 0].min()), float(xy[:, 0].max()), float(xy[:, 1].min()), float(xy[:, 1].max())
+    return (float(xy[:, 0].min()), float(xy[:, 0].max()),
+            float(xy[:, 1].min()), float(xy[:, 1].max()))
+
+
+@dataclass(frozen=True)
+class _Returns:
+    """The LiDAR returns still kept: index (K,) int64 into the scan, uv (K, 2) float64 pixels,
+    z (K,) float64 z-depth in metres."""
+
+    index: NDArray[np.int64]
+    uv: F64
+    z: F64
+
+    def select(self, keep: NDArray[Any]) -> _Returns:
+        """The returns at ``keep`` (a mask or indices)."""
+        return _Returns(index=self.index[keep], uv=self.uv[keep], z=self.z[keep])
+
+
+def _checked_points(points_in_lidar: ArrayLike,
+                    opts: ProjectionOptions) -> tuple[F64, NDArray[np.bool_]]:
+    """The scan's xyz (M, 3) metres and (M,) True where finite; raises on a bad shape, an empty
+    scan, or non-finite points under ``NanPolicy.RAISE``."""
+    pts = np.asarray(points_in_lidar, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] < 3:
+        raise FusionInputError(f"points must have shape (M, 3) or (M, 4), got {pts.shape}",
+                               field="points_in_lidar")
+    pts = pts[:, :3]
+    n_input = len(pts)
+    if n_input == 0:
+        raise FusionInputError("the LiDAR scan is empty (0 points)", field="points_in_lidar")
+    finite = cast(NDArray[np.bool_], np.isfinite(pts).all(axis=1))
+    if not finite.all() and opts.nan_policy is NanPolicy.RAISE:
+        bad = int((~finite).sum())
+        raise FusionInputError(
+            f"{bad} of {n_input} points are NaN/inf (ProjectionOptions.nan_policy DROP drops them)",
+            field="points_in_lidar",
+        )
+    return pts, finite
+
+
+def _in_front(pts: F64, finite: NDArray[np.bool_], cam_from_lidar: ArrayLike,
+              opts: ProjectionOptions) -> tuple[NDArray[np.int64], F64, F64]:
+    """Finite points with ``min < z < max`` in the camera: index (K,), z (K,) metres and
+    normalised coordinates xy (K, 2)."""
+    index = np.flatnonzero(finite)
+    rot, t = _pose_rt(cam_from_lidar, "cam_from_lidar")
+    p_in_cam = pts[index] @ rot.T + t
+    z = p_in_cam[:, 2]
+    front = (z > opts.min_depth_m) & (z < opts.max_depth_m)
+    index, p_in_cam, z = index[front], p_in_cam[front], z[front]
+    return index, z, p_in_cam[:, :2] / z[:, None]
+
+
+def _to_pixels(index: NDArray[np.int64], xy: F64, z: F64, camera: Camera,
+               distort: bool) -> _Returns:
+    """Project normalised coordinates xy (K, 2) to pixels, keeping those inside the image
+    (with ``distort``, only points inside the camera's field of view are distorted)."""
+    if distort and camera.is_distorted:
+        x0, x1, y0, y1 = _fov_bounds(camera)
+        r_max = _monotonic_radius(camera)
+        in_fov = (xy[:, 0] >= x0) & (xy[:, 0] <= x1) & (xy[:, 1] >= y0) & (xy[:, 1] <= y1)
+        in_fov &= (xy * xy).sum(1) < r_max * r_max
+        index, xy, z = index[in_fov], xy[in_fov], z[in_fov]
+        xy = camera.distort_normalized(xy)
+    uv = np.stack([camera.fx * xy[:, 0] + camera.cx, camera.fy * xy[:, 1] + camera.cy], axis=1)
+    inside = camera.in_image(uv)
+    return _Returns(index=index[inside], uv=uv[inside], z=z[inside])
+
+
+def _zbuffer(ret: _Returns, camera: Camera) -> tuple[_Returns, NDArray[np.int64]]:
+    """The nearest return per pixel (rounded to the nearest pixel), and (K,) its pixel id
+    ``row·W + col``."""
+    h, w = camera.height, camera.width
+    col = np.clip(np.rint(ret.uv[:, 0]).astype(np.int64), 0, w - 1)
+    row = np.clip(np.rint(ret.uv[:, 1]).astype(np.int64), 0, h - 1)
+    lin = row * w + col
+    order = np.lexsort((ret.z, lin))  # by pixel, then nearest first
+    lin_sorted = lin[order]
+    first = np.ones(len(order), dtype=bool)
+    first[1:] = lin_sorted[1:] != lin_sorted[:-1]
+    keep = order[first]
+    return ret.select(keep), lin[keep]
+
+
+def _drop_occluded(depth: F32, ret: _Returns, lin: NDArray[np.int64],
+                   opts: ProjectionOptions) -> _Returns:
+    """The parallax occlusion test (module docstring): zero the occluded returns (pixel ids
+    ``lin`` (K,)) in ``depth`` (H, W) metres, in place, and keep the others."""
+    import cv2
+
+    r = opts.occlusion_radius_px
+    big = np.float32(np.finfo(np.float32).max)
+    zmin = cv2.erode(np.where(depth > 0, depth, big), np.ones((2 * r + 1, 2 * r + 1), np.uint8))
+    zmin_at = zmin.reshape(-1)[lin].astype(np.float64)
+    occluded = (ret.z - zmin_at) > np.maximum(opts.occlusion_abs_m, opts.occlusion_rel * zmin_at)
+    depth.reshape(-1)[lin[occluded]] = 0.0
+    return ret.select(~occluded)
 
 
 def project_lidar(
@@ -206,8 +304,8 @@ def project_lidar(
     Steps: transform, keep ``min < z < max``, keep points inside the camera's field of view (only
     those are used: the normalised coordinates must lie within the undistorted raw image's
     bounds and inside the radius up to which the distortion polynomial is monotonic, so that no
-    point outside the FoV can wrap into the image through the polynomial), round to the nearest pixel, z-buffer (nearest return per pixel), parallax
-    occlusion test (module docstring).
+    point outside the FoV can wrap into the image through the polynomial), round to the nearest
+    pixel, z-buffer (nearest return per pixel), parallax occlusion test (module docstring).
 
     Raises
     ------
@@ -215,77 +313,27 @@ def project_lidar(
         a bad pose.
     """
     opts = options or ProjectionOptions()
-    pts = np.asarray(points_in_lidar, dtype=np.float64)
-    if pts.ndim != 2 or pts.shape[1] < 3:
-        raise FusionInputError(f"points must have shape (M, 3) or (M, 4), got {pts.shape}", field="points_in_lidar")
-    pts = pts[:, :3]
-    n_input = len(pts)
-    if n_input == 0:
-        raise FusionInputError("the LiDAR scan is empty (0 points)", field="points_in_lidar")
-    finite = np.isfinite(pts).all(axis=1)
-    if not finite.all():
-        if opts.nan_policy is NanPolicy.RAISE:
-            bad = int((~finite).sum())
-            raise FusionInputError(
-                f"{bad} of {n_input} points are NaN/inf (ProjectionOptions.nan_policy DROP drops "
-                "them)",
-                field="points_in_lidar",
-            )
-    index = np.flatnonzero(finite)
-    rot, t = _pose_rt(cam_from_lidar, "cam_from_lidar")
-    p_in_cam = pts[index] @ rot.T + t
-    z = p_in_cam[:, 2]
-    front = (z > opts.min_depth_m) & (z < opts.max_depth_m)
-    n_front = int(front.sum())
-    index, p_in_cam, z = index[front], p_in_cam[front], z[front]
-    xy = p_in_cam[:, :2] / z[:, None]
-    if distort and camera.is_distorted:
-        x0, x1, y0, y1 = _fov_bounds(camera)
-        r_max = _monotonic_radius(camera)
-        in_fov = (xy[:, 0] >= x0) & (xy[:, 0] <= x1) & (xy[:, 1] >= y0) & (xy[:, 1] <= y1)
-        in_fov &= (xy * xy).sum(1) < r_max * r_max
-        index, xy, z = index[in_fov], xy[in_fov], z[in_fov]
-        xy = camera.distort_normalized(xy)
-    uv = np.stack([camera.fx * xy[:, 0] + camera.cx, camera.fy * xy[:, 1] + camera.cy], axis=1)
-    inside = camera.in_image(uv)
-    index, uv, z = index[inside], uv[inside], z[inside]
-    n_fov = len(index)
-
-    h, w = camera.height, camera.width
-    col = np.clip(np.rint(uv[:, 0]).astype(np.int64), 0, w - 1)
-    row = np.clip(np.rint(uv[:, 1]).astype(np.int64), 0, h - 1)
-    lin = row * w + col
-    order = np.lexsort((z, lin))  # by pixel, then nearest first
-    lin_sorted = lin[order]
-    first = np.ones(len(order), dtype=bool)
-    first[1:] = lin_sorted[1:] != lin_sorted[:-1]
-    keep = order[first]
-    index, uv, z, lin = index[keep], uv[keep], z[keep], lin[keep]
-    n_zbuf = len(index)
-
-    depth = np.zeros(h * w, dtype=np.float32)
-    depth[lin] = z.astype(np.float32)
-    depth = depth.reshape(h, w)
+    pts, finite = _checked_points(points_in_lidar, opts)
+    index, z, xy = _in_front(pts, finite, cam_from_lidar, opts)
+    n_front = len(index)
+    ret = _to_pixels(index, xy, z, camera, distort)
+    n_fov = len(ret.index)
+    ret, lin = _zbuffer(ret, camera)
+    n_zbuf = len(ret.index)
+    depth = np.zeros(camera.height * camera.width, dtype=np.float32)
+    depth[lin] = ret.z.astype(np.float32)
+    depth = depth.reshape(camera.height, camera.width)
     if opts.occlusion_radius_px > 0 and n_zbuf:
-        import cv2
-
-        r = opts.occlusion_radius_px
-        big = np.float32(np.finfo(np.float32).max)
-        zmin = cv2.erode(np.where(depth > 0, depth, big), np.ones((2 * r + 1, 2 * r + 1), np.uint8))
-        zmin_at = zmin.reshape(-1)[lin].astype(np.float64)
-        occluded = (z - zmin_at) > np.maximum(opts.occlusion_abs_m, opts.occlusion_rel * zmin_at)
-        depth.reshape(-1)[lin[occluded]] = 0.0
-        ok = ~occluded
-        index, uv, z = index[ok], uv[ok], z[ok]
+        ret = _drop_occluded(depth, ret, lin, opts)
     counts = {
-        "input": n_input,
+        "input": len(pts),
         "finite": int(finite.sum()),
         "in_front": n_front,
         "in_fov": n_fov,
         "zbuffer": n_zbuf,
-        "kept": len(index),
+        "kept": len(ret.index),
     }
-    return SparseDepth(depth=depth, uv=uv, z=z, point_index=index, counts=counts)
+    return SparseDepth(depth=depth, uv=ret.uv, z=ret.z, point_index=ret.index, counts=counts)
 
 
 def pair_by_timestamp(image_ts: ArrayLike, scan_ts: ArrayLike, tol: float) -> NDArray[np.int64]:

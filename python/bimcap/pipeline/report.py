@@ -101,26 +101,25 @@ def term_costs(summary: Any) -> dict[str, dict[str, float]]:
     return {"cost_before": before, "cost_after": after}
 
 
-def write_report(inp: ReportInput, name: str = "report.html") -> Path:
-    """Render ``inp`` into ``out_dir/name`` (and its figures into ``out_dir/figures/``)."""
-    from bimcap.evaluation import plots
+_STYLE = ("body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222}"
+          "table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;"
+          "padding:4px 8px;text-align:right}td:first-child,th:first-child{text-align:left}"
+          "img{max-width:100%}figure{margin:1em 0}figcaption{color:#666;font-size:90%}"
+          "pre{background:#f5f5f5;padding:8px;overflow-x:auto}")
 
-    figs = inp.out_dir / "figures"
-    figs.mkdir(parents=True, exist_ok=True)
-    parts: list[str] = []
-    style = ("body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222}"
-             "table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;"
-             "padding:4px 8px;text-align:right}td:first-child,th:first-child{text-align:left}"
-             "img{max-width:100%}figure{margin:1em 0}figcaption{color:#666;font-size:90%}"
-             "pre{background:#f5f5f5;padding:8px;overflow-x:auto}")
-    parts.append(f"<!doctype html><html><head><meta charset='utf-8'><title>"
-                 f"{html.escape(inp.title)}</title><style>{style}</style></head><body>")
-    parts.append(f"<h1>{html.escape(inp.title)}</h1>")
-    for note in inp.notes:
-        parts.append(f"<p>{html.escape(note)}</p>")
 
-    parts.append("<h2>Metrics</h2>")
-    parts.append(metrics_table_html(inp.rows))
+def _head_html(inp: ReportInput) -> list[str]:
+    """The document head, the title and the notes."""
+    parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>"
+             f"{html.escape(inp.title)}</title><style>{_STYLE}</style></head><body>",
+             f"<h1>{html.escape(inp.title)}</h1>"]
+    parts += [f"<p>{html.escape(note)}</p>" for note in inp.notes]
+    return parts
+
+
+def _metrics_html(inp: ReportInput) -> list[str]:
+    """The metrics table and what its columns mean."""
+    parts = ["<h2>Metrics</h2>", metrics_table_html(inp.rows)]
     conv = next((r.metrics.ypr_convention for r in inp.rows if r.metrics is not None), None)
     mm = next((r.map_metrics for r in inp.rows if r.map_metrics is not None), None)
     expl = ["ATE without alignment (the BIM frame is shared)."]
@@ -131,6 +130,12 @@ def write_report(inp: ReportInput, name: str = "report.html") -> Path:
                     f"{mm.min_neighbours} neighbours; NND against the {mm.nnd_reference} "
                     f"(cut-off {mm.nnd_cutoff_m:g} m, {mm.nnd_cutoff_mode.value}).")
     parts.append(f"<p>{html.escape(' '.join(expl))}</p>")
+    return parts
+
+
+def _trajectories_html(inp: ReportInput, figs: Path) -> list[str]:
+    """Every trajectory (and the ground truth) over the floor plan."""
+    from bimcap.evaluation import plots
 
     trajs: dict[str, np.ndarray] = {}
     if inp.gt_poses is not None:
@@ -139,56 +144,102 @@ def write_report(inp: ReportInput, name: str = "report.html") -> Path:
         trajs[r.name] = r.poses
     p = figs / "trajectories.png"
     plots.plot_trajectories_on_plan(inp.segments, inp.segment_class, trajs, p)
-    parts.append("<h2>Trajectories over the floor plan</h2>" + _img(p, "top view"))
+    return ["<h2>Trajectories over the floor plan</h2>" + _img(p, "top view")]
 
-    with_metrics = [r for r in inp.rows if r.metrics is not None and r.metrics.frame_errors is not None]
-    if len(with_metrics) >= 2:
-        parts.append("<h2>Error per frame</h2>")
-        first = with_metrics[0]
-        for r in with_metrics[1:]:
-            p = figs / f"errors_{_slug(r.name)}.png"
-            plots.plot_errors_per_frame(first.metrics.frame_errors, r.metrics.frame_errors, p)
-            parts.append(_img(p, f"error per frame: {first.name} (before) vs {r.name} (after)"))
 
-    if inp.map_points:
-        parts.append("<h2>Floor and ceiling points, side views</h2>")
-        for label, (pts, labs) in inp.map_points.items():
-            keep = np.isin(labs, [int(Label.FLOOR), int(Label.CEILING)])
-            if keep.sum() == 0:
-                continue
-            p = figs / f"side_{_slug(label)}.png"
-            plots.plot_side_view(pts[keep], labs[keep], inp.heights or None, p,
-                                 title=f"Floor and ceiling points: {label}")
-            parts.append(_img(p, f"side view, {label}"))
+def _errors_html(inp: ReportInput, figs: Path) -> list[str]:
+    """Error per frame of each run against the first one with metrics (none for fewer than
+    two)."""
+    from bimcap.evaluation import plots
 
-    if inp.observability is not None and inp.observability.frames:
-        obs = inp.observability
-        p = figs / "observability.png"
-        plots.plot_observability(obs.sigma(), obs.options.max_sigma_m, obs.options.max_sigma_deg, p)
-        parts.append("<h2>What the BIM observes, per frame</h2>")
-        parts.append(f"<p>{html.escape(obs.summary_line())}. Standard deviations of each degree of "
-                     "freedom from the BIM terms alone (F, Ce, W, Co, with their noise scales and "
-                     "robust weights), in a frame aligned with the camera's heading. Degrees of "
-                     "freedom the BIM does not pin are held by G (the neighbouring frames), the "
-                     "odometry and the pose prior.</p>")
-        parts.append(_img(p, "BIM observability per frame"))
+    with_metrics = [r for r in inp.rows
+                    if r.metrics is not None and r.metrics.frame_errors is not None]
+    if len(with_metrics) < 2:
+        return []
+    parts = ["<h2>Error per frame</h2>"]
+    first = with_metrics[0]
+    for r in with_metrics[1:]:
+        p = figs / f"errors_{_slug(r.name)}.png"
+        plots.plot_errors_per_frame(first.metrics.frame_errors, r.metrics.frame_errors, p)
+        parts.append(_img(p, f"error per frame: {first.name} (before) vs {r.name} (after)"))
+    return parts
+
+
+def _side_views_html(inp: ReportInput, figs: Path) -> list[str]:
+    """Side views of each map's floor and ceiling points."""
+    from bimcap.evaluation import plots
+
+    if not inp.map_points:
+        return []
+    parts = ["<h2>Floor and ceiling points, side views</h2>"]
+    for label, (pts, labs) in inp.map_points.items():
+        keep = np.isin(labs, [int(Label.FLOOR), int(Label.CEILING)])
+        if keep.sum() == 0:
+            continue
+        p = figs / f"side_{_slug(label)}.png"
+        plots.plot_side_view(pts[keep], labs[keep], inp.heights or None, p,
+                             title=f"Floor and ceiling points: {label}")
+        parts.append(_img(p, f"side view, {label}"))
+    return parts
+
+
+def _observability_html(inp: ReportInput, figs: Path) -> list[str]:
+    """What the BIM observes per frame (none without an observability analysis)."""
+    from bimcap.evaluation import plots
+
+    if inp.observability is None or not inp.observability.frames:
+        return []
+    obs = inp.observability
+    p = figs / "observability.png"
+    plots.plot_observability(obs.sigma(), obs.options.max_sigma_m, obs.options.max_sigma_deg, p)
+    return ["<h2>What the BIM observes, per frame</h2>",
+            f"<p>{html.escape(obs.summary_line())}. Standard deviations of each degree of "
+            "freedom from the BIM terms alone (F, Ce, W, Co, with their noise scales and "
+            "robust weights), in a frame aligned with the camera's heading. Degrees of "
+            "freedom the BIM does not pin are held by G (the neighbouring frames), the "
+            "odometry and the pose prior.</p>",
+            _img(p, "BIM observability per frame")]
+
+
+def _solver_html(inp: ReportInput, figs: Path) -> list[str]:
+    """Per-term costs and the solver summary of each solved run."""
+    from bimcap.evaluation import plots
 
     solved = [r for r in inp.rows if r.summary is not None]
-    if solved:
-        parts.append("<h2>Solver</h2>")
-        for r in solved:
-            costs = term_costs(r.summary)
-            if costs["cost_before"]:
-                p = figs / f"costs_{_slug(r.name)}.png"
-                plots.plot_term_costs(costs, p)
-                parts.append(_img(p, f"per-term cost, {r.name}"))
-            parts.append(f"<h3>{html.escape(r.name)}</h3><pre>{html.escape(r.summary.table())}</pre>")
+    if not solved:
+        return []
+    parts = ["<h2>Solver</h2>"]
+    for r in solved:
+        costs = term_costs(r.summary)
+        if costs["cost_before"]:
+            p = figs / f"costs_{_slug(r.name)}.png"
+            plots.plot_term_costs(costs, p)
+            parts.append(_img(p, f"per-term cost, {r.name}"))
+        parts.append(f"<h3>{html.escape(r.name)}</h3><pre>{html.escape(r.summary.table())}</pre>")
+    return parts
 
-    parts.append("<h2>Reproduce</h2>")
+
+def _reproduce_html(inp: ReportInput) -> list[str]:
+    """The command and the settings that reproduce the run, and the end of the document."""
+    parts = ["<h2>Reproduce</h2>"]
     if inp.reproduce:
         parts.append(f"<pre>{html.escape(inp.reproduce)}</pre>")
     parts.append(f"<pre>{html.escape(json.dumps(inp.settings, indent=2, default=str))}</pre>")
     parts.append("</body></html>")
+    return parts
+
+
+def write_report(inp: ReportInput, name: str = "report.html") -> Path:
+    """Render ``inp`` into ``out_dir/name`` (and its figures into ``out_dir/figures/``)."""
+    figs = inp.out_dir / "figures"
+    figs.mkdir(parents=True, exist_ok=True)
+    parts = _head_html(inp) + _metrics_html(inp)
+    parts += _trajectories_html(inp, figs)
+    parts += _errors_html(inp, figs)
+    parts += _side_views_html(inp, figs)
+    parts += _observability_html(inp, figs)
+    parts += _solver_html(inp, figs)
+    parts += _reproduce_html(inp)
     path = inp.out_dir / name
     atomic_write_text(path, "\n".join(parts))
     return path
@@ -211,7 +262,9 @@ def bim_heights(reference: Any) -> dict[str, float]:
     return out
 
 
-def write_refine_report(result: Any, prepared: Any, gt: Any, extra: list[RunRow] | None = None) -> Path:
+def write_refine_report(
+    result: Any, prepared: Any, gt: Any, extra: list[RunRow] | None = None
+) -> Path:
     """The report of one ``bimcap refine`` run (``extra`` rows, e.g. FACaP, are shown beside)."""
     from bimcap.frontend.semantic_map import semantic_points
 
@@ -232,7 +285,8 @@ def write_refine_report(result: Any, prepared: Any, gt: Any, extra: list[RunRow]
         gt_poses=None if gt is None else gt.poses,
         map_points=maps,
         heights=bim_heights(ref),
-        settings={"config": result.config.to_dict(), "problem": result.outcome.problem_stats.to_dict(),
+        settings={"config": result.config.to_dict(),
+                  "problem": result.outcome.problem_stats.to_dict(),
                   "timings_s": result.timings},
         reproduce=result.command,
         observability=result.outcome.observability,
