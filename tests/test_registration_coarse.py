@@ -23,6 +23,9 @@ from bimcap.registration.synthetic import (
     symmetric_scene,
 )
 
+#: The window stage alone (the per-frame orientation stage is on by default).
+WINDOWS = CoarseOptions(frame_orientation=False)
+
 pytest.importorskip("cv2")
 
 
@@ -53,7 +56,7 @@ def test_window_displaced_1p5m_15deg_in_corridor_returns(demo: Scene) -> None:
     init = drift(gt, 1.5, 15.0)
     t0, r0 = pose_errors(init, gt)
     assert t0.min() > 1.0 and r0.min() > 14.0  # the start really is far off
-    res = coarse_register(init, samples, demo.floor_plan())
+    res = coarse_register(init, samples, demo.floor_plan(), WINDOWS)
     t_err, r_err = pose_errors(res.poses, gt)
     assert t_err.max() < 0.05, t_err
     assert r_err.max() < 0.5, r_err
@@ -66,7 +69,7 @@ def test_single_frame_displaced_1p5m_15deg_returns(demo: Scene) -> None:
     gt = level_pose(6.0, -0.3, 0.0)[None]
     samples = scan_sequence(gt, demo, seed=2, clutter_fraction=0.03)
     init = displace(gt, np.deg2rad(-15.0), np.array([-0.9, 1.2, 0.0]), gt[0, :3])
-    res = coarse_register(init, samples, demo.floor_plan(), CoarseOptions(window_frames=1))
+    res = coarse_register(init, samples, demo.floor_plan(), CoarseOptions(window_frames=1, frame_orientation=False))
     t_err, r_err = pose_errors(res.poses, gt)
     assert t_err[0] < 0.05 and r_err[0] < 0.5, (t_err, r_err)
 
@@ -79,7 +82,7 @@ def test_missing_wall_and_clutter_do_not_break_it(demo: Scene) -> None:
     gt = corridor_walk(12, x0=4.5)
     samples = scan_sequence(gt, as_built, seed=3, clutter_fraction=0.15)
     init = drift(gt, 1.2, -12.0)
-    res = coarse_register(init, samples, demo.floor_plan())
+    res = coarse_register(init, samples, demo.floor_plan(), WINDOWS)
     t_err, r_err = pose_errors(res.poses, gt)
     assert t_err.max() < 0.05, t_err
     assert r_err.max() < 0.5, r_err
@@ -90,7 +93,7 @@ def test_displacement_outside_the_search_range_is_not_accepted(demo: Scene) -> N
     gt = corridor_walk(10)
     samples = scan_sequence(gt, demo, seed=4, clutter_fraction=0.03)
     init = displace(gt, 0.0, np.array([0.0, 3.5, 0.0]), gt[:, :3].mean(0))
-    res = coarse_register(init, samples, demo.floor_plan())
+    res = coarse_register(init, samples, demo.floor_plan(), WINDOWS)
     t_err, _ = pose_errors(res.poses, gt)
     assert t_err.min() > 1.0  # it could not fix it ...
     assert not res.accepted.any(), [w.reason for w in res.windows]  # ... and says so
@@ -101,7 +104,7 @@ def test_displacement_outside_the_search_range_is_not_accepted(demo: Scene) -> N
 def test_true_pose_is_a_fixed_point(demo: Scene) -> None:
     gt = corridor_walk(20, x0=2.0)
     samples = scan_sequence(gt, demo, seed=5)
-    res = coarse_register(gt, samples, demo.floor_plan())
+    res = coarse_register(gt, samples, demo.floor_plan(), WINDOWS)
     t_err, r_err = pose_errors(res.poses, gt)
     assert t_err.max() < 0.01 and r_err.max() < 0.1, (t_err.max(), r_err.max())
     d = res.to_dict()
@@ -109,7 +112,8 @@ def test_true_pose_is_a_fixed_point(demo: Scene) -> None:
     json.dumps(d, allow_nan=False)
     # Plain local ICP (no correlative search) leaves the true pose alone as well.
     icp_only = coarse_register(gt, samples, demo.floor_plan(),
-                               CoarseOptions(use_correlative=False, use_continuity=False))
+                               CoarseOptions(use_correlative=False, use_continuity=False,
+                                             frame_orientation=False))
     assert pose_errors(icp_only.poses, gt)[0].max() < 0.01
     json.dumps(icp_only.to_dict(), allow_nan=False)
 
@@ -124,7 +128,8 @@ def _symmetric_case(use_continuity: bool) -> tuple[np.ndarray, np.ndarray]:
     gt = poses_along(path, 0.3)
     samples = scan_sequence(gt, as_built, seed=3, clutter_fraction=0.03)
     init = displace(gt, np.deg2rad(5.0), np.array([0.4, -0.3, 0.0]), gt[:, :3].mean(0))
-    opt = CoarseOptions(yaw_range_deg=180.0, yaw_step_deg=2.0, use_continuity=use_continuity)
+    opt = CoarseOptions(yaw_range_deg=180.0, yaw_step_deg=2.0, use_continuity=use_continuity,
+                        frame_orientation=False)
     res = coarse_register(init, samples, bim.floor_plan(), opt)
     return pose_errors(res.poses, gt)
 
@@ -157,7 +162,7 @@ def test_rigid_motion_of_the_whole_world_changes_nothing(demo: Scene) -> None:
     gt = compose(world, corridor_walk(10))
     samples = scan_sequence(gt, moved, seed=6, clutter_fraction=0.03)
     init = drift(gt, 1.5, 15.0)
-    res = coarse_register(init, samples, moved.floor_plan())
+    res = coarse_register(init, samples, moved.floor_plan(), WINDOWS)
     t_err, r_err = pose_errors(res.poses, gt)
     assert t_err.max() < 0.05 and r_err.max() < 0.5, (t_err.max(), r_err.max())
 
@@ -182,7 +187,7 @@ def test_smoothly_growing_drift_like_exp1(demo: Scene) -> None:
     t0, r0 = pose_errors(init_arr, gt)
     assert t0.max() > 0.8 and r0.max() > 10.0
     res = coarse_register(init_arr, scan_sequence(gt, demo, seed=7, clutter_fraction=0.05),
-                          demo.floor_plan())
+                          demo.floor_plan(), WINDOWS)
     t_err, r_err = pose_errors(res.poses, gt)
     assert t_err.max() < 0.05, t_err
     assert np.median(r_err) < 0.2 and np.percentile(r_err, 90) < 0.5, r_err
@@ -203,7 +208,7 @@ def _two_storey_case(demo: Scene, use_segment_z: bool) -> np.ndarray:
     gt = poses_along(np.array([[3.0, -0.3], [6.0, -0.3]]), 0.25, height=4.6)[:10]
     samples = scan_sequence(gt, upper, seed=8, clutter_fraction=0.03)
     init = displace(gt, 0.0, np.array([-0.6, 0.0, 0.2]), gt[:, :3].mean(0))
-    res = coarse_register(init, samples, plan)
+    res = coarse_register(init, samples, plan, WINDOWS)
     assert res.windows[0].dz_m == pytest.approx(-0.2, abs=0.02)  # floor at 3.1 m found
     return pose_errors(res.poses, gt)[0]
 
@@ -247,7 +252,8 @@ def test_frame_orientation_takes_out_independent_per_frame_rotations(demo: Scene
     assert np.median(r_err) < 0.5, r_err
     assert t_err.max() < 0.3, t_err  # the deadband leaves up to 0.3 m to the windows and BA
     # The window stage alone cannot fit frames whose rotations disagree.
-    base = coarse_register(init, samples, demo.floor_plan())
+    base = coarse_register(init, samples, demo.floor_plan(),
+                           CoarseOptions(frame_orientation=False))
     assert np.median(pose_errors(base.poses, gt)[1]) > 2.0
 
 

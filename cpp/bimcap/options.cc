@@ -126,6 +126,34 @@ SolverOptions::SolverOptions() {
   }
 }
 
+std::vector<std::string> SolverOptions::PresetNames() { return {"robust", "paper"}; }
+
+SolverOptions SolverOptions::Preset(std::string_view name) {
+  if (name != "robust" && name != "paper") {
+    std::string allowed;
+    for (const auto& n : PresetNames()) allowed += (allowed.empty() ? "" : ", ") + n;
+    throw OptionsError("preset", "unknown preset '" + std::string(name) + "' (allowed: " +
+                                     allowed + ")");
+  }
+  SolverOptions o;
+  o.weighting = Weighting::kRobust;
+  o.geometric_mode = GeometricMode::kReprojection;
+  o.pixel_sigma = 2.0;
+  o.term("floor").sigma = 0.05;
+  o.term("ceiling").sigma = 0.05;
+  // Keypoint depths after planar smoothing: on the demo world their error against the
+  // simulator's depth has a MAD of 0.5 cm and a 90th percentile of 2.2 cm.
+  o.term("depth").sigma = 0.02;
+  for (int t = 0; t < NumTerms(); ++t) {
+    if (Terms()[t].paper_term) o.term(t).loss = LossType::kCauchy;
+  }
+  if (name == "paper") {
+    o.weighting = Weighting::kPaper;
+    o.geometric_mode = GeometricMode::kPoint;
+  }
+  return o;
+}
+
 TermOptions& SolverOptions::term(std::string_view key_or_name) {
   const int id = TermIndex(key_or_name);
   if (id < 0) throw OptionsError(std::string(key_or_name), "unknown term");

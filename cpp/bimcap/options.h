@@ -78,6 +78,17 @@ struct SolverOptions {
 
   SolverOptions();  // every term at its registry defaults
 
+  // A named starting point (throws OptionsError naming "preset" for an unknown name):
+  //  "robust": what `bimcap refine` uses for BIMCaP. ROBUST weighting; G as the reprojection
+  //      error (pixel_sigma 2 px, each error whitened by its keypoint depth's noise, depth.sigma
+  //      2 cm); floor and ceiling sigma 5 cm; a Cauchy loss on each of the paper's terms
+  //      (completed depth and estimated labels have heavy-tailed errors).
+  //  "paper": the peers' objective. PAPER weighting (each term λ · the mean of its squared
+  //      residuals, plain L2); G as FACaP's point error (m). The sigmas and losses are robust's:
+  //      the solve does not use them, the diagnostics (observability) do.
+  static SolverOptions Preset(std::string_view name);
+  static std::vector<std::string> PresetNames();
+
   TermOptions& term(int id) { return terms.at(static_cast<size_t>(id)); }
   const TermOptions& term(int id) const { return terms.at(static_cast<size_t>(id)); }
   // By key ("floor") or name ("F"); throws OptionsError for an unknown term.

@@ -74,6 +74,11 @@ The GIL is released while Ceres runs.)doc");
   m.def("default_options", []() { return OptionsToDict(SolverOptions()); },
         "The default solver options as a dict of str → str.");
   m.def(
+      "preset_options", [](const std::string& name) { return OptionsToDict(SolverOptions::Preset(name)); },
+      py::arg("name"),
+      "A named preset's options as a dict of str → str (ValueError for an unknown name).");
+  m.def("preset_names", &SolverOptions::PresetNames, "The names of the option presets.");
+  m.def(
       "check_options", [](const py::dict& options) { return OptionsToDict(OptionsFromDict(options)); },
       py::arg("options"),
       "Validate flat options (ValueError naming the key on error); returns them normalised.");

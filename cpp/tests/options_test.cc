@@ -98,5 +98,35 @@ TEST(TermRegistry, EveryTermHasDistinctKeysAndItsArraysInTheFieldTable) {
   EXPECT_THROW(SolverOptions().term("no such term"), OptionsError);
 }
 
+TEST(Options, PresetsAreValidAndDiffer) {
+  const SolverOptions robust = SolverOptions::Preset("robust");
+  const SolverOptions paper = SolverOptions::Preset("paper");
+  robust.Check();
+  paper.Check();
+  EXPECT_EQ(robust.weighting, Weighting::kRobust);
+  EXPECT_EQ(robust.geometric_mode, GeometricMode::kReprojection);
+  EXPECT_DOUBLE_EQ(robust.pixel_sigma, 2.0);
+  EXPECT_DOUBLE_EQ(robust.term("floor").sigma, 0.05);
+  EXPECT_DOUBLE_EQ(robust.term("depth").sigma, 0.02);
+  EXPECT_EQ(robust.term("wall").loss, LossType::kCauchy);
+  EXPECT_EQ(robust.term("depth").loss, LossType::kCauchy);
+  EXPECT_EQ(robust.term("prior").loss, SolverOptions().term("prior").loss);
+  EXPECT_EQ(paper.weighting, Weighting::kPaper);
+  EXPECT_EQ(paper.geometric_mode, GeometricMode::kPoint);
+  // A preset survives the text form.
+  EXPECT_EQ(OptionsToText(OptionsFromText(OptionsToText(robust))), OptionsToText(robust));
+  EXPECT_EQ(SolverOptions::PresetNames().size(), 2u);
+}
+
+TEST(Options, UnknownPresetNamesTheField) {
+  try {
+    SolverOptions::Preset("fast");
+    FAIL() << "expected OptionsError";
+  } catch (const OptionsError& e) {
+    EXPECT_EQ(e.field(), "preset");
+    EXPECT_NE(std::string(e.what()).find("robust"), std::string::npos);
+  }
+}
+
 }  // namespace
 }  // namespace bimcap

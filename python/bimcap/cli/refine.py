@@ -7,7 +7,14 @@ import shlex
 import sys
 from typing import Any
 
-from bimcap.pipeline.config import DepthSource, LabelSource, Method, RefineConfig
+from bimcap.pipeline.config import (
+    GEOMETRIC_MODES,
+    LOSSES,
+    DepthSource,
+    LabelSource,
+    Method,
+    RefineConfig,
+)
 
 NAME = "refine"
 HELP = "refine a sequence's trajectory against the BIM"
@@ -16,15 +23,20 @@ HELP = "refine a sequence's trajectory against the BIM"
 def add_config_arguments(p: argparse.ArgumentParser) -> None:
     """The flags shared by ``refine`` and ``demo`` (each overrides the config file)."""
     g = p.add_argument_group("method (flags override --config)")
-    g.add_argument("--config", metavar="FILE.toml", help="settings file (see bimcap.pipeline.config)")
+    g.add_argument("--config", metavar="FILE.toml",
+                   help="settings file (see bimcap.pipeline.config; --print-config writes one)")
     g.add_argument("--method", choices=[m.value for m in Method], help="bimcap (default) or facap")
-    g.add_argument("--terms", help="terms to use, e.g. G+F+W+Co+Ce (default: the method's full set)")
+    g.add_argument("--terms",
+                   help="terms to use, e.g. G+F+W+Co+Ce (default: the method's full set)")
     g.add_argument("--weighting", choices=["robust", "paper"],
-                   help="robust: noise scales + robust losses; paper: the peers' means (FACaP default)")
-    g.add_argument("--loss", choices=["huber", "cauchy", "soft_l1", "arctan", "tukey", "none"])
-    g.add_argument("--geometric", dest="geometric_mode", choices=["point", "reprojection", "landmark"],
-                   help="the G term's residual")
-    g.add_argument("--completion", choices=[d.value for d in DepthSource], help="dense depth source")
+                   help="the solver preset. robust: noise scales + robust losses (BIMCaP "
+                        "default); paper: the peers' means, plain L2 (FACaP default)")
+    g.add_argument("--loss", choices=list(LOSSES),
+                   help="robust loss of the paper's terms (default: the preset's, cauchy)")
+    g.add_argument("--geometric", dest="geometric_mode", choices=list(GEOMETRIC_MODES),
+                   help="the G term's residual (default: the preset's)")
+    g.add_argument("--completion", choices=[d.value for d in DepthSource],
+                   help="dense depth source")
     g.add_argument("--completion-model", metavar="MODEL.onnx", help="for --completion onnx/hybrid")
     g.add_argument("--segmentation", choices=[s.value for s in LabelSource], help="label source")
     g.add_argument("--segmentation-model", metavar="MODEL.onnx", help="for --segmentation onnx")
@@ -54,7 +66,8 @@ def config_from_args(args: argparse.Namespace) -> RefineConfig:
             "completion_model", "segmentation", "segmentation_model", "labels_dir", "coarse",
             "rotation_first", "staged", "window", "max_match_distance", "workers", "lidar_nan",
             "max_lost_fraction")
-    overrides: dict[str, Any] = {k: getattr(args, k) for k in keys if getattr(args, k, None) is not None}
+    overrides: dict[str, Any] = {k: getattr(args, k) for k in keys
+                                 if getattr(args, k, None) is not None}
     if args.config:
         return RefineConfig.from_toml(args.config, **overrides)
     return RefineConfig(**overrides)
@@ -72,23 +85,36 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
             "checked before any expensive stage."
         ),
     )
-    p.add_argument("sequence", help="sequence directory (bimcap simulate / import-conslam)")
-    p.add_argument("-o", "--out", required=True, help="output directory")
+    p.add_argument("sequence", nargs="?",
+                   help="sequence directory (bimcap simulate / import-conslam)")
+    p.add_argument("-o", "--out", help="output directory (required unless --print-config)")
     p.add_argument("--ifc", help="the BIM (default: the sequence manifest's ifc)")
     p.add_argument("--init", help="initial poses, TUM (default: SEQUENCE/poses/init.tum)")
-    p.add_argument("--gt", help="ground truth TUM for metrics (default: SEQUENCE/poses/gt.tum if any)")
+    p.add_argument("--gt",
+                   help="ground truth TUM for metrics (default: SEQUENCE/poses/gt.tum if any)")
     p.add_argument("--no-report", action="store_true", help="skip the HTML report")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.add_argument("--overwrite", action="store_true",
                    help="replace files in OUT that bimcap did not write (default: refuse)")
+    p.add_argument("--print-config", action="store_true",
+                   help="print every setting of the run (solver and registration options "
+                        "included) as TOML that --config reads back, and exit")
     add_config_arguments(p)
     p.set_defaults(func=run, output_dirs=["out"])
 
 
 def run(args: argparse.Namespace) -> int:
-    from bimcap.pipeline.refine import refine, summary_table
+    from bimcap.pipeline.config import ConfigError, toml_text
+    from bimcap.pipeline.refine import effective_settings, refine, summary_table
 
     cfg = config_from_args(args)
+    if args.print_config:
+        print(toml_text(effective_settings(cfg), header=f"{command_line()}\nbimcap refine "
+                        "settings: pass this file to --config to run with them"), end="")
+        return 0
+    for name, flag in (("sequence", "SEQUENCE"), ("out", "-o/--out")):
+        if getattr(args, name) is None:
+            raise ConfigError(f"{flag} is required (unless --print-config)", field=name)
     result = refine(args.sequence, args.out, cfg, ifc=args.ifc, init=args.init, gt=args.gt,
                     report=not args.no_report, quiet=args.quiet, command=command_line(),
                     overwrite=args.overwrite)

@@ -37,6 +37,17 @@ class Weighting(str, Enum):
     ROBUST = "ROBUST"  #: whitened by sigma, times weight, under a robust loss per term
 
 
+class Preset(str, Enum):
+    """A named starting point of every option (the C++ ``SolverOptions::Preset``)."""
+
+    #: what ``bimcap refine`` uses for BIMCaP: ROBUST weighting, G as the reprojection error
+    #: (pixel_sigma 2 px, depth.sigma 2 cm), floor/ceiling sigma 5 cm, Cauchy on the paper's terms
+    ROBUST = "robust"
+    #: the peers' objective: PAPER weighting (λ · mean of squared residuals, plain L2), G as
+    #: FACaP's point error; the noise scales and losses of ROBUST (used by diagnostics only)
+    PAPER = "paper"
+
+
 class Loss(str, Enum):
     NONE = "NONE"
     HUBER = "HUBER"
@@ -215,9 +226,27 @@ class SolverOptions:
 
     # ------------------------------------------------------------------ helpers
     @classmethod
+    def preset(cls, name: Preset | str, **kwargs: Any) -> SolverOptions:
+        """A named preset (:class:`Preset`) with some fields changed; an unknown name raises
+        :class:`SolverInputError` naming ``preset``."""
+        from bimcap.optimize.core import core
+
+        try:
+            flat = dict(core().preset_options(Preset(name).value))
+        except ValueError:
+            raise SolverInputError(
+                f"unknown preset {name!r}; use {[p.value for p in Preset]}", field="preset"
+            ) from None
+        out = cls.from_flat(flat)
+        for key, value in kwargs.items():
+            setattr(out, key, value)
+        return out
+
+    @classmethod
     def paper(cls, **kwargs: Any) -> SolverOptions:
-        """The peers' objective: PAPER weighting, plain L2, λ = G 1, F/Ce 0.02, W/Co 0.0007."""
-        return cls(weighting=Weighting.PAPER, **kwargs)
+        """The peers' objective (:attr:`Preset.PAPER`): PAPER weighting, plain L2, λ = G 1,
+        F/Ce 0.02, W/Co 0.0007, G as the point error."""
+        return cls.preset(Preset.PAPER, **kwargs)
 
     def copy(self) -> SolverOptions:
         """A deep copy (the terms' options included)."""

@@ -1,18 +1,23 @@
 """What a refinement run does: method, terms, weighting, front-end sources, solver settings.
 
 A :class:`RefineConfig` comes from defaults, a TOML file (``bimcap refine --config run.toml``) or
-command-line flags, in that order of precedence (flags win). The TOML file holds the same keys as
-the dataclass, with ``[solver]`` (``bimcap.optimize.SolverOptions`` fields, terms as tables, e.g.
-``[solver.wall] sigma = 0.03``) and ``[frontend]`` (``window``, ``min_track_length``) tables::
+command-line flags, in that order of precedence (flags win). ``bimcap refine --print-config``
+prints every setting of a run, solver and registration options included, as a TOML file that
+``--config`` reads back. The TOML file holds the same keys as the dataclass, with a ``[solver]``
+table (``bimcap.optimize.SolverOptions`` fields, terms as tables, e.g. ``[solver.wall]
+sigma = 0.03``) and a ``[registration]`` table (``bimcap.registration.CoarseOptions`` fields)::
 
     method = "bimcap"          # or "facap"
     terms = "G+F+W+Co+Ce"
-    weighting = "robust"       # or "paper"
+    weighting = "robust"       # or "paper": the solver preset
     loss = "cauchy"
     completion = "linear"      # linear | classical | onnx | hybrid | ground_truth
     segmentation = "geometric" # geometric | disk | onnx | ground_truth
+    window = 4
     [solver]
     association_gate = 0.5
+    [registration]
+    xy_range_m = 2.0
 """
 
 from __future__ import annotations
@@ -63,6 +68,10 @@ class LabelSource(str, Enum):
     GROUND_TRUTH = "ground_truth"  #: the sequence's labels/ (simulated; noisy with --label-noise)
 
 
+#: The values of ``loss`` and ``geometric_mode`` (``bimcap.optimize.Loss`` / ``GeometricMode``).
+LOSSES = ("huber", "cauchy", "soft_l1", "arctan", "tukey", "none")
+GEOMETRIC_MODES = ("point", "reprojection", "landmark")
+
 #: The terms of each method's full objective.
 FULL_TERMS = {Method.BIMCAP: "G+F+W+Co+Ce", Method.FACAP: "G+F+W"}
 
@@ -75,15 +84,16 @@ class RefineConfig:
     ----------
     method: BIMCaP or FACaP (FACaP: PAPER weighting, F plane fitted to the scan, no Co/Ce).
     terms: the terms switched on, e.g. ``"G+F+W+Co+Ce"`` (None: the method's full set).
-    weighting: ``"robust"`` (noise scales + robust losses) or ``"paper"`` (the peers' means).
-        None: robust for BIMCaP, paper for FACaP.
-    loss: robust loss of every term in robust weighting (``huber``, ``cauchy``, ``soft_l1``,
-        ``arctan``, ``tukey``, ``none``). Cauchy by default: completed depth and estimated labels
-        have heavy-tailed errors (measured on the demo world: Huber leaves 1.4 m / 28°, Cauchy
-        2.7 cm / 0.36° on the same observations).
-    geometric_mode: ``point`` (FACaP's point error), ``reprojection`` (default: a depth error
-        moves the point along the ray, which barely moves its reprojection) or ``landmark``.
-        FACaP runs always use ``point``.
+    weighting: the solver preset (``bimcap.optimize.Preset``): ``"robust"`` (noise scales +
+        robust losses) or ``"paper"`` (the peers' λ-weighted means, plain L2, G as the point
+        error). None: robust for BIMCaP, paper for FACaP. Every solver default is the preset's.
+    loss: robust loss of each of the paper's terms in robust weighting (``huber``, ``cauchy``,
+        ``soft_l1``, ``arctan``, ``tukey``, ``none``). None: the preset's, Cauchy: completed
+        depth and estimated labels have heavy-tailed errors (measured on the demo world: Huber
+        leaves 1.4 m / 28°, Cauchy 2.7 cm / 0.36° on the same observations).
+    geometric_mode: ``point`` (FACaP's point error), ``reprojection`` (the robust preset's: a
+        depth error moves the point along the ray, which barely moves its reprojection) or
+        ``landmark``. None: the preset's. FACaP runs always use ``point``.
     completion, completion_model: dense-depth source; the ONNX model path for onnx / hybrid.
         Linear interpolation by default: on the demo world the classical (Ku-style, dilation of
         the nearest return) completion biases depth towards the camera, which moved the refined
@@ -113,14 +123,16 @@ class RefineConfig:
     max_lost_fraction: the largest share of the IFC's building elements that may be lost to a
         damaged file (unreadable, missing, or without geometry) before the BIM reference is
         refused (``bimcap.bim.ingest.load_model``); any loss below it is a loud warning.
-    solver: overrides of ``bimcap.optimize.SolverOptions`` fields (nested dicts for terms).
+    solver: overrides of ``bimcap.optimize.SolverOptions`` fields (nested dicts for terms),
+        applied after the preset, ``loss`` and ``geometric_mode``.
+    registration: overrides of ``bimcap.registration.CoarseOptions`` fields (the coarse stage).
     """
 
     method: Method = Method.BIMCAP
     terms: str | None = None
     weighting: str | None = None
-    loss: str = "cauchy"
-    geometric_mode: str = "reprojection"
+    loss: str | None = None
+    geometric_mode: str | None = None
     completion: DepthSource = DepthSource.LINEAR
     completion_model: str | None = None
     segmentation: LabelSource = LabelSource.GEOMETRIC
@@ -136,6 +148,7 @@ class RefineConfig:
     lidar_nan: str = "raise"
     max_lost_fraction: float = 0.02
     solver: dict[str, Any] = field(default_factory=dict)
+    registration: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         try:
@@ -173,6 +186,14 @@ class RefineConfig:
                               field="max_lost_fraction")
         if not isinstance(self.solver, dict):
             raise ConfigError("solver must be a table of SolverOptions fields", field="solver")
+        if not isinstance(self.registration, dict):
+            raise ConfigError("registration must be a table of CoarseOptions fields",
+                              field="registration")
+        for name, value, allowed in (("loss", self.loss, LOSSES),
+                                     ("geometric_mode", self.geometric_mode, GEOMETRIC_MODES)):
+            if value is not None and value.lower() not in allowed:
+                raise ConfigError(f"{name} must be one of {', '.join(allowed)}, got {value!r}",
+                                  field=name)
 
     @property
     def effective_terms(self) -> str:
@@ -225,3 +246,33 @@ class RefineConfig:
             raise ConfigError(str(exc), p) from None
         except TypeError as exc:
             raise ConfigError(str(exc), p) from None
+
+
+def toml_text(settings: dict[str, Any], header: str = "") -> str:
+    """``settings`` as TOML that :meth:`RefineConfig.from_toml` reads back: scalars first, then
+    one table per dict (one level of sub-tables: ``[solver.wall]``); None values are written
+    as comments (TOML has no null)."""
+
+    def value(v: Any) -> str:
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, (int, float)):
+            return repr(v)
+        if isinstance(v, Enum):
+            v = v.value
+        return '"' + str(v).replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+    def table(name: str, d: dict[str, Any]) -> list[str]:
+        lines = [f"[{name}]"] if name else []
+        for k, v in d.items():
+            if v is None:
+                lines.append(f"# {k}: not set")
+            elif not isinstance(v, dict):
+                lines.append(f"{k} = {value(v)}")
+        for k, v in d.items():
+            if isinstance(v, dict):
+                lines += ["", *table(f"{name}.{k}" if name else k, v)]
+        return lines
+
+    out = [f"# {line}" for line in header.splitlines()]
+    return "\n".join([*out, *table("", settings)]) + "\n"

@@ -431,41 +431,40 @@ def plane_checks(problem: Any, poses: F64, limit_m: float = 0.05) -> list[Any]:
     return out
 
 
-def solver_options(config: RefineConfig) -> Any:
-    """``bimcap.optimize.SolverOptions`` for the configured method, terms, weighting and loss."""
-    from bimcap.optimize import SolverOptions
-    from bimcap.optimize.options import GeometricMode, Loss, PlaneMode, Weighting
-
+def _flat_solver_table(table: dict[str, Any]) -> dict[str, str]:
+    """The ``[solver]`` table as flat option text: ``{"wall": {"sigma": 0.03}}`` →
+    ``{"wall.sigma": "0.03"}``; enum names upper-cased, booleans as 0/1."""
     flat: dict[str, str] = {}
-    for key, value in config.solver.items():
+    for key, value in table.items():
         items = value.items() if isinstance(value, dict) else [(None, value)]
         for sub, v in items:
             name = key if sub is None else f"{key}.{sub}"
-            flat[name] = str(v.upper() if isinstance(v, str) else (int(v) if isinstance(v, bool) else v))
+            if isinstance(v, str):
+                flat[name] = v.upper()
+            else:
+                flat[name] = str(int(v) if isinstance(v, bool) else v)
+    return flat
+
+
+def solver_options(config: RefineConfig) -> Any:
+    """``bimcap.optimize.SolverOptions`` of a run, in this order: the preset named by the
+    weighting (``robust`` or ``paper``, :class:`bimcap.optimize.Preset`: every default is
+    there), the config's ``geometric_mode`` and ``loss`` (the loss of each of the paper's terms)
+    when given, the ``[solver]`` table, then the method: FACaP's point error and a floor plane
+    fitted to the scan. Only the configured terms stay on."""
+    from bimcap.optimize import SolverOptions
+    from bimcap.optimize.options import GeometricMode, PlaneMode, terms
+
+    flat = SolverOptions.preset(config.effective_weighting).to_flat()
+    if config.geometric_mode is not None:
+        flat["geometric_mode"] = config.geometric_mode.upper()
+    if config.loss is not None:
+        flat.update({f"{t.key}.loss": config.loss.upper() for t in terms() if t.paper_term})
+    flat.update(_flat_solver_table(config.solver))
     opts = SolverOptions.from_flat(flat)
-    try:
-        opts.geometric_mode = GeometricMode(config.geometric_mode.upper())
-        loss = Loss(config.loss.upper())
-    except ValueError as exc:
-        raise InputError(str(exc), field="geometric_mode/loss") from None
-    opts.weighting = Weighting(config.effective_weighting.upper())
-    if "pixel_sigma" not in config.solver:
-        opts.pixel_sigma = 2.0
-    for attr in ("floor", "ceiling"):
-        if "sigma" not in (config.solver.get(attr) or {}):
-            getattr(opts, attr).sigma = 0.05
-    if "sigma" not in (config.solver.get("depth") or {}):
-        # Keypoint depths after planar smoothing: on the demo world their error against the
-        # simulator's depth has a MAD of 0.5 cm and a 90th percentile of 2.2 cm.
-        opts.depth.sigma = 0.02
     if config.method is Method.FACAP:
-        # FACaP's objective: the point error for G and one plane fitted to the scan's own floor.
         opts.plane_mode = PlaneMode.FACAP
         opts.geometric_mode = GeometricMode.POINT
-    for attr in ("geometric", "floor", "ceiling", "wall", "column"):
-        term = getattr(opts, attr)
-        if "loss" not in (config.solver.get(attr) or {}):
-            term.loss = loss
     opts = opts.with_terms(config.effective_terms)
     opts.check()
     return opts
@@ -597,7 +596,7 @@ def solve_prepared(prepared: Prepared, config: RefineConfig, quiet: bool = False
 
     for stage in schedule_for(config).stages:
         if stage.kind is StageKind.COARSE:
-            poses, coarse_info = _coarse(prepared, poses, quiet)
+            poses, coarse_info = _coarse(prepared, poses, quiet, coarse_options(config))
             continue
         opts = stage_options(base, stage, config)
         if opts is None:
@@ -666,11 +665,73 @@ def _repair(problem: Any, opts: Any, result: Any, quiet: bool) -> tuple[dict[str
     return rep.to_dict(), redo
 
 
-def _coarse(prepared: Prepared, poses: F64, quiet: bool) -> tuple[F64, dict[str, Any]]:
-    """Coarse registration of the initial poses to the BIM (``bimcap.registration``): per frame,
-    tilt from the floor and yaw + translation tracked against the floor plan; then per window
-    of frames, levelling on the floor/ceiling, a correlative x-y-yaw search of the wall and column
-    points against the floor plan, trajectory continuity (Viterbi), point-to-segment ICP."""
+def effective_settings(config: RefineConfig) -> dict[str, Any]:
+    """Every setting a run with ``config`` uses, as nested plain values: the config's fields
+    with the method's defaults filled in, ``solver`` (every ``SolverOptions`` field after the
+    preset and the overrides, terms as sub-tables) and ``registration`` (every
+    ``CoarseOptions`` field). ``bimcap refine --print-config`` writes it as TOML; the file reads
+    back (``--config``) to the same run."""
+    from dataclasses import asdict
+
+    from bimcap.optimize.core import core
+
+    opts = solver_options(config)
+    kinds = {spec["key"]: spec["kind"] for spec in core().option_specs()}
+    parse = {"float": float, "int": int, "bool": lambda t: t in ("1", "true", "True"),
+             "enum": str}
+    solver: dict[str, Any] = {}
+    for key, text in opts.to_flat().items():
+        head, _, sub = key.partition(".")
+        typed = parse[kinds.get(key, "float")](text)
+        if sub:
+            solver.setdefault(head, {})[sub] = typed
+        else:
+            solver[key] = typed
+    out = {k: v for k, v in config.to_dict().items()
+           if k not in ("solver", "registration") and not k.startswith("effective_")}
+    out.update(terms=config.effective_terms, weighting=config.effective_weighting,
+               coarse=config.effective_coarse, geometric_mode=opts.geometric_mode.value.lower(),
+               loss=opts.geometric.loss.value.lower())
+    out["solver"] = solver
+    out["registration"] = asdict(coarse_options(config))
+    return out
+
+
+def coarse_options(config: RefineConfig) -> Any:
+    """``bimcap.registration.CoarseOptions`` with the config's ``[registration]`` table applied;
+    a key that is not a field or a value of the wrong type or range raises ConfigError naming
+    ``registration.<key>``."""
+    from dataclasses import fields as dc_fields
+
+    from bimcap.pipeline.config import ConfigError
+    from bimcap.registration import CoarseOptions, RegistrationInputError
+
+    kinds = {f.name: type(getattr(CoarseOptions(), f.name)) for f in dc_fields(CoarseOptions)}
+    values: dict[str, Any] = {}
+    for key, value in config.registration.items():
+        kind = kinds.get(key)
+        where = f"registration.{key}"
+        if kind is None:
+            raise ConfigError(f"unknown option; known: {sorted(kinds)}", field=where)
+        ok = (isinstance(value, bool) if kind is bool else
+              isinstance(value, int) and not isinstance(value, bool) if kind is int else
+              isinstance(value, (int, float)) and not isinstance(value, bool))
+        if not ok:
+            raise ConfigError(f"must be {kind.__name__}, got {value!r}", field=where)
+        values[key] = float(value) if kind is float else value
+    try:
+        return CoarseOptions(**values)
+    except RegistrationInputError as exc:
+        raise ConfigError(exc.message, field=f"registration.{exc.field}") from None
+
+
+def _coarse(prepared: Prepared, poses: F64, quiet: bool, options: Any = None
+            ) -> tuple[F64, dict[str, Any]]:
+    """Coarse registration of the initial poses to the BIM (``bimcap.registration``, settings
+    ``options``: :func:`coarse_options`): per frame, tilt from the floor and yaw + translation
+    tracked against the floor plan; then per window of frames, levelling on the floor/ceiling,
+    a correlative x-y-yaw search of the wall and column points against the floor plan,
+    trajectory continuity (Viterbi), point-to-segment ICP."""
     from bimcap.registration import CoarseOptions, FloorPlan, SemanticSamples, coarse_register
 
     arrays = prepared.frontend.to_problem_arrays()
@@ -680,9 +741,7 @@ def _coarse(prepared: Prepared, poses: F64, quiet: bool) -> tuple[F64, dict[str,
     plan = FloorPlan.from_planes(ref.segments, ref.segment_class, ref.segment_z, ref.planes,
                                  ref.plane_kind)
     t0 = time.perf_counter()
-    # Per-frame orientation first: real initial poses carry independent per-frame rotation
-    # errors, which a window's rigid correction cannot take out.
-    res = coarse_register(poses, samples, plan, CoarseOptions(frame_orientation=True))
+    res = coarse_register(poses, samples, plan, options or CoarseOptions())
     info = res.to_dict()
     info["seconds"] = time.perf_counter() - t0
     fl = res.frame_level
@@ -782,6 +841,7 @@ def validate_settings(config: RefineConfig) -> Any:
     from bimcap.registration import StageKind
 
     base = solver_options(config)
+    coarse_options(config)
     solver_stages = [stage_options(base, stage, config) for stage in schedule_for(config).stages
                      if stage.kind is not StageKind.COARSE]
     if all(o is None for o in solver_stages):

@@ -1,6 +1,6 @@
 """The coarse registration stage: bring drifted frames near their true pose using the BIM alone.
 
-0. (``frame_orientation``, off by default, on in the pipeline) **per frame** (:mod:`.frame_level`):
+0. (``frame_orientation``, on by default) **per frame** (:mod:`.frame_level`):
    real initial poses carry independent per-frame rotation errors (several degrees from one frame
    to the next) and a translation random walk, so a window's frames are not rigidly consistent.
    Each frame is first rotated about its own camera (tilt from its floor points, yaw from its
@@ -292,7 +292,7 @@ class CoarseOptions:
     min_score: float = 0.5
     min_constraint: float = 0.02
     seed: int = 0
-    frame_orientation: bool = False
+    frame_orientation: bool = True
     frame_yaw_range_deg: float = 25.0
     frame_xy_range_m: float = 2.5
     frame_min_inlier_ratio: float = 0.5

@@ -1,0 +1,133 @@
+"""Run settings: solver presets, the [solver] and [registration] tables, --print-config.
+
+Every solver default comes from the C++ presets (``SolverOptions::Preset``); the refine pipeline
+adds nothing silently. ``bimcap refine --print-config`` prints every setting, and the printed
+file read back with ``--config`` gives the same solver and registration options.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import itertools
+from dataclasses import asdict
+from pathlib import Path
+
+import pytest
+
+from bimcap.cli import main
+from bimcap.optimize import GeometricMode, Loss, PlaneMode, Preset, SolverOptions, Weighting
+from bimcap.optimize.errors import SolverInputError
+from bimcap.pipeline.config import GEOMETRIC_MODES, LOSSES, ConfigError, RefineConfig
+from bimcap.pipeline.refine import coarse_options, solver_options, validate_settings
+from bimcap.registration import CoarseOptions
+
+
+def test_config_choices_are_the_solver_enums() -> None:
+    assert set(LOSSES) == {loss.value.lower() for loss in Loss}
+    assert set(GEOMETRIC_MODES) == {mode.value.lower() for mode in GeometricMode}
+
+
+def test_presets_come_from_the_core() -> None:
+    robust = SolverOptions.preset(Preset.ROBUST)
+    assert robust.weighting is Weighting.ROBUST
+    assert robust.geometric_mode is GeometricMode.REPROJECTION
+    assert robust.pixel_sigma == 2.0 and robust.floor.sigma == 0.05 and robust.depth.sigma == 0.02
+    assert all(robust.terms[k].loss is Loss.CAUCHY
+               for k in ("geometric", "floor", "ceiling", "wall", "column"))
+    assert robust.prior.loss is SolverOptions().prior.loss  # not a paper term: its own
+    paper = SolverOptions.preset("paper")
+    assert paper.weighting is Weighting.PAPER and paper.geometric_mode is GeometricMode.POINT
+    assert SolverOptions.paper(max_iterations=3).to_flat() == \
+        SolverOptions.preset("paper", max_iterations=3).to_flat()
+    with pytest.raises(SolverInputError, match="preset") as info:
+        SolverOptions.preset("fast")
+    assert info.value.field == "preset"
+
+
+def test_refine_options_are_the_preset_and_nothing_else() -> None:
+    # BIMCaP: exactly the robust preset (every term of the method on).
+    assert solver_options(RefineConfig()).to_flat() == SolverOptions.preset("robust").to_flat()
+    # FACaP: the paper preset with its point error and a floor plane fitted to the scan.
+    facap = solver_options(RefineConfig(method="facap"))
+    expected = SolverOptions.preset("paper").with_terms("G+F+W")
+    expected.plane_mode = PlaneMode.FACAP
+    assert facap.to_flat() == expected.to_flat()
+
+
+def test_solver_table_wins_over_loss_and_geometric_mode() -> None:
+    cfg = RefineConfig(loss="huber", geometric_mode="point",
+                       solver={"geometric_mode": "landmark", "wall": {"loss": "tukey"},
+                               "prior": {"sigma_r_deg": 5.0}})
+    opts = solver_options(cfg)
+    assert opts.geometric_mode is GeometricMode.LANDMARK
+    assert opts.wall.loss is Loss.TUKEY and opts.floor.loss is Loss.HUBER
+    assert opts.prior.params["sigma_r_deg"] == 5.0
+    with pytest.raises(ConfigError, match="loss"):
+        RefineConfig(loss="l2")
+    with pytest.raises(SolverInputError, match=r"wall\.sigma"):
+        solver_options(RefineConfig(solver={"wall": {"sigma": -1.0}}))
+
+
+def test_registration_table_reaches_coarse_options() -> None:
+    assert CoarseOptions().frame_orientation  # the pipeline's choice is the default
+    opts = coarse_options(RefineConfig(registration={"xy_range_m": 3, "use_icp": False}))
+    assert opts.xy_range_m == 3.0 and isinstance(opts.xy_range_m, float) and not opts.use_icp
+    for table, key in (({"xy_rang_m": 1.0}, "registration.xy_rang_m"),
+                       ({"use_icp": 1}, "registration.use_icp"),
+                       ({"window_frames": 2.5}, "registration.window_frames"),
+                       ({"xy_range_m": -1.0}, "registration.xy_range_m")):
+        with pytest.raises(ConfigError) as info:
+            validate_settings(RefineConfig(registration=table))
+        assert info.value.field == key, table
+    with pytest.raises(ConfigError, match="registration"):
+        RefineConfig(registration=[1])  # type: ignore[arg-type]
+
+
+def _print_config(*flags: str) -> str:
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        assert main(["refine", "--print-config", *flags]) == 0
+    return out.getvalue()
+
+
+@pytest.mark.parametrize("flags", [
+    (),
+    ("--method", "facap"),
+    ("--weighting", "paper", "--loss", "huber", "--terms", "G+F+W"),
+    ("--geometric", "landmark", "--no-coarse", "--window", "2", "--workers", "1"),
+])
+def test_print_config_reads_back_to_the_same_run(tmp_path: Path, flags: tuple[str, ...]) -> None:
+    given = tmp_path / "given.toml"
+    given.write_text("[solver]\nassociation_gate = 0.3\n[solver.wall]\nsigma = 0.02\n"
+                     "[registration]\nxy_range_m = 1.5\nview_bins = 2\n")
+    text = _print_config("--config", str(given), *flags)
+    assert "[solver.wall]" in text and "[registration]" in text
+    printed = tmp_path / "printed.toml"
+    printed.write_text(text)
+    original = RefineConfig.from_toml(given, **_overrides(flags))
+    again = RefineConfig.from_toml(printed)
+    assert solver_options(again).to_flat() == solver_options(original).to_flat()
+    assert asdict(coarse_options(again)) == asdict(coarse_options(original))
+    assert coarse_options(again).xy_range_m == 1.5 and solver_options(again).wall.sigma == 0.02
+    for name in ("method", "completion", "segmentation", "window", "workers", "effective_terms",
+                 "effective_weighting", "effective_coarse"):
+        assert getattr(again, name) == getattr(original, name), name
+    # Printing the printed file changes nothing.
+    assert _print_config("--config", str(printed)).split("\n", 1)[1] == text.split("\n", 1)[1]
+
+
+def _overrides(flags: tuple[str, ...]) -> dict[str, object]:
+    names = {"--method": "method", "--weighting": "weighting", "--loss": "loss",
+             "--terms": "terms", "--geometric": "geometric_mode", "--window": "window",
+             "--workers": "workers"}
+    out: dict[str, object] = {"coarse": False} if "--no-coarse" in flags else {}
+    for flag, value in itertools.pairwise(flags):
+        if flag in names:
+            out[names[flag]] = int(value) if flag in ("--window", "--workers") else value
+    return out
+
+
+def test_refine_without_sequence_is_a_clear_error(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["refine", "-o", "somewhere"]) == 2
+    assert "SEQUENCE is required" in capsys.readouterr().err
