@@ -131,3 +131,16 @@ def _overrides(flags: tuple[str, ...]) -> dict[str, object]:
 def test_refine_without_sequence_is_a_clear_error(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["refine", "-o", "somewhere"]) == 2
     assert "SEQUENCE is required" in capsys.readouterr().err
+
+
+def test_depth_source_is_the_completion_method() -> None:
+    from bimcap.fusion import CompletionMethod, CompletionOptions, FusionInputError
+    from bimcap.pipeline.config import DepthSource
+
+    assert DepthSource is CompletionMethod
+    cfg = RefineConfig(completion="hybrid", completion_model="m.onnx")
+    assert cfg.completion is CompletionMethod.HYBRID and cfg.completion.needs_model
+    assert CompletionOptions("classical").method is CompletionMethod.CLASSICAL
+    with pytest.raises(FusionInputError) as info:
+        CompletionOptions(CompletionMethod.GROUND_TRUTH)
+    assert info.value.field == "method"

@@ -7,10 +7,10 @@ import shlex
 import sys
 from typing import Any
 
+from bimcap.methods import CompletionMethod
 from bimcap.pipeline.config import (
     GEOMETRIC_MODES,
     LOSSES,
-    DepthSource,
     LabelSource,
     Method,
     RefineConfig,
@@ -35,7 +35,7 @@ def add_config_arguments(p: argparse.ArgumentParser) -> None:
                    help="robust loss of the paper's terms (default: the preset's, cauchy)")
     g.add_argument("--geometric", dest="geometric_mode", choices=list(GEOMETRIC_MODES),
                    help="the G term's residual (default: the preset's)")
-    g.add_argument("--completion", choices=[d.value for d in DepthSource],
+    g.add_argument("--completion", choices=[d.value for d in CompletionMethod],
                    help="dense depth source")
     g.add_argument("--completion-model", metavar="MODEL.onnx", help="for --completion onnx/hybrid")
     g.add_argument("--segmentation", choices=[s.value for s in LabelSource], help="label source")

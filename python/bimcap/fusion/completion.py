@@ -36,19 +36,13 @@ from bimcap.fusion.projection import FusionInputError, SparseDepth
 from bimcap.fusion.sparse import downsample_sparse
 from bimcap.geometry import Camera
 from bimcap.labels import Label
+from bimcap.methods import CompletionMethod
 
 if TYPE_CHECKING:
     from bimcap.fusion.onnx_completion import OnnxCompletionOptions
 
 F64 = NDArray[np.float64]
 F32 = NDArray[np.float32]
-
-
-class CompletionMethod(Enum):
-    LINEAR = "linear"
-    CLASSICAL = "classical"
-    ONNX = "onnx"
-    HYBRID = "hybrid"
 
 
 class BlurType(Enum):
@@ -110,12 +104,19 @@ class ClassicalOptions:
 
 @dataclass(frozen=True)
 class CompletionOptions:
-    """Settings of :func:`complete_depth`; ``onnx`` is required for ONNX and HYBRID."""
+    """Settings of :func:`complete_depth`; ``onnx`` is required for ONNX and HYBRID.
+    ``CompletionMethod.GROUND_TRUTH`` is not computed (it is read from a simulated sequence)."""
 
     method: CompletionMethod = CompletionMethod.LINEAR
     linear: LinearOptions = field(default_factory=LinearOptions)
     classical: ClassicalOptions = field(default_factory=ClassicalOptions)
     onnx: OnnxCompletionOptions | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "method", CompletionMethod(self.method))
+        if self.method is CompletionMethod.GROUND_TRUTH:
+            raise FusionInputError("ground_truth depth is read from a simulated sequence's "
+                                   "depth/, not computed from LiDAR", field="method")
 
 
 # ----------------------------------------------------------------------------- helpers

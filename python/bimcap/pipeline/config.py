@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from bimcap.errors import BimcapError, InputError
+from bimcap.methods import CompletionMethod
 
 
 class PipelineError(BimcapError):
@@ -49,14 +50,8 @@ class Method(str, Enum):
     FACAP = "facap"  #: FACaP: G + a floor plane fitted to the scan + W, the peers' weighting
 
 
-class DepthSource(str, Enum):
-    """Where dense depth comes from."""
-
-    LINEAR = "linear"  #: LiDAR projection + Delaunay interpolation
-    CLASSICAL = "classical"  #: LiDAR projection + Ku et al. 2018 style completion
-    ONNX = "onnx"  #: LiDAR projection + a CompletionFormer-like ONNX model
-    HYBRID = "hybrid"  #: interpolation refined by the ONNX model (the paper's choice)
-    GROUND_TRUTH = "ground_truth"  #: the sequence's depth/ (simulated sequences only)
+#: The depth source of a run is a completion method (``bimcap.methods``); the old name.
+DepthSource = CompletionMethod
 
 
 class LabelSource(str, Enum):
@@ -133,7 +128,7 @@ class RefineConfig:
     weighting: str | None = None
     loss: str | None = None
     geometric_mode: str | None = None
-    completion: DepthSource = DepthSource.LINEAR
+    completion: CompletionMethod = CompletionMethod.LINEAR
     completion_model: str | None = None
     segmentation: LabelSource = LabelSource.GEOMETRIC
     segmentation_model: str | None = None
@@ -153,14 +148,14 @@ class RefineConfig:
     def __post_init__(self) -> None:
         try:
             self.method = Method(self.method)
-            self.completion = DepthSource(self.completion)
+            self.completion = CompletionMethod(self.completion)
             self.segmentation = LabelSource(self.segmentation)
         except ValueError as exc:
             raise ConfigError(str(exc), field="method/completion/segmentation") from None
         if self.weighting is not None and self.weighting.lower() not in ("robust", "paper"):
             raise ConfigError(f"weighting must be robust or paper, got {self.weighting!r}",
                               field="weighting")
-        if self.completion in (DepthSource.ONNX, DepthSource.HYBRID) and not self.completion_model:
+        if self.completion.needs_model and not self.completion_model:
             raise ConfigError(f"completion {self.completion.value} needs completion_model",
                               field="completion_model")
         if self.segmentation is LabelSource.ONNX and not self.segmentation_model:

@@ -29,8 +29,8 @@ from bimcap.errors import InputError
 from bimcap.geometry import Trajectory, read_tum, transform_points, write_tum
 from bimcap.io.atomic import atomic_write_json
 from bimcap.labels import Label
+from bimcap.methods import CompletionMethod
 from bimcap.pipeline.config import (
-    DepthSource,
     LabelSource,
     Method,
     PipelineError,
@@ -116,19 +116,19 @@ def make_providers(config: RefineConfig, sequence: Any) -> tuple[Any, Any, Any]:
         SegmenterLabelProvider,
     )
     from bimcap.frontend.runner import GroundTruthDepthProvider, GroundTruthLabelProvider
-    from bimcap.fusion.completion import CompletionMethod, CompletionOptions
+    from bimcap.fusion.completion import CompletionOptions
 
-    if config.completion is DepthSource.GROUND_TRUTH:
+    if config.completion is CompletionMethod.GROUND_TRUTH:
         if not sequence.has_depth:
             raise InputError("completion ground_truth needs a sequence with depth/", sequence.root)
         depth: Any = GroundTruthDepthProvider()
     else:
         onnx_opts = None
-        if config.completion in (DepthSource.ONNX, DepthSource.HYBRID):
+        if config.completion.needs_model:
             from bimcap.fusion.onnx_completion import OnnxCompletionOptions
 
             onnx_opts = OnnxCompletionOptions(model_path=str(config.completion_model))
-        method = CompletionMethod[config.completion.name]
+        method = config.completion
         projection = None
         if config.lidar_nan == "drop":
             from bimcap.fusion import NanPolicy, ProjectionOptions
@@ -160,7 +160,7 @@ def make_providers(config: RefineConfig, sequence: Any) -> tuple[Any, Any, Any]:
 
         seg = OnnxSegmentationProvider(OnnxSegmentationOptions(model_path=str(config.segmentation_model)))
         labels = SegmenterLabelProvider(seg, uses_pose=False)
-    if config.completion is not DepthSource.GROUND_TRUTH:
+    if config.completion is not CompletionMethod.GROUND_TRUTH:
         refiner = PlanarDepthRefiner()
     return depth, labels, refiner
 
@@ -859,7 +859,7 @@ def validate_settings(config: RefineConfig) -> Any:
 def config_uses(config: RefineConfig, name: str) -> bool:
     """Whether ``config`` uses the setting ``name`` (completion_model / segmentation_model)."""
     if name == "completion_model":
-        return config.completion in (DepthSource.ONNX, DepthSource.HYBRID)
+        return config.completion.needs_model
     return config.segmentation is LabelSource.ONNX
 
 
