@@ -8,7 +8,7 @@ cd "$(dirname "$0")/.."
 
 DEB_PACKAGES=(build-essential cmake ninja-build python3-venv python3-dev
               libceres-dev libeigen3-dev libgoogle-glog-dev libsuitesparse-dev
-              libgtest-dev libgmock-dev libusb-1.0-0)
+              libgtest-dev libgmock-dev libusb-1.0-0 clang-format)
 
 missing=()
 for p in "${DEB_PACKAGES[@]}"; do

@@ -45,17 +45,17 @@ class SegmentIndex {
   double cell_ = 1.0;
   double x0_ = 0.0, y0_ = 0.0;
   int64_t nx_ = 0, ny_ = 0;
-  std::vector<int> ids_;               // indexed segments
-  std::vector<int64_t> cell_start_;    // CSR: cell → range in cell_items_
+  std::vector<int> ids_;             // indexed segments
+  std::vector<int64_t> cell_start_;  // CSR: cell → range in cell_items_
   std::vector<int> cell_items_;
 };
 
 struct AssociationStats {
   int64_t num_points = 0;
   int64_t num_associated = 0;
-  int64_t num_rejected = 0;      // no visible segment of the class within the gate and z range
-  int64_t num_changed = 0;       // associations that differ from the previous round
-  double mean_distance = 0.0;    // over associated points, metres
+  int64_t num_rejected = 0;    // no visible segment of the class within the gate and z range
+  int64_t num_changed = 0;     // associations that differ from the previous round
+  double mean_distance = 0.0;  // over associated points, metres
 };
 
 // For each point i (frame[i], p_in_cam[i]) under `poses` (N, 7 flat), the associated segment or

@@ -1,8 +1,7 @@
 #include "bimcap/builder.h"
 
-#include <cmath>
-
 #include <Eigen/Eigenvalues>
+#include <cmath>
 
 #include "bimcap/terms.h"
 
@@ -11,12 +10,23 @@ namespace bimcap {
 std::unique_ptr<ceres::LossFunction> CreateLoss(LossType type, double scale, double weight) {
   ceres::LossFunction* base = nullptr;
   switch (type) {
-    case LossType::kNone: break;
-    case LossType::kHuber: base = new ceres::HuberLoss(scale); break;
-    case LossType::kCauchy: base = new ceres::CauchyLoss(scale); break;
-    case LossType::kSoftL1: base = new ceres::SoftLOneLoss(scale); break;
-    case LossType::kArctan: base = new ceres::ArctanLoss(scale); break;
-    case LossType::kTukey: base = new ceres::TukeyLoss(scale); break;
+    case LossType::kNone:
+      break;
+    case LossType::kHuber:
+      base = new ceres::HuberLoss(scale);
+      break;
+    case LossType::kCauchy:
+      base = new ceres::CauchyLoss(scale);
+      break;
+    case LossType::kSoftL1:
+      base = new ceres::SoftLOneLoss(scale);
+      break;
+    case LossType::kArctan:
+      base = new ceres::ArctanLoss(scale);
+      break;
+    case LossType::kTukey:
+      base = new ceres::TukeyLoss(scale);
+      break;
   }
   if (weight == 1.0) return std::unique_ptr<ceres::LossFunction>(base);
   // ScaledLoss with a null base is the weighted identity, ρ(s) = weight · s.
@@ -122,7 +132,8 @@ void ProblemBuilder::InitFacapPlanes() {
     Eigen::Vector3d mean = Eigen::Vector3d::Zero();
     std::vector<Eigen::Vector3d> world(n);
     for (int64_t i = 0; i < n; ++i) {
-      world[i] = CamToWorld(Pose(frames(i)), Eigen::Vector3d(points(i, 0), points(i, 1), points(i, 2)));
+      world[i] =
+          CamToWorld(Pose(frames(i)), Eigen::Vector3d(points(i, 0), points(i, 1), points(i, 2)));
       mean += world[i];
     }
     mean /= static_cast<double>(n);

@@ -11,13 +11,13 @@
 #ifndef BIMCAP_BUILDER_H_
 #define BIMCAP_BUILDER_H_
 
-#include <memory>
-#include <vector>
-
 #include <ceres/loss_function.h>
 #include <ceres/manifold.h>
 #include <ceres/ordered_groups.h>
 #include <ceres/problem.h>
+
+#include <memory>
+#include <vector>
 
 #include "bimcap/options.h"
 #include "bimcap/problem.h"
@@ -26,21 +26,21 @@ namespace bimcap {
 
 // What the solver changes: poses, landmarks, the FACaP planes, the W / Co associations.
 struct SolverState {
-  std::vector<double> poses;             // (N, 7) flat, world_from_cam TUM order
-  std::vector<double> track_points;      // (P, 3) flat
+  std::vector<double> poses;         // (N, 7) flat, world_from_cam TUM order
+  std::vector<double> track_points;  // (P, 3) flat
   // Per term (registry order): its FACaP plane [n, d] (terms with facap_plane) and whether it
   // was fitted, and its points' associated segments (terms with a segment_class; -1 = none).
-  std::vector<double> facap_planes;      // (num terms, 4) flat
-  std::vector<bool> facap_plane_valid;   // (num terms,)
+  std::vector<double> facap_planes;          // (num terms, 4) flat
+  std::vector<bool> facap_plane_valid;       // (num terms,)
   std::vector<std::vector<int>> segment_of;  // (num terms,) of (points,)
 };
 
 // Per term, what went into the problem.
 struct TermBlocks {
-  bool active = false;                 // enabled and at least one residual
-  double sqrt_weight = 0.0;            // s, the functor's scalar
-  int64_t num_residual_blocks = 0;     // observations in the problem (N of the paper's mean)
-  int64_t num_skipped = 0;             // observations left out (no depth, unassociated, ...)
+  bool active = false;              // enabled and at least one residual
+  double sqrt_weight = 0.0;         // s, the functor's scalar
+  int64_t num_residual_blocks = 0;  // observations in the problem (N of the paper's mean)
+  int64_t num_skipped = 0;          // observations left out (no depth, unassociated, ...)
   int residual_size = 0;
   std::vector<ceres::ResidualBlockId> ids;
 };

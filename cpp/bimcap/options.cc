@@ -1,12 +1,12 @@
 #include "bimcap/options.h"
 
-#include "bimcap/terms.h"
-
 #include <algorithm>
 #include <cerrno>
 #include <cmath>
 #include <cstdlib>
 #include <sstream>
+
+#include "bimcap/terms.h"
 
 namespace bimcap {
 namespace {
@@ -44,7 +44,7 @@ struct EnumNames<RefineMode> {
 template <>
 struct EnumNames<LinearSolver> {
   static std::vector<std::string> Get() {
-    return {"AUTO",       "DENSE_QR",    "DENSE_NORMAL_CHOLESKY", "SPARSE_NORMAL_CHOLESKY",
+    return {"AUTO",        "DENSE_QR",     "DENSE_NORMAL_CHOLESKY", "SPARSE_NORMAL_CHOLESKY",
             "DENSE_SCHUR", "SPARSE_SCHUR", "ITERATIVE_SCHUR"};
   }
 };
@@ -122,7 +122,8 @@ double TermOptions::param(std::string_view name) const {
 SolverOptions::SolverOptions() {
   for (const TermSpec& spec : Terms()) {
     terms.push_back(spec.defaults);
-    for (const ParamSpec& param : spec.params) terms.back().params[param.name] = param.default_value;
+    for (const ParamSpec& param : spec.params)
+      terms.back().params[param.name] = param.default_value;
   }
 }
 
@@ -132,8 +133,8 @@ SolverOptions SolverOptions::Preset(std::string_view name) {
   if (name != "robust" && name != "paper") {
     std::string allowed;
     for (const auto& n : PresetNames()) allowed += (allowed.empty() ? "" : ", ") + n;
-    throw OptionsError("preset", "unknown preset '" + std::string(name) + "' (allowed: " +
-                                     allowed + ")");
+    throw OptionsError("preset",
+                       "unknown preset '" + std::string(name) + "' (allowed: " + allowed + ")");
   }
   SolverOptions o;
   o.weighting = Weighting::kRobust;

@@ -38,7 +38,7 @@ struct TermOptions {
   double weight = 1.0;        // multiplier of the whitened squared residual (kRobust)
   double sigma = 0.05;        // noise scale in the residual's unit (kRobust)
   LossType loss = LossType::kHuber;
-  double loss_scale = 1.0;    // in sigmas (the loss acts on the whitened residual)
+  double loss_scale = 1.0;  // in sigmas (the loss acts on the whitened residual)
   // The term's own scalars (TermSpec::params), by name, e.g. "sigma_r_deg" of the pose prior.
   std::map<std::string, double, std::less<>> params;
 

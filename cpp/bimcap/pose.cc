@@ -8,10 +8,12 @@ namespace bimcap {
 std::unique_ptr<ceres::Manifold> CreatePoseManifold(RefineMode mode) {
   switch (mode) {
     case RefineMode::kRotation:
-      return std::make_unique<ceres::ProductManifold<ceres::SubsetManifold, ceres::EigenQuaternionManifold>>(
+      return std::make_unique<
+          ceres::ProductManifold<ceres::SubsetManifold, ceres::EigenQuaternionManifold>>(
           ceres::SubsetManifold(3, {0, 1, 2}), ceres::EigenQuaternionManifold());
     case RefineMode::kTranslation:
-      return std::make_unique<ceres::ProductManifold<ceres::EuclideanManifold<3>, ceres::SubsetManifold>>(
+      return std::make_unique<
+          ceres::ProductManifold<ceres::EuclideanManifold<3>, ceres::SubsetManifold>>(
           ceres::EuclideanManifold<3>(), ceres::SubsetManifold(4, {0, 1, 2, 3}));
     case RefineMode::kFull:
     default:
@@ -21,7 +23,8 @@ std::unique_ptr<ceres::Manifold> CreatePoseManifold(RefineMode mode) {
 }
 
 std::unique_ptr<ceres::Manifold> CreatePlaneManifold() {
-  return std::make_unique<ceres::ProductManifold<ceres::SphereManifold<3>, ceres::EuclideanManifold<1>>>();
+  return std::make_unique<
+      ceres::ProductManifold<ceres::SphereManifold<3>, ceres::EuclideanManifold<1>>>();
 }
 
 }  // namespace bimcap

@@ -13,11 +13,11 @@
 #ifndef BIMCAP_POSE_H_
 #define BIMCAP_POSE_H_
 
-#include <memory>
+#include <ceres/manifold.h>
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
-#include <ceres/manifold.h>
+#include <memory>
 
 namespace bimcap {
 

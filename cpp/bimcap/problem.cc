@@ -61,13 +61,15 @@ void CheckPointsInCamera(const ProblemData& p, const std::string& prefix) {
 }
 
 ArrayRef<double> ProblemData::F64(std::string_view name) const {
-  if (const CoreField* core = FindCore(name); core != nullptr && core->f64) return this->*(core->f64);
+  if (const CoreField* core = FindCore(name); core != nullptr && core->f64)
+    return this->*(core->f64);
   const auto it = f64.find(name);
   return it == f64.end() ? ArrayRef<double>{} : it->second;
 }
 
 ArrayRef<int32_t> ProblemData::I32(std::string_view name) const {
-  if (const CoreField* core = FindCore(name); core != nullptr && core->i32) return this->*(core->i32);
+  if (const CoreField* core = FindCore(name); core != nullptr && core->i32)
+    return this->*(core->i32);
   const auto it = i32.find(name);
   return it == i32.end() ? ArrayRef<int32_t>{} : it->second;
 }
@@ -115,7 +117,8 @@ void ValidateProblem(const ProblemData& p) {
   // Names and declared column counts first, so that the checks below may index freely.
   for (const auto& [name, a] : p.f64) {
     const FieldSpec* f = FindField(name);
-    if (f == nullptr || f->dtype != DType::kFloat64) throw ProblemError(name, "unknown float64 array");
+    if (f == nullptr || f->dtype != DType::kFloat64)
+      throw ProblemError(name, "unknown float64 array");
   }
   for (const auto& [name, a] : p.i32) {
     const FieldSpec* f = FindField(name);
@@ -129,8 +132,8 @@ void ValidateProblem(const ProblemData& p) {
     if (rows < 0 || cols < 1) throw ProblemError(f.name, "negative or empty shape");
     if (rows > 0 && !has_data) throw ProblemError(f.name, "no data");
     if (rows > 0 && cols != (f.cols == 0 ? 1 : f.cols)) {
-      throw ProblemError(f.name, "expected " + Str(f.cols == 0 ? 1 : f.cols) + " columns, got " +
-                                     Str(cols));
+      throw ProblemError(
+          f.name, "expected " + Str(f.cols == 0 ? 1 : f.cols) + " columns, got " + Str(cols));
     }
   }
 

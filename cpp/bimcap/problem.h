@@ -55,13 +55,13 @@ enum class DType : uint32_t { kFloat64 = 1, kInt32 = 2 };
 // terms.cc) and held by name. Read them with F64() / I32(), which return an empty view for an
 // absent array; write them with Set().
 struct ProblemData {
-  ArrayRef<double> poses;              // (N, 7) world_from_cam, TUM order
-  ArrayRef<double> timestamps;         // (N,)
-  ArrayRef<int32_t> pose_fixed;        // (N,) 1 = constant
-  ArrayRef<double> cameras;            // (C, 4) fx fy cx cy
-  ArrayRef<int32_t> frame_camera;      // (N,)
-  std::map<std::string, ArrayRef<double>, std::less<>> f64;    // the terms' float64 arrays
-  std::map<std::string, ArrayRef<int32_t>, std::less<>> i32;   // the terms' int32 arrays
+  ArrayRef<double> poses;                                     // (N, 7) world_from_cam, TUM order
+  ArrayRef<double> timestamps;                                // (N,)
+  ArrayRef<int32_t> pose_fixed;                               // (N,) 1 = constant
+  ArrayRef<double> cameras;                                   // (C, 4) fx fy cx cy
+  ArrayRef<int32_t> frame_camera;                             // (N,)
+  std::map<std::string, ArrayRef<double>, std::less<>> f64;   // the terms' float64 arrays
+  std::map<std::string, ArrayRef<int32_t>, std::less<>> i32;  // the terms' int32 arrays
 
   // Keeps the memory behind the views alive (a file buffer); may be empty.
   std::shared_ptr<const void> owner;

@@ -42,19 +42,27 @@ void Store(uint8_t* p, T v) {
 
 uint64_t ItemSize(uint32_t dtype) {
   switch (dtype) {
-    case kDTypeF64: return 8;
-    case kDTypeI32: return 4;
-    case kDTypeU8: return 1;
-    default: return 0;
+    case kDTypeF64:
+      return 8;
+    case kDTypeI32:
+      return 4;
+    case kDTypeU8:
+      return 1;
+    default:
+      return 0;
   }
 }
 
 const char* DTypeName(uint32_t dtype) {
   switch (dtype) {
-    case kDTypeF64: return "float64";
-    case kDTypeI32: return "int32";
-    case kDTypeU8: return "uint8";
-    default: return "?";
+    case kDTypeF64:
+      return "float64";
+    case kDTypeI32:
+      return "int32";
+    case kDTypeU8:
+      return "uint8";
+    default:
+      return "?";
   }
 }
 
@@ -68,7 +76,8 @@ uint64_t AlignUp(uint64_t v) {
 
 // The options text must be printable ASCII lines ending in LF: a key or value with any other byte
 // (a flipped bit, another encoding, CR) is reported here by line and column, and never reaches a
-// message as raw bytes (which Python could not decode). (It is the only reader: Python calls it through _core.)
+// message as raw bytes (which Python could not decode). (It is the only reader: Python calls it
+// through _core.)
 void CheckOptionsText(const std::string& text) {
   int line = 1, column = 0;
   for (const char ch : text) {
@@ -81,7 +90,8 @@ void CheckOptionsText(const std::string& text) {
       char hex[8];
       std::snprintf(hex, sizeof(hex), "0x%02x", c);
       Fail(kOptionsName, "line " + std::to_string(line) + ", column " + std::to_string(column) +
-                             ": byte " + hex + " is not printable ASCII (options are key=value "
+                             ": byte " + hex +
+                             " is not printable ASCII (options are key=value "
                              "text)");
     }
   }
@@ -105,8 +115,8 @@ ProblemFile ParseProblemFile(const uint8_t* bytes, size_t size) {
   file.file_size = Load<uint64_t>(bytes + 24);
   if (file.version != kProblemFileVersion) {
     Fail("header.version", "unsupported version " + std::to_string(file.version) +
-                               " (this build reads version " +
-                               std::to_string(kProblemFileVersion) + ")");
+                               " (this build reads version " + std::to_string(kProblemFileVersion) +
+                               ")");
   }
   if (header_size != kProblemFileHeaderSize) Fail("header.header_size", "must be 64");
   if (entry_size != kProblemFileEntrySize) Fail("header.entry_size", "must be 64");
@@ -188,17 +198,18 @@ ProblemFile ParseProblemFile(const uint8_t* bytes, size_t size) {
       }
       const uint64_t want_cols = spec->cols == 0 ? 1 : static_cast<uint64_t>(spec->cols);
       if (info.ndim != (spec->cols == 0 ? 1u : 2u) || info.cols != want_cols) {
-        Fail(name, "expected " + std::string(spec->cols == 0 ? "a 1-D array" : "a 2-D array with ") +
+        Fail(name, "expected " +
+                       std::string(spec->cols == 0 ? "a 1-D array" : "a 2-D array with ") +
                        (spec->cols == 0 ? "" : std::to_string(spec->cols) + " columns"));
       }
       if (spec->dtype == DType::kFloat64) {
         problem.Set(name, ArrayRef<double>{reinterpret_cast<const double*>(data),
-                                               static_cast<int64_t>(info.rows),
-                                               static_cast<int64_t>(info.cols)});
+                                           static_cast<int64_t>(info.rows),
+                                           static_cast<int64_t>(info.cols)});
       } else {
         problem.Set(name, ArrayRef<int32_t>{reinterpret_cast<const int32_t*>(data),
-                                                static_cast<int64_t>(info.rows),
-                                                static_cast<int64_t>(info.cols)});
+                                            static_cast<int64_t>(info.rows),
+                                            static_cast<int64_t>(info.cols)});
       }
     }
     file.arrays.push_back(info);
@@ -311,7 +322,8 @@ void WriteProblemFile(const std::string& path, const ProblemData& problem,
   {
     std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
     if (!out) throw ProblemFileError(path, "cannot open for writing");
-    out.write(reinterpret_cast<const char*>(bytes.data()), static_cast<std::streamsize>(bytes.size()));
+    out.write(reinterpret_cast<const char*>(bytes.data()),
+              static_cast<std::streamsize>(bytes.size()));
     out.close();
     if (!out) {  // a full disk shows here: leave no temporary file behind
       std::remove(tmp.c_str());

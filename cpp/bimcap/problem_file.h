@@ -59,7 +59,7 @@ struct ProblemFile {
   uint32_t version = 0;
   uint64_t file_size = 0;
   std::vector<ArrayInfo> arrays;
-  ProblemData problem;       // views into the file's buffer (problem.owner keeps it alive)
+  ProblemData problem;  // views into the file's buffer (problem.owner keeps it alive)
   SolverOptions options;
   std::string options_text;
 };

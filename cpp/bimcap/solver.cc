@@ -1,19 +1,19 @@
 #include "bimcap/solver.h"
 
-#include <algorithm>
-#include <chrono>
-#include <cstdio>
-#include <functional>
-#include <cmath>
-#include <limits>
-#include <memory>
-#include <string>
-#include <sstream>
-#include <vector>
-
 #include <ceres/cost_function.h>
 #include <ceres/covariance.h>
 #include <ceres/solver.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <functional>
+#include <limits>
+#include <memory>
+#include <sstream>
+#include <string>
+#include <vector>
 
 #include "bimcap/builder.h"
 #include "bimcap/terms.h"
@@ -25,14 +25,21 @@ using Clock = std::chrono::steady_clock;
 
 ceres::LinearSolverType ChooseLinearSolver(const SolverOptions& options, bool landmarks) {
   switch (options.linear_solver) {
-    case LinearSolver::kDenseQr: return ceres::DENSE_QR;
-    case LinearSolver::kDenseNormalCholesky: return ceres::DENSE_NORMAL_CHOLESKY;
-    case LinearSolver::kSparseNormalCholesky: return ceres::SPARSE_NORMAL_CHOLESKY;
-    case LinearSolver::kDenseSchur: return ceres::DENSE_SCHUR;
-    case LinearSolver::kSparseSchur: return ceres::SPARSE_SCHUR;
-    case LinearSolver::kIterativeSchur: return ceres::ITERATIVE_SCHUR;
+    case LinearSolver::kDenseQr:
+      return ceres::DENSE_QR;
+    case LinearSolver::kDenseNormalCholesky:
+      return ceres::DENSE_NORMAL_CHOLESKY;
+    case LinearSolver::kSparseNormalCholesky:
+      return ceres::SPARSE_NORMAL_CHOLESKY;
+    case LinearSolver::kDenseSchur:
+      return ceres::DENSE_SCHUR;
+    case LinearSolver::kSparseSchur:
+      return ceres::SPARSE_SCHUR;
+    case LinearSolver::kIterativeSchur:
+      return ceres::ITERATIVE_SCHUR;
     case LinearSolver::kAuto:
-    default: return landmarks ? ceres::SPARSE_SCHUR : ceres::SPARSE_NORMAL_CHOLESKY;
+    default:
+      return landmarks ? ceres::SPARSE_SCHUR : ceres::SPARSE_NORMAL_CHOLESKY;
   }
 }
 
@@ -213,8 +220,8 @@ void NormalizeQuaternions(std::vector<double>* poses) {
   }
 }
 
-void ComputeCovariance(ProblemBuilder& builder, const ProblemData& data, const SolverOptions& options,
-                       SolverState* state, SolveResult* result) {
+void ComputeCovariance(ProblemBuilder& builder, const ProblemData& data,
+                       const SolverOptions& options, SolverState* state, SolveResult* result) {
   Summary& summary = result->summary;
   summary.covariance_requested = true;
   ceres::Covariance::Options cov_options;
@@ -271,10 +278,10 @@ class Associator {
       const TermSpec& spec = Terms()[t];
       if (spec.segment_class <= 0 || !options.term(t).enabled) continue;
       if (data.I32(std::string(spec.points) + "_frame").rows == 0) continue;
-      indices_.push_back({t, std::make_unique<SegmentIndex>(
-                                 data.F64("segments"), data.I32("segment_class"),
-                                 data.F64("segment_z"), data.F64("segment_normal"),
-                                 spec.segment_class, options.association_gate)});
+      indices_.push_back(
+          {t, std::make_unique<SegmentIndex>(data.F64("segments"), data.I32("segment_class"),
+                                             data.F64("segment_z"), data.F64("segment_normal"),
+                                             spec.segment_class, options.association_gate)});
       summary->association.push_back({spec.name, indices_.back().index->num_segments(), {}, {}});
     }
   }
@@ -347,7 +354,8 @@ void RunOuterIterations(const SolverOptions& options, const Associator& associat
   for (int round = 0; round < options.outer_iterations; ++round) {
     if (round > 0) build();
     solver_options.linear_solver_type = ChooseLinearSolver(options, builder->has_landmarks());
-    solver_options.linear_solver_ordering = builder->has_landmarks() ? builder->ordering() : nullptr;
+    solver_options.linear_solver_ordering =
+        builder->has_landmarks() ? builder->ordering() : nullptr;
     solver_options.max_solver_time_in_seconds = std::max(remaining_time, 1e-3);
     ceres::Solver::Summary ceres_summary;
     if (builder->problem().NumResidualBlocks() > 0) {
@@ -482,10 +490,18 @@ std::string JsonString(const std::string& v) {
   std::string out = "\"";
   for (const char c : v) {
     switch (c) {
-      case '"': out += "\\\""; break;
-      case '\\': out += "\\\\"; break;
-      case '\n': out += "\\n"; break;
-      case '\t': out += "\\t"; break;
+      case '"':
+        out += "\\\"";
+        break;
+      case '\\':
+        out += "\\\\";
+        break;
+      case '\n':
+        out += "\\n";
+        break;
+      case '\t':
+        out += "\\t";
+        break;
       default:
         if (static_cast<unsigned char>(c) < 0x20) {
           char buf[8];

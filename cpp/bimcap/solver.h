@@ -14,13 +14,13 @@
 namespace bimcap {
 
 struct TermSummary {
-  std::string name;                 // TermSpec::name: "G", "depth", "F", "Ce", "W", "Co", "prior" ...
+  std::string name;  // TermSpec::name: "G", "depth", "F", "Ce", "W", "Co", "prior" ...
   bool active = false;
   int64_t num_residual_blocks = 0;  // observations in the final problem
   int64_t num_residuals = 0;        // scalar residuals (blocks × residual size)
   int64_t num_skipped = 0;
-  double sqrt_weight = 0.0;         // the functors' scalar s
-  double paper_weight = 0.0;        // λ
+  double sqrt_weight = 0.0;   // the functors' scalar s
+  double paper_weight = 0.0;  // λ
   // Ceres cost of the term (½ Σ ρ(‖s r‖²)) before the first and after the last run.
   double initial_cost = 0.0;
   double final_cost = 0.0;
@@ -42,15 +42,15 @@ struct AssociationSummary {
 
 struct Summary {
   bool success = false;
-  std::string termination;     // the last Ceres run's termination type, or NON_FINITE_COST /
-                               // NO_RESIDUALS
-  std::string message;         // the last Ceres run's message
+  std::string termination;  // the last Ceres run's termination type, or NON_FINITE_COST /
+                            // NO_RESIDUALS
+  std::string message;      // the last Ceres run's message
   std::string linear_solver;
-  int iterations = 0;          // Ceres iterations over all outer rounds
-  int outer_iterations = 0;    // Ceres runs
-  double time_s = 0.0;         // wall time of Solve()
-  double ceres_time_s = 0.0;   // time inside ceres::Solve
-  double initial_cost = 0.0;   // Ceres cost, all terms
+  int iterations = 0;         // Ceres iterations over all outer rounds
+  int outer_iterations = 0;   // Ceres runs
+  double time_s = 0.0;        // wall time of Solve()
+  double ceres_time_s = 0.0;  // time inside ceres::Solve
+  double initial_cost = 0.0;  // Ceres cost, all terms
   double final_cost = 0.0;
   // Σ over terms of λ · mean ‖r‖² (the peers' objective, whatever the weighting mode).
   double initial_paper_objective = 0.0;

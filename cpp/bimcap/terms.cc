@@ -33,6 +33,8 @@ int TermIndex(std::string_view key_or_name) {
   return -1;
 }
 
-const char* TermName(int term) { return (term >= 0 && term < NumTerms()) ? Terms()[term].name : "?"; }
+const char* TermName(int term) {
+  return (term >= 0 && term < NumTerms()) ? Terms()[term].name : "?";
+}
 
 }  // namespace bimcap

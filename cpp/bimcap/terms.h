@@ -35,10 +35,10 @@ struct ParamSpec {
 };
 
 struct TermSpec {
-  const char* name;         // in summaries and term lists: "G", "F", "prior" ...
-  const char* key;          // option prefix ("floor.sigma"), association and FACaP plane name
-  const char* what;         // in messages: "floor"
-  const char* doc;          // one line: the residual and its unit
+  const char* name;  // in summaries and term lists: "G", "F", "prior" ...
+  const char* key;   // option prefix ("floor.sigma"), association and FACaP plane name
+  const char* what;  // in messages: "floor"
+  const char* doc;   // one line: the residual and its unit
   // One of the paper's terms: switched by `with_terms`, part of the peers' objective. Other
   // terms (the pose prior, the odometry) act in ROBUST weighting only, with paper_weight 0.
   bool paper_term;

@@ -2,12 +2,12 @@
 #ifndef BIMCAP_PYTHON_ARRAYS_H_
 #define BIMCAP_PYTHON_ARRAYS_H_
 
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+
 #include <map>
 #include <string>
 #include <vector>
-
-#include <pybind11/numpy.h>
-#include <pybind11/pybind11.h>
 
 #include "bimcap/options.h"
 #include "bimcap/problem.h"

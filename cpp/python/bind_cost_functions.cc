@@ -1,9 +1,9 @@
 // Single-residual evaluation of the cost functions, for tests against independent oracles
 // (pycolmap.cost_functions) and for debugging.
-#include <memory>
-
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
+
+#include <memory>
 
 #include "bimcap/cost_functions/landmark.h"
 #include "bimcap/cost_functions/reprojection.h"
@@ -28,7 +28,8 @@ py::tuple Evaluate(const ceres::CostFunction& cost, const std::vector<const doub
   std::vector<py::array_t<double>> jacobians;
   std::vector<double*> jacobian_ptrs;
   for (size_t i = 0; i < blocks.size(); ++i) {
-    jacobians.emplace_back(std::vector<py::ssize_t>{num_residuals, cost.parameter_block_sizes()[i]});
+    jacobians.emplace_back(
+        std::vector<py::ssize_t>{num_residuals, cost.parameter_block_sizes()[i]});
     jacobian_ptrs.push_back(jacobians.back().mutable_data());
   }
   if (!cost.Evaluate(blocks.data(), residuals.mutable_data(), jacobian_ptrs.data())) {

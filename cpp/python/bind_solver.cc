@@ -26,8 +26,9 @@ void BindSolver(py::module_& m) {
         py::dict out;
         out["poses"] = CopyToNumpy<double>(result.poses.data(), {n, 7});
         out["planes"] = CopyToNumpy<double>(result.planes.data(), {result.num_planes, 4});
-        out["track_points"] = CopyToNumpy<double>(
-            result.track_points.data(), {static_cast<py::ssize_t>(result.track_points.size() / 3), 3});
+        out["track_points"] =
+            CopyToNumpy<double>(result.track_points.data(),
+                                {static_cast<py::ssize_t>(result.track_points.size() / 3), 3});
         for (const auto& [key, segments] : result.segment_of) {
           out[py::str(key + "_segment")] =
               CopyToNumpy<int>(segments.data(), {static_cast<py::ssize_t>(segments.size())});
@@ -71,15 +72,18 @@ ValueError
 
 The GIL is released while Ceres runs.)doc");
 
-  m.def("default_options", []() { return OptionsToDict(SolverOptions()); },
-        "The default solver options as a dict of str → str.");
   m.def(
-      "preset_options", [](const std::string& name) { return OptionsToDict(SolverOptions::Preset(name)); },
+      "default_options", []() { return OptionsToDict(SolverOptions()); },
+      "The default solver options as a dict of str → str.");
+  m.def(
+      "preset_options",
+      [](const std::string& name) { return OptionsToDict(SolverOptions::Preset(name)); },
       py::arg("name"),
       "A named preset's options as a dict of str → str (ValueError for an unknown name).");
   m.def("preset_names", &SolverOptions::PresetNames, "The names of the option presets.");
   m.def(
-      "check_options", [](const py::dict& options) { return OptionsToDict(OptionsFromDict(options)); },
+      "check_options",
+      [](const py::dict& options) { return OptionsToDict(OptionsFromDict(options)); },
       py::arg("options"),
       "Validate flat options (ValueError naming the key on error); returns them normalised.");
   m.def("option_keys", &OptionKeys, "Every option key the core understands.");

@@ -32,8 +32,8 @@ ProblemData ProblemFromDict(const py::dict& arrays, std::vector<py::array>* keep
     }
     const int want_ndim = spec->cols == 0 ? 1 : 2;
     if (array.ndim() != want_ndim) {
-      throw py::value_error(name + ": expected a " + std::to_string(want_ndim) +
-                            "-D array, got " + std::to_string(array.ndim()) + "-D");
+      throw py::value_error(name + ": expected a " + std::to_string(want_ndim) + "-D array, got " +
+                            std::to_string(array.ndim()) + "-D");
     }
     if (want_ndim == 2 && array.shape(1) != spec->cols) {
       throw py::value_error(name + ": expected shape (n, " + std::to_string(spec->cols) +
@@ -109,9 +109,8 @@ PYBIND11_MODULE(_core, m) {
       "this module directly: it takes dense float64/int32 C-contiguous arrays by name.";
   // Every input error of the core is a ValueError (bimcap.optimize wraps it in SolverInputError).
   PYBIND11_CONSTINIT static py::gil_safe_call_once_and_store<py::object> input_error;
-  input_error.call_once_and_store_result([&]() {
-    return py::exception<bimcap::InputError>(m, "InputError", PyExc_ValueError);
-  });
+  input_error.call_once_and_store_result(
+      [&]() { return py::exception<bimcap::InputError>(m, "InputError", PyExc_ValueError); });
   py::register_exception_translator([](std::exception_ptr p) {
     try {
       if (p) std::rethrow_exception(p);
@@ -131,9 +130,8 @@ PYBIND11_MODULE(_core, m) {
       PyObject* exc = PyObject_CallOneArg(type, message);
       Py_DECREF(message);
       if (exc == nullptr) return;  // the call set its own error
-      PyObject* field = PyUnicode_DecodeUTF8(e.field().data(),
-                                             static_cast<Py_ssize_t>(e.field().size()),
-                                             "backslashreplace");
+      PyObject* field = PyUnicode_DecodeUTF8(
+          e.field().data(), static_cast<Py_ssize_t>(e.field().size()), "backslashreplace");
       if (field != nullptr) {
         PyObject_SetAttrString(exc, "field", field);
         Py_DECREF(field);

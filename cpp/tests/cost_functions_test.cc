@@ -1,12 +1,12 @@
 // Each functor against hand-computed values and against ceres::GradientChecker.
+#include <ceres/gradient_checker.h>
+#include <gtest/gtest.h>
+
 #include <algorithm>
 #include <cmath>
 #include <memory>
-#include <sstream>
 #include <random>
-
-#include <ceres/gradient_checker.h>
-#include <gtest/gtest.h>
+#include <sstream>
 
 #include "bimcap/cost_functions/landmark.h"
 #include "bimcap/cost_functions/point_consistency.h"
@@ -33,7 +33,8 @@ Pose7 RandomPose(std::mt19937* rng) {
                   Eigen::Quaterniond(g(*rng), 0.2 * g(*rng), 0.2 * g(*rng), 0.2 * g(*rng)));
 }
 
-std::vector<double> Evaluate(const ceres::CostFunction& cost, const std::vector<const double*>& blocks) {
+std::vector<double> Evaluate(const ceres::CostFunction& cost,
+                             const std::vector<const double*>& blocks) {
   std::vector<double> r(cost.num_residuals());
   EXPECT_TRUE(cost.Evaluate(blocks.data(), r.data(), nullptr));
   return r;
@@ -92,7 +93,8 @@ void ExpectGradientsMatch(const ceres::CostFunction& cost, const std::vector<con
 TEST(PointConsistency, HandValues) {
   // Frame a: identity rotation at (1, 2, 3); frame b: 90° about z at the origin.
   const Pose7 a = MakePose({1, 2, 3}, Eigen::Quaterniond::Identity());
-  const Pose7 b = MakePose({0, 0, 0}, Eigen::Quaterniond(Eigen::AngleAxisd(M_PI / 2, Eigen::Vector3d::UnitZ())));
+  const Pose7 b = MakePose(
+      {0, 0, 0}, Eigen::Quaterniond(Eigen::AngleAxisd(M_PI / 2, Eigen::Vector3d::UnitZ())));
   // a: (0, 0, 1) → (1, 2, 4). b: (1, 0, 0) → (0, 1, 0). r = 2 · ((1, 2, 4) − (0, 1, 0)).
   std::unique_ptr<ceres::CostFunction> cost(
       PointConsistencyCostFunctor::Create({0, 0, 1}, {1, 0, 0}, 2.0));
@@ -114,7 +116,8 @@ TEST(Reprojection, HandValues) {
   // a at the origin; b one metre behind it (t = (0, 0, −1)); both unrotated.
   const Pose7 a = MakePose({0, 0, 0}, Eigen::Quaterniond::Identity());
   const Pose7 b = MakePose({0, 0, -1}, Eigen::Quaterniond::Identity());
-  // p_a = (0.3, −0.15, 2) → p_b = (0.3, −0.15, 3) → uv = (500·0.1 + 320, 400·(−0.05) + 240) = (370, 220).
+  // p_a = (0.3, −0.15, 2) → p_b = (0.3, −0.15, 3) → uv = (500·0.1 + 320, 400·(−0.05) + 240) = (370,
+  // 220).
   std::unique_ptr<ceres::CostFunction> cost(ReprojectionCostFunctor::Create(
       {0.3, -0.15, 2.0}, {369.0, 222.0}, {500, 400, 320, 240}, 1.0));
   const auto r = Evaluate(*cost, {a.data(), b.data()});
@@ -144,7 +147,8 @@ TEST(Reprojection, DepthNoiseWhitensAlongTheEpipolarLine) {
   EXPECT_NEAR(r0[0], s * -4.0, 1e-12);
   EXPECT_NEAR(r0[1], s * -3.0, 1e-12);
   EXPECT_NEAR(rp[0], r0[0], 1e-15);
-  // Across the epipolar line (v) unchanged; along it (u) scaled by σ_px / q, q = √(σ_px² + (σ_z j)²).
+  // Across the epipolar line (v) unchanged; along it (u) scaled by σ_px / q, q = √(σ_px² + (σ_z
+  // j)²).
   const double j = 500.0 * 0.5 / 1.0;
   const double q = std::sqrt(sigma_px * sigma_px + sigma_z * sigma_z * j * j);
   EXPECT_NEAR(rw[1], s * -3.0, 1e-10);
@@ -176,7 +180,8 @@ TEST(Landmark, HandValues) {
 TEST(PointToPlane, HandValues) {
   // Camera at height 1.5 looking down the world −z (180° about x): p_in_cam (0, 0, 1.2) is at
   // world z = 0.3; the floor z = 0 gives 0.3, the ceiling n = (0, 0, 1), d = −3 gives −2.7.
-  const Pose7 pose = MakePose({2, 3, 1.5}, Eigen::Quaterniond(Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitX())));
+  const Pose7 pose =
+      MakePose({2, 3, 1.5}, Eigen::Quaterniond(Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitX())));
   std::unique_ptr<ceres::CostFunction> floor(
       PointToPlaneCostFunctor::Create({0, 0, 1.2}, {0, 0, 1, 0}, 1.0));
   EXPECT_NEAR(Evaluate(*floor, {pose.data()})[0], 0.3, 1e-12);
@@ -184,7 +189,8 @@ TEST(PointToPlane, HandValues) {
       PointToPlaneCostFunctor::Create({0, 0, 1.2}, {0, 0, 1, -3}, 1.0));
   EXPECT_NEAR(Evaluate(*ceiling, {pose.data()})[0], -2.7, 1e-12);
   const double plane[4] = {0, 0, 1, -0.1};
-  std::unique_ptr<ceres::CostFunction> variable(PointToVariablePlaneCostFunctor::Create({0, 0, 1.2}, 3.0));
+  std::unique_ptr<ceres::CostFunction> variable(
+      PointToVariablePlaneCostFunctor::Create({0, 0, 1.2}, 3.0));
   EXPECT_NEAR(Evaluate(*variable, {pose.data(), plane})[0], 3.0 * 0.2, 1e-12);
 }
 
@@ -210,7 +216,8 @@ TEST(PosePrior, HandValues) {
   const double sigma_t = 2.0, sigma_r = 20.0 * M_PI / 180.0;
   const Eigen::Quaterniond q0(Eigen::AngleAxisd(0.7, Eigen::Vector3d(1, 2, 3).normalized()));
   const Pose7 pose0 = MakePose({1, -2, 1.4}, q0);
-  std::unique_ptr<ceres::CostFunction> cost(PosePriorCostFunctor::Create(pose0.data(), sigma_t, sigma_r));
+  std::unique_ptr<ceres::CostFunction> cost(
+      PosePriorCostFunctor::Create(pose0.data(), sigma_t, sigma_r));
   ASSERT_EQ(cost->num_residuals(), 6);
   // Zero at the prior mean.
   for (double r : Evaluate(*cost, {pose0.data()})) EXPECT_NEAR(r, 0.0, 1e-15);
@@ -220,15 +227,18 @@ TEST(PosePrior, HandValues) {
   std::vector<double> r = Evaluate(*cost, {shifted.data()});
   EXPECT_NEAR(r[0], 0.1 / sigma_t, 1e-12);
   for (int k = 1; k < 6; ++k) EXPECT_NEAR(r[k], 0.0, 1e-12);
-  // 5° about the camera's own z (q = q0 · Rz): 2 sin(2.5°) / sigma_r ≈ 5° in rad / sigma_r, in r[5].
+  // 5° about the camera's own z (q = q0 · Rz): 2 sin(2.5°) / sigma_r ≈ 5° in rad / sigma_r, in
+  // r[5].
   const double yaw = 5.0 * M_PI / 180.0;
-  const Pose7 turned = MakePose({1, -2, 1.4}, q0 * Eigen::Quaterniond(Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ())));
+  const Pose7 turned = MakePose(
+      {1, -2, 1.4}, q0 * Eigen::Quaterniond(Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ())));
   r = Evaluate(*cost, {turned.data()});
   for (int k = 0; k < 5; ++k) EXPECT_NEAR(r[k], 0.0, 1e-12);
   EXPECT_NEAR(r[5], 2.0 * std::sin(yaw / 2) / sigma_r, 1e-12);
   EXPECT_NEAR(r[5], yaw / sigma_r, 1e-3 * yaw / sigma_r);
   // 5° about the world z (q = Rz · q0): the same angle, about q0⁻¹ z.
-  const Pose7 world_turned = MakePose({1, -2, 1.4}, Eigen::Quaterniond(Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ())) * q0);
+  const Pose7 world_turned = MakePose(
+      {1, -2, 1.4}, Eigen::Quaterniond(Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ())) * q0);
   r = Evaluate(*cost, {world_turned.data()});
   const Eigen::Vector3d rot(r[3], r[4], r[5]);
   EXPECT_NEAR(rot.norm(), 2.0 * std::sin(yaw / 2) / sigma_r, 1e-12);
@@ -273,7 +283,8 @@ TEST(RelativePose, HandValues) {
   for (int k = 1; k < 6; ++k) EXPECT_NEAR(r[k], 0.0, 1e-12);
   // b turned 5° more about z: 2 sin(2.5°) / sigma_r in r[5].
   const double yaw = 5.0 * M_PI / 180.0;
-  const Pose7 b3 = MakePose({1.5, 2.2, 1.5}, qb * Eigen::Quaterniond(Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ())));
+  const Pose7 b3 = MakePose(
+      {1.5, 2.2, 1.5}, qb * Eigen::Quaterniond(Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ())));
   const auto r3 = Evaluate(*cost, {a0.data(), b3.data()});
   for (int k = 0; k < 5; ++k) EXPECT_NEAR(r3[k], 0.0, 1e-12);
   EXPECT_NEAR(r3[5], 2.0 * std::sin(yaw / 2) / sigma_r, 1e-12);
@@ -295,12 +306,16 @@ TEST_F(GradientTest, AllFunctors) {
                                   Eigen::Map<const Eigen::Vector3d>(a.data());
     Pose7 b_front = b;
     const Eigen::Quaterniond qb(b[6], b[3], b[4], b[5]);
-    const Eigen::Vector3d tb = world - qb * Eigen::Vector3d(0.1, 0.2, 3.0);  // world is 3 m ahead of b
-    b_front[0] = tb.x(); b_front[1] = tb.y(); b_front[2] = tb.z();
+    const Eigen::Vector3d tb =
+        world - qb * Eigen::Vector3d(0.1, 0.2, 3.0);  // world is 3 m ahead of b
+    b_front[0] = tb.x();
+    b_front[1] = tb.y();
+    b_front[2] = tb.z();
     const double x[3] = {world.x(), world.y(), world.z()};
     const double pl[4] = {0.0, 0.6, 0.8, -1.0};
 
-    std::unique_ptr<ceres::CostFunction> c1(PointConsistencyCostFunctor::Create(p_a, {0.5, 0.1, 1.5}, 1.3));
+    std::unique_ptr<ceres::CostFunction> c1(
+        PointConsistencyCostFunctor::Create(p_a, {0.5, 0.1, 1.5}, 1.3));
     {
       SCOPED_TRACE("c1");
       ExpectGradientsMatch(*c1, {a.data(), b.data()});
@@ -327,7 +342,8 @@ TEST_F(GradientTest, AllFunctors) {
       SCOPED_TRACE("c4");
       ExpectGradientsMatch(*c4, {b_front.data(), x});
     }
-    std::unique_ptr<ceres::CostFunction> c5(PointToPlaneCostFunctor::Create(p_a, {0, 0.6, 0.8, -1}, 1.0));
+    std::unique_ptr<ceres::CostFunction> c5(
+        PointToPlaneCostFunctor::Create(p_a, {0, 0.6, 0.8, -1}, 1.0));
     {
       SCOPED_TRACE("c5");
       ExpectGradientsMatch(*c5, {a.data()});
@@ -338,13 +354,14 @@ TEST_F(GradientTest, AllFunctors) {
       ExpectGradientsMatch(*c6, {a.data(), pl});
     }
     // Segment: one interior and one past-the-end configuration.
-    for (const Eigen::Vector4d& seg : {Eigen::Vector4d(world.x() - 1, world.y() - 2, world.x() + 1, world.y() + 1),
-                                      Eigen::Vector4d(world.x() + 1, world.y() + 1, world.x() + 3, world.y() + 2)}) {
+    for (const Eigen::Vector4d& seg :
+         {Eigen::Vector4d(world.x() - 1, world.y() - 2, world.x() + 1, world.y() + 1),
+          Eigen::Vector4d(world.x() + 1, world.y() + 1, world.x() + 3, world.y() + 2)}) {
       std::unique_ptr<ceres::CostFunction> c7(PointToSegmentCostFunctor::Create(p_a, seg, 1.0));
       {
-      SCOPED_TRACE(seg[0] < world.x() ? "c7 interior" : "c7 past the end");
-      ExpectGradientsMatch(*c7, {a.data()}, /*trust_checker=*/false);
-    }
+        SCOPED_TRACE(seg[0] < world.x() ? "c7 interior" : "c7 past the end");
+        ExpectGradientsMatch(*c7, {a.data()}, /*trust_checker=*/false);
+      }
     }
     // The whitened reprojection (depth noise), and the odometry between a and b.
     std::unique_ptr<ceres::CostFunction> c9(
@@ -437,7 +454,10 @@ TEST(AnalyticJacobians, MatchAutoDiff) {
     Pose7 a = RandomPose(&rng), b = RandomPose(&rng);
     if (trial % 2 == 1) {  // off the unit sphere
       const double sa = scale(rng), sb = scale(rng);
-      for (int k = 3; k < 7; ++k) { a[k] *= sa; b[k] *= sb; }
+      for (int k = 3; k < 7; ++k) {
+        a[k] *= sa;
+        b[k] *= sb;
+      }
     }
     const Eigen::Vector3d p_a(g(rng), g(rng), 2.0 + g(rng)), p_b(g(rng), g(rng), 2.0 + g(rng));
     const double s = 0.1 + std::abs(g(rng));
@@ -463,7 +483,8 @@ TEST(AnalyticJacobians, MatchAutoDiff) {
       const Eigen::Vector4d seg(world.x() + 2 * g(rng), world.y() + 2 * g(rng),
                                 world.x() + 2 * g(rng), world.y() + 2 * g(rng));
       const double dx = seg[2] - seg[0], dy = seg[3] - seg[1];
-      const double along = ((world.x() - seg[0]) * dx + (world.y() - seg[1]) * dy) / (dx * dx + dy * dy);
+      const double along =
+          ((world.x() - seg[0]) * dx + (world.y() - seg[1]) * dy) / (dx * dx + dy * dy);
       (along >= 0 && along <= 1 ? interior : past_end) += 1;
       std::unique_ptr<ceres::CostFunction> x(PointToSegmentCostFunction::Create(p_a, seg, s));
       std::unique_ptr<ceres::CostFunction> y(PointToSegmentCostFunctor::Create(p_a, seg, s));
@@ -484,8 +505,9 @@ TEST(AnalyticJacobians, MatchAutoDiff) {
     }
     // Mostly in front of the camera, some behind (zero residual and Jacobians).
     const Eigen::Vector3d p_in_cam(g(rng), g(rng), trial % 10 == 0 ? -1.0 : 1.0 + std::abs(g(rng)));
-    const Eigen::Vector3d x = Eigen::Map<const Eigen::Quaterniond>(a.data() + 3).normalized() * p_in_cam +
-                              Eigen::Map<const Eigen::Vector3d>(a.data());
+    const Eigen::Vector3d x =
+        Eigen::Map<const Eigen::Quaterniond>(a.data() + 3).normalized() * p_in_cam +
+        Eigen::Map<const Eigen::Vector3d>(a.data());
     const double point[3] = {x.x(), x.y(), x.z()};
     const Eigen::Vector2d uv(300 + 50 * g(rng), 200 + 50 * g(rng));
     const Eigen::Vector4d k(500 + g(rng), 480 + g(rng), 320, 240);

@@ -1,9 +1,9 @@
 // Manifold invariants (ceres/manifold_test_utils.h) of the pose and plane manifolds, and what the
 // rotation- / translation-only modes hold fixed.
-#include <random>
-
 #include <ceres/manifold_test_utils.h>
 #include <gtest/gtest.h>
+
+#include <random>
 
 #include "bimcap/pose.h"
 

@@ -1,7 +1,8 @@
+#include "bimcap/options.h"
+
 #include <gtest/gtest.h>
 
 #include "bimcap/terms.h"
-#include "bimcap/options.h"
 
 namespace bimcap {
 namespace {
@@ -73,7 +74,8 @@ TEST(Options, BadValuesNameTheKey) {
 }
 
 TEST(Options, RenamedKeysOfOlderFilesAreStillRead) {
-  const SolverOptions o = OptionsFromKeyValues({{"prior_sigma_r_deg", "7.5"}, {"odometry_sigma_r_deg", "3"}});
+  const SolverOptions o =
+      OptionsFromKeyValues({{"prior_sigma_r_deg", "7.5"}, {"odometry_sigma_r_deg", "3"}});
   EXPECT_EQ(o.term("prior").param("sigma_r_deg"), 7.5);
   EXPECT_EQ(o.term("odometry").param("sigma_r_deg"), 3.0);
   EXPECT_EQ(OptionsToKeyValues(o).count("prior_sigma_r_deg"), 0u);  // written under the new key

@@ -1,17 +1,18 @@
 // Drift → solve → recover, per term alone and all together; the paper-mode objective equals the
 // peers' formula evaluated directly; gauge, refine modes, covariance, input errors.
+#include "bimcap/solver.h"
+
+#include <gtest/gtest.h>
+
+#include <Eigen/Eigenvalues>
+#include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <string>
 
-#include <Eigen/Eigenvalues>
-#include <Eigen/Geometry>
-#include <gtest/gtest.h>
-
-#include "bimcap/terms.h"
 #include "bimcap/cost_functions/point_to_segment.h"
-#include "bimcap/solver.h"
+#include "bimcap/terms.h"
 #include "test_problems.h"
 
 namespace bimcap {
@@ -36,8 +37,8 @@ Eigen::Quaterniond Rotation(const std::vector<double>& poses, int i) {
 }
 
 // RMS errors of the parts a term observes: z and tilt (F / Ce), xy and yaw (W / Co).
-void PartialErrors(const std::vector<double>& est, const std::vector<double>& gt, double* z, double* tilt_deg,
-                   double* xy, double* yaw_deg) {
+void PartialErrors(const std::vector<double>& est, const std::vector<double>& gt, double* z,
+                   double* tilt_deg, double* xy, double* yaw_deg) {
   const int n = static_cast<int>(gt.size() / 7);
   double sz = 0, st = 0, sxy = 0, syaw = 0;
   for (int i = 0; i < n; ++i) {
@@ -45,7 +46,8 @@ void PartialErrors(const std::vector<double>& est, const std::vector<double>& gt
     sz += d.z() * d.z();
     sxy += d.head<2>().squaredNorm();
     const Eigen::Matrix3d e = (Rotation(est, i) * Rotation(gt, i).conjugate()).toRotationMatrix();
-    const double tilt = std::acos(std::clamp(e(2, 2), -1.0, 1.0)) * 180 / M_PI;  // where world z goes
+    const double tilt =
+        std::acos(std::clamp(e(2, 2), -1.0, 1.0)) * 180 / M_PI;  // where world z goes
     const double yaw = std::atan2(e(1, 0), e(0, 0)) * 180 / M_PI;
     st += tilt * tilt;
     syaw += yaw * yaw;
@@ -59,7 +61,8 @@ void PartialErrors(const std::vector<double>& est, const std::vector<double>& gt
 // Largest change between two pose sets of what F does not observe: xy (m) and the rotation about
 // the world z (degrees; the z part of the rotation vector of R_a R_bᵀ, free of the tilt coupling
 // of an Euler-angle yaw).
-void MaxPlanChange(const std::vector<double>& a, const std::vector<double>& b, double* xy, double* yaw_deg) {
+void MaxPlanChange(const std::vector<double>& a, const std::vector<double>& b, double* xy,
+                   double* yaw_deg) {
   *xy = 0;
   *yaw_deg = 0;
   for (size_t i = 0; i < a.size() / 7; ++i) {
@@ -104,7 +107,8 @@ TEST_F(SolverTest, AllTermsRecoverTheTruth) {
 }
 
 TEST_F(SolverTest, GeometricAloneRecoversRelativeMotion) {
-  for (GeometricMode mode : {GeometricMode::kPoint, GeometricMode::kReprojection, GeometricMode::kLandmark}) {
+  for (GeometricMode mode :
+       {GeometricMode::kPoint, GeometricMode::kReprojection, GeometricMode::kLandmark}) {
     SolverOptions o = OnlyTerms({TermIndex("G"), TermIndex("depth")});
     o.geometric_mode = mode;
     const SolveResult r = Solve(problem.View(), o);
@@ -148,9 +152,11 @@ TEST_F(SolverTest, ColumnAloneReducesItsResiduals) {
 }
 
 // Σ over terms of λ · mean ‖r‖², computed here from the refined poses without the functors.
-double PaperObjective(const OwnedProblem& p, const std::vector<double>& poses, const SolveResult& r) {
+double PaperObjective(const OwnedProblem& p, const std::vector<double>& poses,
+                      const SolveResult& r) {
   auto world = [&](int frame, const double* c) {
-    return Eigen::Vector3d(Rotation(poses, frame) * Eigen::Vector3d(c[0], c[1], c[2]) + Translation(poses, frame));
+    return Eigen::Vector3d(Rotation(poses, frame) * Eigen::Vector3d(c[0], c[1], c[2]) +
+                           Translation(poses, frame));
   };
   double g = 0;
   const double* k = p.cameras.data();
@@ -165,13 +171,17 @@ double PaperObjective(const OwnedProblem& p, const std::vector<double>& poses, c
   double f = 0;
   for (size_t i = 0; i < p.floor_frame.size(); ++i) {
     const double* pl = &p.planes[4 * p.floor_plane[i]];
-    const double d = Eigen::Vector3d(pl[0], pl[1], pl[2]).dot(world(p.floor_frame[i], &p.floor_p_in_cam[3 * i])) + pl[3];
+    const double d = Eigen::Vector3d(pl[0], pl[1], pl[2])
+                         .dot(world(p.floor_frame[i], &p.floor_p_in_cam[3 * i])) +
+                     pl[3];
     f += d * d;
   }
   double ce = 0;
   for (size_t i = 0; i < p.ceiling_frame.size(); ++i) {
     const double* pl = &p.planes[4 * p.ceiling_plane[i]];
-    const double d = Eigen::Vector3d(pl[0], pl[1], pl[2]).dot(world(p.ceiling_frame[i], &p.ceiling_p_in_cam[3 * i])) + pl[3];
+    const double d = Eigen::Vector3d(pl[0], pl[1], pl[2])
+                         .dot(world(p.ceiling_frame[i], &p.ceiling_p_in_cam[3 * i])) +
+                     pl[3];
     ce += d * d;
   }
   double w = 0;
@@ -181,16 +191,19 @@ double PaperObjective(const OwnedProblem& p, const std::vector<double>& poses, c
     if (s < 0) continue;
     const Eigen::Vector3d q = world(p.wall_frame[i], &p.wall_p_in_cam[3 * i]);
     const double* seg = &p.segments[4 * s];
-    const double d = PointToSegmentDistance2D(q.x(), q.y(), Eigen::Vector4d(seg[0], seg[1], seg[2], seg[3]));
+    const double d =
+        PointToSegmentDistance2D(q.x(), q.y(), Eigen::Vector4d(seg[0], seg[1], seg[2], seg[3]));
     w += d * d;
     ++nw;
   }
-  return 1.0 * g / m + 0.02 * f / p.floor_frame.size() + 0.02 * ce / p.ceiling_frame.size() + 0.0007 * w / nw;
+  return 1.0 * g / m + 0.02 * f / p.floor_frame.size() + 0.02 * ce / p.ceiling_frame.size() +
+         0.0007 * w / nw;
 }
 
 TEST_F(SolverTest, PaperObjectiveEqualsThePeersFormula) {
   // The prior is switched on and must still stay out: PAPER weighting is exactly the peers'.
-  SolverOptions o = OnlyTerms({TermIndex("G"), TermIndex("F"), TermIndex("Ce"), TermIndex("W"), TermIndex("prior")});
+  SolverOptions o = OnlyTerms(
+      {TermIndex("G"), TermIndex("F"), TermIndex("Ce"), TermIndex("W"), TermIndex("prior")});
   o.weighting = Weighting::kPaper;
   const SolveResult r = Solve(problem.View(), o);
   ASSERT_TRUE(r.summary.success);
@@ -202,7 +215,8 @@ TEST_F(SolverTest, PaperObjectiveEqualsThePeersFormula) {
   EXPECT_NEAR(r.summary.final_cost, 0.5 * direct_final, 1e-9 * direct_final);
   EXPECT_LT(r.summary.final_paper_objective, r.summary.initial_paper_objective);
   // Hand check of the per-term weights: s = sqrt(λ / N).
-  EXPECT_NEAR(r.summary.terms[TermIndex("F")].sqrt_weight, std::sqrt(0.02 / problem.floor_frame.size()), 1e-15);
+  EXPECT_NEAR(r.summary.terms[TermIndex("F")].sqrt_weight,
+              std::sqrt(0.02 / problem.floor_frame.size()), 1e-15);
 }
 
 TEST_F(SolverTest, PriorHoldsWhatTheFloorDoesNotSee) {
@@ -264,7 +278,8 @@ TEST_F(SolverTest, CovarianceIsSymmetricPositive) {
   ASSERT_TRUE(r.summary.covariance_ok) << r.summary.covariance_message;
   ASSERT_EQ(r.covariance.size(), problem.poses.size() / 7 * 36);
   for (int k = 0; k < 36; ++k) EXPECT_EQ(r.covariance[k], 0.0);  // frame 0 is fixed
-  const Eigen::Map<const Eigen::Matrix<double, 6, 6, Eigen::RowMajor>> c(r.covariance.data() + 36 * 5);
+  const Eigen::Map<const Eigen::Matrix<double, 6, 6, Eigen::RowMajor>> c(r.covariance.data() +
+                                                                         36 * 5);
   EXPECT_NEAR((c - c.transpose()).norm(), 0.0, 1e-12);
   const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> eig(c);
   EXPECT_GT(eig.eigenvalues().minCoeff(), 0.0);
@@ -292,10 +307,9 @@ TEST_F(SolverTest, NonFiniteInitialCostIsAFailureNamingTheTermAndFrame) {
     const char* term;
     const char* frame;  // expected in the message, or null
   };
-  for (const Case& c : {Case{"pose", "G (geometric)", "4"},
-                        Case{"focal", "G (geometric)", nullptr},
-                        Case{"sigma", "W (wall)", nullptr},
-                        Case{"floor point", "F (floor)", nullptr}}) {
+  for (const Case& c :
+       {Case{"pose", "G (geometric)", "4"}, Case{"focal", "G (geometric)", nullptr},
+        Case{"sigma", "W (wall)", nullptr}, Case{"floor point", "F (floor)", nullptr}}) {
     SCOPED_TRACE(c.name);
     OwnedProblem p = problem;
     SolverOptions o;

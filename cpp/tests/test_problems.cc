@@ -1,9 +1,8 @@
 #include "test_problems.h"
 
+#include <Eigen/Geometry>
 #include <cmath>
 #include <random>
-
-#include <Eigen/Geometry>
 
 namespace bimcap::testing {
 namespace {
@@ -74,7 +73,8 @@ OwnedProblem MakeTestProblem(const TestProblemOptions& o) {
   const int n = o.num_frames;
   p.cameras = {kFx, kFy, kCx, kCy};
   p.planes = {0, 0, 1, 0, 0, 0, 1, -kHeight};
-  p.segments = {0, 0, kRoomX, 0, kRoomX, 0, kRoomX, kRoomY, kRoomX, kRoomY, 0, kRoomY, 0, kRoomY, 0, 0};
+  p.segments = {0,      0,      kRoomX, 0,      kRoomX, 0,      kRoomX, kRoomY,
+                kRoomX, kRoomY, 0,      kRoomY, 0,      kRoomY, 0,      0};
   p.segment_class = {1, 1, 1, 1};
   const double c0 = 4.8, c1 = 5.2, r0 = 2.8, r1 = 3.2;  // column
   const double column[] = {c0, r0, c1, r0, c1, r0, c1, r1, c1, r1, c0, r1, c0, r1, c0, r0};
@@ -88,12 +88,14 @@ OwnedProblem MakeTestProblem(const TestProblemOptions& o) {
   double drift_yaw = 0;
   for (int i = 0; i < n; ++i) {
     const double a = 2 * M_PI * i / n;
-    const Eigen::Vector3d t(5 + 3.2 * std::cos(a), 3 + 1.6 * std::sin(a), 1.4 + 0.02 * std::sin(5 * a));
+    const Eigen::Vector3d t(5 + 3.2 * std::cos(a), 3 + 1.6 * std::sin(a),
+                            1.4 + 0.02 * std::sin(5 * a));
     const double yaw = std::atan2(1.6 * std::cos(a), -3.2 * std::sin(a)) + 0.25 * std::sin(3 * a);
     Eigen::Matrix3d base;
     base << 0, 0, 1, -1, 0, 0, 0, -1, 0;  // columns: x_cam, y_cam, z_cam in a yaw-0 world
     const Eigen::Matrix3d r = Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix() *
-                              Eigen::AngleAxisd(0.05 * std::sin(2 * a), Eigen::Vector3d::UnitY()) * base;
+                              Eigen::AngleAxisd(0.05 * std::sin(2 * a), Eigen::Vector3d::UnitY()) *
+                              base;
     gt[i] = {Eigen::Quaterniond(r).normalized(), t};
     if (i > 0) {
       drift_t += o.drift_translation * Eigen::Vector3d(normal(rng), normal(rng), normal(rng));
@@ -112,17 +114,20 @@ OwnedProblem MakeTestProblem(const TestProblemOptions& o) {
   }
 
   auto noisy = [&](const Eigen::Vector3d& v, double s) {
-    return Eigen::Vector3d(v.x() + s * normal(rng), v.y() + s * normal(rng), v.z() + s * normal(rng));
+    return Eigen::Vector3d(v.x() + s * normal(rng), v.y() + s * normal(rng),
+                           v.z() + s * normal(rng));
   };
   auto wall_point = [&](int segment) {
     const double* s = &p.segments[4 * segment];
     const double u = unit(rng);
-    return Eigen::Vector3d(s[0] + u * (s[2] - s[0]), s[1] + u * (s[3] - s[1]), 0.1 + 2.8 * unit(rng));
+    return Eigen::Vector3d(s[0] + u * (s[2] - s[0]), s[1] + u * (s[3] - s[1]),
+                           0.1 + 2.8 * unit(rng));
   };
   // Semantic observations.
   for (int i = 0; i < n; ++i) {
     int floor = 0, ceiling = 0, wall = 0, col = 0;
-    for (int tries = 0; tries < 4000 && (floor < 30 || ceiling < 20 || wall < 40 || col < 8); ++tries) {
+    for (int tries = 0; tries < 4000 && (floor < 30 || ceiling < 20 || wall < 40 || col < 8);
+         ++tries) {
       const int kind = tries % 4;
       Eigen::Vector3d w;
       if (kind == 0) w = {kRoomX * unit(rng), kRoomY * unit(rng), 0};
@@ -134,13 +139,23 @@ OwnedProblem MakeTestProblem(const TestProblemOptions& o) {
       if (!Project(c, &uv)) continue;
       const Eigen::Vector3d m = noisy(c, o.point_noise);
       if (kind == 0 && floor < 30) {
-        ++floor; p.floor_frame.push_back(i); Push(&p.floor_p_in_cam, m); p.floor_plane.push_back(0);
+        ++floor;
+        p.floor_frame.push_back(i);
+        Push(&p.floor_p_in_cam, m);
+        p.floor_plane.push_back(0);
       } else if (kind == 1 && ceiling < 20) {
-        ++ceiling; p.ceiling_frame.push_back(i); Push(&p.ceiling_p_in_cam, m); p.ceiling_plane.push_back(1);
+        ++ceiling;
+        p.ceiling_frame.push_back(i);
+        Push(&p.ceiling_p_in_cam, m);
+        p.ceiling_plane.push_back(1);
       } else if (kind == 2 && wall < 40) {
-        ++wall; p.wall_frame.push_back(i); Push(&p.wall_p_in_cam, m);
+        ++wall;
+        p.wall_frame.push_back(i);
+        Push(&p.wall_p_in_cam, m);
       } else if (kind == 3 && col < 8) {
-        ++col; p.column_frame.push_back(i); Push(&p.column_p_in_cam, m);
+        ++col;
+        p.column_frame.push_back(i);
+        Push(&p.column_p_in_cam, m);
       }
     }
   }
@@ -156,15 +171,19 @@ OwnedProblem MakeTestProblem(const TestProblemOptions& o) {
         if (!Project(ca, &ua) || !Project(cb, &ub)) continue;
         ++count;
         p.match_frames.insert(p.match_frames.end(), {i, j});
-        p.match_uv.insert(p.match_uv.end(), {ua.x() + o.pixel_noise * normal(rng), ua.y() + o.pixel_noise * normal(rng),
-                                             ub.x() + o.pixel_noise * normal(rng), ub.y() + o.pixel_noise * normal(rng)});
-        p.match_depth.insert(p.match_depth.end(), {ca.z() + o.point_noise * normal(rng), cb.z() + o.point_noise * normal(rng)});
+        p.match_uv.insert(
+            p.match_uv.end(),
+            {ua.x() + o.pixel_noise * normal(rng), ua.y() + o.pixel_noise * normal(rng),
+             ub.x() + o.pixel_noise * normal(rng), ub.y() + o.pixel_noise * normal(rng)});
+        p.match_depth.insert(p.match_depth.end(), {ca.z() + o.point_noise * normal(rng),
+                                                   cb.z() + o.point_noise * normal(rng)});
       }
     }
   }
   // Landmarks: a pool of wall points; every frame observes those it sees.
   const int num_points = 15 * n;
-  for (int k = 0; k < num_points; ++k) Push(&p.gt_points, wall_point(static_cast<int>(4 * unit(rng)) % 4));
+  for (int k = 0; k < num_points; ++k)
+    Push(&p.gt_points, wall_point(static_cast<int>(4 * unit(rng)) % 4));
   std::vector<int> first_frame(num_points, -1);
   std::vector<Eigen::Vector3d> first_cam(num_points);
   for (int i = 0; i < n; ++i) {
@@ -175,7 +194,8 @@ OwnedProblem MakeTestProblem(const TestProblemOptions& o) {
       if (!Project(c, &uv)) continue;
       p.track_obs_frame.push_back(i);
       p.track_obs_point.push_back(k);
-      p.track_obs_uv.insert(p.track_obs_uv.end(), {uv.x() + o.pixel_noise * normal(rng), uv.y() + o.pixel_noise * normal(rng)});
+      p.track_obs_uv.insert(p.track_obs_uv.end(), {uv.x() + o.pixel_noise * normal(rng),
+                                                   uv.y() + o.pixel_noise * normal(rng)});
       p.track_obs_depth.push_back(c.z() + o.point_noise * normal(rng));
       if (first_frame[k] < 0) {
         first_frame[k] = i;
@@ -185,8 +205,10 @@ OwnedProblem MakeTestProblem(const TestProblemOptions& o) {
   }
   // Initial landmarks: the first observation placed with the drifted pose.
   for (int k = 0; k < num_points; ++k) {
-    const Eigen::Vector3d w = first_frame[k] < 0 ? Eigen::Vector3d(p.gt_points[3 * k], p.gt_points[3 * k + 1], p.gt_points[3 * k + 2])
-                                                 : Eigen::Vector3d(init[first_frame[k]].q * first_cam[k] + init[first_frame[k]].t);
+    const Eigen::Vector3d w =
+        first_frame[k] < 0
+            ? Eigen::Vector3d(p.gt_points[3 * k], p.gt_points[3 * k + 1], p.gt_points[3 * k + 2])
+            : Eigen::Vector3d(init[first_frame[k]].q * first_cam[k] + init[first_frame[k]].t);
     Push(&p.track_points, w);
   }
   return p;

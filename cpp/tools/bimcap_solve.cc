@@ -5,20 +5,20 @@
 // 4 the outputs could not be written (permission denied, read-only file system, disk full, OUT is
 // a file); the same codes as the `bimcap` command line (docs/reliability.md).
 #include <fcntl.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <cerrno>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <exception>
 #include <iostream>
-#include <cstdlib>
 #include <map>
 #include <stdexcept>
 #include <string>
 #include <utility>
 #include <vector>
-#include <sys/stat.h>
 
 #include "bimcap/problem_file.h"
 #include "bimcap/solver.h"
@@ -39,17 +39,26 @@ class OutputError : public std::runtime_error {
   static std::string Reason(int error) {
     switch (error) {
       case EACCES:
-      case EPERM: return "permission denied";
-      case EROFS: return "read-only file system";
-      case ENOSPC: return "no space left on the device (disk full)";
+      case EPERM:
+        return "permission denied";
+      case EROFS:
+        return "read-only file system";
+      case ENOSPC:
+        return "no space left on the device (disk full)";
 #ifdef EDQUOT
-      case EDQUOT: return "disk quota exceeded";
+      case EDQUOT:
+        return "disk quota exceeded";
 #endif
-      case EFBIG: return "file too large (file-size limit reached)";
-      case ENOTDIR: return "not a directory (a file is in the way)";
-      case EISDIR: return "is a directory";
-      case ENOENT: return "no such file or directory";
-      default: return std::strerror(error);
+      case EFBIG:
+        return "file too large (file-size limit reached)";
+      case ENOTDIR:
+        return "not a directory (a file is in the way)";
+      case EISDIR:
+        return "is a directory";
+      case ENOENT:
+        return "no such file or directory";
+      default:
+        return std::strerror(error);
     }
   }
 };
@@ -64,7 +73,8 @@ const char kUsage[] =
     "\n"
     "  -o, --output OUT   output directory (created if missing)\n"
     "  --info             print the file's header and arrays, then exit\n"
-    "  --set KEY=VALUE    override a solver option stored in the file (e.g. --set max_iterations=50)\n"
+    "  --set KEY=VALUE    override a solver option stored in the file (e.g. --set "
+    "max_iterations=50)\n"
     "  --threads N        shorthand for --set num_threads=N\n"
     "  --quiet            do not print the summary line\n"
     "\n"
@@ -225,8 +235,8 @@ int main(int argc, char** argv) {
   const bimcap::Summary& s = result.summary;
   if (!quiet) {
     std::cout << "bimcap_solve: " << s.termination << ", " << s.iterations << " iterations in "
-              << s.outer_iterations << " rounds, cost " << s.initial_cost << " -> "
-              << s.final_cost << ", " << s.time_s << " s\n";
+              << s.outer_iterations << " rounds, cost " << s.initial_cost << " -> " << s.final_cost
+              << ", " << s.time_s << " s\n";
   }
   if (!s.success) {
     std::cerr << "bimcap_solve: solve failed: " << s.message << "\n";

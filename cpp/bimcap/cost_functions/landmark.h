@@ -2,9 +2,10 @@
 #ifndef BIMCAP_COST_FUNCTIONS_LANDMARK_H_
 #define BIMCAP_COST_FUNCTIONS_LANDMARK_H_
 
-#include <Eigen/Core>
 #include <ceres/autodiff_cost_function.h>
 #include <ceres/sized_cost_function.h>
+
+#include <Eigen/Core>
 
 #include "bimcap/cost_functions/reprojection.h"
 #include "bimcap/pose.h"
@@ -14,7 +15,8 @@ namespace bimcap {
 // Classic bundle-adjustment reprojection error of a landmark X observed at undistorted pixel uv
 // by a pinhole camera K = [fx, fy, cx, cy]:
 //
-//   p = Rᵀ (X − t),   r = s · ( [fx p.x / p.z + cx,  fy p.y / p.z + cy] − uv )     (2 residuals, px)
+//   p = Rᵀ (X − t),   r = s · ( [fx p.x / p.z + cx,  fy p.y / p.z + cy] − uv )     (2 residuals,
+//   px)
 //
 // A landmark behind the camera gives a zero residual (as in COLMAP).
 // Parameter blocks:
@@ -73,11 +75,13 @@ class LandmarkReprojectionCostFunction final : public ceres::SizedCostFunction<2
     const bool jac = jac_pose || jac_point;
     Eigen::Matrix3d d_world;
     Eigen::Matrix<double, 3, 4> d_q;
-    const Eigen::Vector3d p = WorldToCamWithJacobian(
-        parameters[0], Eigen::Map<const Eigen::Vector3d>(parameters[1]), jac ? &d_world : nullptr,
-        jac_pose ? &d_q : nullptr);
-    Eigen::Map<Eigen::Matrix<double, 2, kPoseSize, Eigen::RowMajor>> j_pose(jac_pose ? jacobians[0] : nullptr);
-    Eigen::Map<Eigen::Matrix<double, 2, 3, Eigen::RowMajor>> j_point(jac_point ? jacobians[1] : nullptr);
+    const Eigen::Vector3d p =
+        WorldToCamWithJacobian(parameters[0], Eigen::Map<const Eigen::Vector3d>(parameters[1]),
+                               jac ? &d_world : nullptr, jac_pose ? &d_q : nullptr);
+    Eigen::Map<Eigen::Matrix<double, 2, kPoseSize, Eigen::RowMajor>> j_pose(jac_pose ? jacobians[0]
+                                                                                     : nullptr);
+    Eigen::Map<Eigen::Matrix<double, 2, 3, Eigen::RowMajor>> j_point(jac_point ? jacobians[1]
+                                                                               : nullptr);
     double projected[2];
     if (!ProjectPinhole(intrinsics_.data(), p, projected)) {
       residuals[0] = 0.0;

@@ -2,9 +2,10 @@
 #ifndef BIMCAP_COST_FUNCTIONS_POINT_CONSISTENCY_H_
 #define BIMCAP_COST_FUNCTIONS_POINT_CONSISTENCY_H_
 
-#include <Eigen/Core>
 #include <ceres/autodiff_cost_function.h>
 #include <ceres/sized_cost_function.h>
+
+#include <Eigen/Core>
 
 #include "bimcap/pose.h"
 
@@ -50,7 +51,8 @@ struct PointConsistencyCostFunctor {
 
 // PointConsistencyCostFunctor with hand-written Jacobians (what the builder uses: the term is hot):
 //   ∂r/∂pose_a = s [I, ∂(R_a p_a)/∂q_a],   ∂r/∂pose_b = −s [I, ∂(R_b p_b)/∂q_b]   (3 x 7 each).
-class PointConsistencyCostFunction final : public ceres::SizedCostFunction<3, kPoseSize, kPoseSize> {
+class PointConsistencyCostFunction final
+    : public ceres::SizedCostFunction<3, kPoseSize, kPoseSize> {
  public:
   PointConsistencyCostFunction(const Eigen::Vector3d& p_a_in_cam, const Eigen::Vector3d& p_b_in_cam,
                                double sqrt_weight)
@@ -93,7 +95,8 @@ class PointConsistencyCostFunction final : public ceres::SizedCostFunction<3, kP
 
 // The camera-frame point at z-depth `depth` through undistorted pixel (u, v) of a pinhole camera
 // [fx, fy, cx, cy]: ((u − cx)/fx · depth, (v − cy)/fy · depth, depth).
-inline Eigen::Vector3d BackprojectPixel(const double* intrinsics, double u, double v, double depth) {
+inline Eigen::Vector3d BackprojectPixel(const double* intrinsics, double u, double v,
+                                        double depth) {
   return Eigen::Vector3d((u - intrinsics[2]) / intrinsics[0] * depth,
                          (v - intrinsics[3]) / intrinsics[1] * depth, depth);
 }

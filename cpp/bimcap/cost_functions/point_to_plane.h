@@ -2,9 +2,10 @@
 #ifndef BIMCAP_COST_FUNCTIONS_POINT_TO_PLANE_H_
 #define BIMCAP_COST_FUNCTIONS_POINT_TO_PLANE_H_
 
-#include <Eigen/Core>
 #include <ceres/autodiff_cost_function.h>
 #include <ceres/sized_cost_function.h>
+
+#include <Eigen/Core>
 
 #include "bimcap/pose.h"
 
@@ -31,8 +32,7 @@ struct PointToPlaneCostFunctor {
   template <typename T>
   bool operator()(const T* const world_from_cam, T* residuals) const {
     const Eigen::Matrix<T, 3, 1> p_in_world = CamToWorld(world_from_cam, p_in_cam.cast<T>().eval());
-    residuals[0] =
-        T(sqrt_weight) * (plane.head<3>().cast<T>().dot(p_in_world) + T(plane[3]));
+    residuals[0] = T(sqrt_weight) * (plane.head<3>().cast<T>().dot(p_in_world) + T(plane[3]));
     return true;
   }
 

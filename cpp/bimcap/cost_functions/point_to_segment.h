@@ -2,11 +2,11 @@
 #ifndef BIMCAP_COST_FUNCTIONS_POINT_TO_SEGMENT_H_
 #define BIMCAP_COST_FUNCTIONS_POINT_TO_SEGMENT_H_
 
-#include <cmath>
-
-#include <Eigen/Core>
 #include <ceres/autodiff_cost_function.h>
 #include <ceres/sized_cost_function.h>
+
+#include <Eigen/Core>
+#include <cmath>
 
 #include "bimcap/pose.h"
 
@@ -126,8 +126,8 @@ class PointToSegmentCostFunction final : public ceres::SizedCostFunction<1, kPos
     const Eigen::Vector3d p_in_world =
         CamToWorldWithJacobian(parameters[0], p_in_cam_, jac ? &d_dq : nullptr);
     Eigen::Vector2d g;
-    residuals[0] = sqrt_weight_ *
-                   PointToSegmentDistance2DWithGradient(p_in_world.x(), p_in_world.y(), segment_, &g);
+    residuals[0] = sqrt_weight_ * PointToSegmentDistance2DWithGradient(
+                                      p_in_world.x(), p_in_world.y(), segment_, &g);
     if (jac) {
       Eigen::Map<Eigen::Matrix<double, 1, kPoseSize>> j(jacobians[0]);
       g *= sqrt_weight_;

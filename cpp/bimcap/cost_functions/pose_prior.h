@@ -2,9 +2,10 @@
 #ifndef BIMCAP_COST_FUNCTIONS_POSE_PRIOR_H_
 #define BIMCAP_COST_FUNCTIONS_POSE_PRIOR_H_
 
+#include <ceres/autodiff_cost_function.h>
+
 #include <Eigen/Core>
 #include <Eigen/Geometry>
-#include <ceres/autodiff_cost_function.h>
 
 #include "bimcap/pose.h"
 
@@ -15,7 +16,8 @@ namespace bimcap {
 // This residual holds a pose near its initial value world_from_cam0 = [t0, q0]:
 //
 //   δq = q0⁻¹ ⊗ q, sign chosen so that δq.w >= 0 (q and −q give the same residual)
-//   r  = [ (t − t0) / sigma_t ;  2 · vec(δq) / sigma_r ]                     (6 residuals, in sigmas)
+//   r  = [ (t − t0) / sigma_t ;  2 · vec(δq) / sigma_r ]                     (6 residuals, in
+//   sigmas)
 //
 // 2 · vec(δq) = 2 sin(θ/2) · axis ≈ θ · axis (rad), the rotation from q0 to q in q0's frame.
 // sigma_t in metres, sigma_r in radians. q0 is normalised here; q is unit (the manifold keeps it).

@@ -2,9 +2,10 @@
 #ifndef BIMCAP_COST_FUNCTIONS_RELATIVE_POSE_H_
 #define BIMCAP_COST_FUNCTIONS_RELATIVE_POSE_H_
 
+#include <ceres/autodiff_cost_function.h>
+
 #include <Eigen/Core>
 #include <Eigen/Geometry>
-#include <ceres/autodiff_cost_function.h>
 
 #include "bimcap/pose.h"
 
@@ -18,7 +19,8 @@ namespace bimcap {
 //   t_ab0 = R_a0ᵀ (t_b0 − t_a0),   q_ab0 = q_a0⁻¹ ⊗ q_b0                      (from the input)
 //   t_ab  = R_aᵀ (t_b − t_a),      q_ab  = q_a⁻¹ ⊗ q_b                        (current)
 //   δq = q_ab0⁻¹ ⊗ q_ab, sign chosen so that δq.w >= 0
-//   r  = [ (t_ab − t_ab0) / sigma_t ;  2 · vec(δq) / sigma_r ]                 (6 residuals, in sigmas)
+//   r  = [ (t_ab − t_ab0) / sigma_t ;  2 · vec(δq) / sigma_r ]                 (6 residuals, in
+//   sigmas)
 //
 // sigma_t in metres (in frame a), sigma_r in radians; both wide (the drift's per-frame noise),
 // so that wherever the data see a frame they win.

@@ -2,8 +2,9 @@
 #ifndef BIMCAP_COST_FUNCTIONS_REPROJECTION_H_
 #define BIMCAP_COST_FUNCTIONS_REPROJECTION_H_
 
-#include <Eigen/Core>
 #include <ceres/autodiff_cost_function.h>
+
+#include <Eigen/Core>
 
 #include "bimcap/pose.h"
 
@@ -58,8 +59,7 @@ struct ReprojectionCostFunctor {
         pixel_sigma(pixel_sigma),
         depth_sigma(depth_sigma) {}
 
-  static ceres::CostFunction* Create(const Eigen::Vector3d& p_a_in_cam,
-                                     const Eigen::Vector2d& uv_b,
+  static ceres::CostFunction* Create(const Eigen::Vector3d& p_a_in_cam, const Eigen::Vector2d& uv_b,
                                      const Eigen::Vector4d& intrinsics_b, double sqrt_weight,
                                      double pixel_sigma = 1.0, double depth_sigma = 0.0) {
     return new ceres::AutoDiffCostFunction<ReprojectionCostFunctor, 2, kPoseSize, kPoseSize>(

@@ -59,24 +59,22 @@ void AddMatches(ProblemBuilder& builder, int term_id) {
     if (reprojection) {
       if (depth_a > 0) {
         term.ids.push_back(builder.problem().AddResidualBlock(
-            ReprojectionCostFunctor::Create(BackprojectPixel(k_a, uv[0], uv[1], depth_a),
-                                            Eigen::Vector2d(uv[2], uv[3]),
-                                            Eigen::Vector4d(k_b[0], k_b[1], k_b[2], k_b[3]), s,
-                                            pixel_sigma, depth_sigma),
+            ReprojectionCostFunctor::Create(
+                BackprojectPixel(k_a, uv[0], uv[1], depth_a), Eigen::Vector2d(uv[2], uv[3]),
+                Eigen::Vector4d(k_b[0], k_b[1], k_b[2], k_b[3]), s, pixel_sigma, depth_sigma),
             loss, builder.Pose(a), builder.Pose(b)));
       }
       if (depth_b > 0) {
         term.ids.push_back(builder.problem().AddResidualBlock(
-            ReprojectionCostFunctor::Create(BackprojectPixel(k_b, uv[2], uv[3], depth_b),
-                                            Eigen::Vector2d(uv[0], uv[1]),
-                                            Eigen::Vector4d(k_a[0], k_a[1], k_a[2], k_a[3]), s,
-                                            pixel_sigma, depth_sigma),
+            ReprojectionCostFunctor::Create(
+                BackprojectPixel(k_b, uv[2], uv[3], depth_b), Eigen::Vector2d(uv[0], uv[1]),
+                Eigen::Vector4d(k_a[0], k_a[1], k_a[2], k_a[3]), s, pixel_sigma, depth_sigma),
             loss, builder.Pose(b), builder.Pose(a)));
       }
     } else if (depth_a > 0 && depth_b > 0) {
       term.ids.push_back(builder.problem().AddResidualBlock(
           PointConsistencyCostFunction::Create(BackprojectPixel(k_a, uv[0], uv[1], depth_a),
-                                              BackprojectPixel(k_b, uv[2], uv[3], depth_b), s),
+                                               BackprojectPixel(k_b, uv[2], uv[3], depth_b), s),
           loss, builder.Pose(a), builder.Pose(b)));
     }
   }
@@ -175,9 +173,13 @@ void CheckGeometric(const ProblemData& p) {
 
 TermSpec GeometricTerm() {
   return TermSpec{
-      "G", "geometric", "geometric",
+      "G",
+      "geometric",
+      "geometric",
       "feature matches: point consistency (m), two-frame reprojection (px) or landmark BA (px)",
-      /*paper_term=*/true, /*bim_term=*/false, TermOptions{true, 1.0, 1.0, 0.05, LossType::kHuber, 1.0, {}},
+      /*paper_term=*/true,
+      /*bim_term=*/false,
+      TermOptions{true, 1.0, 1.0, 0.05, LossType::kHuber, 1.0, {}},
       {{"match_frames", DType::kInt32, 2},
        {"match_uv", DType::kFloat64, 4},
        {"match_depth", DType::kFloat64, 2},
@@ -186,17 +188,28 @@ TermSpec GeometricTerm() {
        {"track_obs_uv", DType::kFloat64, 2},
        {"track_obs_depth", DType::kFloat64, 0},
        {"track_points", DType::kFloat64, 3}},
-      {}, /*segment_class=*/0, /*facap_plane=*/false, /*points=*/"", CheckGeometric,
+      {},
+      /*segment_class=*/0,
+      /*facap_plane=*/false,
+      /*points=*/"",
+      CheckGeometric,
       AddGeometric};
 }
 
 TermSpec LandmarkDepthTerm() {
   return TermSpec{
-      "depth", "depth", "landmark depth",
+      "depth",
+      "depth",
+      "landmark depth",
       "landmark BA only: a landmark's depth in its camera against the observed depth (m)",
-      /*paper_term=*/true, /*bim_term=*/false, TermOptions{true, 1.0, 1.0, 0.05, LossType::kHuber, 1.0, {}},
+      /*paper_term=*/true,
+      /*bim_term=*/false,
+      TermOptions{true, 1.0, 1.0, 0.05, LossType::kHuber, 1.0, {}},
       {{"track_obs_depth", DType::kFloat64, 0}},
-      {}, /*segment_class=*/0, /*facap_plane=*/false, /*points=*/"",
+      {},
+      /*segment_class=*/0,
+      /*facap_plane=*/false,
+      /*points=*/"",
       [](const ProblemData&) {},  // its arrays are G's, checked there
       AddLandmarkDepth};
 }

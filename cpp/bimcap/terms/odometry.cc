@@ -29,8 +29,7 @@ void AddOdometry(ProblemBuilder& builder, int term_id) {
   const double sigma_r = options.param("sigma_r_deg") * M_PI / 180.0;
   for (const int64_t a : pairs) {
     term.ids.push_back(builder.problem().AddResidualBlock(
-        RelativePoseCostFunctor::Create(data.poses.row(a), data.poses.row(a + 1), sigma_t,
-                                        sigma_r),
+        RelativePoseCostFunctor::Create(data.poses.row(a), data.poses.row(a + 1), sigma_t, sigma_r),
         loss, builder.Pose(a), builder.Pose(a + 1)));
   }
   term.num_residual_blocks = static_cast<int64_t>(pairs.size());
@@ -40,13 +39,21 @@ void AddOdometry(ProblemBuilder& builder, int term_id) {
 
 TermSpec OdometryTerm() {
   return TermSpec{
-      "odometry", "odometry", "odometry",
+      "odometry",
+      "odometry",
+      "odometry",
       "consecutive frames keep the input's relative motion: translation / sigma (m), rotation "
       "/ sigma_r_deg",
-      /*paper_term=*/false, /*bim_term=*/false, TermOptions{true, 0.0, 1.0, 0.3, LossType::kNone, 1.0, {}},
-      /*arrays=*/{}, {{"sigma_r_deg", 15.0, "the rotation scale, degrees"}},
-      /*segment_class=*/0, /*facap_plane=*/false, /*points=*/"",
-      [](const ProblemData&) {}, AddOdometry};
+      /*paper_term=*/false,
+      /*bim_term=*/false,
+      TermOptions{true, 0.0, 1.0, 0.3, LossType::kNone, 1.0, {}},
+      /*arrays=*/{},
+      {{"sigma_r_deg", 15.0, "the rotation scale, degrees"}},
+      /*segment_class=*/0,
+      /*facap_plane=*/false,
+      /*points=*/"",
+      [](const ProblemData&) {},
+      AddOdometry};
 }
 
 }  // namespace bimcap

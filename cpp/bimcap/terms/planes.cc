@@ -61,7 +61,7 @@ void AddPlaneTerm(ProblemBuilder& builder, int term_id) {
       const double* pl = data.F64("planes").row(plane(i));
       term.ids.push_back(builder.problem().AddResidualBlock(
           PointToPlaneCostFunction::Create(p, Eigen::Vector4d(pl[0], pl[1], pl[2], pl[3]),
-                                          term.sqrt_weight),
+                                           term.sqrt_weight),
           loss, builder.Pose(frame(i))));
     }
   }
@@ -71,27 +71,43 @@ void AddPlaneTerm(ProblemBuilder& builder, int term_id) {
 }  // namespace
 
 TermSpec FloorTerm() {
-  return TermSpec{
-      "F", "floor", "floor", "floor points to the floor plane, n·(world_from_cam p) + d (m)",
-      /*paper_term=*/true, /*bim_term=*/true, TermOptions{true, 0.02, 1.0, 0.02, LossType::kHuber, 1.0, {}},
-      {{"floor_frame", DType::kInt32, 0},
-       {"floor_p_in_cam", DType::kFloat64, 3},
-       {"floor_plane", DType::kInt32, 0},
-       {"planes", DType::kFloat64, 4}},
-      {}, /*segment_class=*/0, /*facap_plane=*/true, /*points=*/"floor",
-      [](const ProblemData& p) { CheckPlaneTerm(p, "floor"); }, AddPlaneTerm};
+  return TermSpec{"F",
+                  "floor",
+                  "floor",
+                  "floor points to the floor plane, n·(world_from_cam p) + d (m)",
+                  /*paper_term=*/true,
+                  /*bim_term=*/true,
+                  TermOptions{true, 0.02, 1.0, 0.02, LossType::kHuber, 1.0, {}},
+                  {{"floor_frame", DType::kInt32, 0},
+                   {"floor_p_in_cam", DType::kFloat64, 3},
+                   {"floor_plane", DType::kInt32, 0},
+                   {"planes", DType::kFloat64, 4}},
+                  {},
+                  /*segment_class=*/0,
+                  /*facap_plane=*/true,
+                  /*points=*/"floor",
+                  [](const ProblemData& p) { CheckPlaneTerm(p, "floor"); },
+                  AddPlaneTerm};
 }
 
 TermSpec CeilingTerm() {
-  return TermSpec{
-      "Ce", "ceiling", "ceiling", "ceiling points to the ceiling plane, n·(world_from_cam p) + d (m)",
-      /*paper_term=*/true, /*bim_term=*/true, TermOptions{true, 0.02, 1.0, 0.02, LossType::kHuber, 1.0, {}},
-      {{"ceiling_frame", DType::kInt32, 0},
-       {"ceiling_p_in_cam", DType::kFloat64, 3},
-       {"ceiling_plane", DType::kInt32, 0},
-       {"planes", DType::kFloat64, 4}},
-      {}, /*segment_class=*/0, /*facap_plane=*/true, /*points=*/"ceiling",
-      [](const ProblemData& p) { CheckPlaneTerm(p, "ceiling"); }, AddPlaneTerm};
+  return TermSpec{"Ce",
+                  "ceiling",
+                  "ceiling",
+                  "ceiling points to the ceiling plane, n·(world_from_cam p) + d (m)",
+                  /*paper_term=*/true,
+                  /*bim_term=*/true,
+                  TermOptions{true, 0.02, 1.0, 0.02, LossType::kHuber, 1.0, {}},
+                  {{"ceiling_frame", DType::kInt32, 0},
+                   {"ceiling_p_in_cam", DType::kFloat64, 3},
+                   {"ceiling_plane", DType::kInt32, 0},
+                   {"planes", DType::kFloat64, 4}},
+                  {},
+                  /*segment_class=*/0,
+                  /*facap_plane=*/true,
+                  /*points=*/"ceiling",
+                  [](const ProblemData& p) { CheckPlaneTerm(p, "ceiling"); },
+                  AddPlaneTerm};
 }
 
 }  // namespace bimcap

@@ -2,11 +2,12 @@
 // before it put into the problem is held near its input pose,
 // r = [(t − t0) / sigma ; 2 vec(q0⁻¹ q) / sigma_r] (whitened, pose_prior.h), plain L2. It
 // anchors the degrees of freedom the other terms leave unobserved.
+#include "bimcap/cost_functions/pose_prior.h"
+
 #include <cmath>
 #include <vector>
 
 #include "bimcap/builder.h"
-#include "bimcap/cost_functions/pose_prior.h"
 #include "bimcap/terms.h"
 
 namespace bimcap {
@@ -39,12 +40,20 @@ void AddPosePrior(ProblemBuilder& builder, int term_id) {
 
 TermSpec PosePriorTerm() {
   return TermSpec{
-      "prior", "prior", "pose prior",
+      "prior",
+      "prior",
+      "pose prior",
       "each free pose near its input pose: translation / sigma (m), rotation / sigma_r_deg",
-      /*paper_term=*/false, /*bim_term=*/false, TermOptions{true, 0.0, 1.0, 2.0, LossType::kNone, 1.0, {}},
-      /*arrays=*/{}, {{"sigma_r_deg", 20.0, "the rotation scale, degrees"}},
-      /*segment_class=*/0, /*facap_plane=*/false, /*points=*/"",
-      [](const ProblemData&) {}, AddPosePrior};
+      /*paper_term=*/false,
+      /*bim_term=*/false,
+      TermOptions{true, 0.0, 1.0, 2.0, LossType::kNone, 1.0, {}},
+      /*arrays=*/{},
+      {{"sigma_r_deg", 20.0, "the rotation scale, degrees"}},
+      /*segment_class=*/0,
+      /*facap_plane=*/false,
+      /*points=*/"",
+      [](const ProblemData&) {},
+      AddPosePrior};
 }
 
 }  // namespace bimcap

@@ -28,7 +28,8 @@ void CheckSegments(const ProblemData& p) {
   for (int64_t i = 0; i < s; ++i) {
     const int32_t cls = segment_class(i);
     bool known = false;
-    for (const TermSpec& term : Terms()) known = known || (term.segment_class > 0 && cls == term.segment_class);
+    for (const TermSpec& term : Terms())
+      known = known || (term.segment_class > 0 && cls == term.segment_class);
     if (!known) {
       throw ProblemError("segment_class", "row " + std::to_string(i) + ": class " +
                                               std::to_string(cls) +
@@ -87,40 +88,51 @@ void AddSegmentTerm(ProblemBuilder& builder, int term_id) {
 }
 
 std::vector<ArraySpec> SegmentArrays(const char* frame, const char* p_in_cam) {
-  return {{frame, DType::kInt32, 0},
-          {p_in_cam, DType::kFloat64, 3},
-          {"segments", DType::kFloat64, 4},
-          {"segment_class", DType::kInt32, 0},
-          {"segment_z", DType::kFloat64, 2},
-          {"segment_normal", DType::kFloat64, 2}};
+  return {{frame, DType::kInt32, 0},         {p_in_cam, DType::kFloat64, 3},
+          {"segments", DType::kFloat64, 4},  {"segment_class", DType::kInt32, 0},
+          {"segment_z", DType::kFloat64, 2}, {"segment_normal", DType::kFloat64, 2}};
 }
 
 }  // namespace
 
 TermSpec WallTerm() {
-  return TermSpec{
-      "W", "wall", "wall", "wall points to their wall segment, xy distance (m)",
-      /*paper_term=*/true, /*bim_term=*/true, TermOptions{true, 0.0007, 1.0, 0.05, LossType::kHuber, 1.0, {}},
-      SegmentArrays("wall_frame", "wall_p_in_cam"), {}, /*segment_class=*/1,
-      /*facap_plane=*/false, /*points=*/"wall",
-      [](const ProblemData& p) {
-        CheckPointsInCamera(p, "wall");
-        CheckSegments(p);
-      },
-      AddSegmentTerm};
+  return TermSpec{"W",
+                  "wall",
+                  "wall",
+                  "wall points to their wall segment, xy distance (m)",
+                  /*paper_term=*/true,
+                  /*bim_term=*/true,
+                  TermOptions{true, 0.0007, 1.0, 0.05, LossType::kHuber, 1.0, {}},
+                  SegmentArrays("wall_frame", "wall_p_in_cam"),
+                  {},
+                  /*segment_class=*/1,
+                  /*facap_plane=*/false,
+                  /*points=*/"wall",
+                  [](const ProblemData& p) {
+                    CheckPointsInCamera(p, "wall");
+                    CheckSegments(p);
+                  },
+                  AddSegmentTerm};
 }
 
 TermSpec ColumnTerm() {
-  return TermSpec{
-      "Co", "column", "column", "column points to their column segment, xy distance (m)",
-      /*paper_term=*/true, /*bim_term=*/true, TermOptions{true, 0.0007, 1.0, 0.05, LossType::kHuber, 1.0, {}},
-      SegmentArrays("column_frame", "column_p_in_cam"), {}, /*segment_class=*/4,
-      /*facap_plane=*/false, /*points=*/"column",
-      [](const ProblemData& p) {
-        CheckPointsInCamera(p, "column");
-        CheckSegments(p);
-      },
-      AddSegmentTerm};
+  return TermSpec{"Co",
+                  "column",
+                  "column",
+                  "column points to their column segment, xy distance (m)",
+                  /*paper_term=*/true,
+                  /*bim_term=*/true,
+                  TermOptions{true, 0.0007, 1.0, 0.05, LossType::kHuber, 1.0, {}},
+                  SegmentArrays("column_frame", "column_p_in_cam"),
+                  {},
+                  /*segment_class=*/4,
+                  /*facap_plane=*/false,
+                  /*points=*/"column",
+                  [](const ProblemData& p) {
+                    CheckPointsInCamera(p, "column");
+                    CheckSegments(p);
+                  },
+                  AddSegmentTerm};
 }
 
 }  // namespace bimcap
