@@ -9,6 +9,9 @@ cmake -S . -B build/ctest -G Ninja -DCMAKE_BUILD_TYPE=Release -DBIMCAP_BUILD_TES
 cmake --build build/ctest -j "$(nproc)"
 ctest --test-dir build/ctest --output-on-failure -j "$(nproc)"
 
+echo "==> Lint (ruff)"
+.venv/bin/python -m ruff check python tests bench
+
 echo "==> Type checks (mypy, strict on bimcap.optimize, .geometry, .evaluation, .io: see pyproject.toml)"
 .venv/bin/python -m mypy python/bimcap/optimize python/bimcap/geometry python/bimcap/evaluation python/bimcap/io
 
