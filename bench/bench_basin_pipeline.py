@@ -13,9 +13,10 @@ least 95 % of the seeds converge.
 
 Usage (two processes on two cores: split the seeds, then summarise both files)::
 
-    PYTHONPATH=python python bench/bench_basin_pipeline.py --work /tmp/basin --levels 0.5,1,1.5,2,2.5 \
-        --seeds 1-10 --out /tmp/basin/a.csv
-    PYTHONPATH=python python bench/bench_basin_pipeline.py --summarise /tmp/basin/a.csv /tmp/basin/b.csv
+    PYTHONPATH=python python bench/bench_basin_pipeline.py --work /tmp/basin \
+        --levels 0.5,1,1.5,2,2.5 --seeds 1-10 --out /tmp/basin/a.csv
+    PYTHONPATH=python python bench/bench_basin_pipeline.py \
+        --summarise /tmp/basin/a.csv /tmp/basin/b.csv
 """
 
 from __future__ import annotations
@@ -108,8 +109,8 @@ def summarise(paths: list[str]) -> None:
           + " | ".join(f"{v}: converged, median ATE_pos / ATE_rot, median time" for v in variants)
           + " |")
     print("|---|---|" + "---|" * len(variants))
-    basin: dict[str, float | None] = {v: None for v in variants}
-    broken = {v: False for v in variants}  # the basin ends at the first level that fails
+    basin: dict[str, float | None] = dict.fromkeys(variants)
+    broken = dict.fromkeys(variants, False)  # the basin ends at the first level that fails
     for k in levels:
         at = [r for r in rows if float(r["level"]) == k]
         init = at[0]

@@ -5,8 +5,9 @@
 Part 1 runs ``bimcap bim MODEL -o TMP`` on each shared model and on a generated 3-storey building,
 each in a fresh process (imports included), and prints wall time, CPU time (user + system, all
 threads) and peak memory (target: Duplex < 15 s on the project's 2-core machine; the machine is
-shared, so compare CPU time when the wall time looks off). Part 2 compares the rough detectors (Hough / LSD / contour, each
-followed by the same refinement and merging) by coverage / precision against the exact slice
+shared, so compare CPU time when the wall time looks off). Part 2 compares the rough detectors
+(Hough / LSD / contour, each followed by the same refinement and merging) by coverage / precision
+against the exact slice
 and by time: the numbers behind the default (``Vectorizer.HOUGH``).
 """
 

@@ -30,7 +30,7 @@ import numpy as np
 TERMS = ("G+F+W+Co", "G+F+W+Co+Ce")
 
 
-def coverage(seq, prepared) -> None:  # noqa: ANN001  (bench script)
+def coverage(seq, prepared) -> None:  # bench script
     from bimcap.fusion import project_lidar
     from bimcap.labels import Label
     from bimcap.pipeline.refine import build_problem

@@ -24,13 +24,13 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("MKL_NUM_THREADS", "1")
 
-import numpy as np  # noqa: E402
+import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tests"))
 
 
-def _camera():  # noqa: ANN202
+def _camera():
     from bimcap.geometry.camera import Camera
 
     conslam = Camera(
@@ -40,7 +40,7 @@ def _camera():  # noqa: ANN202
     return conslam.scaled(0.5)
 
 
-def _timed(fn, *args, repeat: int = 1, **kwargs):  # noqa: ANN001, ANN202
+def _timed(fn, *args, repeat: int = 1, **kwargs):
     """Result and the best process CPU time of ``repeat`` calls.
 
     Everything runs on one thread, so CPU time is the single-core cost even on a loaded machine
@@ -58,7 +58,6 @@ def _timed(fn, *args, repeat: int = 1, **kwargs):  # noqa: ANN001, ANN202
 def bench_features(frames: int, window: int, pycolmap_matcher: bool) -> list[tuple[str, str, str]]:
     """Rows ``(step, time per frame or pair, accuracy / count)``."""
     from _frontend_scene import SceneSequence, default_poses
-
     from bimcap.features import (
         MatcherBackend,
         MatchOptions,
@@ -106,7 +105,7 @@ def bench_features(frames: int, window: int, pycolmap_matcher: bool) -> list[tup
             )
 
         f = feats["pycolmap"]
-        kp_depth = [lookup_depth(d, ff.uv) for d, ff in zip(depth, f)]
+        kp_depth = [lookup_depth(d, ff.uv) for d, ff in zip(depth, f, strict=True)]
         pairs = sequential_pairs(frames, window)
         t_match, t_ver, t_fund, errs, n_put, n_inl = [], [], [], [], [], []
         for a, b in pairs:
@@ -123,8 +122,10 @@ def bench_features(frames: int, window: int, pycolmap_matcher: bool) -> list[tup
             t_fund.append(t)
             da, db = kp_depth[a][inl[:, 0]], kp_depth[b][inl[:, 1]]
             ok = (da > 0) & (db > 0)
-            pa = transform_points(seq.gt[a], pin.backproject(f[a].uv[inl[ok, 0]], da[ok], distorted=False))
-            pb = transform_points(seq.gt[b], pin.backproject(f[b].uv[inl[ok, 1]], db[ok], distorted=False))
+            pa = transform_points(seq.gt[a],
+                                  pin.backproject(f[a].uv[inl[ok, 0]], da[ok], distorted=False))
+            pb = transform_points(seq.gt[b],
+                                  pin.backproject(f[b].uv[inl[ok, 1]], db[ok], distorted=False))
             errs.append(np.linalg.norm(pa - pb, axis=1))
         e = np.concatenate(errs)
         per_frame = window  # pairs per frame in steady state (fewer at the sequence's end)
@@ -148,7 +149,8 @@ def bench_features(frames: int, window: int, pycolmap_matcher: bool) -> list[tup
         sift_t = float(rows[1][1].split()[0]) / 1e3
         pair_t = np.mean(t_match) + np.mean(t_ver)
         rows.append(
-            (f"SIFT + matching, window {window}", f"{1e3 * (sift_t + per_frame * pair_t):.0f} ms/frame",
+            (f"SIFT + matching, window {window}",
+             f"{1e3 * (sift_t + per_frame * pair_t):.0f} ms/frame",
              f"{1.0 / (sift_t + per_frame * pair_t):.2f} frames/s/core")
         )
         from bimcap.frontend import (

@@ -21,15 +21,15 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("MKL_NUM_THREADS", "1")
 
-import argparse  # noqa: E402
-import sys  # noqa: E402
-import tempfile  # noqa: E402
-import time  # noqa: E402
-from collections.abc import Callable  # noqa: E402
-from pathlib import Path  # noqa: E402
-from typing import Any  # noqa: E402
+import argparse
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
 
-import numpy as np  # noqa: E402
+import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "python"))
@@ -127,7 +127,7 @@ def main() -> None:
 
     def depth_acc(preds: list[np.ndarray], valid: list[np.ndarray] | None = None) -> str:
         errs = [depth_errors(p, f.depth, None if valid is None else v) for p, f, v in
-                zip(preds, frames, valid or [None] * len(preds))]
+                zip(preds, frames, valid or [None] * len(preds), strict=True)]
         errs = [e for e in errs if e.n > 0]
         if not errs:
             return "no pixels"
@@ -141,26 +141,42 @@ def main() -> None:
     # projection
     sparse, t = [], []
     for f in frames:
-        sp, c, w = _timed(lambda f=f: project_lidar(f.points_in_lidar, f.cam_from_lidar, f.camera), args.repeat)
+        sp, c, w = _timed(lambda f=f: project_lidar(f.points_in_lidar, f.cam_from_lidar, f.camera),
+                          args.repeat)
         sparse.append(sp)
         t.append((c, w))
     kept = np.mean([s.counts["kept"] for s in sparse])
-    record("projection (z-buffer + parallax test)", t, f"{kept:.0f} returns kept / frame, " + depth_acc([s.depth for s in sparse]))
+    record("projection (z-buffer + parallax test)", t,
+           f"{kept:.0f} returns kept / frame, " + depth_acc([s.depth for s in sparse]))
 
     methods: list[tuple[str, Callable[[Any, Any], np.ndarray]]] = [
         ("nearest-neighbour fill (baseline)", lambda sp, f: fill_nearest(sp)),
-        ("LINEAR (Delaunay, 1/z)", lambda sp, f: complete_depth(sp, CompletionOptions(CompletionMethod.LINEAR))),
-        ("CLASSICAL (Ku + ring interp., work ½)", lambda sp, f: complete_depth(sp, CompletionOptions(CompletionMethod.CLASSICAL))),
-        ("CLASSICAL (work 1/1)", lambda sp, f: complete_depth(sp, CompletionOptions(CompletionMethod.CLASSICAL, classical=ClassicalOptions(work_scale=1.0, max_gap_px=80)))),
-        ("CLASSICAL Ku only (work ½)", lambda sp, f: complete_depth(sp, CompletionOptions(CompletionMethod.CLASSICAL, classical=ClassicalOptions(vertical_interpolation=False)))),
-        ("ONNX stand-in nconv9 (full res)", lambda sp, f: complete_depth(sp, CompletionOptions(CompletionMethod.ONNX, onnx=OnnxCompletionOptions(nconv)), f.image)),
-        ("HYBRID LINEAR → stand-in nconv9", lambda sp, f: complete_depth(sp, CompletionOptions(CompletionMethod.HYBRID, onnx=OnnxCompletionOptions(nconv)), f.image)),
+        ("LINEAR (Delaunay, 1/z)",
+         lambda sp, f: complete_depth(sp, CompletionOptions(CompletionMethod.LINEAR))),
+        ("CLASSICAL (Ku + ring interp., work ½)",
+         lambda sp, f: complete_depth(sp, CompletionOptions(CompletionMethod.CLASSICAL))),
+        ("CLASSICAL (work 1/1)",
+         lambda sp, f: complete_depth(sp, CompletionOptions(
+             CompletionMethod.CLASSICAL,
+             classical=ClassicalOptions(work_scale=1.0, max_gap_px=80)))),
+        ("CLASSICAL Ku only (work ½)",
+         lambda sp, f: complete_depth(sp, CompletionOptions(
+             CompletionMethod.CLASSICAL,
+             classical=ClassicalOptions(vertical_interpolation=False)))),
+        ("ONNX stand-in nconv9 (full res)",
+         lambda sp, f: complete_depth(
+             sp, CompletionOptions(CompletionMethod.ONNX, onnx=OnnxCompletionOptions(nconv)),
+             f.image)),
+        ("HYBRID LINEAR → stand-in nconv9",
+         lambda sp, f: complete_depth(
+             sp, CompletionOptions(CompletionMethod.HYBRID, onnx=OnnxCompletionOptions(nconv)),
+             f.image)),
     ]
     dense: dict[str, list[np.ndarray]] = {}
     for name, fn in methods:
         outs, t = [], []
-        for sp, f in zip(sparse, frames):
-            d, c, w = _timed(lambda sp=sp, f=f: fn(sp, f), args.repeat)
+        for sp, f in zip(sparse, frames, strict=True):
+            d, c, w = _timed(lambda sp=sp, f=f, fn=fn: fn(sp, f), args.repeat)
             outs.append(d)
             t.append((c, w))
         dense[name] = outs
@@ -174,23 +190,27 @@ def main() -> None:
     cls = dense["CLASSICAL (Ku + ring interp., work ½)"]
     for mode in (PlanarSmoothing.PLANE_FIT, PlanarSmoothing.BLUR):
         outs, t = [], []
-        for d, f in zip(cls, frames):
-            o, c, w = _timed(lambda d=d, f=f: smooth_planar_regions(d, f.labels, f.camera, PlanarSmoothingOptions(mode=mode)), args.repeat)
+        for d, f in zip(cls, frames, strict=True):
+            o, c, w = _timed(lambda d=d, f=f, mode=mode: smooth_planar_regions(
+                d, f.labels, f.camera, PlanarSmoothingOptions(mode=mode)), args.repeat)
             outs.append(o)
             t.append((c, w))
         fl = [np.isin(f.labels, [int(Label.FLOOR), int(Label.CEILING)]) for f in frames]
         record(f"  smooth floor/ceiling {mode.value}", t,
-               "floor+ceiling " + depth_acc(outs, fl).split("  inl")[0] + "  (before: " + depth_acc(cls, fl).split("  inl")[0] + ")")
+               "floor+ceiling " + depth_acc(outs, fl).split("  inl")[0]
+               + "  (before: " + depth_acc(cls, fl).split("  inl")[0] + ")")
 
     # segmentation
     def seg_rows(name: str, depths: list[np.ndarray]) -> list[np.ndarray]:
         outs, t = [], []
-        for d, f in zip(depths, frames):
-            lab, c, w = _timed(lambda d=d, f=f: segment_geometric(d, f.camera, f.world_from_cam), args.repeat)
+        for d, f in zip(depths, frames, strict=True):
+            lab, c, w = _timed(lambda d=d, f=f: segment_geometric(d, f.camera, f.world_from_cam),
+                               args.repeat)
             outs.append(lab)
             t.append((c, w))
         iou = iou_per_class(np.concatenate(outs), np.concatenate([f.labels for f in frames]))
-        acc = "IoU " + " ".join(f"{k.name.lower()} {v:.3f}" for k, v in iou.items() if k in (Label.FLOOR, Label.CEILING, Label.WALL, Label.COLUMN))
+        acc = "IoU " + " ".join(f"{k.name.lower()} {v:.3f}" for k, v in iou.items()
+                                if k in (Label.FLOOR, Label.CEILING, Label.WALL, Label.COLUMN))
         record(name, t, acc)
         return outs
 
@@ -209,8 +229,9 @@ def main() -> None:
     record("CHAIN projection + CLASSICAL + segmenter", t, "")
     chain_cpu = rows[-1][1]
 
-    print(f"bimcap fusion bench: {len(frames)} frames {cam.width}x{cam.height}, {where}; one thread; "
-          f"best of {args.repeat} per frame, median over frames; load average {os.getloadavg()[0]:.1f}")
+    print(f"bimcap fusion bench: {len(frames)} frames {cam.width}x{cam.height}, {where}; "
+          f"one thread; best of {args.repeat} per frame, median over frames; "
+          f"load average {os.getloadavg()[0]:.1f}")
     print(f"{'step':44s} {'cpu ms':>8s} {'wall ms':>8s}  accuracy")
     for name, cpu, wall, acc in rows:
         print(f"{name:44s} {cpu:8.1f} {wall:8.1f}  {acc}")

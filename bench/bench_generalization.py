@@ -25,7 +25,8 @@ geometric segmenter); ``hard`` has 8 cm range noise with 20 % dropouts, a 1.5× 
 
 Usage (resumable: rows already in the CSV are skipped)::
 
-    PYTHONPATH=python python bench/bench_generalization.py --work /tmp/gen --out docs/generalization.csv \
+    PYTHONPATH=python python bench/bench_generalization.py --work /tmp/gen \
+        --out docs/generalization.csv \
         --worlds gen-demo-s11,gen-small-s3,ifc-Duplex_A_20110907 --frames 60 --settings standard
     PYTHONPATH=python python bench/bench_generalization.py --summarise docs/generalization.csv
 """
@@ -188,10 +189,12 @@ def run(args: argparse.Namespace) -> None:
                             print(f"{world:28s} {frames:4d} {setting:8s} {name:6s} {method:6s} "
                                   f"{row['init_pos_m']:.3f} m/{row['init_rot_deg']:.2f}° → "
                                   f"{row['pos_m'] * 100:.2f} cm/{row['rot_deg']:.3f}° "
-                                  f"({row['solve_s']:.1f} s; {row['blind_frames']} blind frames, seen "
-                                  f"{row['pos_seen_m'] * 100:.2f} cm/{row['rot_seen_deg']:.3f}°)",
+                                  f"({row['solve_s']:.1f} s; {row['blind_frames']} blind frames, "
+                                  f"seen {row['pos_seen_m'] * 100:.2f} cm/"
+                                  f"{row['rot_seen_deg']:.3f}°)",
                                   flush=True)
-                    print(f"{world} {frames} {setting}: {time.perf_counter() - t0:.0f} s", flush=True)
+                    print(f"{world} {frames} {setting}: {time.perf_counter() - t0:.0f} s",
+                          flush=True)
 
 
 def _upgrade_header(out: Path) -> None:
@@ -277,7 +280,8 @@ def summarise(paths: list[str]) -> None:
         g = {(r["run"], r["method"]): r for r in rows
              if r["world"] == world and int(r["frames"]) == frames and r["setting"] == setting}
 
-        def cell(run: str, method: str = "bimcap") -> str:
+        def cell(run: str, method: str = "bimcap",
+                 g: dict[tuple[str, str], dict[str, Any]] = g) -> str:
             r = g.get((run, method))
             return "–" if r is None else f"{r['pos_m'] * 100:.2f} cm / {r['rot_deg']:.3f}°"
 

@@ -23,7 +23,8 @@ ROWS = ("F", "Ce", "F+Ce", "W+Co", "G+F+Ce+W+Co")
 
 def _plan_change(after: np.ndarray, before: np.ndarray) -> tuple[float, float]:
     xy = float(np.linalg.norm(after[:, :2] - before[:, :2], axis=1).max())
-    rotvec = (Rotation.from_quat(after[:, 3:]) * Rotation.from_quat(before[:, 3:]).inv()).as_rotvec()
+    rotvec = (Rotation.from_quat(after[:, 3:])
+              * Rotation.from_quat(before[:, 3:]).inv()).as_rotvec()
     return xy, float(np.degrees(np.abs(rotvec[:, 2])).max())
 
 
@@ -32,8 +33,8 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=40)
     ap.add_argument("--seed", type=int, default=11)
     args = ap.parse_args()
-    syn = make_synthetic_problem(num_frames=args.frames, seed=args.seed, drift_translation_sigma=0.03,
-                                 drift_yaw_sigma_deg=0.4)
+    syn = make_synthetic_problem(num_frames=args.frames, seed=args.seed,
+                                 drift_translation_sigma=0.03, drift_yaw_sigma_deg=0.4)
     p = syn.problem
     t0, r0 = pose_errors(p.poses, syn.gt_poses)
     print(f"input: RMSE {t0:.3f} m / {r0:.2f} deg")
@@ -47,7 +48,8 @@ def main() -> None:
                 result = solve(p, options, check=False)
                 xy, yaw = _plan_change(result.poses, p.poses)
                 t, r = pose_errors(result.poses, syn.gt_poses)
-                print(f"{terms:12} {plane_mode.value:6} {'on' if prior else 'off':5} {xy:10.4f} {yaw:13.4f} "
+                print(f"{terms:12} {plane_mode.value:6} {'on' if prior else 'off':5} "
+                      f"{xy:10.4f} {yaw:13.4f} "
                       f"{t:8.3f} {r:9.2f} {result.summary.time_s:6.2f}")
 
 

@@ -70,7 +70,7 @@ def main() -> None:
           f"+-{args.xy_range} m, +-{args.yaw_range} deg; acc = seeds with every frame accepted")
     print(f"{'t (m)':>6} {'yaw (deg)':>9} | " + " | ".join(
         f"{m + ' conv %':>12} {'acc %':>5} {'med t err':>9} {'cpu s/win':>9}" for m in methods))
-    basin = {m: 0.0 for m in methods}
+    basin = dict.fromkeys(methods, 0.0)
     alive = dict.fromkeys(methods, True)
     timing: dict[str, list[float]] = {m: [] for m in methods}
     for lv in levels:

@@ -41,7 +41,7 @@ def write_pictures(seq: Any, i: int, folder: Path) -> None:
     overlay = rgb.copy()
     z8 = np.clip(p_cam[ok, 2] / 8.0 * 255.0, 0, 255).astype(np.uint8).reshape(-1, 1)
     colours = cv2.applyColorMap(z8, cv2.COLORMAP_JET).reshape(-1, 3)[:, ::-1]
-    for (u, v), c in zip(np.rint(uv[ok]).astype(int), colours):
+    for (u, v), c in zip(np.rint(uv[ok]).astype(int), colours, strict=True):
         cv2.circle(overlay, (int(u), int(v)), 2, tuple(int(x) for x in c), -1)
     folder.mkdir(parents=True, exist_ok=True)
     strip = np.concatenate([rgb, lab, overlay], axis=1)
@@ -62,8 +62,13 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
 
     from bimcap.sim.building import as_built, generate_building
-    from bimcap.sim.simulator import CONSLAM_CAMERA, SimulatorConfig, simulate_world
-    from bimcap.sim.simulator import load_ifc_parts, sidecar_free_space
+    from bimcap.sim.simulator import (
+        CONSLAM_CAMERA,
+        SimulatorConfig,
+        load_ifc_parts,
+        sidecar_free_space,
+        simulate_world,
+    )
 
     work = args.out or Path(tempfile.mkdtemp(prefix="bimcap-bench-sim-"))
     work.mkdir(parents=True, exist_ok=True)

@@ -11,7 +11,8 @@
 Usage::
 
     PYTHONPATH=python python bench/bench_solver.py                       # everything, full sizes
-    PYTHONPATH=python python bench/bench_solver.py --sizes 100 300 --sgd-iterations 20000 --peer-frames 30
+    PYTHONPATH=python python bench/bench_solver.py --sizes 100 300 --sgd-iterations 20000 \
+        --peer-frames 30
 """
 
 from __future__ import annotations
@@ -29,8 +30,9 @@ from bimcap.optimize import GeometricMode, Loss, SolverOptions, solve
 from bimcap.optimize.synthetic import SyntheticConfig, make_synthetic_problem, pose_errors
 
 #: per-frame counts for ~1000 scalar residuals per frame
-DENSE = dict(matches_per_pair=120, floor_per_frame=100, ceiling_per_frame=60, wall_per_frame=150,
-             column_per_frame=30, landmarks_per_frame=0, drift_translation_sigma=0.02, drift_yaw_sigma_deg=0.2)
+DENSE = {"matches_per_pair": 120, "floor_per_frame": 100, "ceiling_per_frame": 60,
+         "wall_per_frame": 150, "column_per_frame": 30, "landmarks_per_frame": 0,
+         "drift_translation_sigma": 0.02, "drift_yaw_sigma_deg": 0.2}
 
 
 # ----------------------------------------------------------------------------------- scaling
@@ -45,16 +47,17 @@ def _scaling_child(frames: int, queue: Any) -> None:
     cpu = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
     t0, r0 = pose_errors(s.problem.poses, s.gt_poses)
     t1, r1 = pose_errors(r.poses, s.gt_poses)
-    queue.put(dict(frames=frames, residuals=r.summary.num_residuals, time=r.summary.time_s, cpu=cpu,
-                   cost=r.summary.final_cost, ceres=r.summary.ceres_time_s, iters=r.summary.iterations,
-                   rounds=r.summary.outer_iterations,
-                   rss=peak / 1024, rss_solve=(peak - base) / 1024, err=(t0, r0, t1, r1), term=r.summary.termination))
+    queue.put({"frames": frames, "residuals": r.summary.num_residuals, "time": r.summary.time_s,
+               "cpu": cpu, "cost": r.summary.final_cost, "ceres": r.summary.ceres_time_s,
+               "iters": r.summary.iterations, "rounds": r.summary.outer_iterations,
+               "rss": peak / 1024, "rss_solve": (peak - base) / 1024, "err": (t0, r0, t1, r1),
+               "term": r.summary.termination})
 
 
 def bench_scaling(sizes: list[int]) -> None:
     print("\n## Scaling (all terms, ROBUST/Huber, 2 threads; each size in a fresh process)")
-    print(f"{'frames':>6} {'residuals':>10} {'time s':>8} {'ceres s':>8} {'cpu s':>7} {'iters':>6} {'rounds':>6} "
-          f"{'final cost':>18} {'peak RSS MB':>11} {'error before -> after':>34}")
+    print(f"{'frames':>6} {'residuals':>10} {'time s':>8} {'ceres s':>8} {'cpu s':>7} {'iters':>6} "
+          f"{'rounds':>6} {'final cost':>18} {'peak RSS MB':>11} {'error before -> after':>34}")
     ctx = mp.get_context("fork")
     for n in sizes:
         q = ctx.Queue()
@@ -63,20 +66,23 @@ def bench_scaling(sizes: list[int]) -> None:
         row = q.get()
         p.join()
         t0, r0, t1, r1 = row["err"]
-        print(f"{row['frames']:6d} {row['residuals']:10d} {row['time']:8.2f} {row['ceres']:8.2f} {row['cpu']:7.2f} "
-              f"{row['iters']:6d} {row['rounds']:6d} {row['cost']:18.12g} {row['rss']:11.0f} {t0:8.3f} m {r0:5.2f}° -> {t1:6.4f} m {r1:5.3f}°")
+        print(f"{row['frames']:6d} {row['residuals']:10d} {row['time']:8.2f} {row['ceres']:8.2f} "
+              f"{row['cpu']:7.2f} {row['iters']:6d} {row['rounds']:6d} {row['cost']:18.12g} "
+              f"{row['rss']:11.0f} {t0:8.3f} m {r0:5.2f}° -> {t1:6.4f} m {r1:5.3f}°")
 
 
 # -------------------------------------------------------------------------------- pycolmap BA
 def bench_pycolmap(frames: int) -> None:
-    print(f"\n## Landmark BA vs pycolmap.bundle_adjustment ({frames} frames, poses + points, frame 0 fixed, L2)")
+    print(f"\n## Landmark BA vs pycolmap.bundle_adjustment ({frames} frames, poses + points, "
+          f"frame 0 fixed, L2)")
     try:
         import pycolmap
     except ImportError:
         print("skipped: pycolmap not installed")
         return
-    s = make_synthetic_problem(num_frames=frames, seed=4, landmarks_per_frame=40, matches_per_pair=0,
-                               floor_per_frame=0, ceiling_per_frame=0, wall_per_frame=0, column_per_frame=0,
+    s = make_synthetic_problem(num_frames=frames, seed=4, landmarks_per_frame=40,
+                               matches_per_pair=0, floor_per_frame=0, ceiling_per_frame=0,
+                               wall_per_frame=0, column_per_frame=0,
                                drift_translation_sigma=0.01, drift_yaw_sigma_deg=0.1)
     # COLMAP refuses tracks of length 1: keep the landmarks seen at least twice, in both solvers.
     p = s.problem
@@ -87,10 +93,13 @@ def bench_pycolmap(frames: int) -> None:
     remap[keep_pts] = np.arange(len(keep_pts), dtype=np.int32)
     p = type(p).from_arrays({**p.arrays(), "track_obs_frame": p.track_obs_frame[keep_obs],
                              "track_obs_point": remap[p.track_obs_point[keep_obs]],
-                             "track_obs_uv": p.track_obs_uv[keep_obs], "track_obs_depth": p.track_obs_depth[keep_obs],
+                             "track_obs_uv": p.track_obs_uv[keep_obs],
+                             "track_obs_depth": p.track_obs_depth[keep_obs],
                              "track_points": p.track_points[keep_pts]})
-    tol = dict(function_tolerance=1e-6, gradient_tolerance=1e-10, parameter_tolerance=1e-8, max_iterations=100)
-    opts = SolverOptions(geometric_mode=GeometricMode.LANDMARK, num_threads=2, **tol).with_terms("G")
+    tol = {"function_tolerance": 1e-6, "gradient_tolerance": 1e-10, "parameter_tolerance": 1e-8,
+           "max_iterations": 100}
+    opts = SolverOptions(geometric_mode=GeometricMode.LANDMARK, num_threads=2,
+                         **tol).with_terms("G")
     opts.depth.enabled = False
     opts.geometric.loss = Loss.NONE
     t = time.perf_counter()
@@ -111,8 +120,10 @@ def bench_pycolmap(frames: int) -> None:
         for i in range(p.num_poses):
             idx = per_frame[i]
             point2d_index[idx] = np.arange(len(idx))
-            image = pycolmap.Image(name=f"{i:06d}", keypoints=p.track_obs_uv[idx], camera_id=1, image_id=i + 1)
-            pose = pycolmap.Rigid3d(pycolmap.Rotation3d(cam_from_world[i].as_quat()), -cam_from_world[i].apply(p.poses[i, :3]))
+            image = pycolmap.Image(name=f"{i:06d}", keypoints=p.track_obs_uv[idx], camera_id=1,
+                                   image_id=i + 1)
+            pose = pycolmap.Rigid3d(pycolmap.Rotation3d(cam_from_world[i].as_quat()),
+                                    -cam_from_world[i].apply(p.poses[i, :3]))
             rec.add_image_with_trivial_frame(image, pose)
         order = np.argsort(p.track_obs_point, kind="stable")
         starts = np.searchsorted(p.track_obs_point[order], np.arange(len(p.track_points) + 1))
@@ -148,9 +159,10 @@ def bench_pycolmap(frames: int) -> None:
             wfc = cfw.inverse()
             est[i, :3] = wfc.translation
             est[i, 3:] = wfc.rotation.quat
-    except Exception as exc:  # noqa: BLE001  (report and go on: a bench, not a test)
+    except Exception as exc:  # report and go on: a bench, not a test
         print(f"pycolmap part failed: {type(exc).__name__}: {exc}")
-        print(f"bimcap: {t_ours:.3f} s, final ½Σr² {ours_cost:.6g} px², {ours.summary.iterations} iterations")
+        print(f"bimcap: {t_ours:.3f} s, final ½Σr² {ours_cost:.6g} px², "
+              f"{ours.summary.iterations} iterations")
         return
     print(f"{'':10} {'time s':>8} {'final ½Σr² px²':>16} {'pose err m/deg':>18}")
     te, re_ = pose_errors(ours.poses, s.gt_poses)
@@ -158,7 +170,8 @@ def bench_pycolmap(frames: int) -> None:
     tc, rc = pose_errors(est, s.gt_poses)
     print(f"{'pycolmap':10} {t_colmap:8.3f} {colmap_cost:16.8g} {tc:9.4f} {rc:7.3f}")
     print(f"time ratio bimcap / pycolmap = {t_ours / t_colmap:.2f}; relative cost difference = "
-          f"{(ours_cost - colmap_cost) / colmap_cost:.2e} ({len(p.track_obs_frame)} observations, {len(p.track_points)} points)")
+          f"{(ours_cost - colmap_cost) / colmap_cost:.2e} ({len(p.track_obs_frame)} observations, "
+          f"{len(p.track_points)} points)")
 
 
 # ------------------------------------------------------------------------- paper objective
@@ -173,14 +186,17 @@ class PaperObjective:
         k = p.cameras[0]
         d = p.match_depth
         uv = p.match_uv
-        self.ga = np.column_stack([(uv[:, 0] - k[2]) / k[0] * d[:, 0], (uv[:, 1] - k[3]) / k[1] * d[:, 0], d[:, 0]])
-        self.gb = np.column_stack([(uv[:, 2] - k[2]) / k[0] * d[:, 1], (uv[:, 3] - k[3]) / k[1] * d[:, 1], d[:, 1]])
+        self.ga = np.column_stack([(uv[:, 0] - k[2]) / k[0] * d[:, 0],
+                                   (uv[:, 1] - k[3]) / k[1] * d[:, 0], d[:, 0]])
+        self.gb = np.column_stack([(uv[:, 2] - k[2]) / k[0] * d[:, 1],
+                                   (uv[:, 3] - k[3]) / k[1] * d[:, 1], d[:, 1]])
         keep = wall_segment >= 0
         self.w_frame = p.wall_frame[keep]
         self.w_p = p.wall_p_in_cam[keep]
         self.w_seg = p.segments[wall_segment[keep]]
-        self.lam = dict(G=1.0, F=0.02, Ce=0.02, W=0.0007)
-        self.n = dict(G=len(self.ga), F=len(p.floor_frame), Ce=len(p.ceiling_frame), W=len(self.w_frame))
+        self.lam = {"G": 1.0, "F": 0.02, "Ce": 0.02, "W": 0.0007}
+        self.n = {"G": len(self.ga), "F": len(p.floor_frame), "Ce": len(p.ceiling_frame),
+                  "W": len(self.w_frame)}
         self.free = p.pose_fixed == 0
         self.r0 = Rotation.from_quat(p.poses[:, 3:])
         self.t0 = p.poses[:, :3].copy()
@@ -219,7 +235,8 @@ class PaperObjective:
         grad = np.zeros((len(poses), 6))
         total = 0.0
 
-        def accumulate(frames: np.ndarray, q_rot: np.ndarray, dr_dp: np.ndarray, r: np.ndarray, w: float) -> None:
+        def accumulate(frames: np.ndarray, q_rot: np.ndarray, dr_dp: np.ndarray, r: np.ndarray,
+                       w: float) -> None:
             # r: (M, D), dr_dp: (M, D, 3) derivative w.r.t. the world point; f = w Σ r².
             gp = 2.0 * w * np.einsum("md,mdk->mk", r, dr_dp)  # df/dp_world (M, 3)
             np.add.at(grad[:, :3], frames, gp)
@@ -233,8 +250,9 @@ class PaperObjective:
         eye = np.broadcast_to(np.eye(3), (len(r), 3, 3))
         accumulate(mf[:, 0], qa, eye, r, w)
         accumulate(mf[:, 1], qb, -eye, r, w)
-        for name, frames, pts, plane in (("F", p.floor_frame, p.floor_p_in_cam, p.floor_plane),
-                                        ("Ce", p.ceiling_frame, p.ceiling_p_in_cam, p.ceiling_plane)):
+        for name, frames, pts, plane in (
+                ("F", p.floor_frame, p.floor_p_in_cam, p.floor_plane),
+                ("Ce", p.ceiling_frame, p.ceiling_p_in_cam, p.ceiling_plane)):
             q = rot[frames].apply(pts)
             n = p.planes[plane, :3]
             res = (np.einsum("ij,ij->i", q + poses[frames, :3], n) + p.planes[plane, 3])[:, None]
@@ -271,7 +289,8 @@ def _segment_distance(xy: np.ndarray, seg: np.ndarray, gradient: bool = False) -
     return r, np.where(inside[:, None], g_inside, g_end)
 
 
-def sgd(obj: PaperObjective, iterations: int, lr: float = 0.1, momentum: float = 0.9) -> tuple[np.ndarray, float, float]:
+def sgd(obj: PaperObjective, iterations: int, lr: float = 0.1,
+        momentum: float = 0.9) -> tuple[np.ndarray, float, float]:
     """The peers' optimiser: full-batch SGD with momentum on [t, rotation increment]."""
     poses = obj.p.poses.copy()
     velocity = np.zeros((len(poses), 6))
@@ -281,7 +300,8 @@ def sgd(obj: PaperObjective, iterations: int, lr: float = 0.1, momentum: float =
         velocity = momentum * velocity + g  # torch.optim.SGD semantics
         step = -lr * velocity
         poses[:, :3] += step[:, :3]
-        poses[:, 3:] = (Rotation.from_rotvec(step[:, 3:]) * Rotation.from_quat(poses[:, 3:])).as_quat()
+        poses[:, 3:] = (Rotation.from_rotvec(step[:, 3:])
+                        * Rotation.from_quat(poses[:, 3:])).as_quat()
     elapsed = time.perf_counter() - start
     return poses, obj.value_and_gradient(poses)[0], elapsed
 
@@ -289,20 +309,23 @@ def sgd(obj: PaperObjective, iterations: int, lr: float = 0.1, momentum: float =
 def bench_peers(frames: int, sgd_iterations: int) -> None:
     print(f"\n## Paper objective (G point + F + Ce + W, PAPER weighting): {frames} frames")
     s = make_synthetic_problem(num_frames=frames, seed=6, matches_per_pair=60, floor_per_frame=60,
-                               ceiling_per_frame=40, wall_per_frame=80, column_per_frame=0, landmarks_per_frame=0,
+                               ceiling_per_frame=40, wall_per_frame=80, column_per_frame=0,
+                               landmarks_per_frame=0,
                                drift_translation_sigma=0.02, drift_yaw_sigma_deg=0.2)
     p = s.problem
     opts = SolverOptions.paper(outer_iterations=1, num_threads=2).with_terms("G+F+Ce+W")
     # The association at the initial poses (no iteration), held fixed for every method.
-    initial = solve(p, SolverOptions.paper(outer_iterations=1, max_iterations=0).with_terms("G+F+Ce+W"))
+    initial = solve(p, SolverOptions.paper(outer_iterations=1, max_iterations=0)
+                    .with_terms("G+F+Ce+W"))
     obj = PaperObjective(p, initial.wall_segment)
     t = time.perf_counter()
     ours = solve(p, opts)
     t_ours = time.perf_counter() - t
     f0, _ = obj.value_and_gradient(p.poses)
-    f_ours, g_ours = obj.value_and_gradient(ours.poses)
+    f_ours, _g_ours = obj.value_and_gradient(ours.poses)
     print(f"initial objective {f0:.8g}; bimcap reports {ours.summary.initial_paper_objective:.8g} "
-          f"(numpy formula vs C++: rel diff {abs(f0 - ours.summary.initial_paper_objective) / f0:.1e})")
+          f"(numpy formula vs C++: rel diff "
+          f"{abs(f0 - ours.summary.initial_paper_objective) / f0:.1e})")
     rows = [("bimcap (Ceres LM)", t_ours, f_ours, ours.summary.iterations, ours.poses)]
 
     x0 = np.zeros(6 * p.num_poses)
@@ -339,28 +362,35 @@ def bench_peers(frames: int, sgd_iterations: int) -> None:
     x = np.zeros(6 * p.num_poses)
     x[free_cols] = ls.x
     ls_poses = obj.poses(x)
-    rows.append(("scipy least_squares (trf, sparse)", t_ls, obj.value_and_gradient(ls_poses)[0], ls.nfev, ls_poses))
+    rows.append(("scipy least_squares (trf, sparse)", t_ls, obj.value_and_gradient(ls_poses)[0],
+                 ls.nfev, ls_poses))
 
     sgd_poses, f_sgd, t_sgd = sgd(obj, sgd_iterations)
-    rows.append((f"peers: SGD lr 0.1 m 0.9 × {sgd_iterations}", t_sgd, f_sgd, sgd_iterations, sgd_poses))
+    rows.append((f"peers: SGD lr 0.1 m 0.9 × {sgd_iterations}", t_sgd, f_sgd, sgd_iterations,
+                 sgd_poses))
 
-    print(f"{'method':38} {'time s':>9} {'final objective':>16} {'iters':>7} {'pose err m/deg':>18}")
+    print(f"{'method':38} {'time s':>9} {'final objective':>16} {'iters':>7} "
+          f"{'pose err m/deg':>18}")
     for name, tt, f, it, poses in rows:
         te, re_ = pose_errors(poses, s.gt_poses)
         print(f"{name:38} {tt:9.3f} {f:16.10g} {it:7d} {te:9.4f} {re_:7.3f}")
-    print(f"speed ratio SGD / bimcap = {t_sgd / t_ours:.0f}×; scipy / bimcap = {t_ls / t_ours:.1f}×; "
-          f"final objective bimcap − SGD = {f_ours - f_sgd:.3e} (≤ 0 means bimcap reached the same or lower cost)")
+    print(f"speed ratio SGD / bimcap = {t_sgd / t_ours:.0f}×; "
+          f"scipy / bimcap = {t_ls / t_ours:.1f}×; "
+          f"final objective bimcap − SGD = {f_ours - f_sgd:.3e} "
+          f"(≤ 0 means bimcap reached the same or lower cost)")
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sizes", type=int, nargs="*", default=[100, 300, 1000])
     ap.add_argument("--ba-frames", type=int, default=100)
     ap.add_argument("--peer-frames", type=int, default=60)
     ap.add_argument("--sgd-iterations", type=int, default=20000)
     ap.add_argument("--skip", nargs="*", default=[], choices=["scaling", "pycolmap", "peers"])
     args = ap.parse_args()
-    print(f"bimcap solver benchmark — {time.strftime('%Y-%m-%d %H:%M:%S')}, SyntheticConfig defaults: {SyntheticConfig().intrinsics}")
+    print(f"bimcap solver benchmark — {time.strftime('%Y-%m-%d %H:%M:%S')}, "
+          f"SyntheticConfig defaults: {SyntheticConfig().intrinsics}")
     if "scaling" not in args.skip:
         bench_scaling(args.sizes)
     if "pycolmap" not in args.skip:

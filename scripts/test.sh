@@ -12,6 +12,9 @@ ctest --test-dir build/ctest --output-on-failure -j "$(nproc)"
 echo "==> C++ format (clang-format, .clang-format)"
 find cpp \( -name '*.cc' -o -name '*.h' \) -print0 | xargs -0 clang-format --dry-run --Werror
 
+echo "==> Lint (ruff)"
+.venv/bin/python -m ruff check python tests bench
+
 echo "==> Type checks (mypy, strict on bimcap.optimize, .geometry, .evaluation, .io: see pyproject.toml)"
 .venv/bin/python -m mypy python/bimcap/optimize python/bimcap/geometry python/bimcap/evaluation python/bimcap/io
 

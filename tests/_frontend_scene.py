@@ -48,8 +48,10 @@ def value_noise(p: NDArray[np.float64], cell: float) -> NDArray[np.float64]:
     return out
 
 
-def look_pose(position: tuple[float, float, float], yaw_deg: float, pitch_deg: float) -> NDArray[np.float64]:
-    """``world_from_cam`` (7,) of an OpenCV camera at ``position`` looking along yaw, pitched down."""
+def look_pose(position: tuple[float, float, float], yaw_deg: float,
+              pitch_deg: float) -> NDArray[np.float64]:
+    """``world_from_cam`` (7,) of an OpenCV camera at ``position`` looking along yaw, pitched
+    down."""
     yaw, pitch = np.deg2rad(yaw_deg), np.deg2rad(pitch_deg)
     fwd = np.array([np.cos(yaw) * np.cos(pitch), np.sin(yaw) * np.cos(pitch), -np.sin(pitch)])
     right = np.cross(fwd, [0.0, 0.0, 1.0])
@@ -135,8 +137,10 @@ class Room:
 CAM_FROM_LIDAR = np.array([0.0, -0.05, 0.0, 0.5, -0.5, 0.5, 0.5])
 
 
-def lidar_scan(room: Room, world_from_cam: NDArray[np.float64], beams: int = 64) -> NDArray[np.float32]:
-    """A spinning-LiDAR scan ((M, 4) x y z intensity, LiDAR frame): ``beams`` rings ±25°, 0.4° steps."""
+def lidar_scan(room: Room, world_from_cam: NDArray[np.float64],
+               beams: int = 64) -> NDArray[np.float32]:
+    """A spinning-LiDAR scan ((M, 4) x y z intensity, LiDAR frame): ``beams`` rings ±25°, 0.4°
+    steps."""
     import open3d as o3d
 
     from bimcap.geometry.poses import compose
@@ -145,7 +149,8 @@ def lidar_scan(room: Room, world_from_cam: NDArray[np.float64], beams: int = 64)
     el = np.deg2rad(np.linspace(-25.0, 25.0, beams))
     az = np.deg2rad(np.arange(0.0, 360.0, 0.4))
     e, a = np.meshgrid(el, az, indexing="ij")
-    d_l = np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)], axis=-1).reshape(-1, 3)
+    d_l = np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)],
+                   axis=-1).reshape(-1, 3)
     d_w = d_l @ world_from_lidar[:3, :3].T
     o = np.broadcast_to(world_from_lidar[:3, 3], d_w.shape)
     ans = room.scene.cast_rays(o3d.core.Tensor(np.concatenate([o, d_w], 1).astype(np.float32)))
@@ -167,7 +172,8 @@ class FrameFiles:
 class SceneSequence:
     """Files of a rendered sequence plus the reader interface of ``bimcap.dataset.Sequence``."""
 
-    def __init__(self, root: Path, camera: Camera, frames: list[FrameFiles], gt: NDArray[np.float64]) -> None:
+    def __init__(self, root: Path, camera: Camera, frames: list[FrameFiles],
+                 gt: NDArray[np.float64]) -> None:
         self.root = root
         self.camera = camera
         self.frames = frames
@@ -200,7 +206,8 @@ class SceneSequence:
                 scan = f"lidar/{name}.bin"
                 (root / scan).write_bytes(lidar_scan(room, pose).astype("<f4").tobytes())
             frames.append(
-                FrameFiles(0.1 * i, f"images/{name}.png", scan, f"labels/{name}.png", f"depth/{name}.npy")
+                FrameFiles(0.1 * i, f"images/{name}.png", scan, f"labels/{name}.png",
+                           f"depth/{name}.npy")
             )
         return cls(root, camera, frames, np.asarray(poses))
 

@@ -51,7 +51,8 @@ def completion_normalized_conv(path: Path, k: int = 9) -> Path:
     dep = helper.make_tensor_value_info("depth", TensorProto.FLOAT, [1, 1, "H", "W"])
     out = helper.make_tensor_value_info("dense", TensorProto.FLOAT, [1, 1, "H", "W"])
     inits = [
-        helper.make_tensor("kern", TensorProto.FLOAT, [1, 1, k, k], np.ones(k * k, np.float32).tolist()),
+        helper.make_tensor("kern", TensorProto.FLOAT, [1, 1, k, k],
+                           np.ones(k * k, np.float32).tolist()),
         helper.make_tensor("zero", TensorProto.FLOAT, [], [0.0]),
         helper.make_tensor("eps", TensorProto.FLOAT, [], [1e-6]),
     ]
@@ -70,7 +71,8 @@ def completion_normalized_conv(path: Path, k: int = 9) -> Path:
     return _save(helper.make_graph(nodes, "nconv", [rgb, dep], [out], inits), path)
 
 
-def segmentation_linear(path: Path, weights: np.ndarray, hw: tuple[int | str, int | str] = ("H", "W")) -> Path:
+def segmentation_linear(path: Path, weights: np.ndarray,
+                        hw: tuple[int | str, int | str] = ("H", "W")) -> Path:
     """logits (1, C, H, W) = 1×1 conv of the (normalised) RGB input with ``weights`` (C, 3)."""
     from onnx import TensorProto, helper
 
@@ -78,6 +80,7 @@ def segmentation_linear(path: Path, weights: np.ndarray, hw: tuple[int | str, in
     h, w = hw
     inp = helper.make_tensor_value_info("image", TensorProto.FLOAT, [1, 3, h, w])
     out = helper.make_tensor_value_info("logits", TensorProto.FLOAT, [1, c, h, w])
-    kern = helper.make_tensor("w", TensorProto.FLOAT, [c, 3, 1, 1], weights.astype(np.float32).ravel().tolist())
+    kern = helper.make_tensor("w", TensorProto.FLOAT, [c, 3, 1, 1],
+                              weights.astype(np.float32).ravel().tolist())
     nodes = [helper.make_node("Conv", ["image", "w"], ["logits"])]
     return _save(helper.make_graph(nodes, "seg", [inp], [out], [kern]), path)

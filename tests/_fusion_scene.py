@@ -8,6 +8,7 @@ from bimcap.fusion.synthetic import SyntheticFrame, default_camera, render_defau
 
 
 @lru_cache(maxsize=4)
-def frames(n: int = 3, width: int = 516, height: int = 386, seed: int = 0) -> tuple[SyntheticFrame, ...]:
+def frames(n: int = 3, width: int = 516, height: int = 386,
+           seed: int = 0) -> tuple[SyntheticFrame, ...]:
     """``n`` box-room frames at ``width × height`` (half the bench resolution for speed)."""
     return tuple(render_default_frames(n, camera=default_camera(width, height), seed=seed))

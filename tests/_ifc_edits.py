@@ -32,9 +32,9 @@ def move_up(text: str, dz: float) -> str:
     axes = {m.group(1) for m in
             re.finditer(r"^#\d+\s*=\s*IFCLOCALPLACEMENT\(\s*\$\s*,\s*(#\d+)\s*\)", text, re.M)}
     for axis in sorted(axes):
-        am = re.search(r"^(%s\s*=\s*IFCAXIS2PLACEMENT3D\(\s*)(#\d+)" % re.escape(axis), out, re.M)
+        am = re.search(rf"^({re.escape(axis)}\s*=\s*IFCAXIS2PLACEMENT3D\(\s*)(#\d+)", out, re.M)
         assert am is not None, axis
-        pm = re.search(r"^%s\s*=\s*IFCCARTESIANPOINT\(\(([^)]*)\)\)" % re.escape(am.group(2)), out,
+        pm = re.search(rf"^{re.escape(am.group(2))}\s*=\s*IFCCARTESIANPOINT\(\(([^)]*)\)\)", out,
                        re.M)
         assert pm is not None, am.group(2)
         xyz = [float(v) for v in pm.group(1).split(",")] + [0.0] * 3
@@ -84,7 +84,7 @@ def rename_class(text: str, cls: str, new: str, count: int = 1) -> str:
         done += 1
         return m.group(1) + new + "("
 
-    out = re.sub(r"^(#\d+\s*=\s*)%s\(" % cls, sub, text, flags=re.M)
+    out = re.sub(rf"^(#\d+\s*=\s*){cls}\(", sub, text, flags=re.M)
     assert done == count, (cls, done)
     return out
 
@@ -92,6 +92,6 @@ def rename_class(text: str, cls: str, new: str, count: int = 1) -> str:
 def double_paren(text: str, cls: str) -> str:
     """The first instance of ``cls`` with a doubled opening parenthesis: IfcOpenShell's parser
     reads the rest of the file into that one instance (everything after it is lost)."""
-    out, n = re.subn(r"^(#\d+\s*=\s*%s)\(" % cls, r"\1((", text, count=1, flags=re.M)
+    out, n = re.subn(rf"^(#\d+\s*=\s*{cls})\(", r"\1((", text, count=1, flags=re.M)
     assert n == 1
     return out

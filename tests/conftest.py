@@ -1,4 +1,5 @@
-"""Shared pytest fixtures. Tests that need ``../shared`` skip with a clear message when it is absent."""
+"""Shared pytest fixtures. Tests that need ``../shared`` skip with a clear message when it is
+absent."""
 
 from __future__ import annotations
 

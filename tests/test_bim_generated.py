@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from _bim_building import dist_to_segments
 
+from _bim_building import dist_to_segments
 from bimcap.bim.ingest import BimModel, load_model
 from bimcap.bim.reference import BimReference, build_reference
 from bimcap.bim.slicing import agreement, sample_segments

@@ -44,7 +44,7 @@ def _file_storeys(path: Path) -> list[tuple[str, float]]:
     return out
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _load(path: Path) -> BimModel:
     """Each model is tessellated once per session (the tests only read it)."""
     return load_model(path)

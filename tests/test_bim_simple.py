@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from _bim_building import SimpleBuilding, build_simple_building, dist_to_segments
 
+from _bim_building import SimpleBuilding, build_simple_building, dist_to_segments
 from bimcap.bim.floorplan import FloorPlanOptions, Vectorizer, build_floor_plan
 from bimcap.bim.ingest import BimModel, load_model
 from bimcap.bim.reference import BimReference, ReferenceOptions, build_reference
@@ -63,7 +63,7 @@ def test_planes_at_known_heights(reference: BimReference) -> None:
         ("FLOOR", "Storey 1", 3.0, "slab", left),
         ("FLOOR", "Storey 1", 3.0, "slab", right),
     ]
-    for p, row in zip(reference.plane_info, reference.planes):
+    for p, row in zip(reference.plane_info, reference.planes, strict=True):
         assert np.linalg.norm(row[:3]) == pytest.approx(1.0)
         # Floors face up, ceilings face down (into the room).
         assert row[2] == (1.0 if p.kind == Label.FLOOR else -1.0)

@@ -9,15 +9,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-ifcopenshell = pytest.importorskip("ifcopenshell")
-import ifcopenshell.geom  # noqa: E402
-import ifcopenshell.guid  # noqa: E402
-import ifcopenshell.util.element  # noqa: E402
-import ifcopenshell.util.placement  # noqa: E402
-import ifcopenshell.util.unit  # noqa: E402
+pytest.importorskip("ifcopenshell")
+import ifcopenshell.geom
+import ifcopenshell.guid
+import ifcopenshell.util.element
+import ifcopenshell.util.placement
+import ifcopenshell.util.unit
 
-from bimcap.cli import main as cli_main  # noqa: E402
-from bimcap.sim.building import (  # noqa: E402
+from bimcap.cli import main as cli_main
+from bimcap.sim.building import (
     BuildingSpec,
     BuildingSpecError,
     GeneratedBuilding,
@@ -26,7 +26,7 @@ from bimcap.sim.building import (  # noqa: E402
     generate_building,
     truth_path_for,
 )
-from bimcap.sim.building_truth import (  # noqa: E402
+from bimcap.sim.building_truth import (
     BuildingTruthError,
     ColumnShape,
     Region,
@@ -346,7 +346,8 @@ def test_walk_graph_is_collision_free(variant: str, demo: GeneratedBuilding,
         assert np.min(np.linalg.norm(p - np.asarray(c.center), axis=1)) - r > 0.3, c.id
     # The tour walks the graph and enters every room.
     edges = {tuple(sorted(e)) for e in fs.edges.tolist()}
-    steps = [tuple(sorted(s)) for s in zip(fs.tour[:-1].tolist(), fs.tour[1:].tolist())]
+    steps = [tuple(sorted(s))
+             for s in zip(fs.tour[:-1].tolist(), fs.tour[1:].tolist(), strict=True)]
     assert all(s in edges or s[0] == s[1] for s in steps)
     assert fs.tour[0] == fs.tour[-1]
     for room in (r for r in fs.regions if r.kind == "room"):
@@ -443,7 +444,7 @@ def test_sidecar_round_trip(demo: GeneratedBuilding, demo_built: GeneratedBuildi
 def test_bad_sidecar_names_the_file(tmp_path: Path) -> None:
     p = tmp_path / "x.truth.json"
     p.write_text('{"format": "something-else"}')
-    with pytest.raises(BuildingTruthError, match="x.truth.json.*format"):
+    with pytest.raises(BuildingTruthError, match=r"x\.truth\.json.*format"):
         load_building_truth(p)
     p.write_text("{not json")
     with pytest.raises(BuildingTruthError, match="not JSON"):

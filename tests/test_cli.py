@@ -43,12 +43,13 @@ def test_help(command: str, capsys: pytest.CaptureFixture[str]) -> None:
 
 
 @pytest.mark.parametrize(
-    "args, needle",
+    ("args", "needle"),
     [
         (["refine", "/nonexistent/seq", "-o", "/tmp/bimcap-out-x"], "/nonexistent/seq"),
         (["evaluate", "/nonexistent/a.tum", "/nonexistent/b.tum"], "/nonexistent/a.tum"),
         (["bim", "/nonexistent/model.ifc", "-o", "/tmp/bimcap-out-y"], "/nonexistent/model.ifc"),
-        (["simulate", "/nonexistent/model.ifc", "-o", "/tmp/bimcap-out-z"], "/nonexistent/model.ifc"),
+        (["simulate", "/nonexistent/model.ifc", "-o", "/tmp/bimcap-out-z"],
+         "/nonexistent/model.ifc"),
         (["drift", "/nonexistent/seq"], "/nonexistent/seq"),
     ],
 )

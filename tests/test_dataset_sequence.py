@@ -47,7 +47,7 @@ def _poses(rng: np.random.Generator, n: int) -> np.ndarray:
     )
 
 
-@pytest.fixture()
+@pytest.fixture
 def written(tmp_path: Path) -> tuple[Path, list[dict[str, Any]], np.ndarray]:
     rng = np.random.default_rng(7)
     data = [_frame_data(rng, i) for i in range(N)]
@@ -173,10 +173,14 @@ def test_writer_refuses_bad_frames(tmp_path: Path) -> None:
 
 def test_writer_context_manager_writes_no_manifest_on_error(tmp_path: Path) -> None:
     rng = np.random.default_rng(2)
-    with pytest.raises(RuntimeError):
+
+    def crash() -> None:
         with SequenceWriter(tmp_path / "s", CAMERA, CAM_FROM_LIDAR) as w:
             w.add_frame(**_frame_data(rng, 0))
             raise RuntimeError("simulated crash")
+
+    with pytest.raises(RuntimeError):
+        crash()
     assert (tmp_path / "s" / "images" / "000000.png").exists()
     assert not (tmp_path / "s" / MANIFEST).exists()
     with pytest.raises(SequenceError, match="no manifest"):

@@ -162,7 +162,7 @@ def test_unreachable_and_invalid_parameters() -> None:
         DriftParams(target_ate_pos_m=1.0)
     with pytest.raises(DriftError, match="unknown preset"):
         DriftParams.from_preset("exp9")
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="not a valid DriftModel"):
         DriftParams(mode="sideways")  # type: ignore[arg-type]
 
 

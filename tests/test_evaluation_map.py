@@ -63,7 +63,7 @@ def test_covariances_equal_np_cov_brute_force() -> None:
     d = np.linalg.norm(pts[:, None] - pts[None], axis=2)
     expected_keep = np.flatnonzero((d <= 0.25).sum(axis=1) > 5)
     assert keep.tolist() == expected_keep.tolist() and len(keep) > 100
-    for k, c in zip(keep[::17], covs[::17]):
+    for k, c in zip(keep[::17], covs[::17], strict=True):
         np.testing.assert_allclose(c, np.cov(pts[d[k] <= 0.25].T), rtol=1e-9, atol=1e-14)
 
 

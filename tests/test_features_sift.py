@@ -21,7 +21,8 @@ from bimcap.features import (
 from bimcap.geometry.camera import Camera
 
 
-def _blob_image(centres: list[tuple[float, float]], shape: tuple[int, int] = (200, 300)) -> np.ndarray:
+def _blob_image(centres: list[tuple[float, float]],
+                shape: tuple[int, int] = (200, 300)) -> np.ndarray:
     v, u = np.mgrid[0 : shape[0], 0 : shape[1]].astype(np.float64)
     img = np.full(shape, 30.0)
     for cu, cv in centres:
@@ -47,7 +48,8 @@ def shifted_pair() -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
     return a, b, (du, dv)
 
 
-@pytest.mark.parametrize("backend,tol", [(SiftBackend.PYCOLMAP, 0.05), (SiftBackend.OPENCV, 0.3)])
+@pytest.mark.parametrize(("backend", "tol"),
+                         [(SiftBackend.PYCOLMAP, 0.05), (SiftBackend.OPENCV, 0.3)])
 def test_keypoints_use_pixel_centre_convention(backend: SiftBackend, tol: float) -> None:
     """A Gaussian blob centred on pixel (100, 60) and one at (200.5, 140.25) are found there."""
     centres = [(100.0, 60.0), (200.5, 140.25)]
@@ -161,7 +163,8 @@ def test_verification_removes_outliers(ver: Verification) -> None:
     assert is_good.sum() > 0.97 * n
     # An outlier survives only if it happens to lie within 2 px of its epipolar line.
     assert (~is_good).sum() <= 0.05 * len(bad)
-    inl, model = verify_matches(uv_a, uv_b, matches, cam, MatchOptions(verification=Verification.NONE))
+    inl, model = verify_matches(uv_a, uv_b, matches, cam,
+                                MatchOptions(verification=Verification.NONE))
     assert len(inl) == len(matches) and model == "none"
 
 

@@ -45,7 +45,8 @@ def test_depth_edges_and_holes() -> None:
     depth = np.full((48, 64), 2.0, np.float32)
     depth[:, 32:] = 5.0  # a depth edge between columns 31 and 32
     depth[10, 10] = 0.0  # a hole
-    uv = np.array([[31.5, 20.0], [31.2, 20.0], [10.3, 10.2], [20.0, 20.0], [-3.0, 5.0], [70.0, 5.0]])
+    uv = np.array([[31.5, 20.0], [31.2, 20.0], [10.3, 10.2], [20.0, 20.0], [-3.0, 5.0],
+                   [70.0, 5.0]])
     got = lookup_depth(depth, uv)
     assert got.tolist() == [0.0, 0.0, 0.0, 2.0, 0.0, 0.0]
     near = lookup_depth(depth, uv, DepthLookupOptions(edge_policy=DepthEdgePolicy.NEAREST))
@@ -59,7 +60,8 @@ def test_small_relative_spread_is_interpolated() -> None:
     depth[:, 32:] = 4.1  # 2.5 % step: below the 5 % default spread, interpolated
     got = lookup_depth(depth, np.array([[31.5, 3.0]]))
     assert got[0] == pytest.approx(4.05, abs=1e-6)
-    strict = lookup_depth(depth, np.array([[31.5, 3.0]]), DepthLookupOptions(max_relative_spread=0.01))
+    strict = lookup_depth(depth, np.array([[31.5, 3.0]]),
+                          DepthLookupOptions(max_relative_spread=0.01))
     assert strict[0] == 0.0
 
 
@@ -73,7 +75,7 @@ def test_tracks_are_connected_components() -> None:
     ]
     t = build_tracks([3, 3, 2], pairs)
     groups = {}
-    for f, p, k in zip(t.obs_frame, t.obs_point, t.obs_keypoint):
+    for f, p, k in zip(t.obs_frame, t.obs_point, t.obs_keypoint, strict=True):
         groups.setdefault(int(p), set()).add((int(f), int(k)))
     assert set(map(frozenset, groups.values())) == {
         frozenset({(0, 0), (1, 0), (2, 1)}),
@@ -98,7 +100,8 @@ def test_triangulate_without_depth_recovers_the_point() -> None:
     """Two views of (0.3, -0.2, 4.0) with no depth: DLT gives it back; with depth, the mean."""
     p_world = np.array([0.3, -0.2, 4.0])
     poses = np.array([IDENTITY, [0.5, 0.0, 0.0, 0, 0, 0, 1]])
-    uv = np.stack([CAM.project(transform_points(invert(pose), p_world[None]))[0][0] for pose in poses])
+    uv = np.stack([CAM.project(transform_points(invert(pose), p_world[None]))[0][0]
+                   for pose in poses])
     pts, valid = triangulate_tracks(
         np.array([0, 1], np.int32), np.array([0, 0], np.int32), uv, np.zeros(2), CAM, poses
     )
@@ -150,16 +153,18 @@ def test_distance_filter() -> None:
 
 def test_gap_and_depth_requirements() -> None:
     uvs, depths, poses = _two_frame_setup()
-    uvs = uvs + [uvs[1]]
+    uvs = [*uvs, uvs[1]]
     depths = [depths[0], depths[1], np.array([0.0, depths[1][1]])]
     poses = np.concatenate([poses, poses[1:]])
     pairs = [_pair(0, 1, [[0, 0]]), _pair(0, 2, [[0, 0]]), _pair(1, 2, [[1, 1]])]
     none_filter = MatchFilterOptions(max_initial_distance_m=None, require_depth=RequireDepth.NONE)
-    assert len(assemble_match_observations(pairs, uvs, depths, CAM, poses, none_filter).match_frames) == 3
+    assert len(assemble_match_observations(pairs, uvs, depths, CAM, poses,
+                                           none_filter).match_frames) == 3
     both = MatchFilterOptions(max_initial_distance_m=None)
     got = assemble_match_observations(pairs, uvs, depths, CAM, poses, both)
     assert got.match_frames.tolist() == [[0, 1], [1, 2]]  # frame 2's keypoint 0 has no depth
-    gap2 = MatchFilterOptions(min_frame_gap=2, max_initial_distance_m=None, require_depth=RequireDepth.ANY)
+    gap2 = MatchFilterOptions(min_frame_gap=2, max_initial_distance_m=None,
+                              require_depth=RequireDepth.ANY)
     got = assemble_match_observations(pairs, uvs, depths, CAM, poses, gap2)
     assert got.match_frames.tolist() == [[0, 2]]
     assert got.match_depth[0, 1] == 0.0

@@ -6,13 +6,17 @@ import dataclasses
 
 import numpy as np
 import pytest
+
 from _frontend_scene import TEST_CAMERA, SceneSequence, default_poses
-
-from bimcap.frontend import FrontendConfig, GroundTruthDepthProvider, GroundTruthLabelProvider, run_frontend
-from bimcap.frontend.providers import LidarDepthProvider, PlanarDepthRefiner, SegmenterLabelProvider
 from bimcap.features import MatchFilterOptions, RequireDepth, SiftOptions
+from bimcap.frontend import (
+    FrontendConfig,
+    GroundTruthDepthProvider,
+    GroundTruthLabelProvider,
+    run_frontend,
+)
+from bimcap.frontend.providers import LidarDepthProvider, PlanarDepthRefiner, SegmenterLabelProvider
 from bimcap.geometry.poses import transform_points
-
 
 CONFIG = FrontendConfig(sift=SiftOptions(max_num_features=1500), window=2)
 
@@ -31,11 +35,14 @@ def test_lidar_depth_and_geometric_labels(seq: SceneSequence) -> None:
     depth = LidarDepthProvider(completion=CompletionOptions(method=CompletionMethod.LINEAR))
     labels = SegmenterLabelProvider(GeometricSegmenter())
     res = run_frontend(
-        seq, CONFIG, seq.gt, depth, labels, workers=1, progress=False, depth_refiner=PlanarDepthRefiner()
+        seq, CONFIG, seq.gt, depth, labels, workers=1, progress=False,
+        depth_refiner=PlanarDepthRefiner(),
     )
     m = res.match_frames
-    pa = transform_points(seq.gt[m[:, 0]], res.camera.backproject(res.match_uv[:, :2], res.match_depth[:, 0], distorted=False))
-    pb = transform_points(seq.gt[m[:, 1]], res.camera.backproject(res.match_uv[:, 2:], res.match_depth[:, 1], distorted=False))
+    pa = transform_points(seq.gt[m[:, 0]], res.camera.backproject(
+        res.match_uv[:, :2], res.match_depth[:, 0], distorted=False))
+    pb = transform_points(seq.gt[m[:, 1]], res.camera.backproject(
+        res.match_uv[:, 2:], res.match_depth[:, 1], distorted=False))
     err = np.linalg.norm(pa - pb, axis=1)
     assert len(m) > 300 and np.median(err) < 0.05
     floor = transform_points(seq.gt[res.floor_frame], res.floor_p_in_cam)
@@ -46,10 +53,13 @@ def test_lidar_keypoint_depths_match_ground_truth(seq: SceneSequence) -> None:
     """Same images → same keypoints and matches; their LiDAR-completed depths agree with the
     ground-truth depths (checks the projection convention: pinhole pixels, ``cam_from_lidar``)."""
     cfg = dataclasses.replace(
-        CONFIG, filters=MatchFilterOptions(max_initial_distance_m=None, require_depth=RequireDepth.NONE)
+        CONFIG,
+        filters=MatchFilterOptions(max_initial_distance_m=None, require_depth=RequireDepth.NONE),
     )
-    gt = run_frontend(seq, cfg, seq.gt, GroundTruthDepthProvider(), GroundTruthLabelProvider(), workers=1, progress=False)
-    li = run_frontend(seq, cfg, seq.gt, LidarDepthProvider(), GroundTruthLabelProvider(), workers=1, progress=False)
+    gt = run_frontend(seq, cfg, seq.gt, GroundTruthDepthProvider(), GroundTruthLabelProvider(),
+                      workers=1, progress=False)
+    li = run_frontend(seq, cfg, seq.gt, LidarDepthProvider(), GroundTruthLabelProvider(),
+                      workers=1, progress=False)
     assert np.array_equal(gt.match_uv, li.match_uv)
     both = (gt.match_depth > 0) & (li.match_depth > 0)
     assert both.mean() > 0.8
@@ -65,7 +75,8 @@ def test_lidar_depth_only_where_the_lidar_supports_it(seq: SceneSequence) -> Non
     from bimcap.fusion import project_lidar
 
     und = Undistorter(TEST_CAMERA)
-    ctx = FrameContext(seq, 0, TEST_CAMERA, und.pinhole, und.image(seq.load_image(0)), und, seq.gt[0])
+    ctx = FrameContext(seq, 0, TEST_CAMERA, und.pinhole, und.image(seq.load_image(0)), und,
+                       seq.gt[0])
     sparse = project_lidar(seq.load_lidar(0), seq.cam_from_lidar, TEST_CAMERA, distort=False)
     dist = cv2.distanceTransform((sparse.depth <= 0).astype(np.uint8), cv2.DIST_L2, 5)
     radius = 0.01 * np.hypot(320, 240)

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from _frontend_scene import TEST_CAMERA, Room, SceneSequence, default_poses
 
+from _frontend_scene import TEST_CAMERA, Room, SceneSequence, default_poses
 from bimcap.features import MatchFilterOptions, MatchOptions, SiftOptions
 from bimcap.frontend import (
     FrameContext,
@@ -19,8 +19,8 @@ from bimcap.frontend import (
     FrontendInputError,
     FrontendResult,
     GroundTruthDepthProvider,
-    SemanticSamplingOptions,
     GroundTruthLabelProvider,
+    SemanticSamplingOptions,
     Undistorter,
     run_frontend,
 )
@@ -44,7 +44,8 @@ def result(seq: SceneSequence) -> FrontendResult:
     return run_frontend(seq, CONFIG, seq.gt, DEPTH, LABELS, workers=1, progress=False)
 
 
-def _backproject(res: FrontendResult, poses: np.ndarray, frames: np.ndarray, uv: np.ndarray, depth: np.ndarray) -> np.ndarray:
+def _backproject(res: FrontendResult, poses: np.ndarray, frames: np.ndarray, uv: np.ndarray,
+                 depth: np.ndarray) -> np.ndarray:
     return transform_points(poses[frames], res.camera.backproject(uv, depth, distorted=False))
 
 
@@ -69,7 +70,8 @@ def test_tracks_agree_with_ground_truth(seq: SceneSequence, result: FrontendResu
     # no track has two observations in one frame
     assert len(np.unique(p.astype(np.int64) * NUM_FRAMES + f)) == len(p)
     has = result.track_obs_depth > 0
-    back = _backproject(result, seq.gt, f[has], result.track_obs_uv[has], result.track_obs_depth[has])
+    back = _backproject(result, seq.gt, f[has], result.track_obs_uv[has],
+                        result.track_obs_depth[has])
     assert np.median(np.linalg.norm(back - result.track_points[p[has]], axis=1)) < 0.03
     p_cam = transform_points(invert(seq.gt)[f], result.track_points[p])
     uv, _ = result.camera.project(p_cam)
@@ -101,7 +103,8 @@ def test_solver_array_contract(result: FrontendResult, tmp_path: Path) -> None:
         assert arrays[name].shape == shape, name
     for name, arr in arrays.items():
         assert arr.flags.c_contiguous, name
-        assert arr.dtype == (np.int32 if name.endswith(("_frame", "_point", "frames", "_camera")) else np.float64), name
+        int_named = name.endswith(("_frame", "_point", "frames", "_camera"))
+        assert arr.dtype == (np.int32 if int_named else np.float64), name
     assert np.array_equal(arrays["cameras"][0], TEST_CAMERA.intrinsics)
     # save / load round trip
     path = tmp_path / "frontend.npz"
@@ -117,7 +120,8 @@ def test_solver_array_contract(result: FrontendResult, tmp_path: Path) -> None:
 
 
 def test_undistortion_matches_a_pinhole_render(seq: SceneSequence) -> None:
-    """GT depth of the distorted image, undistorted, equals a direct render of the pinhole camera."""
+    """GT depth of the distorted image, undistorted, equals a direct render of the pinhole
+    camera."""
     room = Room()
     direct = room.render(TEST_CAMERA.pinhole(), seq.gt[1]).depth
     und = Undistorter(TEST_CAMERA).nearest(seq.load_depth(1))
@@ -128,11 +132,13 @@ def test_undistortion_matches_a_pinhole_render(seq: SceneSequence) -> None:
 
 
 @pytest.mark.slow
-def test_cache_reuses_and_invalidates(seq: SceneSequence, result: FrontendResult, tmp_path: Path) -> None:
+def test_cache_reuses_and_invalidates(seq: SceneSequence, result: FrontendResult,
+                                      tmp_path: Path) -> None:
     cache = tmp_path / "cache"
 
     def run(cfg: FrontendConfig) -> FrontendResult:
-        return run_frontend(seq, cfg, seq.gt, DEPTH, LABELS, cache_dir=cache, workers=1, progress=False)
+        return run_frontend(seq, cfg, seq.gt, DEPTH, LABELS, cache_dir=cache, workers=1,
+                            progress=False)
 
     def counts(r: FrontendResult) -> tuple[int, int, int]:
         return r.run.features_computed, r.run.frames_computed, r.run.pairs_computed
@@ -189,16 +195,20 @@ class _PoseLabels:
         return LABELS(ctx)
 
 
-def test_pose_dependent_provider_recomputes_on_new_poses(seq: SceneSequence, tmp_path: Path) -> None:
+def test_pose_dependent_provider_recomputes_on_new_poses(seq: SceneSequence,
+                                                         tmp_path: Path) -> None:
     cache = tmp_path / "cache"
     poses = seq.gt.copy()
-    r = run_frontend(seq, CONFIG, poses, DEPTH, _PoseLabels(), cache_dir=cache, workers=1, progress=False)
+    r = run_frontend(seq, CONFIG, poses, DEPTH, _PoseLabels(), cache_dir=cache, workers=1,
+                     progress=False)
     assert r.run.frames_computed == NUM_FRAMES
     poses[1, 2] += 0.05
-    r = run_frontend(seq, CONFIG, poses, DEPTH, _PoseLabels(), cache_dir=cache, workers=1, progress=False)
+    r = run_frontend(seq, CONFIG, poses, DEPTH, _PoseLabels(), cache_dir=cache, workers=1,
+                     progress=False)
     assert (r.run.features_computed, r.run.frames_computed, r.run.pairs_computed) == (0, 1, 0)
     # a provider that does not use the pose ignores pose changes
-    r0 = run_frontend(seq, CONFIG, seq.gt, DEPTH, LABELS, cache_dir=cache, workers=1, progress=False)
+    r0 = run_frontend(seq, CONFIG, seq.gt, DEPTH, LABELS, cache_dir=cache, workers=1,
+                      progress=False)
     r1 = run_frontend(seq, CONFIG, poses, DEPTH, LABELS, cache_dir=cache, workers=1, progress=False)
     assert r0.run.frames_computed == NUM_FRAMES and r1.run.frames_computed == 0
 
@@ -212,7 +222,8 @@ def test_parallel_equals_serial(seq: SceneSequence, result: FrontendResult) -> N
 
 
 @pytest.mark.slow
-def test_distance_filter_uses_initial_poses(seq: SceneSequence, result: FrontendResult, tmp_path: Path) -> None:
+def test_distance_filter_uses_initial_poses(seq: SceneSequence, result: FrontendResult,
+                                            tmp_path: Path) -> None:
     """Frame 3 displaced by 1 m in the initial poses: the 0.4 m filter drops all its matches."""
     init = seq.gt.copy()
     init[3, 0] += 1.0
@@ -241,7 +252,8 @@ def test_missing_frame_is_a_clear_error(seq: SceneSequence, tmp_path: Path) -> N
         run_frontend(bad, CONFIG, bad.gt, DEPTH, LABELS, workers=1, progress=False)
     assert info.value.field == "frames[2].image"
     # the same error comes back from a worker process
-    with pytest.raises(FrontendInputError, match=r"frames\[2\]\.image: cannot load image of frame 2"):
+    with pytest.raises(FrontendInputError,
+                       match=r"frames\[2\]\.image: cannot load image of frame 2"):
         run_frontend(bad, CONFIG, bad.gt, DEPTH, LABELS, workers=2, progress=False)
 
 
@@ -257,7 +269,8 @@ def _half_depth(ctx: FrameContext) -> np.ndarray:
 
 
 def test_provider_size_and_pose_count_errors(seq: SceneSequence) -> None:
-    with pytest.raises(FrontendInputError, match=r"depth \(from the depth provider\) has shape \(120, 320\)"):
+    with pytest.raises(FrontendInputError,
+                       match=r"depth \(from the depth provider\) has shape \(120, 320\)"):
         run_frontend(seq, CONFIG, seq.gt, _half_depth, LABELS, workers=1, progress=False)
     with pytest.raises(FrontendInputError, match="3 initial poses for 4 frames"):
         run_frontend(seq, CONFIG, seq.gt[:3], DEPTH, LABELS, workers=1, progress=False)
@@ -283,7 +296,8 @@ def test_with_a_bimcap_dataset_sequence(seq: SceneSequence, tmp_path: Path) -> N
     pa = _backproject(res, gt.poses, m[:, 0], res.match_uv[:, :2], res.match_depth[:, 0])
     pb = _backproject(res, gt.poses, m[:, 1], res.match_uv[:, 2:], res.match_depth[:, 1])
     assert len(m) > 500 and np.median(np.linalg.norm(pa - pb, axis=1)) < 0.03
-    again = run_frontend(real, CONFIG, gt, DEPTH, LABELS, cache_dir=cache, workers=1, progress=False)
+    again = run_frontend(real, CONFIG, gt, DEPTH, LABELS, cache_dir=cache, workers=1,
+                         progress=False)
     assert (again.run.frames_computed, again.run.pairs_computed) == (0, 0)
 
 
@@ -294,14 +308,17 @@ def test_maps_are_written(seq: SceneSequence, result: FrontendResult, tmp_path: 
 
     maps = tmp_path / "maps"
     cache = tmp_path / "cache"
-    r = run_frontend(seq, CONFIG, seq.gt, DEPTH, LABELS, cache_dir=cache, workers=1, progress=False, maps_dir=maps)
+    r = run_frontend(seq, CONFIG, seq.gt, DEPTH, LABELS, cache_dir=cache, workers=1,
+                     progress=False, maps_dir=maps)
     und = Undistorter(TEST_CAMERA)
     for i in range(NUM_FRAMES):
         d_path, l_path = map_paths(maps, i)
         assert np.array_equal(np.load(d_path), und.nearest(seq.load_depth(i)))
-        assert np.array_equal(cv2.imread(str(l_path), cv2.IMREAD_UNCHANGED), und.nearest(seq.load_labels(i)))
+        assert np.array_equal(cv2.imread(str(l_path), cv2.IMREAD_UNCHANGED),
+                              und.nearest(seq.load_labels(i)))
     map_paths(maps, 1)[1].unlink()
-    r = run_frontend(seq, CONFIG, seq.gt, DEPTH, LABELS, cache_dir=cache, workers=1, progress=False, maps_dir=maps)
+    r = run_frontend(seq, CONFIG, seq.gt, DEPTH, LABELS, cache_dir=cache, workers=1,
+                     progress=False, maps_dir=maps)
     assert (r.run.features_computed, r.run.frames_computed, r.run.pairs_computed) == (0, 1, 0)
     assert map_paths(maps, 1)[1].is_file()
 
@@ -313,7 +330,8 @@ def test_on_a_simulated_sequence(tmp_path: Path) -> None:
 
     parts, polys, doors = corridor_building(rooms_per_side=2)
     out = tmp_path / "sim"
-    simulate_world(parts, out, SimulatorConfig.small(frames=4), seed=3, free_polygons=polys, doors_xy=doors)
+    simulate_world(parts, out, SimulatorConfig.small(frames=4), seed=3, free_polygons=polys,
+                   doors_xy=doors)
     seq = read_sequence(out)
     gt = seq.trajectory("gt")
     res = run_frontend(seq, CONFIG, gt, DEPTH, LABELS, workers=1, progress=False)

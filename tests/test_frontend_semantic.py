@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from _frontend_scene import COLUMN, ROOM, TEST_CAMERA, Room, default_poses
 
+from _frontend_scene import COLUMN, ROOM, TEST_CAMERA, Room, default_poses
 from bimcap.frontend import (
     SamplingMode,
     SemanticMapError,
@@ -38,7 +38,8 @@ def frames() -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
 
 
 def test_samples_lie_on_their_surfaces(frames: list) -> None:
-    """Under the true poses floor samples are on z = 0, wall samples on a wall, columns on the column."""
+    """Under the true poses floor samples are on z = 0, wall samples on a wall, columns on the
+    column."""
     opts = SemanticSamplingOptions()
     for i, (labels, depth, pose) in enumerate(frames):
         s = sample_semantic_points(labels, depth, PINHOLE, i, opts)
@@ -48,7 +49,8 @@ def test_samples_lie_on_their_surfaces(frames: list) -> None:
         assert len(floor) > 100 and len(wall) > 100 and len(col) > 20
         assert np.abs(floor[:, 2]).max() < 0.01
         d_wall = np.min(
-            np.abs(np.stack([wall[:, 0], wall[:, 0] - ROOM[0], wall[:, 1], wall[:, 1] - ROOM[1]])), axis=0
+            np.abs(np.stack([wall[:, 0], wall[:, 0] - ROOM[0], wall[:, 1], wall[:, 1] - ROOM[1]])),
+            axis=0,
         )
         assert d_wall.max() < 0.02
         (x0, y0), (x1, y1) = COLUMN
@@ -64,10 +66,12 @@ def test_density_is_per_square_metre() -> None:
     labels = np.full((150, 200), int(Label.WALL), np.uint8)
     area = 200 * 150 * 4.0 / 1e4  # 12 m²
     opts = SemanticSamplingOptions(wall_density=50.0, max_per_frame=None)
-    counts = [len(sample_semantic_points(labels, depth, cam, i, opts)[Label.WALL]) for i in range(5)]
+    counts = [len(sample_semantic_points(labels, depth, cam, i, opts)[Label.WALL])
+              for i in range(5)]
     assert abs(np.mean(counts) - 50.0 * area) < 0.05 * 50.0 * area
     # A wall twice as far covers 4× the area → 4× the samples.
-    far = [len(sample_semantic_points(labels, 2 * depth, cam, i, opts)[Label.WALL]) for i in range(5)]
+    far = [len(sample_semantic_points(labels, 2 * depth, cam, i, opts)[Label.WALL])
+           for i in range(5)]
     assert np.mean(far) / np.mean(counts) == pytest.approx(4.0, rel=0.05)
 
 
@@ -134,7 +138,8 @@ def test_ply_round_trip_and_open3d_reads_it(tmp_path: Path, frames: list) -> Non
     for i, (labels, depth, _) in enumerate(frames):
         for lab, p in sample_semantic_points(labels, depth, PINHOLE, i).items():
             f, q = samples.get(lab, (np.zeros(0, np.int32), np.zeros((0, 3))))
-            samples[lab] = (np.concatenate([f, np.full(len(p), i, np.int32)]), np.concatenate([q, p]))
+            samples[lab] = (np.concatenate([f, np.full(len(p), i, np.int32)]),
+                            np.concatenate([q, p]))
     smap = build_semantic_map(samples, np.stack([f[2] for f in frames]))
     path = tmp_path / "map.ply"
     write_semantic_ply(path, smap.points, smap.labels)

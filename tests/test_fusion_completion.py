@@ -1,12 +1,13 @@
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
 import pytest
+
 from _fusion_onnx_models import completion_identity, completion_normalized_conv
 from _fusion_scene import frames
-
 from bimcap.fusion import (
     ClassicalOptions,
     CompletionMethod,
@@ -72,8 +73,10 @@ def test_ring_interpolation_matters_when_ring_gaps_exceed_ku_kernels(sparse_fram
     f, sp = sparse_frames[0]
     ku = ClassicalOptions(work_scale=1.0, vertical_interpolation=False)
     ours = ClassicalOptions(work_scale=1.0)
-    e_ku = depth_errors(complete_depth(sp, CompletionOptions(CompletionMethod.CLASSICAL, classical=ku)), f.depth)
-    e_ours = depth_errors(complete_depth(sp, CompletionOptions(CompletionMethod.CLASSICAL, classical=ours)), f.depth)
+    e_ku = depth_errors(
+        complete_depth(sp, CompletionOptions(CompletionMethod.CLASSICAL, classical=ku)), f.depth)
+    e_ours = depth_errors(
+        complete_depth(sp, CompletionOptions(CompletionMethod.CLASSICAL, classical=ours)), f.depth)
     e_nn = depth_errors(fill_nearest(sp), f.depth)
     assert e_ours.mae < e_nn.mae < e_ku.mae
 
@@ -83,7 +86,8 @@ def test_hybrid_runs_through_onnx_runtime_and_beats_nearest(sparse_frames, model
     _beats_nearest(sparse_frames, opts, 0.5)
     # with the identity network the hybrid is exactly the interpolation
     f, sp = sparse_frames[0]
-    ident = complete_depth(sp, CompletionOptions(CompletionMethod.HYBRID, onnx=OnnxCompletionOptions(models["identity"])), f.image)
+    ident = complete_depth(sp, CompletionOptions(
+        CompletionMethod.HYBRID, onnx=OnnxCompletionOptions(models["identity"])), f.image)
     lin = complete_depth(sp, CompletionOptions(CompletionMethod.LINEAR))
     np.testing.assert_allclose(ident, lin, rtol=1e-6)
 
@@ -92,7 +96,9 @@ def test_onnx_method_equals_a_numpy_oracle(sparse_frames, models) -> None:  # ty
     from scipy import ndimage
 
     f, sp = sparse_frames[0]
-    out = complete_depth(sp, CompletionOptions(CompletionMethod.ONNX, onnx=OnnxCompletionOptions(models["nconv"], depth_scale=0.5)), f.image)
+    out = complete_depth(sp, CompletionOptions(
+        CompletionMethod.ONNX, onnx=OnnxCompletionOptions(models["nconv"], depth_scale=0.5)),
+        f.image)
     d = sp.depth.astype(np.float64)
     num = ndimage.uniform_filter(d, 9, mode="constant") * 81
     den = ndimage.uniform_filter((d > 0).astype(np.float64), 9, mode="constant") * 81
@@ -105,11 +111,16 @@ def test_onnx_method_equals_a_numpy_oracle(sparse_frames, models) -> None:  # ty
 
 def test_onnx_tiling_and_resizing(sparse_frames, models) -> None:  # type: ignore[no-untyped-def]
     f, sp = sparse_frames[0]
-    tiled = complete_depth(sp, CompletionOptions(CompletionMethod.ONNX, onnx=OnnxCompletionOptions(models["identity"], input_size=(128, 160), size_mode=SizeMode.TILE)), f.image)
+    tiled = complete_depth(sp, CompletionOptions(
+        CompletionMethod.ONNX,
+        onnx=OnnxCompletionOptions(models["identity"], input_size=(128, 160),
+                                   size_mode=SizeMode.TILE)), f.image)
     np.testing.assert_allclose(tiled, sp.depth, rtol=1e-6)
     # resizing sparse depth keeps (almost) every return: the identity network's output, resized
     # back, has values only near returns, and they are returns' depths
-    small = complete_depth(sp, CompletionOptions(CompletionMethod.ONNX, onnx=OnnxCompletionOptions(models["identity"], input_size=(193, 258))), f.image)
+    small = complete_depth(sp, CompletionOptions(
+        CompletionMethod.ONNX,
+        onnx=OnnxCompletionOptions(models["identity"], input_size=(193, 258))), f.image)
     assert small.shape == sp.depth.shape
     assert (small > 0).sum() > 0.9 * (sp.depth > 0).sum()
 
@@ -118,9 +129,12 @@ def test_onnx_bad_models_give_clear_errors(sparse_frames, models, tmp_path: Path
     f, sp = sparse_frames[0]
 
     def run(path: Path, **kw: object) -> None:
-        complete_depth(sp, CompletionOptions(CompletionMethod.ONNX, onnx=OnnxCompletionOptions(path, **kw)), f.image)  # type: ignore[arg-type]
+        complete_depth(sp, CompletionOptions(
+            CompletionMethod.ONNX,
+            onnx=OnnxCompletionOptions(path, **kw)),  # type: ignore[arg-type]
+            f.image)
 
-    with pytest.raises(OnnxModelError, match="no input 'rgb'.*image"):
+    with pytest.raises(OnnxModelError, match=r"no input 'rgb'.*image"):
         run(models["bad_name"])
     with pytest.raises(OnnxModelError, match="3 channels, expected 1"):
         run(models["bad_channels"])
@@ -128,15 +142,17 @@ def test_onnx_bad_models_give_clear_errors(sparse_frames, models, tmp_path: Path
         run(models["rank3"])
     with pytest.raises(OnnxModelError, match="fixed at"):
         run(models["fixed"], input_size=(128, 128))
-    assert np.isfinite(complete_depth(sp, CompletionOptions(CompletionMethod.ONNX, onnx=OnnxCompletionOptions(models["fixed"])), f.image)).all()
+    assert np.isfinite(complete_depth(sp, CompletionOptions(
+        CompletionMethod.ONNX, onnx=OnnxCompletionOptions(models["fixed"])), f.image)).all()
     with pytest.raises(OnnxModelError, match="no output 'depth_out'"):
         run(models["identity"], output="depth_out")
     with pytest.raises(OnnxModelError, match="not found"):
         run(tmp_path / "missing.onnx")
-    with pytest.raises(FusionInputError, match="needs CompletionOptions.onnx"):
+    with pytest.raises(FusionInputError, match=re.escape("needs CompletionOptions.onnx")):
         complete_depth(sp, CompletionOptions(CompletionMethod.HYBRID), f.image)
     with pytest.raises(FusionInputError, match="differ in size"):
-        complete_depth(sp, CompletionOptions(CompletionMethod.ONNX, onnx=OnnxCompletionOptions(models["identity"])), f.image[:-1])
+        complete_depth(sp, CompletionOptions(
+            CompletionMethod.ONNX, onnx=OnnxCompletionOptions(models["identity"])), f.image[:-1])
 
 
 def test_linear_is_exact_on_a_plane() -> None:
@@ -151,7 +167,8 @@ def test_linear_is_exact_on_a_plane() -> None:
     from bimcap.fusion.projection import SparseDepth
 
     sp = SparseDepth(sparse, uv, z, np.arange(400), {})
-    dense = complete_depth(sp, CompletionOptions(CompletionMethod.LINEAR, linear=LinearOptions(max_edge_px=1e9, max_depth_ratio=1e9)))
+    dense = complete_depth(sp, CompletionOptions(
+        CompletionMethod.LINEAR, linear=LinearOptions(max_edge_px=1e9, max_depth_ratio=1e9)))
     grid = cam.pixel_grid()
     truth = (3.0 / (cam.rays(grid, distorted=False) @ np.array([0.0, 0.6, 0.8]))).reshape(150, 200)
     m = dense > 0

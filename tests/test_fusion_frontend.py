@@ -32,14 +32,19 @@ def sequence_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def test_runner_with_lidar_depth_and_geometric_labels(sequence_dir: Path) -> None:
     from bimcap.dataset import read_sequence
-    from bimcap.frontend.providers import LidarDepthProvider, PlanarDepthRefiner, SegmenterLabelProvider
+    from bimcap.frontend.providers import (
+        LidarDepthProvider,
+        PlanarDepthRefiner,
+        SegmenterLabelProvider,
+    )
     from bimcap.frontend.runner import run_frontend
 
     seq = read_sequence(sequence_dir)
     gt = seq.trajectory("gt").poses
     depth = LidarDepthProvider(completion=CompletionOptions(CompletionMethod.CLASSICAL))
     labels = SegmenterLabelProvider(GeometricSegmenter(), uses_pose=True)
-    res = run_frontend(seq, None, gt, depth, labels, workers=1, progress=False, depth_refiner=PlanarDepthRefiner())
+    res = run_frontend(seq, None, gt, depth, labels, workers=1, progress=False,
+                       depth_refiner=PlanarDepthRefiner())
     room = BoxRoom()
     assert len(res.floor_frame) > 100 and len(res.wall_frame) > 100
     floor_w = transform_points(gt[res.floor_frame], res.floor_p_in_cam)
@@ -48,7 +53,8 @@ def test_runner_with_lidar_depth_and_geometric_labels(sequence_dir: Path) -> Non
         ceil_w = transform_points(gt[res.ceiling_frame], res.ceiling_p_in_cam)
         assert np.mean(np.abs(ceil_w[:, 2] - room.height) < 0.05) > 0.9
     wall_w = transform_points(gt[res.wall_frame], res.wall_p_in_cam)
-    d_wall = np.min(np.abs(np.stack([wall_w[:, 0], wall_w[:, 0] - room.size_x, wall_w[:, 1], wall_w[:, 1] - room.size_y])), axis=0)
+    d_wall = np.min(np.abs(np.stack([wall_w[:, 0], wall_w[:, 0] - room.size_x,
+                                     wall_w[:, 1], wall_w[:, 1] - room.size_y])), axis=0)
     assert np.mean(d_wall < 0.1) > 0.9
     if len(res.column_frame):
         col_w = transform_points(gt[res.column_frame], res.column_p_in_cam)

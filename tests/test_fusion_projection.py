@@ -24,8 +24,10 @@ def test_known_point_lands_on_known_pixel_pinhole() -> None:
     # LiDAR x forward, y left, z up; camera 0.1 m below the LiDAR: p_in_cam = R p + t
     r = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
     cam_from_lidar = np.concatenate([[0.0, 0.1, 0.0], Rotation.from_matrix(r).as_quat()])
-    # a point 4 m ahead, 0.5 m left, 0.3 m up of the LiDAR → cam (0.5·-1, -0.3+0.1, 4) = (-0.5, -0.2, 4)
-    sp = project_lidar(np.array([[4.0, 0.5, 0.3]]), cam_from_lidar, CAM, ProjectionOptions(occlusion_radius_px=0))
+    # a point 4 m ahead, 0.5 m left, 0.3 m up of the LiDAR → cam (0.5·-1, -0.3+0.1, 4)
+    # = (-0.5, -0.2, 4)
+    sp = project_lidar(np.array([[4.0, 0.5, 0.3]]), cam_from_lidar, CAM,
+                       ProjectionOptions(occlusion_radius_px=0))
     u = 500.0 * -0.5 / 4.0 + 320.0  # 257.5
     v = 510.0 * -0.2 / 4.0 + 240.0  # 214.5
     np.testing.assert_allclose(sp.uv, [[u, v]], atol=1e-9)
@@ -38,9 +40,12 @@ def test_known_point_with_distortion_matches_opencv() -> None:
     import cv2
 
     rng = np.random.default_rng(3)
-    p = np.stack([rng.uniform(-1.5, 1.5, 50), rng.uniform(-1.0, 1.0, 50), rng.uniform(2.0, 6.0, 50)], 1)
-    sp = project_lidar(p, IDENTITY, DIST_CAM, ProjectionOptions(occlusion_radius_px=0), distort=True)
-    ref, _ = cv2.projectPoints(p[sp.point_index], np.zeros(3), np.zeros(3), DIST_CAM.K, np.asarray(DIST_CAM.dist))
+    p = np.stack([rng.uniform(-1.5, 1.5, 50), rng.uniform(-1.0, 1.0, 50),
+                  rng.uniform(2.0, 6.0, 50)], 1)
+    sp = project_lidar(p, IDENTITY, DIST_CAM, ProjectionOptions(occlusion_radius_px=0),
+                       distort=True)
+    ref, _ = cv2.projectPoints(p[sp.point_index], np.zeros(3), np.zeros(3), DIST_CAM.K,
+                               np.asarray(DIST_CAM.dist))
     np.testing.assert_allclose(sp.uv, ref.reshape(-1, 2), atol=1e-6)
     # without distortion the same camera projects with its pinhole model
     sp0 = project_lidar(p, IDENTITY, DIST_CAM, ProjectionOptions(occlusion_radius_px=0))
@@ -78,7 +83,8 @@ def test_occluded_points_are_dropped() -> None:
     kept = set(sp.point_index.tolist())
     assert kept == set(range(len(fg))) | {len(fg) + len(bg)}
     # with the test disabled, the hidden ones stay
-    sp_all = project_lidar(np.vstack([fg, bg, far]), IDENTITY, CAM, ProjectionOptions(occlusion_radius_px=0))
+    sp_all = project_lidar(np.vstack([fg, bg, far]), IDENTITY, CAM,
+                           ProjectionOptions(occlusion_radius_px=0))
     assert sp_all.counts["kept"] == len(fg) + len(bg) + 1
 
 

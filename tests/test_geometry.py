@@ -53,7 +53,7 @@ def test_tum_round_trip(tmp_path) -> None:
 
 
 @pytest.mark.parametrize(
-    "line, match",
+    ("line", "match"),
     [
         ("0 1 2 3 0 0 0", "expected 8 fields"),
         ("0 1 2 nan 0 0 0 1", "not finite"),
@@ -70,7 +70,8 @@ def test_tum_rejects_bad_lines(tmp_path, line: str, match: str) -> None:
 
 
 def test_camera_projection_round_trip_with_distortion() -> None:
-    cam = Camera(1032, 772, 1175.9, 1176.8, 508.4, 394.1, (-0.054366, 0.118389, 0.001781, -0.003908, 0.0))
+    cam = Camera(1032, 772, 1175.9, 1176.8, 508.4, 394.1,
+                 (-0.054366, 0.118389, 0.001781, -0.003908, 0.0))
     rng = np.random.default_rng(3)
     uv = rng.uniform([0, 0], [cam.width - 1, cam.height - 1], size=(100, 2))
     depth = rng.uniform(0.5, 10.0, size=100)

@@ -18,7 +18,7 @@ def _arrays(pose: np.ndarray, walls: list[np.ndarray], floor: np.ndarray | None)
     """One camera; wall points on the given segments' faces; floor points on z = 0."""
     rng = np.random.default_rng(0)
     segments, wall_p = [], []
-    for k, seg in enumerate(walls):
+    for seg in walls:
         t = rng.random(200)
         xy = seg[:2] + t[:, None] * (seg[2:] - seg[:2])
         wall_p.append(np.column_stack([xy, rng.uniform(0.3, 2.5, 200)]))
@@ -54,7 +54,8 @@ def test_one_wall_ahead_pins_distance_pitch_and_yaw_only() -> None:
 def test_floor_and_a_corner_pin_everything() -> None:
     pose = np.array([0.0, 0.0, 1.5, -0.5, 0.5, -0.5, 0.5])
     rng = np.random.default_rng(1)
-    floor = np.column_stack([rng.uniform(0.5, 2.0, 300), rng.uniform(-1.0, 1.0, 300), np.zeros(300)])
+    floor = np.column_stack([rng.uniform(0.5, 2.0, 300), rng.uniform(-1.0, 1.0, 300),
+                             np.zeros(300)])
     a = _arrays(pose, [np.array([2.0, -1.5, 2.0, 1.5]), np.array([-0.5, 1.5, 2.0, 1.5])], floor)
     assoc = np.repeat(np.arange(2, dtype=np.int32), 200)
     obs = bim_observability(a, pose[None], SolverOptions(), wall_segment=assoc)

@@ -2,14 +2,15 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from _solver_helpers import core
 from bimcap.optimize import SolverInputError, SolverOptions, solve
 from bimcap.optimize.synthetic import SyntheticProblem, make_synthetic_problem
-
-from _solver_helpers import core
 
 
 @pytest.fixture(scope="module")
@@ -23,7 +24,8 @@ def synthetic() -> SyntheticProblem:
 def _plan_change(after: np.ndarray, before: np.ndarray) -> tuple[float, float]:
     """Largest xy change (m) and rotation about the world z (degrees) between (N, 7) pose sets."""
     xy = float(np.linalg.norm(after[:, :2] - before[:, :2], axis=1).max())
-    rotvec = (Rotation.from_quat(after[:, 3:]) * Rotation.from_quat(before[:, 3:]).inv()).as_rotvec()
+    rotvec = (Rotation.from_quat(after[:, 3:])
+              * Rotation.from_quat(before[:, 3:]).inv()).as_rotvec()
     return xy, float(np.degrees(np.abs(rotvec[:, 2])).max())
 
 
@@ -42,7 +44,8 @@ def test_prior_holds_what_the_floor_does_not_see(synthetic: SyntheticProblem) ->
     dz = np.abs(result.poses[seen, 2] - synthetic.gt_poses[seen, 2]).max()
     assert dz0 > 0.1 and dz < 0.05
     prior = result.summary.term("prior")
-    # One block per free pose that F reached: frame 0 is fixed, frames without floor points stay out.
+    # One block per free pose that F reached: frame 0 is fixed, frames without floor points stay
+    # out.
     reached = np.unique(p.floor_frame)
     assert prior.active and prior.num_residual_blocks == np.count_nonzero(reached != 0) == 34
     assert result.summary.num_free_poses == prior.num_residual_blocks
@@ -76,7 +79,8 @@ def test_prior_cost_matches_the_formula(synthetic: SyntheticProblem) -> None:
     free = np.ones(len(p.poses), bool)
     free[0] = False
     t = (result.poses[free, :3] - p.poses[free, :3]) / 0.5
-    delta = (Rotation.from_quat(p.poses[free, 3:]).inv() * Rotation.from_quat(result.poses[free, 3:])).as_quat()
+    delta = (Rotation.from_quat(p.poses[free, 3:]).inv()
+             * Rotation.from_quat(result.poses[free, 3:])).as_quat()
     delta *= np.where(delta[:, 3:] < 0, -1.0, 1.0)  # w >= 0
     rot = 2.0 * delta[:, :3] / np.radians(5.0)
     expected = 0.5 * (np.sum(t**2) + np.sum(rot**2))
@@ -104,6 +108,6 @@ def test_prior_options_round_trip_and_checks() -> None:
     with pytest.raises(AttributeError, match="prior_sigma_r_deg"):
         o.prior_sigma_r_deg = 5.0  # type: ignore[attr-defined]  # never set silently
     # The core applies the same rule.
-    with pytest.raises(Exception, match="prior.paper_weight"):
+    with pytest.raises(Exception, match=re.escape("prior.paper_weight")):
         core().solve(make_synthetic_problem(num_frames=5, seed=0).problem.arrays(),
                      {**SolverOptions().to_flat(), "prior.paper_weight": "1"})

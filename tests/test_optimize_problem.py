@@ -5,10 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from _solver_helpers import core
 from bimcap.optimize import GeometricMode, Loss, Problem, SolverInputError, SolverOptions, Weighting
 from bimcap.optimize.synthetic import make_synthetic_problem
-
-from _solver_helpers import core
 
 
 @pytest.fixture(scope="module")
@@ -37,7 +36,8 @@ def test_normalises_dtype_and_defaults() -> None:
         ("match_frames", lambda a: a["match_frames"].__setitem__(0, [1, 1]), "with itself"),
     ],
 )
-def test_bad_values_name_the_field(arrays: dict[str, np.ndarray], name: str, mutate, message: str) -> None:  # noqa: ANN001
+def test_bad_values_name_the_field(arrays: dict[str, np.ndarray], name: str, mutate,
+                                   message: str) -> None:
     a = {k: v.copy() for k, v in arrays.items()}
     mutate(a)
     with pytest.raises(SolverInputError, match=message) as info:
@@ -76,7 +76,9 @@ def test_options_flat_round_trip_and_keys_match_the_core() -> None:
 
 @pytest.mark.parametrize(
     ("change", "field"),
-    [({"association_gate": -1.0}, "association_gate"), ({"outer_iterations": 0}, "outer_iterations"), ({"num_threads": 0}, "num_threads")],
+    [({"association_gate": -1.0}, "association_gate"),
+     ({"outer_iterations": 0}, "outer_iterations"),
+     ({"num_threads": 0}, "num_threads")],
 )
 def test_bad_options(change: dict[str, object], field: str) -> None:
     o = SolverOptions(**change)  # type: ignore[arg-type]

@@ -8,20 +8,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from _solver_helpers import core
 from bimcap.optimize import SolverInputError, SolverOptions, read_problem, write_problem
 from bimcap.optimize.problem_file import ProblemFileError, parse_problem_buffer, problem_to_bytes
 from bimcap.optimize.synthetic import make_synthetic_problem
 
-from _solver_helpers import core
-
 
 @pytest.fixture(scope="module")
-def synthetic():  # noqa: ANN201
+def synthetic():
     return make_synthetic_problem(num_frames=6, seed=5)
 
 
 @pytest.fixture(scope="module")
-def data(synthetic) -> bytes:  # noqa: ANN001
+def data(synthetic) -> bytes:
     return problem_to_bytes(synthetic.problem, SolverOptions.paper(max_iterations=9))
 
 
@@ -34,7 +33,7 @@ def _entry(data: bytes, name: str) -> int:
     raise KeyError(name)
 
 
-def test_round_trip_python_and_cpp(tmp_path: Path, synthetic) -> None:  # noqa: ANN001
+def test_round_trip_python_and_cpp(tmp_path: Path, synthetic) -> None:
     path = tmp_path / "p.bimcap"
     opts = SolverOptions.paper(max_iterations=9)
     write_problem(path, synthetic.problem, opts)

@@ -7,11 +7,13 @@ import subprocess
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from _solver_helpers import bimcap_solve_binary, core
 from bimcap.geometry.trajectory import read_tum
 from bimcap.optimize import (
     GeometricMode,
@@ -22,18 +24,16 @@ from bimcap.optimize import (
 )
 from bimcap.optimize.synthetic import make_synthetic_problem, pose_errors
 
-from _solver_helpers import bimcap_solve_binary, core
-
 
 @pytest.fixture(scope="module")
-def synthetic():  # noqa: ANN201
+def synthetic():
     core()
     return make_synthetic_problem(
         num_frames=40, seed=11, drift_translation_sigma=0.03, drift_yaw_sigma_deg=0.4
     )
 
 
-def test_solve_recovers_the_truth(synthetic) -> None:  # noqa: ANN001
+def test_solve_recovers_the_truth(synthetic) -> None:
     t0, r0 = pose_errors(synthetic.problem.poses, synthetic.gt_poses)
     result = solve(synthetic.problem, SolverOptions())
     t1, r1 = pose_errors(result.poses, synthetic.gt_poses)
@@ -49,7 +49,7 @@ def test_solve_recovers_the_truth(synthetic) -> None:  # noqa: ANN001
     assert json.loads(s.to_json())["terms"][0]["name"] == "G"
 
 
-def test_paper_objective_matches_numpy(synthetic) -> None:  # noqa: ANN001
+def test_paper_objective_matches_numpy(synthetic) -> None:
     p = synthetic.problem
     result = solve(p, SolverOptions.paper().with_terms("G+F+Ce"))
     poses = result.poses
@@ -59,7 +59,8 @@ def test_paper_objective_matches_numpy(synthetic) -> None:  # noqa: ANN001
         return Rotation.from_quat(poses[frames, 3:]).apply(p_in_cam) + poses[frames, :3]
 
     def back(uv: np.ndarray, depth: np.ndarray) -> np.ndarray:
-        return np.column_stack([(uv[:, 0] - k[2]) / k[0] * depth, (uv[:, 1] - k[3]) / k[1] * depth, depth])
+        return np.column_stack([(uv[:, 0] - k[2]) / k[0] * depth,
+                                (uv[:, 1] - k[3]) / k[1] * depth, depth])
 
     ga = world(p.match_frames[:, 0], back(p.match_uv[:, :2], p.match_depth[:, 0]))
     gb = world(p.match_frames[:, 1], back(p.match_uv[:, 2:], p.match_depth[:, 1]))
@@ -71,7 +72,7 @@ def test_paper_objective_matches_numpy(synthetic) -> None:  # noqa: ANN001
     assert result.summary.final_cost == pytest.approx(0.5 * expected, rel=1e-9)
 
 
-def test_binding_rejects_bad_arrays(synthetic) -> None:  # noqa: ANN001
+def test_binding_rejects_bad_arrays(synthetic) -> None:
     _core = core()
     arrays = synthetic.problem.arrays()
     flat = SolverOptions().to_flat()
@@ -97,7 +98,7 @@ def test_binding_rejects_bad_arrays(synthetic) -> None:  # noqa: ANN001
         _core.solve(arrays, {**flat, "association_gate": "-2"})
 
 
-def test_solve_names_the_bad_field(synthetic) -> None:  # noqa: ANN001
+def test_solve_names_the_bad_field(synthetic) -> None:
     arrays = synthetic.problem.arrays()
     broken = {**arrays, "floor_plane": np.full_like(arrays["floor_plane"], 5)}
     with pytest.raises(SolverInputError) as info:
@@ -105,13 +106,14 @@ def test_solve_names_the_bad_field(synthetic) -> None:  # noqa: ANN001
     assert info.value.field == "floor_plane"
 
 
-def test_cli_matches_the_binding(tmp_path: Path, synthetic) -> None:  # noqa: ANN001
+def test_cli_matches_the_binding(tmp_path: Path, synthetic) -> None:
     exe = bimcap_solve_binary()
     options = SolverOptions(max_iterations=50)
     path = tmp_path / "problem.bimcap"
     write_problem(path, synthetic.problem, options)
     out = tmp_path / "out"
-    run = subprocess.run([str(exe), str(path), "-o", str(out)], capture_output=True, text=True, timeout=120)
+    run = subprocess.run([str(exe), str(path), "-o", str(out)], capture_output=True, text=True,
+                         timeout=120)
     assert run.returncode == 0, run.stderr
     traj = read_tum(out / "refined.tum")
     result = solve(synthetic.problem, options)
@@ -120,7 +122,8 @@ def test_cli_matches_the_binding(tmp_path: Path, synthetic) -> None:  # noqa: AN
     summary = json.loads((out / "summary.json").read_text())
     assert summary["iterations"] == result.summary.iterations
     assert summary["final_cost"] == pytest.approx(result.summary.final_cost, rel=1e-9)
-    info = subprocess.run([str(exe), str(path), "--info"], capture_output=True, text=True, timeout=60)
+    info = subprocess.run([str(exe), str(path), "--info"], capture_output=True, text=True,
+                          timeout=60)
     assert info.returncode == 0 and "version 1" in info.stdout and "wall_p_in_cam" in info.stdout
 
 
@@ -128,9 +131,11 @@ def test_cli_exit_codes(tmp_path: Path) -> None:
     exe = bimcap_solve_binary()
     bad = tmp_path / "bad.bimcap"
     bad.write_bytes(b"BIMCAPPF" + b"\0" * 100)
-    run = subprocess.run([str(exe), str(bad), "-o", str(tmp_path / "o")], capture_output=True, text=True, timeout=60)
+    run = subprocess.run([str(exe), str(bad), "-o", str(tmp_path / "o")], capture_output=True,
+                         text=True, timeout=60)
     assert run.returncode == 2 and "version" in run.stderr
-    run = subprocess.run([str(exe), str(tmp_path / "missing"), "-o", str(tmp_path / "o")], capture_output=True, text=True, timeout=60)
+    run = subprocess.run([str(exe), str(tmp_path / "missing"), "-o", str(tmp_path / "o")],
+                         capture_output=True, text=True, timeout=60)
     assert run.returncode == 2 and "cannot open" in run.stderr
     run = subprocess.run([str(exe)], capture_output=True, text=True, timeout=60)
     assert run.returncode == 1 and "usage" in run.stderr
@@ -148,41 +153,52 @@ def test_reprojection_agrees_with_pycolmap() -> None:
     _core = core()
     rng = np.random.default_rng(7)
     for _ in range(20):
-        k = np.array([rng.uniform(300, 900), rng.uniform(300, 900), rng.uniform(200, 400), rng.uniform(150, 300)])
+        k = np.array([rng.uniform(300, 900), rng.uniform(300, 900), rng.uniform(200, 400),
+                      rng.uniform(150, 300)])
         camera = pycolmap.Camera(model="PINHOLE", width=640, height=480, params=k)
-        world_from_a = np.r_[rng.normal(size=3), Rotation.random(random_state=rng.integers(1 << 30)).as_quat()]
+        world_from_a = np.r_[rng.normal(size=3),
+                             Rotation.random(random_state=rng.integers(1 << 30)).as_quat()]
         p_a = np.array([rng.uniform(-1, 1), rng.uniform(-1, 1), rng.uniform(2, 5)])
         p_world = Rotation.from_quat(world_from_a[3:]).apply(p_a) + world_from_a[:3]
         # Camera b 2-6 m in front of the point, random orientation.
         q_b = Rotation.random(random_state=rng.integers(1 << 30))
-        t_b = p_world - q_b.apply([rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), rng.uniform(2, 6)])
+        t_b = p_world - q_b.apply([rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5),
+                                   rng.uniform(2, 6)])
         world_from_b = np.r_[t_b, q_b.as_quat()]
         uv_b = rng.uniform([0, 0], [640, 480])
-        residual, (jac_a, jac_b) = _core.evaluate_reprojection(world_from_a, world_from_b, p_a, uv_b, k)
+        residual, (jac_a, jac_b) = _core.evaluate_reprojection(world_from_a, world_from_b, p_a,
+                                                               uv_b, k)
 
-        b_from_world = pycolmap.Rigid3d(pycolmap.Rotation3d(q_b.inv().as_quat()), -q_b.inv().apply(t_b))
+        b_from_world = pycolmap.Rigid3d(pycolmap.Rotation3d(q_b.inv().as_quat()),
+                                        -q_b.inv().apply(t_b))
 
-        def project(x: np.ndarray) -> np.ndarray:
+        def project(x: np.ndarray, camera: Any = camera,
+                    b_from_world: Any = b_from_world) -> np.ndarray:
             return camera.img_from_cam((b_from_world * x)[None])[0]
 
         np.testing.assert_allclose(residual, project(p_world) - uv_b, rtol=1e-10, atol=1e-8)
         # d residual / d p_world: the translation columns of frame a's block.
-        numeric = np.column_stack([(project(p_world + h) - project(p_world - h)) / 2e-6 for h in np.eye(3) * 1e-6])
+        numeric = np.column_stack([(project(p_world + h) - project(p_world - h)) / 2e-6
+                                   for h in np.eye(3) * 1e-6])
         np.testing.assert_allclose(jac_a[:, :3], numeric, rtol=1e-6, atol=1e-6)
         # Moving camera b by +d moves the point by −d in b's frame.
         np.testing.assert_allclose(jac_b[:, :3], -numeric, rtol=1e-6, atol=1e-6)
-        _check_against_reproj_error_cost(pycolmap, k, uv_b, b_from_world, p_world, residual, jac_a[:, :3])
+        _check_against_reproj_error_cost(pycolmap, k, uv_b, b_from_world, p_world, residual,
+                                         jac_a[:, :3])
 
 
-def _check_against_reproj_error_cost(pycolmap, k, uv_b, b_from_world, p_world, residual, jac_point) -> None:  # noqa: ANN001
+def _check_against_reproj_error_cost(pycolmap, k, uv_b, b_from_world, p_world, residual,
+                                     jac_point) -> None:
     try:
-        import pyceres  # noqa: F401, PLC0415  (registers ceres::CostFunction for pycolmap)
+        import pyceres  # noqa: F401  (registers ceres::CostFunction for pycolmap)
     except ImportError:
         return
-    cost = pycolmap.cost_functions.ReprojErrorCost(pycolmap.CameraModelId.PINHOLE, uv_b, b_from_world)
+    cost = pycolmap.cost_functions.ReprojErrorCost(pycolmap.CameraModelId.PINHOLE, uv_b,
+                                                   b_from_world)
     r, jacobians = cost.evaluate(p_world, k)
     np.testing.assert_allclose(r, residual, rtol=1e-10, atol=1e-8)
-    np.testing.assert_allclose(np.asarray(jacobians[0]).reshape(2, 3), jac_point, rtol=1e-8, atol=1e-8)
+    np.testing.assert_allclose(np.asarray(jacobians[0]).reshape(2, 3), jac_point,
+                               rtol=1e-8, atol=1e-8)
 
 
 def test_gil_is_released_while_solving() -> None:
@@ -204,7 +220,7 @@ def test_gil_is_released_while_solving() -> None:
     assert ticks > 20, "the main thread did not run while the solver worked"
 
 
-def test_landmark_mode_and_covariance(synthetic) -> None:  # noqa: ANN001
+def test_landmark_mode_and_covariance(synthetic) -> None:
     options = SolverOptions(geometric_mode=GeometricMode.LANDMARK, compute_covariance=True)
     result = solve(synthetic.problem, options)
     t, r = pose_errors(result.poses, synthetic.gt_poses)

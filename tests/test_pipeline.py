@@ -88,7 +88,8 @@ def test_demo_rerun_reuses_its_caches(tiny_demo) -> None:
     again = run_demo(tiny_demo.out_dir, opts, quiet=True)
     assert again.seconds < tiny_demo.seconds
     first = tiny_demo.results["bimcap"]["metrics"]["ate_rot_deg"]["rmse"]
-    assert again.results["bimcap"]["metrics"]["ate_rot_deg"]["rmse"] == pytest.approx(first, rel=1e-6)
+    assert (again.results["bimcap"]["metrics"]["ate_rot_deg"]["rmse"]
+            == pytest.approx(first, rel=1e-6))
 
 
 @pytest.mark.slow

@@ -171,9 +171,9 @@ def test_rigid_motion_of_the_whole_world_changes_nothing(demo: Scene) -> None:
 def test_smoothly_growing_drift_like_exp1(demo: Scene) -> None:
     # Odometry with a 3 % scale error and a constant yaw rate: 0 at the start, ~1 m and ~11°
     # after 60 frames. Window corrections + per-frame ICP must take it out.
-    from bimcap.geometry.poses import compose, invert
     from scipy.spatial.transform import Rotation
 
+    from bimcap.geometry.poses import compose, invert
     from bimcap.registration.synthetic import demo_tour
 
     gt = poses_along(demo_tour(seed=0), 0.25)[100:160]

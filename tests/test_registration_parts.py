@@ -144,7 +144,7 @@ def test_score_volume_peaks_at_the_true_grid_offset() -> None:
     np.testing.assert_allclose([(i - n) * res, (j - n) * res], shift, atol=1e-9)
     hyps = top_hypotheses(vol, yaws, res, n, 4, 0.3, np.deg2rad(3.0))
     assert hyps[0].score == pytest.approx(float(vol.max()))
-    assert all(a.score >= b.score for a, b in zip(hyps, hyps[1:]))
+    assert all(a.score >= b.score for a, b in itertools.pairwise(hyps))
 
 
 def test_level_window_recovers_tilt_and_height() -> None:
@@ -172,14 +172,15 @@ def test_viterbi_matches_brute_force() -> None:
     rng = np.random.default_rng(2)
     sizes = [3, 4, 2, 3]
     unary = [rng.normal(size=k) for k in sizes]
-    pair = [rng.uniform(0, 2, (a, b)) for a, b in zip(sizes[:-1], sizes[1:])]
+    pair = [rng.uniform(0, 2, (a, b)) for a, b in itertools.pairwise(sizes)]
     labels, cost = viterbi_chain(unary, pair)
     best = min(itertools.product(*[range(k) for k in sizes]),
-               key=lambda lab: sum(u[i] for u, i in zip(unary, lab))
-               + sum(p[a, b] for p, a, b in zip(pair, lab[:-1], lab[1:])))
+               key=lambda lab: sum(u[i] for u, i in zip(unary, lab, strict=True))
+               + sum(p[a, b] for p, a, b in zip(pair, lab[:-1], lab[1:], strict=True)))
     assert tuple(labels) == best
-    assert cost == pytest.approx(sum(u[i] for u, i in zip(unary, best))
-                                 + sum(p[a, b] for p, a, b in zip(pair, best[:-1], best[1:])))
+    assert cost == pytest.approx(
+        sum(u[i] for u, i in zip(unary, best, strict=True))
+        + sum(p[a, b] for p, a, b in zip(pair, best[:-1], best[1:], strict=True)))
 
 
 def test_transition_cost_is_pivot_independent() -> None:

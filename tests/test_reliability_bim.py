@@ -18,12 +18,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from _ifc_edits import cut, double_paren, drop_storeys, length_unit_prefix, move_up, rename_class
-
-from bimcap.bim.errors import BimInputError
-from bimcap.cli import main
 
 import bimcap
+from _ifc_edits import cut, double_paren, drop_storeys, length_unit_prefix, move_up, rename_class
+from bimcap.bim.errors import BimInputError
+from bimcap.cli import main
 
 #: The bimcap under test (PYTHONPATH), handed to the subprocesses.
 SOURCES = Path(bimcap.__file__).resolve().parents[1]
@@ -53,7 +52,7 @@ def fzk(ifc_dir: Path) -> Path:
     return ifc_dir / "AC20-FZK-Haus.ifc"
 
 
-def _variant(src: Path, tmp: Path, name: str, edit) -> Path:  # noqa: ANN001
+def _variant(src: Path, tmp: Path, name: str, edit) -> Path:
     path = tmp / f"{src.stem}-{name}.ifc"
     path.write_text(edit(src.read_text(errors="surrogateescape")), errors="surrogateescape")
     return path
@@ -98,7 +97,7 @@ def _check_moved(orig: dict, ref: dict, notes: list[str]) -> None:
     walls0, walls = orig["segments"]["wall"], ref["segments"]["wall"]
     assert walls["count"] > 0  # 0 before: the cut used Elevation 0, the walls stood at 300 m
     assert walls["length_m"] == pytest.approx(walls0["length_m"], rel=0.05)
-    for a, b in zip(orig["storeys"], ref["storeys"]):
+    for a, b in zip(orig["storeys"], ref["storeys"], strict=True):
         assert b["elevation_m"] == pytest.approx(a["elevation_m"] + 300.0, abs=1e-6)
 
 
@@ -172,10 +171,10 @@ def test_generated_cut_file_is_refused_with_counts(generated: Path, tmp_path: Pa
 def test_generated_malformed_line_is_refused(generated: Path, tmp_path: Path) -> None:
     bad = _variant(generated, tmp_path, "unknown",
                    lambda t: rename_class(t, "IFCWALL", "IFCWALLXX"))
+    from bimcap.bim.ingest import load_model
+
     with pytest.raises(BimInputError,
                        match=rf"lost 1 of {_tiny_elements()} building elements .*1 unreadable"):
-        from bimcap.bim.ingest import load_model
-
         load_model(bad)
 
 
@@ -201,7 +200,7 @@ def test_fzk_one_malformed_wall_is_a_loud_warning(fzk: Path, tmp_path: Path) -> 
     """One unreadable wall of 85 elements (1.2 %, under the 2 % default): a warning with counts."""
     bad = _variant(fzk, tmp_path, "unknown",
                    lambda t: rename_class(t, "IFCWALLSTANDARDCASE", "IFCWALLXX"))
-    rc, out, err = _bim(bad, tmp_path / "out")
+    rc, _out, err = _bim(bad, tmp_path / "out")
     assert rc == 0, err
     assert "WARNING" in err and "lost 1 of 85 building elements" in err and "IFCWALLXX 1" in err
     rc, _, err = _bim(bad, tmp_path / "strict", "--max-lost-fraction", "0")
@@ -244,6 +243,6 @@ def test_empty_floor_plan_or_cloud_is_an_error(generated: Path) -> None:
     with pytest.raises(BimInputError, match="empty floor plan") as info:
         empty_plan.check_usable()
     assert str(generated) in str(info.value) and "S0 0.000 m" in str(info.value)
+    no_cloud = dataclasses.replace(ref, points=np.zeros((0, 3)), labels=np.zeros(0, np.uint8))
     with pytest.raises(BimInputError, match="empty semantic cloud"):
-        no_cloud = dataclasses.replace(ref, points=np.zeros((0, 3)), labels=np.zeros(0, np.uint8))
         no_cloud.check_usable()

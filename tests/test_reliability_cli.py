@@ -21,7 +21,7 @@ def describe_os_error(exc: OSError) -> str:
     return describe(exc)
 
 
-@pytest.mark.parametrize("code,words", [
+@pytest.mark.parametrize(("code", "words"), [
     (errno.EACCES, "permission denied"),
     (errno.EROFS, "read-only file system"),
     (errno.ENOSPC, "no space left on the device (disk full)"),
@@ -38,12 +38,9 @@ def test_describe_os_error_names_path_and_reason(code: int, words: str) -> None:
 def test_existing_file_where_a_directory_is_needed(tmp_path: Path) -> None:
     f = tmp_path / "out"
     f.write_text("x")
-    try:
+    with pytest.raises(FileExistsError) as info:
         f.mkdir(parents=True, exist_ok=True)
-    except FileExistsError as exc:
-        assert describe_os_error(exc) == f"{f}: is a file, not a directory"
-    else:  # pragma: no cover
-        pytest.fail("mkdir over a file succeeded")
+    assert describe_os_error(info.value) == f"{f}: is a file, not a directory"
 
 
 def test_an_unexpected_oserror_in_any_command_is_one_line(monkeypatch: pytest.MonkeyPatch,
@@ -52,7 +49,7 @@ def test_an_unexpected_oserror_in_any_command_is_one_line(monkeypatch: pytest.Mo
     line and exits 4 (``--debug`` shows the traceback)."""
     import bimcap.geometry.trajectory as trajectory  # evaluate imports read_tum when it runs
 
-    def boom(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
+    def boom(*args, **kwargs):
         raise OSError(errno.EIO, "Input/output error", "/mnt/nas/gt.tum")
 
     monkeypatch.setattr(trajectory, "read_tum", boom)
@@ -60,7 +57,7 @@ def test_an_unexpected_oserror_in_any_command_is_one_line(monkeypatch: pytest.Mo
     err = capsys.readouterr().err.strip()
     assert err == "bimcap evaluate: error: /mnt/nas/gt.tum: input/output error (a failing disk " \
                   "or network file system?)"
-    with pytest.raises(OSError):
+    with pytest.raises(OSError, match="Input/output error"):
         main(["--debug", "evaluate", "a.tum", "b.tum"])
 
 

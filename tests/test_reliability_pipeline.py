@@ -20,9 +20,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from _ifc_edits import cut, length_unit_prefix
 
 import bimcap
+from _ifc_edits import cut, length_unit_prefix
 from bimcap.cli import main
 
 pytest.importorskip("bimcap._core", reason="the C++ core is not built")
@@ -124,10 +124,10 @@ def test_settings_and_inputs_are_checked_before_any_work(world: dict[str, Path],
 
 
 # ----------------------------------------------------------------------------- item 2: the IFC
-@pytest.mark.parametrize("edit,words", [(length_unit_prefix, ["LENGTHUNIT", "MILLIMETRE"]),
+@pytest.mark.parametrize(("edit", "words"), [(length_unit_prefix, ["LENGTHUNIT", "MILLIMETRE"]),
                                         (lambda t: cut(t, 0.6), ["damaged IFC file"])])
 def test_unusable_ifc_fails_before_the_front_end(world: dict[str, Path], tmp_path: Path,
-                                                 edit, words: list[str],  # noqa: ANN001
+                                                 edit, words: list[str],
                                                  capsys: pytest.CaptureFixture[str]) -> None:
     bad = tmp_path / "bad.ifc"
     bad.write_text(edit(world["design"].read_text()))
@@ -209,7 +209,7 @@ def test_an_interrupted_rerun_leaves_the_earlier_set_whole(first_run: Path,
     before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()
               and p.relative_to(out).parts[0] not in ("bim", "cache")}
 
-    def interrupt(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
+    def interrupt(*args, **kwargs):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(report_module, "write_refine_report", interrupt)
@@ -268,7 +268,7 @@ def test_output_path_is_an_existing_file(world: dict[str, Path], tmp_path: Path,
         assert target.read_text() == "mine\n"
 
 
-@pytest.mark.parametrize("code,words", [(errno.ENOSPC, "no space left on the device"),
+@pytest.mark.parametrize(("code", "words"), [(errno.ENOSPC, "no space left on the device"),
                                         (errno.EROFS, "read-only file system"),
                                         (errno.EACCES, "permission denied")])
 def test_os_errors_while_writing_are_one_line_and_exit_4(world: dict[str, Path], tmp_path: Path,
@@ -296,7 +296,7 @@ def test_os_errors_while_writing_are_one_line_and_exit_4(world: dict[str, Path],
         assert main(args) == 4, args
         line = _err_line(capsys)
         assert line.startswith(f"bimcap {args[0]}: error: ") and words in line, line
-        leftovers = [p for p in out.rglob("*.tmp")] if out.exists() else []
+        leftovers = list(out.rglob("*.tmp")) if out.exists() else []
         assert leftovers == [], leftovers
     monkeypatch.undo()
 
@@ -338,7 +338,6 @@ def test_read_only_directory_for_real(world: dict[str, Path], tmp_path: Path) ->
             assert len(lines) == 1 and f"{ro}: permission denied" in lines[0], r.stderr
         # bimcap_solve: the same exit status and words.
         from _solver_helpers import bimcap_solve_binary
-
         from bimcap.optimize import SolverOptions, write_problem
         from bimcap.optimize.synthetic import make_synthetic_problem
 
@@ -353,7 +352,7 @@ def test_read_only_directory_for_real(world: dict[str, Path], tmp_path: Path) ->
         ro.chmod(0o755)
 
 
-def _file_size_limit(limit: int):  # noqa: ANN202
+def _file_size_limit(limit: int):
     def apply() -> None:
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # writes past the limit fail with EFBIG
         resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from _solver_helpers import bimcap_solve_binary, core
 from bimcap.errors import InputError
 from bimcap.optimize import (
     Problem,
@@ -26,8 +27,6 @@ from bimcap.optimize import (
 )
 from bimcap.optimize.problem_file import ProblemFileError, problem_to_bytes
 from bimcap.optimize.synthetic import make_synthetic_problem
-
-from _solver_helpers import bimcap_solve_binary, core
 
 EXIT_SOLVE_FAILED = 3
 EXIT_OUTPUT = 4
@@ -104,7 +103,7 @@ def test_finite_problem_still_solves(arrays: dict[str, np.ndarray]) -> None:
     assert res.summary.success and np.isfinite(res.summary.final_cost)
 
 
-def _fsize_limit(limit: int):  # noqa: ANN202
+def _fsize_limit(limit: int):
     def apply() -> None:
         # Writing past RLIMIT_FSIZE fails with EFBIG once SIGXFSZ is ignored: the same code path
         # as ENOSPC (a failing write), without root, a tmpfs or a full disk.

@@ -2,9 +2,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from _fusion_scene import frames
 from scipy.spatial.transform import Rotation
 
+from _fusion_scene import frames
 from bimcap.fusion import CompletionMethod, CompletionOptions, complete_depth, project_lidar
 from bimcap.geometry import quat_to_rotmat
 from bimcap.labels import Label
@@ -36,7 +36,8 @@ def _ignore_border_columns(gt: np.ndarray) -> np.ndarray:
 
 
 def _pooled_iou(preds: list[np.ndarray], gts: list[np.ndarray]) -> dict[Label, float]:
-    return iou_per_class(np.concatenate(preds, 0), np.concatenate([_ignore_border_columns(g) for g in gts], 0))
+    return iou_per_class(np.concatenate(preds, 0),
+                         np.concatenate([_ignore_border_columns(g) for g in gts], 0))
 
 
 def _tilt(pose: np.ndarray, pitch_deg: float) -> np.ndarray:
@@ -49,7 +50,8 @@ def _tilt(pose: np.ndarray, pitch_deg: float) -> np.ndarray:
 @pytest.mark.parametrize("pitch_error_deg", [0.0, 4.0, -8.0])
 def test_iou_on_ground_truth_depth(pitch_error_deg: float) -> None:
     fs = frames(4, 516, 386, 7) + frames(3)
-    preds = [segment_geometric(f.depth, f.camera, _tilt(f.world_from_cam, pitch_error_deg)) for f in fs]
+    preds = [segment_geometric(f.depth, f.camera, _tilt(f.world_from_cam, pitch_error_deg))
+             for f in fs]
     iou = _pooled_iou(preds, [f.labels for f in fs])
     for label, need in REQUIRED.items():
         assert iou[label] >= need, (label, iou)
@@ -61,7 +63,8 @@ def test_iou_on_completed_lidar_depth() -> None:
     for f in fs:
         sp = project_lidar(f.points_in_lidar, f.cam_from_lidar, f.camera)
         dense = complete_depth(sp, CompletionOptions(CompletionMethod.CLASSICAL))
-        preds.append(GeometricSegmenter().segment(FrameInput(f.camera, depth=dense, world_from_cam=f.world_from_cam)))
+        preds.append(GeometricSegmenter().segment(
+            FrameInput(f.camera, depth=dense, world_from_cam=f.world_from_cam)))
     iou = _pooled_iou(preds, [f.labels for f in fs])
     assert iou[Label.FLOOR] >= 0.85 and iou[Label.WALL] >= 0.85, iou
 
@@ -111,7 +114,8 @@ def test_clutter_is_not_taken_for_columns_or_walls() -> None:
     # but they do not reach the ceiling
     from bimcap.fusion.synthetic import BoxRoom, default_camera, render_default_frames
 
-    room = BoxRoom(clutter=((3.0, 1.2, 0.0, 3.8, 1.8, 0.8), (4.0, 2.8, 0.0, 4.5, 3.3, 0.5), (6.5, 3.5, 0.0, 7.2, 4.5, 1.1)))
+    room = BoxRoom(clutter=((3.0, 1.2, 0.0, 3.8, 1.8, 0.8), (4.0, 2.8, 0.0, 4.5, 3.3, 0.5),
+                            (6.5, 3.5, 0.0, 7.2, 4.5, 1.1)))
     fs = render_default_frames(4, camera=default_camera(516, 386), room=room)
     preds = [segment_geometric(f.depth, f.camera, f.world_from_cam) for f in fs]
     gt = np.concatenate([_ignore_border_columns(f.labels) for f in fs])

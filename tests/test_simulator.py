@@ -116,7 +116,7 @@ def test_slab_is_floor_from_above_and_ceiling_from_below() -> None:
 
 
 def test_cylinder_mesh_is_closed() -> None:
-    v, f = cylinder_mesh((0.0, 0.0), 0.0, 1.0, 0.5, segments=12)
+    _v, f = cylinder_mesh((0.0, 0.0), 0.0, 1.0, 0.5, segments=12)
     edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
     _, counts = np.unique(edges, axis=0, return_counts=True)
     assert (counts == 2).all()  # every edge shared by exactly two triangles

@@ -1,4 +1,5 @@
-"""End-to-end: ``simulate`` and ``bimcap simulate`` on generated (design + as-built) and real IFC."""
+"""End-to-end: ``simulate`` and ``bimcap simulate`` on generated (design + as-built) and real
+IFC."""
 
 from __future__ import annotations
 
@@ -68,7 +69,7 @@ def test_cli_simulate(
     design, _ = buildings
     out = tmp_path / "cli-seq"
     args = ["simulate", str(design), "-o", str(out), "--frames", "2", "--small", "--workers", "1"]
-    rc = main(args + ["--no-depth", "--seed", "5"])
+    rc = main([*args, "--no-depth", "--seed", "5"])
     assert rc == 0
     assert "wrote 2 frames (320x239" in capsys.readouterr().out
     seq = read_sequence(out)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -195,7 +196,7 @@ def test_lidar_dropout_fraction_and_grazing_share() -> None:
     assert p[base["cos"] < 0.3].mean() > 2 * p[base["cos"] > 0.9].mean()
     assert LidarConfig(dropout=0.3, grazing_share=0.0).drop_probability(base["cos"]) == \
         pytest.approx(0.3)
-    with pytest.raises(SimConfigError, match="lidar.dropout"):
+    with pytest.raises(SimConfigError, match=re.escape("lidar.dropout")):
         LidarConfig(dropout=1.2)
 
 
@@ -306,7 +307,7 @@ def test_cli_flags_reach_the_config(tiny_ifc: Path, tmp_path: Path,
     cfg = run("--no-clutter")
     assert cfg.clutter_density_per_m2 == 0.0 and seen["clutter"] is False
     # bad values: one clear line naming the setting, exit 2
-    for flags, name in ((["--lidar-dropout", "1.5"], "lidar.dropout"),
+    for flags, _name in ((["--lidar-dropout", "1.5"], "lidar.dropout"),
                         (["--label-noise", "-0.1"], "label_noise.fraction"),
                         (["--focal-scale", "0"], "focal_scale"),
                         (["--pitch-amplitude-deg", "-5"], "walk.pitch_amplitude_deg")):

@@ -70,7 +70,8 @@ def test_storey_choice_and_clear_errors(split_level) -> None:
     assert best.level.name == max(by_name, key=lambda k: by_name[k].walkable_m2)
     basement = choose_free_space(world, _levels(model), storey="Basement", door_polygons=doors)
     assert basement.free.z_floor == pytest.approx(-3.0, abs=0.01)
-    with pytest.raises(SimError, match=r"no storey named 'Attic' \(storeys: 'Basement', 'Ground'\)"):
+    with pytest.raises(SimError,
+                       match=r"no storey named 'Attic' \(storeys: 'Basement', 'Ground'\)"):
         choose_free_space(world, _levels(model), storey="Attic", model_name=str(path))
     t0 = time.perf_counter()
     with pytest.raises(SimError, match=rf"{path.name}: nothing to walk on.*'z=\+7.00'"):
@@ -84,10 +85,10 @@ def test_cli_storey_flag(split_level, tmp_path: Path, capsys: pytest.CaptureFixt
 
     path = split_level[0]
     args = ["simulate", str(path), "--small", "--frames", "2", "--workers", "1", "--no-clutter"]
-    assert main(args + ["-o", str(tmp_path / "bad"), "--storey", "Attic"]) == 2
+    assert main([*args, "-o", str(tmp_path / "bad"), "--storey", "Attic"]) == 2
     err = capsys.readouterr().err
     assert "no storey named 'Attic'" in err and "split.ifc" in err
-    assert main(args + ["-o", str(tmp_path / "seq"), "--storey", "Ground"]) == 0
+    assert main([*args, "-o", str(tmp_path / "seq"), "--storey", "Ground"]) == 0
     assert "walked storey 'Ground'" in capsys.readouterr().out
     seq = read_sequence(tmp_path / "seq")
     assert seq.source["storey"] == "Ground" and seq.source["walkable"]["storey"] == "Ground"

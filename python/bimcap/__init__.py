@@ -2,7 +2,8 @@
 
 Conventions (see the README): world = the IFC frame, z up, metres; poses are
 ``world_from_cam`` arrays of shape (N, 7) in TUM order ``[tx, ty, tz, qx, qy, qz, qw]``;
-camera frame is OpenCV optical (x right, y down, z forward); label ids are :class:`bimcap.labels.Label`.
+camera frame is OpenCV optical (x right, y down, z forward); label ids are
+:class:`bimcap.labels.Label`.
 """
 
 from __future__ import annotations

@@ -64,7 +64,7 @@ def storey_svg(sp: StoreyPlan, px_per_m: float = 40.0) -> str:
                 f'<line x1="{tx(s[0]):.2f}" y1="{ty(s[1]):.2f}" x2="{tx(s[2]):.2f}" '
                 f'y2="{ty(s[3]):.2f}" stroke="rgb{_EXACT_RGB}" stroke-width="1"/>'
             )
-    for s, c in zip(sp.segments, sp.segment_class):
+    for s, c in zip(sp.segments, sp.segment_class, strict=True):
         r, g, b = (int(v) for v in LABEL_COLORS[int(c)])
         out.append(
             f'<line x1="{tx(s[0]):.2f}" y1="{ty(s[1]):.2f}" x2="{tx(s[2]):.2f}" '
@@ -92,18 +92,19 @@ def storey_png(sp: StoreyPlan, px_per_m: float = 40.0, max_px: int = 2400) -> by
     def pix(seg: NDArray[np.float64]) -> tuple[tuple[int, int], tuple[int, int]]:
         x = (seg[[0, 2]] - lo[0]) * scale
         y = head + (hi[1] - seg[[1, 3]]) * scale
-        return (int(round(x[0])), int(round(y[0]))), (int(round(x[1])), int(round(y[1])))
+        return ((int(round(x[0])), int(round(y[0]))),  # noqa: RUF046 (numpy < 2)
+                (int(round(x[1])), int(round(y[1]))))  # noqa: RUF046 (numpy < 2)
 
     for cls in PLAN_CLASSES:
         for s in sp.exact.get(cls, np.zeros((0, 4))):
             a, b = pix(s)
             cv2.line(img, a, b, _EXACT_RGB[::-1], 1, cv2.LINE_AA)
-    for s, c in zip(sp.segments, sp.segment_class):
+    for s, c in zip(sp.segments, sp.segment_class, strict=True):
         a, b = pix(s)
         r, g, bl = (int(v) for v in LABEL_COLORS[int(c)])
         cv2.line(img, a, b, (bl, g, r), 2, cv2.LINE_AA)
     y0 = head + h - 10
-    cv2.line(img, (10, y0), (10 + int(round(scale)), y0), (0, 0, 0), 3)
+    cv2.line(img, (10, y0), (10 + round(scale), y0), (0, 0, 0), 3)
     cv2.putText(img, "1 m", (10, y0 - 6), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
     for k, line in enumerate(_title(sp)):
         cv2.putText(img, line, (4, 17 + 18 * k), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1,

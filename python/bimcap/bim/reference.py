@@ -138,7 +138,7 @@ class BimReference:
                 }
                 for c in (Label.WALL, Label.COLUMN)
             },
-            "points": int(len(self.points)),
+            "points": len(self.points),
             "floorplan_storeys": fp.get("storeys", []),
         }
 

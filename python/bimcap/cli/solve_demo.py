@@ -20,10 +20,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--terms", default="G,F,Ce,W,Co", help="terms to use, e.g. G,F,W (default all)")
     p.add_argument("--weighting", choices=["paper", "robust"], default="robust")
-    p.add_argument("--geometric-mode", choices=["point", "reprojection", "landmark"], default="point")
+    p.add_argument("--geometric-mode", choices=["point", "reprojection", "landmark"],
+                   default="point")
     p.add_argument("--drift", type=float, default=0.03, help="translation drift per frame, m")
     p.add_argument("--drift-yaw", type=float, default=0.3, help="yaw drift per frame, degrees")
-    p.add_argument("-o", "--output", type=Path, help="also write problem.bimcap, refined.tum, summary.json here")
+    p.add_argument("-o", "--output", type=Path,
+                   help="also write problem.bimcap, refined.tum, summary.json here")
     p.set_defaults(func=run, output_dirs=["output"])
 
 
@@ -54,7 +56,8 @@ def run(args: argparse.Namespace) -> int:
     result = solve(problem, options, check=False)
     t1, r1 = pose_errors(result.poses, synthetic.gt_poses)
     print(result.summary.table())
-    print(f"pose error (RMSE vs ground truth): before {t0:.4f} m / {r0:.3f} deg, after {t1:.4f} m / {r1:.3f} deg")
+    print(f"pose error (RMSE vs ground truth): before {t0:.4f} m / {r0:.3f} deg, "
+          f"after {t1:.4f} m / {r1:.3f} deg")
     if args.output is not None:
         args.output.mkdir(parents=True, exist_ok=True)
         write_problem(args.output / "problem.bimcap", problem, options)

@@ -150,7 +150,7 @@ def aggregate_map(scans_in_sensor: Sequence[ArrayLike], world_from_sensor: Array
             f"need one (4, 4) pose per scan: {len(scans_in_sensor)} scans, poses {poses.shape}"
         )
     parts = []
-    for i, (scan, pose) in enumerate(zip(scans_in_sensor, poses)):
+    for i, (scan, pose) in enumerate(zip(scans_in_sensor, poses, strict=True)):
         p = _as_points(scan, f"scan {i}")
         parts.append(p @ pose[:3, :3].T + pose[:3, 3])
     return np.concatenate(parts, axis=0) if parts else np.zeros((0, 3))
@@ -283,10 +283,7 @@ def nearest_neighbour_distance(
         raise EvaluationError(f"cutoff must be positive, got {cutoff}")
     dist, _ = cKDTree(ref).query(pts, k=1)
     beyond = dist >= cutoff
-    if CutoffMode(mode) is CutoffMode.CLAMP:
-        used = np.minimum(dist, cutoff)
-    else:
-        used = dist[~beyond]
+    used = np.minimum(dist, cutoff) if CutoffMode(mode) is CutoffMode.CLAMP else dist[~beyond]
     if used.size == 0:
         return NearestNeighbourDistance(float("nan"), float("nan"), int(beyond.sum()), len(pts))
     return NearestNeighbourDistance(

@@ -134,7 +134,9 @@ def match_descriptors(
     return _match_numpy(desc_a, desc_b, opts)
 
 
-def _top2(sim: NDArray[np.float32]) -> tuple[NDArray[np.int64], NDArray[np.float32], NDArray[np.float32]]:
+def _top2(
+    sim: NDArray[np.float32],
+) -> tuple[NDArray[np.int64], NDArray[np.float32], NDArray[np.float32]]:
     """Per row: index of the largest similarity, the largest and the second largest."""
     best = np.argmax(sim, axis=1)
     rows = np.arange(len(sim))
@@ -146,7 +148,8 @@ def _top2(sim: NDArray[np.float32]) -> tuple[NDArray[np.int64], NDArray[np.float
     return best, s1, s2
 
 
-def _passes(s1: NDArray[np.float32], s2: NDArray[np.float32], opts: MatchOptions) -> NDArray[np.bool_]:
+def _passes(s1: NDArray[np.float32], s2: NDArray[np.float32],
+            opts: MatchOptions) -> NDArray[np.bool_]:
     """COLMAP's criteria on similarities (dot / 512²): angle test and ratio test."""
     d1 = np.arccos(np.minimum(s1.astype(np.float64), 1.0))
     d2 = np.arccos(np.minimum(s2.astype(np.float64), 1.0))
@@ -266,7 +269,8 @@ def verify_matches(
         # A rig that stands still gives matches at the same pixels; they are valid constraints,
         # not a watermark, so COLMAP's watermark detection is switched off.
         to.detect_watermark = False
-        local = np.stack([np.arange(len(matches)), np.arange(len(matches))], axis=1).astype(np.uint32)
+        local = np.stack([np.arange(len(matches)), np.arange(len(matches))],
+                         axis=1).astype(np.uint32)
         geom = pycolmap.estimate_calibrated_two_view_geometry(cam, pa, cam, pb, local, to)
         model = pycolmap.TwoViewGeometryConfiguration(int(geom.config)).name
         bad = {"UNDEFINED", "DEGENERATE", "WATERMARK"}

@@ -212,14 +212,15 @@ def consistent_track_observations(
     if len(has) == 0:
         return keep
     p = transform_points(
-        world_from_cam[obs_frame[has]], camera.backproject(obs_uv[has], obs_depth[has], distorted=False)
+        world_from_cam[obs_frame[has]],
+        camera.backproject(obs_uv[has], obs_depth[has], distorted=False),
     )
     order = np.argsort(obs_point[has], kind="stable")
     pid = obs_point[has][order]
     starts = np.flatnonzero(np.r_[True, pid[1:] != pid[:-1]])
     ends = np.r_[starts[1:], len(pid)]
     centre = np.empty((len(has), 3))
-    for a, b in zip(starts, ends):
+    for a, b in zip(starts, ends, strict=True):
         centre[order[a:b]] = np.median(p[order[a:b]], axis=0)
     far = np.linalg.norm(p - centre, axis=1) > max_distance_m
     keep[has[far]] = False
@@ -283,7 +284,8 @@ def triangulate_tracks(
         if abs(xh[3]) < 1e-12 or s[-2] < 1e-9:
             continue
         x3 = xh[:3] / xh[3]
-        z = (cam_from_world[obs_frame[sel]][:, 2, :3] @ x3) + cam_from_world[obs_frame[sel]][:, 2, 3]
+        z = ((cam_from_world[obs_frame[sel]][:, 2, :3] @ x3)
+             + cam_from_world[obs_frame[sel]][:, 2, 3])
         if (z > 0).all():
             points[pid] = x3
             valid[pid] = True
@@ -345,7 +347,8 @@ class MatchObservations:
     match_depth: F64
 
 
-def frame_gap_ok(frame_a: NDArray[np.integer], frame_b: NDArray[np.integer], min_gap: int) -> NDArray[np.bool_]:
+def frame_gap_ok(frame_a: NDArray[np.integer], frame_b: NDArray[np.integer],
+                 min_gap: int) -> NDArray[np.bool_]:
     """``|frame_a − frame_b| >= min_gap``.
 
     The peers' code tested ``frame_b − frame_a >= k`` *signed*, which silently drops every pair
@@ -379,7 +382,8 @@ def assemble_match_observations(
     uv_l: list[F64] = []
     depth_l: list[F64] = []
     for p in pairs:
-        if len(p.idx) == 0 or not frame_gap_ok(np.array([p.frame_a]), np.array([p.frame_b]), opts.min_frame_gap)[0]:
+        if len(p.idx) == 0 or not frame_gap_ok(np.array([p.frame_a]), np.array([p.frame_b]),
+                                               opts.min_frame_gap)[0]:
             continue
         ia, ib = p.idx[:, 0], p.idx[:, 1]
         uva = keypoints_uv[p.frame_a][ia]
@@ -394,8 +398,10 @@ def assemble_match_observations(
         else:
             keep = np.ones(len(ia), bool)
         if opts.max_initial_distance_m is not None and both.any():
-            pa = transform_points(world_from_cam[p.frame_a], camera.backproject(uva[both], da[both], distorted=False))
-            pb = transform_points(world_from_cam[p.frame_b], camera.backproject(uvb[both], db[both], distorted=False))
+            pa = transform_points(world_from_cam[p.frame_a],
+                                  camera.backproject(uva[both], da[both], distorted=False))
+            pb = transform_points(world_from_cam[p.frame_b],
+                                  camera.backproject(uvb[both], db[both], distorted=False))
             far = np.linalg.norm(pa - pb, axis=1) > opts.max_initial_distance_m
             keep[np.flatnonzero(both)[far]] = False
         n = int(keep.sum())

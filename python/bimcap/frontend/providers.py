@@ -5,8 +5,8 @@
   ``bimcap.fusion.complete_depth`` (linear, classical, ONNX or the paper's hybrid).
 * :class:`SegmenterLabelProvider`: any ``bimcap.segmentation`` provider (``segment(FrameInput)``:
   label images from disk, an ONNX model, the no-weights geometric segmenter).
-* :class:`PlanarDepthRefiner`: ``bimcap.fusion.smooth_planar_regions`` on floor, ceiling and walls, run
-  after the labels (the paper's smoothing).
+* :class:`PlanarDepthRefiner`: ``bimcap.fusion.smooth_planar_regions`` on floor, ceiling and
+  walls, run after the labels (the paper's smoothing).
 
 The ground-truth providers for simulated sequences are
 :class:`bimcap.frontend.runner.GroundTruthDepthProvider` and ``GroundTruthLabelProvider``.

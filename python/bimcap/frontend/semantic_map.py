@@ -5,9 +5,9 @@ pixels, z-depth in metres) and subsampled per class, either
 
 * by a **density**: a pixel at z-depth z covers ``z²·cos α / (fx·fy·cos θ)`` square metres of
   surface (α between its ray and the optical axis, θ between its ray and the surface normal
-  estimated from the depth map; on a fronto-parallel plane this is ``z² / (fx·fy)``), so it is kept with
-  probability ``min(1, density × area)``; the expected number of samples per square metre of wall
-  is then the same near and far, head-on and oblique; or
+  estimated from the depth map; on a fronto-parallel plane this is ``z² / (fx·fy)``), so it is
+  kept with probability ``min(1, density × area)``; the expected number of samples per square
+  metre of wall is then the same near and far, head-on and oblique; or
 * by the peers' **stride** (the research code keeps every 150th wall pixel and every 30th floor
   pixel in row-major order): :meth:`SemanticSamplingOptions.peers`.
 
@@ -185,7 +185,8 @@ def sample_semantic_points(
         raise SemanticMapError(f"labels {lab.shape} and depth {z.shape} must be the same (H, W)")
     if lab.shape != (camera.height, camera.width):
         raise SemanticMapError(
-            f"maps are {lab.shape[1]}x{lab.shape[0]} but the camera is {camera.width}x{camera.height}"
+            f"maps are {lab.shape[1]}x{lab.shape[0]} "
+            f"but the camera is {camera.width}x{camera.height}"
         )
     ok = (z >= opts.min_depth_m) & (z <= opts.max_depth_m)
     rng = np.random.default_rng([opts.seed, frame_index])

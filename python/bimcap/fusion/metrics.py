@@ -41,7 +41,8 @@ def depth_errors(pred: ArrayLike, gt: ArrayLike, valid: ArrayLike | None = None)
     p = np.asarray(pred, dtype=np.float64)
     g = np.asarray(gt, dtype=np.float64)
     if p.shape != g.shape or p.ndim != 2:
-        raise FusionInputError(f"pred {p.shape} and gt {g.shape} must be equal (H, W)", field="pred")
+        raise FusionInputError(f"pred {p.shape} and gt {g.shape} must be equal (H, W)",
+                               field="pred")
     ev = np.isfinite(g) & (g > 0)
     if valid is not None:
         v = np.asarray(valid, dtype=bool)

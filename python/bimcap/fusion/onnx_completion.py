@@ -63,8 +63,10 @@ class OnnxCompletionOptions:
 _SESSIONS: dict[tuple[str, tuple[str, ...]], Any] = {}
 
 
-def load_session(path: str | Path, providers: tuple[str, ...] = ("CPUExecutionProvider",)) -> Any:
-    """A cached ``onnxruntime.InferenceSession`` for ``path`` (one thread per call site's process)."""
+def load_session(path: str | Path,
+                 providers: tuple[str, ...] = ("CPUExecutionProvider",)) -> Any:
+    """A cached ``onnxruntime.InferenceSession`` for ``path`` (one thread per call site's
+    process)."""
     import onnxruntime as ort
 
     p = Path(path)
@@ -88,7 +90,8 @@ def _dim_ok(dim: Any, want: int) -> bool:
     return not isinstance(dim, int) or dim == want
 
 
-def check_completion_model(sess: Any, opts: OnnxCompletionOptions) -> tuple[str, tuple[int, int] | None]:
+def check_completion_model(sess: Any,
+                           opts: OnnxCompletionOptions) -> tuple[str, tuple[int, int] | None]:
     """Validate the model's signature; returns (output name, fixed (h, w) or None if dynamic)."""
     path = opts.model_path
     inputs = {i.name: i for i in sess.get_inputs()}
@@ -96,29 +99,42 @@ def check_completion_model(sess: Any, opts: OnnxCompletionOptions) -> tuple[str,
     for name, channels in ((opts.rgb_input, 3), (opts.depth_input, 1)):
         if name not in inputs:
             raise OnnxModelError(
-                f"model has no input {name!r}; its inputs are {sorted(inputs)}", path=path, field="inputs"
+                f"model has no input {name!r}; its inputs are {sorted(inputs)}",
+                path=path, field="inputs",
             )
         shape = inputs[name].shape
         if len(shape) != 4:
-            raise OnnxModelError(f"input {name!r} has rank {len(shape)}, expected 4 (N, C, H, W)", path=path, field=name)
+            raise OnnxModelError(
+                f"input {name!r} has rank {len(shape)}, expected 4 (N, C, H, W)",
+                path=path, field=name,
+            )
         if not _dim_ok(shape[1], channels):
             raise OnnxModelError(
-                f"input {name!r} has {shape[1]} channels, expected {channels}", path=path, field=name
+                f"input {name!r} has {shape[1]} channels, expected {channels}",
+                path=path, field=name,
             )
         if "float" not in inputs[name].type:
-            raise OnnxModelError(f"input {name!r} is {inputs[name].type}, expected float", path=path, field=name)
+            raise OnnxModelError(
+                f"input {name!r} is {inputs[name].type}, expected float", path=path, field=name
+            )
         if isinstance(shape[2], int) and isinstance(shape[3], int):
             hw = (shape[2], shape[3])
             if fixed is not None and fixed != hw:
-                raise OnnxModelError(f"rgb and depth inputs differ in size {fixed} vs {hw}", path=path, field=name)
+                raise OnnxModelError(
+                    f"rgb and depth inputs differ in size {fixed} vs {hw}", path=path, field=name
+                )
             fixed = hw
     extra = sorted(set(inputs) - {opts.rgb_input, opts.depth_input})
     if extra:
-        raise OnnxModelError(f"model needs inputs {extra} that bimcap does not feed", path=path, field="inputs")
+        raise OnnxModelError(
+            f"model needs inputs {extra} that bimcap does not feed", path=path, field="inputs"
+        )
     outputs = [o.name for o in sess.get_outputs()]
     out = opts.output or outputs[0]
     if out not in outputs:
-        raise OnnxModelError(f"model has no output {out!r}; its outputs are {outputs}", path=path, field="output")
+        raise OnnxModelError(
+            f"model has no output {out!r}; its outputs are {outputs}", path=path, field="output"
+        )
     return out, fixed
 
 
@@ -150,9 +166,15 @@ def _run_once(sess: Any, out_name: str, rgb: F32, depth: F32, opts: OnnxCompleti
     elif arr.ndim == 3 and arr.shape[0] == 1:
         arr = arr[0]
     else:
-        raise OnnxModelError(f"output {out_name!r} has shape {arr.shape}, expected (1, 1, H, W)", path=opts.model_path, field="output")
+        raise OnnxModelError(
+            f"output {out_name!r} has shape {arr.shape}, expected (1, 1, H, W)",
+            path=opts.model_path, field="output",
+        )
     if arr.shape != depth.shape:
-        raise OnnxModelError(f"output size {arr.shape} differs from the input's {depth.shape}", path=opts.model_path, field="output")
+        raise OnnxModelError(
+            f"output size {arr.shape} differs from the input's {depth.shape}",
+            path=opts.model_path, field="output",
+        )
     return arr
 
 
@@ -180,7 +202,10 @@ def run_completion_model(image: NDArray[Any], depth: F32, opts: OnnxCompletionOp
     out_name, fixed = check_completion_model(sess, opts)
     size = opts.input_size or fixed or depth.shape
     if fixed is not None and tuple(size) != fixed:
-        raise OnnxModelError(f"input_size {size} but the model's inputs are fixed at {fixed}", path=opts.model_path, field="input_size")
+        raise OnnxModelError(
+            f"input_size {size} but the model's inputs are fixed at {fixed}",
+            path=opts.model_path, field="input_size",
+        )
     mean = np.asarray(opts.rgb_mean, dtype=np.float32)
     std = np.asarray(opts.rgb_std, dtype=np.float32)
     rgb = ((image.astype(np.float32) / 255.0 - mean) / std).transpose(2, 0, 1)
@@ -190,18 +215,24 @@ def run_completion_model(image: NDArray[Any], depth: F32, opts: OnnxCompletionOp
     if (th, tw) == (h, w):
         out = _run_once(sess, out_name, np.ascontiguousarray(rgb), d, opts)
     elif opts.size_mode is SizeMode.RESIZE:
-        rgb_s = cv2.resize(rgb.transpose(1, 2, 0), (tw, th), interpolation=cv2.INTER_AREA).transpose(2, 0, 1)
-        res = _run_once(sess, out_name, np.ascontiguousarray(rgb_s), _resize_depth(d, (th, tw)), opts)
+        rgb_s = cv2.resize(rgb.transpose(1, 2, 0), (tw, th),
+                           interpolation=cv2.INTER_AREA).transpose(2, 0, 1)
+        res = _run_once(sess, out_name, np.ascontiguousarray(rgb_s), _resize_depth(d, (th, tw)),
+                        opts)
         out = cv2.resize(res, (w, h), interpolation=cv2.INTER_LINEAR)
     else:
         if h < th or w < tw:
-            raise OnnxModelError(f"image {h}x{w} smaller than the tile {th}x{tw}", path=opts.model_path, field="input_size")
+            raise OnnxModelError(
+                f"image {h}x{w} smaller than the tile {th}x{tw}",
+                path=opts.model_path, field="input_size",
+            )
         acc = np.zeros((h, w), np.float32)
         cnt = np.zeros((h, w), np.float32)
         for r0 in _tile_starts(h, th, opts.tile_overlap):
             for c0 in _tile_starts(w, tw, opts.tile_overlap):
                 sl = (slice(r0, r0 + th), slice(c0, c0 + tw))
-                acc[sl] += _run_once(sess, out_name, np.ascontiguousarray(rgb[:, sl[0], sl[1]]), np.ascontiguousarray(d[sl]), opts)
+                acc[sl] += _run_once(sess, out_name, np.ascontiguousarray(rgb[:, sl[0], sl[1]]),
+                                     np.ascontiguousarray(d[sl]), opts)
                 cnt[sl] += 1.0
         out = acc / cnt
     out = out / np.float32(opts.depth_scale)

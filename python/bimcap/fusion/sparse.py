@@ -29,7 +29,8 @@ def scatter_nearest(uv: F64, z: F64, shape: tuple[int, int]) -> tuple[F32, NDArr
     return out.reshape(h, w), keep
 
 
-def resize_sparse(uv: F64, z: F64, shape: tuple[int, int], new_shape: tuple[int, int]) -> tuple[F32, F64, F64]:
+def resize_sparse(uv: F64, z: F64, shape: tuple[int, int],
+                  new_shape: tuple[int, int]) -> tuple[F32, F64, F64]:
     """Move sparse returns (pixel-centre convention) from ``shape`` to a grid of ``new_shape``
     without losing any to interpolation: (depth (h, w) float32, uv (K', 2), z (K',))."""
     sy, sx = new_shape[0] / shape[0], new_shape[1] / shape[1]
@@ -38,7 +39,8 @@ def resize_sparse(uv: F64, z: F64, shape: tuple[int, int], new_shape: tuple[int,
     return depth, uv_s[keep], z[keep]
 
 
-def downsample_sparse(uv: F64, z: F64, shape: tuple[int, int], scale: float) -> tuple[F32, F64, F64]:
+def downsample_sparse(uv: F64, z: F64, shape: tuple[int, int],
+                      scale: float) -> tuple[F32, F64, F64]:
     """:func:`resize_sparse` to ``round(scale × shape)``."""
-    new_shape = (max(1, int(round(shape[0] * scale))), max(1, int(round(shape[1] * scale))))
+    new_shape = (max(1, round(shape[0] * scale)), max(1, round(shape[1] * scale)))
     return resize_sparse(uv, z, shape, new_shape)

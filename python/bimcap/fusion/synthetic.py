@@ -43,7 +43,8 @@ class BoxRoom:
 
 @dataclass(frozen=True)
 class SpinningLidar:
-    """A ring LiDAR: ``channels`` beams evenly over ``vertical_fov_deg``, one ray per azimuth step."""
+    """A ring LiDAR: ``channels`` beams evenly over ``vertical_fov_deg``, one ray per azimuth
+    step."""
 
     channels: int = 32
     vertical_fov_deg: tuple[float, float] = (-25.0, 25.0)
@@ -95,34 +96,41 @@ class BoxRoomScene:
         t = 0.2  # slab/wall thickness outside the room
         parts: list[tuple[Label, F64, F64]] = [
             (Label.FLOOR, np.array([-t, -t, -t]), np.array([r.size_x + t, r.size_y + t, 0.0])),
-            (Label.CEILING, np.array([-t, -t, r.height]), np.array([r.size_x + t, r.size_y + t, r.height + t])),
+            (Label.CEILING, np.array([-t, -t, r.height]),
+             np.array([r.size_x + t, r.size_y + t, r.height + t])),
             (Label.WALL, np.array([-t, -t, 0.0]), np.array([0.0, r.size_y + t, r.height])),
-            (Label.WALL, np.array([r.size_x, -t, 0.0]), np.array([r.size_x + t, r.size_y + t, r.height])),
+            (Label.WALL, np.array([r.size_x, -t, 0.0]),
+             np.array([r.size_x + t, r.size_y + t, r.height])),
             (Label.WALL, np.array([0.0, -t, 0.0]), np.array([r.size_x, 0.0, r.height])),
-            (Label.WALL, np.array([0.0, r.size_y, 0.0]), np.array([r.size_x, r.size_y + t, r.height])),
+            (Label.WALL, np.array([0.0, r.size_y, 0.0]),
+             np.array([r.size_x, r.size_y + t, r.height])),
         ]
         for box in r.clutter:
-            parts.append((Label.CLUTTER, np.array(box[:3], dtype=np.float64), np.array(box[3:], dtype=np.float64)))
+            parts.append((Label.CLUTTER, np.array(box[:3], dtype=np.float64),
+                          np.array(box[3:], dtype=np.float64)))
         cx, cy = r.column_center
         hx, hy = r.column_half
         if not r.round_column:
-            parts.append((Label.COLUMN, np.array([cx - hx, cy - hy, 0.0]), np.array([cx + hx, cy + hy, r.height])))
+            parts.append((Label.COLUMN, np.array([cx - hx, cy - hy, 0.0]),
+                          np.array([cx + hx, cy + hy, r.height])))
         self._scene = o3d.t.geometry.RaycastingScene()
         ids = []
         for _, lo, hi in parts:
             ids.append(self._scene.add_triangles(_box_mesh(lo, hi)))
         if r.round_column:
-            cyl = o3d.geometry.TriangleMesh.create_cylinder(radius=hx, height=r.height, resolution=64, split=4)
+            cyl = o3d.geometry.TriangleMesh.create_cylinder(radius=hx, height=r.height,
+                                                            resolution=64, split=4)
             cyl.translate(np.array([cx, cy, r.height / 2.0]))
             ids.append(self._scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(cyl)))
             parts.append((Label.COLUMN, np.zeros(3), np.zeros(3)))
         lut = np.zeros(max(ids) + 2, dtype=np.uint8)
-        for (label, _, _), gid in zip(parts, ids):
+        for (label, _, _), gid in zip(parts, ids, strict=True):
             lut[gid] = int(label)
         self._lut = lut
 
     def cast(self, origins: F64, directions: F64) -> tuple[F64, NDArray[np.uint8], F64]:
-        """Cast rays (M, 3) world origins / directions → (t_hit (M,), labels (M,), hit points (M, 3)).
+        """Cast rays (M, 3) world origins / directions → (t_hit (M,), labels (M,), hit points
+        (M, 3)).
 
         ``t_hit`` is in units of the direction's length (inf for no hit).
         """
@@ -169,7 +177,8 @@ class BoxRoomScene:
         elev = np.deg2rad(np.linspace(*lidar.vertical_fov_deg, lidar.channels))
         azim = np.deg2rad(np.arange(0.0, 360.0, lidar.azimuth_step_deg))
         el, az = np.meshgrid(elev, azim, indexing="ij")
-        d_lidar = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], -1).reshape(-1, 3)
+        d_lidar = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)],
+                           -1).reshape(-1, 3)
         r_wl = quat_to_rotmat(world_from_lidar[3:])
         d_world = d_lidar @ r_wl.T
         o_world = np.broadcast_to(world_from_lidar[:3], d_world.shape)
@@ -239,7 +248,8 @@ def render_default_frames(
         yaw = rng.uniform(-25.0, 25.0) + (15.0 if i % 2 else 0.0)
         pitch = rng.uniform(5.0, 15.0)
         roll = rng.uniform(-3.0, 3.0)
-        frames.append(scene.render(cam, look_pose(eye, yaw, pitch, roll), default_cam_from_lidar(), lidar, seed + i))
+        frames.append(scene.render(cam, look_pose(eye, yaw, pitch, roll), default_cam_from_lidar(),
+                                   lidar, seed + i))
     return frames
 
 

@@ -45,7 +45,8 @@ class Camera:
     def __post_init__(self) -> None:
         vals = [self.fx, self.fy, self.cx, self.cy, *self.dist]
         if len(self.dist) != 5:
-            raise InputError(f"expected 5 plumb_bob coefficients, got {len(self.dist)}", field="dist")
+            raise InputError(f"expected 5 plumb_bob coefficients, got {len(self.dist)}",
+                             field="dist")
         if not np.isfinite(vals).all():
             raise InputError("camera parameters must be finite", field="camera")
         if self.width <= 0 or self.height <= 0:
@@ -70,8 +71,8 @@ class Camera:
 
     def scaled(self, factor: float) -> Camera:
         """The same camera at ``factor`` × the resolution (pixel-centre convention kept)."""
-        w = int(round(self.width * factor))
-        h = int(round(self.height * factor))
+        w = round(self.width * factor)
+        h = round(self.height * factor)
         sx, sy = w / self.width, h / self.height
         return Camera(
             w, h, self.fx * sx, self.fy * sy,
@@ -104,7 +105,8 @@ class Camera:
             k1, k2, p1, p2, k3 = (float(x) for x in dist_in)
             dist = (k1, k2, p1, p2, k3)
             width, height = d["width"], d["height"]
-            if not isinstance(width, int | float | str) or not isinstance(height, int | float | str):
+            if (not isinstance(width, int | float | str)
+                    or not isinstance(height, int | float | str)):
                 raise TypeError("width and height must be numbers")
             return cls(int(width), int(height), fx, fy, cx, cy, dist)
         except (KeyError, TypeError, ValueError) as exc:

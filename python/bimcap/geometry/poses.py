@@ -38,7 +38,7 @@ def quat_to_rotmat(q_xyzw: ArrayLike) -> F64:
     q = np.asarray(q_xyzw, dtype=np.float64)
     flat = q.reshape(-1, 4)
     mats: F64 = Rotation.from_quat(flat).as_matrix()
-    return mats.reshape(q.shape[:-1] + (3, 3))
+    return mats.reshape((*q.shape[:-1], 3, 3))
 
 
 def rotmat_to_quat(rotmats: ArrayLike) -> F64:
@@ -46,7 +46,7 @@ def rotmat_to_quat(rotmats: ArrayLike) -> F64:
     r = np.asarray(rotmats, dtype=np.float64)
     q: F64 = Rotation.from_matrix(r.reshape(-1, 3, 3)).as_quat()
     q[q[:, 3] < 0] *= -1.0
-    return q.reshape(r.shape[:-2] + (4,))
+    return q.reshape((*r.shape[:-2], 4))
 
 
 def pose_to_matrix(poses: ArrayLike) -> F64:

@@ -55,7 +55,8 @@ def validate_poses(
     path: str | PathLike[str] | None = None,
     field: str = "poses",
 ) -> None:
-    """Raise :class:`TrajectoryError` unless ``poses`` is a finite (N, 7) array of unit quaternions."""
+    """Raise :class:`TrajectoryError` unless ``poses`` is a finite (N, 7) array of unit
+    quaternions."""
     if poses.ndim != 2 or poses.shape[1] != 7:
         raise TrajectoryError(f"expected shape (N, 7), got {poses.shape}", path, field)
     bad = ~np.isfinite(poses).all(axis=1)
@@ -126,10 +127,11 @@ def read_tum(path: str | PathLike[str]) -> Trajectory:
 
 
 def write_tum(path: str | PathLike[str], traj: Trajectory, header: str | None = None) -> None:
-    """Write a TUM file atomically (full float precision); ``header`` lines become ``#`` comments."""
+    """Write a TUM file atomically (full float precision); ``header`` lines become ``#``
+    comments."""
     lines = []
     if header:
         lines += [f"# {h}" for h in header.splitlines()]
-    for t, p in zip(traj.timestamps, traj.poses):
+    for t, p in zip(traj.timestamps, traj.poses, strict=True):
         lines.append(" ".join([repr(float(t))] + [repr(float(x)) for x in p]))
     atomic_write_text(os.fspath(path), "\n".join(lines) + "\n")

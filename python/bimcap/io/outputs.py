@@ -299,6 +299,6 @@ class OutputSet:
         if self.stage is not None:
             shutil.rmtree(self.stage, ignore_errors=True)
             self.stage = None
-        if self.created and self.directory.is_dir():
-            if not any(p.is_file() or p.is_symlink() for p in self.directory.rglob("*")):
-                shutil.rmtree(self.directory, ignore_errors=True)
+        if (self.created and self.directory.is_dir()
+                and not any(p.is_file() or p.is_symlink() for p in self.directory.rglob("*"))):
+            shutil.rmtree(self.directory, ignore_errors=True)

@@ -54,7 +54,8 @@ class SolveResult:
         return {"summary": self.summary.to_dict(), "poses": self.poses.tolist()}
 
 
-def solve(problem: Problem, options: SolverOptions | None = None, *, check: bool = True) -> SolveResult:
+def solve(problem: Problem, options: SolverOptions | None = None, *,
+          check: bool = True) -> SolveResult:
     """Refine the poses of ``problem`` with Ceres.
 
     Parameters

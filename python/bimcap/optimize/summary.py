@@ -113,12 +113,13 @@ class SolveSummary:
 
     def table(self) -> str:
         """A small text table of the terms, for the CLI."""
-        lines = [f"{'term':6} {'n':>9} {'rms before':>12} {'rms after':>12} {'cost before':>12} {'cost after':>12}"]
+        lines = [f"{'term':6} {'n':>9} {'rms before':>12} {'rms after':>12} "
+                 f"{'cost before':>12} {'cost after':>12}"]
         for t in self.terms:
             if t.active:
                 lines.append(
-                    f"{t.name:6} {t.num_residual_blocks:9d} {t.initial_rms:12.5g} {t.final_rms:12.5g} "
-                    f"{t.initial_cost:12.5g} {t.final_cost:12.5g}"
+                    f"{t.name:6} {t.num_residual_blocks:9d} {t.initial_rms:12.5g} "
+                    f"{t.final_rms:12.5g} {t.initial_cost:12.5g} {t.final_cost:12.5g}"
                 )
         lines.append(
             f"{self.termination}: {self.iterations} iterations, {self.outer_iterations} rounds, "

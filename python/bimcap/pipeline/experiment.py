@@ -19,6 +19,7 @@ import csv
 import io
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -156,7 +157,7 @@ def run_experiment(out_dir: str | Path, opts: ExperimentOptions | None = None,
                     rec = RunRecord(exp, seed, method.value, terms, _values(tm, mm),
                                     time.perf_counter() - t0,
                                     coarse_seconds=(res.coarse or {}).get("seconds", 0.0))
-                except Exception as exc:  # noqa: BLE001  (a failed row is reported, not fatal)
+                except Exception as exc:  # a failed row is reported, not fatal
                     rec = RunRecord(exp, seed, method.value, terms,
                                     {c: float("nan") for c in COLUMNS},
                                     time.perf_counter() - t0, ok=False, message=str(exc))
@@ -191,10 +192,12 @@ def _f(x: float, d: int = 3) -> str:
 def table1_markdown(records: list[RunRecord], experiments: tuple[str, ...]) -> str:
     """The paper's Table 1 layout, one block per experiment, with the paper's Exp. 1 beside."""
     agg = aggregate(records)
-    lines = ["# Table 1 — synthetic world (mean over seeds); paper's ConSLAM Exp. 1 in brackets", ""]
+    lines = ["# Table 1 — synthetic world (mean over seeds); paper's ConSLAM Exp. 1 in brackets",
+             ""]
     for exp in experiments:
         lines += [f"## {exp}", "",
-                  "| method | G | F | W | Co | Ce | MME | MPV | NND [m] | ATE_pos [m] | ATE_rot [°] |",
+                  "| method | G | F | W | Co | Ce | MME | MPV | NND [m] "
+                  "| ATE_pos [m] | ATE_rot [°] |",
                   "|---|---|---|---|---|---|---|---|---|---|---|"]
         keys = [k for k in agg if k[0] == exp]
         keys.sort(key=lambda k: (k[1] != "initial", k[1] != "facap", k[2]))
@@ -202,18 +205,21 @@ def table1_markdown(records: list[RunRecord], experiments: tuple[str, ...]) -> s
             v = agg[(exp, method, terms)]
             used = set(terms.split("+"))
             ticks = " | ".join("✓" if t in used else "–" for t in ("G", "F", "W", "Co", "Ce"))
-            paper = table1_row("FACaP" if method == "facap" else "BIMCaP", terms) if method != "initial" else None
+            paper = (table1_row("FACaP" if method == "facap" else "BIMCaP", terms)
+                     if method != "initial" else None)
             if method == "initial":
                 from bimcap.pipeline.paper_reference import TABLE1
 
                 paper = TABLE1[1][2:] if exp == "exp1" else None
-            def cell(i: int, key: str, d: int = 3) -> str:
+            def cell(i: int, key: str, d: int = 3, v: dict[str, float] = v,
+                     paper: Sequence[float] | None = paper, exp: str = exp) -> str:
                 s = _f(v[key], d)
                 if paper is not None and exp == "exp1":
                     s += f" [{paper[i]:.{d}f}]"
                 return s
             lines.append(f"| {method} | {ticks} | {cell(0, 'mme')} | {cell(1, 'mpv')} | "
-                         f"{cell(2, 'nnd_m')} | {cell(3, 'ate_pos_m')} | {cell(4, 'ate_rot_deg', 2)} |")
+                         f"{cell(2, 'nnd_m')} | {cell(3, 'ate_pos_m')} | "
+                         f"{cell(4, 'ate_rot_deg', 2)} |")
         lines.append("")
     return "\n".join(lines)
 
@@ -221,8 +227,10 @@ def table1_markdown(records: list[RunRecord], experiments: tuple[str, ...]) -> s
 def table2_markdown(records: list[RunRecord]) -> str:
     """The paper's Table 2 layout (Exp. 2 and 3, full objectives), paper numbers in brackets."""
     agg = aggregate(records)
-    lines = ["# Table 2 — Exp. 2 and 3 (mean over seeds); paper's ConSLAM numbers in brackets", "",
-             "| experiment | method | ATE_pos [cm] | ATE_rot [°] | yaw [°] | pitch [°] | roll [°] |",
+    lines = ["# Table 2 — Exp. 2 and 3 (mean over seeds); paper's ConSLAM numbers in brackets",
+             "",
+             "| experiment | method | ATE_pos [cm] | ATE_rot [°] | yaw [°] | pitch [°] "
+             "| roll [°] |",
              "|---|---|---|---|---|---|---|"]
     for exp in ("exp2", "exp3"):
         for method, terms, paper_name in (("initial", "-", "initial"), ("facap", "G+F+W", "FACaP"),
@@ -231,7 +239,8 @@ def table2_markdown(records: list[RunRecord]) -> str:
             if v is None:
                 continue
             p = table2_row(exp, paper_name)
-            vals = [v["ate_pos_m"] * 100, v["ate_rot_deg"], v["yaw_deg"], v["pitch_deg"], v["roll_deg"]]
+            vals = [v["ate_pos_m"] * 100, v["ate_rot_deg"], v["yaw_deg"], v["pitch_deg"],
+                    v["roll_deg"]]
             cells = [f"{_f(x, 2)} [{p[i]:.2f}]" if p else _f(x, 2) for i, x in enumerate(vals)]
             lines.append(f"| {exp} | {method} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
@@ -268,10 +277,12 @@ def _plot(path: Path, records: list[RunRecord], experiments: tuple[str, ...]) ->
     for i, exp in enumerate(experiments):
         keys = [k for k in agg if k[0] == exp]
         names = [f"{m} {t}" for _, m, t in keys]
-        for j, (col, unit) in enumerate((("ate_pos_m", "ATE_pos [m]"), ("ate_rot_deg", "ATE_rot [°]"))):
+        for j, (col, unit) in enumerate((("ate_pos_m", "ATE_pos [m]"),
+                                         ("ate_rot_deg", "ATE_rot [°]"))):
             ax = fig.add_subplot(len(experiments), 2, 2 * i + j + 1)
             ax.barh(range(len(keys)), [agg[k][col] for k in keys],
-                    color=["grey" if k[1] == "initial" else ("tab:orange" if k[1] == "facap" else "tab:blue")
+                    color=["grey" if k[1] == "initial"
+                           else ("tab:orange" if k[1] == "facap" else "tab:blue")
                            for k in keys])
             ax.set_yticks(range(len(keys)), names, fontsize=7)
             ax.set_xlabel(unit)

@@ -22,7 +22,8 @@ TABLE1: tuple[tuple[str, str, float, float, float, float, float], ...] = (
     ("BIMCaP", "Ce", 0.982, 0.054, 0.480, 1.387, 12.71),
 )
 
-#: Table 2 (Exp. 2 and 3): rows of (experiment, method, ATE_pos [cm], ATE_rot, yaw, pitch, roll [deg]).
+#: Table 2 (Exp. 2 and 3): rows of (experiment, method, ATE_pos [cm], ATE_rot, yaw, pitch,
+#: roll [deg]).
 TABLE2: tuple[tuple[str, str, float, float, float, float, float], ...] = (
     ("exp2", "initial", 30.3, 8.82, 4.31, 4.31, 0.29),
     ("exp2", "FACaP", 30.2, 7.70, 3.79, 3.79, 0.21),

@@ -78,7 +78,7 @@ def score_volume(
 
     res = maps.coarse[0].resolution_m
     origin = maps.coarse[0].origin_xy
-    n = int(round(xy_range_m / res))
+    n = round(xy_range_m / res)
     vol = np.zeros((len(yaws), 2 * n + 1, 2 * n + 1), dtype=np.float32)
     if len(p_xy) == 0:
         return vol, res, n

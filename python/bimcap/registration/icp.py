@@ -172,7 +172,7 @@ def icp_2d(
     view = np.zeros_like(p) if view_xy is None else np.asarray(view_xy, dtype=np.float64)
     radii = np.geomspace(radius_start_m, radius_end_m, max(iterations, 1))
     it = 0
-    for it, radius in enumerate(radii, start=1):
+    for it, radius in enumerate(radii, start=1):  # noqa: B007 (the count is reported below)
         q = apply_correction(p, yaw, t, pivot)
         dist, closest = associate(q, p_class, view @ rot2(yaw).T)
         use = dist < radius

@@ -119,7 +119,8 @@ def reprojection_medians(poses: F64, match_frames: I32, match_uv: F64, match_dep
 
 
 def repair_inconsistent_frames(poses: F64, match_frames: I32, match_uv: F64, match_depth: F64,
-                               intrinsics: F64, options: RepairOptions | None = None) -> RepairResult:
+                               intrinsics: F64,
+                               options: RepairOptions | None = None) -> RepairResult:
     """Re-place the frames whose matches disagree with their neighbours (module docstring).
 
     Parameters
@@ -140,7 +141,7 @@ def repair_inconsistent_frames(poses: F64, match_frames: I32, match_uv: F64, mat
     k = np.asarray(intrinsics, np.float64)
     out = np.array(poses, np.float64, copy=True)
     medians = reprojection_medians(out, match_frames, match_uv, match_depth, k, opt.min_matches)
-    bad = set(int(f) for f in np.flatnonzero(medians > opt.max_median_px))
+    bad = {int(f) for f in np.flatnonzero(medians > opt.max_median_px)}
     result = RepairResult(out, medians, sorted(bad))
     if not bad:
         return result

@@ -149,7 +149,8 @@ def _paired_face_normals(s: F64, min_gap_m: float, max_gap_m: float,
         off = ((mid[None] - a0) * n0).sum(-1)  # (c, S): which side of face i face j lies on
         # Overlap of face j's extent with face i's, along face i.
         ta, tb = ((a[None] - a0) * u0).sum(-1), ((b[None] - a0) * u0).sum(-1)
-        overlap = np.minimum(np.maximum(ta, tb), length[r, None]) - np.maximum(np.minimum(ta, tb), 0.0)
+        overlap = (np.minimum(np.maximum(ta, tb), length[r, None])
+                   - np.maximum(np.minimum(ta, tb), 0.0))
         partner = ((np.abs(u[r] @ u.T) >= cos_max) & (np.abs(off) >= min_gap_m)
                    & (np.abs(off) <= max_gap_m) & (overlap > 0.05) & (length[r, None] > 1e-9))
         partner[np.arange(r.stop - r.start), np.arange(r.start, r.stop)] = False

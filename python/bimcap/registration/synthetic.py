@@ -131,7 +131,7 @@ def poses_along(path_xy: NDArray[np.float64], step_m: float, height: float = 1.5
     k = np.clip(np.searchsorted(length, s, side="right") - 1, 0, len(seg) - 1)
     xy = path[k] + (s - length[k])[:, None] * seg[k] / np.linalg.norm(seg[k], axis=1)[:, None]
     yaw = np.arctan2(seg[k, 1], seg[k, 0]) + yaw_offset
-    return np.array([level_pose(p[0], p[1], a, height) for p, a in zip(xy, yaw)])
+    return np.array([level_pose(p[0], p[1], a, height) for p, a in zip(xy, yaw, strict=True)])
 
 
 def displace(world_from_cam: NDArray[np.float64], yaw: float, t_xyz: NDArray[np.float64],
@@ -197,7 +197,7 @@ def scan(
     s_best = s_best + rng.normal(0.0, noise_m, len(s_best))
     if clutter_fraction > 0:
         wall = np.flatnonzero(keep & (label == Label.WALL))
-        pick = rng.choice(wall, int(round(clutter_fraction * len(wall))), replace=False)
+        pick = rng.choice(wall, round(clutter_fraction * len(wall)), replace=False)
         s_best[pick] *= rng.uniform(0.3, 0.95, len(pick))
     p_in_cam = d_cam * s_best[:, None]
     return {int(k): p_in_cam[keep & (label == k)]

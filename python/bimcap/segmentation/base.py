@@ -51,7 +51,8 @@ class SegmentationProvider(Protocol):
         ...
 
 
-def check_shape(arr: NDArray[np.generic], camera: Camera, field: str, path: str | None = None) -> None:
+def check_shape(arr: NDArray[np.generic], camera: Camera, field: str,
+                path: str | None = None) -> None:
     if arr.shape[:2] != (camera.height, camera.width):
         raise SegmentationInputError(
             f"shape {arr.shape[:2]} does not match the camera's {camera.height}x{camera.width}",

@@ -44,14 +44,18 @@ def read_label_image(path: str | Path, camera: Camera | None = None) -> U8:
     p = Path(path)
     img = _imread(p)
     if img.ndim != 2:
-        raise SegmentationInputError(f"label image must be single-channel, got shape {img.shape}", path=p)
+        raise SegmentationInputError(
+            f"label image must be single-channel, got shape {img.shape}", path=p
+        )
     if img.dtype != np.uint8:
         raise SegmentationInputError(f"label image must be 8-bit, got {img.dtype}", path=p)
     if camera is not None:
         check_shape(img, camera, "labels", str(p))
     bad = img > max(int(x) for x in Label)
     if bad.any():
-        raise SegmentationInputError(f"{int(bad.sum())} pixels hold ids outside 0..{max(Label)}", path=p, field="labels")
+        raise SegmentationInputError(
+            f"{int(bad.sum())} pixels hold ids outside 0..{max(Label)}", path=p, field="labels"
+        )
     return img
 
 
@@ -88,7 +92,9 @@ def read_class_masks(
         if out is None:
             out = np.full(m.shape[:2], int(background), dtype=np.uint8)
         elif m.shape[:2] != out.shape:
-            raise SegmentationInputError(f"mask size {m.shape[:2]} differs from the others' {out.shape}", path=path)
+            raise SegmentationInputError(
+                f"mask size {m.shape[:2]} differs from the others' {out.shape}", path=path
+            )
         out[m > 0] = int(label)
         found += 1
     if out is None or found == 0:

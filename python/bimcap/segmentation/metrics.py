@@ -29,12 +29,15 @@ def iou_per_class(
     p = np.asarray(pred)
     g = np.asarray(gt)
     if p.shape != g.shape or p.ndim != 2:
-        raise SegmentationInputError(f"pred {p.shape} and gt {g.shape} must be equal (H, W)", field="pred")
+        raise SegmentationInputError(
+            f"pred {p.shape} and gt {g.shape} must be equal (H, W)", field="pred"
+        )
     known = g != int(Label.UNKNOWN)
     p, g = p[known], g[known]
     if classes is None:
         present = set(np.unique(g).tolist()) | set(np.unique(p).tolist())
-        classes = [Label(c) for c in sorted(present) if c != int(Label.UNKNOWN) and c in Label._value2member_map_]
+        classes = [Label(c) for c in sorted(present)
+                   if c != int(Label.UNKNOWN) and c in Label._value2member_map_]
     out: dict[Label, float] = {}
     for c in classes:
         a, b = p == int(c), g == int(c)

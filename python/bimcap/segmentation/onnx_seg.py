@@ -73,38 +73,61 @@ class OnnxSegmentationOptions:
     providers: tuple[str, ...] = ("CPUExecutionProvider",)
 
 
-def _check_model(sess: Any, opts: OnnxSegmentationOptions) -> tuple[str, str, tuple[int, int] | None]:
+def _check_model(sess: Any,
+                 opts: OnnxSegmentationOptions) -> tuple[str, str, tuple[int, int] | None]:
     from bimcap.fusion.onnx_completion import OnnxModelError
 
     path = opts.model_path
     inputs = sess.get_inputs()
     if opts.input_name is None:
         if len(inputs) != 1:
-            raise OnnxModelError(f"model has inputs {[i.name for i in inputs]}; name one with input_name", path=path, field="inputs")
+            raise OnnxModelError(
+                f"model has inputs {[i.name for i in inputs]}; name one with input_name",
+                path=path, field="inputs",
+            )
         inp = inputs[0]
     else:
         match = [i for i in inputs if i.name == opts.input_name]
         if not match:
-            raise OnnxModelError(f"model has no input {opts.input_name!r}; its inputs are {[i.name for i in inputs]}", path=path, field="inputs")
+            raise OnnxModelError(
+                f"model has no input {opts.input_name!r}; "
+                f"its inputs are {[i.name for i in inputs]}",
+                path=path, field="inputs",
+            )
         inp = match[0]
     shape = inp.shape
     if len(shape) != 4:
-        raise OnnxModelError(f"input {inp.name!r} has rank {len(shape)}, expected 4 (N, 3, H, W)", path=path, field=inp.name)
+        raise OnnxModelError(
+            f"input {inp.name!r} has rank {len(shape)}, expected 4 (N, 3, H, W)",
+            path=path, field=inp.name,
+        )
     if isinstance(shape[1], int) and shape[1] != 3:
-        raise OnnxModelError(f"input {inp.name!r} has {shape[1]} channels, expected 3", path=path, field=inp.name)
-    fixed = (shape[2], shape[3]) if isinstance(shape[2], int) and isinstance(shape[3], int) else None
-    outputs = [o for o in sess.get_outputs()]
+        raise OnnxModelError(
+            f"input {inp.name!r} has {shape[1]} channels, expected 3", path=path, field=inp.name
+        )
+    fixed = ((shape[2], shape[3]) if isinstance(shape[2], int) and isinstance(shape[3], int)
+             else None)
+    outputs = list(sess.get_outputs())
     out = opts.output_name or outputs[0].name
     match_o = [o for o in outputs if o.name == out]
     if not match_o:
-        raise OnnxModelError(f"model has no output {out!r}; its outputs are {[o.name for o in outputs]}", path=path, field="output")
+        raise OnnxModelError(
+            f"model has no output {out!r}; its outputs are {[o.name for o in outputs]}",
+            path=path, field="output",
+        )
     oshape = match_o[0].shape
     if len(oshape) != 4:
-        raise OnnxModelError(f"output {out!r} has rank {len(oshape)}, expected 4 (N, C, H, W) scores", path=path, field=out)
+        raise OnnxModelError(
+            f"output {out!r} has rank {len(oshape)}, expected 4 (N, C, H, W) scores",
+            path=path, field=out,
+        )
     if isinstance(oshape[1], int):
         too_big = [k for k in opts.class_map if not 0 <= k < oshape[1]]
         if too_big:
-            raise OnnxModelError(f"class_map names classes {too_big} but the model has {oshape[1]}", path=path, field="class_map")
+            raise OnnxModelError(
+                f"class_map names classes {too_big} but the model has {oshape[1]}",
+                path=path, field="class_map",
+            )
     return inp.name, out, fixed
 
 
@@ -130,7 +153,10 @@ class OnnxSegmentationProvider:
         in_name, out_name, fixed = _check_model(sess, opts)
         size = opts.input_size or fixed or img.shape[:2]
         if fixed is not None and tuple(size) != fixed:
-            raise OnnxModelError(f"input_size {size} but the model is fixed at {fixed}", path=opts.model_path, field="input_size")
+            raise OnnxModelError(
+                f"input_size {size} but the model is fixed at {fixed}",
+                path=opts.model_path, field="input_size",
+            )
         h, w = img.shape[:2]
         x = img[:, :, ::-1] if opts.bgr else img
         if tuple(size) != (h, w):
@@ -144,7 +170,10 @@ class OnnxSegmentationProvider:
             raise OnnxModelError(f"ONNX Runtime failed: {exc}", path=opts.model_path) from None
         scores = np.asarray(scores)
         if scores.ndim != 4 or scores.shape[0] != 1:
-            raise OnnxModelError(f"output has shape {scores.shape}, expected (1, C, H, W)", path=opts.model_path, field=out_name)
+            raise OnnxModelError(
+                f"output has shape {scores.shape}, expected (1, C, H, W)",
+                path=opts.model_path, field=out_name,
+            )
         cls = np.argmax(scores[0], axis=0).astype(np.int64)
         lut = np.full(scores.shape[1], int(opts.unmapped), dtype=np.uint8)
         for k, lab in opts.class_map.items():

@@ -113,7 +113,7 @@ def make_object(kind: ClutterKind, center: F64, z0: float, rng: np.random.Genera
             h = s * rng.uniform(0.6, 1.0)
             off = rng.uniform(-0.05, 0.05, 2)
             lo = np.array([cx - s / 2 + off[0], cy - s / 2 + off[1], z])
-            pieces.append(box_mesh(lo, lo + [s, s, h], yaw, piv))
+            pieces.append(box_mesh(lo, lo + np.array([s, s, h]), yaw, piv))
             z += h
         radius = size * 0.75
     elif kind is ClutterKind.PALLET:
@@ -184,7 +184,7 @@ def place_clutter(
     xy = np.stack([cc, rr], axis=-1) * res + free.origin_xy
     clear = free.clearance[rr, cc]
     d_path, _ = cKDTree(path_xy).query(xy)
-    n_obj = int(round(density_per_m2 * len(rr) * res * res))
+    n_obj = round(density_per_m2 * len(rr) * res * res)
     placed: list[ClutterObject] = []
     for k in range(n_obj):
         kind = kinds[int(rng.integers(len(kinds)))]
@@ -197,8 +197,8 @@ def place_clutter(
             continue
         c = xy[idx[int(rng.integers(len(idx)))]]
         dz = float(free.floor_at(c[None, :])[0]) - free.z_floor  # stands on the local floor
-        part = MeshPart(part.name, part.label, part.vertices + [c[0], c[1], dz], part.faces,
-                        part.material)
+        part = MeshPart(part.name, part.label, part.vertices + np.array([c[0], c[1], dz]),
+                        part.faces, part.material)
         # the object was built around the origin; its yaw pivot moved with it
         placed.append(ClutterObject(kind, (float(c[0]), float(c[1])), radius, part))
     return placed

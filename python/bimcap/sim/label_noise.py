@@ -123,7 +123,7 @@ def corrupt_labels(labels: U8, config: LabelNoiseConfig, rng: np.random.Generato
         noisy[take] = moved[take]
     wrong = noisy != truth
     n_boundary = int(wrong.sum())
-    want = int(round(config.fraction * n_lab)) - n_boundary
+    want = round(config.fraction * n_lab) - n_boundary
     cand = labelled & ~wrong
     n_cand = int(cand.sum())
     if want > 0 and n_cand > 0:

@@ -102,7 +102,7 @@ class LidarConfig:
 
     @property
     def columns(self) -> int:
-        return int(round(360.0 / self.azimuth_step_deg))
+        return round(360.0 / self.azimuth_step_deg)
 
     def to_dict(self) -> dict[str, object]:
         """The manifest's ``lidar`` block."""

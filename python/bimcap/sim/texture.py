@@ -321,7 +321,7 @@ def _remap_points(image: NDArray[Any], x: NDArray[Any], y: NDArray[Any]) -> NDAr
         image, map_x.reshape(rows, cols), map_y.reshape(rows, cols), cv2.INTER_LINEAR,
         borderMode=cv2.BORDER_REPLICATE,
     )
-    return out.reshape((rows * cols,) + image.shape[2:])[:m]
+    return out.reshape((rows * cols, *image.shape[2:]))[:m]
 
 
 @functools.lru_cache(maxsize=2)

@@ -152,7 +152,7 @@ def door_footprints(parts: Sequence[object], depth_margin_m: float = 0.3) -> lis
 
     out = []
     for part in parts:
-        v = np.asarray(getattr(part, "vertices"), np.float64).reshape(-1, 3)
+        v = np.asarray(part.vertices, np.float64).reshape(-1, 3)
         if len(v) < 3:
             continue
         rect = shapely.MultiPoint(v[:, :2]).minimum_rotated_rectangle
@@ -331,8 +331,8 @@ def choose_free_space(
     best = int(np.argmax([s.walkable_m2 for s in surveys]))
     if surveys[best].walkable_m2 <= 0.0:
         tried = "; ".join(
-            f"{s.name!r} (z {s.z:+.2f} m): floor {s.floor_m2:.1f} m², indoors {s.indoor_m2:.1f} m², "
-            f"walkable 0 m²" for s in surveys)
+            f"{s.name!r} (z {s.z:+.2f} m): floor {s.floor_m2:.1f} m², "
+            f"indoors {s.indoor_m2:.1f} m², walkable 0 m²" for s in surveys)
         raise SimError(
             f"{model_name}: nothing to walk on: no connected space with a floor, a roof and "
             f"{cfg.min_clearance_m} m clearance ({tried})"
