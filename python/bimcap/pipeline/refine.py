@@ -567,80 +567,164 @@ def solve_prepared(prepared: Prepared, config: RefineConfig, quiet: bool = False
     (:func:`bimcap.bim.plane_choice.plane_residual_check`): a median |residual| above
     ``plane_check_limit_m`` is reported in the outcome and logged, not hidden by the robust loss.
     """
-    from bimcap.optimize import solve
     from bimcap.optimize.observability import bim_observability
-    from bimcap.registration import StageKind
 
     t0 = time.perf_counter()
     poses = prepared.init.poses.copy()
-    coarse_info = None
     base = solver_options(config)
-    summaries = []
-    stats = None
-    result = None
-    max_dist = 0.4 if config.method is Method.FACAP else None
+    facap = config.method is Method.FACAP
     # BIMCaP associates with visible faces only; FACaP with the nearest face, as the peers did.
-    normals = None if config.method is Method.FACAP else segment_free_normals(prepared.reference)
-    last: tuple[Any, Any] | None = None  # (stage, options) of the last solver stage
-    chosen = problem = None
+    solver = _StageSolver(prepared=prepared, config=config, quiet=quiet,
+                          max_dist=0.4 if facap else None,
+                          normals=None if facap else segment_free_normals(prepared.reference))
+    run, poses, coarse_info = _run_schedule(solver, base, poses)
+    rounds: list[dict[str, int]] = []
+    checks: list[Any] = []
+    repair = None
+    if not facap:
+        run, poses, rounds = _rechoose_planes(solver, run, poses, max_plane_rounds,
+                                              plane_change_tolerance)
+        run, poses, repair = _repair_run(solver, run, poses)
+        checks = _logged_plane_checks(run.problem, poses, plane_check_limit_m, quiet)
+    result = run.result
+    observability = bim_observability(run.problem.arrays(), poses, run.options,
+                                      result.wall_segment, result.column_segment,
+                                      planes=result.planes)
+    log(observability.summary_line(), quiet)
+    return SolveOutcome(
+        refined=Trajectory(prepared.init.timestamps, poses),
+        summaries=solver.summaries,
+        problem_stats=run.stats,
+        coarse=coarse_info,
+        seconds=time.perf_counter() - t0,
+        plane_checks=checks,
+        plane_rounds=rounds,
+        observability=observability,
+        repair=repair,
+    )
 
-    def run_stage(stage: Any, opts: Any, chosen: Any) -> tuple[Any, ProblemStats, Any]:
-        problem, stats = build_problem(prepared, poses, max_dist, normals, planes_chosen=chosen)
-        log(f"solving {config.method.value} stage {stage.name} ({opts.refine_mode.value.lower()}, "
-            f"{config.effective_weighting}): {stats.brief()}", quiet)
+
+@dataclass
+class _StageRun:
+    """One solved stage of :func:`solve_prepared`.
+
+    Attributes
+    ----------
+    stage: the schedule stage (``bimcap.registration.Stage``).
+    options: its solver options.
+    chosen: the floor / ceiling planes chosen for the samples (:func:`choose_sample_planes`).
+    problem: the problem it solved. stats: that problem's :class:`ProblemStats`.
+    result: the solver's result (after a repair: the repaired solve's).
+    """
+
+    stage: Any
+    options: Any
+    chosen: Any
+    problem: Any
+    stats: ProblemStats
+    result: Any
+
+
+@dataclass
+class _StageSolver:
+    """Builds and solves the stages of one :func:`solve_prepared` call; keeps their summaries.
+
+    Attributes
+    ----------
+    max_dist: the association gate of the wall / column terms (m), None for the default.
+    normals: (S, 2) free-side normals of the segments (visible-face association), or None.
+    summaries: every solve's summary, in order.
+    """
+
+    prepared: Prepared
+    config: RefineConfig
+    quiet: bool
+    max_dist: float | None
+    normals: F64 | None
+    summaries: list[Any] = field(default_factory=list)
+
+    def run(self, stage: Any, opts: Any, poses: F64, chosen: Any) -> _StageRun:
+        """Build the problem at ``poses`` with the planes ``chosen`` and solve ``stage``."""
+        from bimcap.optimize import solve
+
+        problem, stats = build_problem(self.prepared, poses, self.max_dist, self.normals,
+                                       planes_chosen=chosen)
+        log(f"solving {self.config.method.value} stage {stage.name} "
+            f"({opts.refine_mode.value.lower()}, {self.config.effective_weighting}): "
+            f"{stats.brief()}", self.quiet)
         result = solve(problem, opts, check=False)
-        summaries.append(result.summary)
+        self.summaries.append(result.summary)
         if not result.summary.success:
             raise PipelineError(f"the solve failed ({stage.name}): {result.summary.termination}: "
                                 f"{result.summary.message}")
-        return problem, stats, result
+        return _StageRun(stage=stage, options=opts, chosen=chosen, problem=problem, stats=stats,
+                         result=result)
 
+
+def _run_schedule(solver: _StageSolver, base: Any,
+                  poses: F64) -> tuple[_StageRun, F64, dict[str, Any] | None]:
+    """Every stage of :func:`schedule_for` from ``poses``: the last solver stage, the poses after
+    the schedule (N, 7) and the coarse registration's record (None without one)."""
+    from bimcap.registration import StageKind
+
+    prepared, config = solver.prepared, solver.config
+    coarse_info = None
+    last: _StageRun | None = None
     for stage in schedule_for(config).stages:
         if stage.kind is StageKind.COARSE:
-            poses, coarse_info = _coarse(prepared, poses, quiet)
+            poses, coarse_info = _coarse(prepared, poses, solver.quiet)
             continue
         opts = stage_options(base, stage, config)
         if opts is None:
             continue
-        chosen = choose_sample_planes(prepared, poses)
-        problem, stats, result = run_stage(stage, opts, chosen)
-        poses = result.poses
-        last = (stage, opts)
-    if stats is None or last is None or result is None:
+        last = solver.run(stage, opts, poses, choose_sample_planes(prepared, poses))
+        poses = last.result.poses
+    if last is None:
         raise PipelineError("the schedule has no solver stage for the configured terms")
-    rounds: list[dict[str, int]] = []
-    checks: list[Any] = []
-    repair = None
-    if config.method is not Method.FACAP:
-        from bimcap.bim.plane_choice import PlaneChoiceOptions
+    return last, poses, coarse_info
 
-        converged = PlaneChoiceOptions(frame_model=False)
-        for _ in range(max_plane_rounds):
-            again = choose_sample_planes(prepared, poses, converged)
-            changed, total = changed_planes(chosen, again, prepared.reference.planes)
-            resolve = changed > plane_change_tolerance * max(total, 1)
-            rounds.append({"changed": changed, "samples": total, "resolved": int(resolve)})
-            if not resolve:
-                break
-            log(f"{changed}/{total} floor/ceiling samples changed plane at the refined poses: "
-                f"solving stage {last[0].name} again", quiet)
-            chosen = again
-            problem, stats, result = run_stage(last[0], last[1], chosen)
-            poses = result.poses
-        repair, redo = _repair(problem, last[1], result, quiet)
-        if redo is not None:
-            summaries.append(redo.summary)
-            result = redo
-            poses = result.poses
-        checks = plane_checks(problem, poses, plane_check_limit_m)
-        for c in checks:
-            log(("WARNING: " if c.failed else "") + c.message(), quiet)
-    observability = bim_observability(problem.arrays(), poses, last[1], result.wall_segment,
-                                      result.column_segment, planes=result.planes)
-    log(observability.summary_line(), quiet)
-    refined = Trajectory(prepared.init.timestamps, poses)
-    return SolveOutcome(refined, summaries, stats, coarse_info, time.perf_counter() - t0,
-                        checks, rounds, observability, repair)
+
+def _rechoose_planes(solver: _StageSolver, run: _StageRun, poses: F64, max_rounds: int,
+                     tolerance: float) -> tuple[_StageRun, F64, list[dict[str, int]]]:
+    """Choose the samples' planes again at the refined ``poses`` and solve the last stage again
+    while more than ``tolerance`` of them change plane (at most ``max_rounds`` times)."""
+    from bimcap.bim.plane_choice import PlaneChoiceOptions
+
+    prepared = solver.prepared
+    converged = PlaneChoiceOptions(frame_model=False)
+    rounds: list[dict[str, int]] = []
+    for _ in range(max_rounds):
+        again = choose_sample_planes(prepared, poses, converged)
+        changed, total = changed_planes(run.chosen, again, prepared.reference.planes)
+        resolve = changed > tolerance * max(total, 1)
+        rounds.append({"changed": changed, "samples": total, "resolved": int(resolve)})
+        if not resolve:
+            break
+        log(f"{changed}/{total} floor/ceiling samples changed plane at the refined poses: "
+            f"solving stage {run.stage.name} again", solver.quiet)
+        run = solver.run(run.stage, run.options, poses, again)
+        poses = run.result.poses
+    return run, poses, rounds
+
+
+def _repair_run(solver: _StageSolver,
+                run: _StageRun, poses: F64) -> tuple[_StageRun, F64, dict[str, Any]]:
+    """:func:`_repair` of the last stage's result: the run and poses after it, and its record."""
+    from dataclasses import replace
+
+    repair, redo = _repair(run.problem, run.options, run.result, solver.quiet)
+    if redo is None:
+        return run, poses, repair
+    solver.summaries.append(redo.summary)
+    return replace(run, result=redo), redo.poses, repair
+
+
+def _logged_plane_checks(problem: Any, poses: F64, limit_m: float, quiet: bool) -> list[Any]:
+    """:func:`plane_checks` of ``problem`` at ``poses``, each logged (a failed one as a warning)."""
+    checks = plane_checks(problem, poses, limit_m)
+    for c in checks:
+        log(("WARNING: " if c.failed else "") + c.message(), quiet)
+    return checks
 
 
 def _repair(problem: Any, opts: Any, result: Any, quiet: bool) -> tuple[dict[str, Any], Any]:
