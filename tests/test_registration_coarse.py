@@ -69,7 +69,8 @@ def test_single_frame_displaced_1p5m_15deg_returns(demo: Scene) -> None:
     gt = level_pose(6.0, -0.3, 0.0)[None]
     samples = scan_sequence(gt, demo, seed=2, clutter_fraction=0.03)
     init = displace(gt, np.deg2rad(-15.0), np.array([-0.9, 1.2, 0.0]), gt[0, :3])
-    res = coarse_register(init, samples, demo.floor_plan(), CoarseOptions(window_frames=1, frame_orientation=False))
+    opts = CoarseOptions(window_frames=1, frame_orientation=False)
+    res = coarse_register(init, samples, demo.floor_plan(), opts)
     t_err, r_err = pose_errors(res.poses, gt)
     assert t_err[0] < 0.05 and r_err[0] < 0.5, (t_err, r_err)
 

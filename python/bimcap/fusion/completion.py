@@ -53,7 +53,8 @@ class BlurType(Enum):
 
 @dataclass(frozen=True)
 class LinearOptions:
-    """LINEAR: mask triangles with an edge > ``max_edge_px`` or ``z_max/z_min > max_depth_ratio``."""
+    """LINEAR: mask triangles with an edge > ``max_edge_px``
+    or ``z_max/z_min > max_depth_ratio``."""
 
     max_edge_px: float = 80.0
     max_depth_ratio: float = 1.5
@@ -69,9 +70,10 @@ class ClassicalOptions:
     dilation_size: size of the diamond kernel of the first dilation.
     close_size, small_fill_size, large_fill_size: full kernels of close / small and large hole fill.
     vertical_interpolation: right after the first dilation, fill the gaps between LiDAR rings
-        column by column, linearly in inverse depth (gaps <= ``max_gap_px`` rows whose end depths differ by
-        a ratio <= ``max_gap_depth_ratio``). Not in Ku et al. (KITTI's 64 rings leave small
-        gaps); for 16-32 ring LiDARs it is what lets the method beat nearest-neighbour filling.
+        column by column, linearly in inverse depth (gaps <= ``max_gap_px`` rows whose end depths
+        differ by a ratio <= ``max_gap_depth_ratio``). Not in Ku et al. (KITTI's 64 rings leave
+        small gaps); for 16-32 ring LiDARs it is what lets the method beat nearest-neighbour
+        filling.
     extrapolate: extend each column's top-most and bottom-most values to the image border.
     max_fill_distance_px: pixels (of the full image) farther than this from every LiDAR return
         stay 0 (unknown): where a narrow-FoV LiDAR (VLP-16: ±15°) sees nothing, the fills would
@@ -115,8 +117,11 @@ class CompletionOptions:
     def __post_init__(self) -> None:
         object.__setattr__(self, "method", CompletionMethod(self.method))
         if self.method is CompletionMethod.GROUND_TRUTH:
-            raise FusionInputError("ground_truth depth is read from a simulated sequence's "
-                                   "depth/, not computed from LiDAR", field="method")
+            raise FusionInputError(
+                "ground_truth depth is read from a simulated sequence's "
+                "depth/, not computed from LiDAR",
+                field="method",
+            )
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -126,7 +131,9 @@ def _sparse_arrays(sparse: SparseDepth | ArrayLike) -> tuple[F32, F64, F64]:
         return sparse.depth, sparse.uv, sparse.z
     depth = np.asarray(sparse, dtype=np.float32)
     if depth.ndim != 2:
-        raise FusionInputError(f"sparse depth must be (H, W), got {depth.shape}", field="sparse_depth")
+        raise FusionInputError(
+            f"sparse depth must be (H, W), got {depth.shape}", field="sparse_depth"
+        )
     if not np.isfinite(depth).all() or (depth < 0).any():
         raise FusionInputError("sparse depth must be finite and >= 0", field="sparse_depth")
     rows, cols = np.nonzero(depth > 0)
@@ -135,7 +142,9 @@ def _sparse_arrays(sparse: SparseDepth | ArrayLike) -> tuple[F32, F64, F64]:
 
 def _require_points(z: F64, need: int = 1) -> None:
     if len(z) < need:
-        raise FusionInputError(f"sparse depth has {len(z)} returns, need at least {need}", field="sparse_depth")
+        raise FusionInputError(
+            f"sparse depth has {len(z)} returns, need at least {need}", field="sparse_depth"
+        )
 
 
 def _resize_to(depth: F32, shape: tuple[int, int]) -> F32:
@@ -176,11 +185,17 @@ def complete_linear(sparse: SparseDepth | ArrayLike, options: LinearOptions | No
     try:
         tri = Delaunay(uv)
     except QhullError as exc:
-        raise FusionInputError(f"cannot triangulate the sparse returns: {exc}", field="sparse_depth") from None
+        raise FusionInputError(
+            f"cannot triangulate the sparse returns: {exc}", field="sparse_depth"
+        ) from None
     simp = tri.simplices
     pa, pb, pc = uv[simp[:, 0]], uv[simp[:, 1]], uv[simp[:, 2]]
     edge = np.maximum.reduce(
-        [np.linalg.norm(pa - pb, axis=1), np.linalg.norm(pb - pc, axis=1), np.linalg.norm(pc - pa, axis=1)]
+        [
+            np.linalg.norm(pa - pb, axis=1),
+            np.linalg.norm(pb - pc, axis=1),
+            np.linalg.norm(pc - pa, axis=1),
+        ]
     )
     zt = z[simp]
     ratio = zt.max(1) / zt.min(1)
@@ -191,8 +206,9 @@ def complete_linear(sparse: SparseDepth | ArrayLike, options: LinearOptions | No
     # Delaunay.find_simplex on every pixel); id 0 = none
     tri_id = np.zeros((h, w), dtype=np.int32)
     good_idx = np.flatnonzero(good)
-    corners = np.rint(np.stack([pa, pb, pc], 1)[good_idx] * 16).astype(np.int32)  # 4 fractional bits
-    for k, poly in zip(good_idx, corners):
+    # 4 fractional bits
+    corners = np.rint(np.stack([pa, pb, pc], 1)[good_idx] * 16).astype(np.int32)
+    for k, poly in zip(good_idx, corners, strict=True):
         cv2.fillConvexPoly(tri_id, poly, int(k) + 1, lineType=cv2.LINE_8, shift=4)
     rows, cols = np.nonzero(tri_id)
     k = tri_id[rows, cols] - 1
@@ -260,7 +276,9 @@ def _fill_vertical_gaps(d_inv: F32, opts: ClassicalOptions) -> F32:
     return out
 
 
-def complete_classical(sparse: SparseDepth | ArrayLike, options: ClassicalOptions | None = None) -> F32:
+def complete_classical(
+    sparse: SparseDepth | ArrayLike, options: ClassicalOptions | None = None
+) -> F32:
     """CLASSICAL: Ku et al. 2018's fill-in-fast pipeline (module docstring) at ``work_scale``."""
     import cv2
 
@@ -335,7 +353,9 @@ def complete_depth(
     from bimcap.fusion.onnx_completion import run_completion_model
 
     if opts.onnx is None:
-        raise FusionInputError(f"{opts.method.name} needs CompletionOptions.onnx (the model)", field="onnx")
+        raise FusionInputError(
+            f"{opts.method.name} needs CompletionOptions.onnx (the model)", field="onnx"
+        )
     if image is None:
         raise FusionInputError(f"{opts.method.name} needs the RGB image", field="image")
     depth, _, _ = _sparse_arrays(sparse)
@@ -416,7 +436,9 @@ def fit_plane_ransac(
     return plane, inl
 
 
-def _region_planes(points: F64, opts: PlanarSmoothingOptions, rng: np.random.Generator) -> list[F64]:
+def _region_planes(
+    points: F64, opts: PlanarSmoothingOptions, rng: np.random.Generator
+) -> list[F64]:
     """Up to ``opts.max_planes`` planes ``(4,)`` through ``points`` (N, 3), by RANSAC, each on the
     points further than ``assign_threshold_m`` from the earlier ones; a plane needs
     ``opts.min_region_px`` inliers."""
@@ -438,8 +460,15 @@ def _region_planes(points: F64, opts: PlanarSmoothingOptions, rng: np.random.Gen
     return planes
 
 
-def _smooth_region(out: F32, depth: F32, rows: NDArray[np.int64], cols: NDArray[np.int64],
-                   camera: Camera, opts: PlanarSmoothingOptions, rng: np.random.Generator) -> None:
+def _smooth_region(
+    out: F32,
+    depth: F32,
+    rows: NDArray[np.int64],
+    cols: NDArray[np.int64],
+    camera: Camera,
+    opts: PlanarSmoothingOptions,
+    rng: np.random.Generator,
+) -> None:
     """Move the depth of one connected region's pixels onto the nearest of its planes, in place."""
     uv = np.stack([cols, rows], 1).astype(np.float64)
     cur = depth[rows, cols].astype(np.float64)
@@ -450,13 +479,21 @@ def _smooth_region(out: F32, depth: F32, rows: NDArray[np.int64], cols: NDArray[
     pl = np.stack(planes)  # (K, 4)
     dist = np.abs(pts @ pl[:, :3].T + pl[:, 3])  # (N, K)
     best = np.argmin(dist, axis=1)
-    near = np.ones(len(pts), dtype=bool) if len(pl) == 1 else (
-        dist[np.arange(len(pts)), best] <= opts.assign_threshold_m)
+    near = (
+        np.ones(len(pts), dtype=bool)
+        if len(pl) == 1
+        else (dist[np.arange(len(pts)), best] <= opts.assign_threshold_m)
+    )
     rays = camera.rays(uv, distorted=False)
     denom = (rays * pl[best, :3]).sum(1)
     with np.errstate(divide="ignore", invalid="ignore"):
         z_plane = -pl[best, 3] / denom
-    ok = near & np.isfinite(z_plane) & (z_plane > 0) & (np.abs(z_plane - cur) <= opts.max_change_rel * cur)
+    ok = (
+        near
+        & np.isfinite(z_plane)
+        & (z_plane > 0)
+        & (np.abs(z_plane - cur) <= opts.max_change_rel * cur)
+    )
     out[rows[ok], cols[ok]] = z_plane[ok].astype(np.float32)
 
 
@@ -515,4 +552,3 @@ def smooth_planar_regions(
                 continue
             _smooth_region(out, d, rows, cols, camera, opts, rng)
     return out
-

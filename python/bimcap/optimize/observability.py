@@ -122,8 +122,8 @@ class Observability:
         """One line for the log: frames fully observed and, per degree of freedom, how many not."""
         counts = ", ".join(f"{d} {n}" for d, n in self.count_unobserved().items() if n)
         n = len(self.frames)
-        return (f"BIM observability: {self.fully_observed()}/{n} frames fully observed"
-                + (f"; unobserved by the BIM in: {counts} (held by G and the prior)" if counts else ""))
+        tail = f"; unobserved by the BIM in: {counts} (held by G and the prior)" if counts else ""
+        return f"BIM observability: {self.fully_observed()}/{n} frames fully observed" + tail
 
 
 def irls_weight(loss: Loss, scale: float, r: F64) -> F64:
@@ -184,6 +184,88 @@ def _heading_frame(world_from_cam: F64) -> F64:
     return np.stack([fwd, np.cross(up, fwd), up])
 
 
+#: One term's per-frame information (N, 6, 6) and counted samples (N,).
+_TermInformation = tuple[F64, NDArray[np.int64]]
+
+
+def _no_information(n: int) -> _TermInformation:
+    """Zero information (n, 6, 6) and zero sample counts (n,) for ``n`` frames."""
+    return np.zeros((n, 6, 6)), np.zeros(n, np.int64)
+
+
+def _term_array(arrays: dict[str, Any], name: str) -> Any:
+    """``arrays[name]``, or an empty array (indices for ``*frame`` / ``*plane``, else (0, 3))."""
+    v = arrays.get(name)
+    if v is not None:
+        return v
+    return np.zeros(0, np.int32) if name.endswith(("frame", "plane")) else np.zeros((0, 3))
+
+
+def _sample_planes(arrays: dict[str, Any], prefix: str, all_planes: F64, facap_slot: int | None,
+                   count: int) -> F64 | None:
+    """(count, 4) each sample's plane: the fitted plane ``facap_slot`` (None if not finite) in
+    FACaP plane mode, else the BIM plane of the sample's ``<prefix>_plane`` index."""
+    if facap_slot is None:
+        planes: F64 = all_planes[np.asarray(_term_array(arrays, f"{prefix}_plane"), np.int64)]
+        return planes
+    if len(all_planes) <= facap_slot or not np.isfinite(all_planes[facap_slot]).all():
+        return None
+    return np.repeat(all_planes[facap_slot][None], count, 0)
+
+
+def _plane_term_information(arrays: dict[str, Any], poses: F64, term: TermOptions, prefix: str,
+                            all_planes: F64, facap_slot: int | None) -> _TermInformation:
+    """Per-frame information of a plane term (F: ``prefix`` "floor", Ce: "ceiling") at ``poses``."""
+    info, counts = _no_information(len(poses))
+    frames = np.asarray(_term_array(arrays, f"{prefix}_frame"), np.int32)
+    if not term.enabled or len(frames) == 0:
+        return info, counts
+    pl = _sample_planes(arrays, prefix, all_planes, facap_slot, len(frames))
+    if pl is None:
+        return info, counts
+    p_in_cam = np.asarray(_term_array(arrays, f"{prefix}_p_in_cam"), np.float64)
+    p_world = transform_points(poses[frames], p_in_cam)
+    res = (p_world * pl[:, :3]).sum(1) + pl[:, 3]
+    _add_term(info, counts, frames, p_world, pl[:, :3], res, poses[:, :3], term)
+    return info, counts
+
+
+def _segment_term_information(arrays: dict[str, Any], poses: F64, term: TermOptions, prefix: str,
+                              assoc: NDArray[np.integer] | None,
+                              segments: F64) -> _TermInformation:
+    """Per-frame information of a segment term (W: ``prefix`` "wall", Co: "column") at ``poses``,
+    its samples associated to ``segments`` by ``assoc`` (-1 = none; None: term left out)."""
+    info, counts = _no_information(len(poses))
+    frames = np.asarray(_term_array(arrays, f"{prefix}_frame"), np.int32)
+    if not term.enabled or assoc is None or len(frames) == 0:
+        return info, counts
+    seg = np.asarray(assoc, np.int64)
+    ok = seg >= 0
+    frames = frames[ok]
+    p_in_cam = np.asarray(_term_array(arrays, f"{prefix}_p_in_cam"), np.float64)[ok]
+    p_world = transform_points(poses[frames], p_in_cam)
+    normals, dist = _segment_normals(p_world[:, :2], segments[seg[ok]])
+    _add_term(info, counts, frames, p_world, normals, dist, poses[:, :3], term)
+    return info, counts
+
+
+def _frame_observability(frame: int, world_from_cam: F64, info: F64,
+                         per_term: dict[str, _TermInformation],
+                         th: ObservabilityOptions) -> FrameObservability:
+    """One frame's sigmas and observed DOFs from its total (6, 6) information ``info``."""
+    basis = _heading_frame(world_from_cam)
+    rot6 = np.zeros((6, 6))
+    rot6[:3, :3] = basis
+    rot6[3:, 3:] = basis
+    info_local = rot6 @ info @ rot6.T
+    sigma = _marginal_sigma(info_local)
+    sigma[3:] = np.degrees(sigma[3:])
+    limits = np.array([th.max_sigma_m] * 3 + [th.max_sigma_deg] * 3)
+    observed = [d for d, s, lim in zip(DOF_NAMES, sigma, limits, strict=True) if s <= lim]
+    samples = {name: int(c[frame]) for name, (_, c) in per_term.items() if c[frame]}
+    return FrameObservability(frame=frame, samples=samples, sigma=sigma, observed=observed)
+
+
 def bim_observability(
     arrays: dict[str, Any],
     poses: F64,
@@ -214,65 +296,24 @@ def bim_observability(
 
     th = thresholds or ObservabilityOptions()
     poses = np.asarray(poses, np.float64)
-    n = len(poses)
-    centres = poses[:, :3]
-    empty_i = np.zeros(0, np.int32)
-    empty_p = np.zeros((0, 3))
-    per_term: dict[str, tuple[F64, NDArray[np.int64]]] = {}
-
-    def get(name: str) -> Any:
-        v = arrays.get(name)
-        return v if v is not None else (empty_i if name.endswith(("frame", "plane")) else empty_p)
-
     facap = PlaneMode(options.plane_mode) is PlaneMode.FACAP
-    all_planes = np.asarray(planes if planes is not None else arrays.get("planes", np.zeros((0, 4))))
-    for name, term, slot in (("F", options.floor, 0), ("Ce", options.ceiling, 1)):
-        prefix = "floor" if name == "F" else "ceiling"
-        frames = np.asarray(get(f"{prefix}_frame"), np.int32)
-        info, counts = np.zeros((n, 6, 6)), np.zeros(n, np.int64)
-        per_term[name] = (info, counts)
-        if not term.enabled or len(frames) == 0:
-            continue
-        if facap:
-            if len(all_planes) <= slot or not np.isfinite(all_planes[slot]).all():
-                continue
-            pl = np.repeat(all_planes[slot][None], len(frames), 0)
-        else:
-            pl = all_planes[np.asarray(get(f"{prefix}_plane"), np.int64)]
-        p_world = transform_points(poses[frames], np.asarray(get(f"{prefix}_p_in_cam"), np.float64))
-        res = (p_world * pl[:, :3]).sum(1) + pl[:, 3]
-        _add_term(info, counts, frames, p_world, pl[:, :3], res, centres, term)
-
+    all_planes = np.asarray(planes if planes is not None
+                            else arrays.get("planes", np.zeros((0, 4))))
     segments = np.asarray(arrays.get("segments", np.zeros((0, 4))), np.float64)
-    for name, term, prefix, assoc in (("W", options.wall, "wall", wall_segment),
-                                      ("Co", options.column, "column", column_segment)):
-        info, counts = np.zeros((n, 6, 6)), np.zeros(n, np.int64)
-        per_term[name] = (info, counts)
-        frames = np.asarray(get(f"{prefix}_frame"), np.int32)
-        if not term.enabled or assoc is None or len(frames) == 0:
-            continue
-        seg = np.asarray(assoc, np.int64)
-        ok = seg >= 0
-        frames = frames[ok]
-        p_world = transform_points(poses[frames], np.asarray(get(f"{prefix}_p_in_cam"), np.float64)[ok])
-        normals, dist = _segment_normals(p_world[:, :2], segments[seg[ok]])
-        _add_term(info, counts, frames, p_world, normals, dist, centres, term)
-
+    per_term: dict[str, _TermInformation] = {
+        "F": _plane_term_information(arrays, poses, options.floor, "floor", all_planes,
+                                     facap_slot=0 if facap else None),
+        "Ce": _plane_term_information(arrays, poses, options.ceiling, "ceiling", all_planes,
+                                      facap_slot=1 if facap else None),
+        "W": _segment_term_information(arrays, poses, options.wall, "wall", wall_segment,
+                                       segments),
+        "Co": _segment_term_information(arrays, poses, options.column, "column", column_segment,
+                                        segments),
+    }
+    n = len(poses)
     total: F64 = sum((i for i, _ in per_term.values()), np.zeros((n, 6, 6)))
-    out = []
-    for f in range(n):
-        basis = _heading_frame(poses[f])
-        rot6 = np.zeros((6, 6))
-        rot6[:3, :3] = basis
-        rot6[3:, 3:] = basis
-        info_local = rot6 @ total[f] @ rot6.T
-        sigma = _marginal_sigma(info_local)
-        sigma[3:] = np.degrees(sigma[3:])
-        limits = np.array([th.max_sigma_m] * 3 + [th.max_sigma_deg] * 3)
-        observed = [d for d, s, lim in zip(DOF_NAMES, sigma, limits, strict=True) if s <= lim]
-        samples = {name: int(c[f]) for name, (_, c) in per_term.items() if c[f]}
-        out.append(FrameObservability(f, samples, sigma, observed))
-    return Observability(out, th)
+    frames = [_frame_observability(f, poses[f], total[f], per_term, th) for f in range(n)]
+    return Observability(frames=frames, options=th)
 
 
 def _marginal_sigma(info: F64) -> F64:

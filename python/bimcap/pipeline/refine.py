@@ -95,7 +95,7 @@ def bim_reference(ifc_path: str | PathLike[str], cache_dir: str | PathLike[str] 
         if stamp.is_file() and stamp.read_text().strip() == key:
             try:
                 ref = BimReference.load(cdir)
-            except Exception:  # noqa: BLE001  (a damaged cache is rebuilt, never fatal)
+            except Exception:
                 pass
             else:
                 ref.check_usable(ifc)
@@ -140,7 +140,8 @@ def make_providers(config: RefineConfig, sequence: Any) -> tuple[Any, Any, Any]:
     refiner = None
     if config.segmentation is LabelSource.GROUND_TRUTH:
         if not sequence.has_labels:
-            raise InputError("segmentation ground_truth needs a sequence with labels/", sequence.root)
+            raise InputError("segmentation ground_truth needs a sequence with labels/",
+                             sequence.root)
         labels: Any = GroundTruthLabelProvider()
     elif config.segmentation is LabelSource.GEOMETRIC:
         from bimcap.segmentation.geometric import GeometricSegmenter
@@ -158,7 +159,8 @@ def make_providers(config: RefineConfig, sequence: Any) -> tuple[Any, Any, Any]:
     else:
         from bimcap.segmentation.onnx_seg import OnnxSegmentationOptions, OnnxSegmentationProvider
 
-        seg = OnnxSegmentationProvider(OnnxSegmentationOptions(model_path=str(config.segmentation_model)))
+        model = OnnxSegmentationOptions(model_path=str(config.segmentation_model))
+        seg = OnnxSegmentationProvider(model)
         labels = SegmenterLabelProvider(seg, uses_pose=False)
     if config.completion is not CompletionMethod.GROUND_TRUTH:
         refiner = PlanarDepthRefiner()
@@ -170,7 +172,8 @@ def load_initial(sequence: Any, init: str | PathLike[str] | Trajectory | None) -
     have one pose per frame with the frame's timestamp (within 1 ms)."""
     if init is None:
         if not sequence.has_trajectory("init"):
-            raise InputError("no --init given and the sequence has no poses/init.tum", sequence.root)
+            raise InputError("no --init given and the sequence has no poses/init.tum",
+                             sequence.root)
         return check_trajectory(sequence, sequence.trajectory("init"),
                                 sequence.trajectory_path("init"), "initial")
     if isinstance(init, Trajectory):
@@ -230,7 +233,8 @@ def prepare(
     seq = read_sequence(sequence) if isinstance(sequence, (str, PathLike)) else sequence
     ifc_path = Path(ifc) if ifc is not None else seq.ifc_path
     if ifc_path is None:
-        raise InputError("no --ifc given and the sequence manifest names none", seq.manifest_path, "ifc")
+        raise InputError("no --ifc given and the sequence manifest names none",
+                         seq.manifest_path, "ifc")
     validate_settings(config)
     traj = load_initial(seq, init)
     work = Path(work_dir)
@@ -566,87 +570,170 @@ def solve_prepared(prepared: Prepared, config: RefineConfig, quiet: bool = False
     (:func:`bimcap.bim.plane_choice.plane_residual_check`): a median |residual| above
     ``plane_check_limit_m`` is reported in the outcome and logged, not hidden by the robust loss.
     """
-    from bimcap.optimize import solve
     from bimcap.optimize.observability import bim_observability
-    from bimcap.registration import StageKind
 
     t0 = time.perf_counter()
     poses = prepared.init.poses.copy()
-    coarse_info = None
     base = solver_options(config)
-    summaries = []
-    stats = None
-    result = None
-    max_dist = 0.4 if config.method is Method.FACAP else None
+    facap = config.method is Method.FACAP
     # BIMCaP associates with visible faces only; FACaP with the nearest face, as the peers did.
-    normals = None if config.method is Method.FACAP else segment_free_normals(prepared.reference)
-    last: tuple[Any, Any] | None = None  # (stage, options) of the last solver stage
-    chosen = problem = None
+    solver = _StageSolver(prepared=prepared, config=config, quiet=quiet,
+                          max_dist=config.effective_solve_match_distance,
+                          normals=None if facap else segment_free_normals(prepared.reference))
+    run, poses, coarse_info = _run_schedule(solver, base, poses)
+    rounds: list[dict[str, int]] = []
+    checks: list[Any] = []
+    repair = None
+    if not facap:
+        run, poses, rounds = _rechoose_planes(solver, run, poses, max_plane_rounds,
+                                              plane_change_tolerance)
+        run, poses, repair = _repair_run(solver, run, poses)
+        checks = _logged_plane_checks(run.problem, poses, plane_check_limit_m, quiet)
+    result = run.result
+    observability = bim_observability(run.problem.arrays(), poses, run.options,
+                                      result.wall_segment, result.column_segment,
+                                      planes=result.planes)
+    log(observability.summary_line(), quiet)
+    return SolveOutcome(
+        refined=Trajectory(prepared.init.timestamps, poses),
+        summaries=solver.summaries,
+        problem_stats=run.stats,
+        coarse=coarse_info,
+        seconds=time.perf_counter() - t0,
+        plane_checks=checks,
+        plane_rounds=rounds,
+        observability=observability,
+        repair=repair,
+    )
 
-    def run_stage(stage: Any, opts: Any, chosen: Any) -> tuple[Any, ProblemStats, Any]:
-        problem, stats = build_problem(prepared, poses, max_dist, normals, planes_chosen=chosen)
-        log(f"solving {config.method.value} stage {stage.name} ({opts.refine_mode.value.lower()}, "
-            f"{config.effective_weighting}): {stats.brief()}", quiet)
+
+@dataclass
+class _StageRun:
+    """One solved stage of :func:`solve_prepared`.
+
+    Attributes
+    ----------
+    stage: the schedule stage (``bimcap.registration.Stage``).
+    options: its solver options.
+    chosen: the floor / ceiling planes chosen for the samples (:func:`choose_sample_planes`).
+    problem: the problem it solved. stats: that problem's :class:`ProblemStats`.
+    result: the solver's result (after a repair: the repaired solve's).
+    """
+
+    stage: Any
+    options: Any
+    chosen: Any
+    problem: Any
+    stats: ProblemStats
+    result: Any
+
+
+@dataclass
+class _StageSolver:
+    """Builds and solves the stages of one :func:`solve_prepared` call; keeps their summaries.
+
+    Attributes
+    ----------
+    max_dist: the solve-time filter on matches (m, :func:`filter_matches_by_distance`), or None.
+    normals: (S, 2) free-side normals of the segments (visible-face association), or None.
+    summaries: every solve's summary, in order.
+    """
+
+    prepared: Prepared
+    config: RefineConfig
+    quiet: bool
+    max_dist: float | None
+    normals: F64 | None
+    summaries: list[Any] = field(default_factory=list)
+
+    def run(self, stage: Any, opts: Any, poses: F64, chosen: Any) -> _StageRun:
+        """Build the problem at ``poses`` with the planes ``chosen`` and solve ``stage``."""
+        from bimcap.optimize import solve
+
+        problem, stats = build_problem(self.prepared, poses, self.max_dist, self.normals,
+                                       planes_chosen=chosen)
+        log(f"solving {self.config.method.value} stage {stage.name} "
+            f"({opts.refine_mode.value.lower()}, {self.config.effective_weighting}): "
+            f"{stats.brief()}", self.quiet)
         result = solve(problem, opts, check=False)
-        summaries.append(result.summary)
+        self.summaries.append(result.summary)
         if not result.summary.success:
             raise PipelineError(f"the solve failed ({stage.name}): {result.summary.termination}: "
                                 f"{result.summary.message}")
-        return problem, stats, result
+        return _StageRun(stage=stage, options=opts, chosen=chosen, problem=problem, stats=stats,
+                         result=result)
 
+
+def _run_schedule(solver: _StageSolver, base: Any,
+                  poses: F64) -> tuple[_StageRun, F64, dict[str, Any] | None]:
+    """Every stage of :func:`schedule_for` from ``poses``: the last solver stage, the poses after
+    the schedule (N, 7) and the coarse registration's record (None without one)."""
+    from bimcap.registration import StageKind
+
+    prepared, config = solver.prepared, solver.config
+    coarse_info = None
+    last: _StageRun | None = None
     for stage in schedule_for(config).stages:
         if stage.kind is StageKind.COARSE:
-            poses, coarse_info = _coarse(prepared, poses, quiet, coarse_options(config))
+            poses, coarse_info = _coarse(prepared, poses, solver.quiet, coarse_options(config))
             continue
         opts = stage_options(base, stage, config)
         if opts is None:
             continue
-        chosen = choose_sample_planes(prepared, poses)
-        problem, stats, result = run_stage(stage, opts, chosen)
-        poses = result.poses
-        last = (stage, opts)
-    if stats is None or last is None or result is None:
+        last = solver.run(stage, opts, poses, choose_sample_planes(prepared, poses))
+        poses = last.result.poses
+    if last is None:
         raise PipelineError("the schedule has no solver stage for the configured terms")
-    rounds: list[dict[str, int]] = []
-    checks: list[Any] = []
-    repair = None
-    if config.method is not Method.FACAP:
-        from bimcap.bim.plane_choice import PlaneChoiceOptions
+    return last, poses, coarse_info
 
-        converged = PlaneChoiceOptions(frame_model=False)
-        for _ in range(max_plane_rounds):
-            again = choose_sample_planes(prepared, poses, converged)
-            changed, total = changed_planes(chosen, again, prepared.reference.planes)
-            resolve = changed > plane_change_tolerance * max(total, 1)
-            rounds.append({"changed": changed, "samples": total, "resolved": int(resolve)})
-            if not resolve:
-                break
-            log(f"{changed}/{total} floor/ceiling samples changed plane at the refined poses: "
-                f"solving stage {last[0].name} again", quiet)
-            chosen = again
-            problem, stats, result = run_stage(last[0], last[1], chosen)
-            poses = result.poses
-        repair, redo = _repair(problem, last[1], result, quiet)
-        if redo is not None:
-            summaries.append(redo.summary)
-            result = redo
-            poses = result.poses
-        checks = plane_checks(problem, poses, plane_check_limit_m)
-        for c in checks:
-            log(("WARNING: " if c.failed else "") + c.message(), quiet)
-    observability = bim_observability(problem.arrays(), poses, last[1], result.wall_segment,
-                                      result.column_segment, planes=result.planes)
-    log(observability.summary_line(), quiet)
-    refined = Trajectory(prepared.init.timestamps, poses)
-    return SolveOutcome(refined, summaries, stats, coarse_info, time.perf_counter() - t0,
-                        checks, rounds, observability, repair)
+
+def _rechoose_planes(solver: _StageSolver, run: _StageRun, poses: F64, max_rounds: int,
+                     tolerance: float) -> tuple[_StageRun, F64, list[dict[str, int]]]:
+    """Choose the samples' planes again at the refined ``poses`` and solve the last stage again
+    while more than ``tolerance`` of them change plane (at most ``max_rounds`` times)."""
+    from bimcap.bim.plane_choice import PlaneChoiceOptions
+
+    prepared = solver.prepared
+    converged = PlaneChoiceOptions(frame_model=False)
+    rounds: list[dict[str, int]] = []
+    for _ in range(max_rounds):
+        again = choose_sample_planes(prepared, poses, converged)
+        changed, total = changed_planes(run.chosen, again, prepared.reference.planes)
+        resolve = changed > tolerance * max(total, 1)
+        rounds.append({"changed": changed, "samples": total, "resolved": int(resolve)})
+        if not resolve:
+            break
+        log(f"{changed}/{total} floor/ceiling samples changed plane at the refined poses: "
+            f"solving stage {run.stage.name} again", solver.quiet)
+        run = solver.run(run.stage, run.options, poses, again)
+        poses = run.result.poses
+    return run, poses, rounds
+
+
+def _repair_run(solver: _StageSolver,
+                run: _StageRun, poses: F64) -> tuple[_StageRun, F64, dict[str, Any]]:
+    """:func:`_repair` of the last stage's result: the run and poses after it, and its record."""
+    from dataclasses import replace
+
+    repair, redo = _repair(run.problem, run.options, run.result, solver.quiet)
+    if redo is None:
+        return run, poses, repair
+    solver.summaries.append(redo.summary)
+    return replace(run, result=redo), redo.poses, repair
+
+
+def _logged_plane_checks(problem: Any, poses: F64, limit_m: float, quiet: bool) -> list[Any]:
+    """:func:`plane_checks` of ``problem`` at ``poses``, each logged (a failed one as a warning)."""
+    checks = plane_checks(problem, poses, limit_m)
+    for c in checks:
+        log(("WARNING: " if c.failed else "") + c.message(), quiet)
+    return checks
 
 
 def _repair(problem: Any, opts: Any, result: Any, quiet: bool) -> tuple[dict[str, Any], Any]:
     """Frames the solve left inconsistent with their neighbours' matches, re-placed from them by
     PnP (``registration.odometry``) and solved again. Returns the repair's record and the new
     solve's result (None when no frame needed it)."""
-    from dataclasses import replace
 
     from bimcap.optimize import solve
     from bimcap.registration.odometry import repair_inconsistent_frames
@@ -690,7 +777,9 @@ def effective_settings(config: RefineConfig) -> dict[str, Any]:
     out = {k: v for k, v in config.to_dict().items()
            if k not in ("solver", "registration") and not k.startswith("effective_")}
     out.update(terms=config.effective_terms, weighting=config.effective_weighting,
-               coarse=config.effective_coarse, geometric_mode=opts.geometric_mode.value.lower(),
+               coarse=config.effective_coarse,
+               solve_match_distance=config.effective_solve_match_distance or 0.0,
+               geometric_mode=opts.geometric_mode.value.lower(),
                loss=opts.geometric.loss.value.lower())
     out["solver"] = solver
     out["registration"] = asdict(coarse_options(config))
@@ -735,7 +824,8 @@ def _coarse(prepared: Prepared, poses: F64, quiet: bool, options: Any = None
     from bimcap.registration import CoarseOptions, FloorPlan, SemanticSamples, coarse_register
 
     arrays = prepared.frontend.to_problem_arrays()
-    names = [f"{c}_{s}" for c in ("wall", "column", "floor", "ceiling") for s in ("frame", "p_in_cam")]
+    names = [f"{c}_{s}" for c in ("wall", "column", "floor", "ceiling")
+             for s in ("frame", "p_in_cam")]
     samples = SemanticSamples.from_arrays(**{k: arrays.get(k) for k in names})
     ref = prepared.reference
     plan = FloorPlan.from_planes(ref.segments, ref.segment_class, ref.segment_z, ref.planes,
@@ -755,6 +845,11 @@ def _coarse(prepared: Prepared, poses: F64, quiet: bool, options: Any = None
 
 
 # ------------------------------------------------------------------------ step 3: the whole run
+def _to_dict_or_none(value: Any) -> Any:
+    """``value.to_dict()``, or None for None."""
+    return None if value is None else value.to_dict()
+
+
 @dataclass
 class RefineResult:
     """Everything one ``bimcap refine`` run produced (paths relative to ``out_dir``)."""
@@ -777,18 +872,18 @@ class RefineResult:
             "command": self.command,
             "config": self.config.to_dict(),
             "solve": self.outcome.to_dict(),
-            "metrics_before": None if self.metrics_before is None else self.metrics_before.to_dict(),
-            "metrics_after": None if self.metrics_after is None else self.metrics_after.to_dict(),
-            "map_before": None if self.map_before is None else self.map_before.to_dict(),
-            "map_after": None if self.map_after is None else self.map_after.to_dict(),
+            "metrics_before": _to_dict_or_none(self.metrics_before),
+            "metrics_after": _to_dict_or_none(self.metrics_after),
+            "map_before": _to_dict_or_none(self.map_before),
+            "map_after": _to_dict_or_none(self.map_after),
             "timings": self.timings,
             "files": self.files,
         }
 
 
 def evaluate_run(
-    prepared: Prepared, est: Trajectory, gt: Trajectory, radius: float = 0.2, min_neighbours: int = 5,
-    nnd_cutoff: float = 0.3,
+    prepared: Prepared, est: Trajectory, gt: Trajectory, radius: float = 0.2,
+    min_neighbours: int = 5, nnd_cutoff: float = 0.3,
 ) -> tuple[Any, Any]:
     """Trajectory metrics of ``est`` against ``gt`` and map metrics of the semantic map built with
     ``est`` (MME/MPV with ``radius``, NND against the map built with the ground truth)."""
@@ -900,6 +995,42 @@ def validate_run(
     return RunPlan(seq, ifc_path, traj, gt_traj, base, outputs)
 
 
+def write_run_outputs(
+    stage: Path,
+    prepared: Prepared,
+    outcome: SolveOutcome,
+    config: RefineConfig,
+    gt: Trajectory | None,
+    command: str = "",
+    report: bool = True,
+    extra_rows: list[Any] | None = None,
+) -> RefineResult:
+    """Write one run's outputs into ``stage`` (an open output set's staging directory):
+    ``refined.tum``, ``summary.json``, ``map_before.ply`` / ``map_after.ply`` and, with
+    ``report``, ``report.html`` and its ``figures/`` (``extra_rows``: more runs shown beside, e.g.
+    FACaP). With ``gt`` the result carries the metrics before and after. The result's
+    ``out_dir`` is ``stage``; the caller points it at the final directory before committing."""
+    header = f"bimcap {config.method.value} {config.effective_terms} refined world_from_cam"
+    write_tum(stage / "refined.tum", outcome.refined, header=header)
+    atomic_write_json(stage / "summary.json", outcome.to_dict())
+    prepared.frontend.write_semantic_map(stage / "map_before.ply", prepared.init.poses)
+    prepared.frontend.write_semantic_map(stage / "map_after.ply", outcome.refined.poses)
+    result = RefineResult(out_dir=stage, config=config, init=prepared.init,
+                          refined=outcome.refined, outcome=outcome,
+                          timings={**prepared.timings, "solve": outcome.seconds},
+                          command=command)
+    if gt is not None:
+        result.metrics_before, result.map_before = evaluate_run(prepared, prepared.init, gt)
+        result.metrics_after, result.map_after = evaluate_run(prepared, outcome.refined, gt)
+    result.files = {"refined": "refined.tum", "summary": "summary.json",
+                    "map_before": "map_before.ply", "map_after": "map_after.ply"}
+    if report:
+        from bimcap.pipeline.report import write_refine_report
+
+        result.files["report"] = write_refine_report(result, prepared, gt, extra_rows).name
+    return result
+
+
 def refine(
     sequence: str | PathLike[str],
     out_dir: str | PathLike[str],
@@ -931,29 +1062,8 @@ def refine(
         t_start = time.perf_counter()
         prepared = prepare(plan.sequence, plan.ifc, plan.init, cfg, out, quiet)
         outcome = solve_prepared(prepared, cfg, quiet)
-
-        header = f"bimcap {cfg.method.value} {cfg.effective_terms} refined world_from_cam"
-        write_tum(stage / "refined.tum", outcome.refined, header=header)
-        atomic_write_json(stage / "summary.json", outcome.to_dict())
-        prepared.frontend.write_semantic_map(stage / "map_before.ply", prepared.init.poses)
-        prepared.frontend.write_semantic_map(stage / "map_after.ply", outcome.refined.poses)
-
-        result = RefineResult(stage, cfg, prepared.init, outcome.refined, outcome,
-                              timings={**prepared.timings, "solve": outcome.seconds},
-                              command=command)
-        gt_traj = plan.gt
-        if gt_traj is not None:
-            result.metrics_before, result.map_before = evaluate_run(prepared, prepared.init,
-                                                                    gt_traj)
-            result.metrics_after, result.map_after = evaluate_run(prepared, outcome.refined,
-                                                                  gt_traj)
+        result = write_run_outputs(stage, prepared, outcome, cfg, plan.gt, command, report)
         result.timings["total"] = time.perf_counter() - t_start
-        result.files = {"refined": "refined.tum", "summary": "summary.json",
-                        "map_before": "map_before.ply", "map_after": "map_after.ply"}
-        if report:
-            from bimcap.pipeline.report import write_refine_report
-
-            result.files["report"] = write_refine_report(result, prepared, gt_traj).name
         result.out_dir = out
         plan.outputs.commit(result.to_dict())
     except BaseException:
