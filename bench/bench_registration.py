@@ -55,9 +55,11 @@ def main() -> None:
         gt = gt_all[i0:i0 + args.frames]
         walks.append((gt, scan_sequence(gt, as_built, seed=100 + s, clutter_fraction=0.05)))
     methods: dict[str, CoarseOptions] = {
-        "coarse": CoarseOptions(xy_range_m=args.xy_range, yaw_range_deg=args.yaw_range),
+        # the window stage alone (frame_orientation=False), as this table has always measured it
+        "coarse": CoarseOptions(xy_range_m=args.xy_range, yaw_range_deg=args.yaw_range,
+                                frame_orientation=False),
         "icp": CoarseOptions(use_correlative=False, use_continuity=False,
-                             icp_radius_start_m=1.0, icp_iterations=20),
+                             icp_radius_start_m=1.0, icp_iterations=20, frame_orientation=False),
     }
     methods = {m: methods[m] for m in args.methods.split(",")}
     plan = scene.floor_plan()

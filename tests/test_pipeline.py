@@ -31,8 +31,17 @@ def test_demo_writes_every_artefact(tiny_demo) -> None:
     for rel in ("world/building.ifc", "world/building_as_built.ifc", "sequence/manifest.json",
                 "sequence/poses/gt.tum", "sequence/poses/init.tum", "refine/refined.tum",
                 "refine/refined_facap.tum", "refine/report.html", "demo.json",
-                "refine/bim/floorplan.json"):
+                "refine/bim/floorplan.json", "refine/summary.json", "refine/map_before.ply",
+                "refine/map_after.ply", "refine/result.json"):
         assert (out / rel).is_file(), rel
+    # the demo's refine directory is what `bimcap refine` writes: result.json lists every file
+    listed = json.loads((out / "refine" / "result.json").read_text())
+    assert {"refined", "summary", "map_before", "map_after", "report",
+            "refined_facap"} <= set(listed["files"])
+    assert {"refined.tum", "refined_facap.tum", "summary.json", "map_before.ply",
+            "map_after.ply", "report.html"} <= set(listed["outputs"])
+    before, after = (listed[k]["ate_pos_m"]["rmse"] for k in ("metrics_before", "metrics_after"))
+    assert after < before
     html = (out / "refine" / "report.html").read_text()
     assert "data:image/png;base64," in html and "ATE" in html
     figures = sorted(p.name for p in (out / "refine" / "figures").glob("*.png"))

@@ -111,7 +111,7 @@ def test_print_config_reads_back_to_the_same_run(tmp_path: Path, flags: tuple[st
     assert asdict(coarse_options(again)) == asdict(coarse_options(original))
     assert coarse_options(again).xy_range_m == 1.5 and solver_options(again).wall.sigma == 0.02
     for name in ("method", "completion", "segmentation", "window", "workers", "effective_terms",
-                 "effective_weighting", "effective_coarse"):
+                 "effective_weighting", "effective_coarse", "effective_solve_match_distance"):
         assert getattr(again, name) == getattr(original, name), name
     # Printing the printed file changes nothing.
     assert _print_config("--config", str(printed)).split("\n", 1)[1] == text.split("\n", 1)[1]
@@ -144,3 +144,41 @@ def test_depth_source_is_the_completion_method() -> None:
     with pytest.raises(FusionInputError) as info:
         CompletionOptions(CompletionMethod.GROUND_TRUTH)
     assert info.value.field == "method"
+
+
+@pytest.mark.parametrize(("method", "given", "expected"), [
+    ("facap", None, 0.4), ("bimcap", None, None), ("facap", 0.0, None), ("bimcap", 0.25, 0.25)])
+def test_solve_match_distance_reaches_every_problem_build(
+        monkeypatch: pytest.MonkeyPatch, method: str, given: float | None,
+        expected: float | None) -> None:
+    """FACaP's 0.4 m filter on matches is a setting (``solve_match_distance``), not a constant."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    import bimcap.pipeline.refine as refine
+
+    seen: list[float | None] = []
+
+    class BuiltError(Exception):
+        pass
+
+    def fake_build(prepared, poses, max_match_distance=None, *args, **kwargs):
+        seen.append(max_match_distance)
+        raise BuiltError
+
+    monkeypatch.setattr(refine, "build_problem", fake_build)
+    monkeypatch.setattr(refine, "segment_free_normals", lambda reference: None)
+    monkeypatch.setattr(refine, "choose_sample_planes", lambda prepared, poses, *a: None)
+    poses = np.tile([0.0, 0, 0, 0, 0, 0, 1], (3, 1))
+    prepared = SimpleNamespace(init=SimpleNamespace(poses=poses), reference=None)
+    cfg = RefineConfig(method=method, coarse=False, solve_match_distance=given)
+    assert cfg.effective_solve_match_distance == expected
+    with pytest.raises(BuiltError):
+        refine.solve_prepared(prepared, cfg, quiet=True)  # type: ignore[arg-type]
+    assert seen == [expected]
+
+
+def test_solve_match_distance_is_checked() -> None:
+    with pytest.raises(ConfigError, match="solve_match_distance"):
+        RefineConfig(solve_match_distance=-0.1)

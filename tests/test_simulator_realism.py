@@ -267,7 +267,8 @@ def _simulate_cli(ifc: Path, out: Path, *flags: str) -> dict:
 
 
 def test_cli_flags_reach_the_config(tiny_ifc: Path, tmp_path: Path,
-                                    monkeypatch: pytest.MonkeyPatch) -> None:
+                                    monkeypatch: pytest.MonkeyPatch,
+                                    capsys: pytest.CaptureFixture[str]) -> None:
     """Every realism flag lands in the SimulatorConfig simulate() gets (no rendering)."""
     import bimcap.sim.simulator as simulator
     from bimcap.sim.simulator import CONSLAM_CAMERA
@@ -307,11 +308,15 @@ def test_cli_flags_reach_the_config(tiny_ifc: Path, tmp_path: Path,
     cfg = run("--no-clutter")
     assert cfg.clutter_density_per_m2 == 0.0 and seen["clutter"] is False
     # bad values: one clear line naming the setting, exit 2
-    for flags, _name in ((["--lidar-dropout", "1.5"], "lidar.dropout"),
+    capsys.readouterr()
+    for flags, name in ((["--lidar-dropout", "1.5"], "lidar.dropout"),
                         (["--label-noise", "-0.1"], "label_noise.fraction"),
                         (["--focal-scale", "0"], "focal_scale"),
                         (["--pitch-amplitude-deg", "-5"], "walk.pitch_amplitude_deg")):
         assert cli_main(["simulate", str(tiny_ifc), "-o", str(tmp_path / "x"), *flags]) == 2
+        err = capsys.readouterr().err
+        assert name in err, (flags, err)
+        assert "Traceback" not in err
 
 
 @pytest.mark.slow

@@ -69,6 +69,8 @@ GEOMETRIC_MODES = ("point", "reprojection", "landmark")
 
 #: The terms of each method's full objective.
 FULL_TERMS = {Method.BIMCAP: "G+F+W+Co+Ce", Method.FACAP: "G+F+W"}
+#: The peers' filter on matches for FACaP runs (m between the two back-projected points).
+FACAP_MATCH_DISTANCE_M = 0.4
 
 
 @dataclass
@@ -111,6 +113,9 @@ class RefineConfig:
     max_match_distance: the peers' filter on matches (metres between the two back-projected
         points under the initial poses; the paper used 0.4). None (default) keeps every
         geometrically verified match: with per-frame rotation drift the filter drops most of them.
+    solve_match_distance: the same filter applied each time a solver problem is built, at that
+        stage's poses (m; 0: off). None (default): 0.4 for FACaP (the peers' filter), off for
+        BIMCaP.
     workers: front-end processes (None: all cores).
     lidar_nan: what a LiDAR scan with NaN / inf points does: ``"raise"`` (default: stop, naming
         the scan file and frame) or ``"drop"`` (drop those points; a scan with no valid point
@@ -139,6 +144,7 @@ class RefineConfig:
     samples: str = "dense"
     window: int = 4
     max_match_distance: float | None = None
+    solve_match_distance: float | None = None
     workers: int | None = None
     lidar_nan: str = "raise"
     max_lost_fraction: float = 0.02
@@ -173,6 +179,9 @@ class RefineConfig:
         if self.max_match_distance is not None and not self.max_match_distance > 0:
             raise ConfigError(f"max_match_distance must be > 0 m, got {self.max_match_distance}",
                               field="max_match_distance")
+        if self.solve_match_distance is not None and not self.solve_match_distance >= 0:
+            raise ConfigError("solve_match_distance must be >= 0 m (0: off), got "
+                              f"{self.solve_match_distance}", field="solve_match_distance")
         if self.lidar_nan not in ("raise", "drop"):
             raise ConfigError(f"lidar_nan must be raise or drop, got {self.lidar_nan!r}",
                               field="lidar_nan")
@@ -206,6 +215,14 @@ class RefineConfig:
             return self.weighting.lower()
         return "paper" if self.method is Method.FACAP else "robust"
 
+    @property
+    def effective_solve_match_distance(self) -> float | None:
+        """The solve-time match filter in metres, None when off."""
+        d = self.solve_match_distance
+        if d is None:
+            d = FACAP_MATCH_DISTANCE_M if self.method is Method.FACAP else 0.0
+        return d if d > 0 else None
+
     def with_(self, **changes: Any) -> RefineConfig:
         """A copy with some fields changed."""
         return replace(self, **changes)
@@ -218,6 +235,7 @@ class RefineConfig:
         d["effective_terms"] = self.effective_terms
         d["effective_weighting"] = self.effective_weighting
         d["effective_coarse"] = self.effective_coarse
+        d["effective_solve_match_distance"] = self.effective_solve_match_distance
         return d
 
     @classmethod

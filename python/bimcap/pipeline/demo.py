@@ -8,6 +8,7 @@ metrics → before/after table and an HTML report.
 
 from __future__ import annotations
 
+import contextlib
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -16,7 +17,7 @@ from typing import Any
 from bimcap.errors import InputError
 from bimcap.io.atomic import atomic_write_json
 from bimcap.pipeline.config import Method, RefineConfig
-from bimcap.pipeline.refine import log
+from bimcap.pipeline.refine import REFINE_OUTPUTS, log
 from bimcap.sim.walk import DEFAULT_PITCH_DEG
 
 
@@ -76,7 +77,8 @@ def make_world(out: Path, opts: DemoOptions, quiet: bool = False) -> tuple[Path,
     return design_path, built_path
 
 
-def make_sequence(out: Path, design: Path, built: Path, opts: DemoOptions, quiet: bool = False) -> Path:
+def make_sequence(out: Path, design: Path, built: Path, opts: DemoOptions,
+                  quiet: bool = False) -> Path:
     """Simulate the sequence in the as-built world and write the drifted ``init.tum``."""
     from bimcap.dataset import add_trajectory, read_sequence
     from bimcap.sim.drift import DriftParams, apply_drift
@@ -110,8 +112,9 @@ class DemoResult:
     results: dict[str, Any]
 
 
-#: The files the demo's refine step writes into ``OUT/refine`` (as a set with ``result.json``).
-DEMO_OUTPUTS = ("refined.tum", "refined_facap.tum", "report.html", "figures/")
+#: The files the demo's refine step writes into ``OUT/refine`` (as a set with ``result.json``):
+#: those of ``bimcap refine`` and FACaP's trajectory.
+DEMO_OUTPUTS = (*REFINE_OUTPUTS, "refined_facap.tum")
 
 
 def validate_demo(opts: DemoOptions) -> None:
@@ -147,20 +150,13 @@ def run_demo(out_dir: str | Path, opts: DemoOptions | None = None, quiet: bool =
     """Run the demo into ``out_dir`` (re-running reuses what is already there).
 
     Settings are checked first (:func:`validate_demo`) and so is ``OUT/refine``: a file there
-    that bimcap did not write is replaced only with ``overwrite``. The refine outputs
-    (``refined.tum``, ``refined_facap.tum``, ``report.html``, ``figures/``) are written as one set
-    with ``OUT/refine/result.json`` (:class:`bimcap.io.outputs.OutputSet`).
+    that bimcap did not write is replaced only with ``overwrite``. ``OUT/refine`` holds what
+    ``bimcap refine`` writes (:func:`bimcap.pipeline.refine.write_run_outputs`: ``refined.tum``,
+    ``summary.json``, the semantic maps, ``report.html`` and ``figures/``) plus
+    ``refined_facap.tum``, as one set with ``OUT/refine/result.json``
+    (:class:`bimcap.io.outputs.OutputSet`).
     """
-    from bimcap.geometry import write_tum
     from bimcap.io.outputs import OutputSet
-    from bimcap.pipeline.refine import (
-        RefineResult,
-        evaluate_run,
-        prepare,
-        solve_prepared,
-        summary_table,
-    )
-    from bimcap.pipeline.report import RunRow, write_refine_report
 
     o = opts or DemoOptions()
     validate_demo(o)
@@ -177,52 +173,64 @@ def run_demo(out_dir: str | Path, opts: DemoOptions | None = None, quiet: bool =
         t0 = time.perf_counter()
         design, built = make_world(out, o, quiet)
         seq_dir = make_sequence(out, design, built, o, quiet)
-        prepared = prepare(seq_dir, design, None, o.config, run_dir, quiet)
-        gt = prepared.sequence.trajectory("gt")
-        stage = outputs.open()
-
-        results: dict[str, Any] = {}
-        tm0, mm0 = evaluate_run(prepared, prepared.init, gt)
-        metrics = {"initial": tm0}
-        extra = []
-        if o.facap:
-            facap = solve_prepared(prepared, facap_config(o.config), quiet)
-            tm, mm = evaluate_run(prepared, facap.refined, gt)
-            metrics["FACaP"] = tm
-            extra.append(RunRow("facap G+F+W", facap.refined.poses, tm, mm, facap.summary,
-                                facap.seconds))
-            write_tum(stage / "refined_facap.tum", facap.refined,
-                      header="FACaP refined world_from_cam")
-            results["facap"] = {"metrics": tm.to_dict(),
-                                "map": None if mm is None else mm.to_dict()}
-        outcome = solve_prepared(prepared, o.config, quiet)
-        tm1, mm1 = evaluate_run(prepared, outcome.refined, gt)
-        metrics["BIMCaP"] = tm1
-        write_tum(stage / "refined.tum", outcome.refined, header="BIMCaP refined world_from_cam")
-        result = RefineResult(stage, o.config, prepared.init, outcome.refined, outcome, tm0, tm1,
-                              mm0, mm1, timings={**prepared.timings, "solve": outcome.seconds},
-                              command=f"bimcap demo -o {out} --preset {o.preset} --seed {o.seed} "
-                                      f"--frames {o.frames} --scale {o.scale} --drift {o.drift}")
-        report = run_dir / write_refine_report(result, prepared, gt, extra).name
-        result.out_dir = run_dir
-        result.files = {"refined": "refined.tum", "report": report.name}
-        if o.facap:
-            result.files["refined_facap"] = "refined_facap.tum"
-        outputs.commit(result.to_dict())
-        table = summary_table(metrics)
+        result, results, table = _refine_step(out, seq_dir, design, o, outputs, quiet)
         seconds = time.perf_counter() - t0
-        results.update(options=o.to_dict(), initial={"metrics": tm0.to_dict()},
-                       bimcap={"metrics": tm1.to_dict(),
-                               "map": None if mm1 is None else mm1.to_dict(),
-                               "summary": outcome.to_dict()},
-                       seconds=seconds)
+        results.update(seconds=seconds)
         atomic_write_json(out / "demo.json", results)
     except BaseException:
         outputs.abort()
         if created:
-            try:
+            with contextlib.suppress(OSError):
                 out.rmdir()  # only when the failed run left it empty
-            except OSError:
-                pass
         raise
-    return DemoResult(out, report, table, seconds, results)
+    return DemoResult(out, run_dir / result.files["report"], table, seconds, results)
+
+
+def _refine_step(out: Path, seq_dir: Path, design: Path, o: DemoOptions, outputs: Any,
+                 quiet: bool) -> tuple[Any, dict[str, Any], str]:
+    """FACaP (with ``o.facap``) and BIMCaP on one front end, written into the open ``outputs``
+    as ``bimcap refine`` writes them; returns the committed refine result, ``demo.json``'s
+    content (without the time) and the before/after table."""
+    from bimcap.geometry import write_tum
+    from bimcap.pipeline.refine import (
+        evaluate_run,
+        prepare,
+        solve_prepared,
+        summary_table,
+        write_run_outputs,
+    )
+    from bimcap.pipeline.report import RunRow
+
+    run_dir = out / "refine"
+    prepared = prepare(seq_dir, design, None, o.config, run_dir, quiet)
+    gt = prepared.sequence.trajectory("gt")
+    stage = outputs.open()
+    results: dict[str, Any] = {"options": o.to_dict()}
+    extra = []
+    facap_metrics = None
+    if o.facap:
+        facap = solve_prepared(prepared, facap_config(o.config), quiet)
+        facap_metrics, mm = evaluate_run(prepared, facap.refined, gt)
+        extra.append(RunRow("facap G+F+W", facap.refined.poses, facap_metrics, mm,
+                            facap.summary, facap.seconds))
+        write_tum(stage / "refined_facap.tum", facap.refined, header="FACaP refined world_from_cam")
+        results["facap"] = {"metrics": facap_metrics.to_dict(),
+                            "map": None if mm is None else mm.to_dict()}
+    outcome = solve_prepared(prepared, o.config, quiet)
+    command = (f"bimcap demo -o {out} --preset {o.preset} --seed {o.seed} --frames {o.frames} "
+               f"--scale {o.scale} --drift {o.drift}")
+    result = write_run_outputs(stage, prepared, outcome, o.config, gt, command,
+                               extra_rows=extra)
+    if o.facap:
+        result.files["refined_facap"] = "refined_facap.tum"
+    result.out_dir = run_dir
+    outputs.commit(result.to_dict())
+    metrics = {"initial": result.metrics_before}
+    if facap_metrics is not None:
+        metrics["FACaP"] = facap_metrics
+    metrics["BIMCaP"] = result.metrics_after
+    results.update(initial={"metrics": result.metrics_before.to_dict()},
+                   bimcap={"metrics": result.metrics_after.to_dict(),
+                           "map": None if result.map_after is None else result.map_after.to_dict(),
+                           "summary": outcome.to_dict()})
+    return result, results, summary_table(metrics)
