@@ -98,6 +98,23 @@ def test_binding_rejects_bad_arrays(synthetic) -> None:
         _core.solve(arrays, {**flat, "association_gate": "-2"})
 
 
+def test_binding_takes_a_problem_without_some_terms(synthetic) -> None:
+    """A term's arrays may be left out (``_core.solve``'s docstring): the term is empty. Leaving
+    out a term's arrays solves exactly as giving them with the term disabled."""
+    _core = core()
+    arrays = synthetic.problem.arrays()
+    required = {name: req for name, _dtype, _cols, req, _term in _core.problem_fields()}
+    optional = [k for k in arrays if k.startswith(("column_", "ceiling_")) and not required[k]]
+    assert optional
+    part = {k: v for k, v in arrays.items() if k not in optional}
+    flat = {**SolverOptions().to_flat(), "num_threads": "1"}
+    off = {**flat, "column.enabled": "0", "ceiling.enabled": "0"}
+    left_out = _core.solve(part, flat)
+    disabled = _core.solve(arrays, off)
+    assert left_out["summary"]["success"]
+    np.testing.assert_array_equal(left_out["poses"], disabled["poses"])
+
+
 def test_solve_names_the_bad_field(synthetic) -> None:
     arrays = synthetic.problem.arrays()
     broken = {**arrays, "floor_plane": np.full_like(arrays["floor_plane"], 5)}

@@ -10,9 +10,11 @@
 
 namespace bimcap {
 
-// `a` has exactly (rows, cols) (cols = 1 for a 1-D array) and data behind a non-empty view.
+// `a` has exactly (rows, cols) (cols = 1 for a 1-D array) and data behind a non-empty view. An
+// absent array (no data, no rows) is an empty one of any width: a term's arrays may be left out.
 template <typename T>
 void CheckShape(const ArrayRef<T>& a, const std::string& name, int64_t rows, int64_t cols) {
+  if (rows == 0 && a.rows == 0 && a.data == nullptr) return;
   if (a.rows != rows || a.cols != cols) {
     std::string msg = "expected shape (" + std::to_string(rows);
     if (cols != 1) msg += ", " + std::to_string(cols);

@@ -133,6 +133,34 @@ TEST_F(SolverTest, FloorAloneFixesHeightAndTilt) {
   }
 }
 
+// A term's arrays may be left out (the binding's and the problem file's promise): a problem with
+// the core arrays and the F and W arrays only is valid, and F + W alone solve it as they do when
+// every other term is present but disabled.
+TEST_F(SolverTest, ATermsArraysMayBeLeftOut) {
+  const ProblemData full = problem.View();
+  ProblemData part;
+  for (const char* name : {"poses", "timestamps", "pose_fixed", "cameras", "frame_camera",
+                           "floor_frame", "floor_p_in_cam", "floor_plane", "planes", "wall_frame",
+                           "wall_p_in_cam", "segments", "segment_class", "segment_z"}) {
+    const FieldSpec* spec = FindField(name);
+    ASSERT_NE(spec, nullptr) << name;
+    if (spec->dtype == DType::kFloat64) {
+      part.Set(name, full.F64(name));
+    } else {
+      part.Set(name, full.I32(name));
+    }
+  }
+  EXPECT_TRUE(part.F64("ceiling_p_in_cam").empty());
+  ValidateProblem(part);
+  SolverOptions only = OnlyTerms({TermIndex("F"), TermIndex("W")});
+  only.num_threads = 1;  // bit-for-bit comparable
+  const SolveResult r = Solve(part, only);
+  ASSERT_TRUE(r.summary.success) << r.summary.message;
+  EXPECT_EQ(r.poses, Solve(full, only).poses);
+  // Every term enabled: the absent ones are empty, not an error.
+  EXPECT_TRUE(Solve(part, SolverOptions()).summary.success);
+}
+
 TEST_F(SolverTest, WallAloneFixesPlanPositionAndYaw) {
   const SolveResult r = Solve(problem.View(), OnlyTerms({TermIndex("W")}));
   double z, tilt, xy0, yaw0, xy, yaw;
