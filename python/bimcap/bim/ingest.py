@@ -663,7 +663,7 @@ def _shape_arrays(geom: Any) -> tuple[NDArray[np.float64], NDArray[np.int32]]:
 def _tessellate(
     ifc: Any, threads: int, include: list[Any] | None, exclude: list[str] | None
 ) -> list[tuple[int, NDArray[np.float64], NDArray[np.int32]]]:
-    """(id, vertices, faces) of every product with geometry, in world metres.
+    """(id, vertices, faces) of every product with geometry, in world metres, by id.
 
     IfcOpenShell's iterator stops at the first element it cannot process (a malformed
     attribute raises in ``next()``; with several threads it can wait forever, so damaged files
@@ -708,6 +708,9 @@ def _tessellate(
             verts, faces = _shape_arrays(shape.geometry)
             if len(faces):
                 out.append((int(element.id()), verts, faces))
+    # With several threads the iterator yields elements in the order they finish: sort them, so
+    # that the same file gives the same model (segments, planes, sampled cloud) on every run.
+    out.sort(key=lambda shape: shape[0])
     return out
 
 
