@@ -11,6 +11,10 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("BIMCAP_SHARED", REPO.parent / "shared"))
 
+# Tests never write into the user's shared cache (~/.cache/bimcap); the tests of the shared cache
+# point it at a temporary directory themselves (subprocesses inherit this).
+os.environ["BIMCAP_CACHE_DIR"] = "off"
+
 
 @pytest.fixture(scope="session")
 def shared_dir() -> Path:

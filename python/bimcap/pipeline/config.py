@@ -123,6 +123,9 @@ class RefineConfig:
     max_lost_fraction: the largest share of the IFC's building elements that may be lost to a
         damaged file (unreadable, missing, or without geometry) before the BIM reference is
         refused (``bimcap.bim.ingest.load_model``); any loss below it is a loud warning.
+    cache_dir: root of the shared cache (``bimcap.io.cache``: the BIM reference of each IFC
+        content, reused by runs with other output directories). None: ``$BIMCAP_CACHE_DIR``,
+        else ``$XDG_CACHE_HOME/bimcap``, else ``~/.cache/bimcap``; ``"off"``: no shared cache.
     solver: overrides of ``bimcap.optimize.SolverOptions`` fields (nested dicts for terms),
         applied after the preset, ``loss`` and ``geometric_mode``.
     registration: overrides of ``bimcap.registration.CoarseOptions`` fields (the coarse stage).
@@ -148,6 +151,7 @@ class RefineConfig:
     workers: int | None = None
     lidar_nan: str = "raise"
     max_lost_fraction: float = 0.02
+    cache_dir: str | None = None
     solver: dict[str, Any] = field(default_factory=dict)
     registration: dict[str, Any] = field(default_factory=dict)
 
@@ -188,6 +192,8 @@ class RefineConfig:
         if not 0.0 <= self.max_lost_fraction <= 1.0:
             raise ConfigError(f"max_lost_fraction must be in [0, 1], got {self.max_lost_fraction}",
                               field="max_lost_fraction")
+        if self.cache_dir is not None and not isinstance(self.cache_dir, str):
+            raise ConfigError("cache_dir must be a directory path or \"off\"", field="cache_dir")
         if not isinstance(self.solver, dict):
             raise ConfigError("solver must be a table of SolverOptions fields", field="solver")
         if not isinstance(self.registration, dict):

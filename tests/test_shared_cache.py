@@ -1,0 +1,96 @@
+"""The shared cache (bimcap.io.cache): a second run on the same IFC with another output directory
+starts from the finished BIM reference instead of loading the model again."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bimcap.io.cache import cache_root, file_key, publish
+from bimcap.pipeline import refine
+
+building = pytest.importorskip("bimcap.sim.building")
+
+
+@pytest.fixture(scope="module")
+def ifc(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("world") / "tiny.ifc"
+    building.generate_building(building.PRESETS["tiny"], seed=1, ifc_path=path)
+    return path
+
+
+def test_cache_root_settings(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    monkeypatch.delenv("BIMCAP_CACHE_DIR", raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert cache_root() == tmp_path / "xdg" / "bimcap"
+    monkeypatch.delenv("XDG_CACHE_HOME")
+    assert cache_root() == Path.home() / ".cache" / "bimcap"
+    monkeypatch.setenv("BIMCAP_CACHE_DIR", str(tmp_path / "env"))
+    assert cache_root() == tmp_path / "env"
+    assert cache_root(tmp_path / "given") == tmp_path / "given"  # the setting wins
+    assert cache_root("off") is None and cache_root("OFF") is None
+    monkeypatch.setenv("BIMCAP_CACHE_DIR", "off")
+    assert cache_root() is None
+
+
+def test_second_run_reads_the_shared_reference(ifc: Path, tmp_path: Path,
+                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    import bimcap.bim.reference as reference
+
+    root = tmp_path / "shared"
+    first = refine.bim_reference(ifc, tmp_path / "a" / "bim", shared_root=root)
+    entries = list((root / "bim").iterdir())
+    assert [e.name for e in entries] == [f"{file_key(ifc)}-v{reference.VERSION}"]
+    assert not [p for p in (root / "bim").iterdir() if p.name.startswith(".")]
+
+    def no_build(*args: object, **kwargs: object) -> None:
+        raise AssertionError("the reference was built again")
+
+    monkeypatch.setattr(reference, "build_reference", no_build)
+    second = refine.bim_reference(ifc, tmp_path / "b" / "bim", shared_root=root)
+    for name in ("segments", "planes", "points", "labels"):
+        np.testing.assert_array_equal(getattr(second, name), getattr(first, name))
+    # the run's own copy is written too, and a third run reads it without the shared cache
+    assert (tmp_path / "b" / "bim" / "reference.npz").is_file()
+    refine.bim_reference(ifc, tmp_path / "b" / "bim", shared_root="off")
+
+
+def test_another_file_content_is_another_entry(ifc: Path, tmp_path: Path) -> None:
+    root = tmp_path / "shared"
+    refine.bim_reference(ifc, None, shared_root=root)
+    edited = tmp_path / "edited.ifc"
+    edited.write_bytes(ifc.read_bytes().replace(b"IfcWall", b"IfcWall", 1) + b"\n")
+    refine.bim_reference(edited, None, shared_root=root)
+    assert len(list((root / "bim").iterdir())) == 2
+
+
+def test_damaged_shared_entry_is_rebuilt(ifc: Path, tmp_path: Path) -> None:
+    root = tmp_path / "shared"
+    refine.bim_reference(ifc, None, shared_root=root)
+    (entry,) = (root / "bim").iterdir()
+    (entry / "reference.npz").write_bytes(b"not an npz")
+    ref = refine.bim_reference(ifc, None, shared_root=root)
+    assert len(ref.segments) > 0
+
+
+def test_unwritable_shared_cache_is_a_warning(ifc: Path, tmp_path: Path) -> None:
+    root = tmp_path / "not-a-directory"
+    root.write_text("a file where the cache root should be")  # unwritable, even for root
+    with pytest.warns(UserWarning, match="could not write the shared BIM cache"):
+        ref = refine.bim_reference(ifc, tmp_path / "run" / "bim", shared_root=root)
+    assert len(ref.segments) > 0 and (tmp_path / "run" / "bim" / "reference.npz").is_file()
+
+
+def test_publish_keeps_an_entry_that_appeared_meanwhile(tmp_path: Path) -> None:
+    entry = tmp_path / "bim" / "k-v1"
+
+    def fill(tmp: Path) -> None:
+        (tmp / "x").write_text("mine")
+        entry.mkdir(parents=True)  # another run finished first
+        (entry / "x").write_text("theirs")
+
+    publish(entry, fill)
+    assert (entry / "x").read_text() == "theirs"
+    assert [p.name for p in entry.parent.iterdir()] == ["k-v1"]  # no hidden leftovers
