@@ -9,7 +9,10 @@
 
 namespace bimcap::python {
 
-void BindSolver(py::module_& m) {
+namespace {
+
+// _core.solve.
+void BindSolve(py::module_& m) {
   m.def(
       "solve",
       [](const py::dict& arrays, const py::dict& options) {
@@ -71,7 +74,10 @@ ValueError
     (``bimcap._core.InputError`` derives from ValueError).
 
 The GIL is released while Ceres runs.)doc");
+}
 
+// The option helpers: defaults, presets, checks, keys and their specs, the term registry.
+void BindOptions(py::module_& m) {
   m.def(
       "default_options", []() { return OptionsToDict(SolverOptions()); },
       "The default solver options as a dict of str → str.");
@@ -147,6 +153,13 @@ The GIL is released while Ceres runs.)doc");
         ValidateProblem(ProblemFromDict(arrays, &keep_alive));
       },
       py::arg("arrays"), "Validate problem arrays as solve() does; raises on the first error.");
+}
+
+}  // namespace
+
+void BindSolver(py::module_& m) {
+  BindSolve(m);
+  BindOptions(m);
 }
 
 }  // namespace bimcap::python
