@@ -7,6 +7,10 @@
    walls), and its translation is tracked frame by frame; the part of that translation beyond
    ``frame_deadband_m`` is applied. If the median tracked translation is below ``frame_gate_m``
    the input is already within the bundle adjustment's reach and is returned unchanged.
+   The tracked translation is a proposal of single frames, each of which may fit an alias (a
+   mirrored flat, a repeated room): if the windows below are searched from it and none is
+   accepted, it is dropped and the windows start again from the input positions (with the
+   per-frame rotations); ``CoarseResult.translation_dropped`` records it.
 
 Then per window of ``window_frames`` consecutive frames (whose relative poses are trusted: drift is
 smooth):
