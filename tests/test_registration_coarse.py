@@ -315,3 +315,51 @@ def test_true_pose_is_a_fixed_point_in_a_real_duplex(ifc_dir, tmp_path) -> None:
     moved = np.linalg.norm(poses[:, :3] - gt.poses[:, :3], axis=1)
     assert moved.max() < 0.05, np.round(moved, 2)
 
+
+
+def _with_tracked_translation(monkeypatch: pytest.MonkeyPatch, offset_xy: np.ndarray) -> None:
+    """Make stage 0's tracked translation that of the truth plus ``offset_xy`` (2,) metres on
+    every frame (what the per-frame track reports when its frames lock onto an alias)."""
+    from dataclasses import replace
+
+    from bimcap.registration import coarse
+
+    real = coarse._level_frames
+
+    def aliased(*args: object, **kwargs: object) -> object:
+        fl = real(*args, **kwargs)
+        t3 = fl.translation.copy()
+        t3[:, :2] += offset_xy
+        return replace(fl, translation=t3,
+                       drift_m=float(np.median(np.linalg.norm(t3, axis=1))))
+
+    monkeypatch.setattr(coarse, "_level_frames", aliased)
+
+
+def test_tracked_translation_to_an_alias_is_dropped_when_no_window_confirms_it(
+        demo: Scene, monkeypatch: pytest.MonkeyPatch) -> None:
+    # The per-frame track is a proposal of single frames: in a building with mirrored or
+    # repeated rooms each frame may fit an alias. Here it reports every frame 2.6 m north of
+    # where it is (inside the rooms beside the corridor): no window registers there, so the
+    # translation must not be applied; the frames keep their input positions (0.1 m off),
+    # from which the bundle adjustment converges.
+    gt = corridor_walk(12, x0=3.0)
+    samples = scan_sequence(gt, demo, seed=5, clutter_fraction=0.03)
+    init = per_frame_drift(gt, 3, 6.0, 3.0, 0.01, np.array([0.08, -0.06, 0.0]))
+    _with_tracked_translation(monkeypatch, np.array([0.0, 2.6]))
+    res = coarse_register(init, samples, demo.floor_plan(), CoarseOptions())
+    assert res.frame_level is not None and res.frame_level.drift_m > 2.0
+    t_err, _ = pose_errors(res.poses, gt)
+    assert t_err.max() < 0.3, t_err
+    assert res.translation_dropped
+    assert res.to_dict()["translation_dropped"] is True
+
+
+def test_tracked_translation_a_window_confirms_is_kept(demo: Scene) -> None:
+    # Control: the true drift (0.8 m) is tracked and the windows confirm it.
+    gt = corridor_walk(12, x0=3.0)
+    samples = scan_sequence(gt, demo, seed=5, clutter_fraction=0.03)
+    init = per_frame_drift(gt, 3, 8.0, 4.0, 0.05, np.array([0.8, 0.4, 0.1]))
+    res = coarse_register(init, samples, demo.floor_plan(), CoarseOptions())
+    assert not res.translation_dropped and res.accepted.any()
+    assert pose_errors(res.poses, gt)[0].max() < 0.3

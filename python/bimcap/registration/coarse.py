@@ -7,6 +7,10 @@
    walls), and its translation is tracked frame by frame; the part of that translation beyond
    ``frame_deadband_m`` is applied. If the median tracked translation is below ``frame_gate_m``
    the input is already within the bundle adjustment's reach and is returned unchanged.
+   The tracked translation is a proposal of single frames, each of which may fit an alias (a
+   mirrored flat, a repeated room): if the windows below are searched from it and none is
+   accepted, it is dropped and the windows start again from the input positions (with the
+   per-frame rotations); ``CoarseResult.translation_dropped`` records it.
 
 Then per window of ``window_frames`` consecutive frames (whose relative poses are trusted: drift is
 smooth):
@@ -386,6 +390,8 @@ class CoarseResult:
     frame_window: (N,) int32 window index of each frame.
     windows: one :class:`WindowResult` per window.
     frame_level: the per-frame orientation pass (stage 0), None when it was off.
+    translation_dropped: stage 0's tracked translation was applied but no window confirmed it,
+        so the windows were run again from the input positions (see :func:`coarse_register`).
     timings: seconds per step (``frame_orientation``, ``level``, ``maps``, ``correlative``,
         ``icp``, ``continuity``, ``apply``, ``total``) and ``per_window`` (mean time of one
         window's levelling, search and ICP, without building the plan maps, which happens once
@@ -403,6 +409,7 @@ class CoarseResult:
     timings: dict[str, float]
     options: CoarseOptions
     frame_level: FrameLevelResult | None = None
+    translation_dropped: bool = False
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary (per-frame arrays as lists)."""
@@ -419,6 +426,7 @@ class CoarseResult:
             "timings": dict(self.timings),
             "options": self.options.to_dict(),
             "frame_level": None if self.frame_level is None else self.frame_level.to_dict(),
+            "translation_dropped": self.translation_dropped,
         }
 
 
@@ -570,12 +578,14 @@ def _refine_frames(per_frame: F64, poses: F64, world_pts: dict[str, F64], frames
 @dataclass(frozen=True)
 class _Oriented:
     """The poses (N, 7) the windows start from, after stage 0 (or the input), and its outcome:
-    ``skip_windows`` (the input is already near the plan), ``unchanged`` (poses is the input)."""
+    ``skip_windows`` (the input is already near the plan), ``unchanged`` (poses is the input),
+    ``translated`` (the tracked translation beyond the deadband is in ``poses``)."""
 
     poses: F64
     frame_level: FrameLevelResult | None
     skip_windows: bool
     unchanged: bool
+    translated: bool = False
 
 
 def _checked_poses(world_from_cam: ArrayLike) -> F64:
@@ -617,12 +627,22 @@ def _orient_frames(poses: F64, samples: SemanticSamples, plan: FloorPlan,
     the tracked translation beyond the deadband; a no-op unless ``frame_orientation``."""
     if not (opt.frame_orientation and opt.use_gravity):
         return _Oriented(poses=poses, frame_level=None, skip_windows=False, unchanged=True)
-    unchanged = True
     t0 = time.perf_counter()
     frame_level = _level_frames(poses, samples, plan, maps_for, opt, rng)
+    oriented = _apply_frame_level(poses, frame_level, opt, translate=opt.frame_translation)
+    timings["frame_orientation"] = time.perf_counter() - t0
+    return oriented
+
+
+def _apply_frame_level(poses: F64, frame_level: FrameLevelResult, opt: CoarseOptions,
+                       translate: bool) -> _Oriented:
+    """Stage 0's corrections applied to the input ``poses`` (N, 7): the per-frame rotations and,
+    with ``translate`` (and a tracked drift beyond ``frame_gate_m``), the part of the tracked
+    translation beyond ``frame_deadband_m``."""
     m = frame_level.world_from_world.copy()
     near = frame_level.drift_m < opt.frame_gate_m
-    if opt.frame_translation and not near:
+    translated = translate and not near
+    if translated:
         # Soft threshold: the plan and the labels are good only to a few decimetres in
         # places (a frame that sees one door jamb locks onto it), and a consistent offset
         # over many frames is what the bundle adjustment cannot undo.
@@ -630,13 +650,43 @@ def _orient_frames(poses: F64, samples: SemanticSamples, plan: FloorPlan,
         norm = np.linalg.norm(t3, axis=1)
         shrink = np.clip(1.0 - opt.frame_deadband_m / np.maximum(norm, 1e-12), 0.0, 1.0)
         m[:, :3, 3] += t3 * shrink[:, None]
-    skip_windows = near
-    if not near or opt.frame_rotate_when_near:
+    unchanged = near and not opt.frame_rotate_when_near
+    if not unchanged:
         poses = matrix_to_pose(m @ pose_to_matrix(poses))
-        unchanged = False
-    timings["frame_orientation"] = time.perf_counter() - t0
-    return _Oriented(poses=poses, frame_level=frame_level, skip_windows=skip_windows,
-                     unchanged=unchanged)
+    return _Oriented(poses=poses, frame_level=frame_level, skip_windows=near,
+                     unchanged=unchanged, translated=translated)
+
+
+@dataclass(frozen=True)
+class _WindowPass:
+    """Steps 1-6a from one set of start poses: the windows, their fits, their results, and the
+    accepted windows' centre frames and (4, 4) corrections (interpolation nodes)."""
+
+    wins: _Windows
+    fits: list[_WindowFit]
+    windows: list[WindowResult]
+    nodes: list[Any]
+    mats: list[F64]
+
+
+def _window_pass(oriented: _Oriented, samples: SemanticSamples, plan: FloorPlan,
+                 maps_for: Callable[[float | None], PlanMaps], grid: _YawGrid,
+                 opt: CoarseOptions, rng: np.random.Generator, clock: _StageClock
+                 ) -> _WindowPass:
+    """Steps 1-6a from ``oriented.poses``: per window gravity, correlative search and ICP, the
+    continuity chain over the windows, and each window's acceptance."""
+    poses = oriented.poses
+    wins = _split_windows(poses, samples, opt)
+    fits = [_register_window(w, wins, poses, plan, maps_for, grid, oriented.skip_windows, opt,
+                             rng, clock) for w in range(len(wins.starts))]
+    t0 = time.perf_counter()
+    choice = _choose_hypotheses(fits, poses, wins, opt)
+    clock.timings["continuity"] += time.perf_counter() - t0
+    t0 = time.perf_counter()
+    windows, nodes, mats = _judge_windows(fits, choice, poses, wins, grid, oriented.skip_windows,
+                                          opt)
+    clock.timings["apply"] += time.perf_counter() - t0
+    return _WindowPass(wins=wins, fits=fits, windows=windows, nodes=nodes, mats=mats)
 
 
 def _choose_hypotheses(fits: list[_WindowFit], poses: F64, wins: _Windows, opt: CoarseOptions
@@ -801,22 +851,26 @@ def coarse_register(
     maps_for = _storey_maps(plan, opt, {} if maps_cache is None else maps_cache)
     # 0. per-frame orientation (tilt and yaw about each camera centre).
     oriented = _orient_frames(input_poses, samples, plan, maps_for, opt, rng, timings)
-    poses = oriented.poses
-    # 1.-4. per window: gravity and height, planar points, correlative search, ICP.
-    wins = _split_windows(poses, samples, opt)
     grid = _yaw_grid(opt)
-    fits = [_register_window(w, wins, poses, plan, maps_for, grid, oriented.skip_windows, opt,
-                             rng, clock) for w in range(len(wins.starts))]
+    # 1.-6a. per window: gravity and height, planar points, correlative search, ICP; continuity
+    # (one hypothesis per window); acceptance.
+    wp = _window_pass(oriented, samples, plan, maps_for, grid, opt, rng, clock)
+    reverted = False
+    searched = any(w.n_hypotheses > 0 for w in wp.windows)
+    if oriented.translated and searched and not wp.nodes and oriented.frame_level is not None:
+        # The tracked translation is a proposal from single frames, each of which may have
+        # locked onto an alias (a mirrored flat, a repeated room): it stands only where the
+        # window search confirms it (some window's points, seen together, register there).
+        # Refuted (windows were searched and none was accepted), it is dropped: the windows
+        # start again from the input positions with the per-frame rotations alone.
+        oriented = _apply_frame_level(input_poses, oriented.frame_level, opt, translate=False)
+        wp = _window_pass(oriented, samples, plan, maps_for, grid, opt, rng, clock)
+        reverted = True
+    poses, wins, fits = oriented.poses, wp.wins, wp.fits
     win_maps, win_meta = [f.maps for f in fits], [f.meta for f in fits]
-    # 5. continuity: one hypothesis per window.
+    # 6b. interpolate and apply.
     t0 = time.perf_counter()
-    choice = _choose_hypotheses(fits, poses, wins, opt)
-    timings["continuity"] += time.perf_counter() - t0
-    # 6. accept, interpolate, apply.
-    t0 = time.perf_counter()
-    windows, nodes, mats = _judge_windows(fits, choice, poses, wins, grid, oriented.skip_windows,
-                                          opt)
-    per_frame, accepted_frames = _apply_windows(windows, nodes, mats, n, opt)
+    per_frame, accepted_frames = _apply_windows(wp.windows, wp.nodes, wp.mats, n, opt)
     timings["apply"] += time.perf_counter() - t0
     # 7. per-frame ICP inside the accepted windows.
     t0 = time.perf_counter()
@@ -835,6 +889,6 @@ def coarse_register(
     timings["apply"] += time.perf_counter() - t0
     return CoarseResult(poses=out_poses, frame_score=frame_score,
                         frame_inlier_ratio=frame_inl, accepted=accepted_frames,
-                        frame_window=wins.frame_window, windows=windows,
+                        frame_window=wins.frame_window, windows=wp.windows,
                         timings=clock.finish(win_meta, n_refined), options=opt,
-                        frame_level=oriented.frame_level)
+                        frame_level=oriented.frame_level, translation_dropped=reverted)
