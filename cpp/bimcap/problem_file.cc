@@ -97,9 +97,15 @@ void CheckOptionsText(const std::string& text) {
   }
 }
 
-}  // namespace
+// The fixed 64-byte header, checked against the file's size.
+struct Header {
+  uint32_t version = 0;
+  uint32_t num_arrays = 0;
+  uint64_t file_size = 0;
+  uint64_t directory_end = 0;  // end of the header and the array directory
+};
 
-ProblemFile ParseProblemFile(const uint8_t* bytes, size_t size) {
+Header ParseHeader(const uint8_t* bytes, size_t size) {
   if (!HostIsLittleEndian()) Fail("header", "big-endian hosts are not supported");
   if (bytes == nullptr || size < kProblemFileHeaderSize) {
     Fail("header", "file too short for a header (" + std::to_string(size) + " bytes, need 64)");
@@ -107,30 +113,121 @@ ProblemFile ParseProblemFile(const uint8_t* bytes, size_t size) {
   if (std::memcmp(bytes, kMagic, sizeof(kMagic)) != 0) {
     Fail("header.magic", "not a bimcap problem file (bad magic)");
   }
-  ProblemFile file;
-  file.version = Load<uint32_t>(bytes + 8);
+  Header h;
+  h.version = Load<uint32_t>(bytes + 8);
   const uint32_t header_size = Load<uint32_t>(bytes + 12);
-  const uint32_t num_arrays = Load<uint32_t>(bytes + 16);
+  h.num_arrays = Load<uint32_t>(bytes + 16);
   const uint32_t entry_size = Load<uint32_t>(bytes + 20);
-  file.file_size = Load<uint64_t>(bytes + 24);
-  if (file.version != kProblemFileVersion) {
-    Fail("header.version", "unsupported version " + std::to_string(file.version) +
+  h.file_size = Load<uint64_t>(bytes + 24);
+  if (h.version != kProblemFileVersion) {
+    Fail("header.version", "unsupported version " + std::to_string(h.version) +
                                " (this build reads version " + std::to_string(kProblemFileVersion) +
                                ")");
   }
   if (header_size != kProblemFileHeaderSize) Fail("header.header_size", "must be 64");
   if (entry_size != kProblemFileEntrySize) Fail("header.entry_size", "must be 64");
-  if (num_arrays > kMaxArrays) {
-    Fail("header.num_arrays", std::to_string(num_arrays) + " arrays (at most 256)");
+  if (h.num_arrays > kMaxArrays) {
+    Fail("header.num_arrays", std::to_string(h.num_arrays) + " arrays (at most 256)");
   }
-  if (file.file_size != size) {
-    Fail("header.file_size", "header says " + std::to_string(file.file_size) +
+  if (h.file_size != size) {
+    Fail("header.file_size", "header says " + std::to_string(h.file_size) +
                                  " bytes, the file has " + std::to_string(size) +
                                  " (truncated or padded?)");
   }
-  const uint64_t directory_end =
-      static_cast<uint64_t>(header_size) + static_cast<uint64_t>(num_arrays) * entry_size;
-  if (directory_end > size) Fail("header.num_arrays", "directory runs past the end of the file");
+  h.directory_end = static_cast<uint64_t>(header_size) +
+                    static_cast<uint64_t>(h.num_arrays) * kProblemFileEntrySize;
+  if (h.directory_end > size) Fail("header.num_arrays", "directory runs past the end of the file");
+  return h;
+}
+
+// Directory entry `index` (64 bytes at `entry`): its name, dtype and shape, checked on their own.
+ArrayInfo ParseEntry(const uint8_t* entry, uint32_t index) {
+  const std::string where = "array " + std::to_string(index);
+  const void* nul = std::memchr(entry, 0, 32);
+  if (nul == nullptr) Fail(where, "name is not NUL-terminated");
+  ArrayInfo info;
+  info.name.assign(reinterpret_cast<const char*>(entry), static_cast<const uint8_t*>(nul) - entry);
+  if (info.name.empty()) Fail(where, "empty name");
+  for (const char c : info.name) {
+    if (!((c >= 'a' && c <= 'z') || (c >= '0' && c <= '9') || c == '_')) {
+      Fail(where, "name has characters other than [a-z0-9_]");
+    }
+  }
+  info.dtype = Load<uint32_t>(entry + 32);
+  info.ndim = Load<uint32_t>(entry + 36);
+  info.rows = Load<uint64_t>(entry + 40);
+  info.cols = Load<uint64_t>(entry + 48);
+  info.offset = Load<uint64_t>(entry + 56);
+  return info;
+}
+
+// The array's size in bytes, after checking its dtype, shape and extent inside the file.
+uint64_t CheckExtent(const ArrayInfo& info, size_t size, uint64_t directory_end) {
+  const std::string& name = info.name;
+  const uint64_t item = ItemSize(info.dtype);
+  if (item == 0) Fail(name, "unknown dtype code " + std::to_string(info.dtype));
+  if (info.ndim != 1 && info.ndim != 2) Fail(name, "ndim must be 1 or 2");
+  if (info.ndim == 1 && info.cols != 1) Fail(name, "a 1-D array must have cols = 1");
+  if (info.cols == 0 || info.cols > 64) Fail(name, "bad column count");
+  // rows * cols * item must not overflow and must fit in the file.
+  if (info.rows > (std::numeric_limits<uint64_t>::max() / info.cols) / item) {
+    Fail(name, "size overflows");
+  }
+  const uint64_t nbytes = info.rows * info.cols * item;
+  if (info.offset % kProblemFileAlignment != 0) Fail(name, "offset is not 64-byte aligned");
+  if (info.offset < directory_end) Fail(name, "data overlaps the header or directory");
+  if (info.offset > size || nbytes > size - info.offset) {
+    Fail(name, "data runs past the end of the file (offset " + std::to_string(info.offset) + ", " +
+                   std::to_string(nbytes) + " bytes, file " + std::to_string(size) + ")");
+  }
+  if (info.rows > static_cast<uint64_t>(std::numeric_limits<int32_t>::max())) {
+    Fail(name, "too many rows");
+  }
+  return nbytes;
+}
+
+// A problem array: its dtype and shape must be those of its field (ProblemFields()).
+void AttachArray(const ArrayInfo& info, const uint8_t* data, ProblemData* problem) {
+  const std::string& name = info.name;
+  const FieldSpec* spec = FindField(name);
+  if (spec == nullptr) Fail(name, "unknown array");
+  const uint32_t want = spec->dtype == DType::kFloat64 ? kDTypeF64 : kDTypeI32;
+  if (info.dtype != want) {
+    Fail(name, std::string("dtype ") + DTypeName(info.dtype) + ", expected " + DTypeName(want));
+  }
+  const uint64_t want_cols = spec->cols == 0 ? 1 : static_cast<uint64_t>(spec->cols);
+  if (info.ndim != (spec->cols == 0 ? 1u : 2u) || info.cols != want_cols) {
+    Fail(name, "expected " + std::string(spec->cols == 0 ? "a 1-D array" : "a 2-D array with ") +
+                   (spec->cols == 0 ? "" : std::to_string(spec->cols) + " columns"));
+  }
+  const auto rows = static_cast<int64_t>(info.rows);
+  const auto cols = static_cast<int64_t>(info.cols);
+  if (spec->dtype == DType::kFloat64) {
+    problem->Set(name, ArrayRef<double>{reinterpret_cast<const double*>(data), rows, cols});
+  } else {
+    problem->Set(name, ArrayRef<int32_t>{reinterpret_cast<const int32_t*>(data), rows, cols});
+  }
+}
+
+// No two arrays share bytes, and every required array is there.
+void CheckDirectory(std::vector<std::pair<uint64_t, uint64_t>> extents,
+                    const std::set<std::string>& names) {
+  std::sort(extents.begin(), extents.end());
+  for (size_t i = 1; i < extents.size(); ++i) {
+    if (extents[i].first < extents[i - 1].second) Fail("directory", "arrays overlap");
+  }
+  for (const FieldSpec& spec : ProblemFields()) {
+    if (spec.required && names.count(spec.name) == 0) Fail(spec.name, "required array missing");
+  }
+}
+
+}  // namespace
+
+ProblemFile ParseProblemFile(const uint8_t* bytes, size_t size) {
+  const Header header = ParseHeader(bytes, size);
+  ProblemFile file;
+  file.version = header.version;
+  file.file_size = header.file_size;
 
   // One aligned copy; the views point into it.
   auto buffer = std::make_shared<std::vector<double>>((size + 7) / 8);
@@ -139,90 +236,26 @@ ProblemFile ParseProblemFile(const uint8_t* bytes, size_t size) {
 
   std::set<std::string> names;
   std::vector<std::pair<uint64_t, uint64_t>> extents;  // [offset, end) of each array
-  ProblemData& problem = file.problem;
   bool has_options = false;
-  for (uint32_t i = 0; i < num_arrays; ++i) {
-    const uint8_t* entry = base + header_size + static_cast<uint64_t>(i) * entry_size;
-    const std::string where = "array " + std::to_string(i);
-    const void* nul = std::memchr(entry, 0, 32);
-    if (nul == nullptr) Fail(where, "name is not NUL-terminated");
-    ArrayInfo info;
-    info.name.assign(reinterpret_cast<const char*>(entry),
-                     static_cast<const uint8_t*>(nul) - entry);
-    if (info.name.empty()) Fail(where, "empty name");
-    for (const char c : info.name) {
-      if (!((c >= 'a' && c <= 'z') || (c >= '0' && c <= '9') || c == '_')) {
-        Fail(where, "name has characters other than [a-z0-9_]");
-      }
-    }
-    info.dtype = Load<uint32_t>(entry + 32);
-    info.ndim = Load<uint32_t>(entry + 36);
-    info.rows = Load<uint64_t>(entry + 40);
-    info.cols = Load<uint64_t>(entry + 48);
-    info.offset = Load<uint64_t>(entry + 56);
-    const std::string& name = info.name;
-    if (!names.insert(name).second) Fail(name, "array given twice");
-
-    const uint64_t item = ItemSize(info.dtype);
-    if (item == 0) Fail(name, "unknown dtype code " + std::to_string(info.dtype));
-    if (info.ndim != 1 && info.ndim != 2) Fail(name, "ndim must be 1 or 2");
-    if (info.ndim == 1 && info.cols != 1) Fail(name, "a 1-D array must have cols = 1");
-    if (info.cols == 0 || info.cols > 64) Fail(name, "bad column count");
-    // rows * cols * item must not overflow and must fit in the file.
-    if (info.rows > (std::numeric_limits<uint64_t>::max() / info.cols) / item) {
-      Fail(name, "size overflows");
-    }
-    const uint64_t nbytes = info.rows * info.cols * item;
-    if (info.offset % kProblemFileAlignment != 0) Fail(name, "offset is not 64-byte aligned");
-    if (info.offset < directory_end) Fail(name, "data overlaps the header or directory");
-    if (info.offset > size || nbytes > size - info.offset) {
-      Fail(name, "data runs past the end of the file (offset " + std::to_string(info.offset) +
-                     ", " + std::to_string(nbytes) + " bytes, file " + std::to_string(size) + ")");
-    }
-    if (info.rows > static_cast<uint64_t>(std::numeric_limits<int32_t>::max())) {
-      Fail(name, "too many rows");
-    }
+  for (uint32_t i = 0; i < header.num_arrays; ++i) {
+    ArrayInfo info = ParseEntry(
+        base + kProblemFileHeaderSize + static_cast<uint64_t>(i) * kProblemFileEntrySize, i);
+    if (!names.insert(info.name).second) Fail(info.name, "array given twice");
+    const uint64_t nbytes = CheckExtent(info, size, header.directory_end);
     if (nbytes > 0) extents.emplace_back(info.offset, info.offset + nbytes);
-
     const uint8_t* data = base + info.offset;
-    if (name == kOptionsName) {
-      if (info.dtype != kDTypeU8 || info.ndim != 1) Fail(name, "must be a 1-D uint8 array");
+    if (info.name == kOptionsName) {
+      if (info.dtype != kDTypeU8 || info.ndim != 1) Fail(info.name, "must be a 1-D uint8 array");
       file.options_text.assign(reinterpret_cast<const char*>(data), nbytes);
       has_options = true;
     } else {
-      const FieldSpec* spec = FindField(name);
-      if (spec == nullptr) Fail(name, "unknown array");
-      const uint32_t want = spec->dtype == DType::kFloat64 ? kDTypeF64 : kDTypeI32;
-      if (info.dtype != want) {
-        Fail(name, std::string("dtype ") + DTypeName(info.dtype) + ", expected " + DTypeName(want));
-      }
-      const uint64_t want_cols = spec->cols == 0 ? 1 : static_cast<uint64_t>(spec->cols);
-      if (info.ndim != (spec->cols == 0 ? 1u : 2u) || info.cols != want_cols) {
-        Fail(name, "expected " +
-                       std::string(spec->cols == 0 ? "a 1-D array" : "a 2-D array with ") +
-                       (spec->cols == 0 ? "" : std::to_string(spec->cols) + " columns"));
-      }
-      if (spec->dtype == DType::kFloat64) {
-        problem.Set(name, ArrayRef<double>{reinterpret_cast<const double*>(data),
-                                           static_cast<int64_t>(info.rows),
-                                           static_cast<int64_t>(info.cols)});
-      } else {
-        problem.Set(name, ArrayRef<int32_t>{reinterpret_cast<const int32_t*>(data),
-                                            static_cast<int64_t>(info.rows),
-                                            static_cast<int64_t>(info.cols)});
-      }
+      AttachArray(info, data, &file.problem);
     }
-    file.arrays.push_back(info);
+    file.arrays.push_back(std::move(info));
   }
-  std::sort(extents.begin(), extents.end());
-  for (size_t i = 1; i < extents.size(); ++i) {
-    if (extents[i].first < extents[i - 1].second) Fail("directory", "arrays overlap");
-  }
-  for (const FieldSpec& spec : ProblemFields()) {
-    if (spec.required && names.count(spec.name) == 0) Fail(spec.name, "required array missing");
-  }
-  problem.owner = buffer;
-  ValidateProblem(problem);
+  CheckDirectory(std::move(extents), names);
+  file.problem.owner = buffer;
+  ValidateProblem(file.problem);
   if (has_options) CheckOptionsText(file.options_text);
   file.options = has_options ? OptionsFromText(file.options_text) : SolverOptions();
   return file;

@@ -137,12 +137,20 @@ std::string TumText(const bimcap::ProblemData& problem, const std::vector<double
   return text;
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
+// The command line. `exit_code` >= 0: stop with that code (help printed, or a usage error).
+struct Args {
   std::string problem_path, output_dir;
   bool info = false, quiet = false;
   std::map<std::string, std::string> overrides;
+  int exit_code = -1;
+};
+
+Args ParseArgs(int argc, char** argv) {
+  Args a;
+  auto stop = [&a](int code) {
+    a.exit_code = code;
+    return a;
+  };
   for (int i = 1; i < argc; ++i) {
     const std::string arg = argv[i];
     auto next = [&](const char* what) -> std::string {
@@ -154,71 +162,64 @@ int main(int argc, char** argv) {
     };
     if (arg == "-h" || arg == "--help") {
       std::cout << kUsage;
-      return 0;
+      return stop(0);
     } else if (arg == "-o" || arg == "--output") {
-      output_dir = next("a directory");
+      a.output_dir = next("a directory");
     } else if (arg == "--info") {
-      info = true;
+      a.info = true;
     } else if (arg == "--quiet") {
-      quiet = true;
+      a.quiet = true;
     } else if (arg == "--threads") {
-      overrides["num_threads"] = next("a number");
+      a.overrides["num_threads"] = next("a number");
     } else if (arg == "--set") {
       const std::string kv = next("KEY=VALUE");
       const size_t eq = kv.find('=');
       if (eq == std::string::npos || eq == 0) {
         std::cerr << "bimcap_solve: --set expects KEY=VALUE, got '" << kv << "'\n";
-        return kExitUsage;
+        return stop(kExitUsage);
       }
-      overrides[kv.substr(0, eq)] = kv.substr(eq + 1);
+      a.overrides[kv.substr(0, eq)] = kv.substr(eq + 1);
     } else if (!arg.empty() && arg[0] == '-') {
       std::cerr << "bimcap_solve: unknown option " << arg << "\n" << kUsage;
-      return kExitUsage;
-    } else if (problem_path.empty()) {
-      problem_path = arg;
+      return stop(kExitUsage);
+    } else if (a.problem_path.empty()) {
+      a.problem_path = arg;
     } else {
       std::cerr << "bimcap_solve: more than one problem file given\n" << kUsage;
-      return kExitUsage;
+      return stop(kExitUsage);
     }
   }
-  if (problem_path.empty() || (!info && output_dir.empty())) {
+  if (a.problem_path.empty() || (!a.info && a.output_dir.empty())) {
     std::cerr << kUsage;
-    return kExitUsage;
+    return stop(kExitUsage);
   }
+  return a;
+}
 
-  bimcap::ProblemFile file;
-  bimcap::SolverOptions options;
+// Read the problem file and apply the --set / --threads overrides; 0 or an exit code.
+int LoadProblem(const Args& a, bimcap::ProblemFile* file, bimcap::SolverOptions* options) {
   try {
-    file = bimcap::ReadProblemFile(problem_path);
-    if (info) {
-      std::cout << bimcap::DescribeProblemFile(file);
-      return 0;
-    }
-    auto values = bimcap::OptionsToKeyValues(file.options);
-    for (const auto& [k, v] : overrides) {
+    *file = bimcap::ReadProblemFile(a.problem_path);
+    if (a.info) return 0;
+    auto values = bimcap::OptionsToKeyValues(file->options);
+    for (const auto& [k, v] : a.overrides) {
       if (values.count(k) == 0) throw bimcap::OptionsError(k, "unknown option");
       values[k] = v;
     }
-    options = bimcap::OptionsFromKeyValues(values);
+    *options = bimcap::OptionsFromKeyValues(values);
   } catch (const bimcap::InputError& e) {
     std::cerr << "bimcap_solve: error: " << e.what() << "\n";
     return kExitBadInput;
   } catch (const std::exception& e) {
-    std::cerr << "bimcap_solve: error: " << problem_path << ": " << e.what() << "\n";
+    std::cerr << "bimcap_solve: error: " << a.problem_path << ": " << e.what() << "\n";
     return kExitBadInput;
   }
+  return 0;
+}
 
-  bimcap::SolveResult result;
-  try {
-    result = bimcap::Solve(file.problem, options);
-  } catch (const bimcap::InputError& e) {
-    std::cerr << "bimcap_solve: error: " << problem_path << ": " << e.what() << "\n";
-    return kExitBadInput;
-  } catch (const std::exception& e) {
-    std::cerr << "bimcap_solve: solve failed: " << e.what() << "\n";
-    return kExitSolveFailed;
-  }
-
+// refined.tum and summary.json into `output_dir` (created); 0 or kExitOutput.
+int WriteResult(const std::string& output_dir, const bimcap::ProblemFile& file,
+                const bimcap::SolveResult& result) {
   try {
     if (::mkdir(output_dir.c_str(), 0777) != 0 && errno != EEXIST) {
       throw OutputError(output_dir, errno);
@@ -232,8 +233,35 @@ int main(int argc, char** argv) {
     std::cerr << "bimcap_solve: error: cannot write the outputs: " << e.what() << "\n";
     return kExitOutput;
   }
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  const Args args = ParseArgs(argc, argv);
+  if (args.exit_code >= 0) return args.exit_code;
+  bimcap::ProblemFile file;
+  bimcap::SolverOptions options;
+  if (const int code = LoadProblem(args, &file, &options); code != 0) return code;
+  if (args.info) {
+    std::cout << bimcap::DescribeProblemFile(file);
+    return 0;
+  }
+
+  bimcap::SolveResult result;
+  try {
+    result = bimcap::Solve(file.problem, options);
+  } catch (const bimcap::InputError& e) {
+    std::cerr << "bimcap_solve: error: " << args.problem_path << ": " << e.what() << "\n";
+    return kExitBadInput;
+  } catch (const std::exception& e) {
+    std::cerr << "bimcap_solve: solve failed: " << e.what() << "\n";
+    return kExitSolveFailed;
+  }
+  if (const int code = WriteResult(args.output_dir, file, result); code != 0) return code;
   const bimcap::Summary& s = result.summary;
-  if (!quiet) {
+  if (!args.quiet) {
     std::cout << "bimcap_solve: " << s.termination << ", " << s.iterations << " iterations in "
               << s.outer_iterations << " rounds, cost " << s.initial_cost << " -> " << s.final_cost
               << ", " << s.time_s << " s\n";
