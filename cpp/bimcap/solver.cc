@@ -9,6 +9,7 @@
 #include <cmath>
 #include <cstdio>
 #include <functional>
+#include <iostream>
 #include <limits>
 #include <memory>
 #include <sstream>
@@ -360,6 +361,7 @@ void RunOuterIterations(const SolverOptions& options, const Associator& associat
     ceres::Solver::Summary ceres_summary;
     if (builder->problem().NumResidualBlocks() > 0) {
       ceres::Solve(solver_options, &builder->problem(), &ceres_summary);
+      if (options.verbose) std::cout << ceres_summary.FullReport() << "\n";
       summary->iterations += std::max(0, static_cast<int>(ceres_summary.iterations.size()) - 1);
       summary->ceres_time_s += ceres_summary.total_time_in_seconds;
       remaining_time -= ceres_summary.total_time_in_seconds;
