@@ -3,7 +3,7 @@ output directory, the first time for an IFC and again once the shared cache hold
 
     PYTHONPATH=python python bench/bench_bim_cache.py [--models DIR]
 
-Each run is a fresh process calling ``bimcap.pipeline.refine.bim_reference`` with a new
+Each run is a fresh process calling ``bimcap.bim.cache.reference_for`` with a new
 ``OUT/bim`` and one shared cache root; the figures are that call's wall and CPU seconds (the
 process's imports, ~0.5 s, are not counted: every run pays them). Goal (issue "Fast enough for
 real sequences"): the second run on the same IFC starts at once (< 1 s here); the ratio is
@@ -23,9 +23,9 @@ SHARED = REPO.parent / "shared" / "data" / "ifc"
 
 _CHILD = """
 import sys, time
-from bimcap.pipeline.refine import bim_reference
+from bimcap.bim.cache import reference_for
 t, c = time.perf_counter(), time.process_time()
-ref = bim_reference(sys.argv[1], sys.argv[2], shared_root=sys.argv[3])
+ref, _ = reference_for(sys.argv[1], sys.argv[2], shared_root=sys.argv[3])
 print("BENCH", time.perf_counter() - t, time.process_time() - c, len(ref.segments))
 """
 

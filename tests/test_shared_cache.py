@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bimcap.bim.cache import ReferenceSource, reference_for
 from bimcap.io.cache import cache_root, file_key, publish
-from bimcap.pipeline import refine
 
 building = pytest.importorskip("bimcap.sim.building")
 
@@ -40,7 +40,8 @@ def test_second_run_reads_the_shared_reference(ifc: Path, tmp_path: Path,
     import bimcap.bim.reference as reference
 
     root = tmp_path / "shared"
-    first = refine.bim_reference(ifc, tmp_path / "a" / "bim", shared_root=root)
+    first, source = reference_for(ifc, tmp_path / "a" / "bim", shared_root=root)
+    assert source is ReferenceSource.BUILT
     entries = list((root / "bim").iterdir())
     assert [e.name for e in entries] == [f"{file_key(ifc)}-v{reference.VERSION}"]
     assert not [p for p in (root / "bim").iterdir() if p.name.startswith(".")]
@@ -49,29 +50,31 @@ def test_second_run_reads_the_shared_reference(ifc: Path, tmp_path: Path,
         raise AssertionError("the reference was built again")
 
     monkeypatch.setattr(reference, "build_reference", no_build)
-    second = refine.bim_reference(ifc, tmp_path / "b" / "bim", shared_root=root)
+    second, source = reference_for(ifc, tmp_path / "b" / "bim", shared_root=root)
+    assert source is ReferenceSource.SHARED
     for name in ("segments", "planes", "points", "labels"):
         np.testing.assert_array_equal(getattr(second, name), getattr(first, name))
     # the run's own copy is written too, and a third run reads it without the shared cache
     assert (tmp_path / "b" / "bim" / "reference.npz").is_file()
-    refine.bim_reference(ifc, tmp_path / "b" / "bim", shared_root="off")
+    assert reference_for(ifc, tmp_path / "b" / "bim", shared_root="off")[1] is ReferenceSource.RUN
 
 
 def test_another_file_content_is_another_entry(ifc: Path, tmp_path: Path) -> None:
     root = tmp_path / "shared"
-    refine.bim_reference(ifc, None, shared_root=root)
+    reference_for(ifc, None, shared_root=root)
     edited = tmp_path / "edited.ifc"
     edited.write_bytes(ifc.read_bytes().replace(b"IfcWall", b"IfcWall", 1) + b"\n")
-    refine.bim_reference(edited, None, shared_root=root)
+    reference_for(edited, None, shared_root=root)
     assert len(list((root / "bim").iterdir())) == 2
 
 
 def test_damaged_shared_entry_is_rebuilt(ifc: Path, tmp_path: Path) -> None:
     root = tmp_path / "shared"
-    refine.bim_reference(ifc, None, shared_root=root)
+    reference_for(ifc, None, shared_root=root)
     (entry,) = (root / "bim").iterdir()
     (entry / "reference.npz").write_bytes(b"not an npz")
-    ref = refine.bim_reference(ifc, None, shared_root=root)
+    ref, source = reference_for(ifc, None, shared_root=root)
+    assert source is ReferenceSource.BUILT
     assert len(ref.segments) > 0
 
 
@@ -79,7 +82,7 @@ def test_unwritable_shared_cache_is_a_warning(ifc: Path, tmp_path: Path) -> None
     root = tmp_path / "not-a-directory"
     root.write_text("a file where the cache root should be")  # unwritable, even for root
     with pytest.warns(UserWarning, match="could not write the shared BIM cache"):
-        ref = refine.bim_reference(ifc, tmp_path / "run" / "bim", shared_root=root)
+        ref, _ = reference_for(ifc, tmp_path / "run" / "bim", shared_root=root)
     assert len(ref.segments) > 0 and (tmp_path / "run" / "bim" / "reference.npz").is_file()
 
 

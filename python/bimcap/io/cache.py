@@ -14,13 +14,14 @@ half an entry and two runs may fill the same entry at once.
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import os
 import shutil
 import tempfile
 from collections.abc import Callable
 from os import PathLike
 from pathlib import Path
+
+from bimcap.io.outputs import sha256_file
 
 #: The value of ``cache_dir`` / ``$BIMCAP_CACHE_DIR`` that switches the shared cache off.
 OFF = "off"
@@ -37,12 +38,8 @@ def cache_root(setting: str | PathLike[str] | None = None) -> Path | None:
 
 
 def file_key(path: str | PathLike[str]) -> str:
-    """The first 16 hex digits of the SHA-1 of the file's content."""
-    h = hashlib.sha1()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()[:16]
+    """The first 16 hex digits of the SHA-256 of the file's content."""
+    return sha256_file(path)[:16]
 
 
 def publish(entry: Path, fill: Callable[[Path], None]) -> None:

@@ -67,92 +67,6 @@ class Prepared:
     timings: dict[str, float] = field(default_factory=dict)
 
 
-def bim_reference(ifc_path: str | PathLike[str], cache_dir: str | PathLike[str] | None,
-                  max_lost_fraction: float = 0.02,
-                  shared_root: str | PathLike[str] | None = None, quiet: bool = True) -> Any:
-    """The BIM reference of ``ifc_path``: from ``cache_dir`` (the run's ``OUT/bim``) when it was
-    built from the same file content, else from the shared cache (:mod:`bimcap.io.cache`, root
-    ``shared_root`` or the default; an entry per IFC content hash), else built; ``cache_dir``
-    and the shared cache get a copy. An unusable model (damaged beyond ``max_lost_fraction``, an
-    empty floor plan or cloud, an implausible unit) raises ``BimInputError`` naming the IFC; a
-    cached reference is checked the same way. A shared cache that cannot be written is a
-    warning, never a failure."""
-    from bimcap.bim import ingest
-    from bimcap.bim.reference import VERSION, build_reference
-    from bimcap.io.cache import cache_root, file_key
-
-    ifc = Path(ifc_path)
-    if not ifc.is_file():
-        raise InputError("no such IFC file", ifc)
-    key = file_key(ifc)
-    root = cache_root(shared_root)
-    shared = None if root is None else root / "bim" / f"{key}-v{VERSION}"
-    for where in (cache_dir, shared):
-        ref = _cached_reference(where, key, ifc)
-        if ref is not None:
-            if where is shared:
-                log(f"BIM reference from the shared cache {shared}", quiet)
-                if cache_dir is not None:
-                    _copy_entry(shared, Path(cache_dir))
-            return ref
-    ref = build_reference(ingest.load_model(ifc, max_lost_fraction=max_lost_fraction))
-    _save_reference(ref, cache_dir, key)
-    if shared is not None:
-        _share_reference(ref, shared, key)
-    return ref
-
-
-def _cached_reference(directory: str | PathLike[str] | None, key: str, ifc: Path) -> Any | None:
-    """The reference saved in ``directory`` from the IFC content ``key``, or None (absent, from
-    another file, or unreadable: it is then rebuilt)."""
-    from bimcap.bim.reference import BimReference
-
-    if directory is None:
-        return None
-    stamp = Path(directory) / "source.sha1"
-    if not stamp.is_file() or stamp.read_text().strip() != key:
-        return None
-    try:
-        ref = BimReference.load(directory)
-    except Exception:  # a damaged cache is rebuilt, never fatal
-        return None
-    ref.check_usable(ifc)
-    return ref
-
-
-def _save_reference(ref: Any, directory: str | PathLike[str] | None, key: str) -> None:
-    """Save ``ref`` into ``directory`` (when given), stamped with the IFC content ``key``."""
-    if directory is not None:
-        d = Path(directory)
-        ref.save(d)
-        (d / "source.sha1").write_text(key + "\n")
-
-
-def _copy_entry(entry: Path, directory: Path) -> None:
-    """Copy a shared cache entry's files into ``directory`` (its stamp ``source.sha1`` last)."""
-    import shutil
-
-    directory.mkdir(parents=True, exist_ok=True)
-    files = sorted((p for p in entry.iterdir() if p.is_file()),
-                   key=lambda p: p.name == "source.sha1")
-    for f in files:
-        tmp = directory / f".{f.name}.tmp"
-        shutil.copyfile(f, tmp)
-        tmp.replace(directory / f.name)
-
-
-def _share_reference(ref: Any, entry: Path, key: str) -> None:
-    """Publish ``ref`` as the shared cache entry ``entry``; a failure is a warning."""
-    import warnings
-
-    from bimcap.io.cache import publish
-
-    try:
-        publish(entry, lambda tmp: _save_reference(ref, tmp, key))
-    except OSError as exc:
-        warnings.warn(f"could not write the shared BIM cache {entry}: {exc}", stacklevel=3)
-
-
 def make_providers(config: RefineConfig, sequence: Any) -> tuple[Any, Any, Any]:
     """The front end's depth provider, label provider and depth refiner for ``config``."""
     from bimcap.frontend.providers import (
@@ -269,6 +183,7 @@ def prepare(
     config: the run's settings (front-end sources, window).
     work_dir: where the caches live (``bim/``, ``cache/``).
     """
+    from bimcap.bim.cache import ReferenceSource, reference_for
     from bimcap.dataset import read_sequence
     from bimcap.features.tracks import MatchFilterOptions
     from bimcap.frontend.runner import FrontendConfig, run_frontend
@@ -286,8 +201,10 @@ def prepare(
 
     t0 = time.perf_counter()
     log(f"BIM reference of {ifc_path}", quiet)
-    ref = bim_reference(ifc_path, work / "bim", config.max_lost_fraction,
-                        config.cache_dir, quiet)
+    ref, source = reference_for(ifc_path, work / "bim", config.max_lost_fraction,
+                                config.cache_dir)
+    if source is ReferenceSource.SHARED:
+        log("BIM reference from the shared cache (bimcap.io.cache)", quiet)
     timings["bim"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
