@@ -1,4 +1,4 @@
-"""Run settings: solver presets, the [solver] and [registration] tables, --print-config.
+"""Run settings: solver presets, the [solver], [registration] and [features] tables, --print-config.
 
 Every solver default comes from the C++ presets (``SolverOptions::Preset``); the refine pipeline
 adds nothing silently. ``bimcap refine --print-config`` prints every setting, and the printed
@@ -19,7 +19,7 @@ from bimcap.cli import main
 from bimcap.optimize import GeometricMode, Loss, PlaneMode, Preset, SolverOptions, Weighting
 from bimcap.optimize.errors import SolverInputError
 from bimcap.pipeline.config import GEOMETRIC_MODES, LOSSES, ConfigError, RefineConfig
-from bimcap.pipeline.refine import coarse_options, solver_options, validate_settings
+from bimcap.pipeline.refine import coarse_options, sift_options, solver_options, validate_settings
 from bimcap.registration import CoarseOptions
 
 
@@ -84,6 +84,23 @@ def test_registration_table_reaches_coarse_options() -> None:
         RefineConfig(registration=[1])  # type: ignore[arg-type]
 
 
+def test_features_table_reaches_the_sift_options() -> None:
+    from bimcap.features.sift import SiftBackend, SiftOptions
+
+    assert sift_options(RefineConfig()) == SiftOptions()
+    opts = sift_options(RefineConfig(features={"backend": "opencv", "max_image_size": 800,
+                                               "peak_threshold": 0.01}))
+    assert opts.backend is SiftBackend.OPENCV and opts.max_image_size == 800
+    for table, key in (({"backend": "orb"}, "features.backend"),
+                       ({"max_features": 10}, "features.max_features"),
+                       ({"first_octave": 0.5}, "features.first_octave"),
+                       ({"max_image_size": "big"}, "features.max_image_size"),
+                       ({"max_num_features": 0}, "features")):
+        with pytest.raises(ConfigError) as info:
+            validate_settings(RefineConfig(features=table))
+        assert info.value.field == key, table
+
+
 def _print_config(*flags: str) -> str:
     out = io.StringIO()
     with contextlib.redirect_stdout(out):
@@ -100,7 +117,8 @@ def _print_config(*flags: str) -> str:
 def test_print_config_reads_back_to_the_same_run(tmp_path: Path, flags: tuple[str, ...]) -> None:
     given = tmp_path / "given.toml"
     given.write_text("[solver]\nassociation_gate = 0.3\n[solver.wall]\nsigma = 0.02\n"
-                     "[registration]\nxy_range_m = 1.5\nview_bins = 2\n")
+                     "[registration]\nxy_range_m = 1.5\nview_bins = 2\n"
+                     "[features]\nbackend = \"opencv\"\n")
     text = _print_config("--config", str(given), *flags)
     assert "[solver.wall]" in text and "[registration]" in text
     printed = tmp_path / "printed.toml"
@@ -109,6 +127,8 @@ def test_print_config_reads_back_to_the_same_run(tmp_path: Path, flags: tuple[st
     again = RefineConfig.from_toml(printed)
     assert solver_options(again).to_flat() == solver_options(original).to_flat()
     assert asdict(coarse_options(again)) == asdict(coarse_options(original))
+    assert sift_options(again) == sift_options(original) and sift_options(again).backend.value == \
+        "opencv"
     assert coarse_options(again).xy_range_m == 1.5 and solver_options(again).wall.sigma == 0.02
     for name in ("method", "completion", "segmentation", "window", "workers", "effective_terms",
                  "effective_weighting", "effective_coarse", "effective_solve_match_distance"):

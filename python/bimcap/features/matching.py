@@ -148,6 +148,19 @@ def _top2(
     return best, s1, s2
 
 
+def _top2_columns(
+    sim: NDArray[np.float32],
+) -> tuple[NDArray[np.int64], NDArray[np.float32], NDArray[np.float32]]:
+    """Per column: what :func:`_top2` gives on ``sim.T``, without copying the transpose."""
+    best = np.argmax(sim, axis=0)
+    cols = np.arange(sim.shape[1])
+    s1 = sim[best, cols].copy()
+    sim[best, cols] = -np.inf
+    s2 = sim.max(axis=0)
+    sim[best, cols] = s1
+    return best, s1, s2
+
+
 def _passes(s1: NDArray[np.float32], s2: NDArray[np.float32],
             opts: MatchOptions) -> NDArray[np.bool_]:
     """COLMAP's criteria on similarities (dot / 512²): angle test and ratio test."""
@@ -171,7 +184,7 @@ def _match_numpy(a: NDArray[np.uint8], b: NDArray[np.uint8], opts: MatchOptions)
         best, s1, s2 = _top2(sim)
         best_ab[start : start + len(sim)] = best
         ok_ab[start : start + len(sim)] = _passes(s1, s2, opts)
-        cb, c1, c2 = _top2(np.ascontiguousarray(sim.T))
+        cb, c1, c2 = _top2_columns(sim)
         new_best = c1 > col_s1
         col_s2 = np.where(new_best, np.maximum(col_s1, c2), np.maximum(col_s2, c1))
         col_best = np.where(new_best, cb + start, col_best)

@@ -5,7 +5,8 @@ command-line flags, in that order of precedence (flags win). ``bimcap refine --p
 prints every setting of a run, solver and registration options included, as a TOML file that
 ``--config`` reads back. The TOML file holds the same keys as the dataclass, with a ``[solver]``
 table (``bimcap.optimize.SolverOptions`` fields, terms as tables, e.g. ``[solver.wall]
-sigma = 0.03``) and a ``[registration]`` table (``bimcap.registration.CoarseOptions`` fields)::
+sigma = 0.03``), a ``[registration]`` table (``bimcap.registration.CoarseOptions`` fields) and a
+``[features]`` table (``bimcap.features.SiftOptions`` fields)::
 
     method = "bimcap"          # or "facap"
     terms = "G+F+W+Co+Ce"
@@ -18,6 +19,8 @@ sigma = 0.03``) and a ``[registration]`` table (``bimcap.registration.CoarseOpti
     association_gate = 0.5
     [registration]
     xy_range_m = 2.0
+    [features]
+    backend = "opencv"         # or "pycolmap"
 """
 
 from __future__ import annotations
@@ -129,6 +132,7 @@ class RefineConfig:
     solver: overrides of ``bimcap.optimize.SolverOptions`` fields (nested dicts for terms),
         applied after the preset, ``loss`` and ``geometric_mode``.
     registration: overrides of ``bimcap.registration.CoarseOptions`` fields (the coarse stage).
+    features: overrides of ``bimcap.features.SiftOptions`` fields (the front end's keypoints).
     """
 
     method: Method = Method.BIMCAP
@@ -154,6 +158,7 @@ class RefineConfig:
     cache_dir: str | None = None
     solver: dict[str, Any] = field(default_factory=dict)
     registration: dict[str, Any] = field(default_factory=dict)
+    features: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         try:
@@ -199,6 +204,8 @@ class RefineConfig:
         if not isinstance(self.registration, dict):
             raise ConfigError("registration must be a table of CoarseOptions fields",
                               field="registration")
+        if not isinstance(self.features, dict):
+            raise ConfigError("features must be a table of SiftOptions fields", field="features")
         for name, value, allowed in (("loss", self.loss, LOSSES),
                                      ("geometric_mode", self.geometric_mode, GEOMETRIC_MODES)):
             if value is not None and value.lower() not in allowed:

@@ -17,6 +17,7 @@ import json
 import sys
 import time
 from dataclasses import dataclass, field
+from enum import Enum
 from os import PathLike
 from pathlib import Path
 from typing import Any
@@ -213,7 +214,7 @@ def prepare(
     depth, labels, refiner = make_providers(config, seq)
     fe = run_frontend(
         seq,
-        FrontendConfig(window=config.window,
+        FrontendConfig(window=config.window, sift=sift_options(config),
                        filters=MatchFilterOptions(max_initial_distance_m=config.max_match_distance),
                        sampling=SemanticSamplingOptions(source=SampleSource(config.samples))),
         traj, depth, labels,
@@ -738,7 +739,7 @@ def effective_settings(config: RefineConfig) -> dict[str, Any]:
         else:
             solver[key] = typed
     out = {k: v for k, v in config.to_dict().items()
-           if k not in ("solver", "registration") and not k.startswith("effective_")}
+           if k not in ("solver", "registration", "features") and not k.startswith("effective_")}
     out.update(terms=config.effective_terms, weighting=config.effective_weighting,
                coarse=config.effective_coarse,
                solve_match_distance=config.effective_solve_match_distance or 0.0,
@@ -746,35 +747,68 @@ def effective_settings(config: RefineConfig) -> dict[str, Any]:
                loss=opts.geometric.loss.value.lower())
     out["solver"] = solver
     out["registration"] = asdict(coarse_options(config))
+    out["features"] = sift_options(config).to_dict()
     return out
+
+
+def options_from_table(cls: Any, table: dict[str, Any], section: str,
+                       error: type[Exception]) -> Any:
+    """``cls(**table)`` for an options dataclass whose defaults give each field's type (bool,
+    int, float, str or a str enum; a field whose default is None takes an int). A key that is
+    not a field, a value of the wrong type, or one that ``cls`` refuses (``error``, with
+    ``message`` and ``field``) raises ConfigError naming ``<section>.<key>``."""
+    from dataclasses import fields as dc_fields
+
+    from bimcap.pipeline.config import ConfigError
+
+    defaults = cls()
+    kinds = {f.name: type(getattr(defaults, f.name)) for f in dc_fields(cls)}
+    values: dict[str, Any] = {}
+    for key, value in table.items():
+        kind = kinds.get(key)
+        where = f"{section}.{key}"
+        if kind is None:
+            raise ConfigError(f"unknown option; known: {sorted(kinds)}", field=where)
+        if issubclass(kind, Enum):
+            try:
+                values[key] = kind(value)
+            except ValueError:
+                raise ConfigError(f"must be one of {[m.value for m in kind]}, got {value!r}",
+                                  field=where) from None
+            continue
+        ok = (isinstance(value, bool) if kind is bool else
+              isinstance(value, str) if kind is str else
+              isinstance(value, int) and not isinstance(value, bool)
+              if kind in (int, type(None)) else
+              isinstance(value, (int, float)) and not isinstance(value, bool))
+        if not ok:
+            name = "int" if kind is type(None) else kind.__name__
+            raise ConfigError(f"must be {name}, got {value!r}", field=where)
+        values[key] = float(value) if kind is float else value
+    try:
+        return cls(**values)
+    except error as exc:
+        bad = getattr(exc, "field", None)
+        raise ConfigError(getattr(exc, "message", str(exc)),
+                          field=f"{section}.{bad}" if bad else section) from None
 
 
 def coarse_options(config: RefineConfig) -> Any:
     """``bimcap.registration.CoarseOptions`` with the config's ``[registration]`` table applied;
     a key that is not a field or a value of the wrong type or range raises ConfigError naming
     ``registration.<key>``."""
-    from dataclasses import fields as dc_fields
-
-    from bimcap.pipeline.config import ConfigError
     from bimcap.registration import CoarseOptions, RegistrationInputError
 
-    kinds = {f.name: type(getattr(CoarseOptions(), f.name)) for f in dc_fields(CoarseOptions)}
-    values: dict[str, Any] = {}
-    for key, value in config.registration.items():
-        kind = kinds.get(key)
-        where = f"registration.{key}"
-        if kind is None:
-            raise ConfigError(f"unknown option; known: {sorted(kinds)}", field=where)
-        ok = (isinstance(value, bool) if kind is bool else
-              isinstance(value, int) and not isinstance(value, bool) if kind is int else
-              isinstance(value, (int, float)) and not isinstance(value, bool))
-        if not ok:
-            raise ConfigError(f"must be {kind.__name__}, got {value!r}", field=where)
-        values[key] = float(value) if kind is float else value
-    try:
-        return CoarseOptions(**values)
-    except RegistrationInputError as exc:
-        raise ConfigError(exc.message, field=f"registration.{exc.field}") from None
+    return options_from_table(CoarseOptions, config.registration, "registration",
+                              RegistrationInputError)
+
+
+def sift_options(config: RefineConfig) -> Any:
+    """``bimcap.features.SiftOptions`` with the config's ``[features]`` table applied (errors
+    name ``features.<key>``)."""
+    from bimcap.features.sift import FeatureError, SiftOptions
+
+    return options_from_table(SiftOptions, config.features, "features", FeatureError)
 
 
 def _coarse(prepared: Prepared, poses: F64, quiet: bool, options: Any = None
@@ -798,8 +832,10 @@ def _coarse(prepared: Prepared, poses: F64, quiet: bool, options: Any = None
     info = res.to_dict()
     info["seconds"] = time.perf_counter() - t0
     fl = res.frame_level
-    if fl is not None and not res.accepted.any() and np.array_equal(res.poses, poses):
-        log(f"coarse registration: tracked drift {fl.drift_m:.2f} m is within the bundle "
+    drift = res.near_probe_drift_m if fl is None else fl.drift_m
+    if drift is not None and not res.accepted.any() and np.array_equal(res.poses, poses):
+        how = "" if fl is not None else f" ({res.options.near_probe_frames} frames)"
+        log(f"coarse registration: tracked drift{how} {drift:.2f} m is within the bundle "
             f"adjustment's reach; poses unchanged ({info['seconds']:.1f} s)", quiet)
     else:
         log(f"coarse registration: {int(res.accepted.sum())}/{len(res.accepted)} frames "
@@ -900,6 +936,7 @@ def validate_settings(config: RefineConfig) -> Any:
 
     base = solver_options(config)
     coarse_options(config)
+    sift_options(config)
     solver_stages = [stage_options(base, stage, config) for stage in schedule_for(config).stages
                      if stage.kind is not StageKind.COARSE]
     if all(o is None for o in solver_stages):
