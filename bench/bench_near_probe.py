@@ -29,7 +29,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_generalization import DEFAULT_WORLDS, make_world  # noqa: E402
+from bench_generalization import DEFAULT_WORLDS, make_world
 
 
 def _cpu(fn, *args, **kwargs):
@@ -43,7 +43,7 @@ def main() -> None:
     from bimcap.pipeline.config import RefineConfig
     from bimcap.pipeline.refine import prepare
     from bimcap.registration import CoarseOptions, FloorPlan, SemanticSamples, coarse_register
-    from bimcap.registration import coarse as C
+    from bimcap.registration import coarse as stages
     from bimcap.sim.drift import DriftParams, apply_drift
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -75,10 +75,10 @@ def main() -> None:
             plan = FloorPlan.from_planes(ref.segments, ref.segment_class, ref.segment_z,
                                          ref.planes, ref.plane_kind)
             poses = prep.init.poses.copy()
-            maps_for = C._storey_maps(plan, opt, {})
-            full, tf = _cpu(C._level_frames, poses, samples, plan, maps_for, opt,
+            maps_for = stages._storey_maps(plan, opt, {})
+            full, tf = _cpu(stages._level_frames, poses, samples, plan, maps_for, opt,
                             np.random.default_rng(opt.seed))
-            probe, tp = _cpu(C._near_probe, poses, samples, plan, maps_for, opt)
+            probe, tp = _cpu(stages._near_probe, poses, samples, plan, maps_for, opt)
             exits = probe is not None and probe < opt.near_probe_m
             bad = exits and full.drift_m >= opt.frame_gate_m
             total += 1

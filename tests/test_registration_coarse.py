@@ -8,6 +8,7 @@ from known poses (:mod:`bimcap.registration.synthetic`), so the truth is exact.
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -249,6 +250,7 @@ def test_frame_orientation_takes_out_independent_per_frame_rotations(demo: Scene
                           CoarseOptions(frame_orientation=True))
     fl = res.frame_level
     assert fl is not None and fl.drift_m > 0.35 and fl.yaw_ok.mean() > 0.8
+    assert res.near_probe_drift_m is None  # the probe saw the drift: the full pass ran
     t_err, r_err = pose_errors(res.poses, gt)
     assert np.median(r_err) < 0.5, r_err
     assert t_err.max() < 0.3, t_err  # the deadband leaves up to 0.3 m to the windows and BA
@@ -263,9 +265,19 @@ def test_frame_orientation_near_input_keeps_positions(demo: Scene) -> None:
     samples = scan_sequence(gt, demo, seed=6, clutter_fraction=0.03)
     init = per_frame_drift(gt, 4, 6.0, 3.0, 0.02, np.array([0.1, 0.05, 0.0]))
     plan = demo.floor_plan()
-    res = coarse_register(init, samples, plan, CoarseOptions(frame_orientation=True))
+    full = CoarseOptions(frame_orientation=True, near_probe_frames=0)
+    res = coarse_register(init, samples, plan, full)
     assert res.frame_level is not None and res.frame_level.drift_m < 0.35
+    assert res.near_probe_drift_m is None
     assert np.array_equal(res.poses, init)  # within the bundle adjustment's reach: unchanged
+    # The probe on 4 of the 10 frames sees the same small drift and hands the input back
+    # without the pass over every frame.
+    probed = coarse_register(init, samples, plan,
+                             replace(full, near_probe_frames=4, near_probe_min_tracked=3))
+    assert probed.frame_level is None
+    assert probed.near_probe_drift_m is not None and probed.near_probe_drift_m < 0.15
+    assert np.array_equal(probed.poses, init)
+    assert not probed.accepted.any()
     res = coarse_register(init, samples, plan,
                           CoarseOptions(frame_orientation=True, frame_rotate_when_near=True))
     # Only rotations about the cameras: positions unchanged, windows skipped.
