@@ -212,7 +212,7 @@ def dask_client(options: ExecutorOptions, workers: int | None = None) -> Iterato
     with (
         LocalCluster(n_workers=n,  # type: ignore[no-untyped-call]
                      threads_per_worker=options.threads_per_worker, processes=True,
-                     dashboard_address=None) as cluster,
+                     dashboard_address="127.0.0.1:0") as cluster,
         Client(cluster, set_as_default=False) as client,  # type: ignore[no-untyped-call]
     ):
         yield client
