@@ -215,8 +215,13 @@ def prepare(
     log(f"front end over {len(seq.frames)} frames (depth {config.completion.value}, "
         f"labels {config.segmentation.value}{where})", quiet)
     depth, labels, refiner = make_providers(config, seq)
+    fe_seq = seq
+    if executor.is_dask and not seq.root.is_absolute():  # Dask workers have another cwd
+        from dataclasses import replace
+
+        fe_seq = replace(seq, root=seq.root.resolve())
     fe = run_frontend(
-        seq,
+        fe_seq,
         FrontendConfig(window=config.window,
                        filters=MatchFilterOptions(max_initial_distance_m=config.max_match_distance),
                        sampling=SemanticSamplingOptions(source=SampleSource(config.samples))),
