@@ -14,6 +14,7 @@ does the same), and no warning is filtered.
 from __future__ import annotations
 
 import multiprocessing
+import os
 import shutil
 import socket
 import time
@@ -29,6 +30,7 @@ from bimcap.features import SiftOptions
 from bimcap.frontend import (
     ExecutorOptions,
     FrontendConfig,
+    FrontendError,
     FrontendInputError,
     FrontendResult,
     GroundTruthLabelProvider,
@@ -188,6 +190,26 @@ def test_a_local_cluster_is_closed_on_every_exit_path(
     assert (res.run.executor, res.run.workers) == ("dask", 2)
     for name in OBSERVATION_ARRAYS:
         assert np.array_equal(getattr(res, name), getattr(on_dask[0], name)), name
+    assert _children() <= before
+
+
+class _Dies:
+    """A depth provider whose worker process dies (as one killed for memory would)."""
+
+    def __call__(self, ctx: Any) -> np.ndarray:  # pragma: no cover - runs in a Dask worker
+        os._exit(3)
+
+
+def test_a_dead_worker_is_a_clear_error(seq: SceneSequence) -> None:
+    """Workers that die running a job (no retry here: allowed-failures 0) end the run with a
+    FrontendError naming the job, and the run's LocalCluster is closed."""
+    import dask
+
+    before = _children()
+    with (dask.config.set({"distributed.scheduler.allowed-failures": 0}),
+          pytest.raises(FrontendError, match=r"Dask workers died while computing frame \d")):
+        run_frontend(seq, CONFIG, seq.gt, _Dies(), GroundTruthLabelProvider(), progress=False,
+                     executor=DASK)
     assert _children() <= before
 
 

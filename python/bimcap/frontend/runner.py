@@ -992,10 +992,15 @@ class _Backend:
 def _open_backend(stack: ExitStack, shared: _RunShared, executor: ExecutorOptions | Any | None,
                   nworkers: int, num_jobs: int) -> _Backend:
     """The run's :class:`_Backend`; its pool, cluster and scattered state are released by
-    ``stack``. A LocalCluster is not started when there is nothing to compute."""
-    if executor is not None and not isinstance(executor, ExecutorOptions):
+    ``stack``. Nothing is started (no pool, no LocalCluster) when there is nothing to compute."""
+    is_client = executor is not None and not isinstance(executor, ExecutorOptions)
+    if num_jobs == 0:
+        dask = is_client or (isinstance(executor, ExecutorOptions) and executor.is_dask)
+        return _Backend(None, {"shared": shared}, nworkers,
+                        ExecutorKind.DASK if dask else ExecutorKind.LOCAL)
+    if is_client:
         return _dask_backend(stack, shared, executor)  # the caller's distributed.Client
-    if executor is not None and executor.is_dask and num_jobs > 0:
+    if isinstance(executor, ExecutorOptions) and executor.is_dask:
         return _dask_backend(stack, shared, stack.enter_context(dask_client(executor, nworkers)))
     pool = _start_pool(shared, nworkers, num_jobs)
     if pool is None:
