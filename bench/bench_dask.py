@@ -123,9 +123,10 @@ def main() -> None:
             return run_frontend(seq, cfg, seq.gt, **_providers(), progress=False, **kwargs)
 
         t0 = time.perf_counter()
-        with (LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+        with (LocalCluster(n_workers=n,  # type: ignore[no-untyped-call]
+                           threads_per_worker=1, processes=True,
                            dashboard_address="127.0.0.1:0") as cluster,
-              Client(cluster, set_as_default=False) as client):
+              Client(cluster, set_as_default=False) as client):  # type: ignore[no-untyped-call]
             t_start = time.perf_counter() - t0
             ways: dict[str, Callable[[], Any]] = {
                 "serial (workers=1)": lambda: run(workers=1),
