@@ -154,7 +154,9 @@ def test_the_cache_serves_dask_runs(seq: SceneSequence, client: Any,
                                     on_dask: tuple[FrontendResult, Path],
                                     tmp_path: Path) -> None:
     """A second Dask run over the first one's cache computes nothing; the local pool reads the
-    entries the Dask run wrote (same keys) and gives the same arrays."""
+    entries the Dask run wrote (same keys) and gives the same arrays; a frame whose entry is
+    gone is recomputed on the running cluster, reached by its scheduler's address (as
+    ``--dask-scheduler`` does), which is left running."""
     res, root = on_dask
     again = _run(seq, root, executor=client)
     assert (again.run.features_computed, again.run.frames_computed,
@@ -165,17 +167,25 @@ def test_the_cache_serves_dask_runs(seq: SceneSequence, client: Any,
     assert (pool.run.frames_computed, pool.run.pairs_computed) == (0, 0)
     for name in OBSERVATION_ARRAYS:
         assert np.array_equal(getattr(pool, name), getattr(res, name)), name
+    next((tmp_path / "cache" / "frame").glob("*/*.npz")).unlink()
+    address = client.scheduler.address
+    assert address.startswith("tcp://127.0.0.1:")
+    by_address = _run(seq, tmp_path, executor=ExecutorOptions(kind=ExecutorKind.DASK,
+                                                              scheduler=address))
+    assert (by_address.run.frames_computed, by_address.run.pairs_computed) == (1, 0)
+    assert (by_address.run.executor, by_address.run.workers) == ("dask", 2)
+    for name in OBSERVATION_ARRAYS:
+        assert np.array_equal(getattr(by_address, name), getattr(res, name)), name
+    assert len(client.nthreads()) == 2  # still running
 
 
 def _children() -> set[int]:
     return {p.pid for p in multiprocessing.active_children() if p.pid is not None}
 
 
-def test_a_local_cluster_is_closed_on_every_exit_path(
-        seq: SceneSequence, on_dask: tuple[FrontendResult, Path], tmp_path: Path) -> None:
+def test_a_local_cluster_is_closed_after_an_error(seq: SceneSequence, tmp_path: Path) -> None:
     """``ExecutorOptions(kind=DASK)`` without a scheduler: the run starts its own LocalCluster
-    and closes it when it returns and when a worker's job raises (the error comes back as the
-    job raised it)."""
+    and closes it when a worker's job raises (the error comes back as the job raised it)."""
     before = _children()
     bad = SceneSequence(tmp_path / "bad", seq.camera, list(seq.frames), seq.gt)
     shutil.copytree(seq.root, bad.root)
@@ -185,7 +195,13 @@ def test_a_local_cluster_is_closed_on_every_exit_path(
         run_frontend(bad, CONFIG, bad.gt, **_providers(), progress=False, executor=DASK)
     assert info.value.field == "frames[2].image"
     assert _children() <= before  # no worker process left behind
-    # success: the run's own cluster gives the same arrays, and is gone afterwards
+
+
+@pytest.mark.slow
+def test_a_local_cluster_is_closed_after_a_run(
+        seq: SceneSequence, on_dask: tuple[FrontendResult, Path]) -> None:
+    """The run's own LocalCluster gives the same arrays, and is gone afterwards."""
+    before = _children()
     res = run_frontend(seq, CONFIG, seq.gt, **_providers(), progress=False, executor=DASK)
     assert (res.run.executor, res.run.workers) == ("dask", 2)
     for name in OBSERVATION_ARRAYS:
