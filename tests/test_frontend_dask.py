@@ -127,8 +127,9 @@ def test_dask_equals_the_local_pool_bit_for_bit(
                         ("pair", len(ref.pair_stats))):
         ref_entries, entries = _entries(ref_root, kind), _entries(root, kind)
         assert len(entries) == count and set(entries) == set(ref_entries), kind
-        for key, ref_arrays in ref_entries.items():
-            for name, arr in ref_arrays.items():
+        for key, ref_entry in ref_entries.items():
+            assert set(entries[key]) == set(ref_entry), (kind, key)
+            for name, arr in ref_entry.items():
                 if name.endswith("time_s"):
                     continue  # wall-clock timings
                 assert np.array_equal(arr, entries[key][name]), (kind, name)
