@@ -9,11 +9,13 @@ Every refine here runs on an 8-frame sequence of the tiny building at 1/8 ConSLA
 from __future__ import annotations
 
 import errno
+import functools
 import json
 import os
 import resource
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -102,11 +104,21 @@ def _bad_settings(world: dict[str, Path], tmp: Path) -> dict[str, tuple[list[str
         "bad solver option": (["--config", str(toml)], ["max_iterations"]),
         "negative distance": (["--max-match-distance", "-1"], ["max_match_distance"]),
         "zero workers": (["--workers", "0"], ["workers"]),
+        "unreachable dask scheduler": (["--dask-scheduler", _nothing_listens()],
+                                       ["dask.scheduler", _nothing_listens()]),
     }
 
 
+@functools.cache
+def _nothing_listens() -> str:
+    """``tcp://127.0.0.1:PORT`` of a port that nothing listens on (probed once)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return f"tcp://127.0.0.1:{s.getsockname()[1]}"
+
+
 CASES = ("unknown term", "short gt", "init timestamps", "missing onnx model", "bad solver option",
-         "negative distance", "zero workers")
+         "negative distance", "zero workers", "unreachable dask scheduler")
 
 
 @pytest.mark.parametrize("case", CASES)

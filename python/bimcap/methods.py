@@ -20,3 +20,11 @@ class CompletionMethod(str, Enum):
     def needs_model(self) -> bool:
         """Whether the method runs an ONNX model (``completion_model``)."""
         return self in (CompletionMethod.ONNX, CompletionMethod.HYBRID)
+
+
+class ExecutorKind(str, Enum):
+    """Where the front end's per-frame and per-pair jobs run (``bimcap.frontend.executor``;
+    ``bimcap refine --dask`` picks DASK). The solve always runs in the calling process."""
+
+    LOCAL = "local"  #: a pool of processes on this machine (``workers``; 1: this process)
+    DASK = "dask"  #: a Dask cluster: a LocalCluster started for the run, or a running scheduler

@@ -7,7 +7,7 @@ import shlex
 import sys
 from typing import Any
 
-from bimcap.methods import CompletionMethod
+from bimcap.methods import CompletionMethod, ExecutorKind
 from bimcap.pipeline.config import (
     GEOMETRIC_MODES,
     LOSSES,
@@ -52,6 +52,14 @@ def add_config_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--max-match-distance", type=float,
                    help="drop matches whose points are further apart under the initial poses (m)")
     g.add_argument("--workers", type=int, help="front-end processes (default: all cores)")
+    g.add_argument("--dask", action="store_true", default=None,
+                   help="run the front end's per-frame work on Dask: a LocalCluster on this "
+                        "machine, or the cluster of --dask-scheduler (docs/dask.md)")
+    g.add_argument("--dask-scheduler", metavar="tcp://HOST:PORT",
+                   help="use the running Dask cluster of this scheduler (implies --dask)")
+    g.add_argument("--dask-workers", type=int, metavar="N",
+                   help="worker processes of the LocalCluster (implies --dask; default: "
+                        "--workers, else all cores)")
     g.add_argument("--lidar-nan", choices=["raise", "drop"],
                    help="a LiDAR scan with NaN/inf points: stop with an error naming the scan "
                         "(raise, default) or drop those points (drop; a scan without any valid "
@@ -68,9 +76,14 @@ def config_from_args(args: argparse.Namespace) -> RefineConfig:
             "max_lost_fraction")
     overrides: dict[str, Any] = {k: getattr(args, k) for k in keys
                                  if getattr(args, k, None) is not None}
-    if args.config:
-        return RefineConfig.from_toml(args.config, **overrides)
-    return RefineConfig(**overrides)
+    cfg = (RefineConfig.from_toml(args.config, **overrides) if args.config
+           else RefineConfig(**overrides))
+    dask = {key: getattr(args, flag) for key, flag in
+            (("scheduler", "dask_scheduler"), ("workers", "dask_workers"))
+            if getattr(args, flag, None) is not None}
+    if dask or getattr(args, "dask", None):  # the flags add to the file's [dask] table
+        cfg = cfg.with_(executor=ExecutorKind.DASK, dask={**cfg.dask, **dask})
+    return cfg
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]

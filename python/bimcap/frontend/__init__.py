@@ -7,6 +7,8 @@ returns a :class:`FrontendResult` whose ``to_problem_arrays()`` are the solver's
 from __future__ import annotations
 
 from bimcap.frontend.cache import ResultCache, file_fingerprint, frame_cache_key, stable_hash
+from bimcap.frontend.errors import FrontendError, FrontendInputError
+from bimcap.frontend.executor import ExecutorOptions, SchedulerUnreachableError
 from bimcap.frontend.providers import (
     LidarDepthProvider,
     PlanarDepthRefiner,
@@ -18,8 +20,6 @@ from bimcap.frontend.runner import (
     FrameContext,
     FrameStats,
     FrontendConfig,
-    FrontendError,
-    FrontendInputError,
     FrontendResult,
     GroundTruthDepthProvider,
     GroundTruthLabelProvider,
@@ -46,6 +46,7 @@ __all__ = [
     "SEMANTIC_CLASSES",
     "DepthProvider",
     "DepthRefiner",
+    "ExecutorOptions",
     "FrameContext",
     "FrameStats",
     "FrontendConfig",
@@ -61,6 +62,7 @@ __all__ = [
     "ResultCache",
     "RunStats",
     "SamplingMode",
+    "SchedulerUnreachableError",
     "SegmenterLabelProvider",
     "SemanticMap",
     "SemanticMapError",

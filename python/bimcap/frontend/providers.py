@@ -22,7 +22,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from bimcap.frontend.runner import FrameContext, FrontendInputError
+from bimcap.frontend.errors import FrontendInputError
+from bimcap.frontend.runner import FrameContext
 
 if TYPE_CHECKING:  # the fusion / segmentation stages are imported only when used
     from bimcap.fusion import CompletionOptions, PlanarSmoothingOptions, ProjectionOptions

@@ -34,10 +34,10 @@ import sys
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
+from contextlib import ExitStack
 from dataclasses import asdict, dataclass, field
-from functools import partial
 from os import PathLike
 from pathlib import Path
 from typing import Any, Protocol, TypeVar, runtime_checkable
@@ -45,7 +45,7 @@ from typing import Any, Protocol, TypeVar, runtime_checkable
 import numpy as np
 from numpy.typing import NDArray
 
-from bimcap.errors import BimcapError, InputError
+from bimcap.errors import InputError
 from bimcap.features.matching import MatchOptions, PairMatches, match_pair, sequential_pairs
 from bimcap.features.sift import Features, SiftOptions, extract_sift
 from bimcap.features.tracks import (
@@ -58,6 +58,15 @@ from bimcap.features.tracks import (
     triangulate_tracks,
 )
 from bimcap.frontend.cache import ResultCache, frame_cache_key, stable_hash
+from bimcap.frontend.errors import FrontendError as FrontendError
+from bimcap.frontend.errors import FrontendInputError as FrontendInputError
+from bimcap.frontend.executor import (
+    ExecutorOptions,
+    check_scheduler,
+    cluster_threads,
+    dask_client,
+    require_distributed,
+)
 from bimcap.frontend.semantic_map import (
     SEMANTIC_CLASSES,
     SampleSource,
@@ -71,6 +80,7 @@ from bimcap.geometry.camera import Camera
 from bimcap.geometry.trajectory import Trajectory, validate_poses
 from bimcap.io.atomic import atomic_write_bytes
 from bimcap.labels import Label
+from bimcap.methods import ExecutorKind
 
 F64 = NDArray[np.float64]
 I32 = NDArray[np.int32]
@@ -78,14 +88,6 @@ T = TypeVar("T")
 
 #: Version of the .npz layout written by :meth:`FrontendResult.save`.
 RESULT_FORMAT_VERSION = 1
-
-
-class FrontendError(BimcapError):
-    """The front end cannot run (a provider failed, an option is invalid)."""
-
-
-class FrontendInputError(FrontendError, InputError):
-    """Bad input to the front end: a missing frame, an image or map of the wrong size."""
 
 
 # --------------------------------------------------------------------------- sequence & context
@@ -376,6 +378,8 @@ class RunStats:
 
     ``features_computed``: frames whose SIFT ran; ``frames_computed``: frames whose depth,
     labels, keypoint depths and samples were computed; ``pairs_computed``: pairs matched.
+    ``workers``: jobs run at once (processes of the local pool, threads of the Dask cluster);
+    ``executor``: where they ran (:class:`bimcap.methods.ExecutorKind` value).
     """
 
     features_computed: int = 0
@@ -383,6 +387,7 @@ class RunStats:
     pairs_computed: int = 0
     wall_time_s: float = 0.0
     workers: int = 1
+    executor: str = ExecutorKind.LOCAL.value
 
 
 #: The solver's observation arrays the front end fills (docs/architecture.md), name → dtype.
@@ -729,13 +734,13 @@ class _Progress:
         sys.stderr.flush()
 
 
-def _submit(pool: ProcessPoolExecutor | None, fn: Callable[[Any], T], job: Any) -> Future[T]:
-    """``fn(job)`` in the pool, or run now in this process as an already finished future."""
+def _submit(pool: Executor | None, fn: Callable[..., T], job: Any, **kwargs: Any) -> Future[T]:
+    """``fn(job, **kwargs)`` in the pool, or run now in this process as a finished future."""
     if pool is not None:
-        return pool.submit(fn, job)
+        return pool.submit(fn, job, **kwargs)
     fut: Future[T] = Future()
     try:
-        fut.set_result(fn(job))
+        fut.set_result(fn(job, **kwargs))
     except BaseException as exc:  # re-raised by fut.result() in the caller, like the pool does
         fut.set_exception(exc)
     return fut
@@ -753,6 +758,7 @@ def run_frontend(
     progress: bool = True,
     depth_refiner: DepthRefiner | None = None,
     maps_dir: str | PathLike[str] | None = None,
+    executor: ExecutorOptions | Any | None = None,
 ) -> FrontendResult:
     """Run the front end over a whole sequence.
 
@@ -771,7 +777,14 @@ def run_frontend(
     depth_refiner: optional ``refiner(ctx, labels) -> depth`` run after the labels.
     maps_dir: if given, each frame's final undistorted depth (``depth/NNNNNN.npy``, float32
         metres) and labels (``labels/NNNNNN.png``) are written there (atomically; see
-        :func:`map_paths`); a cached frame whose maps are missing is recomputed.
+        :func:`map_paths`); a cached frame whose maps are missing is recomputed. On a Dask
+        cluster of several machines it must be the same path on a shared filesystem.
+    executor: where the frame and pair jobs run (:mod:`bimcap.frontend.executor`): None or
+        ``ExecutorOptions()`` for the local pool of ``workers`` processes; an
+        ``ExecutorOptions(kind=ExecutorKind.DASK)`` for a Dask cluster that this call starts
+        (a LocalCluster, closed before it returns or raises) or connects to (``scheduler``);
+        or a ``distributed.Client`` of the caller's (left open). The same jobs run either way
+        and give the same result bit for bit; the cache, the assembly stay in this process.
 
     Returns
     -------
@@ -782,12 +795,18 @@ def run_frontend(
     FrontendInputError
         A missing or unreadable frame, an image or map whose size does not match the camera,
         initial poses that do not match the frames.
+    SchedulerUnreachableError
+        The Dask scheduler of ``executor`` does not answer (checked before any work).
     """
     t_start = time.perf_counter()
     cfg = config or FrontendConfig()
     pinhole = sequence.camera.pinhole()
     init = _initial_poses(sequence, init_traj)
     nworkers = _worker_count(workers)
+    if isinstance(executor, ExecutorOptions) and executor.is_dask:
+        require_distributed()
+        if executor.scheduler is not None:
+            check_scheduler(executor.scheduler, executor.connect_timeout_s)
     ctx = _RunContext(
         shared=_RunShared(sequence, cfg, depth_provider, label_provider, depth_refiner),
         init=init,
@@ -799,13 +818,10 @@ def run_frontend(
     frames = _frames_from_cache(ctx)
     pairs = _pairs_from_cache(ctx, frames.feat_keys)
     num_jobs = len(frames.todo) + sum(not c for c in pairs.cached)
-    pool = _start_pool(ctx.shared, nworkers, num_jobs)
-    try:
-        scheduler = _Scheduler(ctx, frames, pairs, pool, 1 if pool is None else 2 * nworkers)
-        scheduler.run(_Progress(num_jobs, "frontend", progress))
-    finally:
-        if pool is not None:
-            pool.shutdown(wait=True, cancel_futures=True)
+    with ExitStack() as stack:  # closes the pool / cluster however the run ends
+        backend = _open_backend(stack, ctx.shared, executor, nworkers, num_jobs)
+        ctx.stats.workers, ctx.stats.executor = backend.workers, backend.kind.value
+        _Scheduler(ctx, frames, pairs, backend).run(_Progress(num_jobs, "frontend", progress))
     frames_ok = [d for d in frames.data if d is not None]
     pair_list, pair_stats = _pair_matches(pairs)
     result = _assemble(cfg, pinhole, init, frames_ok, pair_list)
@@ -945,6 +961,67 @@ def _pairs_from_cache(ctx: _RunContext, feat_keys: list[str]) -> _PairSlots:
     return pairs
 
 
+@dataclass
+class _Backend:
+    """Where the jobs of one run execute.
+
+    Attributes
+    ----------
+    pool: None runs each job at once in this process; else a ``concurrent.futures`` executor:
+        the local process pool, or a Dask client's (``Client.get_executor``).
+    frame_kwargs: :func:`compute_frame`'s keyword arguments: ``shared`` itself in this process,
+        the Dask future of the state scattered to every worker once (Dask hands each job the
+        worker's copy), nothing in the local pool (its initializer set it per process).
+    workers: jobs that run at once (processes, or threads of the Dask cluster).
+    kind: the executor.
+    died: exceptions that mean a worker process died (not the job's own error).
+    """
+
+    pool: Executor | None
+    frame_kwargs: dict[str, Any]
+    workers: int
+    kind: ExecutorKind
+    died: tuple[type[BaseException], ...] = ()
+
+    @property
+    def limit(self) -> int:
+        """Jobs in flight at most: 2 per worker (1 in this process)."""
+        return 1 if self.pool is None else 2 * self.workers
+
+
+def _open_backend(stack: ExitStack, shared: _RunShared, executor: ExecutorOptions | Any | None,
+                  nworkers: int, num_jobs: int) -> _Backend:
+    """The run's :class:`_Backend`; its pool, cluster and scattered state are released by
+    ``stack``. Nothing is started (no pool, no LocalCluster) when there is nothing to compute."""
+    is_client = executor is not None and not isinstance(executor, ExecutorOptions)
+    if num_jobs == 0:
+        dask = is_client or (isinstance(executor, ExecutorOptions) and executor.is_dask)
+        return _Backend(None, {"shared": shared}, nworkers,
+                        ExecutorKind.DASK if dask else ExecutorKind.LOCAL)
+    if is_client:
+        return _dask_backend(stack, shared, executor)  # the caller's distributed.Client
+    if isinstance(executor, ExecutorOptions) and executor.is_dask:
+        return _dask_backend(stack, shared, stack.enter_context(dask_client(executor, nworkers)))
+    pool = _start_pool(shared, nworkers, num_jobs)
+    if pool is None:
+        return _Backend(None, {"shared": shared}, nworkers, ExecutorKind.LOCAL)
+    stack.callback(pool.shutdown, wait=True, cancel_futures=True)
+    return _Backend(pool, {}, nworkers, ExecutorKind.LOCAL, (BrokenProcessPool,))
+
+
+def _dask_backend(stack: ExitStack, shared: _RunShared, client: Any) -> _Backend:
+    """Jobs on ``client``'s cluster: the shared state goes to every worker once (scatter with
+    broadcast; a job names it by its future), the jobs through ``Client.get_executor``."""
+    from distributed import KilledWorker
+
+    shared_future = client.scatter(shared, broadcast=True, hash=False)
+    stack.callback(shared_future.release)
+    pool = client.get_executor(pure=False)
+    stack.callback(pool.shutdown, wait=False)  # cancels what is still queued after an error
+    return _Backend(pool, {"shared": shared_future}, cluster_threads(client), ExecutorKind.DASK,
+                    (KilledWorker,))
+
+
 def _start_pool(shared: _RunShared, nworkers: int, num_jobs: int) -> ProcessPoolExecutor | None:
     """A pool of ``spawn`` workers for ``num_jobs`` jobs, or None to run them in this process."""
     if not (nworkers > 1 and num_jobs > 1):
@@ -969,12 +1046,9 @@ class _Scheduler:
     """
 
     def __init__(self, ctx: _RunContext, frames: _FrameSlots, pairs: _PairSlots,
-                 pool: ProcessPoolExecutor | None, limit: int) -> None:
-        self.ctx, self.frames, self.pairs, self.pool, self.limit = ctx, frames, pairs, pool, limit
-        # a worker has the shared state from the pool initializer; this process passes it
-        self.frame_fn: Callable[[_FrameJob], dict[str, NDArray[Any]]] = (
-            compute_frame if pool is not None else partial(compute_frame, shared=ctx.shared)
-        )
+                 backend: _Backend) -> None:
+        self.ctx, self.frames, self.pairs, self.backend = ctx, frames, pairs, backend
+        self.limit = backend.limit
         self.ready = [d is not None for d in frames.data]
         self.pairs_left = [len(p) for p in pairs.of_frame]
         self.frame_queue = deque(frames.todo)
@@ -1017,20 +1091,25 @@ class _Scheduler:
                 assert fa is not None and fb is not None
                 pjob = _PairJob(_features_of(fa), _features_of(fb), self.ctx.pinhole, a, b,
                                 self.ctx.shared.config.match)
-                self.in_flight[_submit(self.pool, compute_pair, pjob)] = ("pair", k)
+                self.in_flight[_submit(self.backend.pool, compute_pair, pjob)] = ("pair", k)
             else:
                 i = self.frame_queue.popleft()
                 fjob = _FrameJob(i, self.ctx.init[i], self.frames.cached_feats[i],
                                  self.ctx.maps_dir)
-                self.in_flight[_submit(self.pool, self.frame_fn, fjob)] = ("frame", i)
+                fut = _submit(self.backend.pool, compute_frame, fjob, **self.backend.frame_kwargs)
+                self.in_flight[fut] = ("frame", i)
 
     def _result(self, fut: Future[dict[str, NDArray[Any]]], kind: str, n: int
                 ) -> dict[str, NDArray[Any]]:
         """The job's arrays; a dead worker process becomes a :class:`FrontendError`."""
         try:
             return fut.result()
-        except BrokenProcessPool as exc:
+        except self.backend.died as exc:
             what = self.pairs.pairs[n] if kind == "pair" else n
+            if self.backend.kind is ExecutorKind.DASK:
+                raise FrontendError(
+                    f"Dask workers died while computing {kind} {what} ({exc}; out of memory? "
+                    "the workers' logs say why)") from exc
             raise FrontendError(
                 f"a worker process died while computing {kind} {what} "
                 "(out of memory, or a script that calls run_frontend without an "

@@ -21,6 +21,14 @@ sigma = 0.03``), a ``[registration]`` table (``bimcap.registration.CoarseOptions
     xy_range_m = 2.0
     [features]
     backend = "opencv"         # or "pycolmap"
+
+The front end's per-frame work can run on Dask (``executor = "dask"``, ``bimcap refine --dask``)
+with a ``[dask]`` table (``bimcap.frontend.ExecutorOptions``; docs/dask.md)::
+
+    executor = "dask"
+    [dask]
+    scheduler = "tcp://10.0.0.5:8786"  # a running cluster; absent: a LocalCluster on this machine
+    workers = 2                        # LocalCluster worker processes (default: workers / cores)
 """
 
 from __future__ import annotations
@@ -33,7 +41,7 @@ from pathlib import Path
 from typing import Any
 
 from bimcap.errors import BimcapError, InputError
-from bimcap.methods import CompletionMethod
+from bimcap.methods import CompletionMethod, ExecutorKind
 
 
 class PipelineError(BimcapError):
@@ -120,6 +128,13 @@ class RefineConfig:
         stage's poses (m; 0: off). None (default): 0.4 for FACaP (the peers' filter), off for
         BIMCaP.
     workers: front-end processes (None: all cores).
+    executor: where the front end's per-frame and per-pair jobs run: ``local`` (a process pool
+        of ``workers``) or ``dask`` (a Dask cluster, the ``dask`` table). The solve always runs
+        in this process; both give the same front end bit for bit.
+    dask: the Dask executor's settings (``bimcap.frontend.ExecutorOptions.from_table``):
+        ``scheduler`` (``tcp://HOST:PORT`` of a running cluster; absent: a LocalCluster on
+        this machine), ``workers`` (the LocalCluster's processes), ``threads_per_worker``,
+        ``connect_timeout_s``, ``worker_timeout_s``.
     lidar_nan: what a LiDAR scan with NaN / inf points does: ``"raise"`` (default: stop, naming
         the scan file and frame) or ``"drop"`` (drop those points; a scan with no valid point
         gives its frame no depth).
@@ -153,6 +168,8 @@ class RefineConfig:
     max_match_distance: float | None = None
     solve_match_distance: float | None = None
     workers: int | None = None
+    executor: ExecutorKind = ExecutorKind.LOCAL
+    dask: dict[str, Any] = field(default_factory=dict)
     lidar_nan: str = "raise"
     max_lost_fraction: float = 0.02
     cache_dir: str | None = None
@@ -167,6 +184,14 @@ class RefineConfig:
             self.segmentation = LabelSource(self.segmentation)
         except ValueError as exc:
             raise ConfigError(str(exc), field="method/completion/segmentation") from None
+        try:
+            self.executor = ExecutorKind(self.executor)
+        except ValueError:
+            raise ConfigError(f"executor must be local or dask, got {self.executor!r}",
+                              field="executor") from None
+        if not isinstance(self.dask, dict):
+            raise ConfigError("dask must be a table of the Dask executor's settings",
+                              field="dask")
         if self.weighting is not None and self.weighting.lower() not in ("robust", "paper"):
             raise ConfigError(f"weighting must be robust or paper, got {self.weighting!r}",
                               field="weighting")
@@ -245,6 +270,7 @@ class RefineConfig:
         d["method"] = self.method.value
         d["completion"] = self.completion.value
         d["segmentation"] = self.segmentation.value
+        d["executor"] = self.executor.value
         d["effective_terms"] = self.effective_terms
         d["effective_weighting"] = self.effective_weighting
         d["effective_coarse"] = self.effective_coarse

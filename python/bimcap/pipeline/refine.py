@@ -209,17 +209,26 @@ def prepare(
     timings["bim"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
+    executor = executor_options(config)
+    where = "" if not executor.is_dask else (
+        f", on the Dask cluster at {executor.scheduler}" if executor.scheduler
+        else ", on a Dask LocalCluster")
     log(f"front end over {len(seq.frames)} frames (depth {config.completion.value}, "
-        f"labels {config.segmentation.value})", quiet)
+        f"labels {config.segmentation.value}{where})", quiet)
     depth, labels, refiner = make_providers(config, seq)
+    fe_seq = seq
+    if executor.is_dask and not seq.root.is_absolute():  # Dask workers have another cwd
+        from dataclasses import replace
+
+        fe_seq = replace(seq, root=seq.root.resolve())
     fe = run_frontend(
-        seq,
+        fe_seq,
         FrontendConfig(window=config.window, sift=sift_options(config),
                        filters=MatchFilterOptions(max_initial_distance_m=config.max_match_distance),
                        sampling=SemanticSamplingOptions(source=SampleSource(config.samples))),
         traj, depth, labels,
         cache_dir=work / "cache", workers=config.workers, progress=not quiet,
-        depth_refiner=refiner,
+        depth_refiner=refiner, executor=executor,
     )
     timings["frontend"] = time.perf_counter() - t0
     return Prepared(seq, ref, fe, traj, timings)
@@ -948,7 +957,31 @@ def validate_settings(config: RefineConfig) -> Any:
             raise ConfigError("no such model file", value, name)
     if config.segmentation is LabelSource.DISK and not Path(str(config.labels_dir)).is_dir():
         raise ConfigError("no such label directory", config.labels_dir, "labels_dir")
+    executor = executor_options(config)
+    if executor.is_dask:  # before any expensive stage: the package, the scheduler's address
+        from bimcap.frontend.executor import check_scheduler, require_distributed
+
+        require_distributed()
+        if executor.scheduler is not None:
+            check_scheduler(executor.scheduler, executor.connect_timeout_s)
     return base
+
+
+def executor_options(config: RefineConfig) -> Any:
+    """``bimcap.frontend.ExecutorOptions`` of ``config``'s ``executor`` and ``[dask]`` table; a
+    bad key or value raises :class:`ConfigError` naming ``dask.<key>``."""
+    from bimcap.frontend.errors import FrontendInputError
+    from bimcap.frontend.executor import ExecutorOptions
+    from bimcap.methods import ExecutorKind
+    from bimcap.pipeline.config import ConfigError
+
+    if config.executor is not ExecutorKind.DASK and config.dask.get("scheduler") is not None:
+        raise ConfigError("a Dask scheduler is set but executor is local; set "
+                          "executor = \"dask\" (or pass --dask)", field="dask.scheduler")
+    try:
+        return ExecutorOptions.from_table(config.executor, config.dask)
+    except FrontendInputError as exc:
+        raise ConfigError(exc.message, exc.path, exc.field) from None
 
 
 def config_uses(config: RefineConfig, name: str) -> bool:
@@ -977,8 +1010,8 @@ def validate_run(
     from bimcap.dataset import read_sequence
     from bimcap.io.outputs import OutputSet
 
-    seq = read_sequence(sequence) if isinstance(sequence, (str, PathLike)) else sequence
     base = validate_settings(config)
+    seq = read_sequence(sequence) if isinstance(sequence, (str, PathLike)) else sequence
     ifc_path = Path(ifc) if ifc is not None else seq.ifc_path
     if ifc_path is None:
         raise InputError("no --ifc given and the sequence manifest names none",
