@@ -163,6 +163,19 @@ def test_deviations_cli_writes_json_csv_ply(world: dict[str, Path], tmp_path: Pa
     assert by_name["S0/column/corridor-1"]["offset_m"] == ""
     cloud = o3d.io.read_point_cloud(str(out / "deviations.ply"))
     assert len(cloud.points) > 1000 and len(cloud.colors) == len(cloud.points)
+    assert (out / "deviations.png").stat().st_size > 10_000
+    # the property sets a BIM viewer shows, on the same GUIDs
+    import ifcopenshell
+    import ifcopenshell.util.element as ue
+
+    ifc = ifcopenshell.open(str(out / "deviations.ifc"))
+    pset = ue.get_pset(ifc.by_guid(by_name["S0/wall/corr-south"]["guid"]), "BIMCaP_Deviation")
+    assert pset["Status"] == "deviating"
+    assert pset["Offset_m"] == pytest.approx(float(by_name["S0/wall/corr-south"]["offset_m"]),
+                                             abs=1e-4)
+    column = ue.get_pset(ifc.by_guid(by_name["S0/column/corridor-1"]["guid"]),
+                         "BIMCaP_Deviation")
+    assert column["Status"] == "missing" and "Offset_m" not in column
     # a run directory that is not one: exit 2, the message names it
     rc = main(["deviations", str(tmp_path)])
     assert rc == 2
@@ -193,12 +206,14 @@ def test_refine_with_deviations_then_the_run_directory(world: dict[str, Path], t
     run = tmp_path / "run"
     gt = world["seq"] / "poses" / "gt.tum"
     rc = main(["refine", str(world["seq"]), "-o", str(run), "--init", str(gt), "--deviations",
-               "--no-report", "-q", "--workers", "1"])
+               "-q", "--workers", "1"])
     assert rc == 0
     assert "deviations: " in capsys.readouterr().out
     doc = json.loads((run / "result.json").read_text())
-    assert {"map_refined.ply", "deviations.json", "deviations.csv",
-            "deviations.ply"} <= set(doc["outputs"])
+    assert {"map_refined.ply", "deviations.json", "deviations.csv", "deviations.ply",
+            "deviations.png", "deviations.ifc"} <= set(doc["outputs"])
+    html = (run / "report.html").read_text()
+    assert "Scan vs BIM: deviations" in html and "S0/column/corridor-1" in html
     assert verify_outputs(run) == []
     assert doc["inputs"]["ifc"] == str(world["design"].resolve())
     dev = json.loads((run / "deviations.json").read_text())

@@ -8,7 +8,12 @@ one-call :func:`run_deviations` that writes them from a sequence, poses and an I
 The CSV has one row per element with the same fields (``offset_xy_m`` split into ``offset_x_m``
 / ``offset_y_m``). ``deviations.ply`` is the refined map coloured by the offset of the element each
 point lies on (blue −2 × tolerance … white 0 … red +2 × tolerance; grey: no analysed element;
-black: an element without an offset).
+black: an element without an offset). ``deviations.png`` is the floor-plan picture
+(:mod:`bimcap.deviations.plot`). ``deviations.ifc`` is the design IFC with a property set
+:data:`PSET_NAME` on every analysed element (``Status``, ``Offset_m``, ``OffsetX_m`` /
+``OffsetY_m`` for columns, ``Tilt_deg``, ``Coverage``, ``PointCount``, ``Tolerance_m``), written
+with IfcOpenShell: any BIM viewer lists it in the element's properties and can filter or colour
+by it (a BIM Collaboration Format export would need ``bcf-client``, not a dependency).
 """
 
 from __future__ import annotations
@@ -33,7 +38,10 @@ F64 = NDArray[np.float64]
 CSV_FIELDS = ("guid", "ifc_class", "name", "storey", "status", "offset_m", "coverage", "n_points",
               "rays", "passes", "offset_x_m", "offset_y_m", "tilt_deg")
 #: Files :func:`run_deviations` writes into its output directory.
-DEVIATION_OUTPUTS = ("deviations.json", "deviations.csv", "deviations.ply")
+DEVIATION_OUTPUTS = ("deviations.json", "deviations.csv", "deviations.ply", "deviations.png",
+                     "deviations.ifc")
+#: The property set :func:`write_deviation_ifc` puts on every analysed element.
+PSET_NAME = "BIMCaP_Deviation"
 
 
 def write_deviations_json(path: str | PathLike[str], report: DeviationReport) -> None:
@@ -104,6 +112,37 @@ def write_deviation_ply(path: str | PathLike[str], points: F64, report: Deviatio
     atomic_write_bytes(path, header.encode("ascii") + rec.tobytes())
 
 
+def write_deviation_ifc(design: str | PathLike[str], report: DeviationReport,
+                        path: str | PathLike[str]) -> int:
+    """Write ``design`` with the :data:`PSET_NAME` property set on each element of ``report``
+    (atomically; lengths in metres whatever the file's unit, hence the ``_m`` names). Returns the
+    number of elements annotated."""
+    import ifcopenshell
+    import ifcopenshell.api
+
+    f = ifcopenshell.open(str(design))
+    done = 0
+    for e in report.elements:
+        try:
+            product = f.by_guid(e.guid)
+        except RuntimeError:
+            continue
+        props: dict[str, Any] = {"Status": e.status.value, "Coverage": round(e.coverage, 4),
+                                 "PointCount": int(e.n_points),
+                                 "Tolerance_m": report.options.tolerance_m}
+        if e.offset_m is not None:
+            props["Offset_m"] = round(e.offset_m, 5)
+        if e.offset_xy_m is not None:
+            props["OffsetX_m"], props["OffsetY_m"] = (round(v, 5) for v in e.offset_xy_m)
+        if e.tilt_deg is not None:
+            props["Tilt_deg"] = round(e.tilt_deg, 3)
+        pset = ifcopenshell.api.run("pset.add_pset", f, product=product, name=PSET_NAME)
+        ifcopenshell.api.run("pset.edit_pset", f, pset=pset, properties=props)
+        done += 1
+    atomic_write_text(path, f.to_string())
+    return done
+
+
 @dataclass
 class DeviationRun:
     """What :func:`run_deviations` did: the report and the files it wrote (name → path)."""
@@ -148,5 +187,10 @@ def run_deviations(sequence: Any, world_from_cam: F64, ifc: str | PathLike[str],
     write_deviations_csv(out / "deviations.csv", report)
     assert report.point_element is not None
     write_deviation_ply(out / "deviations.ply", map_points, report, report.point_element)
+    from bimcap.deviations.plot import plot_deviations_on_plan
+
+    plot_deviations_on_plan(model, report, out / "deviations.png", storey,
+                            walk_xy=scans.origins[:, :2])
+    write_deviation_ifc(ifc, report, out / "deviations.ifc")
     files = {name: out / name for name in DEVIATION_OUTPUTS}
     return DeviationRun(report, files, time.perf_counter() - t0)

@@ -829,6 +829,7 @@ class RefineResult:
     map_refined: dict[str, Any] | None = None
     deviations: dict[str, Any] | None = None
     inputs: dict[str, str] = field(default_factory=dict)
+    deviation_run: Any = None  #: bimcap.deviations.outputs.DeviationRun (not in result.json)
     timings: dict[str, float] = field(default_factory=dict)
     files: dict[str, str] = field(default_factory=dict)
     command: str = ""
@@ -876,7 +877,7 @@ def evaluate_run(
 #: ``result.json`` lists the ones a run wrote, with their SHA-256 (``bimcap.io.outputs``).
 REFINE_OUTPUTS = ("refined.tum", "summary.json", "map_before.ply", "map_after.ply",
                   "map_refined.ply", "report.html", "figures/", "deviations.json",
-                  "deviations.csv", "deviations.ply")
+                  "deviations.csv", "deviations.ply", "deviations.png", "deviations.ifc")
 
 
 @dataclass
@@ -988,11 +989,14 @@ def write_run_outputs(
     command: str = "",
     report: bool = True,
     extra_rows: list[Any] | None = None,
+    deviations_ifc: Path | None = None,
 ) -> RefineResult:
     """Write one run's outputs into ``stage`` (an open output set's staging directory):
     ``refined.tum``, ``summary.json``, ``map_before.ply`` / ``map_after.ply`` and, with
     ``report``, ``report.html`` and its ``figures/`` (``extra_rows``: more runs shown beside, e.g.
-    FACaP). With ``gt`` the result carries the metrics before and after. The result's
+    FACaP). With ``deviations_ifc``, the scan-vs-BIM deviations against that IFC under the
+    refined poses (``deviations.*``, and a report section). With ``gt`` the result carries the
+    metrics before and after. The result's
     ``out_dir`` is ``stage``; the caller points it at the final directory before committing."""
     header = f"bimcap {config.method.value} {config.effective_terms} refined world_from_cam"
     write_tum(stage / "refined.tum", outcome.refined, header=header)
@@ -1012,6 +1016,17 @@ def write_run_outputs(
                     "map_before": "map_before.ply", "map_after": "map_after.ply",
                     "map_refined": "map_refined.ply"}
     result.map_refined = refined_map.to_dict()
+    if deviations_ifc is not None:
+        from bimcap.deviations.outputs import run_deviations
+
+        dev = run_deviations(prepared.sequence, outcome.refined.poses, deviations_ifc, stage,
+                             map_points=refined_map.points)
+        result.deviation_run = dev
+        result.deviations = {"counts": dev.report.counts(), "clusters": len(dev.report.clusters),
+                             "seconds": dev.seconds}
+        result.files.update({p.stem + p.suffix.replace(".", "_"): p.name
+                             for p in dev.files.values()})
+        result.timings["deviations"] = dev.seconds
     if report:
         from bimcap.pipeline.report import write_refine_report
 
@@ -1053,17 +1068,10 @@ def refine(
         t_start = time.perf_counter()
         prepared = prepare(plan.sequence, plan.ifc, plan.init, cfg, out, quiet)
         outcome = solve_prepared(prepared, cfg, quiet)
-        result = write_run_outputs(stage, prepared, outcome, cfg, plan.gt, command, report)
+        result = write_run_outputs(stage, prepared, outcome, cfg, plan.gt, command, report,
+                                   deviations_ifc=plan.ifc if deviations else None)
         result.inputs = {"sequence": str(Path(plan.sequence.root).resolve()),
                          "ifc": str(Path(plan.ifc).resolve())}
-        if deviations:
-            from bimcap.deviations.outputs import run_deviations
-
-            dev = run_deviations(plan.sequence, outcome.refined.poses, plan.ifc, stage)
-            result.deviations = {"counts": dev.report.counts(), "seconds": dev.seconds}
-            result.files.update({p.stem + p.suffix.replace(".", "_"): p.name
-                                 for p in dev.files.values()})
-            result.timings["deviations"] = dev.seconds
         result.timings["total"] = time.perf_counter() - t_start
         result.out_dir = out
         plan.outputs.commit(result.to_dict())
