@@ -58,6 +58,9 @@ F64 = NDArray[np.float64]
 I32 = NDArray[np.int32]
 I64 = NDArray[np.int64]
 
+#: At most this many hits per element are used to measure its coverage.
+_COVERAGE_HITS = 50_000
+
 #: The element classes analysed, by bimcap label.
 ANALYSED_LABELS: tuple[Label, ...] = (Label.WALL, Label.COLUMN, Label.FLOOR, Label.CEILING)
 
@@ -81,7 +84,25 @@ class ElementStatus(str, Enum):
 
 @dataclass(frozen=True)
 class DeviationOptions:
-    """Settings of :func:`analyse_deviations` (lengths in metres, angles in degrees)."""
+    """Settings of :func:`analyse_deviations` (lengths in metres, angles in degrees).
+
+    Attributes
+    ----------
+    tolerance_m: an offset beyond this is ``deviating``.
+    pass_margin_m: a return within this of the face its ray meets (along the normal) hits it;
+        one further behind passes through it.
+    missing_fraction: share of the rays reaching an element that must pass through it for
+        ``missing``.
+    min_rays, min_points: fewer rays reaching / returns hitting an element: ``unobserved``.
+    max_incidence_deg: rays more oblique to the face are not used.
+    trim_mad: residuals beyond this many (MAD-scaled) deviations are trimmed from the fit.
+    sample_spacing_m: spacing of the surface samples that measure coverage.
+    ray_step: every ``ray_step``-th return is cast (1: all).
+    min_tilt_span_m: a wall's tilt needs hits spanning this much height.
+    cluster_gate_m, cluster_voxel_m, cluster_min_points: map points further than the gate from
+        every element, grouped by 26-connected voxels, clusters of at least this many points.
+    ignore_doors: leave door leaves out of the model the rays are cast into.
+    """
 
     tolerance_m: float = 0.02
     pass_margin_m: float = 0.15
@@ -91,7 +112,7 @@ class DeviationOptions:
     max_incidence_deg: float = 75.0
     trim_mad: float = 2.5
     sample_spacing_m: float = 0.1
-    ray_step: int = 1
+    ray_step: int = 2
     min_tilt_span_m: float = 0.8
     cluster_gate_m: float = 0.2
     cluster_voxel_m: float = 0.1
@@ -565,8 +586,11 @@ def _coverage(el: _Element, hit_points: F64, opts: DeviationOptions, rng: np.ran
         return 0.0
     from scipy.spatial import cKDTree
 
-    dist, _ = cKDTree(hit_points).query(pts, distance_upper_bound=opts.sample_spacing_m)
-    return float(np.mean(np.isfinite(dist)))
+    if len(hit_points) > _COVERAGE_HITS:  # plenty to tell which samples were reached
+        hit_points = hit_points[rng.choice(len(hit_points), _COVERAGE_HITS, replace=False)]
+    dist, nearest = cKDTree(pts).query(hit_points, distance_upper_bound=opts.sample_spacing_m)
+    seen = np.unique(nearest[np.isfinite(dist)])
+    return len(seen) / len(pts)
 
 
 def _clusters(scene: Any, gid_to_element: dict[int, int], lookup: I64, points: F64,
@@ -576,9 +600,9 @@ def _clusters(scene: Any, gid_to_element: dict[int, int], lookup: I64, points: F
     point_element = np.full(len(points), -1, np.int32)
     if len(points) == 0:
         return [], point_element
-    q = _tensor(points, np.float32)
-    dist = scene.compute_distance(q).numpy()
-    closest = scene.compute_closest_points(q)["geometry_ids"].numpy().astype(np.int64)
+    ans = scene.compute_closest_points(_tensor(points, np.float32))
+    dist = np.linalg.norm(ans["points"].numpy().astype(np.float64) - points, axis=1)
+    closest = ans["geometry_ids"].numpy().astype(np.int64)
     near = dist <= opts.pass_margin_m
     for g, m_idx in gid_to_element.items():
         sel = near & (closest == g)
