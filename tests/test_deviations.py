@@ -246,3 +246,19 @@ def test_experiment_gains_the_deviation_columns(tmp_path: Path) -> None:
         rows = list(csv.DictReader(fh))
     assert set(DEVIATION_COLUMNS) <= set(rows[0])
     assert not math.isnan(float(rows[1]["dev_offset_rmse_m"]))
+
+
+def test_clutter_comes_out_as_a_cluster(world: dict[str, Path], report: Any) -> None:
+    """The simulator's placed clutter (the manifest's ``source.clutter``) is in no IFC element:
+    each object is a cluster whose box holds its centre; shifted walls make none."""
+    import json
+
+    placed = json.loads((world["seq"] / "manifest.json").read_text())["source"]["clutter"]
+    assert placed and report.clusters
+    for obj in placed:
+        x, y = obj["center_xy"]
+        assert any(c.min[0] - 0.05 <= x <= c.max[0] + 0.05 and c.min[1] - 0.05 <= y
+                   <= c.max[1] + 0.05 for c in report.clusters), obj
+    assert len(report.clusters) <= 2 * len(placed)
+    big = report.clusters[0]
+    assert 0.3 < big.extent[2] < 2.0 and big.n_points >= 30
