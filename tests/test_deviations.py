@@ -176,6 +176,13 @@ def test_deviations_cli_writes_json_csv_ply(world: dict[str, Path], tmp_path: Pa
     column = ue.get_pset(ifc.by_guid(by_name["S0/column/corridor-1"]["guid"]),
                          "BIMCaP_Deviation")
     assert column["Status"] == "missing" and "Offset_m" not in column
+    # a second run does not replace the first one's files without --overwrite
+    args = ["deviations", "--sequence", str(seq), "--poses", str(seq / "poses" / "gt.tum"),
+            "--ifc", str(world["design"]), "-o", str(out), "--storey", "S0"]
+    before = (out / "deviations.json").read_bytes()
+    assert main(args) == 2
+    assert "pass --overwrite" in capsys.readouterr().err
+    assert (out / "deviations.json").read_bytes() == before
     # a run directory that is not one: exit 2, the message names it
     rc = main(["deviations", str(tmp_path)])
     assert rc == 2

@@ -12,6 +12,8 @@ HELP = "scan-vs-BIM deviations per IFC element (offset, coverage, missing, unobs
 
 
 def register(sub: Any) -> None:
+    from bimcap.cli import add_overwrite_argument
+
     p = sub.add_parser(
         NAME,
         help=HELP,
@@ -22,8 +24,9 @@ def register(sub: Any) -> None:
             "through it), unobserved; plus the clusters of points no element explains. Reads a "
             "refine run directory (its result.json names the sequence and the IFC; poses "
             "refined.tum) or explicit --sequence/--poses/--ifc. Writes deviations.json, "
-            "deviations.csv and deviations.ply (the map coloured by offset) into -o "
-            "(default RUN_DIR/deviations)."
+            "deviations.csv, deviations.ply (the map coloured by offset), deviations.png (the "
+            "floor plan coloured by offset) and deviations.ifc (the design with a "
+            "BIMCaP_Deviation property set per element) into -o (default RUN_DIR/deviations)."
         ),
     )
     p.add_argument("run_dir", nargs="?", type=Path, help="a bimcap refine output directory")
@@ -39,6 +42,7 @@ def register(sub: Any) -> None:
                    help="voxel of the map the clusters and the PLY use (default 0.03 m)")
     p.add_argument("--top", type=int, default=10, metavar="N",
                    help="print the N largest deviations (default 10)")
+    add_overwrite_argument(p, "existing deviations.* files in OUT")
     p.set_defaults(func=run, output_dirs=["out"], input_paths=["run_dir", "sequence", "poses",
                                                               "ifc"])
 
@@ -77,8 +81,8 @@ def resolve_inputs(args: argparse.Namespace) -> tuple[Path, Path, Path, Path]:
 def run(args: argparse.Namespace) -> int:
     from bimcap.bim.ingest import check_ifc_file
     from bimcap.dataset import read_sequence
-    from bimcap.deviations.analysis import DeviationOptions
-    from bimcap.deviations.outputs import run_deviations
+    from bimcap.deviations.analysis import DeviationInputError, DeviationOptions
+    from bimcap.deviations.outputs import DEVIATION_OUTPUTS, run_deviations
     from bimcap.geometry.trajectory import read_tum
     from bimcap.io.atomic import check_not_input
     from bimcap.pipeline.refine import check_trajectory
@@ -88,9 +92,11 @@ def run(args: argparse.Namespace) -> int:
     check_ifc_file(ifc)
     seq = read_sequence(seq_path)
     traj = check_trajectory(seq, read_tum(poses_path), poses_path, "refined")
-    out.mkdir(parents=True, exist_ok=True)
-    for name in ("deviations.json", "deviations.csv", "deviations.ply"):
+    for name in DEVIATION_OUTPUTS:
         check_not_input(out / name, [poses_path, ifc, seq.manifest_path])
+        if (out / name).exists() and not args.overwrite:
+            raise DeviationInputError("exists; pass --overwrite to replace it", out / name)
+    out.mkdir(parents=True, exist_ok=True)
     result = run_deviations(seq, traj.poses, ifc, out, options, args.storey, args.voxel)
     rep = result.report
     print("elements: " + ", ".join(f"{n} {k}" for k, n in rep.counts().items())
@@ -103,5 +109,5 @@ def run(args: argparse.Namespace) -> int:
     for e in rep.elements:
         if e.status.value == "missing":
             print(f"  missing              {e.ifc_class:<14} {e.name or e.guid}")
-    print(f"wrote {out}/deviations.json, deviations.csv, deviations.ply")
+    print(f"wrote {out}/" + ", ".join(DEVIATION_OUTPUTS))
     return 0

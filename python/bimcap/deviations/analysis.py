@@ -657,7 +657,8 @@ def _connected_clusters(points: F64, opts: DeviationOptions) -> list[Cluster]:
 
 
 def load_design(ifc_path: str | PathLike[str]) -> Any:
-    """The design model (:func:`bimcap.bim.ingest.load_model`) for the analysis."""
+    """The design model (:func:`bimcap.bim.ingest.load_model`) for the analysis, furniture
+    included: it is not judged, but it explains the points on it (no cluster) and occludes."""
     from bimcap.bim.ingest import load_model
 
-    return load_model(Path(ifc_path), include_furniture=False)
+    return load_model(Path(ifc_path), include_furniture=True)
