@@ -158,7 +158,7 @@ def test_result_json_lists_every_file_with_its_hash(first_run: Path) -> None:
     doc = json.loads((first_run / RESULT_NAME).read_text())
     assert set(doc["outputs"]) == _run_files(first_run)
     assert {"refined.tum", "summary.json", "map_before.ply", "map_after.ply",
-            "report.html"} <= set(doc["outputs"])
+            "map_refined.ply", "report.html"} <= set(doc["outputs"])
     assert any(k.startswith("figures/") for k in doc["outputs"])
     assert verify_outputs(first_run) == []
     assert not list(first_run.glob(f"{STAGING_PREFIX}*"))

@@ -39,6 +39,7 @@ from bimcap.errors import (
 COMMANDS: tuple[str, ...] = (
     "demo",
     "refine",
+    "deviations",
     "evaluate",
     "experiment",
     "generate_building",

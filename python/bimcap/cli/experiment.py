@@ -27,6 +27,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--frames", type=int, default=60)
     p.add_argument("--scale", type=float, default=0.25)
     p.add_argument("--world-seed", type=int, default=0)
+    p.add_argument("--deviations", action="store_true",
+                   help="also score the scan-vs-BIM deviations of every row against the "
+                        "as-built's truth (columns dev_*)")
     p.add_argument("-q", "--quiet", action="store_true")
     add_config_arguments(p)
     p.set_defaults(func=run, output_dirs=["out"])
@@ -47,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
                          field="--experiments")
     opts = ExperimentOptions(experiments=exps, seeds=seeds, preset=args.preset, frames=args.frames,
                              scale=args.scale, world_seed=args.world_seed,
-                             config=config_from_args(args))
+                             config=config_from_args(args), deviations=args.deviations)
     records = run_experiment(args.out, opts, quiet=args.quiet)
     print(table2_markdown(records))
     print(f"wrote {args.out}/results.csv, table1.md, table2.md, ate.png")

@@ -106,6 +106,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--gt",
                    help="ground truth TUM for metrics (default: SEQUENCE/poses/gt.tum if any)")
     p.add_argument("--no-report", action="store_true", help="skip the HTML report")
+    p.add_argument("--deviations", action="store_true",
+                   help="also write the scan-vs-BIM deviations under the refined poses "
+                        "(deviations.json/.csv/.ply; see bimcap deviations)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.add_argument("--overwrite", action="store_true",
                    help="replace files in OUT that bimcap did not write (default: refuse)")
@@ -130,10 +133,13 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError(f"{flag} is required (unless --print-config)", field=name)
     result = refine(args.sequence, args.out, cfg, ifc=args.ifc, init=args.init, gt=args.gt,
                     report=not args.no_report, quiet=args.quiet, command=command_line(),
-                    overwrite=args.overwrite)
+                    overwrite=args.overwrite, deviations=args.deviations)
     print(result.outcome.summary.table())
     if result.metrics_after is not None:
         print(summary_table({"initial": result.metrics_before, "refined": result.metrics_after}))
+    if result.deviations is not None:
+        print("deviations: " + ", ".join(f"{n} {k}" for k, n in
+                                         result.deviations["counts"].items()))
     print(f"wrote {result.out_dir}/refined.tum" + (
         f" and {result.out_dir}/{result.files['report']}" if "report" in result.files else ""))
     return 0

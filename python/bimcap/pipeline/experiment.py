@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from bimcap.errors import InputError
 from bimcap.io.atomic import atomic_write_bytes, atomic_write_json, atomic_write_text
 from bimcap.pipeline.config import Method, RefineConfig
 from bimcap.pipeline.paper_reference import table1_row, table2_row
@@ -46,6 +47,10 @@ ABLATIONS: tuple[tuple[Method, str], ...] = (
 )
 
 COLUMNS = ("mme", "mpv", "nnd_m", "ate_pos_m", "ate_rot_deg", "yaw_deg", "pitch_deg", "roll_deg")
+#: With ``ExperimentOptions.deviations``: the scan-vs-BIM deviations under each row's poses,
+#: scored against the as-built's truth (:mod:`bimcap.deviations.scoring`).
+DEVIATION_COLUMNS = ("dev_recall", "dev_false_alarm_rate", "dev_missing_recall",
+                     "dev_offset_rmse_m")
 
 
 @dataclass(frozen=True)
@@ -59,6 +64,7 @@ class ExperimentOptions:
     ablations: (method, terms) rows; default the paper's Table 1.
     preset, frames, scale, world_seed: the synthetic world (as in ``bimcap demo``).
     config: base settings of every run (sources, losses); method/terms are set per row.
+    deviations: also score the scan-vs-BIM deviations of every row (:data:`DEVIATION_COLUMNS`).
     """
 
     experiments: tuple[str, ...] = ("exp1", "exp2", "exp3")
@@ -69,9 +75,11 @@ class ExperimentOptions:
     scale: float = 0.25
     world_seed: int = 0
     config: RefineConfig = field(default_factory=RefineConfig)
+    deviations: bool = False
 
     def to_dict(self) -> dict[str, Any]:
         return {
+            "deviations": self.deviations,
             "experiments": list(self.experiments),
             "seeds": list(self.seeds),
             "ablations": [[m.value, t] for m, t in self.ablations],
@@ -132,6 +140,7 @@ def run_experiment(out_dir: str | Path, opts: ExperimentOptions | None = None,
     design, built = make_world(out, world_opts, quiet)
     seq_dir = make_sequence(out, design, built, world_opts, quiet)
     gt = read_sequence(seq_dir).trajectory("gt")
+    scorer = DeviationScorer(read_sequence(seq_dir), design, built) if o.deviations else None
     records: list[RunRecord] = []
     for exp in o.experiments:
         for seed in o.seeds:
@@ -145,7 +154,10 @@ def run_experiment(out_dir: str | Path, opts: ExperimentOptions | None = None,
             prepared = prepare(seq, design, seq.trajectory_path(name), o.config,
                                out / "runs" / f"{exp}_s{seed}", quiet)
             tm, mm = evaluate_run(prepared, prepared.init, gt)
-            records.append(RunRecord(exp, seed, "initial", "-", _values(tm, mm), 0.0))
+            values = _values(tm, mm)
+            if scorer is not None:
+                values.update(scorer(prepared.init.poses))
+            records.append(RunRecord(exp, seed, "initial", "-", values, 0.0))
             for method, terms in o.ablations:
                 # FACaP rows are the peers' method: no coarse stage in front of them.
                 cfg = replace(o.config, method=method, terms=terms, weighting=None,
@@ -154,7 +166,10 @@ def run_experiment(out_dir: str | Path, opts: ExperimentOptions | None = None,
                 try:
                     res = solve_prepared(prepared, cfg, quiet=True)
                     tm, mm = evaluate_run(prepared, res.refined, gt)
-                    rec = RunRecord(exp, seed, method.value, terms, _values(tm, mm),
+                    values = _values(tm, mm)
+                    if scorer is not None:
+                        values.update(scorer(res.refined.poses))
+                    rec = RunRecord(exp, seed, method.value, terms, values,
                                     time.perf_counter() - t0,
                                     coarse_seconds=(res.coarse or {}).get("seconds", 0.0))
                 except Exception as exc:  # a failed row is reported, not fatal
@@ -166,6 +181,36 @@ def run_experiment(out_dir: str | Path, opts: ExperimentOptions | None = None,
                     f"{rec.values['ate_rot_deg']:.2f} deg ({rec.seconds:.1f} s)", quiet)
     write_outputs(out, o, records)
     return records
+
+
+class DeviationScorer:
+    """The deviation columns of one pose set: the design ``design`` analysed against the scans of
+    ``sequence``, scored against the as-built ``built``'s truth sidecar."""
+
+    def __init__(self, sequence: Any, design: Path, built: Path) -> None:
+        from bimcap.deviations.analysis import load_design
+        from bimcap.sim.building import truth_path_for
+        from bimcap.sim.building_truth import load_building_truth
+
+        self.sequence, self.design = sequence, design
+        self.model = load_design(design)
+        truth = load_building_truth(truth_path_for(built)).deviations
+        if truth is None:
+            raise InputError("the as-built has no deviations", truth_path_for(built),
+                             "deviations")
+        self.truth = truth
+
+    def __call__(self, world_from_cam: np.ndarray) -> dict[str, float]:
+        from bimcap.deviations.analysis import analyse_deviations
+        from bimcap.deviations.refined_map import load_scans
+        from bimcap.deviations.scoring import score_deviations
+
+        scans = load_scans(self.sequence, world_from_cam)
+        report = analyse_deviations(self.model, scans, ifc_path=self.design)
+        sc = score_deviations(report, self.truth.wall_shifts, self.truth.column_offsets,
+                              self.truth.missing)
+        return {"dev_recall": sc.recall, "dev_false_alarm_rate": sc.false_alarm_rate,
+                "dev_missing_recall": sc.missing_recall, "dev_offset_rmse_m": sc.offset_rmse_m}
 
 
 def _mean(records: list[RunRecord], key: str) -> float:
@@ -249,8 +294,9 @@ def table2_markdown(records: list[RunRecord]) -> str:
 def write_outputs(out: Path, opts: ExperimentOptions, records: list[RunRecord]) -> None:
     """``results.csv``, ``table1.md``, ``table2.md``, ``experiment.json`` and ``ate.png``."""
     buf = io.StringIO()
-    fieldnames = ["experiment", "seed", "method", "terms", *COLUMNS, "seconds", "coarse_seconds",
-                  "ok", "message"]
+    extra = list(DEVIATION_COLUMNS) if opts.deviations else []
+    fieldnames = ["experiment", "seed", "method", "terms", *COLUMNS, *extra, "seconds",
+                  "coarse_seconds", "ok", "message"]
     w = csv.DictWriter(buf, fieldnames=fieldnames)
     w.writeheader()
     for r in records:

@@ -871,6 +871,10 @@ class RefineResult:
     metrics_after: Any = None
     map_before: Any = None
     map_after: Any = None
+    map_refined: dict[str, Any] | None = None
+    deviations: dict[str, Any] | None = None
+    inputs: dict[str, str] = field(default_factory=dict)
+    deviation_run: Any = None  #: bimcap.deviations.outputs.DeviationRun (not in result.json)
     timings: dict[str, float] = field(default_factory=dict)
     files: dict[str, str] = field(default_factory=dict)
     command: str = ""
@@ -884,6 +888,9 @@ class RefineResult:
             "metrics_after": _to_dict_or_none(self.metrics_after),
             "map_before": _to_dict_or_none(self.map_before),
             "map_after": _to_dict_or_none(self.map_after),
+            "map_refined": self.map_refined,
+            "deviations": self.deviations,
+            "inputs": self.inputs,
             "timings": self.timings,
             "files": self.files,
         }
@@ -913,8 +920,9 @@ def evaluate_run(
 
 #: Every file a refine run may write into its output directory (``figures/``: the report's PNGs);
 #: ``result.json`` lists the ones a run wrote, with their SHA-256 (``bimcap.io.outputs``).
-REFINE_OUTPUTS = ("refined.tum", "summary.json", "map_before.ply", "map_after.ply", "report.html",
-                  "figures/")
+REFINE_OUTPUTS = ("refined.tum", "summary.json", "map_before.ply", "map_after.ply",
+                  "map_refined.ply", "report.html", "figures/", "deviations.json",
+                  "deviations.csv", "deviations.ply", "deviations.png", "deviations.ifc")
 
 
 @dataclass
@@ -1028,6 +1036,20 @@ def validate_run(
     return RunPlan(seq, ifc_path, traj, gt_traj, base, outputs)
 
 
+def write_map_refined(path: Path, sequence: Any, world_from_cam: F64, label_points: F64,
+                      label_values: Any) -> Any:
+    """Write ``map_refined.ply``: every LiDAR scan of ``sequence`` through ``world_from_cam``
+    (N, 7) and the sequence's ``cam_from_lidar``, voxel-downsampled, labelled from the front end's
+    samples (``label_points`` (K, 3), ``label_values`` (K,)); returns the
+    :class:`bimcap.deviations.refined_map.RefinedMap`."""
+    from bimcap.deviations.refined_map import build_refined_map, load_scans, write_refined_map
+
+    scans = load_scans(sequence, world_from_cam)
+    refined_map = build_refined_map(scans, label_points=label_points, label_values=label_values)
+    write_refined_map(path, refined_map)
+    return refined_map
+
+
 def write_run_outputs(
     stage: Path,
     prepared: Prepared,
@@ -1037,17 +1059,22 @@ def write_run_outputs(
     command: str = "",
     report: bool = True,
     extra_rows: list[Any] | None = None,
+    deviations_ifc: Path | None = None,
 ) -> RefineResult:
     """Write one run's outputs into ``stage`` (an open output set's staging directory):
     ``refined.tum``, ``summary.json``, ``map_before.ply`` / ``map_after.ply`` and, with
     ``report``, ``report.html`` and its ``figures/`` (``extra_rows``: more runs shown beside, e.g.
-    FACaP). With ``gt`` the result carries the metrics before and after. The result's
+    FACaP). With ``deviations_ifc``, the scan-vs-BIM deviations against that IFC under the
+    refined poses (``deviations.*``, and a report section). With ``gt`` the result carries the
+    metrics before and after. The result's
     ``out_dir`` is ``stage``; the caller points it at the final directory before committing."""
     header = f"bimcap {config.method.value} {config.effective_terms} refined world_from_cam"
     write_tum(stage / "refined.tum", outcome.refined, header=header)
     atomic_write_json(stage / "summary.json", outcome.to_dict())
     prepared.frontend.write_semantic_map(stage / "map_before.ply", prepared.init.poses)
-    prepared.frontend.write_semantic_map(stage / "map_after.ply", outcome.refined.poses)
+    smap = prepared.frontend.write_semantic_map(stage / "map_after.ply", outcome.refined.poses)
+    refined_map = write_map_refined(stage / "map_refined.ply", prepared.sequence,
+                                    outcome.refined.poses, smap.points, smap.labels)
     result = RefineResult(out_dir=stage, config=config, init=prepared.init,
                           refined=outcome.refined, outcome=outcome,
                           timings={**prepared.timings, "solve": outcome.seconds},
@@ -1056,7 +1083,20 @@ def write_run_outputs(
         result.metrics_before, result.map_before = evaluate_run(prepared, prepared.init, gt)
         result.metrics_after, result.map_after = evaluate_run(prepared, outcome.refined, gt)
     result.files = {"refined": "refined.tum", "summary": "summary.json",
-                    "map_before": "map_before.ply", "map_after": "map_after.ply"}
+                    "map_before": "map_before.ply", "map_after": "map_after.ply",
+                    "map_refined": "map_refined.ply"}
+    result.map_refined = refined_map.to_dict()
+    if deviations_ifc is not None:
+        from bimcap.deviations.outputs import run_deviations
+
+        dev = run_deviations(prepared.sequence, outcome.refined.poses, deviations_ifc, stage,
+                             map_points=refined_map.points)
+        result.deviation_run = dev
+        result.deviations = {"counts": dev.report.counts(), "clusters": len(dev.report.clusters),
+                             "seconds": dev.seconds}
+        result.files.update({p.stem + p.suffix.replace(".", "_"): p.name
+                             for p in dev.files.values()})
+        result.timings["deviations"] = dev.seconds
     if report:
         from bimcap.pipeline.report import write_refine_report
 
@@ -1075,6 +1115,7 @@ def refine(
     quiet: bool = False,
     command: str = "",
     overwrite: bool = False,
+    deviations: bool = False,
 ) -> RefineResult:
     """Refine a sequence's trajectory against its BIM and write every output into ``out_dir``.
 
@@ -1085,7 +1126,9 @@ def refine(
     caches in ``bim/`` and ``cache/``. Ground truth: ``gt`` or the sequence's ``poses/gt.tum``
     when present. Everything is validated first (:func:`validate_run`); a file in ``out_dir``
     that bimcap did not write is replaced only with ``overwrite``; a failed run leaves no staging
-    directory and, when it created ``out_dir``, no empty ``out_dir``.
+    directory and, when it created ``out_dir``, no empty ``out_dir``. With ``deviations``, also
+    the scan-vs-BIM deviations under the refined poses (``deviations.json`` / ``.csv`` /
+    ``.ply``, :func:`bimcap.deviations.outputs.run_deviations`).
     """
     cfg = config or RefineConfig()
     out = Path(out_dir)
@@ -1095,7 +1138,10 @@ def refine(
         t_start = time.perf_counter()
         prepared = prepare(plan.sequence, plan.ifc, plan.init, cfg, out, quiet)
         outcome = solve_prepared(prepared, cfg, quiet)
-        result = write_run_outputs(stage, prepared, outcome, cfg, plan.gt, command, report)
+        result = write_run_outputs(stage, prepared, outcome, cfg, plan.gt, command, report,
+                                   deviations_ifc=plan.ifc if deviations else None)
+        result.inputs = {"sequence": str(Path(plan.sequence.root).resolve()),
+                         "ifc": str(Path(plan.ifc).resolve())}
         result.timings["total"] = time.perf_counter() - t_start
         result.out_dir = out
         plan.outputs.commit(result.to_dict())

@@ -3,8 +3,9 @@ files beside it), opened without a server.
 
 Sections: the before/after metrics table (trajectory and map), trajectories over the floor plan,
 error per frame before/after (the paper's Fig. 5), side views of floor and ceiling points before
-and after (Fig. 6), per-term costs, the solver summary, and the settings and seeds that
-reproduce the run.
+and after (Fig. 6), what the BIM observes per frame, with ``refine --deviations`` the scan-vs-BIM
+deviations (picture over the floor plan, every deviating and missing element), per-term costs,
+the solver summary, and the settings and seeds that reproduce the run.
 """
 
 from __future__ import annotations
@@ -51,6 +52,7 @@ class ReportInput:
     reproduce: str = ""
     notes: list[str] = field(default_factory=list)
     observability: Any = None  #: bimcap.optimize.observability.Observability of the refined run
+    deviations: Any = None  #: bimcap.deviations.outputs.DeviationRun, or None
 
 
 def _fmt(x: Any, digits: int = 4) -> str:
@@ -201,6 +203,37 @@ def _observability_html(inp: ReportInput, figs: Path) -> list[str]:
             _img(p, "BIM observability per frame")]
 
 
+def _deviations_html(inp: ReportInput) -> list[str]:
+    """Scan vs BIM: the floor-plan picture, the counts, every deviating and missing element."""
+    dev = inp.deviations
+    if dev is None:
+        return []
+    rep = dev.report
+    counts = ", ".join(f"{n} {k}" for k, n in rep.counts().items())
+    parts = ["<h2>Scan vs BIM: deviations</h2>",
+             f"<p>Per IFC element, under the refined poses (tolerance "
+             f"{100 * rep.options.tolerance_m:g} cm): {html.escape(counts)}; "
+             f"{len(rep.clusters)} clusters of points no element explains. Files: "
+             "deviations.json / .csv / .ply / .ifc (property set BIMCaP_Deviation).</p>"]
+    png = dev.files.get("deviations.png")
+    if png is not None and Path(png).is_file():
+        parts.append(_img(Path(png), "walls and columns coloured by offset; missing: red cross"))
+    flagged = [e for e in rep.elements if e.status.value in ("deviating", "missing")]
+    flagged.sort(key=lambda e: (e.status.value != "missing", -abs(e.offset_m or 0.0)))
+    if flagged:
+        parts.append("<table><tr><th>status</th><th>element</th><th>class</th><th>storey</th>"
+                     "<th>offset [cm]</th><th>coverage</th><th>points</th><th>GUID</th></tr>")
+        for e in flagged:
+            off = "–" if e.offset_m is None else f"{100 * e.offset_m:+.1f}"
+            parts.append(
+                f"<tr><td>{e.status.value}</td><td>{html.escape(e.name)}</td>"
+                f"<td>{html.escape(e.ifc_class)}</td><td>{html.escape(str(e.storey))}</td>"
+                f"<td>{off}</td><td>{e.coverage:.0%}</td><td>{e.n_points}</td>"
+                f"<td>{html.escape(e.guid)}</td></tr>")
+        parts.append("</table>")
+    return parts
+
+
 def _solver_html(inp: ReportInput, figs: Path) -> list[str]:
     """Per-term costs and the solver summary of each solved run."""
     from bimcap.evaluation import plots
@@ -238,6 +271,7 @@ def write_report(inp: ReportInput, name: str = "report.html") -> Path:
     parts += _errors_html(inp, figs)
     parts += _side_views_html(inp, figs)
     parts += _observability_html(inp, figs)
+    parts += _deviations_html(inp)
     parts += _solver_html(inp, figs)
     parts += _reproduce_html(inp)
     path = inp.out_dir / name
@@ -290,5 +324,6 @@ def write_refine_report(
                   "timings_s": result.timings},
         reproduce=result.command,
         observability=result.outcome.observability,
+        deviations=getattr(result, "deviation_run", None),
     )
     return write_report(inp)
