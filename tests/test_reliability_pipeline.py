@@ -378,7 +378,8 @@ def test_a_write_failing_mid_run_leaves_no_partial_set(world: dict[str, Path],
     refine stops with one line and exit 4, leaves no staging directory and no result.json."""
     out = tmp_path / "out"
     env = {"PYTHONPATH": str(SOURCES), "PATH": os.environ.get("PATH", "/usr/bin:/bin"),
-           "PYTHONDONTWRITEBYTECODE": "1"}
+           "PYTHONDONTWRITEBYTECODE": "1",
+           "BIMCAP_CACHE_DIR": os.environ.get("BIMCAP_CACHE_DIR", "off")}  # never ~/.cache
     r = subprocess.run([sys.executable, "-m", "bimcap", "refine", str(world["seq"]), "-o",
                         str(out), *FAST], capture_output=True, text=True, timeout=300, env=env,
                        preexec_fn=_file_size_limit(64 * 1024))

@@ -3,6 +3,7 @@ starts from the finished BIM reference instead of loading the model again."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -97,3 +98,29 @@ def test_publish_keeps_an_entry_that_appeared_meanwhile(tmp_path: Path) -> None:
     publish(entry, fill)
     assert (entry / "x").read_text() == "theirs"
     assert [p.name for p in entry.parent.iterdir()] == ["k-v1"]  # no hidden leftovers
+
+
+def test_a_failing_copy_from_the_shared_cache_leaves_no_temporary_file(
+        ifc: Path, tmp_path: Path) -> None:
+    """A full disk while the shared entry is copied into ``OUT/bim`` (RLIMIT_FSIZE, what a full
+    disk does to a write): the error surfaces and no ``.tmp`` file is left behind."""
+    import resource
+    import signal
+    import subprocess
+    import sys
+
+    root = tmp_path / "shared"
+    reference_for(ifc, tmp_path / "a" / "bim", shared_root=root)
+    run = tmp_path / "b" / "bim"
+    code = ("import sys; from bimcap.bim.cache import reference_for; "
+            f"reference_for({str(ifc)!r}, {str(run)!r}, shared_root={str(root)!r})")
+
+    def limit() -> None:
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096))
+
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                       preexec_fn=limit, env={**os.environ})
+    assert r.returncode != 0 and "File too large" in r.stderr, r.stderr
+    assert run.is_dir()
+    assert not [p.name for p in run.iterdir() if p.name.endswith(".tmp")]

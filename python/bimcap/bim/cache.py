@@ -9,7 +9,6 @@ rebuilt; a shared cache that cannot be written is a warning, never a failure.
 
 from __future__ import annotations
 
-import shutil
 import warnings
 from enum import Enum
 from os import PathLike
@@ -17,6 +16,7 @@ from pathlib import Path
 
 from bimcap.bim.reference import VERSION, BimReference
 from bimcap.errors import InputError
+from bimcap.io.atomic import atomic_copy
 from bimcap.io.cache import cache_root, file_key, publish
 
 #: The file in a reference directory naming the IFC content it was built from.
@@ -99,6 +99,4 @@ def _copy_entry(entry: Path, directory: Path) -> None:
     directory.mkdir(parents=True, exist_ok=True)
     files = sorted((p for p in entry.iterdir() if p.is_file()), key=lambda p: p.name == STAMP)
     for f in files:
-        tmp = directory / f".{f.name}.tmp"
-        shutil.copyfile(f, tmp)
-        tmp.replace(directory / f.name)
+        atomic_copy(f, directory / f.name)

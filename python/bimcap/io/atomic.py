@@ -37,6 +37,27 @@ def atomic_write_bytes(path: str | PathLike[str], data: bytes) -> None:
         raise
 
 
+def atomic_copy(source: str | PathLike[str], path: str | PathLike[str]) -> None:
+    """Copy the file ``source`` to ``path`` atomically: a failed copy (a full disk) leaves
+    neither a partial ``path`` nor a temporary file behind."""
+    import shutil
+
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    os.close(fd)
+    try:
+        shutil.copyfile(source, tmp)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp's 0600 → the usual permissions
+        os.replace(tmp, target)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
 def atomic_write_text(path: str | PathLike[str], text: str) -> None:
     """Write UTF-8 ``text`` to ``path`` atomically."""
     atomic_write_bytes(path, text.encode("utf-8"))
