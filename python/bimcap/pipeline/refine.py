@@ -31,6 +31,7 @@ from bimcap.io.atomic import atomic_write_json
 from bimcap.labels import Label
 from bimcap.methods import CompletionMethod
 from bimcap.pipeline.config import (
+    ColmapExport,
     LabelSource,
     Method,
     PipelineError,
@@ -865,6 +866,7 @@ class RefineResult:
     timings: dict[str, float] = field(default_factory=dict)
     files: dict[str, str] = field(default_factory=dict)
     command: str = ""
+    colmap: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -877,6 +879,7 @@ class RefineResult:
             "map_after": _to_dict_or_none(self.map_after),
             "timings": self.timings,
             "files": self.files,
+            "colmap": self.colmap,
         }
 
 
@@ -902,10 +905,11 @@ def evaluate_run(
     return tm, mm
 
 
-#: Every file a refine run may write into its output directory (``figures/``: the report's PNGs);
-#: ``result.json`` lists the ones a run wrote, with their SHA-256 (``bimcap.io.outputs``).
+#: Every file a refine run may write into its output directory (``figures/``: the report's PNGs;
+#: ``colmap/``: the COLMAP workspace); ``result.json`` lists the ones a run wrote, with their
+#: SHA-256 (``bimcap.io.outputs``).
 REFINE_OUTPUTS = ("refined.tum", "summary.json", "map_before.ply", "map_after.ply", "report.html",
-                  "figures/")
+                  "figures/", "colmap/")
 
 
 @dataclass
@@ -1006,8 +1010,10 @@ def write_run_outputs(
     extra_rows: list[Any] | None = None,
 ) -> RefineResult:
     """Write one run's outputs into ``stage`` (an open output set's staging directory):
-    ``refined.tum``, ``summary.json``, ``map_before.ply`` / ``map_after.ply`` and, with
-    ``report``, ``report.html`` and its ``figures/`` (``extra_rows``: more runs shown beside, e.g.
+    ``refined.tum``, ``summary.json``, ``map_before.ply`` / ``map_after.ply``, the COLMAP
+    workspace ``colmap/`` (``config.colmap``: ``sparse/0`` and the undistorted ``images/``,
+    :mod:`bimcap.pipeline.colmap_export`) and, with ``report``, ``report.html`` and its
+    ``figures/`` (``extra_rows``: more runs shown beside, e.g.
     FACaP). With ``gt`` the result carries the metrics before and after. The result's
     ``out_dir`` is ``stage``; the caller points it at the final directory before committing."""
     header = f"bimcap {config.method.value} {config.effective_terms} refined world_from_cam"
@@ -1024,6 +1030,14 @@ def write_run_outputs(
         result.metrics_after, result.map_after = evaluate_run(prepared, outcome.refined, gt)
     result.files = {"refined": "refined.tum", "summary": "summary.json",
                     "map_before": "map_before.ply", "map_after": "map_after.ply"}
+    if config.colmap is not ColmapExport.OFF:
+        from bimcap.pipeline.colmap_export import export_colmap
+
+        colmap = export_colmap(stage / "colmap", prepared.sequence, prepared.frontend,
+                               outcome.refined.poses, config.colmap)
+        result.colmap = colmap.to_dict()
+        result.files["colmap"] = f"colmap/{colmap.model}"
+        result.timings["colmap"] = colmap.seconds
     if report:
         from bimcap.pipeline.report import write_refine_report
 
@@ -1046,8 +1060,9 @@ def refine(
     """Refine a sequence's trajectory against its BIM and write every output into ``out_dir``.
 
     Outputs: ``refined.tum``, ``summary.json`` (solver), ``map_before.ply`` / ``map_after.ply``
-    (semantic maps), ``report.html`` and its ``figures/``, and ``result.json`` (settings, metrics,
-    timings, and every file of the run with its SHA-256), written as one set
+    (semantic maps), ``colmap/`` (the COLMAP model of the refined reconstruction),
+    ``report.html`` and its ``figures/``, and ``result.json`` (settings, metrics, timings, and
+    every file of the run with its SHA-256), written as one set
     (:class:`bimcap.io.outputs.OutputSet`: staged, then moved into place, ``result.json`` last);
     caches in ``bim/`` and ``cache/``. Ground truth: ``gt`` or the sequence's ``poses/gt.tum``
     when present. Everything is validated first (:func:`validate_run`); a file in ``out_dir``
