@@ -11,6 +11,7 @@ from bimcap.methods import CompletionMethod, ExecutorKind
 from bimcap.pipeline.config import (
     GEOMETRIC_MODES,
     LOSSES,
+    ColmapExport,
     LabelSource,
     Method,
     RefineConfig,
@@ -67,13 +68,17 @@ def add_config_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--max-lost-fraction", type=float, metavar="F",
                    help="refuse an IFC that lost more than this share of its building elements "
                         "to damage (default 0.02); smaller losses are warnings")
+    g.add_argument("--colmap", choices=[c.value for c in ColmapExport],
+                   help="the COLMAP model of the refined reconstruction in OUT/colmap: images "
+                        "(default: sparse/0 and the undistorted images), model (sparse/0 "
+                        "alone), off")
 
 
 def config_from_args(args: argparse.Namespace) -> RefineConfig:
     keys = ("method", "terms", "weighting", "loss", "geometric_mode", "completion",
             "completion_model", "segmentation", "segmentation_model", "labels_dir", "coarse",
             "rotation_first", "staged", "window", "max_match_distance", "workers", "lidar_nan",
-            "max_lost_fraction")
+            "max_lost_fraction", "colmap")
     overrides: dict[str, Any] = {k: getattr(args, k) for k in keys
                                  if getattr(args, k, None) is not None}
     cfg = (RefineConfig.from_toml(args.config, **overrides) if args.config
@@ -93,7 +98,8 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         description=(
             "Refine the initial trajectory of a sequence directory against the building's IFC: "
             "BIM reference, front end (depth, labels, matches), Ceres bundle adjustment. Writes "
-            "refined.tum, summary.json, map_before/after.ply, report.html and result.json (every "
+            "refined.tum, summary.json, map_before/after.ply, the COLMAP model colmap/sparse/0 "
+            "(with the undistorted images in colmap/images), report.html and result.json (every "
             "file of the run with its SHA-256) into OUT as one set. Every setting and input is "
             "checked before any expensive stage."
         ),

@@ -74,6 +74,14 @@ class LabelSource(str, Enum):
     GROUND_TRUTH = "ground_truth"  #: the sequence's labels/ (simulated; noisy with --label-noise)
 
 
+class ColmapExport(str, Enum):
+    """What a refine run writes into ``colmap/`` (``bimcap.pipeline.colmap_export``)."""
+
+    OFF = "off"  #: nothing
+    MODEL = "model"  #: the sparse model alone (``sparse/0``); its images are the raw ones
+    IMAGES = "images"  #: the model and the undistorted images it describes (``images/``)
+
+
 #: The values of ``loss`` and ``geometric_mode`` (``bimcap.optimize.Loss`` / ``GeometricMode``).
 LOSSES = ("huber", "cauchy", "soft_l1", "arctan", "tukey", "none")
 GEOMETRIC_MODES = ("point", "reprojection", "landmark")
@@ -148,6 +156,9 @@ class RefineConfig:
         applied after the preset, ``loss`` and ``geometric_mode``.
     registration: overrides of ``bimcap.registration.CoarseOptions`` fields (the coarse stage).
     features: overrides of ``bimcap.features.SiftOptions`` fields (the front end's keypoints).
+    colmap: the COLMAP model of the refined reconstruction in ``colmap/`` (:class:`ColmapExport`):
+        ``images`` (default: the model and undistorted copies of the images), ``model`` (the
+        model alone: no image copies, for long sequences) or ``off``.
     """
 
     method: Method = Method.BIMCAP
@@ -176,8 +187,14 @@ class RefineConfig:
     solver: dict[str, Any] = field(default_factory=dict)
     registration: dict[str, Any] = field(default_factory=dict)
     features: dict[str, Any] = field(default_factory=dict)
+    colmap: ColmapExport = ColmapExport.IMAGES
 
     def __post_init__(self) -> None:
+        try:
+            self.colmap = ColmapExport(self.colmap)
+        except ValueError:
+            raise ConfigError(f"colmap must be one of {[c.value for c in ColmapExport]}, got "
+                              f"{self.colmap!r}", field="colmap") from None
         try:
             self.method = Method(self.method)
             self.completion = CompletionMethod(self.completion)
@@ -271,6 +288,7 @@ class RefineConfig:
         d["completion"] = self.completion.value
         d["segmentation"] = self.segmentation.value
         d["executor"] = self.executor.value
+        d["colmap"] = self.colmap.value
         d["effective_terms"] = self.effective_terms
         d["effective_weighting"] = self.effective_weighting
         d["effective_coarse"] = self.effective_coarse

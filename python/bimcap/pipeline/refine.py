@@ -31,6 +31,7 @@ from bimcap.io.atomic import atomic_write_json
 from bimcap.labels import Label
 from bimcap.methods import CompletionMethod
 from bimcap.pipeline.config import (
+    ColmapExport,
     LabelSource,
     Method,
     PipelineError,
@@ -878,6 +879,7 @@ class RefineResult:
     timings: dict[str, float] = field(default_factory=dict)
     files: dict[str, str] = field(default_factory=dict)
     command: str = ""
+    colmap: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -893,6 +895,7 @@ class RefineResult:
             "inputs": self.inputs,
             "timings": self.timings,
             "files": self.files,
+            "colmap": self.colmap,
         }
 
 
@@ -918,10 +921,11 @@ def evaluate_run(
     return tm, mm
 
 
-#: Every file a refine run may write into its output directory (``figures/``: the report's PNGs);
-#: ``result.json`` lists the ones a run wrote, with their SHA-256 (``bimcap.io.outputs``).
+#: Every file a refine run may write into its output directory (``figures/``: the report's PNGs;
+#: ``colmap/``: the COLMAP workspace); ``result.json`` lists the ones a run wrote, with their
+#: SHA-256 (``bimcap.io.outputs``).
 REFINE_OUTPUTS = ("refined.tum", "summary.json", "map_before.ply", "map_after.ply",
-                  "map_refined.ply", "report.html", "figures/", "deviations.json",
+                  "map_refined.ply", "report.html", "figures/", "colmap/", "deviations.json",
                   "deviations.csv", "deviations.ply", "deviations.png", "deviations.ifc")
 
 
@@ -1062,11 +1066,13 @@ def write_run_outputs(
     deviations_ifc: Path | None = None,
 ) -> RefineResult:
     """Write one run's outputs into ``stage`` (an open output set's staging directory):
-    ``refined.tum``, ``summary.json``, ``map_before.ply`` / ``map_after.ply`` and, with
-    ``report``, ``report.html`` and its ``figures/`` (``extra_rows``: more runs shown beside, e.g.
-    FACaP). With ``deviations_ifc``, the scan-vs-BIM deviations against that IFC under the
-    refined poses (``deviations.*``, and a report section). With ``gt`` the result carries the
-    metrics before and after. The result's
+    ``refined.tum``, ``summary.json``, ``map_before.ply`` / ``map_after.ply``, the LiDAR map
+    ``map_refined.ply``, the COLMAP workspace ``colmap/`` (``config.colmap``: ``sparse/0`` and the
+    undistorted ``images/``, :mod:`bimcap.pipeline.colmap_export`) and, with ``report``,
+    ``report.html`` and its ``figures/`` (``extra_rows``: more runs shown beside, e.g. FACaP).
+    With ``deviations_ifc``, the scan-vs-BIM deviations against that IFC under the refined poses
+    (``deviations.*``, and a report section). With ``gt`` the result carries the metrics before
+    and after. The result's
     ``out_dir`` is ``stage``; the caller points it at the final directory before committing."""
     header = f"bimcap {config.method.value} {config.effective_terms} refined world_from_cam"
     write_tum(stage / "refined.tum", outcome.refined, header=header)
@@ -1097,6 +1103,14 @@ def write_run_outputs(
         result.files.update({p.stem + p.suffix.replace(".", "_"): p.name
                              for p in dev.files.values()})
         result.timings["deviations"] = dev.seconds
+    if config.colmap is not ColmapExport.OFF:
+        from bimcap.pipeline.colmap_export import export_colmap
+
+        colmap = export_colmap(stage / "colmap", prepared.sequence, prepared.frontend,
+                               outcome.refined.poses, config.colmap)
+        result.colmap = colmap.to_dict()
+        result.files["colmap"] = f"colmap/{colmap.model}"
+        result.timings["colmap"] = colmap.seconds
     if report:
         from bimcap.pipeline.report import write_refine_report
 
@@ -1120,8 +1134,9 @@ def refine(
     """Refine a sequence's trajectory against its BIM and write every output into ``out_dir``.
 
     Outputs: ``refined.tum``, ``summary.json`` (solver), ``map_before.ply`` / ``map_after.ply``
-    (semantic maps), ``report.html`` and its ``figures/``, and ``result.json`` (settings, metrics,
-    timings, and every file of the run with its SHA-256), written as one set
+    (semantic maps), ``colmap/`` (the COLMAP model of the refined reconstruction),
+    ``report.html`` and its ``figures/``, and ``result.json`` (settings, metrics, timings, and
+    every file of the run with its SHA-256), written as one set
     (:class:`bimcap.io.outputs.OutputSet`: staged, then moved into place, ``result.json`` last);
     caches in ``bim/`` and ``cache/``. Ground truth: ``gt`` or the sequence's ``poses/gt.tum``
     when present. Everything is validated first (:func:`validate_run`); a file in ``out_dir``
