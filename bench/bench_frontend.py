@@ -92,7 +92,7 @@ def bench_features(frames: int, window: int, pycolmap_matcher: bool) -> list[tup
         feats = {}
         variants = [
             ("pycolmap", SiftOptions()),
-            ("pycolmap first_octave 0", SiftOptions(first_octave=0)),
+            ("pycolmap first_octave -1 (COLMAP)", SiftOptions(first_octave=-1)),
             ("opencv", SiftOptions(backend=SiftBackend.OPENCV)),
         ]
         for name, opts in variants:
