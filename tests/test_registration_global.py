@@ -161,3 +161,30 @@ def test_a_wrong_bim_and_bad_input_are_errors(demo: Scene) -> None:
         with pytest.raises(RegistrationInputError) as info:
             GlobalAlignOptions(**{name: value})
         assert info.value.field == name
+
+
+def test_refine_settings_flags_and_toml(tmp_path, capsys: pytest.CaptureFixture[str]) -> None:
+    import tomllib
+
+    from bimcap.cli import main
+    from bimcap.pipeline.config import ConfigError, GlobalAlignMode, RefineConfig
+
+    assert RefineConfig().global_align is GlobalAlignMode.AUTO
+    assert RefineConfig(global_align=True).global_align is GlobalAlignMode.ON  # type: ignore
+    assert RefineConfig(global_align=False).global_align is GlobalAlignMode.OFF  # type: ignore
+    with pytest.raises(ConfigError) as info:
+        RefineConfig(global_align="sometimes")  # type: ignore[arg-type]
+    assert info.value.field == "global_align"
+    toml = tmp_path / "run.toml"
+    toml.write_text('global_align = "on"\naccept_ambiguous = true\n')
+    cfg = RefineConfig.from_toml(toml)
+    assert cfg.global_align is GlobalAlignMode.ON and cfg.accept_ambiguous
+    assert cfg.to_dict()["global_align"] == "on"
+    # Flags reach the settings, and --print-config writes them back as TOML.
+    assert main(["refine", "--print-config", "--global-align", "--accept-ambiguous"]) == 0
+    printed = tomllib.loads(capsys.readouterr().out)
+    assert printed["global_align"] == "on" and printed["accept_ambiguous"] is True
+    assert main(["refine", "--print-config", "--no-global-align"]) == 0
+    assert tomllib.loads(capsys.readouterr().out)["global_align"] == "off"
+    assert main(["refine", "--print-config"]) == 0
+    assert tomllib.loads(capsys.readouterr().out)["global_align"] == "auto"

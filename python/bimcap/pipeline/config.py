@@ -63,6 +63,15 @@ class LabelSource(str, Enum):
     GROUND_TRUTH = "ground_truth"  #: the sequence's labels/ (simulated; noisy with --label-noise)
 
 
+class GlobalAlignMode(str, Enum):
+    """When to place the initial trajectory in the BIM first (``bimcap.registration.
+    global_align``): a trajectory in a SLAM system's own frame."""
+
+    AUTO = "auto"  #: when most initial cameras lie outside the building's free space
+    ON = "on"  #: always (``--global-align``)
+    OFF = "off"  #: never (``--no-global-align``)
+
+
 #: The values of ``loss`` and ``geometric_mode`` (``bimcap.optimize.Loss`` / ``GeometricMode``).
 LOSSES = ("huber", "cauchy", "soft_l1", "arctan", "tukey", "none")
 GEOMETRIC_MODES = ("point", "reprojection", "landmark")
@@ -129,6 +138,12 @@ class RefineConfig:
     solver: overrides of ``bimcap.optimize.SolverOptions`` fields (nested dicts for terms),
         applied after the preset, ``loss`` and ``geometric_mode``.
     registration: overrides of ``bimcap.registration.CoarseOptions`` fields (the coarse stage).
+    global_align: ``"auto"`` (default: when fewer than half of the initial cameras lie in the
+        building's free space, log it and align), ``"on"`` or ``"off"`` (TOML ``true`` /
+        ``false`` read as on / off): estimate ``world_from_slam`` before the coarse stage.
+    accept_ambiguous: when the global alignment is ambiguous (the second-best placement scores
+        nearly as well as the best), take the best anyway instead of refusing (flagged in
+        ``result.json``).
     """
 
     method: Method = Method.BIMCAP
@@ -154,8 +169,20 @@ class RefineConfig:
     cache_dir: str | None = None
     solver: dict[str, Any] = field(default_factory=dict)
     registration: dict[str, Any] = field(default_factory=dict)
+    global_align: GlobalAlignMode = GlobalAlignMode.AUTO
+    accept_ambiguous: bool = False
 
     def __post_init__(self) -> None:
+        if isinstance(self.global_align, bool):
+            self.global_align = GlobalAlignMode.ON if self.global_align else GlobalAlignMode.OFF
+        try:
+            self.global_align = GlobalAlignMode(self.global_align)
+        except ValueError:
+            raise ConfigError(f"global_align must be auto, on or off, got {self.global_align!r}",
+                              field="global_align") from None
+        if not isinstance(self.accept_ambiguous, bool):
+            raise ConfigError(f"accept_ambiguous must be true or false, got "
+                              f"{self.accept_ambiguous!r}", field="accept_ambiguous")
         try:
             self.method = Method(self.method)
             self.completion = CompletionMethod(self.completion)
@@ -238,6 +265,7 @@ class RefineConfig:
         d["method"] = self.method.value
         d["completion"] = self.completion.value
         d["segmentation"] = self.segmentation.value
+        d["global_align"] = self.global_align.value
         d["effective_terms"] = self.effective_terms
         d["effective_weighting"] = self.effective_weighting
         d["effective_coarse"] = self.effective_coarse

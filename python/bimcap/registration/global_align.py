@@ -47,30 +47,16 @@ from bimcap.labels import Label
 from bimcap.registration.coarse import FloorPlan, SemanticSamples
 from bimcap.registration.correlative import score_volume, top_hypotheses
 from bimcap.registration.distance_field import DistanceField
-from bimcap.registration.errors import RegistrationError, RegistrationInputError
+from bimcap.registration.errors import (
+    AmbiguousAlignmentError,
+    GlobalAlignmentError,
+    RegistrationInputError,
+)
 from bimcap.registration.icp import Correction2D, icp_2d, rot2
 from bimcap.registration.plan_maps import PlanMaps
 
 F64 = NDArray[np.float64]
 I32 = NDArray[np.int32]
-
-
-class GlobalAlignmentError(RegistrationError):
-    """No placement of the trajectory in the BIM fits (the CLI exits with status 3).
-
-    ``result`` holds what was found (the ranked hypotheses), or None.
-    """
-
-    exit_code = 3
-
-    def __init__(self, message: str, result: GlobalAlignResult | None = None) -> None:
-        super().__init__(message)
-        self.result = result
-
-
-class AmbiguousAlignmentError(GlobalAlignmentError):
-    """The best and the second-best distinct placements score alike: refused unless accepted
-    (``accept_ambiguous`` / ``bimcap refine --accept-ambiguous``)."""
 
 
 @dataclass(frozen=True)
