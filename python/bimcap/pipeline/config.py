@@ -138,7 +138,7 @@ class RefineConfig:
     solver: overrides of ``bimcap.optimize.SolverOptions`` fields (nested dicts for terms),
         applied after the preset, ``loss`` and ``geometric_mode``.
     registration: overrides of ``bimcap.registration.CoarseOptions`` fields (the coarse stage).
-    global_align: ``"auto"`` (default: when fewer than half of the initial cameras lie in the
+    global_align: ``"auto"`` (default: when fewer than 30 % of the initial cameras lie in the
         building's free space, log it and align), ``"on"`` or ``"off"`` (TOML ``true`` /
         ``false`` read as on / off): estimate ``world_from_slam`` before the coarse stage.
     accept_ambiguous: when the global alignment is ambiguous (the second-best placement scores
