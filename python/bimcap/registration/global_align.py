@@ -100,7 +100,7 @@ class GlobalAlignOptions:
     sigma_m: float = 0.3
     yaw_step_deg: float = 2.0
     view_bins: int = 4
-    top_k: int = 10
+    top_k: int = 30
     max_points: int = 4000
     icp_radius_start_m: float = 0.8
     icp_radius_end_m: float = 0.12
@@ -124,7 +124,7 @@ class GlobalAlignOptions:
     distinct_deg: float = 10.0
     distinct_z_m: float = 0.5
     ambiguity_ratio: float = 0.9
-    min_score: float = 0.2
+    min_score: float = 0.55
     min_free_fraction: float = 0.5
     accept_ambiguous: bool = False
     report_top: int = 5
