@@ -478,6 +478,9 @@ def _search_storey(scan: _Scan, storey: _Storey, plan: FloorPlan, opt: GlobalAli
     occ = _thin(xy_s, cls, 0.5 * opt.resolution_m, 40 * opt.max_points, rng)
     yaws = np.arange(-np.pi, np.pi, np.deg2rad(opt.yaw_step_deg))
     vol, res, n = score_volume(xy_s[occ], cls[occ], view[occ], maps, centre, yaws, half)
+    # The trajectory's own shape: the share of its cameras in free space, for every (yaw, t).
+    free_map = _free_map(seg, bounds, opt)
+    vol *= _free_volume(cams_s, free_map, maps.coarse[0].origin_xy, res, centre, yaws, n)
     peaks = top_hypotheses(vol, yaws, res, n, opt.top_k, opt.distinct_m,
                            np.deg2rad(opt.distinct_deg))
     timings["correlative"] += time.perf_counter() - t0
@@ -518,6 +521,45 @@ def _search_storey(scan: _Scan, storey: _Storey, plan: FloorPlan, opt: GlobalAli
     # + (t + s).
     return [_Found(Correction2D(f.corr.yaw, f.corr.t + shift, f.corr.pivot - shift), f.storey,
                    f.fit, f.rigid_fit, f.inliers, f.free, f.coarse, f.cams_xy) for f in found]
+
+
+def _free_map(segments: F64, bounds: tuple[float, float, float, float],
+              opt: GlobalAlignOptions, close_m: float = 0.7) -> NDArray[np.float32]:
+    """(H, W) 1 where a camera may stand, on the coarse grid of the storey's maps (same bounds,
+    margin 3 m, ``resolution_m``): not outside the building (the open space reachable from the
+    map's border once gaps narrower than ``2 close_m``, doors and windows, are closed) and at
+    least ``free_clearance_m`` from every wall. A raster approximation of
+    :func:`free_space_fraction`, for the search."""
+    from scipy.ndimage import label
+
+    dist = DistanceField.from_segments(segments, opt.resolution_m, bounds, 3.0).distance_m
+    open_ = dist > close_m
+    lab, _ = label(open_)
+    border = np.unique(np.r_[lab[0], lab[-1], lab[:, 0], lab[:, -1]])
+    outside = np.isin(lab, border[border > 0])
+    return (~outside & (dist >= opt.free_clearance_m)).astype(np.float32)
+
+
+def _free_volume(cams_xy: F64, free_map: NDArray[np.float32], origin: F64, res: float,
+                 pivot: F64, yaws: F64, n: int) -> NDArray[np.float32]:
+    """(Y, 2n+1, 2n+1) share of the cameras (N, 2) on free pixels of ``free_map`` after each
+    correction ``R(yaw)(c - pivot) + pivot + t`` of the correlative grid (as
+    :func:`.correlative.score_volume` indexes it)."""
+    import cv2
+
+    from bimcap.registration.correlative import _crop
+
+    out = np.zeros((len(yaws), 2 * n + 1, 2 * n + 1), dtype=np.float32)
+    for k, yaw in enumerate(yaws):
+        c = (cams_xy - pivot) @ rot2(float(yaw)).T + pivot
+        uv = np.round((c - origin) / res).astype(np.int64)
+        u0, v0 = uv.min(0)
+        u1, v1 = uv.max(0)
+        templ = np.zeros((v1 - v0 + 1, u1 - u0 + 1), dtype=np.float32)
+        np.add.at(templ, (uv[:, 1] - v0, uv[:, 0] - u0), 1.0)
+        img = _crop(free_map, v0 - n, v1 + n + 1, u0 - n, u1 + n + 1)
+        out[k] = cv2.matchTemplate(img, templ, cv2.TM_CCORR) / len(c)
+    return out
 
 
 def _frame_fit(corr: Correction2D, p_xy: F64, p_cls: I32, p_view: F64, p_frame: I32,
