@@ -18,11 +18,14 @@ from bimcap.registration.coarse import (
     WindowResult,
     coarse_register,
 )
-from bimcap.registration.errors import RegistrationError, RegistrationInputError
-from bimcap.registration.global_align import (
-    AlignHypothesis,
+from bimcap.registration.errors import (
     AmbiguousAlignmentError,
     GlobalAlignmentError,
+    RegistrationError,
+    RegistrationInputError,
+)
+from bimcap.registration.global_align import (
+    AlignHypothesis,
     GlobalAlignOptions,
     GlobalAlignResult,
     global_align,
