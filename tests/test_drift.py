@@ -231,3 +231,66 @@ def test_cli_drift_writes_init_and_json_and_protects_files(
     )
     assert out.exists() and (tmp_path / "other" / "slam.drift.json").exists()
     assert "slam" not in read_sequence(root).poses
+
+
+def test_slam_frame_is_a_seeded_rigid_motion_within_its_ranges() -> None:
+    from bimcap.geometry.poses import compose, invert
+    from bimcap.sim.drift import to_slam_frame
+
+    gt = walking_trajectory(40)
+    yaws, shifts = [], []
+    for seed in range(60):
+        sf = to_slam_frame(gt, seed)
+        # The oracle: the stated transform maps the world poses onto the written ones.
+        np.testing.assert_allclose(compose(sf.slam_from_world, gt.poses)[:, :3],
+                                   sf.trajectory.poses[:, :3], atol=1e-9)
+        back = compose(invert(sf.slam_from_world), sf.trajectory.poses)
+        np.testing.assert_allclose(back[:, :3], gt.poses[:, :3], atol=1e-9)
+        assert _rmse_rot_deg(Trajectory(gt.timestamps, back), gt) < 1e-6
+        # Rigid: relative motion and gravity unchanged.
+        d0 = np.linalg.norm(np.diff(gt.poses[:, :3], axis=0), axis=1)
+        d1 = np.linalg.norm(np.diff(sf.trajectory.poses[:, :3], axis=0), axis=1)
+        np.testing.assert_allclose(d0, d1, atol=1e-9)
+        up = Rotation.from_quat(sf.slam_from_world[3:]).apply([0.0, 0.0, 1.0])
+        np.testing.assert_allclose(up, [0.0, 0.0, 1.0], atol=1e-12)
+        assert 0.0 <= sf.yaw_deg < 360.0
+        assert np.all(np.abs(sf.translation_m[:2]) <= 50.0) and abs(sf.translation_m[2]) <= 5.0
+        yaws.append(sf.yaw_deg)
+        shifts.append(sf.translation_m)
+    # Spread over the whole circle and the whole box, not a fixed offset.
+    assert np.histogram(yaws, bins=4, range=(0, 360))[0].min() >= 5
+    assert np.ptp(np.array(shifts)[:, :2]) > 60.0 and np.ptp(np.array(shifts)[:, 2]) > 5.0
+    a, b = to_slam_frame(gt, 7), to_slam_frame(gt, 7)
+    np.testing.assert_array_equal(a.trajectory.poses, b.trajectory.poses)
+    assert not np.allclose(to_slam_frame(gt, 8).slam_from_world, a.slam_from_world)
+    with pytest.raises(DriftError) as info:
+        to_slam_frame(gt, 0, xy_range_m=-1.0)
+    assert info.value.field == "slam_xy_range_m"
+
+
+def test_cli_drift_slam_frame_writes_the_true_transform(tmp_path: Path) -> None:
+    import json
+
+    from bimcap.cli import main
+    from bimcap.dataset import read_sequence
+    from bimcap.geometry.poses import compose, invert
+
+    root = _tiny_sequence(tmp_path / "seq")
+    assert main(["drift", str(root), "--preset", "exp2", "--seed", "5", "--slam-frame"]) == 0
+    seq = read_sequence(root)
+    info = json.loads((root / "poses" / "init.drift.json").read_text())
+    slam = info["slam_frame"]
+    assert slam["seed"] == 5 and len(slam["slam_from_world"]) == 7
+    init = seq.trajectory("init").poses
+    expected = apply_drift(seq.trajectory("gt"), DriftParams.from_preset("exp2", seed=5))
+    back = compose(np.array(slam["world_from_slam"]), init)
+    np.testing.assert_allclose(back[:, :3], expected.init.poses[:, :3], atol=1e-5)
+    np.testing.assert_allclose(compose(invert(np.array(slam["slam_from_world"])), init)[:, :3],
+                               expected.init.poses[:, :3], atol=1e-5)
+    # Far from the world: the drift alone is 0.3 m, the SLAM frame moves it metres away.
+    assert np.linalg.norm(init[:, :3] - expected.init.poses[:, :3], axis=1).mean() > 1.0
+    # Without --slam-frame there is no transform; the range flags need it.
+    assert main(["drift", str(root), "--preset", "exp2", "--overwrite"]) == 0
+    assert json.loads((root / "poses" / "init.drift.json").read_text())["slam_frame"] is None
+    assert main(["drift", str(root), "--preset", "exp2", "--overwrite",
+                 "--slam-xy-range", "3"]) == 2

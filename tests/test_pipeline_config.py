@@ -192,7 +192,8 @@ def test_solve_match_distance_reaches_every_problem_build(
     monkeypatch.setattr(refine, "choose_sample_planes", lambda prepared, poses, *a: None)
     poses = np.tile([0.0, 0, 0, 0, 0, 0, 1], (3, 1))
     prepared = SimpleNamespace(init=SimpleNamespace(poses=poses), reference=None)
-    cfg = RefineConfig(method=method, coarse=False, solve_match_distance=given)
+    cfg = RefineConfig(method=method, coarse=False, solve_match_distance=given,
+                       global_align="off")
     assert cfg.effective_solve_match_distance == expected
     with pytest.raises(BuiltError):
         refine.solve_prepared(prepared, cfg, quiet=True)  # type: ignore[arg-type]

@@ -6,6 +6,11 @@ ATE). ``gt.tum`` is never overwritten; an existing ``init.tum`` only with ``--ov
 (``--force``: deprecated alias). With
 ``-o FILE.tum`` the trajectory goes there instead (and ``FILE.drift.json`` beside it) and the
 sequence is left untouched.
+
+``--slam-frame`` then moves the drifted trajectory into a random SLAM frame (what a real SLAM
+system writes: yaw uniform in 0-360°, x/y within ±50 m, z within ±5 m, seeded by ``--seed``);
+the true transform is ``slam_frame.slam_from_world`` in the ``.drift.json`` (``bimcap refine
+--global-align`` has to find it).
 """
 
 from __future__ import annotations
@@ -72,6 +77,17 @@ def register(subparsers: Any) -> None:
         metavar="FILE.tum",
         help="write here instead of into the sequence",
     )
+    p.add_argument(
+        "--slam-frame",
+        action="store_true",
+        help="after the drift, move the trajectory into a random SLAM frame (yaw 0-360 deg, "
+        "x/y within +-50 m, z within +-5 m; seeded by --seed); the true slam_from_world goes "
+        "into the .drift.json",
+    )
+    p.add_argument("--slam-xy-range", type=float, default=None, metavar="M",
+                   help="with --slam-frame: half-width of the x/y offset (default 50 m)")
+    p.add_argument("--slam-z-range", type=float, default=None, metavar="M",
+                   help="with --slam-frame: half-width of the z offset (default 5 m)")
     add_overwrite_argument(p, "an existing output trajectory", deprecated_force=True)
     p.set_defaults(func=run, output_files=["output"])
 
@@ -102,7 +118,13 @@ def run(args: argparse.Namespace) -> int:
     from bimcap.dataset import SequenceError, add_trajectory, read_sequence
     from bimcap.geometry.trajectory import write_tum
     from bimcap.io.atomic import atomic_write_json, check_not_input
-    from bimcap.sim.drift import apply_drift
+    from bimcap.sim.drift import (
+        SLAM_FRAME_XY_RANGE_M,
+        SLAM_FRAME_Z_RANGE_M,
+        DriftError,
+        apply_drift,
+        to_slam_frame,
+    )
 
     seq = read_sequence(args.sequence)
     if args.name == args.gt:
@@ -112,30 +134,50 @@ def run(args: argparse.Namespace) -> int:
     gt_path = seq.trajectory_path(args.gt)
     gt = seq.trajectory(args.gt)
     params = _params(args)
+    if not args.slam_frame and (args.slam_xy_range is not None or args.slam_z_range is not None):
+        raise DriftError("needs --slam-frame", field="--slam-xy-range/--slam-z-range")
     result = apply_drift(gt, params)
     header = (
         f"world_from_cam, bimcap drift: mode {params.mode.value}, preset {params.preset}, "
         f"seed {params.seed}, ATE_pos {result.ate_pos:.6f} m, ATE_rot {result.ate_rot:.6f} deg"
     )
+    out_traj = result.init
+    slam = None
+    if args.slam_frame:
+        slam = to_slam_frame(
+            result.init,
+            args.seed,
+            SLAM_FRAME_XY_RANGE_M if args.slam_xy_range is None else args.slam_xy_range,
+            SLAM_FRAME_Z_RANGE_M if args.slam_z_range is None else args.slam_z_range,
+        )
+        out_traj = slam.trajectory
+        header = header.replace("world_from_cam", "slam_from_cam (SLAM frame)", 1)
     if args.output is None:
-        tum = add_trajectory(seq, args.name, result.init, header=header, overwrite=args.overwrite)
+        tum = add_trajectory(seq, args.name, out_traj, header=header, overwrite=args.overwrite)
     else:
         tum = args.output
         check_not_input(tum, [gt_path, seq.manifest_path])
         if tum.exists() and not args.overwrite:
             raise SequenceError("already exists (use --overwrite to replace it)", tum)
-        write_tum(tum, result.init, header=header)
+        write_tum(tum, out_traj, header=header)
     info = tum.with_name(tum.name.removesuffix(".tum") + ".drift.json")
     check_not_input(info, [gt_path, seq.manifest_path])
     doc = result.to_dict()
     doc["sequence"] = str(seq.root)
     doc["gt"] = str(gt_path)
     doc["output"] = str(tum)
+    doc["slam_frame"] = None if slam is None else slam.to_dict()
     atomic_write_json(info, doc)
     print(
         f"{tum}: {len(result.init)} poses, ATE_pos {result.ate_pos:.3f} m, "
         f"ATE_rot {result.ate_rot:.2f} deg (mode {params.mode.value}, preset {params.preset}, "
         f"seed {params.seed}, scale_t {result.scale_t:.4g}, scale_rot {result.scale_rot:.4g})"
     )
+    if slam is not None:
+        print(
+            f"  in a SLAM frame: yaw {slam.yaw_deg:.1f} deg, translation "
+            f"({slam.translation_m[0]:.2f}, {slam.translation_m[1]:.2f}, "
+            f"{slam.translation_m[2]:.2f}) m (the ATE above is before that motion)"
+        )
     print(f"  parameters and ATE: {info}")
     return 0

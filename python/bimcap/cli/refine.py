@@ -45,6 +45,13 @@ def add_config_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--coarse", action=argparse.BooleanOptionalAction, default=None,
                    help="coarse registration to the floor plan before the bundle adjustment "
                         "(default: on for BIMCaP, off for FACaP)")
+    g.add_argument("--global-align", action=argparse.BooleanOptionalAction, default=None,
+                   help="the initial trajectory is in its own (SLAM) frame: place it in the BIM "
+                        "first (x, y, yaw, storey; default: auto, when most initial cameras lie "
+                        "outside the building's free space)")
+    g.add_argument("--accept-ambiguous", action="store_true", default=None,
+                   help="take the best global alignment even when another placement scores "
+                        "nearly as well (default: refuse, listing the placements)")
     g.add_argument("--rotation-first", action=argparse.BooleanOptionalAction, default=None,
                    help="rotations first (translations held), then translations, then both")
     g.add_argument("--staged", action=argparse.BooleanOptionalAction, default=None,
@@ -78,9 +85,11 @@ def config_from_args(args: argparse.Namespace) -> RefineConfig:
     keys = ("method", "terms", "weighting", "loss", "geometric_mode", "completion",
             "completion_model", "segmentation", "segmentation_model", "labels_dir", "coarse",
             "rotation_first", "staged", "window", "max_match_distance", "workers", "lidar_nan",
-            "max_lost_fraction", "colmap")
+            "max_lost_fraction", "colmap", "accept_ambiguous")
     overrides: dict[str, Any] = {k: getattr(args, k) for k in keys
                                  if getattr(args, k, None) is not None}
+    if getattr(args, "global_align", None) is not None:
+        overrides["global_align"] = "on" if args.global_align else "off"
     cfg = (RefineConfig.from_toml(args.config, **overrides) if args.config
            else RefineConfig(**overrides))
     dask = {key: getattr(args, flag) for key, flag in

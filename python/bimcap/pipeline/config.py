@@ -82,6 +82,15 @@ class ColmapExport(str, Enum):
     IMAGES = "images"  #: the model and the undistorted images it describes (``images/``)
 
 
+class GlobalAlignMode(str, Enum):
+    """When to place the initial trajectory in the BIM first (``bimcap.registration.
+    global_align``): a trajectory in a SLAM system's own frame."""
+
+    AUTO = "auto"  #: when most initial cameras lie outside the building's free space
+    ON = "on"  #: always (``--global-align``)
+    OFF = "off"  #: never (``--no-global-align``)
+
+
 #: The values of ``loss`` and ``geometric_mode`` (``bimcap.optimize.Loss`` / ``GeometricMode``).
 LOSSES = ("huber", "cauchy", "soft_l1", "arctan", "tukey", "none")
 GEOMETRIC_MODES = ("point", "reprojection", "landmark")
@@ -159,6 +168,12 @@ class RefineConfig:
     colmap: the COLMAP model of the refined reconstruction in ``colmap/`` (:class:`ColmapExport`):
         ``images`` (default: the model and undistorted copies of the images), ``model`` (the
         model alone: no image copies, for long sequences) or ``off``.
+    global_align: ``"auto"`` (default: when fewer than 30 % of the initial cameras lie in the
+        building's free space, log it and align), ``"on"`` or ``"off"`` (TOML ``true`` /
+        ``false`` read as on / off): estimate ``world_from_slam`` before the coarse stage.
+    accept_ambiguous: when the global alignment is ambiguous (the second-best placement scores
+        nearly as well as the best), take the best anyway instead of refusing (flagged in
+        ``result.json``).
     """
 
     method: Method = Method.BIMCAP
@@ -188,8 +203,20 @@ class RefineConfig:
     registration: dict[str, Any] = field(default_factory=dict)
     features: dict[str, Any] = field(default_factory=dict)
     colmap: ColmapExport = ColmapExport.IMAGES
+    global_align: GlobalAlignMode = GlobalAlignMode.AUTO
+    accept_ambiguous: bool = False
 
     def __post_init__(self) -> None:
+        if isinstance(self.global_align, bool):
+            self.global_align = GlobalAlignMode.ON if self.global_align else GlobalAlignMode.OFF
+        try:
+            self.global_align = GlobalAlignMode(self.global_align)
+        except ValueError:
+            raise ConfigError(f"global_align must be auto, on or off, got {self.global_align!r}",
+                              field="global_align") from None
+        if not isinstance(self.accept_ambiguous, bool):
+            raise ConfigError(f"accept_ambiguous must be true or false, got "
+                              f"{self.accept_ambiguous!r}", field="accept_ambiguous")
         try:
             self.colmap = ColmapExport(self.colmap)
         except ValueError:
@@ -289,6 +316,7 @@ class RefineConfig:
         d["segmentation"] = self.segmentation.value
         d["executor"] = self.executor.value
         d["colmap"] = self.colmap.value
+        d["global_align"] = self.global_align.value
         d["effective_terms"] = self.effective_terms
         d["effective_weighting"] = self.effective_weighting
         d["effective_coarse"] = self.effective_coarse

@@ -32,6 +32,7 @@ from bimcap.labels import Label
 from bimcap.methods import CompletionMethod
 from bimcap.pipeline.config import (
     ColmapExport,
+    GlobalAlignMode,
     LabelSource,
     Method,
     PipelineError,
@@ -461,6 +462,7 @@ class SolveOutcome:
     plane_rounds: list[dict[str, int]] = field(default_factory=list)  # changed, samples, resolved
     observability: Any = None
     repair: dict[str, Any] | None = None
+    global_align: dict[str, Any] | None = None
 
     @property
     def summary(self) -> Any:
@@ -489,6 +491,7 @@ class SolveOutcome:
             },
             "observability": None if self.observability is None else self.observability.to_dict(),
             "repair": self.repair,
+            "global_align": self.global_align,
         }
 
 
@@ -554,6 +557,7 @@ def solve_prepared(prepared: Prepared, config: RefineConfig, quiet: bool = False
     solver = _StageSolver(prepared=prepared, config=config, quiet=quiet,
                           max_dist=config.effective_solve_match_distance,
                           normals=None if facap else segment_free_normals(prepared.reference))
+    poses, global_info = _global_align(prepared, poses, config, quiet)
     run, poses, coarse_info = _run_schedule(solver, base, poses)
     rounds: list[dict[str, int]] = []
     checks: list[Any] = []
@@ -578,6 +582,7 @@ def solve_prepared(prepared: Prepared, config: RefineConfig, quiet: bool = False
         plane_rounds=rounds,
         observability=observability,
         repair=repair,
+        global_align=global_info,
     )
 
 
@@ -828,15 +833,9 @@ def _coarse(prepared: Prepared, poses: F64, quiet: bool, options: Any = None
     tracked against the floor plan; then per window of frames, levelling on the floor/ceiling,
     a correlative x-y-yaw search of the wall and column points against the floor plan,
     trajectory continuity (Viterbi), point-to-segment ICP."""
-    from bimcap.registration import CoarseOptions, FloorPlan, SemanticSamples, coarse_register
+    from bimcap.registration import CoarseOptions, coarse_register
 
-    arrays = prepared.frontend.to_problem_arrays()
-    names = [f"{c}_{s}" for c in ("wall", "column", "floor", "ceiling")
-             for s in ("frame", "p_in_cam")]
-    samples = SemanticSamples.from_arrays(**{k: arrays.get(k) for k in names})
-    ref = prepared.reference
-    plan = FloorPlan.from_planes(ref.segments, ref.segment_class, ref.segment_z, ref.planes,
-                                 ref.plane_kind)
+    samples, plan = _registration_inputs(prepared)
     t0 = time.perf_counter()
     res = coarse_register(poses, samples, plan, options or CoarseOptions())
     info = res.to_dict()
@@ -850,6 +849,70 @@ def _coarse(prepared: Prepared, poses: F64, quiet: bool, options: Any = None
     else:
         log(f"coarse registration: {int(res.accepted.sum())}/{len(res.accepted)} frames "
             f"accepted by the window search ({info['seconds']:.1f} s)", quiet)
+    return np.asarray(res.poses, np.float64), info
+
+
+def _registration_inputs(prepared: Prepared) -> tuple[Any, Any]:
+    """The front end's semantic samples and the BIM's floor plan as the registration stages take
+    them (``SemanticSamples``, ``FloorPlan``)."""
+    from bimcap.registration import SemanticSamples
+
+    arrays = prepared.frontend.to_problem_arrays()
+    names = [f"{c}_{s}" for c in ("wall", "column", "floor", "ceiling")
+             for s in ("frame", "p_in_cam")]
+    samples = SemanticSamples.from_arrays(**{k: arrays.get(k) for k in names})
+    return samples, _floor_plan(prepared.reference)
+
+
+def _floor_plan(ref: Any) -> Any:
+    """The ``bimcap.registration.FloorPlan`` of a ``BimReference``."""
+    from bimcap.registration import FloorPlan
+
+    return FloorPlan.from_planes(ref.segments, ref.segment_class, ref.segment_z, ref.planes,
+                                 ref.plane_kind)
+
+
+#: ``global_align = "auto"`` aligns when fewer initial cameras than this lie in free space (a
+#: SLAM frame moved by tens of metres: 0 %; the Exp 1 drift of a trajectory in the BIM frame
+#: still leaves about 67 % on the tiny world, Exp 2 97 %).
+AUTO_GLOBAL_ALIGN_FREE_FRACTION = 0.3
+
+
+def _global_align(prepared: Prepared, poses: F64, config: RefineConfig, quiet: bool
+                  ) -> tuple[F64, dict[str, Any] | None]:
+    """Place an initial trajectory given in its own (SLAM) frame in the BIM
+    (``bimcap.registration.global_align``) when ``config.global_align`` is on, or when it is
+    auto and fewer than :data:`AUTO_GLOBAL_ALIGN_FREE_FRACTION` of the initial cameras lie in
+    the building's free space. Returns the poses (N, 7) the schedule starts from and the
+    alignment's record (None when it did not run). Raises ``AmbiguousAlignmentError`` /
+    ``GlobalAlignmentError`` (which carry the ranked placements) when it refuses."""
+    from bimcap.registration import GlobalAlignOptions, global_align, initial_free_fraction
+
+    mode = config.global_align
+    if mode is GlobalAlignMode.OFF:
+        return poses, None
+    plan = _floor_plan(prepared.reference)
+    free = initial_free_fraction(poses, plan)
+    if mode is GlobalAlignMode.AUTO:
+        if free >= AUTO_GLOBAL_ALIGN_FREE_FRACTION:
+            return poses, None
+        log(f"global alignment: only {free:.0%} of the initial cameras lie in the building's "
+            "free space (a trajectory in its own SLAM frame?): placing it in the BIM first "
+            "(--no-global-align / global_align = \"off\" to skip)", quiet)
+    t0 = time.perf_counter()
+    samples, plan = _registration_inputs(prepared)
+    res = global_align(poses, samples, plan,
+                       GlobalAlignOptions(accept_ambiguous=config.accept_ambiguous))
+    best = res.hypotheses[0]
+    log(f"global alignment: yaw {best.yaw_deg:.1f} deg, floor "
+        f"{'-' if best.floor_z is None else f'{best.floor_z:.2f} m'}, score {best.score:.3f}, "
+        f"second-best at {res.ratio:.0%} of it ({time.perf_counter() - t0:.1f} s)", quiet)
+    if res.accepted_ambiguous:
+        log("WARNING: global alignment is ambiguous; the best placement was taken because "
+            "--accept-ambiguous is set:\n" + res.describe(), quiet)
+    info = res.to_dict()
+    info.update(mode=mode.value, initial_free_fraction=free,
+                seconds=time.perf_counter() - t0)
     return np.asarray(res.poses, np.float64), info
 
 
@@ -1145,6 +1208,8 @@ def refine(
     the scan-vs-BIM deviations under the refined poses (``deviations.json`` / ``.csv`` /
     ``.ply``, :func:`bimcap.deviations.outputs.run_deviations`).
     """
+    from bimcap.registration.errors import GlobalAlignmentError
+
     cfg = config or RefineConfig()
     out = Path(out_dir)
     plan = validate_run(sequence, out, cfg, ifc, init, gt, overwrite)
@@ -1160,10 +1225,27 @@ def refine(
         result.timings["total"] = time.perf_counter() - t_start
         result.out_dir = out
         plan.outputs.commit(result.to_dict())
+    except GlobalAlignmentError as exc:
+        _commit_refusal(plan.outputs, exc, cfg, command)
+        raise
     except BaseException:
         plan.outputs.abort()
         raise
     return result
+
+
+def _commit_refusal(outputs: Any, exc: Any, config: RefineConfig, command: str) -> None:
+    """A refused global alignment: ``result.json`` alone, with the ranked placements and the
+    reason (``status: "refused"``), so that the user sees every hypothesis; no trajectory."""
+    if exc.result is None:
+        outputs.abort()
+        return
+    try:
+        outputs.commit({"command": command, "config": config.to_dict(), "status": "refused",
+                        "error": str(exc), "solve": {"global_align": exc.result.to_dict()}})
+    except BaseException:
+        outputs.abort()
+        raise
 
 
 def summary_table(rows: dict[str, Any]) -> str:

@@ -390,3 +390,89 @@ def apply_drift(gt: Trajectory, params: DriftParams) -> DriftResult:
         scale_t=scale_t,
         scale_rot=scale_rot,
     )
+
+
+# --------------------------------------------------------------------------- SLAM frame
+#: Default ranges of the random rigid motion of :func:`to_slam_frame`.
+SLAM_FRAME_XY_RANGE_M = 50.0
+SLAM_FRAME_Z_RANGE_M = 5.0
+
+
+@dataclass(frozen=True)
+class SlamFrame:
+    """A trajectory expressed in a SLAM system's own frame, and the true transform.
+
+    Attributes
+    ----------
+    trajectory: ``slam_from_cam`` poses (the drifted ``world_from_cam`` moved into the SLAM
+        frame), same timestamps.
+    slam_from_world: (7,) TUM-order pose of the BIM/world frame in the SLAM frame: a yaw about
+        the vertical and a translation; ``slam_from_cam = slam_from_world ∘ world_from_cam``.
+    yaw_deg: the yaw of ``slam_from_world``, degrees in [0, 360).
+    translation_m: (3,) its translation, metres.
+    seed: the seed of the draw.
+    """
+
+    trajectory: Trajectory
+    slam_from_world: F64
+    yaw_deg: float
+    translation_m: F64
+    seed: int
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON provenance (``slam_frame`` of ``init.drift.json``)."""
+        return {
+            "slam_from_world": [float(v) for v in self.slam_from_world],
+            "world_from_slam": [float(v) for v in _invert_pose(self.slam_from_world)],
+            "yaw_deg": self.yaw_deg,
+            "translation_m": [float(v) for v in self.translation_m],
+            "seed": self.seed,
+            "convention": "TUM order [tx ty tz qx qy qz qw]; "
+            "slam_from_cam = slam_from_world * world_from_cam",
+        }
+
+
+def _invert_pose(pose: F64) -> F64:
+    rot = Rotation.from_quat(pose[3:7]).inv()
+    q = rot.as_quat()
+    if q[3] < 0:
+        q = -q
+    return np.concatenate([-rot.apply(pose[:3]), q])
+
+
+def to_slam_frame(
+    traj: Trajectory,
+    seed: int,
+    xy_range_m: float = SLAM_FRAME_XY_RANGE_M,
+    z_range_m: float = SLAM_FRAME_Z_RANGE_M,
+) -> SlamFrame:
+    """Move ``traj`` (``world_from_cam``) into a random SLAM frame, as a SLAM system writes it.
+
+    The frame is a seeded random rigid motion: yaw uniform in [0°, 360°), x and y uniform in
+    ``±xy_range_m``, z uniform in ``±z_range_m`` (gravity stays vertical, as an IMU keeps it).
+
+    Parameters
+    ----------
+    traj: the (drifted) trajectory in the world frame.
+    seed: seed of the draw (its own random stream: ``[seed, 515]``, independent of the drift's).
+    xy_range_m, z_range_m: half-widths of the translation, metres (>= 0).
+
+    Returns
+    -------
+    SlamFrame with ``slam_from_cam`` poses and the true ``slam_from_world``.
+    """
+    for name, v in (("slam_xy_range_m", xy_range_m), ("slam_z_range_m", z_range_m)):
+        if not math.isfinite(v) or v < 0:
+            raise DriftError(f"must be finite and >= 0, got {v!r}", field=name)
+    rng = np.random.default_rng([seed, 515])
+    yaw = float(rng.uniform(0.0, 2.0 * np.pi))
+    t = np.array([rng.uniform(-xy_range_m, xy_range_m), rng.uniform(-xy_range_m, xy_range_m),
+                  rng.uniform(-z_range_m, z_range_m)])
+    rz = Rotation.from_euler("z", yaw)
+    q = rz.as_quat()
+    slam_from_world = np.concatenate([t, q if q[3] >= 0 else -q])
+    moved_t = rz.apply(traj.poses[:, :3]) + t
+    moved_q = (rz * Rotation.from_quat(traj.poses[:, 3:7])).as_quat()
+    moved_q[moved_q[:, 3] < 0] *= -1.0
+    moved = Trajectory(traj.timestamps.copy(), np.concatenate([moved_t, moved_q], axis=1))
+    return SlamFrame(moved, slam_from_world, float(np.degrees(yaw)), t, seed)

@@ -1,0 +1,740 @@
+"""Global alignment: a trajectory in a SLAM system's own frame, placed in the BIM with no guess.
+
+A SLAM system (LIO-SAM, FAST-LIO, ORB-SLAM, ARKit) writes ``slam_from_cam``: it starts at its
+own origin with an arbitrary heading and height datum. This stage estimates the rigid transform
+``world_from_slam`` so that the coarse stage (:mod:`.coarse`, reach about 2 m / 20°) and the
+bundle adjustment can take over:
+
+1. **gravity** from the floor: the floor points of every frame give a normal per frame; their
+   median is the SLAM frame's "up". Tilts below ``gravity_min_tilt_deg`` are left alone (an
+   IMU keeps gravity; averaging the per-frame tilt noise of a drifted trajectory would only add
+   its mean).
+2. **height**: the median height of the floor points is matched to each storey's floor (every
+   storey of the plan is tried; its plan section is the one the coarse stage uses).
+3. **x, y, yaw over the whole plan of every storey**: all wall and column points of the
+   trajectory, seen as one rigid scan, are matched by the correlative search of the coarse
+   stage (:func:`.correlative.score_volume`, the visibility-aware score maps of
+   :class:`.plan_maps.PlanMaps`) over the full circle of yaws and every translation that puts
+   the trajectory's centre inside the storey's box; the best distinct peaks are refined by
+   point-to-segment ICP (:func:`.icp.icp_2d`).
+4. **score**: each hypothesis' fine score of its points (0-1) times the fraction of its camera
+   positions that lie in free space (inside the building, not in a wall). The hypotheses are
+   ranked; two are *distinct* when their camera positions differ by more than
+   ``distinct_m`` on average, their yaws by more than ``distinct_deg`` or their floors by more
+   than ``distinct_z_m``.
+5. **ambiguity**: when the second-best distinct hypothesis scores at least ``ambiguity_ratio``
+   of the best (a symmetric corridor, repeated rooms, identical storeys), the result is
+   ambiguous: :func:`global_align` raises :class:`AmbiguousAlignmentError` (with the ranked
+   hypotheses) unless ``accept_ambiguous`` is set. A best hypothesis that fits badly raises
+   :class:`GlobalAlignmentError`. Never a confident wrong answer.
+
+Arrays follow docs/architecture.md: poses ``(N, 7)`` TUM order, metres; angles in degrees in
+the options and results, radians inside.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+
+from bimcap.geometry.poses import matrix_to_pose, pose_to_matrix, transform_points
+from bimcap.labels import Label
+from bimcap.registration.coarse import FloorPlan, SemanticSamples
+from bimcap.registration.correlative import score_volume, top_hypotheses
+from bimcap.registration.distance_field import DistanceField
+from bimcap.registration.errors import (
+    AmbiguousAlignmentError,
+    GlobalAlignmentError,
+    RegistrationInputError,
+)
+from bimcap.registration.icp import Correction2D, icp_2d, rot2
+from bimcap.registration.plan_maps import PlanMaps
+
+F64 = NDArray[np.float64]
+I32 = NDArray[np.int32]
+
+
+@dataclass(frozen=True)
+class GlobalAlignOptions:
+    """Settings of :func:`global_align` (lengths in metres, angles in degrees).
+
+    Attributes
+    ----------
+    resolution_m, sigma_m: the correlative grid and the width of its score (coarser than the
+        coarse stage's: the whole drifted trajectory is matched as one rigid scan).
+    yaw_step_deg: yaw grid of the full-circle search.
+    view_bins: ray-direction bins of the visibility test (:mod:`.plan_maps`).
+    top_k: peaks of the correlative volume refined by ICP, per storey.
+    max_points: random subsample of the wall/column points for ICP and scoring.
+    icp_radius_start_m, icp_radius_end_m, icp_iterations, icp_huber_m: the ICP of each peak.
+    fine_resolution_m, fine_sigma_m, inlier_m: the maps that score a hypothesis after ICP.
+    wall_band_m: wall/column points within this height of the floor or ceiling are ignored.
+    plan_cut_height_m: a storey's plan section holds the segments whose ``segment_z`` range
+        holds ``floor + plan_cut_height_m`` (as in the coarse stage).
+    rescore_top: the best distinct rigid fits of each storey that get the per-frame fit.
+    frame_yaw_deg, frame_yaw_step_deg, frame_shift_m: the per-frame slack of the ranking fit
+        (:func:`_frame_fit`): each frame may turn and shift this much on its own.
+    level_from_floor, gravity_min_tilt_deg: estimate gravity from the floor points; apply it
+        only when the SLAM frame is tilted by more than this.
+    free_clearance_m: a camera closer than this to a wall is not in free space.
+    enclosed_rays, enclosed_min_hits: a camera is inside the building when at least
+        ``enclosed_min_hits`` of ``enclosed_rays`` horizontal rays hit the plan.
+    distinct_m, distinct_deg, distinct_z_m: two hypotheses are distinct when their camera
+        positions differ by more than ``distinct_m`` on average, or their yaws by more than
+        ``distinct_deg``, or their floors by more than ``distinct_z_m``.
+    ambiguity_ratio: second-best / best score at or above which the result is ambiguous.
+    min_score, min_free_fraction: the best hypothesis must have at least this fine score and
+        this fraction of cameras in free space, else :class:`GlobalAlignmentError`.
+    accept_ambiguous: take the best hypothesis even when the result is ambiguous (flagged in
+        the result, never hidden).
+    report_top: hypotheses kept in the result.
+    seed: seeds the random point subsampling.
+    """
+
+    resolution_m: float = 0.2
+    sigma_m: float = 0.3
+    yaw_step_deg: float = 2.0
+    view_bins: int = 4
+    top_k: int = 30
+    max_points: int = 4000
+    icp_radius_start_m: float = 0.8
+    icp_radius_end_m: float = 0.12
+    icp_iterations: int = 15
+    icp_huber_m: float = 0.05
+    fine_resolution_m: float = 0.05
+    fine_sigma_m: float = 0.1
+    inlier_m: float = 0.15
+    wall_band_m: float = 0.3
+    plan_cut_height_m: float = 1.0
+    level_from_floor: bool = True
+    gravity_min_tilt_deg: float = 2.0
+    free_clearance_m: float = 0.15
+    enclosed_rays: int = 8
+    enclosed_min_hits: int = 7
+    rescore_top: int = 4
+    frame_yaw_deg: float = 12.0
+    frame_yaw_step_deg: float = 2.0
+    frame_shift_m: float = 0.2
+    distinct_m: float = 1.0
+    distinct_deg: float = 10.0
+    distinct_z_m: float = 0.5
+    ambiguity_ratio: float = 0.9
+    min_score: float = 0.55
+    min_free_fraction: float = 0.5
+    accept_ambiguous: bool = False
+    report_top: int = 5
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        positive = ("resolution_m", "sigma_m", "yaw_step_deg", "icp_radius_start_m",
+                    "icp_radius_end_m", "icp_huber_m", "fine_resolution_m", "fine_sigma_m",
+                    "inlier_m", "frame_yaw_step_deg", "distinct_m", "distinct_deg", "distinct_z_m")
+        for name, value in asdict(self).items():
+            if isinstance(value, float) and not np.isfinite(value):
+                raise RegistrationInputError(f"must be finite, got {value}", None, name)
+            if name in positive and not value > 0:
+                raise RegistrationInputError(f"must be > 0, got {value}", None, name)
+        for name in ("view_bins", "top_k", "max_points", "icp_iterations", "enclosed_rays",
+                     "rescore_top", "report_top"):
+            if getattr(self, name) < 1:
+                raise RegistrationInputError(f"must be >= 1, got {getattr(self, name)}", None,
+                                             name)
+        for name in ("ambiguity_ratio", "min_score", "min_free_fraction"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise RegistrationInputError("must be in [0, 1]", None, name)
+        if not 0 <= self.enclosed_min_hits <= self.enclosed_rays:
+            raise RegistrationInputError("must be in [0, enclosed_rays]", None,
+                                         "enclosed_min_hits")
+        for name in ("wall_band_m", "gravity_min_tilt_deg", "free_clearance_m", "frame_yaw_deg",
+                     "frame_shift_m"):
+            if getattr(self, name) < 0:
+                raise RegistrationInputError("must be >= 0", None, name)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class AlignHypothesis:
+    """One placement of the trajectory in the BIM.
+
+    Attributes
+    ----------
+    world_from_slam: (7,) TUM-order transform from the SLAM frame to the BIM (world) frame.
+    floor_z: the storey floor (world z, metres) the trajectory is put on (None: plan without
+        floors; z unchanged).
+    yaw_deg: the yaw of ``world_from_slam`` (degrees, (-180, 180]).
+    score: ``fit_score × free_fraction``, the ranking score (0-1).
+    fit_score: mean over frames of each frame's best fine score with a little per-frame slack
+        (0-1, :func:`_frame_fit`).
+    rigid_fit: mean fine score of all wall/column points, the trajectory taken as rigid.
+    inlier_ratio: fraction of those within ``inlier_m`` of a same-class segment.
+    free_fraction: fraction of the camera positions in free space.
+    coarse_score: the correlative peak's score (0-1) before ICP.
+    """
+
+    world_from_slam: F64
+    floor_z: float | None
+    yaw_deg: float
+    score: float
+    fit_score: float
+    rigid_fit: float
+    inlier_ratio: float
+    free_fraction: float
+    coarse_score: float
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["world_from_slam"] = [float(v) for v in self.world_from_slam]
+        return d
+
+
+@dataclass
+class GlobalAlignResult:
+    """Output of :func:`global_align`.
+
+    Attributes
+    ----------
+    poses: (N, 7) ``world_from_cam`` of the best hypothesis (the coarse stage starts here).
+    world_from_slam: (7,) the best hypothesis' transform.
+    hypotheses: the best distinct hypotheses, best first (at most ``report_top``).
+    ambiguous: the second-best scores at least ``ambiguity_ratio`` of the best.
+    ratio: second-best / best score (0 with a single hypothesis).
+    accepted_ambiguous: ambiguous, and taken anyway (``accept_ambiguous``).
+    gravity_tilt_deg: the tilt of the SLAM frame estimated from the floor (degrees).
+    gravity_applied: whether that tilt was taken out (above ``gravity_min_tilt_deg``).
+    storeys: per storey tried, its floor z and the best score found there.
+    timings: seconds per step and ``total``.
+    options: the settings.
+    """
+
+    poses: F64
+    world_from_slam: F64
+    hypotheses: list[AlignHypothesis]
+    ambiguous: bool
+    ratio: float
+    accepted_ambiguous: bool
+    gravity_tilt_deg: float
+    gravity_applied: bool
+    storeys: list[dict[str, Any]]
+    timings: dict[str, float]
+    options: GlobalAlignOptions
+    n_frames: int = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.n_frames = len(self.poses)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready (``result.json`` → ``solve.global_align``)."""
+        return {
+            "n_frames": self.n_frames,
+            "world_from_slam": [float(v) for v in self.world_from_slam],
+            "hypotheses": [h.to_dict() for h in self.hypotheses],
+            "ambiguous": self.ambiguous,
+            "ratio": self.ratio,
+            "accepted_ambiguous": self.accepted_ambiguous,
+            "gravity_tilt_deg": self.gravity_tilt_deg,
+            "gravity_applied": self.gravity_applied,
+            "storeys": self.storeys,
+            "timings": dict(self.timings),
+            "options": self.options.to_dict(),
+        }
+
+    def describe(self) -> str:
+        """One line per hypothesis: rank, score, yaw, translation, floor."""
+        lines = []
+        for k, h in enumerate(self.hypotheses, start=1):
+            t = h.world_from_slam[:3]
+            floor = "-" if h.floor_z is None else f"{h.floor_z:.2f} m"
+            lines.append(f"  #{k}: score {h.score:.3f} (fit {h.fit_score:.3f}, free "
+                         f"{h.free_fraction:.2f}), yaw {h.yaw_deg:.1f} deg, t ({t[0]:.2f}, "
+                         f"{t[1]:.2f}, {t[2]:.2f}) m, floor {floor}")
+        return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------------------------------
+# Free space.
+
+
+def free_space_fraction(cam_xy: NDArray[np.float64], segments: NDArray[np.float64],
+                        field_: DistanceField | None = None, clearance_m: float = 0.15,
+                        n_rays: int = 8, min_hits: int = 7, max_range_m: float = 60.0
+                        ) -> tuple[float, NDArray[np.bool_]]:
+    """Fraction of camera positions in free space, and the per-camera flags.
+
+    A position is free when at least ``min_hits`` of ``n_rays`` horizontal rays from it hit a
+    segment within ``max_range_m`` (it is inside the building, not beside it) and it is at
+    least ``clearance_m`` from every segment (not inside a wall).
+
+    Parameters
+    ----------
+    cam_xy: (N, 2) metres; segments: (S, 4) the storey's plan section.
+    field_: a distance field of ``segments`` (built here when None).
+    """
+    cam = np.asarray(cam_xy, dtype=np.float64).reshape(-1, 2)
+    seg = np.asarray(segments, dtype=np.float64).reshape(-1, 4)
+    if len(cam) == 0:
+        return 0.0, np.zeros(0, dtype=bool)
+    if len(seg) == 0:
+        return 0.0, np.zeros(len(cam), dtype=bool)
+    if field_ is None:
+        field_ = DistanceField.from_segments(seg, 0.1)
+    clear = field_.lookup(cam) >= clearance_m
+    a, e = seg[:, :2], seg[:, 2:] - seg[:, :2]
+    hits = np.zeros(len(cam), dtype=np.int64)
+    for k in range(n_rays):
+        ang = 2 * np.pi * (k + 0.5) / n_rays
+        d = np.array([np.cos(ang), np.sin(ang)])
+        den = d[0] * e[:, 1] - d[1] * e[:, 0]
+        w = a[None] - cam[:, None]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = (w[..., 0] * e[None, :, 1] - w[..., 1] * e[None, :, 0]) / den[None]
+            u = (w[..., 0] * d[1] - w[..., 1] * d[0]) / den[None]
+        hit = (np.abs(den)[None] > 1e-12) & (s > 0) & (s < max_range_m) & (u >= 0) & (u <= 1)
+        hits += hit.any(1)
+    free = clear & (hits >= min_hits)
+    return float(free.mean()), free
+
+
+# ------------------------------------------------------------------------------------------------
+# Steps.
+
+
+@dataclass(frozen=True)
+class _Storey:
+    """One storey's plan section: its floor z (None: unknown), ceiling z, segment rows."""
+
+    floor_z: float | None
+    ceiling_z: float | None
+    rows: NDArray[np.int64]
+
+
+def _storeys(plan: FloorPlan, cut_m: float) -> list[_Storey]:
+    """The distinct plan sections of ``plan``, one per storey, each with its main floor height
+    (the floor nearest the bottom of the storey's wall band)."""
+    n = len(plan.segments)
+    if plan.segment_z is None or len(plan.floor_heights) == 0:
+        fz = float(plan.floor_heights.min()) if len(plan.floor_heights) else None
+        return [_Storey(fz, _ceiling_above(plan, fz), np.arange(n))]
+    groups: dict[bytes, list[float]] = {}
+    masks: dict[bytes, NDArray[np.bool_]] = {}
+    for z in plan.floor_heights:
+        zc = z + cut_m
+        mask = (plan.segment_z[:, 0] <= zc) & (zc <= plan.segment_z[:, 1])
+        if not mask.any():
+            continue
+        key = np.packbits(mask).tobytes()
+        groups.setdefault(key, []).append(float(z))
+        masks[key] = mask
+    out = []
+    for key, heights in groups.items():
+        mask = masks[key]
+        bottom = float(np.median(plan.segment_z[mask, 0]))
+        fz = min(heights, key=lambda h: abs(h - bottom))
+        out.append(_Storey(fz, _ceiling_above(plan, fz), np.flatnonzero(mask)))
+    return sorted(out, key=lambda s: -np.inf if s.floor_z is None else s.floor_z)
+
+
+def _ceiling_above(plan: FloorPlan, z: float | None) -> float | None:
+    if z is None or not len(plan.ceiling_heights):
+        return None
+    above = plan.ceiling_heights[plan.ceiling_heights > z]
+    return float(above.min()) if len(above) else None
+
+
+def _gravity(poses: F64, samples: SemanticSamples, min_points: int = 30) -> F64:
+    """(3, 3) the rotation that turns the median per-frame floor normal (SLAM frame) onto +z."""
+    fr, p = samples.floor_frame, samples.floor_p_in_cam
+    if len(fr) < min_points:
+        return np.eye(3)
+    pts = transform_points(poses[fr], p)
+    normals = []
+    order = np.argsort(fr, kind="stable")
+    bounds = np.searchsorted(fr[order], np.arange(len(poses) + 1))
+    for i in range(len(poses)):
+        q = pts[order[bounds[i]:bounds[i + 1]]]
+        if len(q) < min_points:
+            continue
+        c = q - q.mean(0)
+        n = np.linalg.svd(c, full_matrices=False)[2][-1]
+        normals.append(n if n[2] >= 0 else -n)
+    if not normals:
+        return np.eye(3)
+    up = np.median(np.array(normals), axis=0)
+    up /= np.linalg.norm(up)
+    axis = np.cross(up, [0.0, 0.0, 1.0])
+    s = np.linalg.norm(axis)
+    if s < 1e-12:
+        return np.eye(3)
+    angle = np.arctan2(s, up[2])
+    rot: F64 = Rotation.from_rotvec(axis / s * angle).as_matrix()
+    return rot
+
+
+@dataclass(frozen=True)
+class _Scan:
+    """The trajectory's points in the levelled SLAM frame: wall/column xy (M, 2), their ray
+    directions (M, 2), class (M,), height z (M,), frame (M,), camera positions (N, 3), the
+    median floor height."""
+
+    xy: F64
+    view: F64
+    cls: I32
+    z: F64
+    frame: I32
+    cams: F64
+    floor_z: float | None
+
+
+def _scan(poses: F64, samples: SemanticSamples) -> _Scan:
+    xy, view, cls, zs, frames = [], [], [], [], []
+    for c, lab in (("wall", Label.WALL), ("column", Label.COLUMN)):
+        fr = getattr(samples, f"{c}_frame")
+        if not len(fr):
+            continue
+        q = transform_points(poses[fr], getattr(samples, f"{c}_p_in_cam"))
+        xy.append(q[:, :2])
+        view.append(q[:, :2] - poses[fr, :2])
+        cls.append(np.full(len(q), int(lab), np.int32))
+        zs.append(q[:, 2])
+        frames.append(fr)
+    floor_z = None
+    if len(samples.floor_frame):
+        fq = transform_points(poses[samples.floor_frame], samples.floor_p_in_cam)
+        floor_z = float(np.median(fq[:, 2]))
+    if not xy:
+        return _Scan(np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, np.int32), np.zeros(0),
+                     np.zeros(0, np.int32), poses[:, :3].copy(), floor_z)
+    return _Scan(np.concatenate(xy), np.concatenate(view), np.concatenate(cls),
+                 np.concatenate(zs), np.concatenate(frames).astype(np.int32), poses[:, :3].copy(),
+                 floor_z)
+
+
+def _thin(xy: F64, cls: I32, cell: float | None, cap: int, rng: np.random.Generator
+          ) -> NDArray[np.int64]:
+    keep = np.arange(len(xy))
+    if len(xy) and cell is not None:
+        key = np.c_[np.floor(xy / cell).astype(np.int64), cls.astype(np.int64)]
+        _, keep = np.unique(key, axis=0, return_index=True)
+        keep = np.sort(keep)
+    if len(keep) > cap:
+        keep = np.sort(rng.choice(keep, cap, replace=False))
+    return keep
+
+
+@dataclass(frozen=True)
+class _Found:
+    """A hypothesis in the levelled SLAM frame: 2-D correction, storey, per-frame fit (the
+    ranking fit), rigid fit, inlier ratio, free fraction, correlative score, cameras (N, 2)."""
+
+    corr: Correction2D
+    storey: _Storey
+    fit: float
+    rigid_fit: float
+    inliers: float
+    free: float
+    coarse: float
+    cams_xy: F64
+
+    @property
+    def score(self) -> float:
+        return self.fit * self.free
+
+
+def _search_storey(scan: _Scan, storey: _Storey, plan: FloorPlan, opt: GlobalAlignOptions,
+                   rng: np.random.Generator, timings: dict[str, float]) -> list[_Found]:
+    """Steps 3-4 on one storey: full-circle correlative search over the storey's box, ICP of
+    the top peaks, fine score and free-space fraction of each."""
+    seg = plan.segments[storey.rows]
+    seg_cls = plan.segment_class[storey.rows]
+    keep = np.ones(len(scan.xy), dtype=bool)
+    if scan.floor_z is not None and opt.wall_band_m > 0:
+        keep &= scan.z > scan.floor_z + opt.wall_band_m
+        if storey.floor_z is not None and storey.ceiling_z is not None:
+            keep &= scan.z < scan.floor_z + (storey.ceiling_z - storey.floor_z) - opt.wall_band_m
+    xy, view, cls, frame = scan.xy[keep], scan.view[keep], scan.cls[keep], scan.frame[keep]
+    if len(xy) < 20 or len(seg) == 0:
+        return []
+    t0 = time.perf_counter()
+    box_xy = seg.reshape(-1, 2)
+    lo, hi = box_xy.min(0), box_xy.max(0)
+    centre = 0.5 * (lo + hi)
+    half = float(np.max(0.5 * (hi - lo))) + 1.0
+    bounds = (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
+    maps = PlanMaps.build(seg, seg_cls, bounds, 3.0, opt.view_bins, opt.resolution_m,
+                          opt.sigma_m, opt.fine_resolution_m, opt.fine_sigma_m, 3.0)
+    field_ = DistanceField.from_segments(seg, 0.1, bounds, 3.0)
+    timings["maps"] += time.perf_counter() - t0
+    # Shift the scan so that its camera centroid sits on the box centre: the translations of
+    # the search then put the centroid anywhere in the box.
+    shift = centre - scan.cams[:, :2].mean(0)
+    xy_s, cams_s = xy + shift, scan.cams[:, :2] + shift
+    t0 = time.perf_counter()
+    occ = _thin(xy_s, cls, 0.5 * opt.resolution_m, 40 * opt.max_points, rng)
+    yaws = np.arange(-np.pi, np.pi, np.deg2rad(opt.yaw_step_deg))
+    vol, res, n = score_volume(xy_s[occ], cls[occ], view[occ], maps, centre, yaws, half)
+    # The trajectory's own shape: the share of its cameras in free space, for every (yaw, t).
+    free_map = _free_map(seg, bounds, opt)
+    vol *= _free_volume(cams_s, free_map, maps.coarse[0].origin_xy, res, centre, yaws, n)
+    peaks = top_hypotheses(vol, yaws, res, n, opt.top_k, opt.distinct_m,
+                           np.deg2rad(opt.distinct_deg))
+    timings["correlative"] += time.perf_counter() - t0
+    t0 = time.perf_counter()
+    sel = _thin(xy_s, cls, None, opt.max_points, rng)
+    p_xy, p_cls, p_view, p_frame = xy_s[sel], cls[sel], view[sel], frame[sel]
+
+    def associate(q: F64, q_class: I32, v: F64) -> tuple[F64, F64]:
+        return maps.nearest(q, maps.layer_of(q_class, v))
+
+    found: list[_Found] = []
+    fitted: list[_Found] = []
+    for peak in peaks:
+        fit = icp_2d(p_xy, p_cls, associate, Correction2D(peak.yaw, peak.t, centre), p_view,
+                     opt.icp_radius_start_m, opt.icp_radius_end_m, opt.icp_iterations,
+                     opt.icp_huber_m, opt.inlier_m)
+        corr = fit.correction
+        layer = maps.layer_of(p_cls, p_view @ rot2(corr.yaw).T)
+        sc, dist = maps.fine_eval(corr.apply(p_xy), layer)
+        cams_w = corr.apply(cams_s)
+        free, _ = free_space_fraction(cams_w, seg, field_, opt.free_clearance_m,
+                                      opt.enclosed_rays, opt.enclosed_min_hits)
+        fitted.append(_Found(corr, storey, 0.0, float(sc.mean()),
+                             float((dist < opt.inlier_m).mean()), free, peak.score, cams_w))
+    timings["icp"] += time.perf_counter() - t0
+    # The per-frame fit of the best rigid fits (the slow, sharp score), one per distinct place.
+    t0 = time.perf_counter()
+    fitted.sort(key=lambda f: -f.rigid_fit * f.free)
+    for f in fitted:
+        if len(found) >= opt.rescore_top:
+            break
+        if all(_distinct(f, g, opt) for g in found):
+            frame_fit = _frame_fit(f.corr, p_xy, p_cls, p_view, p_frame, cams_s, maps, opt)
+            found.append(_Found(f.corr, storey, frame_fit, f.rigid_fit, f.inliers, f.free,
+                                f.coarse, f.cams_xy))
+    timings["rescore"] += time.perf_counter() - t0
+    # Fold the shift into the correction: R (p + s - c) + c + t = R (p - (c - s)) + (c - s)
+    # + (t + s).
+    return [_Found(Correction2D(f.corr.yaw, f.corr.t + shift, f.corr.pivot - shift), f.storey,
+                   f.fit, f.rigid_fit, f.inliers, f.free, f.coarse, f.cams_xy) for f in found]
+
+
+def _free_map(segments: F64, bounds: tuple[float, float, float, float],
+              opt: GlobalAlignOptions, close_m: float = 0.7) -> NDArray[np.float32]:
+    """(H, W) 1 where a camera may stand, on the coarse grid of the storey's maps (same bounds,
+    margin 3 m, ``resolution_m``): not outside the building (the open space reachable from the
+    map's border once gaps narrower than ``2 close_m``, doors and windows, are closed) and at
+    least ``free_clearance_m`` from every wall. A raster approximation of
+    :func:`free_space_fraction`, for the search."""
+    from scipy.ndimage import label
+
+    dist = DistanceField.from_segments(segments, opt.resolution_m, bounds, 3.0).distance_m
+    open_ = dist > close_m
+    lab, _ = label(open_)
+    border = np.unique(np.r_[lab[0], lab[-1], lab[:, 0], lab[:, -1]])
+    outside = np.isin(lab, border[border > 0])
+    return (~outside & (dist >= opt.free_clearance_m)).astype(np.float32)
+
+
+def _free_volume(cams_xy: F64, free_map: NDArray[np.float32], origin: F64, res: float,
+                 pivot: F64, yaws: F64, n: int) -> NDArray[np.float32]:
+    """(Y, 2n+1, 2n+1) share of the cameras (N, 2) on free pixels of ``free_map`` after each
+    correction ``R(yaw)(c - pivot) + pivot + t`` of the correlative grid (as
+    :func:`.correlative.score_volume` indexes it)."""
+    import cv2
+
+    from bimcap.registration.correlative import _crop
+
+    out = np.zeros((len(yaws), 2 * n + 1, 2 * n + 1), dtype=np.float32)
+    for k, yaw in enumerate(yaws):
+        c = (cams_xy - pivot) @ rot2(float(yaw)).T + pivot
+        uv = np.round((c - origin) / res).astype(np.int64)
+        u0, v0 = uv.min(0)
+        u1, v1 = uv.max(0)
+        templ = np.zeros((v1 - v0 + 1, u1 - u0 + 1), dtype=np.float32)
+        np.add.at(templ, (uv[:, 1] - v0, uv[:, 0] - u0), 1.0)
+        img = _crop(free_map, v0 - n, v1 + n + 1, u0 - n, u1 + n + 1)
+        out[k] = cv2.matchTemplate(img, templ, cv2.TM_CCORR) / len(c)
+    return out
+
+
+def _frame_fit(corr: Correction2D, p_xy: F64, p_cls: I32, p_view: F64, p_frame: I32,
+               cams_xy: F64, maps: PlanMaps, opt: GlobalAlignOptions) -> float:
+    """Mean over frames of each frame's best fine score when the frame alone may turn by up to
+    ``±frame_yaw_deg`` about its camera and shift by up to ``±frame_shift_m``: a drifted
+    trajectory is not rigid (per-frame rotation noise, a translation walk), so the rigid fit
+    blurs the right placement as much as an alias; frame by frame the right one fits sharply.
+
+    ``p_*`` (M, ...) the points before ``corr``, ``cams_xy`` (N, 2) the cameras before it."""
+    n = len(cams_xy)
+    q = corr.apply(p_xy)
+    cam = corr.apply(cams_xy)[p_frame]
+    view = p_view @ rot2(corr.yaw).T
+    count = np.bincount(p_frame, minlength=n).astype(np.float64)
+    best = np.zeros(n)
+    step = opt.frame_yaw_step_deg
+    deltas = np.deg2rad(np.arange(-opt.frame_yaw_deg, opt.frame_yaw_deg + 0.5 * step, step))
+    s = opt.frame_shift_m
+    shifts = [np.array([dx, dy]) for dx in (-s, 0.0, s) for dy in (-s, 0.0, s)] if s > 0 else [
+        np.zeros(2)]
+    for d in deltas:
+        r = rot2(float(d))
+        qd = (q - cam) @ r.T + cam
+        layer = maps.layer_of(p_cls, view @ r.T)
+        for sh in shifts:
+            sc = np.zeros(len(qd))
+            for lay in np.unique(layer):
+                m = layer == lay
+                sc[m] = maps.fine[lay].lookup(qd[m] + sh, maps.fine_score[lay])
+            best = np.maximum(best, np.bincount(p_frame, weights=sc, minlength=n)
+                              / np.maximum(count, 1.0))
+    has = count > 0
+    return float(best[has].mean()) if has.any() else 0.0
+
+
+def _distinct(a: _Found, b: _Found, opt: GlobalAlignOptions) -> bool:
+    dyaw = abs(np.rad2deg(np.angle(np.exp(1j * (a.corr.yaw - b.corr.yaw)))))
+    dz = (0.0 if a.storey.floor_z is None or b.storey.floor_z is None
+          else abs(a.storey.floor_z - b.storey.floor_z))
+    moved = float(np.linalg.norm(a.cams_xy - b.cams_xy, axis=1).mean())
+    return moved > opt.distinct_m or dyaw > opt.distinct_deg or dz > opt.distinct_z_m
+
+
+def _transform(f: _Found, gravity: F64, scan_floor_z: float | None) -> F64:
+    """(4, 4) ``world_from_slam`` of a hypothesis."""
+    g = np.eye(4)
+    g[:3, :3] = gravity
+    c = f.corr.matrix()
+    m = np.eye(4)
+    m[:2, :2] = c[:2, :2]
+    m[:2, 3] = c[:2, 2]
+    if f.storey.floor_z is not None and scan_floor_z is not None:
+        m[2, 3] = f.storey.floor_z - scan_floor_z
+    return m @ g
+
+
+def global_align(
+    slam_from_cam: ArrayLike,
+    samples: SemanticSamples,
+    plan: FloorPlan,
+    options: GlobalAlignOptions | None = None,
+) -> GlobalAlignResult:
+    """Place a trajectory given in its own frame in the BIM (see the module docstring).
+
+    Parameters
+    ----------
+    slam_from_cam: (N, 7) poses in the SLAM frame, TUM order.
+    samples: the labelled points of every frame, camera frame (the front end's samples).
+    plan: segments and floor/ceiling heights of the BIM, every storey.
+    options: settings; default :class:`GlobalAlignOptions`.
+
+    Returns
+    -------
+    GlobalAlignResult with ``poses`` = ``world_from_slam ∘ slam_from_cam`` of the best
+    hypothesis.
+
+    Raises
+    ------
+    AmbiguousAlignmentError
+        The best two distinct hypotheses score alike and ``accept_ambiguous`` is off.
+    GlobalAlignmentError
+        No hypothesis at all, or the best one fits badly.
+    """
+    opt = GlobalAlignOptions() if options is None else options
+    t_start = time.perf_counter()
+    timings = dict.fromkeys(("gravity", "maps", "correlative", "icp", "rescore"), 0.0)
+    poses = np.asarray(slam_from_cam, dtype=np.float64)
+    if poses.ndim != 2 or poses.shape[1] != 7 or len(poses) == 0 or not np.isfinite(poses).all():
+        raise RegistrationInputError(f"must be finite (N>0, 7), got {poses.shape}", None,
+                                     "slam_from_cam")
+    samples.check_frames(len(poses))
+    rng = np.random.default_rng(opt.seed)
+    # 1. gravity.
+    t0 = time.perf_counter()
+    gravity = _gravity(poses, samples) if opt.level_from_floor else np.eye(3)
+    tilt = float(np.rad2deg(Rotation.from_matrix(gravity).magnitude()))
+    applied = tilt > opt.gravity_min_tilt_deg
+    if not applied:
+        gravity = np.eye(3)
+    g4 = np.eye(4)
+    g4[:3, :3] = gravity
+    levelled = matrix_to_pose(g4 @ pose_to_matrix(poses))
+    timings["gravity"] = time.perf_counter() - t0
+    scan = _scan(levelled, samples)
+    # 2.-4. every storey.
+    found: list[_Found] = []
+    storeys = []
+    for storey in _storeys(plan, opt.plan_cut_height_m):
+        here = _search_storey(scan, storey, plan, opt, rng, timings)
+        storeys.append({"floor_z": storey.floor_z, "segments": len(storey.rows),
+                        "best_score": max((f.score for f in here), default=0.0)})
+        found += here
+    # 5. ranking, distinct hypotheses, ambiguity.
+    found.sort(key=lambda f: -f.score)
+    ranked: list[_Found] = []
+    for f in found:
+        if all(_distinct(f, r, opt) for r in ranked):
+            ranked.append(f)
+    hyps = []
+    for f in ranked[:opt.report_top]:
+        m = _transform(f, gravity, scan.floor_z)
+        yaw = float(np.rad2deg(np.arctan2(m[1, 0], m[0, 0])))
+        hyps.append(AlignHypothesis(matrix_to_pose(m), f.storey.floor_z, yaw, f.score, f.fit,
+                                    f.rigid_fit, f.inliers, f.free, f.coarse))
+    timings["total"] = time.perf_counter() - t_start
+    if not ranked:
+        raise GlobalAlignmentError(
+            "global alignment found no placement of the trajectory in the BIM (too few wall "
+            "or column points, or an empty floor plan)")
+    best = ranked[0]
+    ratio = ranked[1].score / best.score if len(ranked) > 1 and best.score > 0 else 0.0
+    ambiguous = ratio >= opt.ambiguity_ratio
+    m_best = _transform(best, gravity, scan.floor_z)
+    result = GlobalAlignResult(
+        poses=matrix_to_pose(m_best @ pose_to_matrix(poses)),
+        world_from_slam=hyps[0].world_from_slam,
+        hypotheses=hyps, ambiguous=ambiguous, ratio=float(ratio),
+        accepted_ambiguous=ambiguous and opt.accept_ambiguous, gravity_tilt_deg=tilt,
+        gravity_applied=applied, storeys=storeys, timings=timings, options=opt)
+    if best.fit < opt.min_score or best.free < opt.min_free_fraction:
+        raise GlobalAlignmentError(
+            f"global alignment: the best placement fits badly (fit score {best.fit:.2f}, "
+            f"minimum {opt.min_score}; cameras in free space {best.free:.0%}, minimum "
+            f"{opt.min_free_fraction:.0%}); is this the right BIM?\n" + result.describe(),
+            result)
+    if ambiguous and not opt.accept_ambiguous:
+        raise AmbiguousAlignmentError(
+            f"global alignment is ambiguous: the second-best placement scores {ratio:.0%} of "
+            f"the best (threshold {opt.ambiguity_ratio:.0%}; a symmetric layout, repeated "
+            "rooms or identical storeys). Refusing to guess; accept the best with "
+            "--accept-ambiguous (global_align.accept_ambiguous), or give an initial "
+            "trajectory in the BIM frame.\n" + result.describe(), result)
+    return result
+
+
+def initial_free_fraction(world_from_cam: ArrayLike, plan: FloorPlan,
+                          options: GlobalAlignOptions | None = None) -> float:
+    """Fraction of the initial camera positions that lie in the building's free space: on a
+    storey whose floor is 0.3-3 m below the camera, inside its plan section and clear of its
+    walls (:func:`free_space_fraction`). Near 0 for a trajectory in a SLAM system's own frame,
+    near 1 for one already in the BIM frame."""
+    opt = GlobalAlignOptions() if options is None else options
+    poses = np.asarray(world_from_cam, dtype=np.float64).reshape(-1, 7)
+    free = np.zeros(len(poses), dtype=bool)
+    for storey in _storeys(plan, opt.plan_cut_height_m):
+        if storey.floor_z is None:
+            on = np.ones(len(poses), dtype=bool)
+        else:
+            above = poses[:, 2] - storey.floor_z
+            on = (above > 0.3) & (above < 3.0)
+        if not on.any():
+            continue
+        _, ok = free_space_fraction(poses[on, :2], plan.segments[storey.rows],
+                                    clearance_m=opt.free_clearance_m, n_rays=opt.enclosed_rays,
+                                    min_hits=opt.enclosed_min_hits)
+        free[np.flatnonzero(on)[ok]] = True
+    return float(free.mean()) if len(free) else 0.0
