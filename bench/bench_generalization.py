@@ -80,6 +80,21 @@ def _sim_config(setting: str, frames: int) -> Any:
                            walk=WalkConfig(pitch_deg=-12.0), workers=0)
 
 
+def world_runs(work: Path, world: str) -> tuple[Any, Path, dict[str, Any]]:
+    """A 60-frame standard world (:func:`make_world`): its sequence, reference IFC and the initial
+    trajectories of the fixed point (the ground truth) and Exp. 1/2/3 (seed = world seed + 1)."""
+    from bimcap.dataset import read_sequence
+    from bimcap.sim.drift import DriftParams, apply_drift
+
+    seq_dir, reference, _ = make_world(work, world, 60, "standard")
+    seq = read_sequence(seq_dir)
+    gt = seq.trajectory("gt")
+    seed = int(world.rpartition("-s")[2]) if world.startswith("gen") else 1
+    inits = {"fixed": gt, **{e: apply_drift(gt, DriftParams.from_preset(e, seed=seed + 1)).init
+                             for e in ("exp1", "exp2", "exp3")}}
+    return seq, reference, inits
+
+
 def make_world(work: Path, world: str, frames: int, setting: str) -> tuple[Path, Path, Path | None]:
     """(sequence dir, reference IFC the world was rendered from, design IFC or None)."""
     from bimcap.sim.building import BuildingSpec, as_built, generate_building

@@ -29,7 +29,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_generalization import DEFAULT_WORLDS, make_world
+from bench_generalization import DEFAULT_WORLDS, world_runs
 
 
 def _cpu(fn, *args, **kwargs):
@@ -39,12 +39,10 @@ def _cpu(fn, *args, **kwargs):
 
 
 def main() -> None:
-    from bimcap.dataset import read_sequence
     from bimcap.pipeline.config import RefineConfig
     from bimcap.pipeline.refine import prepare
     from bimcap.registration import CoarseOptions, FloorPlan, SemanticSamples, coarse_register
     from bimcap.registration import coarse as stages
-    from bimcap.sim.drift import DriftParams, apply_drift
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--work", default="/tmp/bimcap_generalization", help="worlds and caches")
@@ -58,12 +56,7 @@ def main() -> None:
     print("| world | run | full pass: drift / CPU s | probe: drift / CPU s | decision |")
     print("|---|---|---|---|---|")
     for world in args.worlds.split(","):
-        seq_dir, reference, _ = make_world(work, world, 60, "standard")
-        seq = read_sequence(seq_dir)
-        gt = seq.trajectory("gt")
-        seed = int(world.rpartition("-s")[2]) if world.startswith("gen") else 1
-        runs = {"fixed": gt, **{e: apply_drift(gt, DriftParams.from_preset(e, seed=seed + 1)).init
-                                for e in ("exp1", "exp2", "exp3")}}
+        seq, reference, runs = world_runs(work, world)
         for name, init in runs.items():
             prep = prepare(seq, reference, init, RefineConfig(workers=1),
                            work / world / "run_60_standard_ref", quiet=True)

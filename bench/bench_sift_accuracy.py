@@ -20,7 +20,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_generalization import _row, make_world
+from bench_generalization import _row, world_runs
 
 VARIANTS = {
     "default": {},
@@ -32,10 +32,8 @@ VARIANTS = {
 
 
 def main() -> None:
-    from bimcap.dataset import read_sequence
     from bimcap.pipeline.config import RefineConfig
     from bimcap.pipeline.refine import prepare, solve_prepared
-    from bimcap.sim.drift import DriftParams, apply_drift
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--work", default="/tmp/bimcap_generalization", help="worlds and caches")
@@ -49,12 +47,8 @@ def main() -> None:
     print("| world | variant | run | ATE_pos cm | ATE_rot ° | front end s |")
     print("|---|---|---|---|---|---|")
     for world in args.worlds.split(","):
-        seq_dir, reference, _ = make_world(work, world, 60, "standard")
-        seq = read_sequence(seq_dir)
-        gt = seq.trajectory("gt")
-        seed = int(world.rpartition("-s")[2]) if world.startswith("gen") else 1
-        inits = {"fixed": gt, **{e: apply_drift(gt, DriftParams.from_preset(e, seed=seed + 1)).init
-                                 for e in ("exp1", "exp2", "exp3")}}
+        seq, reference, inits = world_runs(work, world)
+        gt = inits["fixed"]
         for variant in args.variants.split(","):
             cfg = RefineConfig(workers=args.workers, features=VARIANTS[variant])
             for name in args.runs.split(","):

@@ -44,6 +44,7 @@ from scipy.spatial.transform import Rotation
 
 from bimcap.geometry.poses import matrix_to_pose, pose_to_matrix, transform_points
 from bimcap.labels import Label
+from bimcap.registration._coarse_steps import _subsample
 from bimcap.registration.coarse import FloorPlan, SemanticSamples
 from bimcap.registration.correlative import score_volume, top_hypotheses
 from bimcap.registration.distance_field import DistanceField
@@ -415,18 +416,6 @@ def _scan(poses: F64, samples: SemanticSamples) -> _Scan:
                  floor_z)
 
 
-def _thin(xy: F64, cls: I32, cell: float | None, cap: int, rng: np.random.Generator
-          ) -> NDArray[np.int64]:
-    keep = np.arange(len(xy))
-    if len(xy) and cell is not None:
-        key = np.c_[np.floor(xy / cell).astype(np.int64), cls.astype(np.int64)]
-        _, keep = np.unique(key, axis=0, return_index=True)
-        keep = np.sort(keep)
-    if len(keep) > cap:
-        keep = np.sort(rng.choice(keep, cap, replace=False))
-    return keep
-
-
 @dataclass(frozen=True)
 class _Found:
     """A hypothesis in the levelled SLAM frame: 2-D correction, storey, per-frame fit (the
@@ -475,7 +464,7 @@ def _search_storey(scan: _Scan, storey: _Storey, plan: FloorPlan, opt: GlobalAli
     shift = centre - scan.cams[:, :2].mean(0)
     xy_s, cams_s = xy + shift, scan.cams[:, :2] + shift
     t0 = time.perf_counter()
-    occ = _thin(xy_s, cls, 0.5 * opt.resolution_m, 40 * opt.max_points, rng)
+    occ = _subsample(xy_s, cls, 0.5 * opt.resolution_m, 40 * opt.max_points, rng)
     yaws = np.arange(-np.pi, np.pi, np.deg2rad(opt.yaw_step_deg))
     vol, res, n = score_volume(xy_s[occ], cls[occ], view[occ], maps, centre, yaws, half)
     # The trajectory's own shape: the share of its cameras in free space, for every (yaw, t).
@@ -485,7 +474,7 @@ def _search_storey(scan: _Scan, storey: _Storey, plan: FloorPlan, opt: GlobalAli
                            np.deg2rad(opt.distinct_deg))
     timings["correlative"] += time.perf_counter() - t0
     t0 = time.perf_counter()
-    sel = _thin(xy_s, cls, None, opt.max_points, rng)
+    sel = _subsample(xy_s, cls, None, opt.max_points, rng)
     p_xy, p_cls, p_view, p_frame = xy_s[sel], cls[sel], view[sel], frame[sel]
 
     def associate(q: F64, q_class: I32, v: F64) -> tuple[F64, F64]:
