@@ -9,13 +9,16 @@ from pathlib import Path
 
 import pytest
 
+import bimcap
 from bimcap.cli import COMMANDS, build_parser, main
 
-REPO = Path(__file__).resolve().parents[1]
+#: Where the bimcap under test lives (the source tree with its built ``_core``, or an installed
+#: package): the sub-processes import the same one.
+SOURCES = Path(bimcap.__file__).resolve().parents[1]
 
 
 def _run(*args: str) -> subprocess.CompletedProcess[str]:
-    env = {"PYTHONPATH": str(REPO / "python"), "PATH": "/usr/bin:/bin"}
+    env = {"PYTHONPATH": str(SOURCES), "PATH": "/usr/bin:/bin"}
     return subprocess.run([sys.executable, "-m", "bimcap", *args], capture_output=True, text=True,
                           env=env, timeout=120)
 
@@ -86,7 +89,7 @@ def test_top_level_help_imports_no_stage() -> None:
             "try:\n    runpy.run_module('bimcap', run_name='__main__')\n"
             "except SystemExit:\n    pass\n"
             f"print('HEAVY', sorted(m for m in {HEAVY!r} if m in sys.modules))")
-    env = {"PYTHONPATH": str(REPO / "python"), "PATH": "/usr/bin:/bin"}
+    env = {"PYTHONPATH": str(SOURCES), "PATH": "/usr/bin:/bin"}
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
                          timeout=60)
     assert out.returncode == 0, out.stderr
