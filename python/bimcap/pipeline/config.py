@@ -346,6 +346,44 @@ class RefineConfig:
             raise ConfigError(str(exc), p) from None
 
 
+def options_from_table(cls: Any, table: dict[str, Any], section: str,
+                       error: type[Exception]) -> Any:
+    """``cls(**table)`` for an options dataclass whose defaults give each field's type (bool,
+    int, float, str or a str enum; a field whose default is None takes an int). A key that is
+    not a field, a value of the wrong type, or one that ``cls`` refuses (``error``, with
+    ``message`` and ``field``) raises ConfigError naming ``<section>.<key>``."""
+    defaults = cls()
+    kinds = {f.name: type(getattr(defaults, f.name)) for f in fields(cls)}
+    values: dict[str, Any] = {}
+    for key, value in table.items():
+        kind = kinds.get(key)
+        where = f"{section}.{key}"
+        if kind is None:
+            raise ConfigError(f"unknown option; known: {sorted(kinds)}", field=where)
+        if issubclass(kind, Enum):
+            try:
+                values[key] = kind(value)
+            except ValueError:
+                raise ConfigError(f"must be one of {[m.value for m in kind]}, got {value!r}",
+                                  field=where) from None
+            continue
+        ok = (isinstance(value, bool) if kind is bool else
+              isinstance(value, str) if kind is str else
+              isinstance(value, int) and not isinstance(value, bool)
+              if kind in (int, type(None)) else
+              isinstance(value, (int, float)) and not isinstance(value, bool))
+        if not ok:
+            name = "int" if kind is type(None) else kind.__name__
+            raise ConfigError(f"must be {name}, got {value!r}", field=where)
+        values[key] = float(value) if kind is float else value
+    try:
+        return cls(**values)
+    except error as exc:
+        bad = getattr(exc, "field", None)
+        raise ConfigError(getattr(exc, "message", str(exc)),
+                          field=f"{section}.{bad}" if bad else section) from None
+
+
 def toml_text(settings: dict[str, Any], header: str = "") -> str:
     """``settings`` as TOML that :meth:`RefineConfig.from_toml` reads back: scalars first, then
     one table per dict (one level of sub-tables: ``[solver.wall]``); None values are written

@@ -17,7 +17,6 @@ import json
 import sys
 import time
 from dataclasses import dataclass, field
-from enum import Enum
 from os import PathLike
 from pathlib import Path
 from typing import Any
@@ -766,52 +765,11 @@ def effective_settings(config: RefineConfig) -> dict[str, Any]:
     return out
 
 
-def options_from_table(cls: Any, table: dict[str, Any], section: str,
-                       error: type[Exception]) -> Any:
-    """``cls(**table)`` for an options dataclass whose defaults give each field's type (bool,
-    int, float, str or a str enum; a field whose default is None takes an int). A key that is
-    not a field, a value of the wrong type, or one that ``cls`` refuses (``error``, with
-    ``message`` and ``field``) raises ConfigError naming ``<section>.<key>``."""
-    from dataclasses import fields as dc_fields
-
-    from bimcap.pipeline.config import ConfigError
-
-    defaults = cls()
-    kinds = {f.name: type(getattr(defaults, f.name)) for f in dc_fields(cls)}
-    values: dict[str, Any] = {}
-    for key, value in table.items():
-        kind = kinds.get(key)
-        where = f"{section}.{key}"
-        if kind is None:
-            raise ConfigError(f"unknown option; known: {sorted(kinds)}", field=where)
-        if issubclass(kind, Enum):
-            try:
-                values[key] = kind(value)
-            except ValueError:
-                raise ConfigError(f"must be one of {[m.value for m in kind]}, got {value!r}",
-                                  field=where) from None
-            continue
-        ok = (isinstance(value, bool) if kind is bool else
-              isinstance(value, str) if kind is str else
-              isinstance(value, int) and not isinstance(value, bool)
-              if kind in (int, type(None)) else
-              isinstance(value, (int, float)) and not isinstance(value, bool))
-        if not ok:
-            name = "int" if kind is type(None) else kind.__name__
-            raise ConfigError(f"must be {name}, got {value!r}", field=where)
-        values[key] = float(value) if kind is float else value
-    try:
-        return cls(**values)
-    except error as exc:
-        bad = getattr(exc, "field", None)
-        raise ConfigError(getattr(exc, "message", str(exc)),
-                          field=f"{section}.{bad}" if bad else section) from None
-
-
 def coarse_options(config: RefineConfig) -> Any:
     """``bimcap.registration.CoarseOptions`` with the config's ``[registration]`` table applied;
     a key that is not a field or a value of the wrong type or range raises ConfigError naming
     ``registration.<key>``."""
+    from bimcap.pipeline.config import options_from_table
     from bimcap.registration import CoarseOptions, RegistrationInputError
 
     return options_from_table(CoarseOptions, config.registration, "registration",
@@ -822,6 +780,7 @@ def sift_options(config: RefineConfig) -> Any:
     """``bimcap.features.SiftOptions`` with the config's ``[features]`` table applied (errors
     name ``features.<key>``)."""
     from bimcap.features.sift import FeatureError, SiftOptions
+    from bimcap.pipeline.config import options_from_table
 
     return options_from_table(SiftOptions, config.features, "features", FeatureError)
 
@@ -835,7 +794,7 @@ def _coarse(prepared: Prepared, poses: F64, quiet: bool, options: Any = None
     trajectory continuity (Viterbi), point-to-segment ICP."""
     from bimcap.registration import CoarseOptions, coarse_register
 
-    samples, plan = _registration_inputs(prepared)
+    samples, plan = _semantic_samples(prepared), _floor_plan(prepared.reference)
     t0 = time.perf_counter()
     res = coarse_register(poses, samples, plan, options or CoarseOptions())
     info = res.to_dict()
@@ -852,16 +811,15 @@ def _coarse(prepared: Prepared, poses: F64, quiet: bool, options: Any = None
     return np.asarray(res.poses, np.float64), info
 
 
-def _registration_inputs(prepared: Prepared) -> tuple[Any, Any]:
-    """The front end's semantic samples and the BIM's floor plan as the registration stages take
-    them (``SemanticSamples``, ``FloorPlan``)."""
+def _semantic_samples(prepared: Prepared) -> Any:
+    """The front end's semantic samples as the registration stages take them
+    (``bimcap.registration.SemanticSamples``)."""
     from bimcap.registration import SemanticSamples
 
     arrays = prepared.frontend.to_problem_arrays()
     names = [f"{c}_{s}" for c in ("wall", "column", "floor", "ceiling")
              for s in ("frame", "p_in_cam")]
-    samples = SemanticSamples.from_arrays(**{k: arrays.get(k) for k in names})
-    return samples, _floor_plan(prepared.reference)
+    return SemanticSamples.from_arrays(**{k: arrays.get(k) for k in names})
 
 
 def _floor_plan(ref: Any) -> Any:
@@ -900,8 +858,7 @@ def _global_align(prepared: Prepared, poses: F64, config: RefineConfig, quiet: b
             "free space (a trajectory in its own SLAM frame?): placing it in the BIM first "
             "(--no-global-align / global_align = \"off\" to skip)", quiet)
     t0 = time.perf_counter()
-    samples, plan = _registration_inputs(prepared)
-    res = global_align(poses, samples, plan,
+    res = global_align(poses, _semantic_samples(prepared), plan,
                        GlobalAlignOptions(accept_ambiguous=config.accept_ambiguous))
     best = res.hypotheses[0]
     log(f"global alignment: yaw {best.yaw_deg:.1f} deg, floor "
