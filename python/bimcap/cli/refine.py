@@ -52,6 +52,9 @@ def add_config_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--accept-ambiguous", action="store_true", default=None,
                    help="take the best global alignment even when another placement scores "
                         "nearly as well (default: refuse, listing the placements)")
+    g.add_argument("--lidar-scan", action=argparse.BooleanOptionalAction, default=None,
+                   help="the LiDAR scan outside the camera's view gives wall, floor and ceiling "
+                        "samples too (default: on for BIMCaP, off for FACaP)")
     g.add_argument("--rotation-first", action=argparse.BooleanOptionalAction, default=None,
                    help="rotations first (translations held), then translations, then both")
     g.add_argument("--staged", action=argparse.BooleanOptionalAction, default=None,
@@ -85,7 +88,7 @@ def config_from_args(args: argparse.Namespace) -> RefineConfig:
     keys = ("method", "terms", "weighting", "loss", "geometric_mode", "completion",
             "completion_model", "segmentation", "segmentation_model", "labels_dir", "coarse",
             "rotation_first", "staged", "window", "max_match_distance", "workers", "lidar_nan",
-            "max_lost_fraction", "colmap", "accept_ambiguous")
+            "max_lost_fraction", "colmap", "accept_ambiguous", "lidar_scan")
     overrides: dict[str, Any] = {k: getattr(args, k) for k in keys
                                  if getattr(args, k, None) is not None}
     if getattr(args, "global_align", None) is not None:

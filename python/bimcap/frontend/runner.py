@@ -76,6 +76,7 @@ from bimcap.frontend.semantic_map import (
     sample_semantic_points,
     write_semantic_ply,
 )
+from bimcap.fusion.scan import ScanSamplingOptions, scan_surface_points
 from bimcap.geometry.camera import Camera
 from bimcap.geometry.trajectory import Trajectory, validate_poses
 from bimcap.io.atomic import atomic_write_bytes
@@ -313,6 +314,9 @@ class FrontendConfig:
     filters: the peers' filters on pairwise matches (gap, initial 3-D distance, depth).
     depth_lookup: validity check of keypoint depths.
     sampling: subsampling of labelled pixels into semantic samples.
+    scan: the oriented surface points of each LiDAR scan outside the camera's view
+        (:func:`bimcap.fusion.scan.scan_surface_points`); None: none. Sequences without a
+        LiDAR give none either way.
     min_track_length: observations per track (>= 2).
     """
 
@@ -322,6 +326,7 @@ class FrontendConfig:
     filters: MatchFilterOptions = field(default_factory=MatchFilterOptions)
     depth_lookup: DepthLookupOptions = field(default_factory=DepthLookupOptions)
     sampling: SemanticSamplingOptions = field(default_factory=SemanticSamplingOptions)
+    scan: ScanSamplingOptions | None = field(default_factory=ScanSamplingOptions)
     min_track_length: int = 2
 
     def __post_init__(self) -> None:
@@ -338,6 +343,7 @@ class FrontendConfig:
             "filters": self.filters.to_dict(),
             "depth_lookup": self.depth_lookup.to_dict(),
             "sampling": self.sampling.to_dict(),
+            "scan": None if self.scan is None else self.scan.to_dict(),
             "min_track_length": self.min_track_length,
         }
 
@@ -357,6 +363,7 @@ class FrameStats:
     time_s: float
     sift_time_s: float
     cached: bool
+    num_scan: int = 0
 
 
 @dataclass
@@ -404,6 +411,14 @@ OBSERVATION_ARRAYS: dict[str, type] = {
     **{f"{p}_p_in_cam": np.float64 for p in SEMANTIC_CLASSES.values()},
 }
 
+#: The scans' oriented surface points outside the camera's view (not solver arrays: they become
+#: W / F / Ce samples once classified at some poses, :mod:`bimcap.frontend.scan_samples`).
+SCAN_ARRAYS: dict[str, type] = {
+    "scan_frame": np.int32,
+    "scan_p_in_cam": np.float64,
+    "scan_n_in_cam": np.float64,
+}
+
 
 @dataclass
 class FrontendResult:
@@ -417,6 +432,8 @@ class FrontendResult:
     track_obs_frame (K,) int32, track_obs_point (K,) int32, track_obs_uv (K, 2),
     track_obs_depth (K,) metres (0 = none), track_points (P, 3) world, from the initial poses.
     floor_frame (F,) int32, floor_p_in_cam (F, 3) metres; likewise ceiling_*, wall_*, column_*.
+    scan_frame (R,) int32, scan_p_in_cam (R, 3) metres, scan_n_in_cam (R, 3) unit normals: the
+    scans' surface points outside the camera's view (empty without a LiDAR).
     frame_stats, pair_stats, run: statistics; config: the settings as a dict.
     """
 
@@ -438,14 +455,19 @@ class FrontendResult:
     wall_p_in_cam: F64
     column_frame: I32
     column_p_in_cam: F64
+    scan_frame: I32 = field(default_factory=lambda: np.zeros(0, np.int32))
+    scan_p_in_cam: F64 = field(default_factory=lambda: np.zeros((0, 3)))
+    scan_n_in_cam: F64 = field(default_factory=lambda: np.zeros((0, 3)))
     frame_stats: list[FrameStats] = field(default_factory=list)
     pair_stats: list[PairStats] = field(default_factory=list)
     run: RunStats = field(default_factory=RunStats)
     config: dict[str, object] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        for name, dtype in OBSERVATION_ARRAYS.items():
+        for name, dtype in {**OBSERVATION_ARRAYS, **SCAN_ARRAYS}.items():
             setattr(self, name, np.ascontiguousarray(getattr(self, name), dtype=dtype))
+        for name in ("scan_p_in_cam", "scan_n_in_cam"):
+            setattr(self, name, getattr(self, name).reshape(-1, 3))
 
     def to_problem_arrays(self) -> dict[str, NDArray[Any]]:
         """The solver's arrays by their names: the observations plus ``cameras (1, 4)`` and
@@ -481,6 +503,7 @@ class FrontendResult:
             "num_track_points": len(self.track_points),
             "num_track_observations": len(self.track_obs_frame),
             **{f"num_{p}": len(getattr(self, f"{p}_frame")) for p in SEMANTIC_CLASSES.values()},
+            "num_scan": len(self.scan_frame),
             "run": asdict(self.run),
             "frame_stats": [asdict(s) for s in self.frame_stats],
             "pair_stats": [asdict(s) for s in self.pair_stats],
@@ -496,7 +519,7 @@ class FrontendResult:
             "version": RESULT_FORMAT_VERSION,
             **self.to_dict(),
         }
-        arrays = {n: getattr(self, n) for n in OBSERVATION_ARRAYS}
+        arrays = {n: getattr(self, n) for n in (*OBSERVATION_ARRAYS, *SCAN_ARRAYS)}
         buf = io.BytesIO()
         np.savez(buf, meta_json=np.array(json.dumps(meta)), **arrays)
         atomic_write_bytes(os.fspath(path), buf.getvalue())
@@ -518,13 +541,13 @@ class FrontendResult:
                 path,
                 "meta_json",
             )
-        missing = [n for n in OBSERVATION_ARRAYS if n not in data]
+        missing = [n for n in (*OBSERVATION_ARRAYS, *SCAN_ARRAYS) if n not in data]
         if missing:
             raise FrontendInputError(f"missing arrays {missing}", path)
         return cls(
             camera=Camera.from_dict(meta["camera"]),
             num_frames=int(meta["num_frames"]),
-            **{n: data[n] for n in OBSERVATION_ARRAYS},
+            **{n: data[n] for n in (*OBSERVATION_ARRAYS, *SCAN_ARRAYS)},
             frame_stats=[FrameStats(**s) for s in meta["frame_stats"]],
             pair_stats=[PairStats(**s) for s in meta["pair_stats"]],
             run=RunStats(**meta["run"]),
@@ -675,9 +698,22 @@ def compute_frame(job: _FrameJob, *, shared: _RunShared | None = None
     out: dict[str, NDArray[Any]] = {**feats, "depth": kp_depth}
     for lab, prefix in SEMANTIC_CLASSES.items():
         out[f"{prefix}_p_in_cam"] = samples[lab]
+    out["scan_p_in_cam"], out["scan_n_in_cam"] = _scan_points(seq, i, und.pinhole, cfg.scan)
     out["sift_time_s"] = np.array(sift_time)
     out["time_s"] = np.array(time.perf_counter() - t0)
     return out
+
+
+def _scan_points(seq: Any, i: int, pinhole: Camera, options: ScanSamplingOptions | None
+                 ) -> tuple[F64, F64]:
+    """The frame's scan surface points outside the view (empty without options or LiDAR)."""
+    has_scan = getattr(seq.frames[i], "lidar", None) is not None
+    if options is None or not has_scan or not hasattr(seq, "cam_from_lidar"):
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    scan = np.asarray(seq.load_lidar(i))
+    if scan.ndim != 2 or scan.shape[1] < 3 or len(scan) == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    return scan_surface_points(scan, seq.cam_from_lidar, pinhole, options)
 
 
 @dataclass
@@ -898,6 +934,7 @@ def _frame_cache_keys(ctx: _RunContext) -> tuple[list[str], list[str]]:
     frame_settings = {
         "depth_lookup": cfg.depth_lookup.to_dict(),
         "sampling": cfg.sampling.to_dict(),
+        "scan": None if cfg.scan is None else cfg.scan.to_dict(),
         "depth_provider": provider_token(shared.depth_provider),
         "label_provider": provider_token(shared.label_provider),
         "depth_refiner": (None if shared.depth_refiner is None
@@ -1176,6 +1213,7 @@ def _frame_stats(frames: list[dict[str, NDArray[Any]]], cached: list[bool]) -> l
             time_s=float(d["time_s"]),
             sift_time_s=float(d["sift_time_s"]),
             cached=cached[i],
+            num_scan=len(d["scan_p_in_cam"]),
         )
         for i, d in enumerate(frames)
     ]
@@ -1221,6 +1259,13 @@ def _assemble(
             [np.full(len(p), i, np.int32) for i, p in enumerate(pts)]
         ) if pts else np.zeros(0, np.int32)
         sem[f"{prefix}_p_in_cam"] = np.concatenate(pts) if pts else np.zeros((0, 3))
+    scan = [np.asarray(d["scan_p_in_cam"], np.float64).reshape(-1, 3) for d in frames]
+    sem["scan_frame"] = np.concatenate(
+        [np.full(len(p), i, np.int32) for i, p in enumerate(scan)]) if scan else np.zeros(0)
+    sem["scan_p_in_cam"] = np.concatenate(scan) if scan else np.zeros((0, 3))
+    sem["scan_n_in_cam"] = (np.concatenate([np.asarray(d["scan_n_in_cam"], np.float64)
+                                            .reshape(-1, 3) for d in frames])
+                            if frames else np.zeros((0, 3)))
     return FrontendResult(
         camera=pinhole,
         num_frames=len(frames),

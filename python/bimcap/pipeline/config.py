@@ -171,6 +171,10 @@ class RefineConfig:
     global_align: ``"auto"`` (default: when fewer than 30 % of the initial cameras lie in the
         building's free space, log it and align), ``"on"`` or ``"off"`` (TOML ``true`` /
         ``false`` read as on / off): estimate ``world_from_slam`` before the coarse stage.
+    lidar_scan: the LiDAR scan outside the camera's view gives wall, floor and ceiling samples
+        too (``bimcap.fusion.scan``): every frame sees the walls all around it, not only the
+        60–70° its camera sees. None (default): on for BIMCaP, off for FACaP (the peers' method
+        samples the image alone).
     accept_ambiguous: when the global alignment is ambiguous (the second-best placement scores
         nearly as well as the best), take the best anyway instead of refusing (flagged in
         ``result.json``).
@@ -205,6 +209,7 @@ class RefineConfig:
     colmap: ColmapExport = ColmapExport.IMAGES
     global_align: GlobalAlignMode = GlobalAlignMode.AUTO
     accept_ambiguous: bool = False
+    lidar_scan: bool | None = None
 
     def __post_init__(self) -> None:
         if isinstance(self.global_align, bool):
@@ -214,6 +219,9 @@ class RefineConfig:
         except ValueError:
             raise ConfigError(f"global_align must be auto, on or off, got {self.global_align!r}",
                               field="global_align") from None
+        if self.lidar_scan is not None and not isinstance(self.lidar_scan, bool):
+            raise ConfigError(f"lidar_scan must be true or false, got {self.lidar_scan!r}",
+                              field="lidar_scan")
         if not isinstance(self.accept_ambiguous, bool):
             raise ConfigError(f"accept_ambiguous must be true or false, got "
                               f"{self.accept_ambiguous!r}", field="accept_ambiguous")
@@ -286,6 +294,13 @@ class RefineConfig:
         return self.terms or FULL_TERMS[self.method]
 
     @property
+    def effective_lidar_scan(self) -> bool:
+        """Whether the scan outside the camera's view gives W / F / Ce samples."""
+        if self.lidar_scan is not None:
+            return bool(self.lidar_scan)
+        return self.method is Method.BIMCAP
+
+    @property
     def effective_coarse(self) -> bool:
         if self.coarse is not None:
             return bool(self.coarse)
@@ -320,6 +335,7 @@ class RefineConfig:
         d["effective_terms"] = self.effective_terms
         d["effective_weighting"] = self.effective_weighting
         d["effective_coarse"] = self.effective_coarse
+        d["effective_lidar_scan"] = self.effective_lidar_scan
         d["effective_solve_match_distance"] = self.effective_solve_match_distance
         return d
 

@@ -16,7 +16,7 @@ from __future__ import annotations
 import json
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from os import PathLike
 from pathlib import Path
 from typing import Any
@@ -60,6 +60,10 @@ class Prepared:
         camera ``sequence.camera.pinhole()``.
     init: the initial trajectory, one pose per frame.
     timings: seconds per step.
+    pixel_frontend: the front end before the LiDAR scan's samples were added (None: none were
+        added); the semantic maps and their metrics (MME, MPV) use it, so that they compare the
+        same points across methods.
+    scan_samples: how many samples the scan added per class (None: none).
     """
 
     sequence: Any
@@ -67,6 +71,20 @@ class Prepared:
     frontend: Any
     init: Trajectory
     timings: dict[str, float] = field(default_factory=dict)
+    pixel_frontend: Any = None
+    scan_samples: dict[str, int] | None = None
+
+    @property
+    def map_source(self) -> Any:
+        """The front end whose samples make the semantic maps (the pixels' own)."""
+        return self.frontend if self.pixel_frontend is None else self.pixel_frontend
+
+    def pixels_only(self) -> Prepared:
+        """This run without the LiDAR scan's samples (itself when it has none)."""
+        if self.pixel_frontend is None:
+            return self
+        return replace(self, frontend=self.pixel_frontend, pixel_frontend=None,
+                       scan_samples=None)
 
 
 def make_providers(config: RefineConfig, sequence: Any) -> tuple[Any, Any, Any]:
@@ -232,6 +250,14 @@ def prepare(
         depth_refiner=refiner, executor=executor,
     )
     timings["frontend"] = time.perf_counter() - t0
+    if config.effective_lidar_scan and len(fe.scan_frame):
+        from bimcap.frontend.scan_samples import with_scan_samples
+
+        with_scan, stats = with_scan_samples(fe, traj.poses)
+        log(f"LiDAR scan samples outside the camera's view: {stats.wall} wall, "
+            f"{stats.floor} floor, {stats.ceiling} ceiling", quiet)
+        return Prepared(seq, ref, with_scan, traj, timings, pixel_frontend=fe,
+                        scan_samples=stats.to_dict())
     return Prepared(seq, ref, fe, traj, timings)
 
 
@@ -462,6 +488,7 @@ class SolveOutcome:
     observability: Any = None
     repair: dict[str, Any] | None = None
     global_align: dict[str, Any] | None = None
+    diverged_frames: list[int] = field(default_factory=list)
 
     @property
     def summary(self) -> Any:
@@ -491,7 +518,30 @@ class SolveOutcome:
             "observability": None if self.observability is None else self.observability.to_dict(),
             "repair": self.repair,
             "global_align": self.global_align,
+            "diverged_frames": self.diverged_frames,
         }
+
+
+#: How far outside the BIM's bounding box a refined camera may lie before its frame counts as
+#: diverged (:func:`diverged_frames`), metres.
+DIVERGED_MARGIN_M = 10.0
+
+
+def diverged_frames(poses: F64, reference: Any, margin_m: float = DIVERGED_MARGIN_M
+                    ) -> list[int]:
+    """Frames whose refined camera is not finite or lies more than ``margin_m`` outside the
+    bounding box of the BIM's floor plan (x, y) and its segments' heights (z): a solve that
+    diverged there (an unconstrained frame under plain L2, say) gives no usable pose."""
+    p = np.asarray(poses, np.float64)[:, :3]
+    seg = np.asarray(reference.segments, np.float64).reshape(-1, 4)
+    segz = np.asarray(reference.segment_z, np.float64).reshape(-1, 2)
+    bad = ~np.isfinite(np.asarray(poses, np.float64)).all(axis=1)
+    if len(seg):
+        lo = np.array([seg[:, [0, 2]].min(), seg[:, [1, 3]].min(), segz.min()]) - margin_m
+        hi = np.array([seg[:, [0, 2]].max(), seg[:, [1, 3]].max(), segz.max()]) + margin_m
+        with np.errstate(invalid="ignore"):
+            bad |= ((p < lo) | (p > hi)).any(axis=1)
+    return [int(i) for i in np.flatnonzero(bad)]
 
 
 def segment_free_normals(reference: Any) -> F64:
@@ -538,6 +588,12 @@ def solve_prepared(prepared: Prepared, config: RefineConfig, quiet: bool = False
                    plane_check_limit_m: float = 0.05) -> SolveOutcome:
     """Step 2: build the problem and solve it, stage by stage (:func:`schedule_for`).
 
+    With the LiDAR scan's samples (``prepared.pixel_frontend``), the global alignment, the
+    schedule and its stages see the pixels' samples alone, and the last stage is then solved
+    again with the scan's samples added: 360° of walls sharpen the optimum but also add local
+    minima one wall or door spacing away, which a start 1.4 m off (Exp. 1) falls into (the
+    Duplex: 84 cm where the pixels alone converge).
+
     Floor and ceiling samples get their planes at the poses each stage starts from. After the
     last stage (BIMCaP) the planes are chosen again at the refined poses, now trusted
     (``PlaneChoiceOptions.frame_model`` off: no per-frame tilt or offset); when more than
@@ -556,8 +612,14 @@ def solve_prepared(prepared: Prepared, config: RefineConfig, quiet: bool = False
     solver = _StageSolver(prepared=prepared, config=config, quiet=quiet,
                           max_dist=config.effective_solve_match_distance,
                           normals=None if facap else segment_free_normals(prepared.reference))
-    poses, global_info = _global_align(prepared, poses, config, quiet)
-    run, poses, coarse_info = _run_schedule(solver, base, poses)
+    pixels = prepared.pixels_only()
+    first = solver if pixels is prepared else replace(solver, prepared=pixels)
+    poses, global_info = _global_align(pixels, poses, config, quiet)
+    run, poses, coarse_info = _run_schedule(first, base, poses)
+    if first is not solver:
+        log(f"adding the LiDAR scan's samples: solving stage {run.stage.name} again", quiet)
+        run = solver.run(run.stage, run.options, poses, choose_sample_planes(prepared, poses))
+        poses = run.result.poses
     rounds: list[dict[str, int]] = []
     checks: list[Any] = []
     repair = None
@@ -571,6 +633,10 @@ def solve_prepared(prepared: Prepared, config: RefineConfig, quiet: bool = False
                                       result.wall_segment, result.column_segment,
                                       planes=result.planes)
     log(observability.summary_line(), quiet)
+    diverged = diverged_frames(poses, prepared.reference)
+    if diverged:
+        log(f"WARNING: the {config.method.value} solve diverged: frame(s) {diverged[:10]} lie "
+            f"more than {DIVERGED_MARGIN_M:g} m outside the building", quiet=False)
     return SolveOutcome(
         refined=Trajectory(prepared.init.timestamps, poses),
         summaries=solver.summaries,
@@ -582,6 +648,7 @@ def solve_prepared(prepared: Prepared, config: RefineConfig, quiet: bool = False
         observability=observability,
         repair=repair,
         global_align=global_info,
+        diverged_frames=diverged,
     )
 
 
@@ -691,8 +758,6 @@ def _rechoose_planes(solver: _StageSolver, run: _StageRun, poses: F64, max_round
 def _repair_run(solver: _StageSolver,
                 run: _StageRun, poses: F64) -> tuple[_StageRun, F64, dict[str, Any]]:
     """:func:`_repair` of the last stage's result: the run and poses after it, and its record."""
-    from dataclasses import replace
-
     repair, redo = _repair(run.problem, run.options, run.result, solver.quiet)
     if redo is None:
         return run, poses, repair
@@ -755,7 +820,7 @@ def effective_settings(config: RefineConfig) -> dict[str, Any]:
     out = {k: v for k, v in config.to_dict().items()
            if k not in ("solver", "registration", "features") and not k.startswith("effective_")}
     out.update(terms=config.effective_terms, weighting=config.effective_weighting,
-               coarse=config.effective_coarse,
+               coarse=config.effective_coarse, lidar_scan=config.effective_lidar_scan,
                solve_match_distance=config.effective_solve_match_distance or 0.0,
                geometric_mode=opts.geometric_mode.value.lower(),
                loss=opts.geometric.loss.value.lower())
@@ -900,6 +965,7 @@ class RefineResult:
     files: dict[str, str] = field(default_factory=dict)
     command: str = ""
     colmap: dict[str, Any] | None = None
+    scan_samples: dict[str, int] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -916,6 +982,7 @@ class RefineResult:
             "timings": self.timings,
             "files": self.files,
             "colmap": self.colmap,
+            "scan_samples": self.scan_samples,
         }
 
 
@@ -930,8 +997,8 @@ def evaluate_run(
     from bimcap.frontend.semantic_map import semantic_points
 
     tm = trajectory_metrics(est.poses, gt.poses, AlignMode.NONE)
-    pts, _ = semantic_points(prepared.frontend, est.poses)
-    ref_pts, _ = semantic_points(prepared.frontend, gt.poses)
+    pts, _ = semantic_points(prepared.map_source, est.poses)
+    ref_pts, _ = semantic_points(prepared.map_source, gt.poses)
     mm = None
     if len(pts) > 10:
         mm = map_metrics_with_reference(
@@ -1097,14 +1164,14 @@ def write_run_outputs(
     header = f"bimcap {config.method.value} {config.effective_terms} refined world_from_cam"
     write_tum(stage / "refined.tum", outcome.refined, header=header)
     atomic_write_json(stage / "summary.json", outcome.to_dict())
-    prepared.frontend.write_semantic_map(stage / "map_before.ply", prepared.init.poses)
-    smap = prepared.frontend.write_semantic_map(stage / "map_after.ply", outcome.refined.poses)
+    prepared.map_source.write_semantic_map(stage / "map_before.ply", prepared.init.poses)
+    smap = prepared.map_source.write_semantic_map(stage / "map_after.ply", outcome.refined.poses)
     refined_map = write_map_refined(stage / "map_refined.ply", prepared.sequence,
                                     outcome.refined.poses, smap.points, smap.labels)
     result = RefineResult(out_dir=stage, config=config, init=prepared.init,
                           refined=outcome.refined, outcome=outcome,
                           timings={**prepared.timings, "solve": outcome.seconds},
-                          command=command)
+                          command=command, scan_samples=prepared.scan_samples)
     if gt is not None:
         result.metrics_before, result.map_before = evaluate_run(prepared, prepared.init, gt)
         result.metrics_after, result.map_after = evaluate_run(prepared, outcome.refined, gt)
@@ -1175,6 +1242,12 @@ def refine(
         t_start = time.perf_counter()
         prepared = prepare(plan.sequence, plan.ifc, plan.init, cfg, out, quiet)
         outcome = solve_prepared(prepared, cfg, quiet)
+        if outcome.diverged_frames:
+            raise PipelineError(
+                f"the solve diverged: frame(s) {outcome.diverged_frames[:10]} of "
+                f"{outcome.refined.poses.shape[0]} lie more than {DIVERGED_MARGIN_M:g} m outside "
+                "the building; the refined trajectory is unusable and was not written (FACaP's "
+                "plain least squares has no prior: try --method bimcap, or more overlap)")
         result = write_run_outputs(stage, prepared, outcome, cfg, plan.gt, command, report,
                                    deviations_ifc=plan.ifc if deviations else None)
         result.inputs = {"sequence": str(Path(plan.sequence.root).resolve()),

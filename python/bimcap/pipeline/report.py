@@ -308,8 +308,8 @@ def write_refine_report(
                        result.refined.poses, result.metrics_after, result.map_after,
                        result.outcome.summary, result.outcome.seconds))
     ref = prepared.reference
-    maps = {"before": semantic_points(prepared.frontend, result.init.poses),
-            "after": semantic_points(prepared.frontend, result.refined.poses)}
+    maps = {"before": semantic_points(prepared.map_source, result.init.poses),
+            "after": semantic_points(prepared.map_source, result.refined.poses)}
     inp = ReportInput(
         title="bimcap refinement report",
         out_dir=result.out_dir,
