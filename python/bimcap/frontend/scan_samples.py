@@ -38,8 +38,17 @@ class ScanSampleStats:
         return dict(self.__dict__)
 
 
+def frames_without_matches(frontend: Any) -> NDArray[np.int64]:
+    """The frames no feature match or track observation links to another frame (sorted)."""
+    linked = np.zeros(frontend.num_frames, bool)
+    linked[np.asarray(frontend.match_frames, np.int64).ravel()] = True
+    linked[np.asarray(frontend.track_obs_frame, np.int64).ravel()] = True
+    return np.flatnonzero(~linked)
+
+
 def with_scan_samples(frontend: Any, world_from_cam: F64,
-                      options: ScanSamplingOptions | None = None) -> tuple[Any, ScanSampleStats]:
+                      options: ScanSamplingOptions | None = None,
+                      frames: NDArray[np.integer] | None = None) -> tuple[Any, ScanSampleStats]:
     """``frontend`` with each frame's classified scan points appended after its pixel samples.
 
     Parameters
@@ -47,13 +56,15 @@ def with_scan_samples(frontend: Any, world_from_cam: F64,
     frontend: a :class:`~bimcap.frontend.runner.FrontendResult` (its ``scan_*`` arrays).
     world_from_cam: (N, 7) poses; only their up direction matters.
     options: the classification's settings (tilt, height, per-frame caps).
+    frames: only these frames' scans (None: every frame's).
     """
     opts = options or ScanSamplingOptions()
     poses = np.asarray(world_from_cam, np.float64)
     frame = np.asarray(frontend.scan_frame)
     bounds = np.searchsorted(frame, np.arange(frontend.num_frames + 1))
     added: dict[Label, list[tuple[int, F64]]] = {lab: [] for lab in SCAN_CLASSES}
-    for i in np.unique(frame):
+    chosen = np.unique(frame) if frames is None else np.intersect1d(np.unique(frame), frames)
+    for i in chosen:
         sl = slice(bounds[i], bounds[i + 1])
         per_class = classify_scan_points(frontend.scan_p_in_cam[sl], frontend.scan_n_in_cam[sl],
                                          poses[i], int(i), opts)

@@ -63,6 +63,10 @@ class Prepared:
     pixel_frontend: the front end before the LiDAR scan's samples were added (None: none were
         added); the semantic maps and their metrics (MME, MPV) use it, so that they compare the
         same points across methods.
+    first_frontend: what the schedule solves before the last stage is solved with every scan
+        sample (:func:`solve_prepared`): the pixels' samples, and the scan's of the frames no
+        feature match links to their neighbours (nothing else would place them). None: the
+        ``frontend``.
     scan_samples: how many samples the scan added per class (None: none).
     """
 
@@ -72,6 +76,7 @@ class Prepared:
     init: Trajectory
     timings: dict[str, float] = field(default_factory=dict)
     pixel_frontend: Any = None
+    first_frontend: Any = None
     scan_samples: dict[str, int] | None = None
 
     @property
@@ -79,12 +84,11 @@ class Prepared:
         """The front end whose samples make the semantic maps (the pixels' own)."""
         return self.frontend if self.pixel_frontend is None else self.pixel_frontend
 
-    def pixels_only(self) -> Prepared:
-        """This run without the LiDAR scan's samples (itself when it has none)."""
-        if self.pixel_frontend is None:
+    def first_stage(self) -> Prepared:
+        """This run as the schedule solves it (itself when the scan adds nothing)."""
+        if self.first_frontend is None:
             return self
-        return replace(self, frontend=self.pixel_frontend, pixel_frontend=None,
-                       scan_samples=None)
+        return replace(self, frontend=self.first_frontend, first_frontend=None)
 
 
 def make_providers(config: RefineConfig, sequence: Any) -> tuple[Any, Any, Any]:
@@ -253,11 +257,17 @@ def prepare(
     if config.effective_lidar_scan and len(fe.scan_frame):
         from bimcap.frontend.scan_samples import with_scan_samples
 
+        from bimcap.frontend.scan_samples import frames_without_matches
+
         with_scan, stats = with_scan_samples(fe, traj.poses)
+        unlinked = frames_without_matches(fe)
+        first, _ = with_scan_samples(fe, traj.poses, frames=unlinked)
         log(f"LiDAR scan samples outside the camera's view: {stats.wall} wall, "
             f"{stats.floor} floor, {stats.ceiling} ceiling", quiet)
         return Prepared(seq, ref, with_scan, traj, timings, pixel_frontend=fe,
-                        scan_samples=stats.to_dict())
+                        first_frontend=first,
+                        scan_samples={**stats.to_dict(), "frames_without_matches":
+                                      [int(i) for i in unlinked]})
     return Prepared(seq, ref, fe, traj, timings)
 
 
@@ -588,11 +598,13 @@ def solve_prepared(prepared: Prepared, config: RefineConfig, quiet: bool = False
                    plane_check_limit_m: float = 0.05) -> SolveOutcome:
     """Step 2: build the problem and solve it, stage by stage (:func:`schedule_for`).
 
-    With the LiDAR scan's samples (``prepared.pixel_frontend``), the global alignment, the
-    schedule and its stages see the pixels' samples alone, and the last stage is then solved
-    again with the scan's samples added: 360° of walls sharpen the optimum but also add local
-    minima one wall or door spacing away, which a start 1.4 m off (Exp. 1) falls into (the
-    Duplex: 84 cm where the pixels alone converge).
+    With the LiDAR scan's samples, the global alignment, the schedule and its stages see the
+    pixels' samples and the scan's of the frames that no match links to their neighbours
+    (``prepared.first_frontend``); the last stage is then solved again with every scan sample:
+    360° of walls sharpen the optimum but also add local minima one wall or door spacing away,
+    which a start 1.4 m off (Exp. 1) falls into (the Duplex: 84 cm where the pixels alone
+    converge), while a frame that nothing else places must have its scan from the start (one
+    AC20-FZK-Haus frame left at 23° by the pixels alone ends outside the scan's basin).
 
     Floor and ceiling samples get their planes at the poses each stage starts from. After the
     last stage (BIMCaP) the planes are chosen again at the refined poses, now trusted
@@ -612,7 +624,7 @@ def solve_prepared(prepared: Prepared, config: RefineConfig, quiet: bool = False
     solver = _StageSolver(prepared=prepared, config=config, quiet=quiet,
                           max_dist=config.effective_solve_match_distance,
                           normals=None if facap else segment_free_normals(prepared.reference))
-    pixels = prepared.pixels_only()
+    pixels = prepared.first_stage()
     first = solver if pixels is prepared else replace(solver, prepared=pixels)
     poses, global_info = _global_align(pixels, poses, config, quiet)
     run, poses, coarse_info = _run_schedule(first, base, poses)
