@@ -366,21 +366,23 @@ def idle_terms(r: RunRow) -> list[str]:
     stages = _stage_summaries(r)
     out = []
     for name in _configured(r):
-        empty = []
+        empty, acted = [], 0
         skipped = 0
         for k, summary in enumerate(stages):
             try:
                 t = summary.term(name)
-            except KeyError:
+            except KeyError:  # not measured in this stage's summary
                 continue
             if not t.active or t.num_residual_blocks == 0:
                 empty.append(k)
                 skipped = max(skipped, int(t.num_skipped))
+            else:
+                acted += 1
         if not empty:
             continue
         why = (f" ({skipped} {_TERM_WHAT.get(name, 'samples')} skipped: none within the "
                "association gate)" if skipped else "")
-        if len(empty) == len(stages):
+        if not acted:
             out.append(f"{name}: 0 samples{why}, the term did not act")
         else:
             which = ", ".join(str(k + 1) for k in empty)
