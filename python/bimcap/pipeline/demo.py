@@ -194,12 +194,13 @@ def _refine_step(out: Path, seq_dir: Path, design: Path, o: DemoOptions, outputs
     from bimcap.geometry import write_tum
     from bimcap.pipeline.refine import (
         evaluate_run,
+        g_unit,
         prepare,
         solve_prepared,
         summary_table,
         write_run_outputs,
     )
-    from bimcap.pipeline.report import RunRow, g_unit
+    from bimcap.pipeline.report import RunRow
 
     run_dir = out / "refine"
     prepared = prepare(seq_dir, design, None, o.config, run_dir, quiet)

@@ -831,6 +831,14 @@ def _repair(problem: Any, opts: Any, result: Any, quiet: bool) -> tuple[dict[str
     return rep.to_dict(), redo
 
 
+def g_unit(config: RefineConfig) -> str:
+    """The unit of the G term's residual under ``config``: "m" for FACaP's point error, "px"
+    for the reprojection / landmark errors (the report's solver table)."""
+    from bimcap.optimize.options import GeometricMode
+
+    return "m" if solver_options(config).geometric_mode is GeometricMode.POINT else "px"
+
+
 def effective_settings(config: RefineConfig) -> dict[str, Any]:
     """Every setting a run with ``config`` uses, as nested plain values: the config's fields
     with the method's defaults filled in, ``solver`` (every ``SolverOptions`` field after the
@@ -1237,7 +1245,8 @@ def write_run_outputs(
     if report:
         from bimcap.pipeline.report import write_refine_report
 
-        result.files["report"] = write_refine_report(result, prepared, gt, extra_rows).name
+        result.files["report"] = write_refine_report(result, prepared, gt, extra_rows,
+                                                     g_unit=g_unit(config)).name
     return result
 
 

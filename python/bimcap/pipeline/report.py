@@ -615,20 +615,11 @@ def _scan_note(scan_samples: dict[str, int] | None) -> list[str]:
             "camera pixels' samples alone."]
 
 
-def g_unit(config: Any) -> str:
-    """The unit of the G term's residual under the settings ``config`` (a ``RefineConfig``):
-    "m" for FACaP's point error, "px" for the reprojection / landmark errors."""
-    from bimcap.optimize.options import GeometricMode
-    from bimcap.pipeline.refine import solver_options
-
-    mode = solver_options(config).geometric_mode
-    return "m" if mode is GeometricMode.POINT else "px"
-
-
 def write_refine_report(
-    result: Any, prepared: Any, gt: Any, extra: list[RunRow] | None = None
+    result: Any, prepared: Any, gt: Any, extra: list[RunRow] | None = None, g_unit: str = "px"
 ) -> Path:
-    """The report of one ``bimcap refine`` run (``extra`` rows, e.g. FACaP, are shown beside)."""
+    """The report of one ``bimcap refine`` run (``extra`` rows, e.g. FACaP, are shown beside;
+    ``g_unit``: the unit of the run's G residual, :func:`bimcap.pipeline.refine.g_unit`)."""
     from bimcap.frontend.semantic_map import semantic_points
 
     rows = [RunRow("initial", result.init.poses, result.metrics_before, result.map_before)]
@@ -636,7 +627,7 @@ def write_refine_report(
     rows.append(RunRow(f"{result.config.method.value} {result.config.effective_terms}",
                        result.refined.poses, result.metrics_after, result.map_after,
                        result.outcome.summary, result.outcome.seconds, outcome=result.outcome,
-                       terms=result.config.effective_terms, g_unit=g_unit(result.config)))
+                       terms=result.config.effective_terms, g_unit=g_unit))
     ref = prepared.reference
     maps = {"before": semantic_points(prepared.map_source, result.init.poses),
             "after": semantic_points(prepared.map_source, result.refined.poses)}
