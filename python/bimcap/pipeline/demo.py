@@ -194,6 +194,7 @@ def _refine_step(out: Path, seq_dir: Path, design: Path, o: DemoOptions, outputs
     from bimcap.geometry import write_tum
     from bimcap.pipeline.refine import (
         evaluate_run,
+        g_unit,
         prepare,
         solve_prepared,
         summary_table,
@@ -209,10 +210,12 @@ def _refine_step(out: Path, seq_dir: Path, design: Path, o: DemoOptions, outputs
     extra = []
     facap_metrics = None
     if o.facap:
-        facap = solve_prepared(prepared, facap_config(o.config), quiet)
+        fcfg = facap_config(o.config)
+        facap = solve_prepared(prepared, fcfg, quiet)
         facap_metrics, mm = evaluate_run(prepared, facap.refined, gt)
-        extra.append(RunRow("facap G+F+W", facap.refined.poses, facap_metrics, mm,
-                            facap.summary, facap.seconds))
+        extra.append(RunRow(f"facap {fcfg.effective_terms}", facap.refined.poses, facap_metrics,
+                            mm, facap.summary, facap.seconds, outcome=facap,
+                            terms=fcfg.effective_terms, g_unit=g_unit(fcfg)))
         write_tum(stage / "refined_facap.tum", facap.refined, header="FACaP refined world_from_cam")
         results["facap"] = {"metrics": facap_metrics.to_dict(),
                             "map": None if mm is None else mm.to_dict()}

@@ -499,6 +499,9 @@ class SolveOutcome:
     repair: dict[str, Any] | None = None
     global_align: dict[str, Any] | None = None
     diverged_frames: list[int] = field(default_factory=list)
+    #: the matches' reprojection errors at the initial and the refined poses
+    #: (:func:`reprojection_stats`: ``{"before": {...}, "after": {...}}``), None without matches
+    reprojection: dict[str, Any] | None = None
 
     @property
     def summary(self) -> Any:
@@ -529,7 +532,35 @@ class SolveOutcome:
             "repair": self.repair,
             "global_align": self.global_align,
             "diverged_frames": self.diverged_frames,
+            "reprojection": self.reprojection,
         }
+
+
+#: A match whose reprojection error is below this counts as an inlier (pixels;
+#: :func:`reprojection_stats`).
+REPROJECTION_INLIER_PX = 3.0
+
+
+def reprojection_stats(arrays: dict[str, Any], poses: F64,
+                       inlier_px: float = REPROJECTION_INLIER_PX) -> dict[str, Any] | None:
+    """The G term's matches under ``poses`` (N, 7), in pixels whatever the G residual is: each
+    match's reprojection error both ways (:func:`bimcap.registration.odometry.reprojection_errors`),
+    summarised as ``{"n", "behind", "median_px", "p90_px", "rms_px", "inlier_px",
+    "inlier_share"}`` (``behind``: observations whose point falls behind the other camera,
+    outliers left out of the rms); None without matches with depth."""
+    from bimcap.registration.odometry import reprojection_errors
+
+    if "match_frames" not in arrays or not len(arrays["match_frames"]):
+        return None
+    _, _, err = reprojection_errors(poses, arrays["match_frames"], arrays["match_uv"],
+                                    arrays["match_depth"], arrays["cameras"][0])
+    if not len(err):
+        return None
+    front = err < 1e6
+    rms = float(np.sqrt(np.mean(err[front] ** 2))) if front.any() else float("nan")
+    return {"n": len(err), "behind": int((~front).sum()), "median_px": float(np.median(err)),
+            "p90_px": float(np.percentile(err, 90)), "rms_px": rms,
+            "inlier_px": inlier_px, "inlier_share": float(np.mean(err < inlier_px))}
 
 
 #: How far outside the BIM's bounding box a refined camera may lie before its frame counts as
@@ -641,10 +672,14 @@ def solve_prepared(prepared: Prepared, config: RefineConfig, quiet: bool = False
         run, poses, repair = _repair_run(solver, run, poses)
         checks = _logged_plane_checks(run.problem, poses, plane_check_limit_m, quiet)
     result = run.result
-    observability = bim_observability(run.problem.arrays(), poses, run.options,
+    arrays = run.problem.arrays()
+    observability = bim_observability(arrays, poses, run.options,
                                       result.wall_segment, result.column_segment,
                                       planes=result.planes)
     log(observability.summary_line(), quiet)
+    before, after = (reprojection_stats(arrays, p) for p in (prepared.init.poses, poses))
+    reprojection = None if before is None or after is None else {"before": before,
+                                                                  "after": after}
     diverged = diverged_frames(poses, prepared.reference)
     if diverged:
         log(f"WARNING: the {config.method.value} solve diverged: frame(s) {diverged[:10]} lie "
@@ -661,6 +696,7 @@ def solve_prepared(prepared: Prepared, config: RefineConfig, quiet: bool = False
         repair=repair,
         global_align=global_info,
         diverged_frames=diverged,
+        reprojection=reprojection,
     )
 
 
@@ -805,6 +841,14 @@ def _repair(problem: Any, opts: Any, result: Any, quiet: bool) -> tuple[dict[str
         raise PipelineError(f"the solve after the repair failed: {redo.summary.termination}: "
                             f"{redo.summary.message}")
     return rep.to_dict(), redo
+
+
+def g_unit(config: RefineConfig) -> str:
+    """The unit of the G term's residual under ``config``: "m" for FACaP's point error, "px"
+    for the reprojection / landmark errors (the report's solver table)."""
+    from bimcap.optimize.options import GeometricMode
+
+    return "m" if solver_options(config).geometric_mode is GeometricMode.POINT else "px"
 
 
 def effective_settings(config: RefineConfig) -> dict[str, Any]:
@@ -1213,7 +1257,8 @@ def write_run_outputs(
     if report:
         from bimcap.pipeline.report import write_refine_report
 
-        result.files["report"] = write_refine_report(result, prepared, gt, extra_rows).name
+        result.files["report"] = write_refine_report(result, prepared, gt, extra_rows,
+                                                     g_unit=g_unit(config)).name
     return result
 
 

@@ -95,22 +95,41 @@ def _backproject(k: F64, uv: F64, depth: F64) -> F64:
                             depth])
 
 
-def reprojection_medians(poses: F64, match_frames: I32, match_uv: F64, match_depth: F64,
-                         intrinsics: F64, min_matches: int = 8) -> F64:
-    """(N,) each frame's median reprojection error (pixels) over its matches, both directions,
-    under ``poses``; NaN where it has fewer than ``min_matches``."""
-    n = len(poses)
+def reprojection_errors(poses: F64, match_frames: I32, match_uv: F64, match_depth: F64,
+                        intrinsics: F64) -> tuple[I32, I32, F64]:
+    """Each match's reprojection error under ``poses``, both directions: a keypoint with depth
+    back-projected in its frame and projected into the other frame.
+
+    Parameters
+    ----------
+    poses: (N, 7) ``world_from_cam``. match_frames: (M, 2) frame pairs. match_uv: (M, 4)
+        ``u_a v_a u_b v_b`` undistorted pixels. match_depth: (M, 2) metres, 0 = unknown.
+    intrinsics: (4,) ``fx fy cx cy`` of the pinhole camera.
+
+    Returns
+    -------
+    src, dst: (K,) the frames of each directed observation (K ≤ 2M: only keypoints with depth).
+    err: (K,) pixels; 1e6 where the point falls behind the other camera.
+    """
     src, dst, uv_src, depth, uv_dst = _directed(match_frames, match_uv, match_depth)
-    out = np.full(n, np.nan)
     if len(src) == 0:
-        return out
+        return src, dst, np.zeros(0)
     p_world = transform_points(poses[src], _backproject(intrinsics, uv_src, depth))
     p_dst = transform_points(invert(poses[dst]), p_world)
     front = p_dst[:, 2] > 1e-6
     z = np.where(front, p_dst[:, 2], 1.0)
     proj = np.column_stack([intrinsics[0] * p_dst[:, 0] / z + intrinsics[2],
                             intrinsics[1] * p_dst[:, 1] / z + intrinsics[3]])
-    err = np.where(front, np.linalg.norm(proj - uv_dst, axis=1), 1e6)
+    return src, dst, np.where(front, np.linalg.norm(proj - uv_dst, axis=1), 1e6)
+
+
+def reprojection_medians(poses: F64, match_frames: I32, match_uv: F64, match_depth: F64,
+                         intrinsics: F64, min_matches: int = 8) -> F64:
+    """(N,) each frame's median reprojection error (pixels) over its matches, both directions,
+    under ``poses``; NaN where it has fewer than ``min_matches``."""
+    n = len(poses)
+    src, dst, err = reprojection_errors(poses, match_frames, match_uv, match_depth, intrinsics)
+    out = np.full(n, np.nan)
     for f in range(n):
         e = err[(src == f) | (dst == f)]
         if len(e) >= min_matches:
