@@ -192,6 +192,7 @@ def test_solve_match_distance_reaches_every_problem_build(
     monkeypatch.setattr(refine, "choose_sample_planes", lambda prepared, poses, *a: None)
     poses = np.tile([0.0, 0, 0, 0, 0, 0, 1], (3, 1))
     prepared = SimpleNamespace(init=SimpleNamespace(poses=poses), reference=None)
+    prepared.first_stage = lambda: prepared  # no LiDAR scan samples: one problem throughout
     cfg = RefineConfig(method=method, coarse=False, solve_match_distance=given,
                        global_align="off")
     assert cfg.effective_solve_match_distance == expected

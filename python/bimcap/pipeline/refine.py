@@ -255,9 +255,7 @@ def prepare(
     )
     timings["frontend"] = time.perf_counter() - t0
     if config.effective_lidar_scan and len(fe.scan_frame):
-        from bimcap.frontend.scan_samples import with_scan_samples
-
-        from bimcap.frontend.scan_samples import frames_without_matches
+        from bimcap.frontend.scan_samples import frames_without_matches, with_scan_samples
 
         with_scan, stats = with_scan_samples(fe, traj.poses)
         unlinked = frames_without_matches(fe)
@@ -821,13 +819,19 @@ def _logged_plane_checks(problem: Any, poses: F64, limit_m: float, quiet: bool) 
     return checks
 
 
-def _repair(problem: Any, opts: Any, result: Any, quiet: bool) -> tuple[dict[str, Any], Any]:
+def _repair(problem: Any, opts: Any, result: Any, quiet: bool,
+            max_agreement_loss: float = 0.05) -> tuple[dict[str, Any], Any]:
     """Frames the solve left inconsistent with their neighbours' matches, re-placed from them by
-    PnP (``registration.odometry``) and solved again. Returns the repair's record and the new
-    solve's result (None when no frame needed it)."""
+    PnP (``registration.odometry``) and solved again. The new solve is kept only when no
+    repaired frame agrees less with the BIM than before (:func:`bim_agreement`, by more than
+    ``max_agreement_loss``): the repair is a proposal to leave a local minimum, and the BIM is
+    the judge the look-alike matches of a repeated texture cannot fool (the solve's cost cannot
+    judge: the association gate drops the samples of a frame moved far off). Returns the
+    repair's record (``accepted``, ``bim_agreement_before`` / ``_after``) and the new solve's
+    result (None when no frame needed it or the repair was rejected)."""
 
     from bimcap.optimize import solve
-    from bimcap.registration.odometry import repair_inconsistent_frames
+    from bimcap.registration.odometry import bim_agreement, repair_inconsistent_frames
 
     a = problem.arrays()
     rep = repair_inconsistent_frames(result.poses, a["match_frames"], a["match_uv"],
@@ -837,10 +841,21 @@ def _repair(problem: Any, opts: Any, result: Any, quiet: bool) -> tuple[dict[str
     log(f"{len(rep.repaired)} frame(s) disagreed with their neighbours' matches (median "
         f"reprojection error > 10 px) and were re-placed from them: {rep.repaired}", quiet)
     redo = solve(problem.replace(poses=rep.poses), opts, check=False)
-    if not redo.summary.success:
-        raise PipelineError(f"the solve after the repair failed: {redo.summary.termination}: "
-                            f"{redo.summary.message}")
-    return rep.to_dict(), redo
+    before = bim_agreement(a, result.poses, rep.repaired)
+    after = bim_agreement(a, redo.poses, rep.repaired)
+    record = {**rep.to_dict(),
+              "bim_agreement_before": [None if np.isnan(v) else float(v) for v in before],
+              "bim_agreement_after": [None if np.isnan(v) else float(v) for v in after]}
+    worse = [f for f, b, c in zip(rep.repaired, before, after, strict=True)
+             if np.isfinite(b) and not c >= b - max_agreement_loss]
+    if not redo.summary.success or worse:
+        log(f"the repair is rejected: frame(s) {worse} agree less with the BIM after it "
+            f"({', '.join(f'{b:.2f} -> {c:.2f}' for b, c in zip(before, after, strict=True))} of "
+            "their samples within 5 cm)" if worse else
+            f"the repair is rejected: the solve after it failed ({redo.summary.termination})",
+            quiet)
+        return {**record, "accepted": False}, None
+    return {**record, "accepted": True}, redo
 
 
 def g_unit(config: RefineConfig) -> str:

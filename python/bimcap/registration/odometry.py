@@ -9,7 +9,10 @@ their keypoints, back-projected with their depth, are 3-D points the frame's own
 neighbours (median reprojection error above ``max_median_px``), and re-places each from the
 points of its consistent neighbours by PnP inside RANSAC (OpenCV's ``solvePnPRansac``, iterative
 refinement on the inliers). Frames are repaired one after the other, so a run of bad frames is
-repaired from its ends inwards. The caller solves again from the repaired poses.
+repaired from its ends inwards. The caller solves again from the repaired poses, and keeps that
+solve only when no repaired frame agrees less with the BIM than before (:func:`bim_agreement`):
+a frame whose matches are a repeated texture's look-alikes is "inconsistent" though the BIM
+holds it right, and PnP on those matches puts it where the texture repeats.
 
 Arrays follow docs/architecture.md: poses ``(N, 7)`` TUM order ``world_from_cam``; matches in
 undistorted pinhole pixels of one camera ``[fx, fy, cx, cy]``.
@@ -202,3 +205,55 @@ def repair_inconsistent_frames(poses: F64, match_frames: I32, match_uv: F64, mat
     result.repaired.sort()
     result.poses = out
     return result
+
+
+def bim_agreement(arrays: dict[str, Any], poses: F64, frames: list[int],
+                  tol_m: float = 0.05) -> F64:
+    """How well each of ``frames`` agrees with the BIM at ``poses``: the share of its wall and
+    column samples within ``tol_m`` (in plan) of a segment of their class, and of its floor and
+    ceiling samples within ``tol_m`` of their plane.
+
+    Unlike the solve's cost, this does not improve when a frame moves where the association gate
+    drops its samples: a sample nothing explains counts against the frame.
+
+    Parameters
+    ----------
+    arrays: a problem's arrays (``bimcap.optimize.Problem.arrays()``).
+    poses: (N, 7) ``world_from_cam``, TUM order. frames: the frames to judge.
+    tol_m: metres.
+
+    Returns
+    -------
+    (len(frames),) shares in [0, 1]; NaN for a frame without BIM samples.
+    """
+    from bimcap.registration.icp import point_segment_distance
+
+    out = np.full(len(frames), np.nan)
+    seg, seg_class = np.asarray(arrays["segments"]), np.asarray(arrays["segment_class"])
+    planes = np.asarray(arrays["planes"]).reshape(-1, 4)
+    for i, f in enumerate(frames):
+        near = total = 0
+        for term, label in (("wall", 1), ("column", 4)):
+            sel = np.asarray(arrays[f"{term}_frame"]) == f
+            segs = seg[seg_class == label]
+            if not sel.any() or not len(segs):
+                continue
+            p_world = transform_points(np.repeat(poses[f][None], int(sel.sum()), 0),
+                                       np.asarray(arrays[f"{term}_p_in_cam"])[sel])
+            dist, _, _ = point_segment_distance(p_world[:, :2], segs)
+            near += int((dist <= tol_m).sum())
+            total += len(dist)
+        for term in ("floor", "ceiling"):
+            sel = (np.asarray(arrays[f"{term}_frame"]) == f) & (
+                np.asarray(arrays[f"{term}_plane"]) >= 0)
+            if not sel.any():
+                continue
+            p_world = transform_points(np.repeat(poses[f][None], int(sel.sum()), 0),
+                                       np.asarray(arrays[f"{term}_p_in_cam"])[sel])
+            plane = planes[np.asarray(arrays[f"{term}_plane"])[sel]]
+            dist = np.abs((p_world * plane[:, :3]).sum(1) + plane[:, 3])
+            near += int((dist <= tol_m).sum())
+            total += len(dist)
+        if total:
+            out[i] = near / total
+    return out
