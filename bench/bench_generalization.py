@@ -185,7 +185,10 @@ def run(args: argparse.Namespace) -> None:
                     if design is not None:
                         runs.append(("design", runs[2][1], design))
                     for name, init, ifc in runs:
+                        if args.runs and name not in args.runs.split(","):
+                            continue
                         methods = ["bimcap"] + (["facap"] if name.startswith("exp") else [])
+                        methods = [m for m in methods if m in args.methods.split(",")]
                         for method in methods:
                             key = (world, str(frames), setting, name, method)
                             if key in done:
@@ -313,6 +316,9 @@ def main() -> None:
     ap.add_argument("--frames", default="60", help="comma list of walk lengths, e.g. 60,250")
     ap.add_argument("--settings", default="standard", help="standard, hard or both")
     ap.add_argument("--workers", type=int, default=None, help="front-end processes")
+    ap.add_argument("--runs", default="",
+                    help="comma list of fixed, exp1, exp2, exp3, design (default: all)")
+    ap.add_argument("--methods", default="bimcap,facap", help="comma list: bimcap, facap")
     ap.add_argument("--out", default="generalization.csv", help="CSV, appended to (resumable)")
     ap.add_argument("--summarise", nargs="+", metavar="CSV", help="only print the tables")
     args = ap.parse_args()
