@@ -47,6 +47,7 @@ COMMANDS: tuple[str, ...] = (
     "simulate",
     "drift",
     "import_conslam",
+    "import_bag",
     "solve_demo",
 )
 

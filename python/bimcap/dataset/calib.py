@@ -387,16 +387,9 @@ def read_calibration(
     return Calibration(cam, pose, source)
 
 
-def calibration_with_extrinsic(
-    camera: Camera, lidar_extrinsic: str | PathLike[str] | None, source: Mapping[str, Any]
-) -> Calibration:
-    """A :class:`Calibration` of a camera from elsewhere (a camera_info topic) and an extrinsic
-    file (or :data:`IDENTITY`, or None)."""
-    src = dict(source)
-    if lidar_extrinsic is None:
-        return Calibration(camera, None, src)
-    if str(lidar_extrinsic) == IDENTITY:
-        src["extrinsic"] = IDENTITY
-        return Calibration(camera, matrix_to_pose(np.eye(4)), src)
-    src["extrinsic"] = str(lidar_extrinsic)
-    return Calibration(camera, read_lidar_extrinsic(lidar_extrinsic), src)
+def read_extrinsic_argument(value: str | PathLike[str]) -> tuple[F64, str]:
+    """``cam_from_lidar`` (7,) of an extrinsic YAML or :data:`IDENTITY`, and its label for the
+    manifest (the path, or ``identity``)."""
+    if str(value) == IDENTITY:
+        return matrix_to_pose(np.eye(4)), IDENTITY
+    return read_lidar_extrinsic(value), str(value)

@@ -38,7 +38,6 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass, field, fields, replace
-from enum import Enum
 from os import PathLike
 from pathlib import Path
 from typing import Any
@@ -46,6 +45,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from bimcap.dataset.importing import PoseSensor, lidar_to_camera_poses
 from bimcap.dataset.pairing import nearest, pair_nearest, unique_increasing
 from bimcap.dataset.ros import (
     RosMessageError,
@@ -58,7 +58,7 @@ from bimcap.dataset.ros import (
 )
 from bimcap.dataset.sequence import MANIFEST, VLP16, Sequence, SequenceError, SequenceWriter
 from bimcap.geometry.camera import Camera
-from bimcap.geometry.poses import compose, invert, matrix_to_pose
+from bimcap.geometry.poses import matrix_to_pose
 from bimcap.geometry.trajectory import Trajectory, TrajectoryError, read_tum
 
 F64 = NDArray[np.float64]
@@ -97,11 +97,9 @@ class ConslamError(SequenceError):
     """A ConSLAM bag or ground-truth input that cannot be imported (names file and field)."""
 
 
-class GtFrame(str, Enum):
-    """Which sensor the ground-truth poses describe."""
-
-    LIDAR = "lidar"  # world_from_lidar (ConSLAM's per-scan 4×4 files and SLAM2REF TUM output)
-    CAMERA = "camera"  # world_from_cam already
+#: Which sensor the ground-truth poses describe: ``LIDAR`` (ConSLAM's per-scan 4×4 files and
+#: SLAM2REF TUM output, ``world_from_lidar``) or ``CAMERA`` (``world_from_cam`` already).
+GtFrame = PoseSensor
 
 
 @dataclass
@@ -212,11 +210,6 @@ def read_gt(path: str | PathLike[str]) -> Trajectory:
         return read_tum(p)
     except TrajectoryError as exc:
         raise ConslamError(str(exc), p, "gt") from None
-
-
-def lidar_to_camera_poses(world_from_lidar: ArrayLike, cam_from_lidar: ArrayLike) -> F64:
-    """``world_from_cam = world_from_lidar ∘ cam_from_lidar⁻¹`` for (N, 7) or (7,) poses."""
-    return compose(world_from_lidar, invert(cam_from_lidar))
 
 
 # --------------------------------------------------------------------------- the importer
