@@ -48,6 +48,7 @@ COMMANDS: tuple[str, ...] = (
     "drift",
     "import_conslam",
     "import_bag",
+    "import_folder",
     "solve_demo",
 )
 
