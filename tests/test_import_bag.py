@@ -27,7 +27,7 @@ from bimcap.dataset.importing import (
 )
 from bimcap.dataset.ros import header_stamp
 from bimcap.geometry.pose_formats import PoseFormat, write_kitti
-from bimcap.geometry.trajectory import Trajectory, write_tum
+from bimcap.geometry.trajectory import Trajectory, TrajectoryError, write_tum
 
 TS1 = get_typestore(Stores.ROS1_NOETIC)
 TS2 = get_typestore(Stores.ROS2_HUMBLE)
@@ -328,6 +328,16 @@ def test_wrong_type_no_pairs_no_camera_no_extrinsic(tmp_path: Path) -> None:
     bad.write_text("T_cam_lidar: [[1, 0, 0, 0], [0, 2, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]\n")
     with pytest.raises(CalibrationError, match="T_cam_lidar: the 3x3 block is not a rotation"):
         import_bag(rec.bag, tmp_path / "s", topics, lidar_extrinsic=bad)
+    # A malformed trajectory fails before the bag is read (no progress reported).
+    bad_tum = tmp_path / "bad.tum"
+    bad_tum.write_text("1.0 0 0 0 0 0 0 1\n2.0 0 0 0\n")
+    calls: list[tuple[str, int, int]] = []
+    opts = ImportOptions(trajectory=TrajectoryInput(bad_tum),
+                         progress=lambda *a: calls.append(a))
+    with pytest.raises(TrajectoryError, match="line 2: expected 8 fields"):
+        import_bag(with_info.bag, tmp_path / "s", topics, lidar_extrinsic="identity",
+                   options=opts)
+    assert calls == []
     assert not (tmp_path / "s" / "manifest.json").exists()
 
 

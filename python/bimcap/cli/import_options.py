@@ -78,7 +78,7 @@ class ProgressPrinter:
             print(f"\rbimcap {self.command}: {stage} {done}/{total} ({pct}%)", end=end,
                   file=sys.stderr, flush=True)
             self.last[stage] = (now, decile)
-        elif pct // 10 > decile and (now - t_last >= 0.5 or finished):
+        elif pct // 10 > max(decile, 0) and (now - t_last >= 0.5 or finished):
             print(f"bimcap {self.command}: {stage} {done}/{total} ({pct}%)", file=sys.stderr)
             self.last[stage] = (now, pct // 10)
 

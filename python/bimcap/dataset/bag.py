@@ -41,6 +41,7 @@ from bimcap.dataset.importing import (
     ImportOptions,
     ImportResult,
     check_options,
+    load_trajectory,
     plan_frames,
     trajectory_record,
     write_planned_frames,
@@ -263,8 +264,8 @@ def _calibration(calib: str | PathLike[str] | None, calib_camera: str,
 
 
 def _missing_extrinsic(where: str | PathLike[str] | None) -> BagError:
-    return BagError("no LiDAR extrinsic: give one (an extrinsic YAML with T_cam_lidar, or "
-                    "'identity' when the clouds are in the camera frame)", where,
+    return BagError("no LiDAR extrinsic: give lidar_extrinsic / --lidar-extrinsic (a YAML with "
+                    "T_cam_lidar, or 'identity' when the clouds are in the camera frame)", where,
                     "lidar_extrinsic")
 
 
@@ -313,6 +314,7 @@ def import_bag(
     cal = _calibration(calib, calib_camera, lidar_extrinsic)
     if cal is not None and cal.cam_from_lidar is None:
         raise _missing_extrinsic(calib)
+    poses = load_trajectory(opts)
     extrinsic: tuple[F64, str] | None = None
     if cal is None:
         if lidar_extrinsic is None:
@@ -334,7 +336,7 @@ def import_bag(
                 cal = Calibration(camera, extrinsic[0], {
                     "camera_info_topic": t.names["camera_info"], "extrinsic": extrinsic[1]})
             assert cal.cam_from_lidar is not None
-            plan = plan_frames(ti, tc, opts, path, cal.cam_from_lidar)
+            plan = plan_frames(ti, tc, opts, path, cal.cam_from_lidar, poses=poses)
             record = {
                 "importer": "bimcap.dataset.bag",
                 "bag": str(path.resolve()),

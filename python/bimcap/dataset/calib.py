@@ -289,7 +289,7 @@ def extrinsic_from_mapping(
             raise CalibrationError("T_imu_lidar needs the camera's T_cam_imu (a Kalibr "
                                    "camera-IMU camchain), which is missing", path, prefix + key)
         return cam_from_imu @ m
-    cam_from_lidar = m if key == "T_cam_lidar" else np.linalg.inv(m)
+    cam_from_lidar: F64 = m if key == "T_cam_lidar" else np.linalg.inv(m).astype(np.float64)
     named = d.get("camera")
     if named is not None:
         if cam_from_named is None:

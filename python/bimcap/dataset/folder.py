@@ -45,6 +45,7 @@ from bimcap.dataset.importing import (
     ImportOptions,
     ImportResult,
     check_options,
+    load_trajectory,
     plan_frames,
     stamp_from_name,
     trajectory_record,
@@ -270,12 +271,13 @@ def import_folder(
     if rgbd and lidar_extrinsic not in (None, "identity"):
         raise FolderError("depth clouds are in the camera frame: no extrinsic to give",
                           lidar_extrinsic, "lidar_extrinsic")
+    poses = load_trajectory(opts)
     cal = read_calibration(calib, camera=calib_camera,
                            lidar_extrinsic="identity" if rgbd else lidar_extrinsic)
     if cal.cam_from_lidar is None:
-        raise FolderError("no LiDAR extrinsic: give one (an extrinsic YAML with T_cam_lidar, or "
-                          "'identity' when the clouds are in the camera frame)", calib,
-                          "lidar_extrinsic")
+        raise FolderError("no LiDAR extrinsic: give lidar_extrinsic / --lidar-extrinsic (a YAML "
+                          "with T_cam_lidar, or 'identity' when the clouds are in the camera "
+                          "frame)", calib, "lidar_extrinsic")
     img_dir = _sub(root, images, IMAGE_DIRS, IMAGE_SUFFIXES, "images")
     cloud_dir = (_sub(root, depth, DEPTH_DIRS, (".png",), "depth") if rgbd
                  else _sub(root, clouds, CLOUD_DIRS, CLOUD_SUFFIXES, "clouds"))
@@ -295,7 +297,7 @@ def import_folder(
     ti = _times(img_files, root, stamps, stamps_path, "images")
     tc = _times(cloud_files, root, stamps, stamps_path, "depth images" if rgbd else "clouds")
     plan = plan_frames(ti, tc, opts, root, cal.cam_from_lidar,
-                       image_names=[f.name for f in img_files])
+                       image_names=[f.name for f in img_files], poses=poses)
     record = {
         "importer": "bimcap.dataset.folder",
         "folder": str(root.resolve()),

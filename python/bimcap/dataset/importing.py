@@ -302,6 +302,13 @@ class FramePlan:
     pose_match: str | None
 
 
+def load_trajectory(opts: ImportOptions) -> PoseFile | None:
+    """The poses of ``opts.trajectory`` (None without one): read before any expensive work,
+    so that a malformed pose file fails at once."""
+    traj = opts.trajectory
+    return None if traj is None else read_poses(traj.path, traj.fmt, traj.times)
+
+
 def plan_frames(
     t_images: F64,
     t_clouds: F64,
@@ -309,6 +316,7 @@ def plan_frames(
     source: str | PathLike[str],
     cam_from_lidar: F64,
     image_names: Seq[str] | None = None,
+    poses: PoseFile | None = None,
 ) -> FramePlan:
     """Pair images and clouds, attach the trajectory of ``opts``, thin out (module docstring).
 
@@ -320,6 +328,7 @@ def plan_frames(
     source: the bag or folder, for errors.
     cam_from_lidar: (7,) the extrinsic (to turn LiDAR poses into camera poses).
     image_names: (I,) image file names (folders), or None.
+    poses: the trajectory's poses (:func:`load_trajectory`); read here when None.
     """
     ia, ib = pair_nearest(t_images, t_clouds, opts.tolerance_s)
     order = np.argsort(t_images[ia], kind="stable")
@@ -338,7 +347,7 @@ def plan_frames(
     how: str | None = None
     traj = opts.trajectory
     if traj is not None:
-        pose_file = read_poses(traj.path, traj.fmt, traj.times)
+        pose_file = poses if poses is not None else read_poses(traj.path, traj.fmt, traj.times)
         rank = np.empty(len(t_images), np.int64)  # image index → position in time order
         rank[np.argsort(t_images, kind="stable")] = np.arange(len(t_images))
         names_in_time = None
