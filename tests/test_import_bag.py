@@ -362,3 +362,26 @@ def test_header_stamp_reads_ros1_and_both_cdr_byte_orders() -> None:
     big = bytes(TS2.serialize_cdr(Msgs(True).header(5 * 10**9 + 7), "std_msgs/msg/Header",
                                   little_endian=False))
     assert big[1] == 0 and header_stamp(big, ros2=True) == pytest.approx(5.000000007)
+
+
+def test_a_conslam_bag_imports_the_same_through_import_bag(tmp_path: Path) -> None:
+    """Oracle: the ConSLAM importer. The generic importer, given ConSLAM's topics and its
+    published extrinsic as a YAML, writes the same frames, camera and extrinsic."""
+    from bimcap.dataset.conslam import CONSLAM_CAM_FROM_LIDAR_MATRIX, import_conslam
+    from test_conslam_import import _write_recording
+
+    rec = _write_recording(tmp_path, 40, 30, with_info=True)
+    a = import_conslam(rec.bag, tmp_path / "a").sequence
+    ext = tmp_path / "conslam_ext.yaml"
+    ext.write_text(f"T_cam_lidar: {CONSLAM_CAM_FROM_LIDAR_MATRIX.tolist()}\n")  # 3x4 form
+    b = import_bag(rec.bag, tmp_path / "b", BagTopics("/pp_rgb/synced2points",
+                                                      "pp_points/synced2rgb",
+                                                      "pp_rgb/camera_info"),
+                   lidar_extrinsic=ext).sequence
+    assert len(a) == len(b) == 5
+    np.testing.assert_array_equal(a.timestamps, b.timestamps)
+    assert a.camera == b.camera
+    np.testing.assert_allclose(a.cam_from_lidar, b.cam_from_lidar, atol=1e-12)
+    for i in range(len(a)):
+        np.testing.assert_array_equal(a.load_image(i), b.load_image(i))
+        np.testing.assert_array_equal(a.load_lidar(i), b.load_lidar(i))
