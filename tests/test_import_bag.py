@@ -385,3 +385,25 @@ def test_a_conslam_bag_imports_the_same_through_import_bag(tmp_path: Path) -> No
     for i in range(len(a)):
         np.testing.assert_array_equal(a.load_image(i), b.load_image(i))
         np.testing.assert_array_equal(a.load_lidar(i), b.load_lidar(i))
+
+
+def test_camera_info_reasons_for_unusable_messages() -> None:
+    from dataclasses import replace
+
+    from bimcap.dataset.ros import camera_from_info_or_reason
+
+    for ros2 in (False, True):
+        m = Msgs(ros2)
+        info = m.info(0)
+        cam, _ = camera_from_info_or_reason(info)
+        assert cam is not None and (cam.fx, cam.fy, cam.cx, cam.cy) == K_INFO
+        k_name, d_name = ("k", "d") if ros2 else ("K", "D")
+        cam, why = camera_from_info_or_reason(replace(info, **{k_name: np.zeros(9)}))
+        assert cam is None and "not a calibrated camera matrix" in why
+        cam, why = camera_from_info_or_reason(
+            replace(info, distortion_model="equidistant", **{d_name: np.zeros(4)}))
+        assert cam is None and "'equidistant'" in why
+        eight = np.array([*D_INFO, 0.0, 0.0, 0.0])
+        cam, _ = camera_from_info_or_reason(
+            replace(info, distortion_model="rational_polynomial", **{d_name: eight}))
+        assert cam is not None and cam.dist == D_INFO
