@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from rosbags.rosbag1 import Writer as Writer1
 from rosbags.rosbag2 import Writer as Writer2
-from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from bimcap.cli import main
 from bimcap.dataset import read_sequence
@@ -68,20 +68,39 @@ class Msgs:
 
     def __init__(self, ros2: bool) -> None:
         self.ros2 = ros2
-        self.ts = TS2 if ros2 else TS1
+        self.ts = get_typestore(Stores.ROS2_HUMBLE if ros2 else Stores.ROS1_NOETIC)
+        if not ros2:  # Noetic's store lacks tf2_msgs; register it from its definition
+            self.ts.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms",
+                                                "tf2_msgs/msg/TFMessage"))
+        self.image_frame = self.cloud_frame = "f"
 
     def serialize(self, msg: Any, msgtype: str) -> bytes:
         data = self.ts.serialize_cdr(msg, msgtype) if self.ros2 else self.ts.serialize_ros1(
             msg, msgtype)
         return bytes(data)
 
-    def header(self, t_ns: int) -> Any:
+    def header(self, t_ns: int, frame_id: str = "f") -> Any:
         Header = self.ts.types["std_msgs/msg/Header"]
         Time = self.ts.types["builtin_interfaces/msg/Time"]
         stamp = Time(sec=t_ns // 10**9, nanosec=t_ns % 10**9)
         if self.ros2:
-            return Header(stamp=stamp, frame_id="f")
-        return Header(seq=0, stamp=stamp, frame_id="f")
+            return Header(stamp=stamp, frame_id=frame_id)
+        return Header(seq=0, stamp=stamp, frame_id=frame_id)
+
+    def tf_static(self, t_ns: int, edges: list[tuple[str, str, np.ndarray]]) -> Any:
+        """A TFMessage of (parent, child, parent_from_child 4×4) transforms."""
+        from scipy.spatial.transform import Rotation
+
+        ty = self.ts.types
+        out = []
+        for parent, child, m in edges:
+            x, y, z, w = Rotation.from_matrix(m[:3, :3]).as_quat()
+            tr = ty["geometry_msgs/msg/Transform"](
+                translation=ty["geometry_msgs/msg/Vector3"](x=m[0, 3], y=m[1, 3], z=m[2, 3]),
+                rotation=ty["geometry_msgs/msg/Quaternion"](x=x, y=y, z=z, w=w))
+            out.append(ty["geometry_msgs/msg/TransformStamped"](
+                header=self.header(t_ns, parent), child_frame_id=child, transform=tr))
+        return ty["tf2_msgs/msg/TFMessage"](transforms=out)
 
     def image(self, t_ns: int, rgb: np.ndarray, encoding: str) -> Any:
         Image = self.ts.types["sensor_msgs/msg/Image"]
@@ -90,15 +109,15 @@ class Msgs:
         step = w * 3 + 4
         buf = np.full((h, step), 99, np.uint8)  # padding bytes that must not leak
         buf[:, : w * 3] = px.reshape(h, w * 3)
-        return Image(header=self.header(t_ns), height=h, width=w, encoding=encoding,
-                     is_bigendian=0, step=step, data=buf.ravel())
+        return Image(header=self.header(t_ns, self.image_frame), height=h, width=w,
+                     encoding=encoding, is_bigendian=0, step=step, data=buf.ravel())
 
     def compressed(self, t_ns: int, rgb: np.ndarray) -> Any:
         Compressed = self.ts.types["sensor_msgs/msg/CompressedImage"]
         ok, png = cv2.imencode(".png", rgb[:, :, ::-1])
         assert ok
-        return Compressed(header=self.header(t_ns), format="rgb8; png compressed bgr8",
-                          data=png.ravel())
+        return Compressed(header=self.header(t_ns, self.image_frame),
+                          format="rgb8; png compressed bgr8", data=png.ravel())
 
     def cloud(self, t_ns: int, xyzi: np.ndarray, bigendian: bool = False) -> Any:
         PointCloud2 = self.ts.types["sensor_msgs/msg/PointCloud2"]
@@ -112,8 +131,9 @@ class Msgs:
             arr[name] = xyzi[:, k]
         fields = [PointField(name=n, offset=off, datatype=7, count=1)
                   for n, off in (("x", 0), ("y", 4), ("z", 8), ("intensity", 16))]
-        return PointCloud2(header=self.header(t_ns), height=1, width=len(xyzi), fields=fields,
-                           is_bigendian=bigendian, point_step=20, row_step=20 * len(xyzi),
+        return PointCloud2(header=self.header(t_ns, self.cloud_frame), height=1,
+                           width=len(xyzi), fields=fields, is_bigendian=bigendian,
+                           point_step=20, row_step=20 * len(xyzi),
                            data=np.frombuffer(arr.tobytes(), np.uint8), is_dense=False)
 
     def info(self, t_ns: int) -> Any:
@@ -140,10 +160,14 @@ class Recording:
 
 
 def write_bag(path: Path, ros2: bool, encoding: str = "rgb8", with_info: bool = True,
-              image_topic: str = IMAGE_TOPIC) -> Recording:
+              image_topic: str = IMAGE_TOPIC,
+              tf: list[tuple[str, str, np.ndarray]] | None = None) -> Recording:
     """Six images 0.1 s apart; clouds 4 ms later except after image 2 (none); one lone cloud
-    at the end; cloud 3 big-endian; one NaN point per cloud (dropped)."""
+    at the end; cloud 3 big-endian; one NaN point per cloud (dropped). With ``tf``: images in
+    frame ``cam_optical``, clouds in ``os_lidar``, and a /tf_static message of ``tf``."""
     m = Msgs(ros2)
+    if tf is not None:
+        m.image_frame, m.cloud_frame = "cam_optical", "/os_lidar"
     rng = np.random.default_rng(1)
     rec = Recording(path)
     image_type = ("sensor_msgs/msg/CompressedImage" if encoding == "png"
@@ -157,6 +181,11 @@ def write_bag(path: Path, ros2: bool, encoding: str = "rgb8", with_info: bool = 
         c_info = writer.add_connection(INFO_TOPIC, "sensor_msgs/msg/CameraInfo",
                                        typestore=typestore)
         writer.add_connection("/imu", "sensor_msgs/msg/Imu", typestore=typestore)
+        if tf is not None:
+            c_tf = writer.add_connection("/tf_static", "tf2_msgs/msg/TFMessage",
+                                         typestore=typestore)
+            writer.write(c_tf, T0 * 10**9, m.serialize(m.tf_static(T0 * 10**9, tf),
+                                                       "tf2_msgs/msg/TFMessage"))
         if with_info:
             writer.write(c_info, T0 * 10**9, m.serialize(m.info(T0 * 10**9),
                                                          "sensor_msgs/msg/CameraInfo"))
@@ -407,3 +436,41 @@ def test_camera_info_reasons_for_unusable_messages() -> None:
         cam, _ = camera_from_info_or_reason(
             replace(info, distortion_model="rational_polynomial", **{d_name: eight}))
         assert cam is not None and cam.dist == D_INFO
+
+
+@pytest.mark.parametrize("ros2", [False, True])
+def test_extrinsic_from_tf_static(tmp_path: Path, ros2: bool) -> None:
+    """--lidar-extrinsic tf: cam_from_lidar composed along /tf_static (base_link → os_sensor →
+    os_lidar, base_link → cam_link → cam_optical; parent_from_child each), against plain
+    matrix algebra."""
+    base_from_sensor, sensor_from_lidar, base_from_link = (
+        np.eye(4), np.eye(4), np.eye(4))
+    base_from_sensor[:3, 3] = [0.1, 0.0, 0.3]
+    sensor_from_lidar[:3, :3] = [[-1, 0, 0], [0, -1, 0], [0, 0, 1]]  # Ouster's 180° yaw
+    sensor_from_lidar[:3, 3] = [0, 0, 0.036]
+    a = 0.2
+    base_from_link[:3, :3] = [[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]]
+    base_from_link[:3, 3] = [0.25, 0.02, 0.1]
+    link_from_optical = np.eye(4)
+    link_from_optical[:3, :3] = [[0, 0, 1], [-1, 0, 0], [0, -1, 0]]  # REP 103 optical frame
+    tf = [("base_link", "os_sensor", base_from_sensor),
+          ("os_sensor", "os_lidar", sensor_from_lidar),
+          ("/base_link", "cam_link", base_from_link),
+          ("cam_link", "cam_optical", link_from_optical)]
+    rec = write_bag(tmp_path / ("r" if ros2 else "r.bag"), ros2, tf=tf)
+    res = import_bag(rec.bag, tmp_path / "seq", BagTopics(IMAGE_TOPIC, CLOUD_TOPIC, INFO_TOPIC),
+                     lidar_extrinsic="tf")
+    expected = (np.linalg.inv(base_from_link @ link_from_optical)
+                @ base_from_sensor @ sensor_from_lidar)
+    np.testing.assert_allclose(_pose_matrix(res.sequence.cam_from_lidar), expected, atol=1e-9)
+    assert res.sequence.source["calibration"]["extrinsic"] == "/tf_static: os_lidar -> cam_optical"
+    broken = tf[:2] + tf[3:]  # base_link → cam_link missing
+    rec = write_bag(tmp_path / ("b" if ros2 else "b.bag"), ros2, tf=broken)
+    with pytest.raises(BagError, match="no chain of /tf_static transforms from the cloud's frame "
+                       "'os_lidar' to the image's frame 'cam_optical'"):
+        import_bag(rec.bag, tmp_path / "s2", BagTopics(IMAGE_TOPIC, CLOUD_TOPIC, INFO_TOPIC),
+                   lidar_extrinsic="tf")
+    plain = write_bag(tmp_path / ("p" if ros2 else "p.bag"), ros2)
+    with pytest.raises(BagError, match="no /tf_static"):
+        import_bag(plain.bag, tmp_path / "s3", BagTopics(IMAGE_TOPIC, CLOUD_TOPIC, INFO_TOPIC),
+                   lidar_extrinsic="tf")

@@ -20,7 +20,8 @@ def register(subparsers: Any) -> None:
         "ROS needed), pair each image with the nearest cloud by header stamp, attach a "
         "trajectory if given, and write a sequence directory. The camera comes from a "
         "camera_info topic (default: the camera_info beside the image topic) or --calib; the "
-        "LiDAR->camera extrinsic from --lidar-extrinsic or the calibration file. "
+        "LiDAR->camera extrinsic from --lidar-extrinsic (a YAML, or 'tf': the bag's /tf_static) or "
+        "the calibration file. "
         "--list prints the bag's topics.",
     )
     p.add_argument("bag", type=Path, metavar="BAG", help="ROS1 .bag, ROS2 bag directory, .db3 "
@@ -32,7 +33,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--cloud-topic", metavar="T", help="sensor_msgs/PointCloud2 topic")
     p.add_argument("--camera-info-topic", metavar="T",
                    help="sensor_msgs/CameraInfo topic (instead of --calib)")
-    add_calibration_arguments(p, required=False)
+    add_calibration_arguments(p, required=False, from_tf=True)
     add_common_arguments(p, output_required=False)  # --list needs no -o; run() checks it
     p.set_defaults(func=run, output_dirs=["output"], input_paths=["bag"])
 

@@ -10,17 +10,22 @@ from pathlib import Path
 from typing import Any
 
 
-def add_calibration_arguments(p: argparse.ArgumentParser, required: bool) -> None:
-    """``--calib FILE``, ``--calib-camera camN``, ``--lidar-extrinsic FILE|identity``."""
+def add_calibration_arguments(p: argparse.ArgumentParser, required: bool,
+                              from_tf: bool = False) -> None:
+    """``--calib FILE``, ``--calib-camera camN``, ``--lidar-extrinsic FILE|identity`` (``|tf``
+    for bags)."""
     p.add_argument("--calib", type=Path, default=None, required=required, metavar="FILE",
                    help="camera calibration: a ROS camera_info YAML or a Kalibr camchain "
                    "(pinhole-radtan)")
     p.add_argument("--calib-camera", default="cam0", metavar="camN",
                    help="which camera of a Kalibr camchain (default cam0)")
-    p.add_argument("--lidar-extrinsic", default=None, metavar="FILE|identity",
+    tf = ("; 'tf' to compose it along the bag's /tf_static from the cloud's frame_id to the "
+          "image's (an optical frame)") if from_tf else ""
+    p.add_argument("--lidar-extrinsic", default=None,
+                   metavar="FILE|identity" + ("|tf" if from_tf else ""),
                    help="LiDAR->camera extrinsic: a YAML with T_cam_lidar, T_lidar_cam or "
                    "T_imu_lidar (with a camchain's T_cam_imu); 'identity' when the clouds are in "
-                   "the camera frame; not needed when the calibration file has one")
+                   f"the camera frame{tf}; not needed when the calibration file has one")
 
 
 def add_common_arguments(p: argparse.ArgumentParser, output_required: bool = True) -> None:
@@ -104,6 +109,6 @@ def input_paths(args: argparse.Namespace, first: str) -> list[Any]:
     """The paths the command reads (none may be the output)."""
     names = (first, "calib", "trajectory", "trajectory_times")
     paths = [getattr(args, n, None) for n in names]
-    if args.lidar_extrinsic not in (None, "identity"):
+    if args.lidar_extrinsic not in (None, "identity", "tf"):
         paths.append(Path(args.lidar_extrinsic))
     return [p for p in paths if p is not None]

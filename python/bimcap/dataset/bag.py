@@ -11,7 +11,8 @@ importer takes
   image topic, or the bag's only CameraInfo topic) or a calibration file
   (:mod:`bimcap.dataset.calib`: ROS camera_info YAML or Kalibr camchain),
 - the LiDAR → camera extrinsic: an extrinsic YAML (or ``identity``), unless the calibration file
-  carries one,
+  carries one; or ``tf``: composed along the bag's ``/tf_static`` tree from the cloud's
+  ``header.frame_id`` to the image's (which must be the camera's optical frame, REP 103),
 - optionally a trajectory (TUM / KITTI / COLMAP, camera or LiDAR poses;
   :class:`~bimcap.dataset.importing.TrajectoryInput`).
 
@@ -55,16 +56,23 @@ from bimcap.dataset.ros import (
     camera_from_info_or_reason,
     decode_any_image,
     decode_pointcloud,
+    header_frame_id,
     header_or_record_times,
     header_stamp,
     norm_topic,
+    tf_chain,
+    tf_edges,
     topic_list,
 )
+from bimcap.geometry.poses import matrix_to_pose
 
 F64 = NDArray[np.float64]
 
 #: How often (messages) pass 1 reports progress.
 PROGRESS_EVERY = 200
+#: The ``lidar_extrinsic`` value that takes the extrinsic from the bag's ``/tf_static``.
+FROM_TF = "tf"
+TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 
 
 class BagError(DataImportError):
@@ -144,7 +152,13 @@ class _Topics:
     image: list[Any]
     cloud: list[Any]
     info: list[Any]
+    tf: list[Any]
     names: dict[str, str]
+
+    @property
+    def all(self) -> list[Any]:
+        """Every connection both passes read (the same set, so that the order is the same)."""
+        return self.image + self.cloud + self.info + self.tf
 
 
 def _find(connections: list[Any], topic: str, types: tuple[str, ...], what: str,
@@ -175,7 +189,8 @@ def _auto_camera_info(connections: list[Any], image_topic: str, bag: Path) -> li
         f"bag: {', '.join(sorted({c.topic for c in infos})) or 'none'})", bag, "camera_info")
 
 
-def _topics(reader: Any, topics: BagTopics, need_info: bool, bag: Path) -> _Topics:
+def _topics(reader: Any, topics: BagTopics, need_info: bool, need_tf: bool,
+            bag: Path) -> _Topics:
     cons = list(reader.connections)
     img = _find(cons, topics.image, (IMAGE, COMPRESSED_IMAGE), "image", bag)
     cloud = _find(cons, topics.cloud, (POINTCLOUD2,), "cloud", bag)
@@ -184,37 +199,76 @@ def _topics(reader: Any, topics: BagTopics, need_info: bool, bag: Path) -> _Topi
         info = _find(cons, topics.camera_info, (CAMERA_INFO,), "camera_info", bag)
     elif need_info:
         info = _auto_camera_info(cons, topics.image, bag)
+    tf: list[Any] = []
+    if need_tf:
+        tf = [c for c in cons if norm_topic(c.topic) == "tf_static" and c.msgtype == TF_MESSAGE]
+        if not tf:
+            raise BagError("no /tf_static (tf2_msgs/msg/TFMessage) to take the LiDAR extrinsic "
+                           f"from; its topics: {topic_list(cons)}", bag, "lidar_extrinsic")
     names = {"image": img[0].topic, "cloud": cloud[0].topic,
              "camera_info": info[0].topic if info else ""}
-    return _Topics(img, cloud, info, names)
+    return _Topics(img, cloud, info, tf, names)
 
 
 # --------------------------------------------------------------------------- passes
-def _read_stamps(reader: Any, t: _Topics, opts: ImportOptions,
-                 bag: Path) -> tuple[F64, F64, Any | None]:
-    """Pass 1: image and cloud times (header bytes only) and the first CameraInfo message."""
+@dataclass(frozen=True)
+class _Index:
+    """What pass 1 found: image and cloud times (I,), (C,) in seconds, the first CameraInfo
+    message (or None), the frame ids of the first image and cloud, the /tf_static edges."""
+
+    t_images: F64
+    t_clouds: F64
+    info_msg: Any | None
+    image_frame: str
+    cloud_frame: str
+    tf: list[tuple[str, str, F64]]
+
+
+def _read_stamps(reader: Any, t: _Topics, opts: ImportOptions, bag: Path) -> _Index:
+    """Pass 1: image and cloud times (header bytes only), the first CameraInfo message, the
+    frame ids of the first image and cloud, and the /tf_static transforms."""
     ros2 = bool(reader.is2)
-    img_ids = {id(c) for c in t.image}
-    cloud_ids = {id(c) for c in t.cloud}
+    key_of = {id(c): "image" for c in t.image} | {id(c): "cloud" for c in t.cloud}
+    tf_ids = {id(c) for c in t.tf}
     stamps: dict[str, list[tuple[float, float]]] = {"image": [], "cloud": []}
+    frames = {"image": "", "cloud": ""}
     info_msg: Any | None = None
-    wanted = t.image + t.cloud + t.info
-    total = sum(int(c.msgcount) for c in wanted)
-    for n, (con, bag_ns, raw) in enumerate(reader.messages(connections=wanted), start=1):
-        if id(con) in img_ids or id(con) in cloud_ids:
-            key = "image" if id(con) in img_ids else "cloud"
+    edges: list[tuple[str, str, F64]] = []
+    total = sum(int(c.msgcount) for c in t.all)
+    for n, (con, bag_ns, raw) in enumerate(reader.messages(connections=t.all), start=1):
+        key = key_of.get(id(con))
+        if key is not None:
             try:
                 stamp = header_stamp(raw, ros2)
-            except struct.error:  # a truncated message
+                if not stamps[key]:
+                    frames[key] = norm_topic(header_frame_id(raw, ros2))
+            except (struct.error, RosMessageError):  # a truncated message
                 raise BagError(f"message {len(stamps[key])} is too short for a header",
                                bag, con.topic) from None
             stamps[key].append((stamp, bag_ns * 1e-9))
+        elif id(con) in tf_ids:
+            edges += tf_edges(reader.deserialize(raw, con.msgtype))
         elif info_msg is None:
             info_msg = reader.deserialize(raw, con.msgtype)
         if opts.progress is not None and (n % PROGRESS_EVERY == 0 or n == total):
             opts.progress("index", n, total)
-    return (header_or_record_times(stamps["image"]), header_or_record_times(stamps["cloud"]),
-            info_msg)
+    return _Index(header_or_record_times(stamps["image"]), header_or_record_times(stamps["cloud"]),
+                  info_msg, frames["image"], frames["cloud"], edges)
+
+
+def _extrinsic_from_tf(index: _Index, t: _Topics, bag: Path) -> F64:
+    """(7,) ``cam_from_lidar`` along /tf_static from the cloud's frame to the image's."""
+    cam, lidar = index.image_frame, index.cloud_frame
+    if not cam or not lidar:
+        raise BagError(f"the {'image' if not cam else 'cloud'} messages have no frame_id to "
+                       "look up in /tf_static", bag, t.names["image" if not cam else "cloud"])
+    m = tf_chain(index.tf, cam, lidar)
+    if m is None:
+        known = sorted({f for e in index.tf for f in e[:2]})
+        raise BagError(f"no chain of /tf_static transforms from the cloud's frame {lidar!r} to "
+                       f"the image's frame {cam!r} (frames: {', '.join(known) or 'none'})",
+                       bag, "lidar_extrinsic")
+    return matrix_to_pose(m)
 
 
 def _stream_frames(reader: Any, t: _Topics, plan: FramePlan,
@@ -230,10 +284,9 @@ def _stream_frames(reader: Any, t: _Topics, plan: FramePlan,
     images: dict[int, NDArray[np.uint8]] = {}
     clouds: dict[int, NDArray[np.float32]] = {}
     next_k = 0
-    wanted = t.image + t.cloud + t.info  # as in pass 1, so that message order is the same
-    info_ids = {id(c) for c in t.info}
-    for con, _, raw in reader.messages(connections=wanted):
-        if id(con) in info_ids:
+    skip = {id(c) for c in t.info + t.tf}
+    for con, _, raw in reader.messages(connections=t.all):  # as pass 1: the same order
+        if id(con) in skip:
             continue
         key = "image" if id(con) in img_ids else "cloud"
         n = count[key]
@@ -265,8 +318,8 @@ def _calibration(calib: str | PathLike[str] | None, calib_camera: str,
 
 def _missing_extrinsic(where: str | PathLike[str] | None) -> BagError:
     return BagError("no LiDAR extrinsic: give lidar_extrinsic / --lidar-extrinsic (a YAML with "
-                    "T_cam_lidar, or 'identity' when the clouds are in the camera frame)", where,
-                    "lidar_extrinsic")
+                    "T_cam_lidar, 'tf' to take it from the bag's /tf_static, or 'identity' when "
+                    "the clouds are in the camera frame)", where, "lidar_extrinsic")
 
 
 # --------------------------------------------------------------------------- the importer
@@ -290,7 +343,8 @@ def import_bag(
     calib: a camera calibration file (ROS camera_info YAML or Kalibr camchain) instead of a
         camera_info topic.
     calib_camera: which camera of a Kalibr camchain.
-    lidar_extrinsic: an extrinsic YAML, or ``"identity"``; needed unless ``calib`` has one.
+    lidar_extrinsic: an extrinsic YAML, ``"identity"``, or ``"tf"`` (from ``/tf_static``);
+        needed unless ``calib`` has one.
     options: :class:`~bimcap.dataset.importing.ImportOptions`.
 
     Raises
@@ -311,24 +365,32 @@ def import_bag(
     if calib is not None and topics.camera_info is not None:
         raise BagError("give a camera_info topic or a calibration file, not both", path,
                        "camera_info")
-    cal = _calibration(calib, calib_camera, lidar_extrinsic)
-    if cal is not None and cal.cam_from_lidar is None:
+    from_tf = lidar_extrinsic is not None and str(lidar_extrinsic) == FROM_TF
+    cal = _calibration(calib, calib_camera, None if from_tf else lidar_extrinsic)
+    if cal is not None and cal.cam_from_lidar is None and not from_tf:
         raise _missing_extrinsic(calib)
     poses = load_trajectory(opts)
     extrinsic: tuple[F64, str] | None = None
-    if cal is None:
+    if cal is None and not from_tf:
         if lidar_extrinsic is None:
             raise _missing_extrinsic(None)
         extrinsic = read_extrinsic_argument(lidar_extrinsic)
     try:
         with _open_reader(path) as reader:
-            t = _topics(reader, topics, cal is None, path)
-            ti, tc, info_msg = _read_stamps(reader, t, opts, path)
+            t = _topics(reader, topics, cal is None, from_tf, path)
+            index = _read_stamps(reader, t, opts, path)
+            ti, tc = index.t_images, index.t_clouds
+            if from_tf:
+                tf_label = f"/tf_static: {index.cloud_frame} -> {index.image_frame}"
+                extrinsic = (_extrinsic_from_tf(index, t, path), tf_label)
+                if cal is not None:
+                    cal = Calibration(cal.camera, extrinsic[0],
+                                      {**cal.source, "extrinsic": tf_label})
             if cal is None:
-                if info_msg is None:
+                if index.info_msg is None:
                     raise BagError("no message on the camera_info topic", path,
                                    t.names["camera_info"])
-                camera, reason = camera_from_info_or_reason(info_msg)
+                camera, reason = camera_from_info_or_reason(index.info_msg)
                 if camera is None:
                     raise BagError(f"unusable camera_info: {reason}", path,
                                    t.names["camera_info"])

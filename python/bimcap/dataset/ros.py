@@ -57,6 +57,21 @@ def header_stamp(raw: bytes | memoryview, ros2: bool = False) -> float:
     return float(sec) + float(nsec) * 1e-9
 
 
+def header_frame_id(raw: bytes | memoryview, ros2: bool = False) -> str:
+    """``header.frame_id`` of a serialised message that starts with ``std_msgs/Header``.
+
+    Both encodings put it at byte 12 (after the stamp) as a ``uint32`` length and the bytes;
+    CDR counts a trailing NUL in the length, ROS1 does not.
+    """
+    order = "<"
+    if ros2 and bytes(raw[1:2]) == b"\x00":
+        order = ">"
+    (n,) = struct.unpack_from(order + "I", raw, 12)
+    if n > len(raw) - 16:
+        raise RosMessageError(f"frame_id length {n} exceeds the message", field="header")
+    return bytes(raw[16 : 16 + n]).rstrip(b"\x00").decode("utf-8", errors="replace")
+
+
 def message_stamp(msg: Any) -> float:
     """Header stamp (s) of a deserialised message."""
     return float(msg.header.stamp.sec) + float(msg.header.stamp.nanosec) * 1e-9
@@ -72,6 +87,42 @@ def header_or_record_times(stamps: Iterable[tuple[float, float]]) -> F64:
     if len(arr) and (arr[:, 0] == 0.0).any():
         return arr[:, 1].copy()
     return arr[:, 0].copy()
+
+
+# --------------------------------------------------------------------------- tf
+def tf_edges(msg: Any) -> list[tuple[str, str, F64]]:
+    """``(parent, child, parent_from_child (4, 4))`` of every transform of a
+    ``tf2_msgs/TFMessage``: ROS's transform maps points from the child frame into the parent."""
+    from scipy.spatial.transform import Rotation
+
+    out = []
+    for ts in msg.transforms:
+        tr, q = ts.transform.translation, ts.transform.rotation
+        m = np.eye(4)
+        m[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
+        m[:3, 3] = [tr.x, tr.y, tr.z]
+        out.append((norm_topic(str(ts.header.frame_id)), norm_topic(str(ts.child_frame_id)), m))
+    return out
+
+
+def tf_chain(edges: Iterable[tuple[str, str, F64]], target: str, source: str) -> F64 | None:
+    """(4, 4) ``target_from_source`` composed along the tf tree (either direction of every
+    edge; leading ``/`` ignored), or None when the frames are not connected."""
+    graph: dict[str, list[tuple[str, F64]]] = {}
+    for parent, child, parent_from_child in edges:
+        graph.setdefault(parent, []).append((child, parent_from_child))
+        graph.setdefault(child, []).append((parent, np.linalg.inv(parent_from_child)))
+    start, goal = norm_topic(target), norm_topic(source)
+    # Breadth-first from the target, keeping target_from_frame of every frame reached.
+    best: dict[str, F64] = {start: np.eye(4)}
+    queue = [start]
+    while queue:
+        frame = queue.pop(0)
+        for nxt, frame_from_nxt in graph.get(frame, []):
+            if nxt not in best:
+                best[nxt] = best[frame] @ frame_from_nxt
+                queue.append(nxt)
+    return best.get(goal)
 
 
 # --------------------------------------------------------------------------- topics
