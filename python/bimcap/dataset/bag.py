@@ -322,6 +322,45 @@ def _missing_extrinsic(where: str | PathLike[str] | None) -> BagError:
                     "the clouds are in the camera frame)", where, "lidar_extrinsic")
 
 
+def _final_calibration(cal: Calibration | None, extrinsic: tuple[F64, str] | None,
+                       index: _Index, t: _Topics, bag: Path) -> Calibration:
+    """The calibration after pass 1: the file's camera or the first camera_info's; the given
+    extrinsic, the file's, or (``extrinsic`` None and no file extrinsic) the one of /tf_static.
+    """
+    if t.tf:
+        label = f"/tf_static: {index.cloud_frame} -> {index.image_frame}"
+        extrinsic = (_extrinsic_from_tf(index, t, bag), label)
+        if cal is not None:
+            return Calibration(cal.camera, extrinsic[0], {**cal.source, "extrinsic": label})
+    if cal is not None:
+        return cal
+    topic = t.names["camera_info"]
+    if index.info_msg is None:
+        raise BagError("no message on the camera_info topic", bag, topic)
+    camera, reason = camera_from_info_or_reason(index.info_msg)
+    if camera is None:
+        raise BagError(f"unusable camera_info: {reason}", bag, topic)
+    assert extrinsic is not None
+    return Calibration(camera, extrinsic[0],
+                       {"camera_info_topic": topic, "extrinsic": extrinsic[1]})
+
+
+def _provenance(bag: Path, ros2: bool, t: _Topics, cal: Calibration,
+                opts: ImportOptions) -> dict[str, Any]:
+    """The manifest's ``source`` record of an import."""
+    return {
+        "importer": "bimcap.dataset.bag",
+        "bag": str(bag.resolve()),
+        "ros_version": 2 if ros2 else 1,
+        "topics": dict(t.names),
+        "calibration": cal.source,
+        "tolerance_s": opts.tolerance_s,
+        "stride": opts.stride,
+        "trajectory": trajectory_record(opts.trajectory),
+        "timestamps": "image header stamps (bag record times where unset)",
+    }
+
+
 # --------------------------------------------------------------------------- the importer
 def import_bag(
     bag: str | PathLike[str],
@@ -379,37 +418,11 @@ def import_bag(
         with _open_reader(path) as reader:
             t = _topics(reader, topics, cal is None, from_tf, path)
             index = _read_stamps(reader, t, opts, path)
-            ti, tc = index.t_images, index.t_clouds
-            if from_tf:
-                tf_label = f"/tf_static: {index.cloud_frame} -> {index.image_frame}"
-                extrinsic = (_extrinsic_from_tf(index, t, path), tf_label)
-                if cal is not None:
-                    cal = Calibration(cal.camera, extrinsic[0],
-                                      {**cal.source, "extrinsic": tf_label})
-            if cal is None:
-                if index.info_msg is None:
-                    raise BagError("no message on the camera_info topic", path,
-                                   t.names["camera_info"])
-                camera, reason = camera_from_info_or_reason(index.info_msg)
-                if camera is None:
-                    raise BagError(f"unusable camera_info: {reason}", path,
-                                   t.names["camera_info"])
-                assert extrinsic is not None
-                cal = Calibration(camera, extrinsic[0], {
-                    "camera_info_topic": t.names["camera_info"], "extrinsic": extrinsic[1]})
+            ti = index.t_images
+            cal = _final_calibration(cal, extrinsic, index, t, path)
             assert cal.cam_from_lidar is not None
-            plan = plan_frames(ti, tc, opts, path, cal.cam_from_lidar, poses=poses)
-            record = {
-                "importer": "bimcap.dataset.bag",
-                "bag": str(path.resolve()),
-                "ros_version": 2 if reader.is2 else 1,
-                "topics": dict(t.names),
-                "calibration": cal.source,
-                "tolerance_s": opts.tolerance_s,
-                "stride": opts.stride,
-                "trajectory": trajectory_record(opts.trajectory),
-                "timestamps": "image header stamps (bag record times where unset)",
-            }
+            plan = plan_frames(ti, index.t_clouds, opts, path, cal.cam_from_lidar, poses=poses)
+            record = _provenance(path, bool(reader.is2), t, cal, opts)
             seq = write_planned_frames(output, cal, _stream_frames(reader, t, plan, path), plan,
                                        ti, opts, record, path)
     except _reader_errors() as exc:
@@ -419,7 +432,7 @@ def import_bag(
     return ImportResult(
         sequence=seq,
         n_images=len(ti),
-        n_clouds=len(tc),
+        n_clouds=len(index.t_clouds),
         n_pairs=plan.n_pairs,
         n_without_pose=plan.n_without_pose,
         n_frames=len(seq),

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from collections.abc import Sequence as Seq
+from dataclasses import dataclass
 from os import PathLike
 from pathlib import Path
 
@@ -222,6 +223,46 @@ def _times(files: Seq[Path], root: Path, stamps: dict[str, float] | list[float] 
     return out
 
 
+@dataclass(frozen=True)
+class _Inputs:
+    """The image and cloud (or depth) files of a folder, sorted by name, and their times (s)."""
+
+    image_dir: Path
+    cloud_dir: Path
+    images: list[Path]
+    clouds: list[Path]
+    t_images: F64
+    t_clouds: F64
+    times_from: str
+
+
+def _find_inputs(root: Path, images: str | PathLike[str] | None,
+                 clouds: str | PathLike[str] | None, depth: str | PathLike[str] | None,
+                 timestamps: str | PathLike[str] | None) -> _Inputs:
+    """Find the files (refusing a folder without images or clouds) and read their times."""
+    rgbd = depth is not None
+    img_dir = _sub(root, images, IMAGE_DIRS, IMAGE_SUFFIXES, "images")
+    cloud_dir = (_sub(root, depth, DEPTH_DIRS, (".png",), "depth") if rgbd
+                 else _sub(root, clouds, CLOUD_DIRS, CLOUD_SUFFIXES, "clouds"))
+    if img_dir == cloud_dir and rgbd:
+        raise FolderError("the depth images must be in their own folder", cloud_dir, "depth")
+    img_files = _files(img_dir, IMAGE_SUFFIXES)
+    cloud_files = _files(cloud_dir, (".png",) if rgbd else CLOUD_SUFFIXES)
+    if not img_files:
+        raise FolderError(f"no images ({', '.join(IMAGE_SUFFIXES)})", img_dir, "images")
+    if not cloud_files:
+        kind = "depth images (.png)" if rgbd else f"point clouds ({', '.join(CLOUD_SUFFIXES)})"
+        raise FolderError(f"no {kind}", cloud_dir, "depth" if rgbd else "clouds")
+    stamps_path = Path(timestamps) if timestamps is not None else root / TIMESTAMPS
+    if timestamps is not None and not stamps_path.is_file():
+        raise FolderError("no such file", stamps_path, "timestamps")
+    stamps = _read_timestamps(stamps_path) if stamps_path.is_file() else None
+    ti = _times(img_files, root, stamps, stamps_path, "images")
+    tc = _times(cloud_files, root, stamps, stamps_path, "depth images" if rgbd else "clouds")
+    return _Inputs(img_dir, cloud_dir, img_files, cloud_files, ti, tc,
+                   str(stamps_path) if stamps is not None else "file names")
+
+
 # --------------------------------------------------------------------------- the importer
 def import_folder(
     folder: str | PathLike[str],
@@ -278,24 +319,9 @@ def import_folder(
         raise FolderError("no LiDAR extrinsic: give lidar_extrinsic / --lidar-extrinsic (a YAML "
                           "with T_cam_lidar, or 'identity' when the clouds are in the camera "
                           "frame)", calib, "lidar_extrinsic")
-    img_dir = _sub(root, images, IMAGE_DIRS, IMAGE_SUFFIXES, "images")
-    cloud_dir = (_sub(root, depth, DEPTH_DIRS, (".png",), "depth") if rgbd
-                 else _sub(root, clouds, CLOUD_DIRS, CLOUD_SUFFIXES, "clouds"))
-    img_files = _files(img_dir, IMAGE_SUFFIXES)
-    cloud_files = _files(cloud_dir, (".png",) if rgbd else CLOUD_SUFFIXES)
-    if img_dir == cloud_dir and rgbd:
-        raise FolderError("the depth images must be in their own folder", cloud_dir, "depth")
-    if not img_files:
-        raise FolderError(f"no images ({', '.join(IMAGE_SUFFIXES)})", img_dir, "images")
-    if not cloud_files:
-        kind = "depth images (.png)" if rgbd else f"point clouds ({', '.join(CLOUD_SUFFIXES)})"
-        raise FolderError(f"no {kind}", cloud_dir, "depth" if rgbd else "clouds")
-    stamps_path = Path(timestamps) if timestamps is not None else root / TIMESTAMPS
-    if timestamps is not None and not stamps_path.is_file():
-        raise FolderError("no such file", stamps_path, "timestamps")
-    stamps = _read_timestamps(stamps_path) if stamps_path.is_file() else None
-    ti = _times(img_files, root, stamps, stamps_path, "images")
-    tc = _times(cloud_files, root, stamps, stamps_path, "depth images" if rgbd else "clouds")
+    found = _find_inputs(root, images, clouds, depth, timestamps)
+    img_files, cloud_files, ti, tc = found.images, found.clouds, found.t_images, found.t_clouds
+    img_dir, cloud_dir = found.image_dir, found.cloud_dir
     plan = plan_frames(ti, tc, opts, root, cal.cam_from_lidar,
                        image_names=[f.name for f in img_files], poses=poses)
     record = {
@@ -305,7 +331,7 @@ def import_folder(
         "clouds" if not rgbd else "depth": str(cloud_dir.resolve()),
         "depth_scale": depth_scale if rgbd else None,
         "calibration": cal.source,
-        "timestamps": str(stamps_path) if stamps is not None else "file names",
+        "timestamps": found.times_from,
         "tolerance_s": opts.tolerance_s,
         "stride": opts.stride,
         "trajectory": trajectory_record(opts.trajectory),
