@@ -474,3 +474,25 @@ def test_extrinsic_from_tf_static(tmp_path: Path, ros2: bool) -> None:
     with pytest.raises(BagError, match="no /tf_static"):
         import_bag(plain.bag, tmp_path / "s3", BagTopics(IMAGE_TOPIC, CLOUD_TOPIC, INFO_TOPIC),
                    lidar_extrinsic="tf")
+
+
+@pytest.mark.parametrize("encoding", ["rgb8", "bgr8", "rgba8", "bgra8", "mono8"])
+def test_decode_image_encodings(encoding: str) -> None:
+    from types import SimpleNamespace
+
+    from bimcap.dataset.ros import RosMessageError, decode_image
+
+    rgb = np.random.default_rng(2).integers(0, 256, (3, 5, 3), dtype=np.uint8)
+    if encoding == "mono8":
+        rgb[:] = rgb[:, :, :1]
+    px = {"rgb8": rgb, "bgr8": rgb[:, :, ::-1], "mono8": rgb[:, :, :1],
+          "rgba8": np.dstack([rgb, np.full((3, 5), 7, np.uint8)]),
+          "bgra8": np.dstack([rgb[:, :, ::-1], np.full((3, 5), 7, np.uint8)])}[encoding]
+    step = 5 * px.shape[2] + 3
+    buf = np.full((3, step), 255, np.uint8)
+    buf[:, : 5 * px.shape[2]] = px.reshape(3, -1)
+    msg = SimpleNamespace(height=3, width=5, step=step, encoding=encoding, data=buf.ravel())
+    np.testing.assert_array_equal(decode_image(msg), rgb)
+    with pytest.raises(RosMessageError, match="unsupported image encoding '16UC1'"):
+        decode_image(SimpleNamespace(height=3, width=5, step=10, encoding="16UC1",
+                                     data=np.zeros(30, np.uint8)))
