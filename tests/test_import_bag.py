@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 import pytest
 from rosbags.rosbag1 import Writer as Writer1
+from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
@@ -161,7 +162,8 @@ class Recording:
 
 def write_bag(path: Path, ros2: bool, encoding: str = "rgb8", with_info: bool = True,
               image_topic: str = IMAGE_TOPIC,
-              tf: list[tuple[str, str, np.ndarray]] | None = None) -> Recording:
+              tf: list[tuple[str, str, np.ndarray]] | None = None,
+              mcap: bool = False) -> Recording:
     """Six images 0.1 s apart; clouds 4 ms later except after image 2 (none); one lone cloud
     at the end; cloud 3 big-endian; one NaN point per cloud (dropped). With ``tf``: images in
     frame ``cam_optical``, clouds in ``os_lidar``, and a /tf_static message of ``tf``."""
@@ -172,7 +174,8 @@ def write_bag(path: Path, ros2: bool, encoding: str = "rgb8", with_info: bool = 
     rec = Recording(path)
     image_type = ("sensor_msgs/msg/CompressedImage" if encoding == "png"
                   else "sensor_msgs/msg/Image")
-    writer = Writer2(path, version=9) if ros2 else Writer1(path)
+    plugin = StoragePlugin.MCAP if mcap else StoragePlugin.SQLITE3
+    writer = Writer2(path, version=9, storage_plugin=plugin) if ros2 else Writer1(path)
     with writer:
         typestore = m.ts
         c_img = writer.add_connection(image_topic, image_type, typestore=typestore)
@@ -245,6 +248,16 @@ def test_round_trip_with_camera_info_topic(tmp_path: Path, ros2: bool, encoding:
     assert seq.source["ros_version"] == (2 if ros2 else 1)
     assert seq.poses == {}
     assert ("index", 13, 13) in seen and ("write", 5, 5) in seen  # 6 + 6 + 1 messages
+
+
+def test_ros2_mcap_bag_directory_or_its_storage_file(tmp_path: Path) -> None:
+    rec = write_bag(tmp_path / "rec", ros2=True, mcap=True)
+    topics = BagTopics(IMAGE_TOPIC, CLOUD_TOPIC, INFO_TOPIC)
+    ext = _write_extrinsic(tmp_path / "ext.yaml")
+    import_bag(rec.bag, tmp_path / "a", topics, lidar_extrinsic=ext)
+    _check_sequence(tmp_path / "a", rec)
+    import_bag(rec.bag / "rec.mcap", tmp_path / "b", topics, lidar_extrinsic=ext)
+    _check_sequence(tmp_path / "b", rec)
 
 
 def test_ros2_with_calib_file_and_tum_trajectory(tmp_path: Path) -> None:
