@@ -48,3 +48,24 @@ def test_pipeline_block_names_exist() -> None:
     assert {"metrics_after", "outcome"} <= fields
     assert "observability" in SolveOutcome.__dataclass_fields__
     RefineConfig(terms="G+F+W+Co", solver={"wall": {"sigma": 0.03}})
+
+
+def test_your_own_data_commands_parse() -> None:
+    """Every ``bimcap`` command of the README's "Your own data" section is one the command line
+    accepts (same sub-commands, flags and choices)."""
+    import shlex
+
+    from bimcap.cli import build_parser
+
+    text = README.read_text(encoding="utf-8")
+    section = text.split("### Your own data", 1)[1].split("\n### ", 1)[0]
+    commands = []
+    for block in re.findall(r"```bash\n(.*?)```", section, flags=re.S):
+        for line in block.replace("\\\n", " ").splitlines():
+            if line.startswith("bimcap "):
+                commands.append(shlex.split(line, comments=True)[1:])
+    assert {c[0] for c in commands} == {"import-conslam", "import-bag", "import-folder"}
+    parser = build_parser()
+    for args in commands:
+        parsed = parser.parse_args(args)
+        assert callable(parsed.func), args

@@ -83,7 +83,7 @@ def test_generate_building_refuses_an_existing_file(tmp_path: Path,
 
 
 @pytest.mark.parametrize("command", ["generate-building", "simulate", "drift", "import-conslam",
-                                     "refine", "demo"])
+                                     "import-bag", "import-folder", "refine", "demo"])
 def test_every_command_that_can_replace_files_takes_overwrite(command: str) -> None:
     parser = build_parser()
     sub = next(a for a in parser._actions if a.dest == "command")

@@ -47,6 +47,8 @@ COMMANDS: tuple[str, ...] = (
     "simulate",
     "drift",
     "import_conslam",
+    "import_bag",
+    "import_folder",
     "solve_demo",
 )
 

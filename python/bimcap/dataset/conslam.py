@@ -8,7 +8,9 @@ ConSLAM (Trzeciak et al.) ships ROS1 bags with the topics
 
 (with or without a leading ``/``) and ground-truth LiDAR poses (``world_from_lidar``) as one
 4×4 text file per scan, named by the scan's timestamp in microseconds; the BIM-frame poses of
-sessions 2–5 come as TUM files. The bag is read with ``rosbags`` (no ROS install).
+sessions 2–5 come as TUM files. The bag is read with ``rosbags`` (no ROS install); the
+messages are decoded by :mod:`bimcap.dataset.ros` and paired by :mod:`bimcap.dataset.pairing`,
+which the generic importers (:mod:`bimcap.dataset.bag`, :mod:`bimcap.dataset.folder`) share.
 
 What the importer does:
 
@@ -34,10 +36,8 @@ the same factor in both axes). The LiDAR→camera extrinsic is ConSLAM's
 from __future__ import annotations
 
 import math
-import struct
 from collections.abc import Iterator
 from dataclasses import dataclass, field, fields, replace
-from enum import Enum
 from os import PathLike
 from pathlib import Path
 from typing import Any
@@ -45,9 +45,20 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from bimcap.dataset.importing import PoseSensor, lidar_to_camera_poses
+from bimcap.dataset.pairing import nearest, pair_nearest, unique_increasing
+from bimcap.dataset.ros import (
+    RosMessageError,
+    camera_from_info,
+    decode_image,
+    decode_pointcloud,
+    header_or_record_times,
+    header_stamp,
+    norm_topic,
+)
 from bimcap.dataset.sequence import MANIFEST, VLP16, Sequence, SequenceError, SequenceWriter
 from bimcap.geometry.camera import Camera
-from bimcap.geometry.poses import compose, invert, matrix_to_pose
+from bimcap.geometry.poses import matrix_to_pose
 from bimcap.geometry.trajectory import Trajectory, TrajectoryError, read_tum
 
 F64 = NDArray[np.float64]
@@ -86,11 +97,9 @@ class ConslamError(SequenceError):
     """A ConSLAM bag or ground-truth input that cannot be imported (names file and field)."""
 
 
-class GtFrame(str, Enum):
-    """Which sensor the ground-truth poses describe."""
-
-    LIDAR = "lidar"  # world_from_lidar (ConSLAM's per-scan 4×4 files and SLAM2REF TUM output)
-    CAMERA = "camera"  # world_from_cam already
+#: Which sensor the ground-truth poses describe: ``LIDAR`` (ConSLAM's per-scan 4×4 files and
+#: SLAM2REF TUM output, ``world_from_lidar``) or ``CAMERA`` (``world_from_cam`` already).
+GtFrame = PoseSensor
 
 
 @dataclass
@@ -203,167 +212,7 @@ def read_gt(path: str | PathLike[str]) -> Trajectory:
         raise ConslamError(str(exc), p, "gt") from None
 
 
-def lidar_to_camera_poses(world_from_lidar: ArrayLike, cam_from_lidar: ArrayLike) -> F64:
-    """``world_from_cam = world_from_lidar ∘ cam_from_lidar⁻¹`` for (N, 7) or (7,) poses."""
-    return compose(world_from_lidar, invert(cam_from_lidar))
-
-
-# --------------------------------------------------------------------------- ROS decoding
-_POINTFIELD_DTYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
-
-
-def _header_stamp(raw: bytes | memoryview) -> float:
-    """Header stamp (s) of a ROS1-serialised message that starts with ``std_msgs/Header``."""
-    sec, nsec = struct.unpack_from("<II", raw, 4)
-    return sec + nsec * 1e-9
-
-
-def _stamp(msg: Any) -> float:
-    return float(msg.header.stamp.sec) + float(msg.header.stamp.nanosec) * 1e-9
-
-
-def decode_image(msg: Any) -> NDArray[np.uint8]:
-    """A ``sensor_msgs/Image`` (rgb8, bgr8 or mono8) as (H, W, 3) uint8 RGB; row padding removed."""
-    h, w, step, enc = int(msg.height), int(msg.width), int(msg.step), str(msg.encoding)
-    channels = {"rgb8": 3, "bgr8": 3, "mono8": 1}.get(enc)
-    if channels is None:
-        raise ConslamError(
-            f"unsupported image encoding {enc!r} (rgb8, bgr8, mono8)", field="encoding"
-        )
-    data = np.asarray(msg.data, dtype=np.uint8)
-    if step < w * channels or data.size < h * step:
-        raise ConslamError(
-            f"image data of {data.size} bytes too small for {w}x{h} {enc} with step {step}",
-            field="data",
-        )
-    img = data[: h * step].reshape(h, step)[:, : w * channels].reshape(h, w, channels)
-    if enc == "bgr8":
-        img = img[:, :, ::-1]
-    elif enc == "mono8":
-        img = np.repeat(img, 3, axis=2)
-    return np.ascontiguousarray(img)
-
-
-def decode_pointcloud(msg: Any) -> NDArray[np.float32]:
-    """A ``sensor_msgs/PointCloud2`` as (M, 4) float32 ``x y z intensity``.
-
-    Fields are read at their declared offsets and types (any numeric type, either endianness),
-    honouring ``point_step`` and ``row_step``; intensity is 0 if the cloud has none. Points with
-    a non-finite coordinate (no return) are dropped.
-    """
-    fields = {str(f.name): f for f in msg.fields}
-    for name in ("x", "y", "z"):
-        if name not in fields:
-            raise ConslamError(f"point cloud has no field {name!r}", field="fields")
-    order = ">" if msg.is_bigendian else "<"
-    names, formats, offsets = [], [], []
-    for name in ("x", "y", "z", "intensity"):
-        f = fields.get(name)
-        if f is None:
-            continue
-        if int(f.datatype) not in _POINTFIELD_DTYPES:
-            raise ConslamError(f"field {name!r} has unknown datatype {f.datatype}", field="fields")
-        names.append(name)
-        formats.append(order + _POINTFIELD_DTYPES[int(f.datatype)])
-        offsets.append(int(f.offset))
-    step, h, w = int(msg.point_step), int(msg.height), int(msg.width)
-    dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": step})
-    if any(o + dtype.fields[n][0].itemsize > step for n, o in zip(names, offsets, strict=True)):
-        raise ConslamError("a field lies outside point_step", field="point_step")
-    data = np.asarray(msg.data, dtype=np.uint8)
-    row_step = int(msg.row_step)
-    if row_step < w * step or data.size < h * row_step:
-        raise ConslamError(
-            f"cloud data of {data.size} bytes too small for {h}x{w} points "
-            f"(point_step {step}, row_step {row_step})",
-            field="data",
-        )
-    rows = data[: h * row_step].reshape(h, row_step)[:, : w * step]
-    pts = np.frombuffer(np.ascontiguousarray(rows).tobytes(), dtype=dtype)
-    out = np.zeros((len(pts), 4), dtype=np.float32)
-    for k, name in enumerate(("x", "y", "z", "intensity")):
-        if name in names:
-            out[:, k] = pts[name].astype(np.float32)
-    return out[np.isfinite(out[:, :3]).all(axis=1)]
-
-
-def camera_from_info(msg: Any) -> Camera | None:
-    """The camera of a ``sensor_msgs/CameraInfo``, or None if uncalibrated / not plumb_bob."""
-    k = np.asarray(msg.K, dtype=np.float64).reshape(-1)
-    d = np.asarray(msg.D, dtype=np.float64).reshape(-1)
-    model = str(msg.distortion_model)
-    if k.size != 9 or k[0] <= 0 or k[4] <= 0 or not np.isfinite(k).all():
-        return None
-    if model not in ("plumb_bob", "") or d.size > 5:
-        return None
-    dist = np.zeros(5)
-    dist[: d.size] = d
-    return Camera(int(msg.width), int(msg.height), k[0], k[4], k[2], k[5], tuple(dist))  # type: ignore[arg-type]
-
-
-# --------------------------------------------------------------------------- pairing
-def pair_nearest(
-    t_a: ArrayLike, t_b: ArrayLike, tolerance_s: float
-) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-    """Pair each ``t_a`` with the nearest ``t_b`` within ``tolerance_s``, each b used once.
-
-    Pairs are accepted greedily by increasing |Δt|, so a b closer to another a goes there.
-
-    Returns
-    -------
-    (K,) indices into ``t_a`` (increasing) and (K,) indices into ``t_b``.
-    """
-    a = np.asarray(t_a, dtype=np.float64)
-    b = np.asarray(t_b, dtype=np.float64)
-    if len(a) == 0 or len(b) == 0:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    order_b = np.argsort(b, kind="stable")
-    bs = b[order_b]
-    pos = np.searchsorted(bs, a)
-    cands: list[tuple[float, int, int]] = []
-    for i, p in enumerate(pos):
-        for j in (p - 1, p):
-            if 0 <= j < len(bs):
-                dt = abs(a[i] - bs[j])
-                if dt <= tolerance_s:
-                    cands.append((dt, i, int(order_b[j])))
-    cands.sort()
-    used_a: set[int] = set()
-    used_b: set[int] = set()
-    pairs: list[tuple[int, int]] = []
-    for _, i, j in cands:
-        if i not in used_a and j not in used_b:
-            used_a.add(i)
-            used_b.add(j)
-            pairs.append((i, j))
-    pairs.sort()
-    ia = np.array([p[0] for p in pairs], dtype=np.int64)
-    ib = np.array([p[1] for p in pairs], dtype=np.int64)
-    return ia, ib
-
-
-def _nearest(t_query: F64, t_ref: F64) -> tuple[NDArray[np.int64], F64]:
-    """Index of the nearest ``t_ref`` (sorted) for each query, and |Δt|."""
-    pos = np.clip(np.searchsorted(t_ref, t_query), 1, max(len(t_ref) - 1, 1))
-    lo = np.maximum(pos - 1, 0)
-    hi = np.minimum(pos, len(t_ref) - 1)
-    pick = np.where(np.abs(t_query - t_ref[lo]) <= np.abs(t_query - t_ref[hi]), lo, hi)
-    return pick.astype(np.int64), np.abs(t_query - t_ref[pick])
-
-
 # --------------------------------------------------------------------------- the importer
-def _times(stamps: list[tuple[float, float]]) -> F64:
-    """Header stamps (s); a topic whose header stamps are unset (0) uses the bag record times."""
-    arr = np.asarray(stamps, dtype=np.float64).reshape(-1, 2)
-    if len(arr) and (arr[:, 0] == 0.0).any():
-        return arr[:, 1].copy()
-    return arr[:, 0].copy()
-
-
-def _norm_topic(topic: str) -> str:
-    return topic.lstrip("/")
-
-
 @dataclass(frozen=True)
 class ConslamImportOptions:
     """Settings of :func:`import_conslam`.
@@ -465,7 +314,7 @@ class _BagIndex:
 
 def _index_bag(reader: Any, typestore: Any, bag_path: Path) -> _BagIndex:
     """Find the topics (refusing a bag without images or scans) and read their stamps."""
-    by_topic = {_norm_topic(c.topic): c for c in reader.connections}
+    by_topic = {norm_topic(c.topic): c for c in reader.connections}
     for topic in (TOPIC_IMAGE, TOPIC_POINTS):
         if topic not in by_topic:
             raise ConslamError(
@@ -625,10 +474,11 @@ def _read_stamps(
     wanted = [con_img, con_pts] + ([con_info] if con_info is not None else [])
     for con, bag_ns, raw in reader.messages(connections=wanted):
         if con.id in stamps:
-            stamps[con.id].append((_header_stamp(raw), bag_ns * 1e-9))
+            stamps[con.id].append((header_stamp(raw), bag_ns * 1e-9))
         elif info_camera is None:
             info_camera = camera_from_info(typestore.deserialize_ros1(raw, con.msgtype))
-    return _times(stamps[con_img.id]), _times(stamps[con_pts.id]), info_camera
+    return (header_or_record_times(stamps[con_img.id]),
+            header_or_record_times(stamps[con_pts.id]), info_camera)
 
 
 def _plan_frames(
@@ -646,7 +496,7 @@ def _plan_frames(
     ia, ib = pair_nearest(ti, tp, tolerance_s)
     order = np.argsort(ti[ia], kind="stable")
     ia, ib = ia[order], ib[order]
-    fresh = np.concatenate([np.ones(min(len(ia), 1), bool), np.diff(ti[ia]) > 0])
+    fresh = unique_increasing(ti[ia])
     ia, ib = ia[fresh], ib[fresh]  # equal image stamps: keep the first
     n_pairs = len(ia)
     if n_pairs == 0:
@@ -659,7 +509,7 @@ def _plan_frames(
     n_without_gt = 0
     max_gt_dt = 0.0
     if gt is not None:
-        gi, gdt = _nearest(tp[ib], gt.timestamps)
+        gi, gdt = nearest(tp[ib], gt.timestamps)
         keep = gdt <= gt_tolerance_s
         n_without_gt = int((~keep).sum())
         if not keep.any():
@@ -712,8 +562,9 @@ def _stream_frames(
                 images[k] = decode_image(msg)
             else:
                 clouds[k] = decode_pointcloud(msg)
-        except ConslamError as exc:
-            raise ConslamError(str(exc), bag, f"{con.topic}[{n}]") from None
+        except RosMessageError as exc:
+            where = f"{con.topic}[{n}]" + (f".{exc.field}" if exc.field else "")
+            raise ConslamError(exc.message, bag, where) from None
         while next_k in images and next_k in clouds:
             yield next_k, images.pop(next_k), clouds.pop(next_k)
             next_k += 1
