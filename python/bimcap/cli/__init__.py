@@ -19,8 +19,10 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import logging
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from typing import Any
 
 from bimcap import __version__
@@ -124,6 +126,56 @@ def build_parser(command: str | None = ALL) -> argparse.ArgumentParser:
     return parser
 
 
+class _StderrHandler(logging.StreamHandler):  # type: ignore[type-arg]
+    """Writes to the ``sys.stderr`` of the moment (a test's capture, a redirect made after the
+    command started)."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.stream = sys.stderr
+        super().emit(record)
+
+
+class _Formatter(logging.Formatter):
+    """``[bimcap] message`` at INFO, ``[bimcap] WARNING: message`` at the other levels; with
+    ``names`` (``-v``), the module after the level: ``[bimcap] DEBUG bimcap.optimize.solve:``."""
+
+    def __init__(self, names: bool) -> None:
+        super().__init__()
+        self.names = names
+
+    def format(self, record: logging.LogRecord) -> str:
+        head = "" if record.levelno == logging.INFO and not self.names else record.levelname
+        if self.names:
+            head = f"{head} {record.name}"
+        text = record.getMessage()
+        if record.exc_info:
+            text += "\n" + self.formatException(record.exc_info)
+        return f"[bimcap] {head}: {text}" if head else f"[bimcap] {text}"
+
+
+#: ``-q`` / default / ``-v``: the level of the ``bimcap`` logger.
+LEVELS = {-1: logging.WARNING, 0: logging.INFO, 1: logging.DEBUG}
+
+
+@contextmanager
+def configure_logging(verbosity: int) -> Iterator[None]:
+    """The one place where bimcap's messages are set up, for the time of one command: the
+    ``bimcap`` logger (every module's logger hangs under it) at WARNING (``verbosity`` -1,
+    ``-q``), INFO (0, the default) or DEBUG (1 and more, ``-v``), written to stderr in a short
+    format. Restored afterwards (``main`` runs in-process in the tests)."""
+    logger = logging.getLogger("bimcap")
+    handler = _StderrHandler()
+    handler.setFormatter(_Formatter(names=verbosity > 0))
+    previous = logger.level
+    logger.setLevel(LEVELS[max(-1, min(1, verbosity))])
+    logger.addHandler(handler)
+    try:
+        yield
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(previous)
+
+
 def _command_in(argv: Sequence[str]) -> str | None:
     """The sub-command named in ``argv``: its first argument that is not an option (the top-level
     options take no value)."""
@@ -158,8 +210,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     previous = warnings.showwarning
     warnings.showwarning = _warnings_as_lines(args.command)
     try:
-        _check_outputs(args)
-        return int(args.func(args) or 0)
+        with configure_logging(-1 if getattr(args, "quiet", False) else 0):
+            _check_outputs(args)
+            return int(args.func(args) or 0)
     except BimcapError as exc:
         if args.debug:
             raise

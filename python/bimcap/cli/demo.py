@@ -40,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
 
     opts = DemoOptions(preset=args.preset, seed=args.seed, frames=args.frames, scale=args.scale,
                        drift=args.drift, config=config_from_args(args), facap=not args.no_facap)
-    res = run_demo(args.out, opts, quiet=args.quiet, overwrite=args.overwrite)
+    res = run_demo(args.out, opts, overwrite=args.overwrite)
     print(res.table)
     print(f"demo finished in {res.seconds:.1f} s; report: {res.report}")
     return 0

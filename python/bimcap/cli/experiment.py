@@ -51,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     opts = ExperimentOptions(experiments=exps, seeds=seeds, preset=args.preset, frames=args.frames,
                              scale=args.scale, world_seed=args.world_seed,
                              config=config_from_args(args), deviations=args.deviations)
-    records = run_experiment(args.out, opts, quiet=args.quiet)
+    records = run_experiment(args.out, opts)
     print(table2_markdown(records))
     print(f"wrote {args.out}/results.csv, table1.md, table2.md, ate.png")
     return 0

@@ -150,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
         if getattr(args, name) is None:
             raise ConfigError(f"{flag} is required (unless --print-config)", field=name)
     result = refine(args.sequence, args.out, cfg, ifc=args.ifc, init=args.init, gt=args.gt,
-                    report=not args.no_report, quiet=args.quiet, command=command_line(),
+                    report=not args.no_report, command=command_line(),
                     overwrite=args.overwrite, deviations=args.deviations)
     print(result.outcome.summary.table())
     if result.metrics_after is not None:
