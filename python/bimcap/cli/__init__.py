@@ -13,6 +13,12 @@ output_files=[...], input_paths=[...])`` (names of ``args`` attributes): before 
 :func:`main` checks that no output is an input and that each can be written
 (:func:`bimcap.io.outputs.check_output_dir` / ``check_output_file``), so that a read-only or
 mistyped ``-o`` fails at once, not after the expensive stages.
+
+Messages: every sub-command takes ``-v/--verbose`` (DEBUG, and the Ceres solver's per-iteration
+progress) and ``-q/--quiet`` (warnings and errors only, no progress bars), added here
+(:func:`add_verbosity_arguments`) and applied here (:func:`configure_logging`): the library
+logs through :mod:`logging` (:mod:`bimcap.logs`) and draws its progress bars through
+:mod:`bimcap.progress`; only the commands' result lines are printed, on stdout.
 """
 
 from __future__ import annotations
@@ -55,7 +61,7 @@ COMMANDS: tuple[str, ...] = (
 EXIT_SOLVE_FAILED = EXIT_FAILED
 
 __all__ = ["EXIT_BAD_INPUT", "EXIT_OS_ERROR", "EXIT_SOLVE_FAILED", "add_overwrite_argument",
-           "build_parser", "main"]
+           "add_verbosity_arguments", "build_parser", "configure_logging", "main", "verbosity"]
 
 
 class _DeprecatedAlias(argparse.Action):
@@ -79,6 +85,22 @@ def add_overwrite_argument(p: argparse.ArgumentParser, what: str,
     if deprecated_force:
         p.add_argument("--force", dest="overwrite", action=_DeprecatedAlias, new="--overwrite",
                        help="deprecated alias of --overwrite")
+
+
+def add_verbosity_arguments(p: argparse.ArgumentParser) -> None:
+    """``-v/--verbose`` (repeatable) and ``-q/--quiet``, on every sub-command
+    (:func:`build_parser` adds them; :func:`verbosity` reads them)."""
+    g = p.add_argument_group("messages").add_mutually_exclusive_group()
+    g.add_argument("-v", "--verbose", action="count", default=0,
+                   help="more messages: DEBUG, with the module of each line, and the Ceres "
+                        "solver's per-iteration progress")
+    g.add_argument("-q", "--quiet", action="store_true",
+                   help="warnings and errors only; no progress messages or bars")
+
+
+def verbosity(args: argparse.Namespace) -> int:
+    """-1 with ``-q``, else the number of ``-v`` (0 by default)."""
+    return -1 if getattr(args, "quiet", False) else int(getattr(args, "verbose", 0) or 0)
 
 
 def _check_outputs(args: argparse.Namespace) -> None:
@@ -121,6 +143,7 @@ def build_parser(command: str | None = ALL) -> argparse.ArgumentParser:
         module = importlib.import_module(f"bimcap.cli.{name}")  # a missing one is an error
         if command == ALL or command == module.NAME:
             module.register(sub)
+            add_verbosity_arguments(sub.choices[module.NAME])
         else:
             sub.add_parser(module.NAME, help=module.HELP)
     return parser
@@ -210,7 +233,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     previous = warnings.showwarning
     warnings.showwarning = _warnings_as_lines(args.command)
     try:
-        with configure_logging(-1 if getattr(args, "quiet", False) else 0):
+        with configure_logging(verbosity(args)):
             _check_outputs(args)
             return int(args.func(args) or 0)
     except BimcapError as exc:

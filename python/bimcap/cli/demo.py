@@ -28,7 +28,6 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                    help="image size relative to ConSLAM's 2064x1544 (default 0.25 -> 516x386)")
     p.add_argument("--drift", default="exp2", choices=["exp1", "exp2", "exp3"])
     p.add_argument("--no-facap", action="store_true", help="skip the FACaP comparison")
-    p.add_argument("-q", "--quiet", action="store_true")
     p.add_argument("--overwrite", action="store_true",
                    help="replace files in OUT/refine that bimcap did not write (default: refuse)")
     add_config_arguments(p)

@@ -30,7 +30,6 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--deviations", action="store_true",
                    help="also score the scan-vs-BIM deviations of every row against the "
                         "as-built's truth (columns dev_*)")
-    p.add_argument("-q", "--quiet", action="store_true")
     add_config_arguments(p)
     p.set_defaults(func=run, output_dirs=["out"])
 

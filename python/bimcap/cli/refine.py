@@ -85,6 +85,10 @@ def add_config_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def config_from_args(args: argparse.Namespace) -> RefineConfig:
+    """The run's settings: ``--config`` with the flags over it; ``-v`` turns the solver's
+    ``verbose`` on."""
+    from bimcap.cli import verbosity
+
     keys = ("method", "terms", "weighting", "loss", "geometric_mode", "completion",
             "completion_model", "segmentation", "segmentation_model", "labels_dir", "coarse",
             "rotation_first", "staged", "window", "max_match_distance", "workers", "lidar_nan",
@@ -100,6 +104,8 @@ def config_from_args(args: argparse.Namespace) -> RefineConfig:
             if getattr(args, flag, None) is not None}
     if dask or getattr(args, "dask", None):  # the flags add to the file's [dask] table
         cfg = cfg.with_(executor=ExecutorKind.DASK, dask={**cfg.dask, **dask})
+    if verbosity(args) > 0:  # -v: Ceres' per-iteration progress (SolverOptions.verbose)
+        cfg = cfg.with_(solver={**cfg.solver, "verbose": True})
     return cfg
 
 
@@ -127,7 +133,6 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--deviations", action="store_true",
                    help="also write the scan-vs-BIM deviations under the refined poses "
                         "(deviations.json/.csv/.ply; see bimcap deviations)")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.add_argument("--overwrite", action="store_true",
                    help="replace files in OUT that bimcap did not write (default: refuse)")
     p.add_argument("--print-config", action="store_true",

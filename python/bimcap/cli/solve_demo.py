@@ -30,6 +30,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 
 
 def run(args: argparse.Namespace) -> int:
+    from bimcap.cli import verbosity
     from bimcap.geometry.trajectory import Trajectory, write_tum
     from bimcap.io.atomic import atomic_write_text
     from bimcap.optimize import GeometricMode, SolverOptions, Weighting, solve, write_problem
@@ -45,6 +46,7 @@ def run(args: argparse.Namespace) -> int:
     options = SolverOptions(
         weighting=Weighting(args.weighting.upper()),
         geometric_mode=GeometricMode(args.geometric_mode.upper()),
+        verbose=verbosity(args) > 0,  # -v: Ceres' per-iteration progress
     ).with_terms(args.terms)
     problem = synthetic.problem
     print(
