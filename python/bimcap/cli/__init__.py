@@ -149,13 +149,17 @@ def build_parser(command: str | None = ALL) -> argparse.ArgumentParser:
     return parser
 
 
-class _StderrHandler(logging.StreamHandler):  # type: ignore[type-arg]
+class _StderrHandler(logging.Handler):
     """Writes to the ``sys.stderr`` of the moment (a test's capture, a redirect made after the
-    command started)."""
+    command started), above any progress bar being drawn (:func:`bimcap.progress.write_line`)."""
 
     def emit(self, record: logging.LogRecord) -> None:
-        self.stream = sys.stderr
-        super().emit(record)
+        from bimcap.progress import write_line
+
+        try:
+            write_line(self.format(record))
+        except Exception:
+            self.handleError(record)
 
 
 class _Formatter(logging.Formatter):

@@ -33,6 +33,7 @@ the same factor in both axes). The LiDAR→camera extrinsic is ConSLAM's
 
 from __future__ import annotations
 
+import logging
 import math
 import struct
 from collections.abc import Iterator
@@ -49,8 +50,10 @@ from bimcap.dataset.sequence import MANIFEST, VLP16, Sequence, SequenceError, Se
 from bimcap.geometry.camera import Camera
 from bimcap.geometry.poses import compose, invert, matrix_to_pose
 from bimcap.geometry.trajectory import Trajectory, TrajectoryError, read_tum
+from bimcap.progress import progress
 
 F64 = NDArray[np.float64]
+_log = logging.getLogger(__name__)
 
 TOPIC_IMAGE = "pp_rgb/synced2points"
 TOPIC_POINTS = "pp_points/synced2rgb"
@@ -499,9 +502,10 @@ def _write_frames(
     (None when no frame came) and where the camera came from."""
     writer: SequenceWriter | None = None
     cam_source = "given"
-    for k, image, cloud in _stream_frames(
-        bag.reader, bag.typestore, bag.con_img, bag.con_pts, plan, bag.path
-    ):
+    n = len(plan.image_index)
+    _log.info(f"writing {n} frames ({plan.n_pairs} image/scan pairs) to {output}")
+    frames = _stream_frames(bag.reader, bag.typestore, bag.con_img, bag.con_pts, plan, bag.path)
+    for k, image, cloud in progress(frames, total=n, desc="import", unit="frame"):
         if writer is None:
             cam, cam_source = _choose_camera(opts.camera, bag.info_camera, image.shape, bag.path)
             writer = SequenceWriter(
@@ -623,7 +627,12 @@ def _read_stamps(
     stamps: dict[int, list[tuple[float, float]]] = {con_img.id: [], con_pts.id: []}
     info_camera: Camera | None = None
     wanted = [con_img, con_pts] + ([con_info] if con_info is not None else [])
-    for con, bag_ns, raw in reader.messages(connections=wanted):
+    counts = [getattr(c, "msgcount", None) for c in wanted]
+    total = None if None in counts else sum(counts)
+    _log.info(f"indexing the bag: {'?' if total is None else total} messages on "
+              f"{', '.join(c.topic for c in wanted)}")
+    for con, bag_ns, raw in progress(reader.messages(connections=wanted), total=total,
+                                     desc="index", unit="msg"):
         if con.id in stamps:
             stamps[con.id].append((_header_stamp(raw), bag_ns * 1e-9))
         elif info_camera is None:

@@ -38,6 +38,7 @@ from bimcap.pipeline.config import (
     PipelineError,
     RefineConfig,
 )
+from bimcap.progress import progress
 
 F64 = NDArray[np.float64]
 
@@ -784,7 +785,7 @@ def _run_schedule(solver: _StageSolver, base: Any,
     prepared, config = solver.prepared, solver.config
     coarse_info = None
     last: _StageRun | None = None
-    for stage in schedule_for(config).stages:
+    for stage in progress(schedule_for(config).stages, desc="solve", unit="stage"):
         if stage.kind is StageKind.COARSE:
             poses, coarse_info = _coarse(prepared, poses, coarse_options(config))
             continue
