@@ -60,8 +60,9 @@ COMMANDS: tuple[str, ...] = (
 
 EXIT_SOLVE_FAILED = EXIT_FAILED
 
-__all__ = ["EXIT_BAD_INPUT", "EXIT_OS_ERROR", "EXIT_SOLVE_FAILED", "add_overwrite_argument",
-           "add_verbosity_arguments", "build_parser", "configure_logging", "main", "verbosity"]
+__all__ = ["EXIT_BAD_INPUT", "EXIT_OS_ERROR", "EXIT_SOLVE_FAILED", "add_out_argument",
+           "add_overwrite_argument", "add_verbosity_arguments", "build_parser",
+           "configure_logging", "main", "verbosity"]
 
 
 class _DeprecatedAlias(argparse.Action):
@@ -77,6 +78,37 @@ class _DeprecatedAlias(argparse.Action):
         setattr(namespace, self.dest, True)
 
 
+class _DeprecatedOption(argparse.Action):
+    """An option kept under an old name, hidden from the help: stores its value where the new
+    name does and says which name to use instead."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str, new: str = "", **kw: Any) -> None:
+        self.new = new
+        super().__init__(option_strings, dest, **kw)
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: Any, option_string: str | None = None) -> None:
+        print(f"bimcap: warning: {option_string} is deprecated, use {self.new}", file=sys.stderr)
+        setattr(namespace, self.dest, values)
+
+
+def add_deprecated_option(p: Any, old: str, new: str, dest: str, **kw: Any) -> None:
+    """``old`` as a hidden alias of the option ``new`` (same ``dest``; ``kw``: its ``type``,
+    ``choices``)."""
+    p.add_argument(old, dest=dest, action=_DeprecatedOption, new=new, help=argparse.SUPPRESS,
+                   default=argparse.SUPPRESS, **kw)
+
+
+def add_out_argument(p: argparse.ArgumentParser, help: str, required: bool = False,
+                     **kw: Any) -> None:
+    """The one spelling of a command's output, file or directory: ``-o/--out`` (``args.out``);
+    ``--output``, the old spelling of some commands, kept as a hidden deprecated alias. ``kw``:
+    ``type``, ``default``, ``metavar``."""
+    group: Any = p.add_mutually_exclusive_group(required=True) if required else p
+    group.add_argument("-o", "--out", dest="out", help=help, **kw)
+    add_deprecated_option(group, "--output", "-o/--out", "out", type=kw.get("type"))
+
+
 def add_overwrite_argument(p: argparse.ArgumentParser, what: str,
                            deprecated_force: bool = False) -> None:
     """The one flag that lets a command replace existing outputs: ``--overwrite`` (``--force``
@@ -84,7 +116,7 @@ def add_overwrite_argument(p: argparse.ArgumentParser, what: str,
     p.add_argument("--overwrite", action="store_true", help=f"replace {what}")
     if deprecated_force:
         p.add_argument("--force", dest="overwrite", action=_DeprecatedAlias, new="--overwrite",
-                       help="deprecated alias of --overwrite")
+                       help=argparse.SUPPRESS)  # hidden, like every retired spelling
 
 
 def add_verbosity_arguments(p: argparse.ArgumentParser) -> None:
@@ -124,6 +156,23 @@ def _check_outputs(args: argparse.Namespace) -> None:
 ALL = "*"
 
 
+class _HelpFormatter(argparse.HelpFormatter):
+    """argparse's formatter, but the ``examples:`` epilog keeps its lines as written."""
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        if text.startswith("examples:"):
+            return "".join(indent + line for line in text.splitlines(keepends=True))
+        return super()._fill_text(text, width, indent)
+
+
+def _finish_subparser(p: argparse.ArgumentParser, module: Any) -> None:
+    """What every sub-command has, added in one place: ``-v``/``-q`` and the ``examples:``
+    epilog of its module's ``EXAMPLES``."""
+    add_verbosity_arguments(p)
+    p.formatter_class = _HelpFormatter
+    p.epilog = "examples:\n" + "\n".join(f"  {e}" for e in module.EXAMPLES)
+
+
 def build_parser(command: str | None = ALL) -> argparse.ArgumentParser:
     """The ``bimcap`` parser.
 
@@ -143,7 +192,7 @@ def build_parser(command: str | None = ALL) -> argparse.ArgumentParser:
         module = importlib.import_module(f"bimcap.cli.{name}")  # a missing one is an error
         if command == ALL or command == module.NAME:
             module.register(sub)
-            add_verbosity_arguments(sub.choices[module.NAME])
+            _finish_subparser(sub.choices[module.NAME], module)
         else:
             sub.add_parser(module.NAME, help=module.HELP)
     return parser

@@ -19,6 +19,10 @@ from bimcap.pipeline.config import (
 
 NAME = "refine"
 HELP = "refine a sequence's trajectory against the BIM"
+EXAMPLES = ("bimcap refine seq/ --ifc house.ifc --init seq/poses/init.tum -o out/",
+            "bimcap refine seq/ -o out_facap/ --method facap --terms G+F+W",
+            "bimcap refine --print-config > settings.toml; bimcap refine seq/ -o out/ "
+            "--config settings.toml -v")
 
 
 def add_config_arguments(p: argparse.ArgumentParser) -> None:
@@ -110,6 +114,8 @@ def config_from_args(args: argparse.Namespace) -> RefineConfig:
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    from bimcap.cli import add_out_argument
+
     p = sub.add_parser(
         NAME,
         help=HELP,
@@ -124,8 +130,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     )
     p.add_argument("sequence", nargs="?",
                    help="sequence directory (bimcap simulate / import-conslam)")
-    p.add_argument("-o", "--out", help="output directory (required unless --print-config)")
-    p.add_argument("--ifc", help="the BIM (default: the sequence manifest's ifc)")
+    add_out_argument(p, "output directory (required unless --print-config)", metavar="DIR")
+    p.add_argument("--ifc", metavar="MODEL.ifc",
+                   help="the BIM (default: the sequence manifest's ifc)")
     p.add_argument("--init", help="initial poses, TUM (default: SEQUENCE/poses/init.tum)")
     p.add_argument("--gt",
                    help="ground truth TUM for metrics (default: SEQUENCE/poses/gt.tum if any)")
