@@ -563,6 +563,7 @@ def import_conslam(
     TypeError
         On a keyword argument that is not a field of :class:`ConslamImportOptions`.
     """
+    _require_rosbags()
     from rosbags.rosbag1 import Reader, ReaderError
     from rosbags.typesys import Stores, get_typestore
 
@@ -618,6 +619,14 @@ class _FramePlan:
     n_without_gt: int
     max_pair_dt_s: float
     max_gt_dt_s: float
+
+
+def _require_rosbags() -> None:
+    """:class:`bimcap.errors.MissingDependencyError` (install ``bimcap[ros]``) unless rosbags
+    imports."""
+    from bimcap.errors import require
+
+    require("rosbags.rosbag1", "rosbags", "ros", "reading ROS1 bags (import-conslam)")
 
 
 def _read_stamps(
@@ -767,6 +776,7 @@ def _choose_camera(
 
 def iter_topics(bag: str | PathLike[str]) -> Iterator[tuple[str, str, int]]:
     """(topic, message type, count) of every connection in a bag (for ``--list``)."""
+    _require_rosbags()
     from rosbags.rosbag1 import Reader
 
     with Reader(Path(bag)) as reader:
