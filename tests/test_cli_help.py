@@ -117,11 +117,11 @@ def test_quiet_silences_info_and_verbose_shows_debug(tmp_path: Path,
         return _stderr_lines(capsys)
 
     default = run()
-    assert any(ln.startswith("[bimcap] writing the design building to") for ln in default)
+    assert any(ln.startswith("[bimcap] wrote the design building") for ln in default)
     assert not any("DEBUG" in ln for ln in default)
     assert run("-q") == []
     verbose = run("-v")
-    assert any(ln.startswith("[bimcap] INFO bimcap.sim.building: writing") for ln in verbose)
+    assert any(ln.startswith("[bimcap] INFO bimcap.sim.building: wrote") for ln in verbose)
     assert any(ln.startswith("[bimcap] DEBUG bimcap.sim.building:") for ln in verbose)
     assert any("DEBUG" in ln for ln in run("-vv"))  # -v is repeatable
     # main leaves the logging as it found it (it runs in-process here)

@@ -839,10 +839,11 @@ class GeneratedBuilding:
         if path.suffix.lower() != ".ifc":
             raise BuildingSpecError("output must end in .ifc", path)
         text = self.ifc_text()
-        _log.info(f"writing the {self.truth.variant.value} building to {path} (and its "
-                  f"{truth_path_for(path).name})")
         atomic_write_text(path, text)
         atomic_write_json(truth_path_for(path), self.truth.to_dict())
+        # after the writes: a failed one is the command's one error line, nothing before it
+        _log.info(f"wrote the {self.truth.variant.value} building {path} and its "
+                  f"{truth_path_for(path).name}")
         _log.debug(f"{path}: {len(text)} characters of IFC, {len(self.truth.walls)} walls, "
                    f"{len(self.truth.columns)} columns")
         self.ifc_path, self.truth_path = path, truth_path_for(path)
