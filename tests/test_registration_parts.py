@@ -359,7 +359,7 @@ def test_a_repair_the_bim_disagrees_with_is_rejected() -> None:
     opts = solver_options(RefineConfig())  # refine's defaults: robust losses
     result = solve(problem, opts)
     assert np.linalg.norm(result.poses[k, :3] - gt[k, :3]) < 0.05  # the BIM holds it
-    record, redo = _repair(problem, opts, result, quiet=True)
+    record, redo = _repair(problem, opts, result)
     assert k in record["repaired"]  # the look-alikes fooled the consistency check and PnP
     assert redo is None and record["accepted"] is False
     assert record["bim_agreement_after"][0] < record["bim_agreement_before"][0] - 0.5

@@ -24,9 +24,11 @@ Exit codes of ``bimcap`` (and ``bimcap_solve``), docs/reliability.md:
 from __future__ import annotations
 
 import errno
+import importlib
 import os
 import re
 from os import PathLike
+from types import ModuleType
 
 EXIT_OK = 0
 EXIT_BAD_INPUT = 2
@@ -64,6 +66,40 @@ class InputError(BimcapError, ValueError):
         if field is not None:
             where += f"{field}: "
         super().__init__(clean_message(where + message))
+
+
+class MissingDependencyError(BimcapError, ImportError):
+    """An optional dependency that a command needs is not installed (exit code 2): the message
+    names the package, what needs it and the pip extra that brings it
+    (``pip install 'bimcap[ros]'``).
+
+    Parameters
+    ----------
+    package: the distribution that is missing ("rosbags").
+    extra: the extra of bimcap's pyproject.toml that installs it ("ros"), or None for a core
+        dependency that the install lacks (then the message says to install the package).
+    needed_for: what needs it, in words ("import-conslam (reading ROS1 bags)").
+    reason: the ImportError's text.
+    """
+
+    def __init__(self, package: str, extra: str | None, needed_for: str,
+                 reason: str = "") -> None:
+        self.package, self.extra = package, extra
+        why = f" ({reason})" if reason else ""
+        how = (f"install bimcap[{extra}]: pip install 'bimcap[{extra}]'" if extra else
+               f"bimcap depends on it: pip install {package}")
+        super().__init__(f"{needed_for} needs the {package} package, which is not installed"
+                         f"{why}; {how}")
+
+
+def require(module: str, package: str, extra: str | None, needed_for: str) -> ModuleType:
+    """``module`` imported, or :class:`MissingDependencyError` naming ``package`` and the
+    ``extra`` that installs it: the one guard of bimcap's optional dependencies (Dask, rosbags,
+    ONNX Runtime), called where they are used, before any expensive work."""
+    try:
+        return importlib.import_module(module)
+    except ImportError as exc:
+        raise MissingDependencyError(package, extra, needed_for, str(exc)) from None
 
 
 _NUMPY_REPR = re.compile(r"\bnp\.(?:float|int|uint|bool|complex|str)_?\d*\((.*?)\)")

@@ -10,17 +10,21 @@ from typing import Any
 
 NAME = "bim"
 HELP = "IFC → semantic cloud, floor/ceiling planes, vectorized floor plan (metres)"
+EXAMPLES = ("bimcap bim house.ifc -o bim/",
+            "bimcap bim Duplex_A.ifc -o duplex_bim/ --meshes --vectorizer lsd")
 
 
 def register(sub: Any) -> None:
+    from bimcap.cli import add_out_argument
+
     p = sub.add_parser(
         NAME,
         help=HELP,
         description="Ingest an IFC model and write its BIM reference: semantic point cloud (PLY), "
         "floor/ceiling planes (JSON), vectorized floor plan (JSON, SVG, PNG) and arrays (NPZ).",
     )
-    p.add_argument("model", type=Path, help="IFC2X3 / IFC4 file")
-    p.add_argument("-o", "--output", type=Path, required=True, help="output directory")
+    p.add_argument("model", type=Path, metavar="MODEL.ifc", help="IFC2X3 / IFC4 file")
+    add_out_argument(p, "output directory", required=True, type=Path, metavar="DIR")
     p.add_argument("--density", type=float, default=100.0, help="cloud points per m² (100)")
     p.add_argument("--seed", type=int, default=0, help="cloud sampling seed (0)")
     p.add_argument("--cut-height", type=float, default=1.2,
@@ -34,7 +38,7 @@ def register(sub: Any) -> None:
     p.add_argument("--max-lost-fraction", type=float, default=0.02, metavar="F",
                    help="refuse a damaged IFC that lost more than this share of its building "
                         "elements (default 0.02); a smaller loss is a warning with the counts")
-    p.set_defaults(func=run, output_dirs=["output"], input_paths=["model"])
+    p.set_defaults(func=run, output_dirs=["out"], input_paths=["model"])
 
 
 def run(args: argparse.Namespace) -> int:
@@ -47,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     from bimcap.bim.semantic_cloud import write_class_meshes
     from bimcap.io.atomic import check_not_input
 
-    out: Path = args.output
+    out: Path = args.out
     check_not_input(out, [args.model])
     if not 0.0 <= args.max_lost_fraction <= 1.0:
         raise BimOptionsError(

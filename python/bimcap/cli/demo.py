@@ -8,9 +8,13 @@ from bimcap.cli.refine import add_config_arguments, config_from_args
 
 NAME = "demo"
 HELP = "end-to-end demo on a generated building (no data needed)"
+EXAMPLES = ("bimcap demo -o demo_out",
+            "bimcap demo --preset tiny --frames 20 --no-facap -o /tmp/demo -q")
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    from bimcap.cli import add_out_argument
+
     p = sub.add_parser(
         NAME,
         help=HELP,
@@ -20,15 +24,16 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
             "a before/after table; writes every artefact and report.html into OUT."
         ),
     )
-    p.add_argument("-o", "--out", default="demo_out", help="output directory (default demo_out)")
+    add_out_argument(p, "output directory (default demo_out)", default="demo_out",
+                     metavar="DIR")
     p.add_argument("--preset", default="demo", help="building preset: demo, tiny, tower")
     p.add_argument("--seed", type=int, default=0, help="seed of building, walk and drift")
     p.add_argument("--frames", type=int, default=60, help="simulated frames (default 60)")
     p.add_argument("--scale", type=float, default=0.25,
                    help="image size relative to ConSLAM's 2064x1544 (default 0.25 -> 516x386)")
-    p.add_argument("--drift", default="exp2", choices=["exp1", "exp2", "exp3"])
+    p.add_argument("--drift", default="exp2", choices=["exp1", "exp2", "exp3"],
+                   help="drift preset of the initial trajectory (default exp2)")
     p.add_argument("--no-facap", action="store_true", help="skip the FACaP comparison")
-    p.add_argument("-q", "--quiet", action="store_true")
     p.add_argument("--overwrite", action="store_true",
                    help="replace files in OUT/refine that bimcap did not write (default: refuse)")
     add_config_arguments(p)
@@ -40,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
 
     opts = DemoOptions(preset=args.preset, seed=args.seed, frames=args.frames, scale=args.scale,
                        drift=args.drift, config=config_from_args(args), facap=not args.no_facap)
-    res = run_demo(args.out, opts, quiet=args.quiet, overwrite=args.overwrite)
+    res = run_demo(args.out, opts, overwrite=args.overwrite)
     print(res.table)
     print(f"demo finished in {res.seconds:.1f} s; report: {res.report}")
     return 0

@@ -9,10 +9,13 @@ from typing import Any
 
 NAME = "deviations"
 HELP = "scan-vs-BIM deviations per IFC element (offset, coverage, missing, unobserved)"
+EXAMPLES = ("bimcap deviations out/",
+            "bimcap deviations --sequence seq/ --poses out/refined.tum --ifc house.ifc "
+            "-o dev/ --tolerance 0.03")
 
 
 def register(sub: Any) -> None:
-    from bimcap.cli import add_overwrite_argument
+    from bimcap.cli import add_out_argument, add_overwrite_argument
 
     p = sub.add_parser(
         NAME,
@@ -33,8 +36,10 @@ def register(sub: Any) -> None:
     p.add_argument("--sequence", type=Path, help="sequence directory (default: the run's)")
     p.add_argument("--poses", type=Path,
                    help="world_from_cam TUM, one pose per frame (default: RUN_DIR/refined.tum)")
-    p.add_argument("--ifc", type=Path, help="the design IFC (default: the run's)")
-    p.add_argument("-o", "--out", type=Path, help="output directory (default RUN_DIR/deviations)")
+    p.add_argument("--ifc", type=Path, metavar="MODEL.ifc",
+                   help="the design IFC (default: the run's)")
+    add_out_argument(p, "output directory (default RUN_DIR/deviations)", type=Path,
+                     metavar="DIR")
     p.add_argument("--tolerance", type=float, default=0.02, metavar="M",
                    help="offsets beyond this are 'deviating' (default 0.02 m)")
     p.add_argument("--storey", help="analyse only this storey's elements (by name)")

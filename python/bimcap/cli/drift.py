@@ -21,10 +21,13 @@ from typing import Any
 
 NAME = "drift"
 HELP = "write a drifted initial trajectory poses/init.tum from the ground truth"
+EXAMPLES = ("bimcap drift seq/ --preset exp2 --seed 1",
+            "bimcap drift seq/ --preset exp1 --seed 1 --slam-frame -o slam.tum",
+            "bimcap drift seq/ --mode slam --sigma-t 0.02 --name init_slam")
 
 
 def register(subparsers: Any) -> None:
-    from bimcap.cli import add_overwrite_argument
+    from bimcap.cli import add_out_argument, add_overwrite_argument
     from bimcap.sim.drift import PRESETS, DriftModel
 
     presets = ", ".join(f"{k} ({v.description})" for k, v in PRESETS.items())
@@ -69,14 +72,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--no-z", action="store_true", help="keep the height: planar translation walk")
     p.add_argument("--gt", default="gt", help="name of the ground-truth trajectory (default gt)")
     p.add_argument("--name", default="init", help="name of the trajectory to write (default init)")
-    p.add_argument(
-        "-o",
-        "--output",
-        type=Path,
-        default=None,
-        metavar="FILE.tum",
-        help="write here instead of into the sequence",
-    )
+    add_out_argument(p, "write here instead of into the sequence", type=Path, metavar="FILE.tum")
     p.add_argument(
         "--slam-frame",
         action="store_true",
@@ -89,7 +85,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--slam-z-range", type=float, default=None, metavar="M",
                    help="with --slam-frame: half-width of the z offset (default 5 m)")
     add_overwrite_argument(p, "an existing output trajectory", deprecated_force=True)
-    p.set_defaults(func=run, output_files=["output"])
+    p.set_defaults(func=run, output_files=["out"])
 
 
 def _params(args: argparse.Namespace) -> Any:
@@ -152,10 +148,10 @@ def run(args: argparse.Namespace) -> int:
         )
         out_traj = slam.trajectory
         header = header.replace("world_from_cam", "slam_from_cam (SLAM frame)", 1)
-    if args.output is None:
+    if args.out is None:
         tum = add_trajectory(seq, args.name, out_traj, header=header, overwrite=args.overwrite)
     else:
-        tum = args.output
+        tum = args.out
         check_not_input(tum, [gt_path, seq.manifest_path])
         if tum.exists() and not args.overwrite:
             raise SequenceError("already exists (use --overwrite to replace it)", tum)

@@ -10,9 +10,13 @@ from pathlib import Path
 
 NAME = "evaluate"
 HELP = "ATE, yaw/pitch/roll RMSE, MME/MPV/NND of an estimate against the ground truth"
+EXAMPLES = ("bimcap evaluate out/refined.tum seq/poses/gt.tum -o metrics.json",
+            "bimcap evaluate out/refined.tum seq/poses/gt.tum --map out/map_after.ply "
+            "--reference out/map_gt.ply")
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    from bimcap.cli import add_out_argument
     from bimcap.evaluation.map_metrics import (
         DEFAULT_MIN_NEIGHBOURS,
         DEFAULT_NND_CUTOFF,
@@ -84,10 +88,8 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         help="points at or beyond the cut-off: excluded (ConSLAM's constrained_RMSE rule), or "
         "counted as the cut-off (default exclude)",
     )
-    p.add_argument(
-        "-o", "--output", type=Path, metavar="metrics.json", help="write the metrics JSON"
-    )
-    p.set_defaults(func=run, output_files=["output"], input_paths=["est", "gt", "map", "reference"])
+    add_out_argument(p, "write the metrics JSON", type=Path, metavar="metrics.json")
+    p.set_defaults(func=run, output_files=["out"], input_paths=["est", "gt", "map", "reference"])
 
 
 def run(args: argparse.Namespace) -> int:
@@ -103,8 +105,8 @@ def run(args: argparse.Namespace) -> int:
     from bimcap.io.atomic import atomic_write_json, check_not_input
 
     inputs = [p for p in (args.est, args.gt, args.map, args.reference) if p is not None]
-    if args.output is not None:
-        check_not_input(args.output, inputs)
+    if args.out is not None:
+        check_not_input(args.out, inputs)
     if args.reference is not None and args.map is None:
         raise EvaluationError("--reference needs --map (the map to compare with it)")
     est = read_tum(args.est)
@@ -132,7 +134,7 @@ def run(args: argparse.Namespace) -> int:
             mm = map_metrics(points, args.radius, args.min_neighbours)
         result["map"] = {"path": str(args.map), **mm.to_dict()}
         print(mm.format_table())
-    if args.output is not None:
-        atomic_write_json(args.output, result)
-        print(f"wrote {args.output}")
+    if args.out is not None:
+        atomic_write_json(args.out, result)
+        print(f"wrote {args.out}")
     return 0

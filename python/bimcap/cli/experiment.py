@@ -8,9 +8,13 @@ from bimcap.cli.refine import add_config_arguments, config_from_args
 
 NAME = "experiment"
 HELP = "the paper's experiments (drift presets x ablations x seeds) on the synthetic world"
+EXAMPLES = ("bimcap experiment -o exp/",
+            "bimcap experiment -o exp/ --experiments exp2 --seeds 1,2 --preset tiny")
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    from bimcap.cli import add_out_argument
+
     p = sub.add_parser(
         NAME,
         help=HELP,
@@ -20,17 +24,19 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
             "results.csv, table1.md, table2.md (paper numbers beside) and ate.png into OUT."
         ),
     )
-    p.add_argument("-o", "--out", required=True, help="output directory")
+    add_out_argument(p, "output directory", required=True, metavar="DIR")
     p.add_argument("--experiments", default="exp1,exp2,exp3", help="comma-separated drift presets")
     p.add_argument("--seeds", default="1,2,3", help="comma-separated drift seeds")
-    p.add_argument("--preset", default="demo", help="building preset")
-    p.add_argument("--frames", type=int, default=60)
-    p.add_argument("--scale", type=float, default=0.25)
-    p.add_argument("--world-seed", type=int, default=0)
+    p.add_argument("--preset", default="demo", help="building preset: demo, tiny, tower")
+    p.add_argument("--frames", type=int, default=60, help="simulated frames (default 60)")
+    p.add_argument("--scale", type=float, default=0.25,
+                   help="image size relative to ConSLAM's 2064x1544 (default 0.25)")
+    p.add_argument("--world-seed", type=int, default=0,
+                   help="seed of the building and the walk (default 0); --seeds are the "
+                        "drifts'")
     p.add_argument("--deviations", action="store_true",
                    help="also score the scan-vs-BIM deviations of every row against the "
                         "as-built's truth (columns dev_*)")
-    p.add_argument("-q", "--quiet", action="store_true")
     add_config_arguments(p)
     p.set_defaults(func=run, output_dirs=["out"])
 
@@ -51,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     opts = ExperimentOptions(experiments=exps, seeds=seeds, preset=args.preset, frames=args.frames,
                              scale=args.scale, world_seed=args.world_seed,
                              config=config_from_args(args), deviations=args.deviations)
-    records = run_experiment(args.out, opts, quiet=args.quiet)
+    records = run_experiment(args.out, opts)
     print(table2_markdown(records))
     print(f"wrote {args.out}/results.csv, table1.md, table2.md, ate.png")
     return 0

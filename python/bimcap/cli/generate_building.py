@@ -8,6 +8,8 @@ from typing import Any
 
 NAME = "generate-building"
 HELP = "write a parametric IFC4 building (corridor, rooms, columns, doors, windows)"
+EXAMPLES = ("bimcap generate-building -o house.ifc --seed 0",
+            "bimcap generate-building -o house.ifc --as-built house_as_built.ifc --storeys 2")
 
 #: Spec fields the command line can override, with their flags.
 _OVERRIDES: tuple[tuple[str, str, type], ...] = (
@@ -24,13 +26,15 @@ _OVERRIDES: tuple[tuple[str, str, type], ...] = (
 
 
 def register(subparsers: Any) -> None:
+    from bimcap.cli import add_out_argument
+
     p = subparsers.add_parser(
         NAME,
         help=HELP,
         description="Write a parametric IFC4 building and NAME.truth.json (walls, columns, "
         "openings, storey heights, walkable space in metres). Same seed, same bytes.",
     )
-    p.add_argument("-o", "--output", required=True, type=Path, help="the IFC file to write")
+    add_out_argument(p, "the IFC file to write", required=True, type=Path, metavar="FILE.ifc")
     p.add_argument("--seed", type=int, default=0, help="design seed (default 0)")
     p.add_argument("--preset", choices=("demo", "tiny", "tower"), default="demo",
                    help="starting parameters (default: demo, the default world)")
@@ -45,7 +49,7 @@ def register(subparsers: Any) -> None:
                    help="as-built fraction of removable elements left out (default 0.1)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace existing IFC files and their .truth.json sidecars")
-    p.set_defaults(func=run, output_files=["output", "as_built"])
+    p.set_defaults(func=run, output_files=["out", "as_built"])
 
 
 def run(args: argparse.Namespace) -> int:
@@ -59,21 +63,21 @@ def run(args: argparse.Namespace) -> int:
         truth_path_for,
     )
 
-    outputs = [args.output]
+    outputs = [args.out]
     if args.as_built is not None:
-        check_not_input(args.as_built, [args.output])
+        check_not_input(args.as_built, [args.out])
         outputs.append(args.as_built)
     if not args.overwrite:
         for path in outputs:
             for target in (path, truth_path_for(path)):
                 if target.exists():
                     raise BuildingSpecError("already exists (use --overwrite to replace it)",
-                                            target, "-o" if path == args.output else "--as-built")
+                                            target, "-o" if path == args.out else "--as-built")
     changes = {name: getattr(args, name) for _, name, _ in _OVERRIDES
                if getattr(args, name) is not None}
     spec = replace_spec(PRESETS[args.preset], **changes)
     design = generate_building(spec, args.seed)
-    design.write(args.output)
+    design.write(args.out)
     _summary(design)
     if args.as_built is not None:
         built = as_built(design, args.as_built_seed, args.shift_sigma, args.missing_fraction)

@@ -8,6 +8,11 @@ from typing import Any
 
 NAME = "import-bag"
 HELP = "import a ROS1/ROS2 bag (image + PointCloud2 topics, camera_info or calib) as a sequence"
+EXAMPLES = ("bimcap import-bag run.bag --list",
+            "bimcap import-bag run.bag --image-topic /cam/image_raw --cloud-topic /velodyne_points "
+            "--lidar-extrinsic tf -o seq/",
+            "bimcap import-bag rosbag2_dir --image-topic /cam/image/compressed "
+            "--cloud-topic /points --calib camchain.yaml --trajectory slam.tum -o seq/")
 
 
 def register(subparsers: Any) -> None:
@@ -35,7 +40,7 @@ def register(subparsers: Any) -> None:
                    help="sensor_msgs/CameraInfo topic (instead of --calib)")
     add_calibration_arguments(p, required=False, from_tf=True)
     add_common_arguments(p, output_required=False)  # --list needs no -o; run() checks it
-    p.set_defaults(func=run, output_dirs=["output"], input_paths=["bag"])
+    p.set_defaults(func=run, output_dirs=["out"], input_paths=["bag"])
 
 
 def run(args: argparse.Namespace) -> int:
@@ -47,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
         for topic, msgtype, count in list_topics(args.bag):
             print(f"{topic}\t{msgtype}\t{count}")
         return 0
-    missing = [flag for flag, value in (("-o/--output", args.output),
+    missing = [flag for flag, value in (("-o/--out", args.out),
                                         ("--image-topic", args.image_topic),
                                         ("--cloud-topic", args.cloud_topic)) if value is None]
     if missing:
@@ -55,10 +60,10 @@ def run(args: argparse.Namespace) -> int:
                        "topics)", args.bag)
     if args.calib is not None and args.camera_info_topic is not None:
         raise BagError("give --camera-info-topic or --calib, not both", args.bag)
-    check_not_input(args.output, input_paths(args, "bag"))
+    check_not_input(args.out, input_paths(args, "bag"))
     result = import_bag(
         args.bag,
-        args.output,
+        args.out,
         BagTopics(args.image_topic, args.cloud_topic, args.camera_info_topic),
         calib=args.calib,
         calib_camera=args.calib_camera,

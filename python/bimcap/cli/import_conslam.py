@@ -8,10 +8,13 @@ from typing import Any
 
 NAME = "import-conslam"
 HELP = "import a ConSLAM ROS1 bag (RGB, VLP-16, camera_info, GT poses) as a sequence"
+EXAMPLES = ("bimcap import-conslam data_2.bag --gt gt_poses/ -o seq/",
+            "bimcap import-conslam data_2.bag --gt poses_bim.tum --ifc model.ifc --stride 5 "
+            "-o seq/")
 
 
 def register(subparsers: Any) -> None:
-    from bimcap.cli import add_overwrite_argument
+    from bimcap.cli import add_out_argument, add_overwrite_argument
 
     p = subparsers.add_parser(
         NAME,
@@ -22,14 +25,7 @@ def register(subparsers: Any) -> None:
         "a sequence directory.",
     )
     p.add_argument("bag", type=Path, metavar="BAG", help="the ROS1 .bag file")
-    p.add_argument(
-        "-o",
-        "--output",
-        type=Path,
-        required=True,
-        metavar="SEQ",
-        help="sequence directory to write",
-    )
+    add_out_argument(p, "sequence directory to write", required=True, type=Path, metavar="SEQ")
     p.add_argument(
         "--gt",
         type=Path,
@@ -57,7 +53,8 @@ def register(subparsers: Any) -> None:
         metavar="S",
         help="max scan/GT time difference (default 0.05 s)",
     )
-    p.add_argument("--ifc", type=Path, default=None, help="IFC file to record in the manifest")
+    p.add_argument("--ifc", type=Path, default=None, metavar="MODEL.ifc",
+                   help="IFC file to record in the manifest")
     p.add_argument("--stride", type=int, default=1, help="keep every N-th frame (default 1)")
     p.add_argument("--max-frames", type=int, default=None, help="keep at most N frames")
     p.add_argument(
@@ -69,7 +66,7 @@ def register(subparsers: Any) -> None:
         help="PNG compression level of the images (default: OpenCV's)",
     )
     add_overwrite_argument(p, "an existing sequence at -o", deprecated_force=True)
-    p.set_defaults(func=run, output_dirs=["output"], input_paths=["bag"])
+    p.set_defaults(func=run, output_dirs=["out"], input_paths=["bag"])
 
 
 def run(args: argparse.Namespace) -> int:
@@ -77,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
     from bimcap.io.atomic import check_not_input
 
     inputs = [args.bag] + ([args.gt] if args.gt is not None else [])
-    check_not_input(args.output, inputs)
+    check_not_input(args.out, inputs)
     options = ConslamImportOptions(
         gt_frame=GtFrame(args.gt_frame),
         tolerance_s=args.tolerance,
@@ -88,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
         overwrite=args.overwrite,
         png_compression=args.png_compression,
     )
-    result = import_conslam(args.bag, args.output, args.gt, options=options)
+    result = import_conslam(args.bag, args.out, args.gt, options=options)
     seq = result.sequence
     print(
         f"{seq.root}: {result.n_frames} frames from {result.n_images} images / {result.n_scans} "

@@ -8,6 +8,10 @@ from typing import Any
 
 NAME = "import-folder"
 HELP = "import a folder of images + PCD/PLY/KITTI .bin clouds (or depth PNGs) as a sequence"
+EXAMPLES = ("bimcap import-folder kitti_like/ --calib camera_info.yaml --lidar-extrinsic "
+            "extrinsic.yaml -o seq/",
+            "bimcap import-folder rgbd/ --calib camera_info.yaml --depth-dir depth "
+            "--depth-scale 1000 --lidar-extrinsic identity -o seq/")
 
 
 def register(subparsers: Any) -> None:
@@ -39,7 +43,7 @@ def register(subparsers: Any) -> None:
                    help="timestamps file (default DIR/timestamps.txt when present, else the "
                    "file names)")
     add_common_arguments(p)
-    p.set_defaults(func=run, output_dirs=["output"], input_paths=["folder"])
+    p.set_defaults(func=run, output_dirs=["out"], input_paths=["folder"])
 
 
 def run(args: argparse.Namespace) -> int:
@@ -47,11 +51,11 @@ def run(args: argparse.Namespace) -> int:
     from bimcap.dataset.folder import import_folder
     from bimcap.io.atomic import check_not_input
 
-    check_not_input(args.output, input_paths(args, "folder")
+    check_not_input(args.out, input_paths(args, "folder")
                     + ([args.timestamps] if args.timestamps is not None else []))
     result = import_folder(
         args.folder,
-        args.output,
+        args.out,
         args.calib,
         calib_camera=args.calib_camera,
         lidar_extrinsic=args.lidar_extrinsic,

@@ -1,11 +1,9 @@
 """The options ``import-bag`` and ``import-folder`` share (not a sub-command itself): pairing,
-calibration, trajectory, thinning and output settings, and a progress printer."""
+calibration, trajectory, thinning and output settings."""
 
 from __future__ import annotations
 
 import argparse
-import sys
-import time
 from pathlib import Path
 from typing import Any
 
@@ -30,10 +28,10 @@ def add_calibration_arguments(p: argparse.ArgumentParser, required: bool,
 
 def add_common_arguments(p: argparse.ArgumentParser, output_required: bool = True) -> None:
     """Output, pairing tolerance, trajectory, thinning, manifest and overwrite options."""
-    from bimcap.cli import add_overwrite_argument
+    from bimcap.cli import add_out_argument, add_overwrite_argument
 
-    p.add_argument("-o", "--output", type=Path, required=output_required, metavar="SEQ",
-                   help="sequence directory to write")
+    add_out_argument(p, "sequence directory to write", required=output_required, type=Path,
+                     metavar="SEQ")
     p.add_argument("--tolerance", type=float, default=0.05, metavar="S",
                    help="max image/cloud time difference of a pair (default 0.05 s)")
     p.add_argument("--trajectory", type=Path, default=None, metavar="FILE",
@@ -62,36 +60,11 @@ def add_common_arguments(p: argparse.ArgumentParser, output_required: bool = Tru
     add_overwrite_argument(p, "an existing sequence at -o")
 
 
-class ProgressPrinter:
-    """``progress(stage, done, total)`` that prints to stderr: in place on a terminal, else one
-    line per 10 %, at most every 0.5 s either way."""
-
-    def __init__(self, command: str) -> None:
-        self.command = command
-        self.tty = sys.stderr.isatty()
-        self.last: dict[str, tuple[float, int]] = {}
-
-    def __call__(self, stage: str, done: int, total: int) -> None:
-        now = time.monotonic()
-        t_last, decile = self.last.get(stage, (0.0, -1))
-        pct = 100 * done // max(total, 1)
-        finished = done >= total
-        if self.tty:
-            if now - t_last < 0.5 and not finished:
-                return
-            end = "\n" if finished else ""
-            print(f"\rbimcap {self.command}: {stage} {done}/{total} ({pct}%)", end=end,
-                  file=sys.stderr, flush=True)
-            self.last[stage] = (now, decile)
-        elif pct // 10 > max(decile, 0) and (now - t_last >= 0.5 or finished):
-            print(f"bimcap {self.command}: {stage} {done}/{total} ({pct}%)", file=sys.stderr)
-            self.last[stage] = (now, pct // 10)
-
-
 def import_options(args: argparse.Namespace, command: str) -> Any:
     """The :class:`~bimcap.dataset.importing.ImportOptions` of the parsed arguments."""
     from bimcap.dataset.importing import ImportOptions, PoseSensor, TrajectoryInput
     from bimcap.geometry.pose_formats import PoseFormat
+    from bimcap.progress import StageProgress
 
     traj = None
     if args.trajectory is not None:
@@ -102,7 +75,7 @@ def import_options(args: argparse.Namespace, command: str) -> Any:
     return ImportOptions(tolerance_s=args.tolerance, trajectory=traj, stride=args.stride,
                          max_frames=args.max_frames, lidar_model=args.lidar_model, ifc=args.ifc,
                          overwrite=args.overwrite, png_compression=args.png_compression,
-                         progress=ProgressPrinter(command))
+                         progress=StageProgress())
 
 
 def input_paths(args: argparse.Namespace, first: str) -> list[Any]:

@@ -19,6 +19,10 @@ from bimcap.pipeline.config import (
 
 NAME = "refine"
 HELP = "refine a sequence's trajectory against the BIM"
+EXAMPLES = ("bimcap refine seq/ --ifc house.ifc --init seq/poses/init.tum -o out/",
+            "bimcap refine seq/ -o out_facap/ --method facap --terms G+F+W",
+            "bimcap refine --print-config > settings.toml; bimcap refine seq/ -o out/ "
+            "--config settings.toml -v")
 
 
 def add_config_arguments(p: argparse.ArgumentParser) -> None:
@@ -85,6 +89,10 @@ def add_config_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def config_from_args(args: argparse.Namespace) -> RefineConfig:
+    """The run's settings: ``--config`` with the flags over it; ``-v`` turns the solver's
+    ``verbose`` on."""
+    from bimcap.cli import verbosity
+
     keys = ("method", "terms", "weighting", "loss", "geometric_mode", "completion",
             "completion_model", "segmentation", "segmentation_model", "labels_dir", "coarse",
             "rotation_first", "staged", "window", "max_match_distance", "workers", "lidar_nan",
@@ -100,10 +108,14 @@ def config_from_args(args: argparse.Namespace) -> RefineConfig:
             if getattr(args, flag, None) is not None}
     if dask or getattr(args, "dask", None):  # the flags add to the file's [dask] table
         cfg = cfg.with_(executor=ExecutorKind.DASK, dask={**cfg.dask, **dask})
+    if verbosity(args) > 0:  # -v: Ceres' per-iteration progress (SolverOptions.verbose)
+        cfg = cfg.with_(solver={**cfg.solver, "verbose": True})
     return cfg
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    from bimcap.cli import add_out_argument
+
     p = sub.add_parser(
         NAME,
         help=HELP,
@@ -118,8 +130,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     )
     p.add_argument("sequence", nargs="?",
                    help="sequence directory (bimcap simulate / import-conslam)")
-    p.add_argument("-o", "--out", help="output directory (required unless --print-config)")
-    p.add_argument("--ifc", help="the BIM (default: the sequence manifest's ifc)")
+    add_out_argument(p, "output directory (required unless --print-config)", metavar="DIR")
+    p.add_argument("--ifc", metavar="MODEL.ifc",
+                   help="the BIM (default: the sequence manifest's ifc)")
     p.add_argument("--init", help="initial poses, TUM (default: SEQUENCE/poses/init.tum)")
     p.add_argument("--gt",
                    help="ground truth TUM for metrics (default: SEQUENCE/poses/gt.tum if any)")
@@ -127,7 +140,6 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--deviations", action="store_true",
                    help="also write the scan-vs-BIM deviations under the refined poses "
                         "(deviations.json/.csv/.ply; see bimcap deviations)")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.add_argument("--overwrite", action="store_true",
                    help="replace files in OUT that bimcap did not write (default: refuse)")
     p.add_argument("--print-config", action="store_true",
@@ -150,7 +162,7 @@ def run(args: argparse.Namespace) -> int:
         if getattr(args, name) is None:
             raise ConfigError(f"{flag} is required (unless --print-config)", field=name)
     result = refine(args.sequence, args.out, cfg, ifc=args.ifc, init=args.init, gt=args.gt,
-                    report=not args.no_report, quiet=args.quiet, command=command_line(),
+                    report=not args.no_report, command=command_line(),
                     overwrite=args.overwrite, deviations=args.deviations)
     print(result.outcome.summary.table())
     if result.metrics_after is not None:

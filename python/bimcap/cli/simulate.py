@@ -8,9 +8,14 @@ from typing import Any
 
 NAME = "simulate"
 HELP = "simulate a camera + LiDAR sequence (raw RGB, labels, depth, VLP-16) in a building"
+EXAMPLES = ("bimcap simulate house.ifc -o seq/ --seed 0",
+            "bimcap simulate house.ifc --as-built house_as_built.ifc -o seq/ --frames 60 "
+            "--workers 0",
+            'bimcap simulate Duplex_A.ifc -o seq2/ --storey "Level 1" --small')
 
 
 def register(subparsers: Any) -> None:
+    from bimcap.cli import add_out_argument
     from bimcap.sim.lidar import LidarConfig
     from bimcap.sim.walk import WalkConfig
 
@@ -24,8 +29,9 @@ def register(subparsers: Any) -> None:
         "The realism flags (pitch, field of view, LiDAR noise and dropout, clutter, label "
         "noise) make harder worlds; every setting goes into the manifest's 'source'.",
     )
-    p.add_argument("model", type=Path, help="the design IFC (what the manifest refers to)")
-    p.add_argument("-o", "--output", required=True, type=Path, help="sequence directory to write")
+    p.add_argument("model", type=Path, metavar="MODEL.ifc",
+                   help="the design IFC (what the manifest refers to)")
+    add_out_argument(p, "sequence directory to write", required=True, type=Path, metavar="SEQ")
     p.add_argument("--frames", type=int, default=200, help="number of frames (default 200)")
     p.add_argument("--seed", type=int, default=0, help="seed of the walk, clutter and noise")
     p.add_argument("--fps", type=float, default=3.0, help="camera frame rate in Hz (default 3)")
@@ -89,7 +95,7 @@ def register(subparsers: Any) -> None:
     g.add_argument("--label-boundary-px", type=float, default=0.0, metavar="PX",
                    help="class boundaries in labels/ wander by up to PX pixels: errors near "
                    "boundaries, counted in --label-noise (default %(default)s)")
-    p.set_defaults(func=run, output_dirs=["output"], input_paths=["model", "as_built"])
+    p.set_defaults(func=run, output_dirs=["out"], input_paths=["model", "as_built"])
 
 
 def run(args: argparse.Namespace) -> int:
@@ -137,8 +143,8 @@ def run(args: argparse.Namespace) -> int:
         threads_per_worker=1 if args.workers != 1 else 0,
     )
     cli = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()
-           if k != "func"}
-    seq = simulate(args.model, args.output, cfg, args.seed, args.as_built,
+           if k not in ("func", "verbose", "quiet")}  # what the files depend on
+    seq = simulate(args.model, args.out, cfg, args.seed, args.as_built,
                    clutter=not args.no_clutter, overwrite=args.overwrite,
                    source={"command_line": cli, "focal_scale": focal_scale})
     cam = seq.camera

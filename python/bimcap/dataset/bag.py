@@ -64,6 +64,7 @@ from bimcap.dataset.ros import (
     tf_edges,
     topic_list,
 )
+from bimcap.errors import require
 from bimcap.geometry.poses import matrix_to_pose
 
 F64 = NDArray[np.float64]
@@ -115,6 +116,7 @@ def _check_bag_path(path: Path) -> None:
 
 def _open_reader(path: Path) -> Any:
     """An unopened ``AnyReader`` with a default type store for bags without definitions."""
+    require("rosbags.highlevel", "rosbags", "ros", "reading ROS bags (import-bag)")
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
@@ -397,6 +399,7 @@ def import_bag(
     bimcap.dataset.calib.CalibrationError, bimcap.geometry.pose_formats.PoseFormatError
         A bad calibration or trajectory file (naming the file and the field).
     """
+    require("rosbags.highlevel", "rosbags", "ros", "reading ROS bags (import-bag)")
     opts = options or ImportOptions()
     path = Path(bag)
     _check_bag_path(path)

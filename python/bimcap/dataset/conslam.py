@@ -35,6 +35,7 @@ the same factor in both axes). The LiDAR→camera extrinsic is ConSLAM's
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass, field, fields, replace
@@ -60,8 +61,10 @@ from bimcap.dataset.sequence import MANIFEST, VLP16, Sequence, SequenceError, Se
 from bimcap.geometry.camera import Camera
 from bimcap.geometry.poses import matrix_to_pose
 from bimcap.geometry.trajectory import Trajectory, TrajectoryError, read_tum
+from bimcap.progress import progress
 
 F64 = NDArray[np.float64]
+_log = logging.getLogger(__name__)
 
 TOPIC_IMAGE = "pp_rgb/synced2points"
 TOPIC_POINTS = "pp_points/synced2rgb"
@@ -348,9 +351,10 @@ def _write_frames(
     (None when no frame came) and where the camera came from."""
     writer: SequenceWriter | None = None
     cam_source = "given"
-    for k, image, cloud in _stream_frames(
-        bag.reader, bag.typestore, bag.con_img, bag.con_pts, plan, bag.path
-    ):
+    n = len(plan.image_index)
+    _log.info(f"writing {n} frames ({plan.n_pairs} image/scan pairs) to {output}")
+    frames = _stream_frames(bag.reader, bag.typestore, bag.con_img, bag.con_pts, plan, bag.path)
+    for k, image, cloud in progress(frames, total=n, desc="import", unit="frame"):
         if writer is None:
             cam, cam_source = _choose_camera(opts.camera, bag.info_camera, image.shape, bag.path)
             writer = SequenceWriter(
@@ -408,6 +412,7 @@ def import_conslam(
     TypeError
         On a keyword argument that is not a field of :class:`ConslamImportOptions`.
     """
+    _require_rosbags()
     from rosbags.rosbag1 import Reader, ReaderError
     from rosbags.typesys import Stores, get_typestore
 
@@ -465,6 +470,14 @@ class _FramePlan:
     max_gt_dt_s: float
 
 
+def _require_rosbags() -> None:
+    """:class:`bimcap.errors.MissingDependencyError` (install ``bimcap[ros]``) unless rosbags
+    imports."""
+    from bimcap.errors import require
+
+    require("rosbags.rosbag1", "rosbags", "ros", "reading ROS1 bags (import-conslam)")
+
+
 def _read_stamps(
     reader: Any, typestore: Any, con_img: Any, con_pts: Any, con_info: Any | None
 ) -> tuple[F64, F64, Camera | None]:
@@ -472,7 +485,12 @@ def _read_stamps(
     stamps: dict[int, list[tuple[float, float]]] = {con_img.id: [], con_pts.id: []}
     info_camera: Camera | None = None
     wanted = [con_img, con_pts] + ([con_info] if con_info is not None else [])
-    for con, bag_ns, raw in reader.messages(connections=wanted):
+    counts = [getattr(c, "msgcount", None) for c in wanted]
+    total = None if None in counts else sum(counts)
+    _log.info(f"indexing the bag: {'?' if total is None else total} messages on "
+              f"{', '.join(c.topic for c in wanted)}")
+    for con, bag_ns, raw in progress(reader.messages(connections=wanted), total=total,
+                                     desc="index", unit="msg"):
         if con.id in stamps:
             stamps[con.id].append((header_stamp(raw), bag_ns * 1e-9))
         elif info_camera is None:
@@ -609,6 +627,7 @@ def _choose_camera(
 
 def iter_topics(bag: str | PathLike[str]) -> Iterator[tuple[str, str, int]]:
     """(topic, message type, count) of every connection in a bag (for ``--list``)."""
+    _require_rosbags()
     from rosbags.rosbag1 import Reader
 
     with Reader(Path(bag)) as reader:

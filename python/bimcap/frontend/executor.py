@@ -157,13 +157,11 @@ def _unreachable(address: str, exc: BaseException) -> str:
 
 
 def require_distributed() -> None:
-    """Raise :class:`FrontendError` with the install command unless ``distributed`` imports."""
-    try:
-        import distributed  # noqa: F401
-    except ImportError as exc:
-        raise FrontendError(
-            f"the Dask executor needs the distributed package ({exc}); install it with "
-            "pip install 'dask[distributed]'") from None
+    """Raise :class:`bimcap.errors.MissingDependencyError` (install ``bimcap[dask]``) unless
+    ``distributed`` imports."""
+    from bimcap.errors import require
+
+    require("distributed", "dask[distributed]", "dask", "the Dask executor (--dask)")
 
 
 def local_dask_workers(options: ExecutorOptions, workers: int | None) -> int:
@@ -183,9 +181,10 @@ def dask_client(options: ExecutorOptions, workers: int | None = None) -> Iterato
     ------
     SchedulerUnreachableError
         Nothing answers at ``options.scheduler``.
+    MissingDependencyError
+        ``distributed`` is not installed (``bimcap[dask]``).
     FrontendError
-        ``distributed`` is not installed; the scheduler has no worker after
-        ``worker_timeout_s``.
+        The scheduler has no worker after ``worker_timeout_s``.
     """
     require_distributed()
     from distributed import Client, LocalCluster

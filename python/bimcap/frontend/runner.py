@@ -28,9 +28,9 @@ run (they are cheap and depend on the initial poses).
 from __future__ import annotations
 
 import json
+import logging
 import multiprocessing
 import os
-import sys
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
@@ -82,10 +82,12 @@ from bimcap.geometry.trajectory import Trajectory, validate_poses
 from bimcap.io.atomic import atomic_write_bytes
 from bimcap.labels import Label
 from bimcap.methods import ExecutorKind
+from bimcap.progress import progress as progress_bar
 
 F64 = NDArray[np.float64]
 I32 = NDArray[np.int32]
 T = TypeVar("T")
+_log = logging.getLogger(__name__)
 
 #: Version of the .npz layout written by :meth:`FrontendResult.save`.
 RESULT_FORMAT_VERSION = 1
@@ -742,34 +744,7 @@ def _features_of(arrays: dict[str, NDArray[Any]]) -> Features:
     return Features(arrays["uv"], arrays["scale"], arrays["orientation"], arrays["descriptors"])
 
 
-# --------------------------------------------------------------------------- progress & pool
-class _Progress:
-    """A one-line progress bar on stderr (no dependency)."""
-
-    def __init__(self, total: int, label: str, enabled: bool) -> None:
-        self.total, self.label, self.enabled = total, label, enabled and total > 0
-        self.done = 0
-        self._tenth = -1
-        self.t0 = time.perf_counter()
-
-    def step(self, n: int = 1) -> None:
-        self.done += n
-        if not self.enabled:
-            return
-        frac = self.done / self.total
-        bar = "#" * int(30 * frac)
-        rate = self.done / max(time.perf_counter() - self.t0, 1e-9)
-        line = f"{self.label:>8} [{bar:<30}] {self.done}/{self.total} {rate:6.2f}/s"
-        if sys.stderr.isatty():
-            sys.stderr.write("\r" + line + ("\n" if self.done >= self.total else ""))
-        else:  # a log file: one line per tenth, not one per step
-            tenth = int(10 * frac)
-            if tenth > self._tenth or self.done >= self.total:
-                self._tenth = tenth
-                sys.stderr.write(line + "\n")
-        sys.stderr.flush()
-
-
+# --------------------------------------------------------------------------- pool
 def _submit(pool: Executor | None, fn: Callable[..., T], job: Any, **kwargs: Any) -> Future[T]:
     """``fn(job, **kwargs)`` in the pool, or run now in this process as a finished future."""
     if pool is not None:
@@ -809,7 +784,8 @@ def run_frontend(
     workers: processes (default ``os.cpu_count()``); 1 runs everything in this process. Workers
         are started with ``spawn``: a script that calls this must do so under
         ``if __name__ == "__main__":``.
-    progress: draw a progress bar on stderr.
+    progress: False: no progress bar; True: one on a terminal while bimcap logs at INFO
+        (:mod:`bimcap.progress`).
     depth_refiner: optional ``refiner(ctx, labels) -> depth`` run after the labels.
     maps_dir: if given, each frame's final undistorted depth (``depth/NNNNNN.npy``, float32
         metres) and labels (``labels/NNNNNN.png``) are written there (atomically; see
@@ -857,7 +833,9 @@ def run_frontend(
     with ExitStack() as stack:  # closes the pool / cluster however the run ends
         backend = _open_backend(stack, ctx.shared, executor, nworkers, num_jobs)
         ctx.stats.workers, ctx.stats.executor = backend.workers, backend.kind.value
-        _Scheduler(ctx, frames, pairs, backend).run(_Progress(num_jobs, "frontend", progress))
+        bar = stack.enter_context(progress_bar(total=num_jobs, desc="front end", unit="job",
+                                               enabled=progress))
+        _Scheduler(ctx, frames, pairs, backend).run(bar)
     frames_ok = [d for d in frames.data if d is not None]
     pair_list, pair_stats = _pair_matches(pairs)
     result = _assemble(cfg, pinhole, init, frames_ok, pair_list)
@@ -865,6 +843,9 @@ def run_frontend(
     result.pair_stats = pair_stats
     ctx.stats.wall_time_s = time.perf_counter() - t_start
     result.run = ctx.stats
+    _log.debug(f"front end: {len(frames.todo)} frame and {num_jobs - len(frames.todo)} pair jobs "
+               f"run, the rest from the cache, on {backend.workers} {backend.kind.value} "
+               f"worker(s), {ctx.stats.wall_time_s:.1f} s")
     return result
 
 
@@ -1104,7 +1085,7 @@ class _Scheduler:
             for name in ("descriptors", "scale", "orientation"):
                 d.pop(name, None)
 
-    def run(self, bar: _Progress) -> None:
+    def run(self, bar: Any) -> None:
         """Submit and collect jobs until every frame and pair is done."""
         while self.frame_queue or self.pair_queue or self.in_flight:
             self._submit_ready()
@@ -1112,7 +1093,7 @@ class _Scheduler:
             for fut in done:
                 kind, n = self.in_flight.pop(fut)
                 res = self._result(fut, kind, n)
-                bar.step()
+                bar.update()
                 if kind == "frame":
                     self._frame_done(n, res)
                 else:

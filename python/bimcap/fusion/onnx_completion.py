@@ -66,8 +66,12 @@ _SESSIONS: dict[tuple[str, tuple[str, ...]], Any] = {}
 def load_session(path: str | Path,
                  providers: tuple[str, ...] = ("CPUExecutionProvider",)) -> Any:
     """A cached ``onnxruntime.InferenceSession`` for ``path`` (one thread per call site's
-    process)."""
-    import onnxruntime as ort
+    process). Raises :class:`bimcap.errors.MissingDependencyError` without ONNX Runtime (a core
+    dependency; an install can still lack it)."""
+    from bimcap.errors import require
+
+    ort = require("onnxruntime", "onnxruntime", None, "an ONNX model (depth completion or "
+                  "segmentation)")
 
     p = Path(path)
     if not p.is_file():

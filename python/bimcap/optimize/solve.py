@@ -2,6 +2,13 @@
 
 from __future__ import annotations
 
+import ctypes
+import logging
+import os
+import sys
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
@@ -13,6 +20,8 @@ from bimcap.optimize.errors import SolverError, SolverInputError
 from bimcap.optimize.options import SolverOptions
 from bimcap.optimize.problem import Problem
 from bimcap.optimize.summary import SolveSummary
+
+_log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -66,6 +75,10 @@ def solve(problem: Problem, options: SolverOptions | None = None, *,
         or the initial or final cost is not finite (termination ``NON_FINITE_COST``, the message
         names the term, the residual block and its frames); else only ``summary.success`` says so.
 
+    With ``options.verbose`` Ceres writes its per-iteration progress and its full report; they go
+    to stderr (the C++ side writes them to stdout, which this call points at stderr meanwhile),
+    beside the log, so that stdout keeps a command's results. ``bimcap -v`` sets it.
+
     Raises
     ------
     SolverInputError: an array or option is malformed (names the field).
@@ -74,8 +87,10 @@ def solve(problem: Problem, options: SolverOptions | None = None, *,
     opts = options if options is not None else SolverOptions()
     flat = opts.to_flat()
     _core = core()
+    t0 = time.perf_counter()
     try:
-        out = _core.solve(problem.arrays(), flat)
+        with _stdout_to_stderr(opts.verbose):
+            out = _core.solve(problem.arrays(), flat)
     except _core.InputError as exc:
         field = getattr(exc, "field", "") or None
         message = str(exc)
@@ -83,6 +98,7 @@ def solve(problem: Problem, options: SolverOptions | None = None, *,
             message = message[len(field) + 2:]
         raise SolverInputError(message, field=field) from None
     summary = SolveSummary.from_dict(out["summary"])
+    _log.debug(f"Ceres: {summary.termination}, {time.perf_counter() - t0:.2f} s")
     if check and not summary.success:
         raise SolverError(f"solve failed: {summary.termination}: {summary.message}")
     return SolveResult(
@@ -94,3 +110,24 @@ def solve(problem: Problem, options: SolverOptions | None = None, *,
                     for k, v in out.items() if k.endswith("_segment")},
         covariance=out["covariance"],
     )
+
+
+@contextmanager
+def _stdout_to_stderr(enabled: bool) -> Iterator[None]:
+    """File descriptor 1 points at stderr while enabled (what C++ writes to ``std::cout``); the
+    C and Python buffers are flushed on both sides so that nothing lands on the wrong one."""
+    if not enabled:
+        yield
+        return
+    libc = ctypes.CDLL(None)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    libc.fflush(None)
+    saved = os.dup(1)
+    try:
+        os.dup2(2, 1)
+        yield
+    finally:
+        libc.fflush(None)
+        os.dup2(saved, 1)
+        os.close(saved)

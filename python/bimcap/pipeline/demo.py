@@ -9,6 +9,7 @@ metrics → before/after table and an HTML report.
 from __future__ import annotations
 
 import contextlib
+import logging
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -16,9 +17,12 @@ from typing import Any
 
 from bimcap.errors import InputError
 from bimcap.io.atomic import atomic_write_json
+from bimcap.logs import quieted
 from bimcap.pipeline.config import Method, RefineConfig
-from bimcap.pipeline.refine import REFINE_OUTPUTS, log
+from bimcap.pipeline.refine import REFINE_OUTPUTS
 from bimcap.sim.walk import DEFAULT_PITCH_DEG
+
+_log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -58,8 +62,15 @@ class DemoOptions:
         return d
 
 
-def make_world(out: Path, opts: DemoOptions, quiet: bool = False) -> tuple[Path, Path]:
-    """Write the design and as-built IFC of the demo building; return their paths."""
+def make_world(out: Path, opts: DemoOptions, quiet: bool | None = None) -> tuple[Path, Path]:
+    """Write the design and as-built IFC of the demo building; return their paths. ``quiet``:
+    deprecated (:func:`bimcap.logs.quieted`)."""
+    with quieted(quiet):
+        return _make_world(out, opts)
+
+
+def _make_world(out: Path, opts: DemoOptions) -> tuple[Path, Path]:
+    """:func:`make_world`."""
     from bimcap.sim.building import PRESETS, as_built, generate_building
 
     world = out / "world"
@@ -67,7 +78,7 @@ def make_world(out: Path, opts: DemoOptions, quiet: bool = False) -> tuple[Path,
     if design_path.is_file() and built_path.is_file():
         return design_path, built_path
     world.mkdir(parents=True, exist_ok=True)
-    log(f"generating the '{opts.preset}' building (seed {opts.seed})", quiet)
+    _log.info(f"generating the '{opts.preset}' building (seed {opts.seed})")
     if opts.preset not in PRESETS:
         raise InputError(f"unknown building preset {opts.preset!r}; use one of {sorted(PRESETS)}",
                          field="preset")
@@ -78,8 +89,15 @@ def make_world(out: Path, opts: DemoOptions, quiet: bool = False) -> tuple[Path,
 
 
 def make_sequence(out: Path, design: Path, built: Path, opts: DemoOptions,
-                  quiet: bool = False) -> Path:
-    """Simulate the sequence in the as-built world and write the drifted ``init.tum``."""
+                  quiet: bool | None = None) -> Path:
+    """Simulate the sequence in the as-built world and write the drifted ``init.tum``.
+    ``quiet``: deprecated (:func:`bimcap.logs.quieted`)."""
+    with quieted(quiet):
+        return _make_sequence(out, design, built, opts)
+
+
+def _make_sequence(out: Path, design: Path, built: Path, opts: DemoOptions) -> Path:
+    """:func:`make_sequence`."""
     from bimcap.dataset import add_trajectory, read_sequence
     from bimcap.sim.drift import DriftParams, apply_drift
     from bimcap.sim.simulator import CONSLAM_CAMERA, SimulatorConfig, simulate
@@ -87,7 +105,7 @@ def make_sequence(out: Path, design: Path, built: Path, opts: DemoOptions,
 
     seq_dir = out / "sequence"
     if not (seq_dir / "manifest.json").is_file():
-        log(f"simulating {opts.frames} frames at {opts.scale:g}x ConSLAM resolution", quiet)
+        _log.info(f"simulating {opts.frames} frames at {opts.scale:g}x ConSLAM resolution")
         cfg = SimulatorConfig(
             camera=CONSLAM_CAMERA.scaled(opts.scale), frames=opts.frames, fps=opts.fps,
             walk=WalkConfig(pitch_deg=opts.pitch_deg), workers=0,
@@ -97,7 +115,7 @@ def make_sequence(out: Path, design: Path, built: Path, opts: DemoOptions,
     if not seq.has_trajectory("init"):
         params = DriftParams.from_preset(opts.drift, seed=opts.seed + 1)
         drift = apply_drift(seq.trajectory("gt"), params)
-        log(f"drift {opts.drift}: ATE {drift.ate_pos:.3f} m / {drift.ate_rot:.2f} deg", quiet)
+        _log.info(f"drift {opts.drift}: ATE {drift.ate_pos:.3f} m / {drift.ate_rot:.2f} deg")
         add_trajectory(seq, "init", drift.init, header=f"bimcap drift {opts.drift}")
         atomic_write_json(seq_dir / "poses" / "init.drift.json", drift.to_dict())
     return seq_dir
@@ -145,7 +163,7 @@ def facap_config(config: RefineConfig) -> RefineConfig:
     return replace(config, method=Method.FACAP, terms=None, weighting=None, coarse=False)
 
 
-def run_demo(out_dir: str | Path, opts: DemoOptions | None = None, quiet: bool = False,
+def run_demo(out_dir: str | Path, opts: DemoOptions | None = None, quiet: bool | None = None,
              overwrite: bool = False) -> DemoResult:
     """Run the demo into ``out_dir`` (re-running reuses what is already there).
 
@@ -154,8 +172,15 @@ def run_demo(out_dir: str | Path, opts: DemoOptions | None = None, quiet: bool =
     ``bimcap refine`` writes (:func:`bimcap.pipeline.refine.write_run_outputs`: ``refined.tum``,
     ``summary.json``, the semantic maps, ``report.html`` and ``figures/``) plus
     ``refined_facap.tum``, as one set with ``OUT/refine/result.json``
-    (:class:`bimcap.io.outputs.OutputSet`).
+    (:class:`bimcap.io.outputs.OutputSet`). Every step is logged (this module's logger and
+    :mod:`bimcap.pipeline.refine`'s); ``quiet`` is deprecated (:func:`bimcap.logs.quieted`).
     """
+    with quieted(quiet):
+        return _run_demo(out_dir, opts, overwrite)
+
+
+def _run_demo(out_dir: str | Path, opts: DemoOptions | None, overwrite: bool) -> DemoResult:
+    """:func:`run_demo`."""
     from bimcap.io.outputs import OutputSet
 
     o = opts or DemoOptions()
@@ -171,9 +196,9 @@ def run_demo(out_dir: str | Path, opts: DemoOptions | None = None, quiet: bool =
     out.mkdir(parents=True, exist_ok=True)
     try:
         t0 = time.perf_counter()
-        design, built = make_world(out, o, quiet)
-        seq_dir = make_sequence(out, design, built, o, quiet)
-        result, results, table = _refine_step(out, seq_dir, design, o, outputs, quiet)
+        design, built = make_world(out, o)
+        seq_dir = make_sequence(out, design, built, o)
+        result, results, table = _refine_step(out, seq_dir, design, o, outputs)
         seconds = time.perf_counter() - t0
         results.update(seconds=seconds)
         atomic_write_json(out / "demo.json", results)
@@ -186,8 +211,8 @@ def run_demo(out_dir: str | Path, opts: DemoOptions | None = None, quiet: bool =
     return DemoResult(out, run_dir / result.files["report"], table, seconds, results)
 
 
-def _refine_step(out: Path, seq_dir: Path, design: Path, o: DemoOptions, outputs: Any,
-                 quiet: bool) -> tuple[Any, dict[str, Any], str]:
+def _refine_step(out: Path, seq_dir: Path, design: Path, o: DemoOptions,
+                 outputs: Any) -> tuple[Any, dict[str, Any], str]:
     """FACaP (with ``o.facap``) and BIMCaP on one front end, written into the open ``outputs``
     as ``bimcap refine`` writes them; returns the committed refine result, ``demo.json``'s
     content (without the time) and the before/after table."""
@@ -203,7 +228,7 @@ def _refine_step(out: Path, seq_dir: Path, design: Path, o: DemoOptions, outputs
     from bimcap.pipeline.report import RunRow
 
     run_dir = out / "refine"
-    prepared = prepare(seq_dir, design, None, o.config, run_dir, quiet)
+    prepared = prepare(seq_dir, design, None, o.config, run_dir)
     gt = prepared.sequence.trajectory("gt")
     stage = outputs.open()
     results: dict[str, Any] = {"options": o.to_dict()}
@@ -211,7 +236,7 @@ def _refine_step(out: Path, seq_dir: Path, design: Path, o: DemoOptions, outputs
     facap_metrics = None
     if o.facap:
         fcfg = facap_config(o.config)
-        facap = solve_prepared(prepared, fcfg, quiet)
+        facap = solve_prepared(prepared, fcfg)
         facap_metrics, mm = evaluate_run(prepared, facap.refined, gt)
         extra.append(RunRow(f"facap {fcfg.effective_terms}", facap.refined.poses, facap_metrics,
                             mm, facap.summary, facap.seconds, outcome=facap,
@@ -219,7 +244,7 @@ def _refine_step(out: Path, seq_dir: Path, design: Path, o: DemoOptions, outputs
         write_tum(stage / "refined_facap.tum", facap.refined, header="FACaP refined world_from_cam")
         results["facap"] = {"metrics": facap_metrics.to_dict(),
                             "map": None if mm is None else mm.to_dict()}
-    outcome = solve_prepared(prepared, o.config, quiet)
+    outcome = solve_prepared(prepared, o.config)
     command = (f"bimcap demo -o {out} --preset {o.preset} --seed {o.seed} --frames {o.frames} "
                f"--scale {o.scale} --drift {o.drift}")
     result = write_run_outputs(stage, prepared, outcome, o.config, gt, command,

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import csv
 import io
+import logging
 import math
 import time
 from collections.abc import Sequence
@@ -28,9 +29,9 @@ import numpy as np
 
 from bimcap.errors import InputError
 from bimcap.io.atomic import atomic_write_bytes, atomic_write_json, atomic_write_text
+from bimcap.logs import quieted
 from bimcap.pipeline.config import Method, RefineConfig
 from bimcap.pipeline.paper_reference import table1_row, table2_row
-from bimcap.pipeline.refine import log
 
 #: The paper's ablation rows: (method, terms).
 ABLATIONS: tuple[tuple[Method, str], ...] = (
@@ -45,6 +46,8 @@ ABLATIONS: tuple[tuple[Method, str], ...] = (
     (Method.FACAP, "F"),
     (Method.FACAP, "W"),
 )
+
+_log = logging.getLogger(__name__)
 
 COLUMNS = ("mme", "mpv", "nnd_m", "ate_pos_m", "ate_rot_deg", "yaw_deg", "pitch_deg", "roll_deg")
 #: With ``ExperimentOptions.deviations``: the scan-vs-BIM deviations under each row's poses,
@@ -126,8 +129,18 @@ def _values(tm: Any, mm: Any) -> dict[str, float]:
 
 
 def run_experiment(out_dir: str | Path, opts: ExperimentOptions | None = None,
-                   quiet: bool = False) -> list[RunRecord]:
-    """Run every (experiment, seed, ablation) and write the tables into ``out_dir``."""
+                   quiet: bool | None = None) -> list[RunRecord]:
+    """Run every (experiment, seed, ablation) and write the tables into ``out_dir``.
+
+    Each run is logged at INFO on this module's logger, the stages of its solves at DEBUG;
+    ``quiet`` is deprecated (:func:`bimcap.logs.quieted`).
+    """
+    with quieted(quiet):
+        return _run_experiment(out_dir, opts)
+
+
+def _run_experiment(out_dir: str | Path, opts: ExperimentOptions | None) -> list[RunRecord]:
+    """:func:`run_experiment`."""
     from bimcap.dataset import add_trajectory, read_sequence
     from bimcap.pipeline.demo import DemoOptions, make_sequence, make_world
     from bimcap.pipeline.refine import evaluate_run, prepare, solve_prepared
@@ -137,8 +150,8 @@ def run_experiment(out_dir: str | Path, opts: ExperimentOptions | None = None,
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     world_opts = DemoOptions(preset=o.preset, seed=o.world_seed, frames=o.frames, scale=o.scale)
-    design, built = make_world(out, world_opts, quiet)
-    seq_dir = make_sequence(out, design, built, world_opts, quiet)
+    design, built = make_world(out, world_opts)
+    seq_dir = make_sequence(out, design, built, world_opts)
     gt = read_sequence(seq_dir).trajectory("gt")
     scorer = DeviationScorer(read_sequence(seq_dir), design, built) if o.deviations else None
     records: list[RunRecord] = []
@@ -150,9 +163,9 @@ def run_experiment(out_dir: str | Path, opts: ExperimentOptions | None = None,
                 drift = apply_drift(gt, DriftParams.from_preset(exp, seed=seed))
                 add_trajectory(seq, name, drift.init, header=f"bimcap drift {exp} seed {seed}")
                 seq = read_sequence(seq_dir)
-            log(f"{exp} seed {seed}: front end", quiet)
+            _log.info(f"{exp} seed {seed}: front end")
             prepared = prepare(seq, design, seq.trajectory_path(name), o.config,
-                               out / "runs" / f"{exp}_s{seed}", quiet)
+                               out / "runs" / f"{exp}_s{seed}")
             tm, mm = evaluate_run(prepared, prepared.init, gt)
             values = _values(tm, mm)
             if scorer is not None:
@@ -164,7 +177,9 @@ def run_experiment(out_dir: str | Path, opts: ExperimentOptions | None = None,
                               coarse=o.config.effective_coarse and method is Method.BIMCAP)
                 t0 = time.perf_counter()
                 try:
-                    res = solve_prepared(prepared, cfg, quiet=True)
+                    # the stages of every row: only under -v (DEBUG)
+                    with quieted(not _log.isEnabledFor(logging.DEBUG)):
+                        res = solve_prepared(prepared, cfg)
                     tm, mm = evaluate_run(prepared, res.refined, gt)
                     values = _values(tm, mm)
                     if scorer is not None:
@@ -177,8 +192,8 @@ def run_experiment(out_dir: str | Path, opts: ExperimentOptions | None = None,
                                     {c: float("nan") for c in COLUMNS},
                                     time.perf_counter() - t0, ok=False, message=str(exc))
                 records.append(rec)
-                log(f"  {method.value:6} {terms:12} ATE {rec.values['ate_pos_m']:.3f} m / "
-                    f"{rec.values['ate_rot_deg']:.2f} deg ({rec.seconds:.1f} s)", quiet)
+                _log.info(f"  {method.value:6} {terms:12} ATE {rec.values['ate_pos_m']:.3f} m / "
+                          f"{rec.values['ate_rot_deg']:.2f} deg ({rec.seconds:.1f} s)")
     write_outputs(out, o, records)
     return records
 

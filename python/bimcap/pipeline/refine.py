@@ -14,7 +14,7 @@ Three steps, kept apart so that experiments can reuse the expensive ones:
 from __future__ import annotations
 
 import json
-import sys
+import logging
 import time
 from dataclasses import dataclass, field, replace
 from os import PathLike
@@ -28,6 +28,7 @@ from bimcap.errors import InputError
 from bimcap.geometry import Trajectory, read_tum, transform_points, write_tum
 from bimcap.io.atomic import atomic_write_json
 from bimcap.labels import Label
+from bimcap.logs import quieted
 from bimcap.methods import CompletionMethod
 from bimcap.pipeline.config import (
     ColmapExport,
@@ -37,14 +38,12 @@ from bimcap.pipeline.config import (
     PipelineError,
     RefineConfig,
 )
+from bimcap.progress import progress
 
 F64 = NDArray[np.float64]
 
 
-def log(msg: str, quiet: bool = False) -> None:
-    """Progress line on stderr."""
-    if not quiet:
-        print(f"[bimcap] {msg}", file=sys.stderr, flush=True)
+_log = logging.getLogger(__name__)
 
 
 # ----------------------------------------------------------------------------- step 1: prepare
@@ -195,7 +194,7 @@ def prepare(
     init: str | PathLike[str] | Trajectory | None,
     config: RefineConfig,
     work_dir: str | PathLike[str],
-    quiet: bool = False,
+    quiet: bool | None = None,
 ) -> Prepared:
     """Step 1: read the sequence, build (or load) the BIM reference, run (or load) the front end.
 
@@ -206,7 +205,17 @@ def prepare(
     init: initial poses (TUM path or Trajectory); None uses the sequence's ``poses/init.tum``.
     config: the run's settings (front-end sources, window).
     work_dir: where the caches live (``bim/``, ``cache/``).
+    quiet: deprecated (:func:`bimcap.logs.quieted`): the steps are logged at INFO on this
+        module's logger, the front end's progress bar follows it (:mod:`bimcap.progress`).
     """
+    with quieted(quiet):
+        return _prepare(sequence, ifc, init, config, work_dir)
+
+
+def _prepare(sequence: str | PathLike[str] | Any, ifc: str | PathLike[str] | None,
+             init: str | PathLike[str] | Trajectory | None, config: RefineConfig,
+             work_dir: str | PathLike[str]) -> Prepared:
+    """:func:`prepare`."""
     from bimcap.bim.cache import ReferenceSource, reference_for
     from bimcap.dataset import read_sequence
     from bimcap.features.tracks import MatchFilterOptions
@@ -224,11 +233,11 @@ def prepare(
     work = Path(work_dir)
 
     t0 = time.perf_counter()
-    log(f"BIM reference of {ifc_path}", quiet)
+    _log.info(f"BIM reference of {ifc_path}")
     ref, source = reference_for(ifc_path, work / "bim", config.max_lost_fraction,
                                 config.cache_dir)
     if source is ReferenceSource.SHARED:
-        log("BIM reference from the shared cache (bimcap.io.cache)", quiet)
+        _log.info("BIM reference from the shared cache (bimcap.io.cache)")
     timings["bim"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -236,8 +245,8 @@ def prepare(
     where = "" if not executor.is_dask else (
         f", on the Dask cluster at {executor.scheduler}" if executor.scheduler
         else ", on a Dask LocalCluster")
-    log(f"front end over {len(seq.frames)} frames (depth {config.completion.value}, "
-        f"labels {config.segmentation.value}{where})", quiet)
+    _log.info(f"front end over {len(seq.frames)} frames (depth {config.completion.value}, "
+              f"labels {config.segmentation.value}{where})")
     depth, labels, refiner = make_providers(config, seq)
     fe_seq = seq
     if executor.is_dask and not seq.root.is_absolute():  # Dask workers have another cwd
@@ -250,7 +259,8 @@ def prepare(
                        filters=MatchFilterOptions(max_initial_distance_m=config.max_match_distance),
                        sampling=SemanticSamplingOptions(source=SampleSource(config.samples))),
         traj, depth, labels,
-        cache_dir=work / "cache", workers=config.workers, progress=not quiet,
+        cache_dir=work / "cache", workers=config.workers,
+        progress=_log.isEnabledFor(logging.INFO),
         depth_refiner=refiner, executor=executor,
     )
     timings["frontend"] = time.perf_counter() - t0
@@ -260,8 +270,8 @@ def prepare(
         with_scan, stats = with_scan_samples(fe, traj.poses)
         unlinked = frames_without_matches(fe)
         first, _ = with_scan_samples(fe, traj.poses, frames=unlinked)
-        log(f"LiDAR scan samples outside the camera's view: {stats.wall} wall, "
-            f"{stats.floor} floor, {stats.ceiling} ceiling", quiet)
+        _log.info(f"LiDAR scan samples outside the camera's view: {stats.wall} wall, "
+                  f"{stats.floor} floor, {stats.ceiling} ceiling")
         return Prepared(seq, ref, with_scan, traj, timings, pixel_frontend=fe,
                         first_frontend=first,
                         scan_samples={**stats.to_dict(), "frames_without_matches":
@@ -622,7 +632,7 @@ def stage_options(base: Any, stage: Any, config: RefineConfig) -> Any | None:
     return opts
 
 
-def solve_prepared(prepared: Prepared, config: RefineConfig, quiet: bool = False,
+def solve_prepared(prepared: Prepared, config: RefineConfig, quiet: bool | None = None,
                    max_plane_rounds: int = 2, plane_change_tolerance: float = 0.005,
                    plane_check_limit_m: float = 0.05) -> SolveOutcome:
     """Step 2: build the problem and solve it, stage by stage (:func:`schedule_for`).
@@ -642,7 +652,19 @@ def solve_prepared(prepared: Prepared, config: RefineConfig, quiet: bool = False
     ``max_plane_rounds`` times. Then every plane term is checked
     (:func:`bimcap.bim.plane_choice.plane_residual_check`): a median |residual| above
     ``plane_check_limit_m`` is reported in the outcome and logged, not hidden by the robust loss.
+
+    Every stage is logged at INFO on this module's logger (a failed plane check, an ambiguous
+    global alignment, a diverged solve at WARNING); ``quiet`` is deprecated
+    (:func:`bimcap.logs.quieted`).
     """
+    with quieted(quiet):
+        return _solve_prepared(prepared, config, max_plane_rounds, plane_change_tolerance,
+                               plane_check_limit_m)
+
+
+def _solve_prepared(prepared: Prepared, config: RefineConfig, max_plane_rounds: int,
+                    plane_change_tolerance: float, plane_check_limit_m: float) -> SolveOutcome:
+    """:func:`solve_prepared`."""
     from bimcap.optimize.observability import bim_observability
 
     t0 = time.perf_counter()
@@ -650,15 +672,15 @@ def solve_prepared(prepared: Prepared, config: RefineConfig, quiet: bool = False
     base = solver_options(config)
     facap = config.method is Method.FACAP
     # BIMCaP associates with visible faces only; FACaP with the nearest face, as the peers did.
-    solver = _StageSolver(prepared=prepared, config=config, quiet=quiet,
+    solver = _StageSolver(prepared=prepared, config=config,
                           max_dist=config.effective_solve_match_distance,
                           normals=None if facap else segment_free_normals(prepared.reference))
     pixels = prepared.first_stage()
     first = solver if pixels is prepared else replace(solver, prepared=pixels)
-    poses, global_info = _global_align(pixels, poses, config, quiet)
+    poses, global_info = _global_align(pixels, poses, config)
     run, poses, coarse_info = _run_schedule(first, base, poses)
     if first is not solver:
-        log(f"adding the LiDAR scan's samples: solving stage {run.stage.name} again", quiet)
+        _log.info(f"adding the LiDAR scan's samples: solving stage {run.stage.name} again")
         run = solver.run(run.stage, run.options, poses, choose_sample_planes(prepared, poses))
         poses = run.result.poses
     rounds: list[dict[str, int]] = []
@@ -668,20 +690,20 @@ def solve_prepared(prepared: Prepared, config: RefineConfig, quiet: bool = False
         run, poses, rounds = _rechoose_planes(solver, run, poses, max_plane_rounds,
                                               plane_change_tolerance)
         run, poses, repair = _repair_run(solver, run, poses)
-        checks = _logged_plane_checks(run.problem, poses, plane_check_limit_m, quiet)
+        checks = _logged_plane_checks(run.problem, poses, plane_check_limit_m)
     result = run.result
     arrays = run.problem.arrays()
     observability = bim_observability(arrays, poses, run.options,
                                       result.wall_segment, result.column_segment,
                                       planes=result.planes)
-    log(observability.summary_line(), quiet)
+    _log.info(observability.summary_line())
     before, after = (reprojection_stats(arrays, p) for p in (prepared.init.poses, poses))
     reprojection = None if before is None or after is None else {"before": before,
                                                                   "after": after}
     diverged = diverged_frames(poses, prepared.reference)
     if diverged:
-        log(f"WARNING: the {config.method.value} solve diverged: frame(s) {diverged[:10]} lie "
-            f"more than {DIVERGED_MARGIN_M:g} m outside the building", quiet=False)
+        _log.warning(f"the {config.method.value} solve diverged: frame(s) {diverged[:10]} "
+                     f"lie more than {DIVERGED_MARGIN_M:g} m outside the building")
     return SolveOutcome(
         refined=Trajectory(prepared.init.timestamps, poses),
         summaries=solver.summaries,
@@ -732,7 +754,6 @@ class _StageSolver:
 
     prepared: Prepared
     config: RefineConfig
-    quiet: bool
     max_dist: float | None
     normals: F64 | None
     summaries: list[Any] = field(default_factory=list)
@@ -743,9 +764,9 @@ class _StageSolver:
 
         problem, stats = build_problem(self.prepared, poses, self.max_dist, self.normals,
                                        planes_chosen=chosen)
-        log(f"solving {self.config.method.value} stage {stage.name} "
-            f"({opts.refine_mode.value.lower()}, {self.config.effective_weighting}): "
-            f"{stats.brief()}", self.quiet)
+        _log.info(f"solving {self.config.method.value} stage {stage.name} "
+                  f"({opts.refine_mode.value.lower()}, {self.config.effective_weighting}): "
+                  f"{stats.brief()}")
         result = solve(problem, opts, check=False)
         self.summaries.append(result.summary)
         if not result.summary.success:
@@ -764,9 +785,9 @@ def _run_schedule(solver: _StageSolver, base: Any,
     prepared, config = solver.prepared, solver.config
     coarse_info = None
     last: _StageRun | None = None
-    for stage in schedule_for(config).stages:
+    for stage in progress(schedule_for(config).stages, desc="solve", unit="stage"):
         if stage.kind is StageKind.COARSE:
-            poses, coarse_info = _coarse(prepared, poses, solver.quiet, coarse_options(config))
+            poses, coarse_info = _coarse(prepared, poses, coarse_options(config))
             continue
         opts = stage_options(base, stage, config)
         if opts is None:
@@ -794,8 +815,8 @@ def _rechoose_planes(solver: _StageSolver, run: _StageRun, poses: F64, max_round
         rounds.append({"changed": changed, "samples": total, "resolved": int(resolve)})
         if not resolve:
             break
-        log(f"{changed}/{total} floor/ceiling samples changed plane at the refined poses: "
-            f"solving stage {run.stage.name} again", solver.quiet)
+        _log.info(f"{changed}/{total} floor/ceiling samples changed plane at the refined "
+                  f"poses: solving stage {run.stage.name} again")
         run = solver.run(run.stage, run.options, poses, again)
         poses = run.result.poses
     return run, poses, rounds
@@ -804,22 +825,22 @@ def _rechoose_planes(solver: _StageSolver, run: _StageRun, poses: F64, max_round
 def _repair_run(solver: _StageSolver,
                 run: _StageRun, poses: F64) -> tuple[_StageRun, F64, dict[str, Any]]:
     """:func:`_repair` of the last stage's result: the run and poses after it, and its record."""
-    repair, redo = _repair(run.problem, run.options, run.result, solver.quiet)
+    repair, redo = _repair(run.problem, run.options, run.result)
     if redo is None:
         return run, poses, repair
     solver.summaries.append(redo.summary)
     return replace(run, result=redo), redo.poses, repair
 
 
-def _logged_plane_checks(problem: Any, poses: F64, limit_m: float, quiet: bool) -> list[Any]:
+def _logged_plane_checks(problem: Any, poses: F64, limit_m: float) -> list[Any]:
     """:func:`plane_checks` of ``problem`` at ``poses``, each logged (a failed one as a warning)."""
     checks = plane_checks(problem, poses, limit_m)
     for c in checks:
-        log(("WARNING: " if c.failed else "") + c.message(), quiet)
+        _log.log(logging.WARNING if c.failed else logging.INFO, c.message())
     return checks
 
 
-def _repair(problem: Any, opts: Any, result: Any, quiet: bool,
+def _repair(problem: Any, opts: Any, result: Any,
             max_agreement_loss: float = 0.05) -> tuple[dict[str, Any], Any]:
     """Frames the solve left inconsistent with their neighbours' matches, re-placed from them by
     PnP (``registration.odometry``) and solved again. The new solve is kept only when no
@@ -838,8 +859,9 @@ def _repair(problem: Any, opts: Any, result: Any, quiet: bool,
                                      a["match_depth"], a["cameras"][0])
     if not rep.repaired:
         return rep.to_dict(), None
-    log(f"{len(rep.repaired)} frame(s) disagreed with their neighbours' matches (median "
-        f"reprojection error > 10 px) and were re-placed from them: {rep.repaired}", quiet)
+    _log.info(f"{len(rep.repaired)} frame(s) disagreed with their neighbours' matches "
+              f"(median reprojection error > 10 px) and were re-placed from them: "
+              f"{rep.repaired}")
     redo = solve(problem.replace(poses=rep.poses), opts, check=False)
     before = bim_agreement(a, result.poses, rep.repaired)
     after = bim_agreement(a, redo.poses, rep.repaired)
@@ -849,11 +871,11 @@ def _repair(problem: Any, opts: Any, result: Any, quiet: bool,
     worse = [f for f, b, c in zip(rep.repaired, before, after, strict=True)
              if np.isfinite(b) and not c >= b - max_agreement_loss]
     if not redo.summary.success or worse:
-        log(f"the repair is rejected: frame(s) {worse} agree less with the BIM after it "
-            f"({', '.join(f'{b:.2f} -> {c:.2f}' for b, c in zip(before, after, strict=True))} of "
-            "their samples within 5 cm)" if worse else
-            f"the repair is rejected: the solve after it failed ({redo.summary.termination})",
-            quiet)
+        _log.info(f"the repair is rejected: frame(s) {worse} agree less with the BIM after it "
+                  f"({', '.join(f'{b:.2f} -> {c:.2f}' for b, c in zip(before, after, strict=True))}"
+                  " of their samples within 5 cm)" if worse else
+                  "the repair is rejected: the solve after it failed "
+                  f"({redo.summary.termination})")
         return {**record, "accepted": False}, None
     return {**record, "accepted": True}, redo
 
@@ -921,8 +943,7 @@ def sift_options(config: RefineConfig) -> Any:
     return options_from_table(SiftOptions, config.features, "features", FeatureError)
 
 
-def _coarse(prepared: Prepared, poses: F64, quiet: bool, options: Any = None
-            ) -> tuple[F64, dict[str, Any]]:
+def _coarse(prepared: Prepared, poses: F64, options: Any = None) -> tuple[F64, dict[str, Any]]:
     """Coarse registration of the initial poses to the BIM (``bimcap.registration``, settings
     ``options``: :func:`coarse_options`): per frame, tilt from the floor and yaw + translation
     tracked against the floor plan; then per window of frames, levelling on the floor/ceiling,
@@ -939,11 +960,11 @@ def _coarse(prepared: Prepared, poses: F64, quiet: bool, options: Any = None
     drift = res.near_probe_drift_m if fl is None else fl.drift_m
     if drift is not None and not res.accepted.any() and np.array_equal(res.poses, poses):
         how = "" if fl is not None else f" ({res.options.near_probe_frames} frames)"
-        log(f"coarse registration: tracked drift{how} {drift:.2f} m is within the bundle "
-            f"adjustment's reach; poses unchanged ({info['seconds']:.1f} s)", quiet)
+        _log.info(f"coarse registration: tracked drift{how} {drift:.2f} m is within the "
+                  f"bundle adjustment's reach; poses unchanged ({info['seconds']:.1f} s)")
     else:
-        log(f"coarse registration: {int(res.accepted.sum())}/{len(res.accepted)} frames "
-            f"accepted by the window search ({info['seconds']:.1f} s)", quiet)
+        _log.info(f"coarse registration: {int(res.accepted.sum())}/{len(res.accepted)} "
+                  f"frames accepted by the window search ({info['seconds']:.1f} s)")
     return np.asarray(res.poses, np.float64), info
 
 
@@ -972,7 +993,7 @@ def _floor_plan(ref: Any) -> Any:
 AUTO_GLOBAL_ALIGN_FREE_FRACTION = 0.3
 
 
-def _global_align(prepared: Prepared, poses: F64, config: RefineConfig, quiet: bool
+def _global_align(prepared: Prepared, poses: F64, config: RefineConfig
                   ) -> tuple[F64, dict[str, Any] | None]:
     """Place an initial trajectory given in its own (SLAM) frame in the BIM
     (``bimcap.registration.global_align``) when ``config.global_align`` is on, or when it is
@@ -990,19 +1011,20 @@ def _global_align(prepared: Prepared, poses: F64, config: RefineConfig, quiet: b
     if mode is GlobalAlignMode.AUTO:
         if free >= AUTO_GLOBAL_ALIGN_FREE_FRACTION:
             return poses, None
-        log(f"global alignment: only {free:.0%} of the initial cameras lie in the building's "
-            "free space (a trajectory in its own SLAM frame?): placing it in the BIM first "
-            "(--no-global-align / global_align = \"off\" to skip)", quiet)
+        _log.info(f"global alignment: only {free:.0%} of the initial cameras lie in the "
+                  "building's free space (a trajectory in its own SLAM frame?): placing it in "
+                  "the BIM first (--no-global-align / global_align = \"off\" to skip)")
     t0 = time.perf_counter()
     res = global_align(poses, _semantic_samples(prepared), plan,
                        GlobalAlignOptions(accept_ambiguous=config.accept_ambiguous))
     best = res.hypotheses[0]
-    log(f"global alignment: yaw {best.yaw_deg:.1f} deg, floor "
-        f"{'-' if best.floor_z is None else f'{best.floor_z:.2f} m'}, score {best.score:.3f}, "
-        f"second-best at {res.ratio:.0%} of it ({time.perf_counter() - t0:.1f} s)", quiet)
+    _log.info(f"global alignment: yaw {best.yaw_deg:.1f} deg, floor "
+              f"{'-' if best.floor_z is None else f'{best.floor_z:.2f} m'}, score "
+              f"{best.score:.3f}, second-best at {res.ratio:.0%} of it "
+              f"({time.perf_counter() - t0:.1f} s)")
     if res.accepted_ambiguous:
-        log("WARNING: global alignment is ambiguous; the best placement was taken because "
-            "--accept-ambiguous is set:\n" + res.describe(), quiet)
+        _log.warning("global alignment is ambiguous; the best placement was taken because "
+                     "--accept-ambiguous is set:\n" + res.describe())
     info = res.to_dict()
     info.update(mode=mode.value, initial_free_fraction=free,
                 seconds=time.perf_counter() - t0)
@@ -1285,7 +1307,7 @@ def refine(
     init: str | PathLike[str] | None = None,
     gt: str | PathLike[str] | None = None,
     report: bool = True,
-    quiet: bool = False,
+    quiet: bool | None = None,
     command: str = "",
     overwrite: bool = False,
     deviations: bool = False,
@@ -1302,8 +1324,20 @@ def refine(
     that bimcap did not write is replaced only with ``overwrite``; a failed run leaves no staging
     directory and, when it created ``out_dir``, no empty ``out_dir``. With ``deviations``, also
     the scan-vs-BIM deviations under the refined poses (``deviations.json`` / ``.csv`` /
-    ``.ply``, :func:`bimcap.deviations.outputs.run_deviations`).
+    ``.ply``, :func:`bimcap.deviations.outputs.run_deviations`). The steps are logged
+    (:func:`prepare`, :func:`solve_prepared`); ``quiet`` is deprecated
+    (:func:`bimcap.logs.quieted`).
     """
+    with quieted(quiet):
+        return _refine(sequence, out_dir, config, ifc, init, gt, report, command, overwrite,
+                       deviations)
+
+
+def _refine(sequence: str | PathLike[str], out_dir: str | PathLike[str],
+            config: RefineConfig | None, ifc: str | PathLike[str] | None,
+            init: str | PathLike[str] | None, gt: str | PathLike[str] | None, report: bool,
+            command: str, overwrite: bool, deviations: bool) -> RefineResult:
+    """:func:`refine`."""
     from bimcap.registration.errors import GlobalAlignmentError
 
     cfg = config or RefineConfig()
@@ -1312,8 +1346,8 @@ def refine(
     stage = plan.outputs.open()
     try:
         t_start = time.perf_counter()
-        prepared = prepare(plan.sequence, plan.ifc, plan.init, cfg, out, quiet)
-        outcome = solve_prepared(prepared, cfg, quiet)
+        prepared = prepare(plan.sequence, plan.ifc, plan.init, cfg, out)
+        outcome = solve_prepared(prepared, cfg)
         if outcome.diverged_frames:
             raise PipelineError(
                 f"the solve diverged: frame(s) {outcome.diverged_frames[:10]} of "

@@ -58,6 +58,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from bimcap.geometry.poses import matrix_to_pose, pose_to_matrix, transform_points
 from bimcap.labels import Label
+from bimcap.progress import progress
 from bimcap.registration._coarse_steps import (
     _CLASSES,
     _Candidate,
@@ -723,7 +724,8 @@ def _window_pass(oriented: _Oriented, samples: SemanticSamples, plan: FloorPlan,
     poses = oriented.poses
     wins = _split_windows(poses, samples, opt)
     fits = [_register_window(w, wins, poses, plan, maps_for, grid, oriented.skip_windows, opt,
-                             rng, clock) for w in range(len(wins.starts))]
+                             rng, clock)
+            for w in progress(range(len(wins.starts)), desc="coarse: windows", unit="window")]
     t0 = time.perf_counter()
     choice = _choose_hypotheses(fits, poses, wins, opt)
     clock.timings["continuity"] += time.perf_counter() - t0

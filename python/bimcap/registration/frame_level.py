@@ -37,6 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from bimcap.progress import progress
 from bimcap.registration.correlative import Hypothesis, score_volume, top_hypotheses
 from bimcap.registration.gravity import level_window
 from bimcap.registration.icp import Correction2D, icp_2d, rot2
@@ -266,7 +267,7 @@ def _tilt_and_hypotheses(
     tilted = _TiltPass(tilts=[], tilt_ok=np.zeros(n, dtype=bool), tilt_deg=np.zeros(n),
                        dz=np.zeros(n), candidates=[])
     dz_last = 0.0
-    for i in range(n):
+    for i in progress(range(n), desc="coarse: frames", unit="frame"):
         cam = np.asarray(cam_xyz[i], dtype=np.float64)
         pts = frame_points(i)
         floor_z = floor_z_of(pts["floor"], float(cam[2]))

@@ -38,6 +38,7 @@ IFC bytes: GUIDs are hashed from the seed and the element's id, the header time 
 from __future__ import annotations
 
 import hashlib
+import logging
 import math
 import uuid
 from dataclasses import asdict, dataclass, field, replace
@@ -78,6 +79,8 @@ __all__ = [
     "generate_building",
     "truth_path_for",
 ]
+
+_log = logging.getLogger(__name__)
 
 #: Fixed FILE_NAME time stamp, so that the same seed gives the same bytes.
 HEADER_TIME_STAMP = "2000-01-01T00:00:00"
@@ -835,8 +838,14 @@ class GeneratedBuilding:
         path = Path(ifc_path)
         if path.suffix.lower() != ".ifc":
             raise BuildingSpecError("output must end in .ifc", path)
-        atomic_write_text(path, self.ifc_text())
+        text = self.ifc_text()
+        atomic_write_text(path, text)
         atomic_write_json(truth_path_for(path), self.truth.to_dict())
+        # after the writes: a failed one is the command's one error line, nothing before it
+        _log.info(f"wrote the {self.truth.variant.value} building {path} and its "
+                  f"{truth_path_for(path).name}")
+        _log.debug(f"{path}: {len(text)} characters of IFC, {len(self.truth.walls)} walls, "
+                   f"{len(self.truth.columns)} columns")
         self.ifc_path, self.truth_path = path, truth_path_for(path)
         return path
 

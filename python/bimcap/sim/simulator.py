@@ -27,6 +27,7 @@ same seed and configuration give byte-identical files whatever the number of wor
 
 from __future__ import annotations
 
+import logging
 import os
 import time
 from collections.abc import Sequence
@@ -51,6 +52,7 @@ from bimcap.geometry.poses import compose
 from bimcap.geometry.trajectory import Trajectory
 from bimcap.io.atomic import check_not_input
 from bimcap.labels import Label
+from bimcap.progress import progress
 from bimcap.sim.clutter import ClutterObject, box_mesh, place_clutter
 from bimcap.sim.label_noise import LabelNoiseConfig, corrupt_labels
 from bimcap.sim.lidar import LidarConfig, LidarSimulator
@@ -60,6 +62,7 @@ from bimcap.sim.walk import FreeSpace, Walk, WalkConfig, plan_walk
 from bimcap.sim.walkable import Level, WalkableOptions, choose_free_space, door_footprints
 
 F64 = NDArray[np.float64]
+_log = logging.getLogger(__name__)
 
 __all__ = [
     "CONSLAM_CAMERA",
@@ -573,6 +576,7 @@ def simulate_world(
     sequence = _finish_sequence(out, cfg, [info for info, _, _ in results], world_from_cam,
                                 ifc_ref, manifest_source)
     timings["manifest"] = time.perf_counter() - t0
+    _log.debug("simulation timings: " + ", ".join(f"{k} {v:.2f} s" for k, v in timings.items()))
     return SimulationResult(sequence=sequence, world_from_cam=world_from_cam,
                             timestamps=timestamps, clutter=placed,
                             world_triangles=world.n_triangles, timings=timings)
@@ -625,15 +629,18 @@ def _render_frames(job: _RenderJob, timestamps: F64, world_from_cam: F64) -> lis
     tasks = [(i, float(timestamps[i]), world_from_cam[i]) for i in range(cfg.frames)]
     workers = cfg.workers or (os.cpu_count() or 1)
     workers = min(workers, cfg.frames)
+    _log.info(f"rendering {cfg.frames} frames ({cfg.camera.width}x{cfg.camera.height}) on "
+              f"{max(workers, 1)} process(es)")
     if workers <= 1:
         render = _FrameRenderer(job)
-        return [render(t) for t in tasks]
+        return [render(t) for t in progress(tasks, desc="render", unit="frame")]
     import multiprocessing as mp
 
     # spawn, not fork: Open3D's thread pools do not survive a fork
     with ProcessPoolExecutor(workers, mp.get_context("spawn"), _init_worker, (job,)) as pool:
         chunk = max(1, cfg.frames // (4 * workers))
-        return list(pool.map(_render_one, tasks, chunksize=chunk))
+        return list(progress(pool.map(_render_one, tasks, chunksize=chunk), total=len(tasks),
+                             desc="render", unit="frame"))
 
 
 def _sum_worker_timings(results: list[_FrameResult]) -> dict[str, float]:
