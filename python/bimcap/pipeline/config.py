@@ -175,6 +175,12 @@ class RefineConfig:
         too (``bimcap.fusion.scan``): every frame sees the walls all around it, not only the
         60–70° its camera sees. None (default): on for BIMCaP, off for FACaP (the peers' method
         samples the image alone).
+    scan_sigma_m: with the LiDAR scan's samples, the noise scale (metres) of the BIM terms
+        (wall, column, floor, ceiling) in the last solve, which starts from poses the schedule
+        has converged: 10 cm voxel means of a scan sit within a centimetre or two of their
+        surface, and at the presets' 5 cm the Cauchy loss still lets furniture and fittings
+        5–50 cm off a wall pull the frames (0.6 cm on the Duplex model from the ground truth).
+        None keeps the preset's.
     accept_ambiguous: when the global alignment is ambiguous (the second-best placement scores
         nearly as well as the best), take the best anyway instead of refusing (flagged in
         ``result.json``).
@@ -210,6 +216,7 @@ class RefineConfig:
     global_align: GlobalAlignMode = GlobalAlignMode.AUTO
     accept_ambiguous: bool = False
     lidar_scan: bool | None = None
+    scan_sigma_m: float | None = 0.02
 
     def __post_init__(self) -> None:
         if isinstance(self.global_align, bool):
@@ -222,6 +229,11 @@ class RefineConfig:
         if self.lidar_scan is not None and not isinstance(self.lidar_scan, bool):
             raise ConfigError(f"lidar_scan must be true or false, got {self.lidar_scan!r}",
                               field="lidar_scan")
+        if self.scan_sigma_m is not None and not (
+                isinstance(self.scan_sigma_m, (int, float)) and not isinstance(
+                    self.scan_sigma_m, bool) and 0 < self.scan_sigma_m < 1):
+            raise ConfigError(f"scan_sigma_m must be a noise scale in metres in (0, 1), got "
+                              f"{self.scan_sigma_m!r}", field="scan_sigma_m")
         if not isinstance(self.accept_ambiguous, bool):
             raise ConfigError(f"accept_ambiguous must be true or false, got "
                               f"{self.accept_ambiguous!r}", field="accept_ambiguous")

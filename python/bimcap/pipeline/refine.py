@@ -13,6 +13,7 @@ Three steps, kept apart so that experiments can reuse the expensive ones:
 
 from __future__ import annotations
 
+import copy
 import json
 import logging
 import time
@@ -632,6 +633,18 @@ def stage_options(base: Any, stage: Any, config: RefineConfig) -> Any | None:
     return opts
 
 
+def scan_stage_options(opts: Any, config: RefineConfig) -> Any:
+    """The options of the last solve with the LiDAR scan's samples: ``opts`` with the BIM terms'
+    noise scale set to ``config.scan_sigma_m`` (unchanged when None)."""
+    if config.scan_sigma_m is None:
+        return opts
+    out = copy.deepcopy(opts)
+    for key in ("wall", "column", "floor", "ceiling"):
+        out.terms[key].sigma = float(config.scan_sigma_m)
+    out.check()
+    return out
+
+
 def solve_prepared(prepared: Prepared, config: RefineConfig, quiet: bool | None = None,
                    max_plane_rounds: int = 2, plane_change_tolerance: float = 0.005,
                    plane_check_limit_m: float = 0.05) -> SolveOutcome:
@@ -681,7 +694,8 @@ def _solve_prepared(prepared: Prepared, config: RefineConfig, max_plane_rounds: 
     run, poses, coarse_info = _run_schedule(first, base, poses)
     if first is not solver:
         _log.info(f"adding the LiDAR scan's samples: solving stage {run.stage.name} again")
-        run = solver.run(run.stage, run.options, poses, choose_sample_planes(prepared, poses))
+        run = solver.run(run.stage, scan_stage_options(run.options, config), poses,
+                         choose_sample_planes(prepared, poses))
         poses = run.result.poses
     rounds: list[dict[str, int]] = []
     checks: list[Any] = []
