@@ -281,6 +281,28 @@ def test_lidar_scan_setting(tmp_path: Path) -> None:
         RefineConfig.from_toml(f)
 
 
+def test_scan_sigma_setting(tmp_path: Path) -> None:
+    """The last solve with the scan's samples weighs the BIM terms at ``scan_sigma_m`` (2 cm by
+    default), the other terms as the preset does; None keeps the preset; bad values are named."""
+    from bimcap.pipeline.refine import scan_stage_options, solver_options
+
+    cfg = RefineConfig()
+    base = solver_options(cfg)
+    opts = scan_stage_options(base, cfg)
+    for key in ("wall", "column", "floor", "ceiling"):
+        assert opts.terms[key].sigma == pytest.approx(0.02)
+        assert base.terms[key].sigma == pytest.approx(0.05)  # a copy: the schedule's unchanged
+    assert opts.terms["geometric"].sigma == base.terms["geometric"].sigma
+    none = RefineConfig(scan_sigma_m=None)
+    assert scan_stage_options(base, none).terms["wall"].sigma == pytest.approx(0.05)
+    f = tmp_path / "run.toml"
+    f.write_text("scan_sigma_m = 0.03\n")
+    assert RefineConfig.from_toml(f).scan_sigma_m == pytest.approx(0.03)
+    for bad in (0.0, -0.01, 2.0, True, "2cm"):
+        with pytest.raises(ConfigError, match="scan_sigma_m"):
+            RefineConfig(scan_sigma_m=bad)  # type: ignore[arg-type]
+
+
 def test_diverged_frames_are_named() -> None:
     """A camera far outside the building (or not finite) is a diverged frame, not a result."""
     from types import SimpleNamespace
