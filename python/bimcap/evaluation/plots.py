@@ -205,7 +205,7 @@ def plot_trajectories_on_plan(
     ax.set_ylabel("y [m]")
     ax.set_title(title)
     ax.grid(True, lw=0.3)
-    fig.legend(*ax.get_legend_handles_labels(), loc="outside right upper", fontsize=8)
+    fig.legend(*ax.get_legend_handles_labels(), loc="outside right upper", fontsize=9)
     return _finish(fig, path)
 
 
@@ -316,7 +316,7 @@ def plot_side_view(
         ax.set_ylabel("z [m]")
         ax.grid(True, lw=0.3)
         if ax.get_legend_handles_labels()[0]:
-            ax.legend(loc="best", fontsize=8, markerscale=5)
+            ax.legend(loc="best", fontsize=9, markerscale=5)
     fig.suptitle(title)
     return _finish(fig, path)
 
@@ -430,7 +430,7 @@ def plot_term_costs(
     ax.set_ylabel("cost ½ Σ ρ(‖r/σ‖²) [no unit]")
     ax.set_title("Cost per term (linear; hatched = before)")
     ax.grid(True, axis="y", lw=0.3)
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=9)
     fig.suptitle(title)
     if notes:
         fig.supxlabel("\n".join(notes), fontsize=9, color="0.25")
@@ -459,9 +459,10 @@ def plot_observability(
     fig, axes = _new_figure(nrows=2, size=(9.5, 5.5))
     s = np.asarray(sigma, dtype=np.float64).reshape(-1, 6)
     frames = np.arange(len(s))
-    panels = ((axes[0, 0], slice(0, 3), ("along", "across", "up"), max_sigma_m, "σ [m]"),
-              (axes[1, 0], slice(3, 6), ("roll", "pitch", "yaw"), max_sigma_deg, "σ [deg]"))
-    for ax, cols, names, limit, ylabel in panels:
+    panels = ((axes[0, 0], slice(0, 3), ("along", "across", "up"), max_sigma_m, "m"),
+              (axes[1, 0], slice(3, 6), ("roll", "pitch", "yaw"), max_sigma_deg, "deg"))
+    for ax, cols, names, limit, unit in panels:
+        ylabel = f"σ [{unit}]"
         block = s[:, cols]
         finite = block[np.isfinite(block)]
         top = max(float(finite.max()) if finite.size else limit, limit) * 3.0
@@ -473,7 +474,7 @@ def plot_observability(
             if (~ok).any():  # unobserved: a mark at the top of the panel
                 ax.plot(frames[~ok], np.full(int((~ok).sum()), top * 1.4 ** k), "v", ms=4,
                         color=colour)
-        ax.axhline(limit, color="k", ls="--", lw=0.8, label=f"observed below {limit:g}")
+        ax.axhline(limit, color="k", ls="--", lw=0.8, label=f"observed below {limit:g} {unit}")
         ax.set_ylabel(ylabel)
         ax.grid(True, which="both", lw=0.3)
         # plain numbers at 1-2-5 steps, not 4×10⁻²
@@ -618,7 +619,7 @@ def plot_maps_on_plan(
     axes[0, 0].set_ylabel("y [m]")
     if axes[0, 0].get_legend_handles_labels()[0]:
         fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="outside lower center",
-                   ncol=4, fontsize=8, markerscale=5)
+                   ncol=4, fontsize=9, markerscale=5)
     fig.suptitle(title)
     return _finish(fig, path)
 
@@ -690,5 +691,5 @@ def plot_map_3d(
     ax.set_zlabel("z [m]")
     ax.set_title(title)
     if ax.get_legend_handles_labels()[0]:
-        ax.legend(loc="upper left", fontsize=7, markerscale=6)
+        ax.legend(loc="upper left", fontsize=9, markerscale=6)
     return _finish(fig, path)

@@ -177,6 +177,10 @@ def _metrics_html(inp: ReportInput) -> list[str]:
     conv = next((r.metrics.ypr_convention for r in inp.rows if r.metrics is not None), None)
     mm = next((r.map_metrics for r in inp.rows if r.map_metrics is not None), None)
     expl = ["ATE without alignment (the BIM frame is shared)."]
+    if all(r.metrics is None for r in inp.rows):
+        expl = ["No ground truth for this run (no --gt, and the sequence has no poses/gt.tum): "
+                "the trajectory and map metrics need one, so the table shows the solve time "
+                "alone, and the report has no error figures."]
     if conv:
         expl.append(f"Yaw/pitch/roll: {conv}.")
     if mm is not None:
@@ -219,7 +223,8 @@ def _trajectories_html(inp: ReportInput, figs: Path) -> list[str]:
             f"<p>Top view, zoomed to the walk; the arrows are the cameras' optical axes {every}, "
             "so a rotation error shows as arrows that turn away from the ground truth's (black). "
             "Colours: ground truth black, initial grey (dashed), FACaP orange, BIMCaP blue, on "
-            "every figure.</p>",
+            "every figure." + ("" if inp.gt_poses is not None else " This run has no ground "
+                               "truth: the runs alone are drawn.") + "</p>",
             _img(p, "top view: trajectories and camera headings")]
 
 
