@@ -290,7 +290,7 @@ def plot_side_view(
     lab = np.asarray(labels).reshape(-1)
     if pts.ndim != 2 or pts.shape[1] != 3 or len(lab) != len(pts):
         raise EvaluationError(f"need (P, 3) points and (P,) labels, got {pts.shape}, {lab.shape}")
-    fig, axes = _new_figure(ncols=2, size=(11.0, 4.5))
+    fig, axes = _new_figure(ncols=2, size=(11.0, 4.9))
     for ax, axis, name in ((axes[0, 0], 0, "x"), (axes[0, 1], 1, "y")):
         missing = []
         for label in (Label.FLOOR, Label.CEILING):
@@ -315,8 +315,9 @@ def plot_side_view(
         ax.set_xlabel(f"{name} [m]")
         ax.set_ylabel("z [m]")
         ax.grid(True, lw=0.3)
-        if ax.get_legend_handles_labels()[0]:
-            ax.legend(loc="best", fontsize=9, markerscale=5)
+        if ax.get_legend_handles_labels()[0]:  # under the panel: it hides no point, no note
+            ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=3, fontsize=9,
+                      markerscale=5, frameon=False)
     fig.suptitle(title)
     return _finish(fig, path)
 
