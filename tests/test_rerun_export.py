@@ -181,3 +181,22 @@ def test_wall_outlines_close_each_segment_over_its_z_band() -> None:
     out = wall_outlines(np.array([[0.0, 1.0, 4.0, 1.0]]), np.array([[0.0, 3.0]]))
     np.testing.assert_array_equal(out[0], [[0, 1, 0], [4, 1, 0], [4, 1, 3], [0, 1, 3],
                                            [0, 1, 0]])
+
+
+def test_the_config_file_and_the_flag_switch_the_recording_on(tmp_path: Path) -> None:
+    import argparse
+
+    from bimcap.cli import build_parser
+    from bimcap.cli.refine import config_from_args
+    from bimcap.pipeline.config import ConfigError, RefineConfig
+
+    toml = tmp_path / "run.toml"
+    toml.write_text("rerun = true\n")
+    assert RefineConfig.from_toml(toml).rerun is True
+    assert RefineConfig().rerun is False
+    toml.write_text('rerun = "yes"\n')
+    with pytest.raises(ConfigError, match="rerun must be true or false"):
+        RefineConfig.from_toml(toml)
+    args: argparse.Namespace = build_parser("refine").parse_args(
+        ["refine", "seq", "-o", "out", "--rerun"])
+    assert config_from_args(args).rerun is True
