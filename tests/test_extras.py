@@ -1,6 +1,6 @@
-"""The optional dependencies (pyproject extras ``dask``, ``ros``; and ONNX Runtime, a core
-dependency that an install can still lack): bimcap imports and runs without them, and a command
-that needs one says what to install, in one line, exit 2.
+"""The optional dependencies (pyproject extras ``dask``, ``ros``, ``rerun``; and ONNX Runtime, a
+core dependency that an install can still lack): bimcap imports and runs without them, and a
+command that needs one says what to install, in one line, exit 2.
 Each case runs in a subprocess whose imports of those packages fail, as on an install without
 the extra."""
 
@@ -19,7 +19,8 @@ SOURCES = Path(bimcap.__file__).resolve().parents[1]
 PYPROJECT = Path(__file__).resolve().parents[1] / "pyproject.toml"
 
 #: Import names of the optional packages, and the extra of each (None: a core dependency).
-OPTIONAL = {"distributed": "dask", "dask": "dask", "rosbags": "ros", "onnxruntime": None}
+OPTIONAL = {"distributed": "dask", "dask": "dask", "rosbags": "ros", "rerun": "rerun",
+            "onnxruntime": None}
 
 _BLOCK = f"""
 import importlib.abc, sys
@@ -43,9 +44,10 @@ def test_the_extras_are_declared_and_the_test_extra_pulls_them() -> None:
     extras = meta["optional-dependencies"]
     names = {extra: {r.split(">")[0].split("[")[0] for r in reqs} for extra, reqs in extras.items()}
     assert names["dask"] == {"dask"} and names["ros"] == {"rosbags"}
+    assert names["rerun"] == {"rerun-sdk"}
     core = {r.split(">")[0].split("[")[0] for r in meta["dependencies"]}
     assert "onnxruntime" in core  # the product's ONNX Runtime path is not optional
-    for extra in ("dask", "ros"):
+    for extra in ("dask", "ros", "rerun"):
         assert names[extra] <= names["test"] and names[extra] <= names["all"]
         assert not names[extra] & core
 
@@ -57,11 +59,11 @@ from bimcap.cli import COMMANDS, build_parser, main
 build_parser()  # every sub-command registered in full
 for m in ("bimcap.pipeline.refine", "bimcap.pipeline.demo", "bimcap.frontend.runner",
           "bimcap.frontend.executor", "bimcap.dataset.conslam", "bimcap.fusion.onnx_completion",
-          "bimcap.segmentation.onnx_seg"):
+          "bimcap.segmentation.onnx_seg", "bimcap.pipeline.rerun_export"):
     importlib.import_module(m)
 assert main(["solve-demo", "--frames", "8", "-q"]) == 0
 assert not [m for m in sys.modules if m.split(".")[0] in ("dask", "distributed", "rosbags",
-                                                        "onnxruntime")]
+                                                        "rerun", "onnxruntime")]
 print("OK")
 """
     r = _run(code, tmp_path)
@@ -73,6 +75,9 @@ print("OK")
     (["import-bag", "x.bag", "-o", "seq", "--image-topic", "/i", "--cloud-topic", "/c",
       "--calib", "c.yaml"], "ros"),
     (["refine", "no_sequence", "-o", "out", "--dask"], "dask"),  # checked before the sequence
+    (["refine", "no_sequence", "-o", "out", "--rerun"], "rerun"),
+    (["demo", "-o", "demo_out", "--rerun"], "rerun"),  # before the world is generated
+    (["export-rerun", "no_run", "-o", "run.rrd"], "rerun"),  # before the run is read
 ])
 def test_a_command_without_its_extra_names_it(args: list[str], extra: str,
                                               tmp_path: Path) -> None:
@@ -89,7 +94,9 @@ def test_the_error_is_a_bimcap_input_error_with_exit_2(tmp_path: Path) -> None:
 from bimcap.errors import EXIT_BAD_INPUT, BimcapError, MissingDependencyError
 from bimcap.frontend.executor import require_distributed
 from bimcap.fusion.onnx_completion import load_session
+from bimcap.pipeline.rerun_export import require_rerun
 for call, how in ((require_distributed, "pip install 'bimcap[dask]'"),
+                  (require_rerun, "pip install 'bimcap[rerun]'"),
                   (lambda: load_session("m.onnx"), "pip install onnxruntime")):
     try:
         call()

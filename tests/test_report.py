@@ -59,6 +59,7 @@ def report(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
         coarse={"n_frames": n, "n_windows": 1, "accepted": [False] * n, "seconds": 0.5,
                 "poses": init.tolist(), "frame_level": None, "near_probe_drift_m": 0.1,
                 "windows": [{"start": 0, "stop": n, "n_points": 900, "accepted": False,
+                             "n_hypotheses": 0,
                              "yaw_deg": 0.0, "t_m": [0.0, 0.0], "inlier_ratio": 0.0,
                              "score": 0.0, "reason": "input already near the plan"}]},
         reprojection={k: {"n": 1000, "behind": b, "median_px": m, "p90_px": 3 * m,
@@ -179,3 +180,33 @@ def test_floor_plan_png_has_a_legend() -> None:
     for label in (Label.WALL, Label.COLUMN):
         bgr = LABEL_COLORS[int(label)][::-1]
         assert (np.abs(legend.astype(int) - bgr).sum(axis=2) < 30).sum() > 20, label.name
+
+
+def test_the_report_has_contents_linking_every_section(report: tuple[Path, str]) -> None:
+    doc = report[1]
+    ids = re.findall(r"<h2 id='([^']+)'>", doc)
+    assert len(ids) == doc.count("<h2") >= 8 and len(set(ids)) == len(ids)
+    nav = re.search(r"<nav>(.*?)</nav>", doc)
+    assert nav is not None and re.findall(r"href='#([^']+)'", nav.group(1)) == ids
+    assert doc.index("<nav>") < doc.index("<h2")  # under the title, above the first section
+    # the settings JSON is folded; a window whose search did not run shows no numbers
+    assert re.search(r"<details><summary>[^<]*</summary><pre>", doc)
+    assert re.search(r"0–11 900 no – – – – input already near the plan", _text(doc))
+    # round-off of a zero reads 0 in the solver table (the prior's 1e-28 cost)
+    assert "1e-28" not in _text(doc).split("Solver")[-1]
+
+
+def test_a_report_without_ground_truth_says_so(tmp_path: Path) -> None:
+    n = 6
+    rows = [RunRow("initial", _walk(n, 0.3)), RunRow("bimcap G+F+W", _walk(n), seconds=0.5)]
+    inp = ReportInput(title="no gt", out_dir=tmp_path, rows=rows,
+                      segments=np.array([[0.0, 0.0, 6.0, 0.0]]),
+                      segment_class=np.array([int(Label.WALL)]))
+    text = _text(write_report(inp).read_text())
+    assert "No ground truth for this run" in text and "Error per frame" not in text
+    assert "This run has no ground truth: the runs alone are drawn." in text
+    assert "LiDAR" not in text  # no scan note without scan samples
+    from bimcap.pipeline.report import _scan_note
+
+    note = _scan_note({"wall": 5, "floor": 2, "frames_without_matches": [3, 4]})[0]
+    assert "(5 wall, 2 floor)" in note and "Frames without a match (2: [3, 4])" in note

@@ -57,6 +57,7 @@ COMMANDS: tuple[str, ...] = (
     "import_conslam",
     "import_bag",
     "import_folder",
+    "export_rerun",
     "solve_demo",
 )
 

@@ -86,6 +86,10 @@ def add_config_arguments(p: argparse.ArgumentParser) -> None:
                    help="the COLMAP model of the refined reconstruction in OUT/colmap: images "
                         "(default: sparse/0 and the undistorted images), model (sparse/0 "
                         "alone), off")
+    g.add_argument("--rerun", action="store_true", default=None,
+                   help="also write the run as a Rerun recording, OUT/run.rrd (BIM, "
+                        "trajectories, cameras with images, map, errors; needs "
+                        "pip install 'bimcap[rerun]'; bimcap export-rerun does it afterwards)")
 
 
 def config_from_args(args: argparse.Namespace) -> RefineConfig:
@@ -96,7 +100,7 @@ def config_from_args(args: argparse.Namespace) -> RefineConfig:
     keys = ("method", "terms", "weighting", "loss", "geometric_mode", "completion",
             "completion_model", "segmentation", "segmentation_model", "labels_dir", "coarse",
             "rotation_first", "staged", "window", "max_match_distance", "workers", "lidar_nan",
-            "max_lost_fraction", "colmap", "accept_ambiguous", "lidar_scan")
+            "max_lost_fraction", "colmap", "accept_ambiguous", "lidar_scan", "rerun")
     overrides: dict[str, Any] = {k: getattr(args, k) for k in keys
                                  if getattr(args, k, None) is not None}
     if getattr(args, "global_align", None) is not None:
@@ -123,8 +127,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
             "Refine the initial trajectory of a sequence directory against the building's IFC: "
             "BIM reference, front end (depth, labels, matches), Ceres bundle adjustment. Writes "
             "refined.tum, summary.json, map_before/after.ply, the COLMAP model colmap/sparse/0 "
-            "(with the undistorted images in colmap/images), report.html and result.json (every "
-            "file of the run with its SHA-256) into OUT as one set. Every setting and input is "
+            "(with the undistorted images in colmap/images), report.html, with --rerun the Rerun "
+            "recording run.rrd, and result.json (every file of the run with its SHA-256) into "
+            "OUT as one set. Every setting and input is "
             "checked before any expensive stage."
         ),
     )

@@ -205,7 +205,7 @@ def plot_trajectories_on_plan(
     ax.set_ylabel("y [m]")
     ax.set_title(title)
     ax.grid(True, lw=0.3)
-    fig.legend(*ax.get_legend_handles_labels(), loc="outside right upper", fontsize=8)
+    fig.legend(*ax.get_legend_handles_labels(), loc="outside right upper", fontsize=9)
     return _finish(fig, path)
 
 
@@ -290,7 +290,7 @@ def plot_side_view(
     lab = np.asarray(labels).reshape(-1)
     if pts.ndim != 2 or pts.shape[1] != 3 or len(lab) != len(pts):
         raise EvaluationError(f"need (P, 3) points and (P,) labels, got {pts.shape}, {lab.shape}")
-    fig, axes = _new_figure(ncols=2, size=(11.0, 4.5))
+    fig, axes = _new_figure(ncols=2, size=(11.0, 4.9))
     for ax, axis, name in ((axes[0, 0], 0, "x"), (axes[0, 1], 1, "y")):
         missing = []
         for label in (Label.FLOOR, Label.CEILING):
@@ -315,8 +315,9 @@ def plot_side_view(
         ax.set_xlabel(f"{name} [m]")
         ax.set_ylabel("z [m]")
         ax.grid(True, lw=0.3)
-        if ax.get_legend_handles_labels()[0]:
-            ax.legend(loc="best", fontsize=8, markerscale=5)
+        if ax.get_legend_handles_labels()[0]:  # under the panel: it hides no point, no note
+            ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=3, fontsize=9,
+                      markerscale=5, frameon=False)
     fig.suptitle(title)
     return _finish(fig, path)
 
@@ -405,16 +406,18 @@ def plot_term_costs(
                           label=name if row == 0 else None)
             if share >= 6.0:
                 share_ax.text(left + share / 2, row, f"{name}\n{share:.0f}%", ha="center",
-                              va="center", fontsize=8)
+                              va="center", fontsize=9)
             left += share
-        share_ax.text(101.0, row, f"total {total:.4g}", va="center", fontsize=8)
+        share_ax.text(101.0, row, f"total\n{total:.4g}", va="center", fontsize=9)
     share_ax.set_yticks([0, 1], ["before", "after"])
     share_ax.set_xlim(0.0, 125.0)
     share_ax.set_xticks([0, 25, 50, 75, 100])
     share_ax.invert_yaxis()
     share_ax.set_xlabel("share of the total cost [%]")
     share_ax.set_title("Each term's share of the cost")
-    share_ax.legend(loc="lower right", fontsize=7, ncol=2)
+    # under the panel, where it hides no bar
+    share_ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.2), fontsize=9,
+                    ncol=min(len(names), 6), frameon=False)
     # right: the costs themselves, linear
     x = np.arange(len(names))
     ax.bar(x - 0.2, before, width=0.4, color=colours, alpha=0.45, hatch="//", edgecolor="0.3",
@@ -423,12 +426,12 @@ def plot_term_costs(
     top = float(max(before.max(), after.max(), 1e-300))
     for k, (b, a) in enumerate(zip(before, after, strict=True)):
         if max(b, a) < 0.02 * top:  # invisible at this scale: write the values
-            ax.text(k, 0.03 * top, f"{b:.2g} →\n{a:.2g}", ha="center", va="bottom", fontsize=7)
+            ax.text(k, 0.03 * top, f"{b:.2g} →\n{a:.2g}", ha="center", va="bottom", fontsize=8)
     ax.set_xticks(x, names)
     ax.set_ylabel("cost ½ Σ ρ(‖r/σ‖²) [no unit]")
     ax.set_title("Cost per term (linear; hatched = before)")
     ax.grid(True, axis="y", lw=0.3)
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=9)
     fig.suptitle(title)
     if notes:
         fig.supxlabel("\n".join(notes), fontsize=9, color="0.25")
@@ -452,12 +455,15 @@ def plot_observability(
         (drawn as dashed lines).
     path: PNG to write, or None.
     """
-    fig, axes = _new_figure(nrows=2, size=(8.0, 5.5))
+    from matplotlib.ticker import FuncFormatter, LogLocator
+
+    fig, axes = _new_figure(nrows=2, size=(9.5, 5.5))
     s = np.asarray(sigma, dtype=np.float64).reshape(-1, 6)
     frames = np.arange(len(s))
-    panels = ((axes[0, 0], slice(0, 3), ("along", "across", "up"), max_sigma_m, "σ [m]"),
-              (axes[1, 0], slice(3, 6), ("roll", "pitch", "yaw"), max_sigma_deg, "σ [deg]"))
-    for ax, cols, names, limit, ylabel in panels:
+    panels = ((axes[0, 0], slice(0, 3), ("along", "across", "up"), max_sigma_m, "m"),
+              (axes[1, 0], slice(3, 6), ("roll", "pitch", "yaw"), max_sigma_deg, "deg"))
+    for ax, cols, names, limit, unit in panels:
+        ylabel = f"σ [{unit}]"
         block = s[:, cols]
         finite = block[np.isfinite(block)]
         top = max(float(finite.max()) if finite.size else limit, limit) * 3.0
@@ -469,10 +475,14 @@ def plot_observability(
             if (~ok).any():  # unobserved: a mark at the top of the panel
                 ax.plot(frames[~ok], np.full(int((~ok).sum()), top * 1.4 ** k), "v", ms=4,
                         color=colour)
-        ax.axhline(limit, color="k", ls="--", lw=0.8, label=f"observed below {limit:g}")
+        ax.axhline(limit, color="k", ls="--", lw=0.8, label=f"observed below {limit:g} {unit}")
         ax.set_ylabel(ylabel)
         ax.grid(True, which="both", lw=0.3)
-        ax.legend(loc="upper left", fontsize=7, ncol=4)
+        # plain numbers at 1-2-5 steps, not 4×10⁻²
+        ax.yaxis.set_major_locator(LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))
+        ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        ax.yaxis.set_minor_formatter(FuncFormatter(lambda v, _: ""))
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=9)
     axes[1, 0].set_xlabel("frame")
     axes[0, 0].set_title("What the BIM terms pin, per frame (lower is better; ▼ = not at all)")
     return _finish(fig, path)
@@ -497,6 +507,7 @@ def plot_errors_on_plan(
     path: PNG to write, or None.
     margin_m: the view is every run's extent plus this margin (metres).
     """
+    from matplotlib import rc_context
     from matplotlib.colors import Normalize
 
     seg, cls = _plan_arrays(segments, segment_class)
@@ -509,7 +520,17 @@ def plot_errors_on_plan(
             raise EvaluationError(f"run {n!r}: {len(walks[n])} positions but {len(errs[n])} errors")
     vmax = max(max((float(np.nanmax(e)) for e in errs.values() if len(e)), default=1.0), 1e-3)
     norm = Normalize(0.0, vmax)
-    fig, axes = _new_figure(ncols=len(runs), size=(4.2 * len(runs) + 1.2, 4.8))
+    # the page shows this wide figure scaled down: text one size up, read at the report's width
+    with rc_context({"font.size": 12, "axes.titlesize": 12, "axes.labelsize": 12}):
+        return _errors_on_plan(seg, cls, walks, errs, norm, path, title, margin_m)
+
+
+def _errors_on_plan(seg: NDArray[np.float64], cls: NDArray[Any],
+                    walks: Mapping[str, NDArray[np.float64]],
+                    errs: Mapping[str, NDArray[np.float64]], norm: Any,
+                    path: str | PathLike[str] | None, title: str, margin_m: float) -> Figure:
+    """:func:`plot_errors_on_plan`'s drawing (position errors ``errs`` in cm)."""
+    fig, axes = _new_figure(ncols=len(walks), size=(4.2 * len(walks) + 1.2, 5.2))
     allxy = np.concatenate([w[:, :2] for w in walks.values()])
     sc = None
     for ax, (name, xyz) in zip(axes[0], walks.items(), strict=True):
@@ -520,7 +541,7 @@ def plot_errors_on_plan(
         _zoom(ax, allxy, margin_m)
         e = errs[name]
         ax.set_title(f"{name}\nRMSE {np.sqrt(np.mean(e ** 2)):.1f} cm, max {e.max():.1f} cm",
-                     fontsize=9, color=run_colour(name))
+                     color=run_colour(name))
         ax.set_xlabel("x [m]")
         ax.grid(True, lw=0.3)
     axes[0, 0].set_ylabel("y [m]")
@@ -599,7 +620,7 @@ def plot_maps_on_plan(
     axes[0, 0].set_ylabel("y [m]")
     if axes[0, 0].get_legend_handles_labels()[0]:
         fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="outside lower center",
-                   ncol=4, fontsize=8, markerscale=5)
+                   ncol=4, fontsize=9, markerscale=5)
     fig.suptitle(title)
     return _finish(fig, path)
 
@@ -671,5 +692,5 @@ def plot_map_3d(
     ax.set_zlabel("z [m]")
     ax.set_title(title)
     if ax.get_legend_handles_labels()[0]:
-        ax.legend(loc="upper left", fontsize=7, markerscale=6)
+        ax.legend(loc="upper left", fontsize=9, markerscale=6)
     return _finish(fig, path)

@@ -15,6 +15,8 @@ sigma = 0.03``), a ``[registration]`` table (``bimcap.registration.CoarseOptions
     completion = "linear"      # linear | classical | onnx | hybrid | ground_truth
     segmentation = "geometric" # geometric | disk | onnx | ground_truth
     window = 4
+    colmap = "images"          # images | model | off: the COLMAP workspace colmap/
+    rerun = false              # true: also write run.rrd, a Rerun recording (rerun extra)
     [solver]
     association_gate = 0.5
     [registration]
@@ -168,6 +170,8 @@ class RefineConfig:
     colmap: the COLMAP model of the refined reconstruction in ``colmap/`` (:class:`ColmapExport`):
         ``images`` (default: the model and undistorted copies of the images), ``model`` (the
         model alone: no image copies, for long sequences) or ``off``.
+    rerun: also write the run as a Rerun recording, ``run.rrd`` (``bimcap.pipeline.
+        rerun_export``; the ``rerun`` extra), at the end of the run. Off by default.
     global_align: ``"auto"`` (default: when fewer than 30 % of the initial cameras lie in the
         building's free space, log it and align), ``"on"`` or ``"off"`` (TOML ``true`` /
         ``false`` read as on / off): estimate ``world_from_slam`` before the coarse stage.
@@ -213,6 +217,7 @@ class RefineConfig:
     registration: dict[str, Any] = field(default_factory=dict)
     features: dict[str, Any] = field(default_factory=dict)
     colmap: ColmapExport = ColmapExport.IMAGES
+    rerun: bool = False
     global_align: GlobalAlignMode = GlobalAlignMode.AUTO
     accept_ambiguous: bool = False
     lidar_scan: bool | None = None
@@ -234,6 +239,8 @@ class RefineConfig:
                     self.scan_sigma_m, bool) and 0 < self.scan_sigma_m < 1):
             raise ConfigError(f"scan_sigma_m must be a noise scale in metres in (0, 1), got "
                               f"{self.scan_sigma_m!r}", field="scan_sigma_m")
+        if not isinstance(self.rerun, bool):
+            raise ConfigError(f"rerun must be true or false, got {self.rerun!r}", field="rerun")
         if not isinstance(self.accept_ambiguous, bool):
             raise ConfigError(f"accept_ambiguous must be true or false, got "
                               f"{self.accept_ambiguous!r}", field="accept_ambiguous")

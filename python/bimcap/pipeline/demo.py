@@ -221,6 +221,7 @@ def _refine_step(out: Path, seq_dir: Path, design: Path, o: DemoOptions,
         evaluate_run,
         g_unit,
         prepare,
+        run_inputs,
         solve_prepared,
         summary_table,
         write_run_outputs,
@@ -251,6 +252,7 @@ def _refine_step(out: Path, seq_dir: Path, design: Path, o: DemoOptions,
                                extra_rows=extra)
     if o.facap:
         result.files["refined_facap"] = "refined_facap.tum"
+    result.inputs = run_inputs(prepared.sequence, design)
     result.out_dir = run_dir
     outputs.commit(result.to_dict())
     metrics = {"initial": result.metrics_before}

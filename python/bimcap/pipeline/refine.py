@@ -1120,7 +1120,8 @@ def evaluate_run(
 #: SHA-256 (``bimcap.io.outputs``).
 REFINE_OUTPUTS = ("refined.tum", "summary.json", "map_before.ply", "map_after.ply",
                   "map_refined.ply", "report.html", "figures/", "colmap/", "deviations.json",
-                  "deviations.csv", "deviations.ply", "deviations.png", "deviations.ifc")
+                  "deviations.csv", "deviations.ply", "deviations.png", "deviations.ifc",
+                  "run.rrd")
 
 
 @dataclass
@@ -1163,6 +1164,10 @@ def validate_settings(config: RefineConfig) -> Any:
             raise ConfigError("no such model file", value, name)
     if config.segmentation is LabelSource.DISK and not Path(str(config.labels_dir)).is_dir():
         raise ConfigError("no such label directory", config.labels_dir, "labels_dir")
+    if config.rerun:  # the rerun extra, before any expensive stage
+        from bimcap.pipeline.rerun_export import require_rerun
+
+        require_rerun()
     executor = executor_options(config)
     if executor.is_dask:  # before any expensive stage: the package, the scheduler's address
         from bimcap.frontend.executor import check_scheduler, require_distributed
@@ -1263,7 +1268,8 @@ def write_run_outputs(
     ``refined.tum``, ``summary.json``, ``map_before.ply`` / ``map_after.ply``, the LiDAR map
     ``map_refined.ply``, the COLMAP workspace ``colmap/`` (``config.colmap``: ``sparse/0`` and the
     undistorted ``images/``, :mod:`bimcap.pipeline.colmap_export`) and, with ``report``,
-    ``report.html`` and its ``figures/`` (``extra_rows``: more runs shown beside, e.g. FACaP).
+    ``report.html`` and its ``figures/`` (``extra_rows``: more runs shown beside, e.g. FACaP),
+    and with ``config.rerun`` the Rerun recording ``run.rrd`` (:func:`write_run_recording`).
     With ``deviations_ifc``, the scan-vs-BIM deviations against that IFC under the refined poses
     (``deviations.*``, and a report section). With ``gt`` the result carries the metrics before
     and after. The result's
@@ -1310,7 +1316,35 @@ def write_run_outputs(
 
         result.files["report"] = write_refine_report(result, prepared, gt, extra_rows,
                                                      g_unit=g_unit(config)).name
+    if config.rerun:
+        rec = write_run_recording(stage / "run.rrd", prepared, outcome, gt, refined_map,
+                                  extra_rows)
+        result.files["rerun"] = "run.rrd"
+        result.timings["rerun"] = rec.seconds
     return result
+
+
+def write_run_recording(path: Path, prepared: Prepared, outcome: SolveOutcome,
+                        gt: Trajectory | None, refined_map: Any,
+                        extra_rows: list[Any] | None = None) -> Any:
+    """The run as a Rerun recording in ``path`` (``refine --rerun``,
+    :mod:`bimcap.pipeline.rerun_export`): the BIM reference's floor plan, the initial, refined
+    (and ``extra_rows``', e.g. FACaP's) and ground-truth trajectories, the refined cameras with
+    the sequence's images, the refined LiDAR map and the per-frame errors."""
+    from bimcap.pipeline.rerun_export import RecordingInput, write_recording
+
+    seq, ref = prepared.sequence, prepared.reference
+    trajectories = {"initial": prepared.init.poses}
+    if gt is not None:
+        trajectories["ground_truth"] = gt.poses
+    for row in extra_rows or []:
+        trajectories[row.name.split()[0].lower()] = row.poses
+    trajectories["refined"] = outcome.refined.poses
+    inp = RecordingInput(
+        outcome.refined.timestamps, trajectories, ref.segments, ref.segment_class,
+        ref.segment_z, refined_map.points, refined_map.labels, seq.camera.pinhole(),
+        [Path(seq.root) / f.image for f in seq.frames])
+    return write_recording(path, inp)
 
 
 def refine(
@@ -1370,8 +1404,7 @@ def _refine(sequence: str | PathLike[str], out_dir: str | PathLike[str],
                 "plain least squares has no prior: try --method bimcap, or more overlap)")
         result = write_run_outputs(stage, prepared, outcome, cfg, plan.gt, command, report,
                                    deviations_ifc=plan.ifc if deviations else None)
-        result.inputs = {"sequence": str(Path(plan.sequence.root).resolve()),
-                         "ifc": str(Path(plan.ifc).resolve())}
+        result.inputs = run_inputs(plan.sequence, plan.ifc, init, gt)
         result.timings["total"] = time.perf_counter() - t_start
         result.out_dir = out
         plan.outputs.commit(result.to_dict())
@@ -1382,6 +1415,21 @@ def _refine(sequence: str | PathLike[str], out_dir: str | PathLike[str],
         plan.outputs.abort()
         raise
     return result
+
+
+def run_inputs(sequence: Any, ifc: str | PathLike[str], init: Any = None,
+               gt: str | PathLike[str] | None = None) -> dict[str, str]:
+    """``result.json``'s ``inputs``: the absolute paths of the sequence, the IFC, the initial
+    trajectory (``init`` when a file, else the sequence's) and the ground truth (``gt``, else the
+    sequence's when it has one), so that a tool reading the run finds them
+    (``bimcap export-rerun``)."""
+    out = {"sequence": str(Path(sequence.root).resolve()), "ifc": str(Path(ifc).resolve())}
+    for key, given in (("init", init), ("gt", gt)):
+        if isinstance(given, (str, PathLike)):
+            out[key] = str(Path(given).resolve())
+        elif given is None and sequence.has_trajectory(key):
+            out[key] = str(Path(sequence.trajectory_path(key)).resolve())
+    return out
 
 
 def _commit_refusal(outputs: Any, exc: Any, config: RefineConfig, command: str) -> None:

@@ -126,7 +126,7 @@ def metrics_table_html(rows: list[RunRow]) -> str:
         colour = _css(run_colour(r.name, len(body)))
         body.append(f"<tr><td style='border-left:6px solid {colour}'>"
                     + "</td><td>".join(cells) + "</td></tr>")
-    return f"<table>{head}{sense}{''.join(body)}</table>"
+    return f"<div class='scroll'><table>{head}{sense}{''.join(body)}</table></div>"
 
 
 def _css(colour: str) -> str:
@@ -146,10 +146,19 @@ def term_costs(summary: Any) -> dict[str, dict[str, float]]:
     return {"cost_before": before, "cost_after": after}
 
 
-_STYLE = ("body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222}"
+_STYLE = ("body{font-family:sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;"
+          "color:#222;line-height:1.4}"
           "table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;"
           "padding:4px 8px;text-align:right}td:first-child,th:first-child{text-align:left}"
-          "img{max-width:100%}figure{margin:1em 0}figcaption{color:#666;font-size:90%}"
+          "th{background:#f3f3f3}tr.sense td{white-space:nowrap;color:#555;font-size:90%}"
+          "td:first-child{white-space:nowrap}"
+          ".scroll{overflow-x:auto}"
+          "img{max-width:100%;height:auto}figure{margin:1em 0}"
+          "figcaption{color:#555;font-size:90%}"
+          "nav{background:#f7f7f7;border:1px solid #ddd;padding:.5em 1em;margin:1em 0}"
+          "nav a{margin-right:1.2em;white-space:nowrap}"
+          "h2{border-bottom:1px solid #ddd;padding-bottom:.2em;margin-top:1.8em}"
+          "summary{cursor:pointer;color:#333}"
           "pre{background:#f5f5f5;padding:8px;overflow-x:auto}")
 
 
@@ -168,6 +177,10 @@ def _metrics_html(inp: ReportInput) -> list[str]:
     conv = next((r.metrics.ypr_convention for r in inp.rows if r.metrics is not None), None)
     mm = next((r.map_metrics for r in inp.rows if r.map_metrics is not None), None)
     expl = ["ATE without alignment (the BIM frame is shared)."]
+    if all(r.metrics is None for r in inp.rows):
+        expl = ["No ground truth for this run (no --gt, and the sequence has no poses/gt.tum): "
+                "the trajectory and map metrics need one, so the table shows the solve time "
+                "alone, and the report has no error figures."]
     if conv:
         expl.append(f"Yaw/pitch/roll: {conv}.")
     if mm is not None:
@@ -210,7 +223,8 @@ def _trajectories_html(inp: ReportInput, figs: Path) -> list[str]:
             f"<p>Top view, zoomed to the walk; the arrows are the cameras' optical axes {every}, "
             "so a rotation error shows as arrows that turn away from the ground truth's (black). "
             "Colours: ground truth black, initial grey (dashed), FACaP orange, BIMCaP blue, on "
-            "every figure.</p>",
+            "every figure." + ("" if inp.gt_poses is not None else " This run has no ground "
+                               "truth: the runs alone are drawn.") + "</p>",
             _img(p, "top view: trajectories and camera headings")]
 
 
@@ -470,15 +484,25 @@ def _coarse_html(inp: ReportInput) -> list[str]:
                          "<th>score</th><th>why not accepted</th></tr>")
             for w in windows:
                 t = w.get("t_m") or (0.0, 0.0)
+                # a window whose search did not run (no hypothesis) has no yaw, shift or score
+                searched = w.get("accepted") or w.get("n_hypotheses", 1) != 0
+                vals = ([_fmt(w.get("yaw_deg"), 2), _fmt(float(np.hypot(t[0], t[1])), 3),
+                         _fmt(w.get("inlier_ratio"), 2), _fmt(w.get("score"), 2)]
+                        if searched else ["–"] * 4)
                 parts.append(
                     f"<tr><td>{w['start']}–{w['stop'] - 1}</td><td>{w.get('n_points', 0)}</td>"
-                    f"<td>{'yes' if w.get('accepted') else 'no'}</td>"
-                    f"<td>{_fmt(w.get('yaw_deg'), 2)}</td>"
-                    f"<td>{_fmt(float(np.hypot(t[0], t[1])), 3)}</td>"
-                    f"<td>{_fmt(w.get('inlier_ratio'), 2)}</td><td>{_fmt(w.get('score'), 2)}</td>"
+                    f"<td>{'yes' if w.get('accepted') else 'no'}</td><td>"
+                    + "</td><td>".join(vals) + "</td>"
                     f"<td>{html.escape(str(w.get('reason') or ''))}</td></tr>")
             parts.append("</table>")
     return ["<h2>Coarse registration</h2>", *parts] if parts else []
+
+
+def _g4(x: Any) -> str:
+    """Four significant digits; a value below 1e-9 in magnitude (round-off of a zero, e.g. the
+    pose prior's 7.7e-17 σ at the initial poses) reads 0."""
+    v = float(x)
+    return "0" if abs(v) < 1e-9 else f"{v:.4g}"
 
 
 def solver_table_html(r: RunRow) -> str:
@@ -504,14 +528,14 @@ def solver_table_html(r: RunRow) -> str:
             share = 100.0 * float(t.final_cost) / total if total > 0 else 0.0
             body.append(
                 f"<tr><td>{k + 1}</td><td>{t.name}</td><td>{t.num_residual_blocks}</td>"
-                f"<td>{t.num_skipped}</td><td>{float(t.initial_rms):.4g} {unit}</td>"
-                f"<td>{float(t.final_rms):.4g} {unit}</td><td>{float(t.initial_cost):.4g}</td>"
-                f"<td>{float(t.final_cost):.4g}</td><td>{share:.1f} %</td></tr>")
+                f"<td>{t.num_skipped}</td><td>{_g4(t.initial_rms)} {unit}</td>"
+                f"<td>{_g4(t.final_rms)} {unit}</td><td>{_g4(t.initial_cost)}</td>"
+                f"<td>{_g4(t.final_cost)}</td><td>{share:.1f} %</td></tr>")
         body.append(f"<tr><td>{k + 1}</td><td colspan='8' style='text-align:left'>"
                     f"{html.escape(summary.termination)}: {summary.iterations} iterations, "
                     f"{summary.time_s:.3f} s, cost {summary.initial_cost:.6g} → "
                     f"{summary.final_cost:.6g}</td></tr>")
-    return head + "".join(body) + "</table>"
+    return "<div class='scroll'>" + head + "".join(body) + "</table></div>"
 
 
 def reprojection_html(r: RunRow) -> str:
@@ -564,7 +588,10 @@ def _reproduce_html(inp: ReportInput) -> list[str]:
     parts = ["<h2>Reproduce</h2>"]
     if inp.reproduce:
         parts.append(f"<pre>{html.escape(inp.reproduce)}</pre>")
-    parts.append(f"<pre>{html.escape(json.dumps(inp.settings, indent=2, default=str))}</pre>")
+    parts.append("<details><summary>every setting of the run, solver statistics and timings "
+                 "(JSON)</summary>"
+                 f"<pre>{html.escape(json.dumps(inp.settings, indent=2, default=str))}</pre>"
+                 "</details>")
     parts.append("</body></html>")
     return parts
 
@@ -583,9 +610,27 @@ def write_report(inp: ReportInput, name: str = "report.html") -> Path:
     parts += _coarse_html(inp)
     parts += _solver_html(inp, figs)
     parts += _reproduce_html(inp)
+    parts = _with_contents(parts, len(_head_html(inp)))
     path = inp.out_dir / name
     atomic_write_text(path, "\n".join(parts))
     return path
+
+
+def _with_contents(parts: list[str], at: int) -> list[str]:
+    """``parts`` with an id on every ``<h2>`` and a list of links to them (the contents) at
+    index ``at`` (after the title and notes)."""
+    import re
+
+    links = []
+    out = []
+    for part in parts:
+        m = re.fullmatch(r"<h2>(.*)</h2>", part)
+        if m:
+            anchor = _slug(html.unescape(m.group(1)))
+            links.append(f"<a href='#{anchor}'>{m.group(1)}</a>")
+            part = f"<h2 id='{anchor}'>{m.group(1)}</h2>"
+        out.append(part)
+    return [*out[:at], "<nav><b>Contents:</b> " + " ".join(links) + "</nav>", *out[at:]]
 
 
 def _slug(s: str) -> str:
@@ -605,14 +650,20 @@ def bim_heights(reference: Any) -> dict[str, float]:
     return out
 
 
-def _scan_note(scan_samples: dict[str, int] | None) -> list[str]:
-    """A note on the LiDAR scan's samples (used by the solve, not in the maps)."""
+def _scan_note(scan_samples: dict[str, Any] | None) -> list[str]:
+    """A note on the LiDAR scan's samples (used by the solve, not in the maps): the count of
+    each class, and the frames without a match that took them in the first solve stage."""
     if not scan_samples:
         return []
-    counts = ", ".join(f"{n} {c}" for c, n in scan_samples.items())
-    return [f"The LiDAR scan added samples outside the camera's view ({counts}): the last solve "
+    counts = ", ".join(f"{n} {c}" for c, n in scan_samples.items() if isinstance(n, int))
+    note = (f"The LiDAR scan added samples outside the camera's view ({counts}): the last solve "
             "stage used them; the semantic maps, their figures and MME/MPV/NND keep the "
-            "camera pixels' samples alone."]
+            "camera pixels' samples alone.")
+    unlinked = scan_samples.get("frames_without_matches") or []
+    if unlinked:
+        note += (f" Frames without a match ({len(unlinked)}: {list(unlinked)[:10]}) took them "
+                 "in every stage.")
+    return [note]
 
 
 def write_refine_report(
