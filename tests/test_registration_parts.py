@@ -363,3 +363,31 @@ def test_a_repair_the_bim_disagrees_with_is_rejected() -> None:
     assert k in record["repaired"]  # the look-alikes fooled the consistency check and PnP
     assert redo is None and record["accepted"] is False
     assert record["bim_agreement_after"][0] < record["bim_agreement_before"][0] - 0.5
+
+
+def test_odometry_outliers_put_a_frame_back_where_its_neighbours_motion_says() -> None:
+    """A frame 1.6 m from where its neighbours and the input's relative motion put it (a scan
+    that fits a place one room away; AC20-FZK-Haus frame 30 under Exp 1) is moved to the
+    prediction; one 0.5 m off (within 3 σ of the odometry) is left alone, and the input's rigid
+    placement does not matter (only its relative motion counts)."""
+    from scipy.spatial.transform import Rotation
+
+    from bimcap.registration.odometry import odometry_outliers
+
+    n = 9
+    truth = np.zeros((n, 7))
+    truth[:, 0] = 0.4 * np.arange(n)
+    truth[:, 3:] = Rotation.from_euler("z", 5.0 * np.arange(n)[:, None], degrees=True).as_quat()
+    shift = Rotation.from_euler("z", 70.0, degrees=True)
+    inp = truth.copy()  # the input: the true motion, placed anywhere
+    inp[:, :3] = shift.apply(truth[:, :3]) + np.array([30.0, -12.0, 4.0])
+    inp[:, 3:] = (shift * Rotation.from_quat(truth[:, 3:])).as_quat()
+    solved = truth.copy()
+    solved[4, :2] += np.array([1.2, -1.0])  # 1.56 m off: an outlier
+    solved[7, 1] += 0.5                     # 0.5 m off: within the limit
+    check = odometry_outliers(solved, inp, max_distance_m=0.9)
+    assert check.outliers == [4]
+    np.testing.assert_allclose(check.poses[4, :3], truth[4, :3], atol=1e-9)
+    assert abs(abs(np.dot(check.poses[4, 3:], truth[4, 3:])) - 1.0) < 1e-9
+    assert check.distance_m[4] == pytest.approx(np.hypot(1.2, 1.0))
+    np.testing.assert_array_equal(np.delete(check.poses, 4, 0), np.delete(solved, 4, 0))

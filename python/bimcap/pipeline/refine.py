@@ -704,6 +704,7 @@ def _solve_prepared(prepared: Prepared, config: RefineConfig, max_plane_rounds: 
         run, poses, rounds = _rechoose_planes(solver, run, poses, max_plane_rounds,
                                               plane_change_tolerance)
         run, poses, repair = _repair_run(solver, run, poses)
+        run, poses, repair["odometry"] = _odometry_repair_run(solver, run, poses)
         checks = _logged_plane_checks(run.problem, poses, plane_check_limit_m)
     result = run.result
     arrays = run.problem.arrays()
@@ -844,6 +845,42 @@ def _repair_run(solver: _StageSolver,
         return run, poses, repair
     solver.summaries.append(redo.summary)
     return replace(run, result=redo), redo.poses, repair
+
+
+def _odometry_repair_run(solver: _StageSolver, run: _StageRun,
+                         poses: F64) -> tuple[_StageRun, F64, dict[str, Any]]:
+    """Frames the solve left far from where their neighbours and the input's relative motion put
+    them (``registration.odometry.odometry_outliers``: beyond 3 σ of the odometry term), moved
+    there and solved again; kept, as the PnP repair, only when no moved frame agrees less with
+    the BIM. Returns the run and poses after it and its record."""
+    from bimcap.optimize import solve
+    from bimcap.registration.odometry import bim_agreement, odometry_outliers
+
+    odo = run.options.terms["odometry"]
+    if not odo.enabled:
+        return run, poses, {"outliers": []}
+    check = odometry_outliers(poses, solver.prepared.init.poses, 3.0 * odo.sigma)
+    record = check.to_dict()
+    if not check.outliers:
+        return run, poses, record
+    _log.info(f"{len(check.outliers)} frame(s) lay more than {3.0 * odo.sigma:g} m from where "
+              f"their neighbours and the input's motion put them and were moved there: "
+              f"{check.outliers}")
+    redo = solve(run.problem.replace(poses=check.poses), run.options, check=False)
+    a = run.problem.arrays()
+    before = bim_agreement(a, poses, check.outliers)
+    after = bim_agreement(a, redo.poses, check.outliers)
+    record["bim_agreement_before"] = [None if np.isnan(v) else float(v) for v in before]
+    record["bim_agreement_after"] = [None if np.isnan(v) else float(v) for v in after]
+    worse = [f for f, b, c in zip(check.outliers, before, after, strict=True)
+             if np.isfinite(b) and not c >= b - 0.05]
+    record["accepted"] = bool(redo.summary.success and not worse)
+    if not record["accepted"]:
+        _log.info(f"the odometry repair is rejected: frame(s) {worse} agree less with the BIM "
+                  "after it" if worse else "the odometry repair is rejected: the solve failed")
+        return run, poses, record
+    solver.summaries.append(redo.summary)
+    return replace(run, result=redo), redo.poses, record
 
 
 def _logged_plane_checks(problem: Any, poses: F64, limit_m: float) -> list[Any]:

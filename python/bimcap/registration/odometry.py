@@ -257,3 +257,73 @@ def bim_agreement(arrays: dict[str, Any], poses: F64, frames: list[int],
         if total:
             out[i] = near / total
     return out
+
+
+@dataclass
+class OdometryCheck:
+    """What :func:`odometry_outliers` found.
+
+    Attributes
+    ----------
+    poses: (N, 7) the poses with the outliers put where their neighbours' input motion says.
+    outliers: frames further than the limit from every neighbour's prediction.
+    distance_m: (frame → metres) each outlier's distance to the prediction it was given.
+    """
+
+    poses: F64
+    outliers: list[int] = field(default_factory=list)
+    distance_m: dict[int, float] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"outliers": self.outliers,
+                "distance_m": {str(k): v for k, v in self.distance_m.items()}}
+
+
+def odometry_outliers(poses: F64, input_poses: F64, max_distance_m: float) -> OdometryCheck:
+    """Frames the solve placed far from where their neighbours and the input's relative motion
+    put them, re-placed there.
+
+    A frame that no match links to its neighbours is placed by its BIM samples, the odometry
+    and the prior alone; a scan of a few walls can fit a place one room away as well as the
+    right one, and each stage's odometry keeps the relative motion of the poses it starts from,
+    so a frame pulled away in one stage stays away in the next. The input's relative motion
+    (the SLAM's, or the drifted poses') is still right to a few decimetres: the prediction of
+    frame ``f`` from neighbour ``g`` is ``poses[g] ∘ input[g]⁻¹ ∘ input[f]``. A frame further
+    than ``max_distance_m`` from the prediction of every neighbour (both, or the one at an end)
+    is an outlier; it is moved to the prediction of its nearest neighbour that is not one.
+
+    Parameters
+    ----------
+    poses: (N, 7) solved ``world_from_cam``, TUM order. input_poses: (N, 7) the input's.
+    max_distance_m: metres.
+
+    Returns
+    -------
+    :class:`OdometryCheck`; frames without a trusted neighbour keep their pose.
+    """
+    n = len(poses)
+    out = np.array(poses, np.float64, copy=True)
+    m_pose = pose_to_matrix(np.asarray(poses, np.float64))
+    m_in = pose_to_matrix(np.asarray(input_poses, np.float64))
+
+    def predicted(f: int, g: int) -> NDArray[np.float64]:
+        return np.asarray(m_pose[g] @ np.linalg.inv(m_in[g]) @ m_in[f])
+
+    far = []
+    for f in range(n):
+        nbs = [g for g in (f - 1, f + 1) if 0 <= g < n]
+        dist = [float(np.linalg.norm(predicted(f, g)[:3, 3] - m_pose[f][:3, 3])) for g in nbs]
+        if nbs and min(dist) > max_distance_m:
+            far.append(f)
+    result = OdometryCheck(out)
+    for f in far:
+        nbs = sorted((g for g in (f - 1, f + 1) if 0 <= g < n and g not in far),
+                     key=lambda g: abs(g - f))
+        if not nbs:
+            continue
+        pred = predicted(f, nbs[0])
+        result.distance_m[f] = float(np.linalg.norm(pred[:3, 3] - m_pose[f][:3, 3]))
+        out[f] = matrix_to_pose(pred)
+        result.outliers.append(f)
+    result.poses = out
+    return result
