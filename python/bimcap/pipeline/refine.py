@@ -1106,7 +1106,8 @@ def evaluate_run(
 #: SHA-256 (``bimcap.io.outputs``).
 REFINE_OUTPUTS = ("refined.tum", "summary.json", "map_before.ply", "map_after.ply",
                   "map_refined.ply", "report.html", "figures/", "colmap/", "deviations.json",
-                  "deviations.csv", "deviations.ply", "deviations.png", "deviations.ifc")
+                  "deviations.csv", "deviations.ply", "deviations.png", "deviations.ifc",
+                  "deviations.bcfzip")
 
 
 @dataclass
