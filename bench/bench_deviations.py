@@ -15,6 +15,8 @@ Usage (resumable: worlds already in the CSV are skipped)::
     PYTHONPATH=python python bench/bench_deviations.py --work /tmp/devbench \
         --out docs/deviations.csv --worlds demo-s1,demo-s2,demo-s3,small-s4,small-s5
     PYTHONPATH=python python bench/bench_deviations.py --summarise docs/deviations.csv
+    PYTHONPATH=python python bench/bench_deviations.py --work /tmp/devbench \
+        --worlds demo-s1,demo-s2 --elements /tmp/devbench/elements.csv   # per element, why
 """
 
 from __future__ import annotations
@@ -134,6 +136,67 @@ def score_world(work: Path, world: str, args: argparse.Namespace) -> list[dict[s
     return rows
 
 
+ELEMENT_FIELDS = ("world", "poses", "name", "ifc_class", "status", "true_m", "offset_m",
+                  "error_m", "coverage", "n_points", "verdict")
+
+
+def element_rows(work: Path, world: str, args: argparse.Namespace) -> list[dict[str, Any]]:
+    """Per observed wall and column of ``world`` (built and refined before: the cached worlds of
+    ``--work``), with the ground-truth and the refined poses: the applied shift (``true_m``:
+    walls signed along the normal, columns the length of (dx, dy)), the measured ``offset_m``,
+    the error, and the verdict against the truth: ``found`` / ``missed`` (shifted ≥ 3 cm),
+    ``false_alarm`` / ``ok`` (shifted < tolerance), ``between`` (tolerance … 3 cm),
+    ``missing_found`` / ``missing_missed``."""
+    from bimcap.dataset import read_sequence
+    from bimcap.deviations.analysis import ElementStatus, analyse_deviations, load_design
+    from bimcap.deviations.refined_map import load_scans
+    from bimcap.sim.building_truth import load_building_truth
+
+    seq_dir, design, truth_path = make_world(work, world, args.frames, args.shift_sigma,
+                                             args.missing)
+    truth = load_building_truth(truth_path).deviations
+    assert truth is not None
+    seq = read_sequence(seq_dir)
+    refined = refined_poses(work, world, seq_dir, design, args.workers)
+    model = load_design(design)
+    rows = []
+    for name, traj in (("gt", seq.trajectory("gt")), ("refined", refined)):
+        report = analyse_deviations(model, load_scans(seq, traj.poses), ifc_path=design)
+        tol = report.options.tolerance_m
+        for e in report.elements:
+            if e.status is ElementStatus.UNOBSERVED:
+                continue
+            flagged = e.status in (ElementStatus.DEVIATING, ElementStatus.MISSING)
+            err: float | None = None
+            if e.name in truth.missing:
+                true, verdict = float("nan"), ("missing_found" if e.status is
+                                               ElementStatus.MISSING else "missing_missed")
+            else:
+                if e.name in truth.wall_shifts:
+                    true = truth.wall_shifts[e.name]
+                    err = None if e.offset_m is None else e.offset_m - true
+                elif e.name in truth.column_offsets:
+                    dx, dy = truth.column_offsets[e.name]
+                    true = math.hypot(dx, dy)
+                    if e.offset_xy_m is not None:
+                        err = math.hypot(e.offset_xy_m[0] - dx, e.offset_xy_m[1] - dy)
+                elif e.ifc_class.startswith(("IfcWall", "IfcColumn")):
+                    true = 0.0
+                else:
+                    continue  # slabs and coverings: in the false alarms only when flagged
+                if abs(true) >= 0.03:
+                    verdict = "found" if e.status is ElementStatus.DEVIATING else "missed"
+                elif abs(true) < tol:
+                    verdict = "false_alarm" if flagged else "ok"
+                else:
+                    verdict = "between"
+            rows.append({"world": world, "poses": name, "name": e.name,
+                         "ifc_class": e.ifc_class, "status": e.status.value, "true_m": true,
+                         "offset_m": e.offset_m, "error_m": err, "coverage": e.coverage,
+                         "n_points": e.n_points, "verdict": verdict})
+    return rows
+
+
 def summarise(path: Path) -> str:
     """The table for docs/: totals per pose source, next to the targets."""
     with path.open(newline="") as fh:
@@ -165,6 +228,30 @@ def summarise(path: Path) -> str:
             f"({100 * total('false_alarms') / max(total('observed'), 1):.1f} %) | "
             f"{total('missing_found')}/{total('missing_seen')} | {total('false_missing')} | "
             f"{rmse:.2f} | {max(float(r['seconds']) for r in sel):.1f} |")
+    lines += ["", "Worst world per column (the table above pools the worlds):", "",
+              "| poses | recall ≥ 3 cm | false alarms | offset RMSE [cm] | pose ATE [cm] "
+              "| time [s] |", "|---|---|---|---|---|---|"]
+    for poses in ("gt", "refined"):
+        sel = [r for r in rows if r["poses"] == poses]
+        if not sel:
+            continue
+
+        def worst(key: str, low: bool, sel: list[dict[str, str]] = sel
+                  ) -> tuple[float, dict[str, str]]:
+            valid = [r for r in sel if not math.isnan(float(r[key]))]
+            r = (min if low else max)(valid, key=lambda r: float(r[key]))
+            return float(r[key]), r
+
+        rec, r_rec = worst("recall", True)
+        fa, r_fa = worst("false_alarm_rate", False)
+        rmse, r_rmse = worst("offset_rmse_cm", False)
+        ate, r_ate = worst("pose_err_cm", False)
+        sec, r_sec = worst("seconds", False)
+        lines.append(
+            f"| {poses} | {100 * rec:.0f} % ({r_rec['detected']}/{r_rec['shifted']}, "
+            f"{r_rec['world']}) | {100 * fa:.1f} % ({r_fa['false_alarms']}/{r_fa['observed']}, "
+            f"{r_fa['world']}) | {rmse:.2f} ({r_rmse['world']}) | {ate:.2f} ({r_ate['world']}) "
+            f"| {sec:.1f} ({r_sec['world']}) |")
     lines.append(f"\nTargets: recall ≥ {100 * TARGETS['recall']:.0f} %, false alarms ≤ "
                  f"{100 * TARGETS['false_alarm_rate']:.0f} % of observed elements, offset RMSE "
                  f"≤ {TARGETS['offset_rmse_cm_gt']} cm (gt) / ≤ "
@@ -183,9 +270,20 @@ def main() -> None:
     ap.add_argument("--missing", type=float, default=0.2)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--summarise", metavar="CSV", help="print the table of a CSV and exit")
+    ap.add_argument("--elements", metavar="CSV",
+                    help="write one row per observed wall and column of the (already built and "
+                         "refined) --worlds, with its verdict, to CSV and exit")
     args = ap.parse_args()
     if args.summarise:
         print(summarise(Path(args.summarise)))
+        return
+    if args.elements:
+        with Path(args.elements).open("w", newline="") as fh:
+            w = csv.DictWriter(fh, fieldnames=ELEMENT_FIELDS)
+            w.writeheader()
+            for world in args.worlds.split(","):
+                w.writerows(element_rows(Path(args.work), world, args))
+                fh.flush()
         return
     out = Path(args.out)
     done: set[str] = set()

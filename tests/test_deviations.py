@@ -176,6 +176,15 @@ def test_deviations_cli_writes_json_csv_ply(world: dict[str, Path], tmp_path: Pa
     column = ue.get_pset(ifc.by_guid(by_name["S0/column/corridor-1"]["guid"]),
                          "BIMCaP_Deviation")
     assert column["Status"] == "missing" and "Offset_m" not in column
+    # the BCF topics: one per deviating or missing element, its GUID selected in the viewpoint
+    import zipfile
+    from xml.etree import ElementTree as ET
+
+    with zipfile.ZipFile(out / "deviations.bcfzip") as z:
+        selected = sorted(ET.fromstring(z.read(n)).find("Components/Selection/Component")
+                          .get("IfcGuid") for n in z.namelist() if n.endswith(".bcfv"))
+    assert selected == sorted(e["guid"] for e in doc["elements"]
+                              if e["status"] in ("deviating", "missing"))
     # a second run does not replace the first one's files without --overwrite
     args = ["deviations", "--sequence", str(seq), "--poses", str(seq / "poses" / "gt.tum"),
             "--ifc", str(world["design"]), "-o", str(out), "--storey", "S0"]
@@ -218,7 +227,7 @@ def test_refine_with_deviations_then_the_run_directory(world: dict[str, Path], t
     assert "deviations: " in capsys.readouterr().out
     doc = json.loads((run / "result.json").read_text())
     assert {"map_refined.ply", "deviations.json", "deviations.csv", "deviations.ply",
-            "deviations.png", "deviations.ifc"} <= set(doc["outputs"])
+            "deviations.png", "deviations.ifc", "deviations.bcfzip"} <= set(doc["outputs"])
     html = (run / "report.html").read_text()
     assert "Scan vs BIM: deviations" in html and "S0/column/corridor-1" in html
     assert verify_outputs(run) == []

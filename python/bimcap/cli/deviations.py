@@ -28,8 +28,10 @@ def register(sub: Any) -> None:
             "refine run directory (its result.json names the sequence and the IFC; poses "
             "refined.tum) or explicit --sequence/--poses/--ifc. Writes deviations.json, "
             "deviations.csv, deviations.ply (the map coloured by offset), deviations.png (the "
-            "floor plan coloured by offset) and deviations.ifc (the design with a "
-            "BIMCaP_Deviation property set per element) into -o (default RUN_DIR/deviations)."
+            "floor plan coloured by offset), deviations.ifc (the design with a "
+            "BIMCaP_Deviation property set per element) and deviations.bcfzip (BCF 2.1: one "
+            "topic per deviating or missing element, with a viewpoint on it) into -o (default "
+            "RUN_DIR/deviations)."
         ),
     )
     p.add_argument("run_dir", nargs="?", type=Path, help="a bimcap refine output directory")

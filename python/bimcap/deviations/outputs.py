@@ -13,7 +13,9 @@ black: an element without an offset). ``deviations.png`` is the floor-plan pictu
 :data:`PSET_NAME` on every analysed element (``Status``, ``Offset_m``, ``OffsetX_m`` /
 ``OffsetY_m`` for columns, ``Tilt_deg``, ``Coverage``, ``PointCount``, ``Tolerance_m``), written
 with IfcOpenShell: any BIM viewer lists it in the element's properties and can filter or colour
-by it (a BIM Collaboration Format export would need ``bcf-client``, not a dependency).
+by it. ``deviations.bcfzip`` is the BIM Collaboration Format 2.1 export: one topic per deviating or
+missing element, its GUID selected in a viewpoint whose camera looks at it
+(:mod:`bimcap.deviations.bcf`).
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ CSV_FIELDS = ("guid", "ifc_class", "name", "storey", "status", "offset_m", "cove
               "rays", "passes", "offset_x_m", "offset_y_m", "tilt_deg")
 #: Files :func:`run_deviations` writes into its output directory.
 DEVIATION_OUTPUTS = ("deviations.json", "deviations.csv", "deviations.ply", "deviations.png",
-                     "deviations.ifc")
+                     "deviations.ifc", "deviations.bcfzip")
 #: The property set :func:`write_deviation_ifc` puts on every analysed element.
 PSET_NAME = "BIMCaP_Deviation"
 
@@ -192,5 +194,9 @@ def run_deviations(sequence: Any, world_from_cam: F64, ifc: str | PathLike[str],
     plot_deviations_on_plan(model, report, out / "deviations.png", storey,
                             walk_xy=scans.origins[:, :2])
     write_deviation_ifc(ifc, report, out / "deviations.ifc")
+    from bimcap.deviations.bcf import write_deviation_bcf
+
+    write_deviation_bcf(out / "deviations.bcfzip", report, model, viewers=scans.origins,
+                        ifc_path=ifc)
     files = {name: out / name for name in DEVIATION_OUTPUTS}
     return DeviationRun(report, files, time.perf_counter() - t0)

@@ -1158,7 +1158,7 @@ def evaluate_run(
 REFINE_OUTPUTS = ("refined.tum", "summary.json", "map_before.ply", "map_after.ply",
                   "map_refined.ply", "report.html", "figures/", "colmap/", "deviations.json",
                   "deviations.csv", "deviations.ply", "deviations.png", "deviations.ifc",
-                  "run.rrd")
+                  "deviations.bcfzip", "run.rrd")
 
 
 @dataclass

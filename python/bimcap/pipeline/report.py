@@ -329,7 +329,8 @@ def _deviations_html(inp: ReportInput) -> list[str]:
              f"<p>Per IFC element, under the refined poses (tolerance "
              f"{100 * rep.options.tolerance_m:g} cm): {html.escape(counts)}; "
              f"{len(rep.clusters)} clusters of points no element explains. Files: "
-             "deviations.json / .csv / .ply / .ifc (property set BIMCaP_Deviation).</p>"]
+             "deviations.json / .csv / .ply / .ifc (property set BIMCaP_Deviation) / .bcfzip (a "
+             "BCF topic per deviating or missing element).</p>"]
     png = dev.files.get("deviations.png")
     if png is not None and Path(png).is_file():
         parts.append(_img(Path(png), "walls and columns coloured by offset; missing: red cross"))
