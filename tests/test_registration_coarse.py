@@ -323,7 +323,7 @@ def test_true_pose_is_a_fixed_point_in_a_real_duplex(ifc_dir, tmp_path) -> None:
     seq = read_sequence(tmp_path / "seq")
     gt = seq.trajectory("gt")
     prep = prepare(seq, ifc, gt, replace(RefineConfig(), workers=2), tmp_path / "run", quiet=True)
-    poses, _ = _coarse(prep, gt.poses.copy(), True)
+    poses, _ = _coarse(prep, gt.poses.copy())
     moved = np.linalg.norm(poses[:, :3] - gt.poses[:, :3], axis=1)
     assert moved.max() < 0.05, np.round(moved, 2)
 
