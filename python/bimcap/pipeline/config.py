@@ -180,10 +180,12 @@ class RefineConfig:
         60–70° its camera sees. None (default): on for BIMCaP, off for FACaP (the peers' method
         samples the image alone).
     scan_sigma_m: with the LiDAR scan's samples, the noise scale (metres) of the BIM terms
-        (wall, column, floor, ceiling) in the last solve, which starts from poses the schedule
-        has converged: 10 cm voxel means of a scan sit within a centimetre or two of their
-        surface, and at the presets' 5 cm the Cauchy loss still lets furniture and fittings
-        5–50 cm off a wall pull the frames (0.6 cm on the Duplex model from the ground truth).
+        (wall, column, floor, ceiling) in one more solve after the last stage has converged with
+        every scan sample at the preset's scale (straight from the schedule's poses it settles
+        off: SampleHouse4 Exp 2 0.85 cm, 0.26 cm in two steps): 10 cm voxel means of a scan
+        sit within a centimetre or two of their surface, and at the presets' 5 cm the Cauchy
+        loss still lets furniture and fittings 5–50 cm off a wall pull the frames (0.6 cm on
+        the Duplex model from the ground truth).
         None keeps the preset's.
     accept_ambiguous: when the global alignment is ambiguous (the second-best placement scores
         nearly as well as the best), take the best anyway instead of refusing (flagged in

@@ -694,9 +694,13 @@ def _solve_prepared(prepared: Prepared, config: RefineConfig, max_plane_rounds: 
     run, poses, coarse_info = _run_schedule(first, base, poses)
     if first is not solver:
         _log.info(f"adding the LiDAR scan's samples: solving stage {run.stage.name} again")
-        run = solver.run(run.stage, scan_stage_options(run.options, config), poses,
-                         choose_sample_planes(prepared, poses))
+        run = solver.run(run.stage, run.options, poses, choose_sample_planes(prepared, poses))
         poses = run.result.poses
+        tight = scan_stage_options(run.options, config)
+        if tight is not run.options:
+            _log.info(f"and once more at the scan's noise scale ({config.scan_sigma_m:g} m)")
+            run = solver.run(run.stage, tight, poses, choose_sample_planes(prepared, poses))
+            poses = run.result.poses
     rounds: list[dict[str, int]] = []
     checks: list[Any] = []
     repair = None
