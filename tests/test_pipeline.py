@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -343,3 +344,42 @@ def test_refine_refuses_a_diverged_solve(tiny_demo, tmp_path: Path, monkeypatch)
                "-q", "--workers", "1", "--colmap", "off"])
     assert rc == 3
     assert not (out / "refined.tum").exists() and not (out / "result.json").exists()
+
+
+def test_auto_global_alignment_that_fits_nothing_goes_on_from_the_input(
+        monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
+    """Auto mode guesses a SLAM frame from where the cameras stand; when no placement then fits
+    (a drifted 250-frame walk 1.4 m off in a small house: 36 % of its cameras in free space),
+    the run goes on from the input with a warning instead of failing. Asked for explicitly, or
+    ambiguous, the alignment still refuses."""
+    import logging
+    from types import SimpleNamespace
+
+    import bimcap.pipeline.refine as refine
+    import bimcap.registration as registration
+    from bimcap.pipeline.config import GlobalAlignMode
+    from bimcap.registration.errors import AmbiguousAlignmentError, GlobalAlignmentError
+
+    poses = np.tile([1.0, 2.0, 1.5, 0.0, 0.0, 0.0, 1.0], (4, 1))
+    raised: list[Exception] = []
+
+    def fake_align(*args: Any, **kwargs: Any) -> Any:
+        raise raised[0]
+
+    monkeypatch.setattr(registration, "global_align", fake_align)
+    monkeypatch.setattr(registration, "initial_free_fraction", lambda p, plan: 0.1)
+    monkeypatch.setattr(refine, "_floor_plan", lambda ref: None)
+    monkeypatch.setattr(refine, "_semantic_samples", lambda prepared: None)
+    prepared = SimpleNamespace(reference=None)
+    raised.append(GlobalAlignmentError("the best placement fits badly"))
+    with caplog.at_level(logging.WARNING, logger="bimcap"):
+        out, info = refine._global_align(prepared, poses, RefineConfig())  # type: ignore[arg-type]
+    np.testing.assert_array_equal(out, poses)
+    assert info is not None and info["mode"] == "auto" and "fits badly" in info["fallback"]
+    assert any("going on from the initial poses" in r.message for r in caplog.records)
+    with pytest.raises(GlobalAlignmentError):
+        refine._global_align(prepared, poses,  # type: ignore[arg-type]
+                             RefineConfig(global_align=GlobalAlignMode.ON))
+    raised[0] = AmbiguousAlignmentError("two placements score alike")
+    with pytest.raises(AmbiguousAlignmentError):
+        refine._global_align(prepared, poses, RefineConfig())  # type: ignore[arg-type]

@@ -1057,6 +1057,7 @@ def _global_align(prepared: Prepared, poses: F64, config: RefineConfig
     alignment's record (None when it did not run). Raises ``AmbiguousAlignmentError`` /
     ``GlobalAlignmentError`` (which carry the ranked placements) when it refuses."""
     from bimcap.registration import GlobalAlignOptions, global_align, initial_free_fraction
+    from bimcap.registration.errors import AmbiguousAlignmentError, GlobalAlignmentError
 
     mode = config.global_align
     if mode is GlobalAlignMode.OFF:
@@ -1070,8 +1071,20 @@ def _global_align(prepared: Prepared, poses: F64, config: RefineConfig
                   "building's free space (a trajectory in its own SLAM frame?): placing it in "
                   "the BIM first (--no-global-align / global_align = \"off\" to skip)")
     t0 = time.perf_counter()
-    res = global_align(poses, _semantic_samples(prepared), plan,
-                       GlobalAlignOptions(accept_ambiguous=config.accept_ambiguous))
+    try:
+        res = global_align(poses, _semantic_samples(prepared), plan,
+                           GlobalAlignOptions(accept_ambiguous=config.accept_ambiguous))
+    except GlobalAlignmentError as exc:
+        if mode is not GlobalAlignMode.AUTO or isinstance(exc, AmbiguousAlignmentError):
+            raise
+        # Auto mode guessed a SLAM frame from where the cameras stand; no placement fits, so
+        # the guess was wrong (a drifted trajectory 1–2 m off in a small building looks alike):
+        # go on from the input, as with global_align = "off", and say so.
+        _log.warning(f"global alignment (auto) found no placement that fits ({exc}); going on "
+                     "from the initial poses as given (global_align = \"on\" makes this an "
+                     "error)")
+        return poses, {"mode": mode.value, "initial_free_fraction": free, "fallback": str(exc),
+                       "seconds": time.perf_counter() - t0}
     best = res.hypotheses[0]
     _log.info(f"global alignment: yaw {best.yaw_deg:.1f} deg, floor "
               f"{'-' if best.floor_z is None else f'{best.floor_z:.2f} m'}, score "
