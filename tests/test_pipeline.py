@@ -349,9 +349,9 @@ def test_refine_refuses_a_diverged_solve(tiny_demo, tmp_path: Path, monkeypatch)
 def test_auto_global_alignment_that_fits_nothing_goes_on_from_the_input(
         monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
     """Auto mode guesses a SLAM frame from where the cameras stand; when no placement then fits
-    (a drifted 250-frame walk 1.4 m off in a small house: 36 % of its cameras in free space),
-    the run goes on from the input with a warning instead of failing. Asked for explicitly, or
-    ambiguous, the alignment still refuses."""
+    (a drifted 250-frame walk 1.4 m off in a small house: fewer than 30 % of its cameras in free
+    space), the run goes on from the input with a warning instead of failing. Asked for
+    explicitly, or ambiguous, the alignment still refuses."""
     import logging
     from types import SimpleNamespace
 
