@@ -855,33 +855,23 @@ def _odometry_repair_run(solver: _StageSolver, run: _StageRun,
                          poses: F64) -> tuple[_StageRun, F64, dict[str, Any]]:
     """Frames the solve left far from where their neighbours and the input's relative motion put
     them (``registration.odometry.odometry_outliers``: beyond 3 σ of the odometry term), moved
-    there and solved again; kept, as the PnP repair, only when no moved frame agrees less with
-    the BIM. Returns the run and poses after it and its record."""
-    from bimcap.optimize import solve
-    from bimcap.registration.odometry import bim_agreement, odometry_outliers
+    there and solved again (:func:`_solve_moved`: kept only when the BIM agrees). Returns the
+    run and poses after it and its record."""
+    from bimcap.registration.odometry import odometry_outliers
 
     odo = run.options.terms["odometry"]
     if not odo.enabled:
         return run, poses, {"outliers": []}
     check = odometry_outliers(poses, solver.prepared.init.poses, 3.0 * odo.sigma)
-    record = check.to_dict()
     if not check.outliers:
-        return run, poses, record
+        return run, poses, check.to_dict()
     _log.info(f"{len(check.outliers)} frame(s) lay more than {3.0 * odo.sigma:g} m from where "
               f"their neighbours and the input's motion put them and were moved there: "
               f"{check.outliers}")
-    redo = solve(run.problem.replace(poses=check.poses), run.options, check=False)
-    a = run.problem.arrays()
-    before = bim_agreement(a, poses, check.outliers)
-    after = bim_agreement(a, redo.poses, check.outliers)
-    record["bim_agreement_before"] = [None if np.isnan(v) else float(v) for v in before]
-    record["bim_agreement_after"] = [None if np.isnan(v) else float(v) for v in after]
-    worse = [f for f, b, c in zip(check.outliers, before, after, strict=True)
-             if np.isfinite(b) and not c >= b - 0.05]
-    record["accepted"] = bool(redo.summary.success and not worse)
-    if not record["accepted"]:
-        _log.info(f"the odometry repair is rejected: frame(s) {worse} agree less with the BIM "
-                  "after it" if worse else "the odometry repair is rejected: the solve failed")
+    verdict, redo = _solve_moved(run.problem, run.options, poses, check.poses, check.outliers,
+                                 "odometry repair")
+    record = {**check.to_dict(), **verdict}
+    if redo is None:
         return run, poses, record
     solver.summaries.append(redo.summary)
     return replace(run, result=redo), redo.poses, record
@@ -895,19 +885,12 @@ def _logged_plane_checks(problem: Any, poses: F64, limit_m: float) -> list[Any]:
     return checks
 
 
-def _repair(problem: Any, opts: Any, result: Any,
-            max_agreement_loss: float = 0.05) -> tuple[dict[str, Any], Any]:
+def _repair(problem: Any, opts: Any, result: Any) -> tuple[dict[str, Any], Any]:
     """Frames the solve left inconsistent with their neighbours' matches, re-placed from them by
-    PnP (``registration.odometry``) and solved again. The new solve is kept only when no
-    repaired frame agrees less with the BIM than before (:func:`bim_agreement`, by more than
-    ``max_agreement_loss``): the repair is a proposal to leave a local minimum, and the BIM is
-    the judge the look-alike matches of a repeated texture cannot fool (the solve's cost cannot
-    judge: the association gate drops the samples of a frame moved far off). Returns the
-    repair's record (``accepted``, ``bim_agreement_before`` / ``_after``) and the new solve's
-    result (None when no frame needed it or the repair was rejected)."""
-
-    from bimcap.optimize import solve
-    from bimcap.registration.odometry import bim_agreement, repair_inconsistent_frames
+    PnP (``registration.odometry``) and solved again (:func:`_solve_moved`: kept only when the
+    BIM agrees). Returns the repair's record and the new solve's result (None when no frame
+    needed it or the repair was rejected)."""
+    from bimcap.registration.odometry import repair_inconsistent_frames
 
     a = problem.arrays()
     rep = repair_inconsistent_frames(result.poses, a["match_frames"], a["match_uv"],
@@ -917,22 +900,39 @@ def _repair(problem: Any, opts: Any, result: Any,
     _log.info(f"{len(rep.repaired)} frame(s) disagreed with their neighbours' matches "
               f"(median reprojection error > 10 px) and were re-placed from them: "
               f"{rep.repaired}")
-    redo = solve(problem.replace(poses=rep.poses), opts, check=False)
-    before = bim_agreement(a, result.poses, rep.repaired)
-    after = bim_agreement(a, redo.poses, rep.repaired)
-    record = {**rep.to_dict(),
-              "bim_agreement_before": [None if np.isnan(v) else float(v) for v in before],
-              "bim_agreement_after": [None if np.isnan(v) else float(v) for v in after]}
-    worse = [f for f, b, c in zip(rep.repaired, before, after, strict=True)
+    verdict, redo = _solve_moved(problem, opts, result.poses, rep.poses, rep.repaired, "repair")
+    return {**rep.to_dict(), **verdict}, redo
+
+
+def _solve_moved(problem: Any, opts: Any, poses: F64, moved: F64, frames: list[int], what: str,
+                 max_agreement_loss: float = 0.05) -> tuple[dict[str, Any], Any]:
+    """Solve ``problem`` again from ``moved`` (``poses`` with ``frames`` re-placed by a repair)
+    and keep the result only when no moved frame agrees less with the BIM than at ``poses``
+    (:func:`bim_agreement`, by more than ``max_agreement_loss``). A repair is a proposal to leave
+    a local minimum and the BIM is its judge: the look-alike matches of a repeated texture cannot
+    fool it, and the solve's cost cannot judge (the association gate drops the samples of a frame
+    moved far off). Returns the verdict (``accepted``, ``bim_agreement_before`` / ``_after``)
+    and the new solve's result, or None when rejected."""
+    from bimcap.optimize import solve
+    from bimcap.registration.odometry import bim_agreement
+
+    redo = solve(problem.replace(poses=moved), opts, check=False)
+    a = problem.arrays()
+    before = bim_agreement(a, poses, frames)
+    after = bim_agreement(a, redo.poses, frames)
+    verdict: dict[str, Any] = {
+        "bim_agreement_before": [None if np.isnan(v) else float(v) for v in before],
+        "bim_agreement_after": [None if np.isnan(v) else float(v) for v in after]}
+    worse = [f for f, b, c in zip(frames, before, after, strict=True)
              if np.isfinite(b) and not c >= b - max_agreement_loss]
-    if not redo.summary.success or worse:
-        _log.info(f"the repair is rejected: frame(s) {worse} agree less with the BIM after it "
-                  f"({', '.join(f'{b:.2f} -> {c:.2f}' for b, c in zip(before, after, strict=True))}"
-                  " of their samples within 5 cm)" if worse else
-                  "the repair is rejected: the solve after it failed "
-                  f"({redo.summary.termination})")
-        return {**record, "accepted": False}, None
-    return {**record, "accepted": True}, redo
+    verdict["accepted"] = bool(redo.summary.success and not worse)
+    if verdict["accepted"]:
+        return verdict, redo
+    _log.info(f"the {what} is rejected: frame(s) {worse} agree less with the BIM after it "
+              f"({', '.join(f'{b:.2f} -> {c:.2f}' for b, c in zip(before, after, strict=True))}"
+              " of their samples within 5 cm)" if worse else
+              f"the {what} is rejected: the solve after it failed ({redo.summary.termination})")
+    return verdict, None
 
 
 def g_unit(config: RefineConfig) -> str:
