@@ -20,6 +20,7 @@ Rotations are checked (orthonormal to 1e-3, determinant +1) and replaced by the 
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
 from dataclasses import dataclass
 from enum import Enum
 from os import PathLike
@@ -156,18 +157,13 @@ def read_kitti(path: str | PathLike[str],
     p = _checked_file(path)
     rows: list[list[float]] = []
     where: list[str] = []
-    with open(p, encoding="utf-8", errors="replace") as fh:
-        for lineno, line in enumerate(fh, start=1):
-            s = line.strip()
-            if not s or s.startswith("#"):
-                continue
-            parts = s.split()
-            if len(parts) != 12:
-                raise PoseFormatError(
-                    f"expected 12 numbers (a 3x4 matrix row by row), got {len(parts)}",
-                    p, f"line {lineno}")
-            rows.append(_numbers(parts, p, f"line {lineno}"))
-            where.append(f"line {lineno}")
+    for lineno, parts in _data_lines(p):
+        if len(parts) != 12:
+            raise PoseFormatError(
+                f"expected 12 numbers (a 3x4 matrix row by row), got {len(parts)}",
+                p, f"line {lineno}")
+        rows.append(_numbers(parts, p, f"line {lineno}"))
+        where.append(f"line {lineno}")
     if not rows:
         raise PoseFormatError("no poses in file", p)
     mats = np.tile(np.eye(4), (len(rows), 1, 1))
@@ -176,20 +172,25 @@ def read_kitti(path: str | PathLike[str],
     return PoseFile(_checked_rotations(mats, p, where), timestamps=stamps)
 
 
+def _data_lines(path: Path) -> Iterator[tuple[int, list[str]]]:
+    """(line number, whitespace-split fields) of each line of a text file that is neither blank
+    nor a ``#`` comment."""
+    with open(path, encoding="utf-8", errors="replace") as fh:
+        for lineno, line in enumerate(fh, start=1):
+            s = line.strip()
+            if s and not s.startswith("#"):
+                yield lineno, s.split()
+
+
 def _read_times(path: str | PathLike[str], n: int) -> F64:
     """KITTI ``times.txt``: ``n`` times in seconds, one per line."""
     p = _checked_file(path)
     values: list[float] = []
-    with open(p, encoding="utf-8", errors="replace") as fh:
-        for lineno, line in enumerate(fh, start=1):
-            s = line.strip()
-            if not s or s.startswith("#"):
-                continue
-            parts = s.split()
-            if len(parts) != 1:
-                raise PoseFormatError(f"expected one time per line, got {len(parts)} fields",
-                                      p, f"line {lineno}")
-            values.extend(_numbers(parts, p, f"line {lineno}"))
+    for lineno, parts in _data_lines(p):
+        if len(parts) != 1:
+            raise PoseFormatError(f"expected one time per line, got {len(parts)} fields",
+                                  p, f"line {lineno}")
+        values.extend(_numbers(parts, p, f"line {lineno}"))
     if len(values) != n:
         raise PoseFormatError(f"{len(values)} times for {n} poses", p)
     return np.asarray(values, dtype=np.float64)
