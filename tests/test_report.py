@@ -83,7 +83,8 @@ def report(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
     classes = np.array([Label.WALL] * 5)
     inp = ReportInput(title="test report", out_dir=out, rows=rows, segments=segments,
                       segment_class=classes, gt_poses=gt, map_points=maps,
-                      heights={"BIM floor": 0.0, "BIM ceiling": 2.7})
+                      heights={"BIM floor": 0.0, "BIM ceiling": 2.7},
+                      scan_samples={"wall": 120, "floor": 30, "ceiling": 40})
     path = write_report(inp)
     return out, path.read_text()
 
@@ -97,7 +98,11 @@ def test_the_report_states_what_the_run_could_not_do(report: tuple[Path, str]) -
     assert "What this run could not do" in text
     assert "Ce: 0 samples, the term did not act" in text
     assert "Co: 0 samples (31 column samples skipped" in text
-    assert "map after: no ceiling samples" in text and "no ceiling samples." in text
+    # the maps hold the camera pixels' samples; the scan's ceiling samples are named, not hidden
+    assert ("map after: no ceiling samples from the camera pixels (the LiDAR scan gave the solve "
+            "40; not drawn)") in text
+    assert ("no ceiling samples from the camera pixels; the LiDAR scan gave the solve 40 ceiling "
+            "samples (not drawn).") in text
     assert "the coarse stage handed the poses back unchanged" in text
     assert "input already near the plan" in text  # the coarse stage's own reason
     assert "facap G+F+W: no coarse stage" in text
@@ -210,3 +215,13 @@ def test_a_report_without_ground_truth_says_so(tmp_path: Path) -> None:
 
     note = _scan_note({"wall": 5, "floor": 2, "frames_without_matches": [3, 4]})[0]
     assert "(5 wall, 2 floor)" in note and "Frames without a match (2: [3, 4])" in note
+
+
+def test_tiny_costs_beside_the_chart_read_as_zero() -> None:
+    """The pose prior starts at its minimum: its cost is round-off (2e-31), written as 0."""
+    from bimcap.evaluation.plots import _cost_text
+
+    assert _cost_text(2.1e-31, 9000.0) == "0"
+    assert _cost_text(0.0, 9000.0) == "0"
+    assert _cost_text(2e-3, 100.0) == "0.002"
+    assert _cost_text(12.5, 9000.0) == "12"

@@ -359,6 +359,12 @@ TERM_COLOURS: dict[str, Any] = {
 }
 
 
+def _cost_text(cost: float, top: float) -> str:
+    """A cost written beside the chart: ``0`` below a millionth of the largest cost (round-off
+    of a term that starts at its minimum, e.g. the pose prior's 2e-31), else 2 digits."""
+    return "0" if abs(cost) < 1e-6 * top else f"{cost:.2g}"
+
+
 def plot_term_costs(
     summary: Mapping[str, Any],
     path: str | PathLike[str] | None = None,
@@ -426,7 +432,8 @@ def plot_term_costs(
     top = float(max(before.max(), after.max(), 1e-300))
     for k, (b, a) in enumerate(zip(before, after, strict=True)):
         if max(b, a) < 0.02 * top:  # invisible at this scale: write the values
-            ax.text(k, 0.03 * top, f"{b:.2g} →\n{a:.2g}", ha="center", va="bottom", fontsize=8)
+            ax.text(k, 0.03 * top, f"{_cost_text(b, top)} →\n{_cost_text(a, top)}",
+                    ha="center", va="bottom", fontsize=8)
     ax.set_xticks(x, names)
     ax.set_ylabel("cost ½ Σ ρ(‖r/σ‖²) [no unit]")
     ax.set_title("Cost per term (linear; hatched = before)")

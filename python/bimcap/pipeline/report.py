@@ -64,6 +64,9 @@ class ReportInput:
     notes: list[str] = field(default_factory=list)
     observability: Any = None  #: bimcap.optimize.observability.Observability of the refined run
     deviations: Any = None  #: bimcap.deviations.outputs.DeviationRun, or None
+    #: samples the LiDAR scan gave the solve per class (``wall``/``floor``/``ceiling``), outside
+    #: the maps (which hold the camera pixels' samples); empty when the scan gave none
+    scan_samples: dict[str, int] = field(default_factory=dict)
 
 
 def _fmt(x: Any, digits: int = 4) -> str:
@@ -286,7 +289,8 @@ def _maps_html(inp: ReportInput, figs: Path) -> list[str]:
                              title=f"Floor and ceiling points: {label}")
         said = ", ".join(f"{n} {c} samples" if n else f"no {c} samples"
                          for c, n in counts.items())
-        parts.append(f"<p>{html.escape(label)}: {said}.</p>")
+        parts.append(f"<p>{html.escape(label)}: {said} from the camera pixels"
+                     f"{_scan_aside(inp.scan_samples, counts)}.</p>")
         parts.append(_img(p, f"side view, {label}"))
     last = list(inp.map_points)[-1]
     pts, labs = inp.map_points[last]
@@ -439,7 +443,11 @@ def _limits_html(inp: ReportInput) -> list[str]:
     for label, (_, labs) in inp.map_points.items():
         for c in (Label.FLOOR, Label.CEILING):
             if not (labs == int(c)).any():
-                items.append(f"map {label}: no {c.name.lower()} samples")
+                name = c.name.lower()
+                n_scan = int(inp.scan_samples.get(name, 0))
+                items.append(f"map {label}: no {name} samples from the camera pixels"
+                             + (f" (the LiDAR scan gave the solve {n_scan}; not drawn)"
+                                if n_scan else ""))
     parts = ["<h2>What this run could not do</h2>"]
     if not items:
         parts.append("<p>Nothing to report: every configured term had samples in every solve "
@@ -651,6 +659,23 @@ def bim_heights(reference: Any) -> dict[str, float]:
     return out
 
 
+def _scan_aside(scan_samples: dict[str, int], pixel_counts: dict[str, int]) -> str:
+    """", the LiDAR scan gave the solve N ceiling samples (not drawn)" for each class the pixels
+    lack and the scan has; "" otherwise."""
+    extra = [f"{int(scan_samples[c])} {c}" for c, n in pixel_counts.items()
+             if not n and int(scan_samples.get(c, 0) or 0) > 0]
+    if not extra:
+        return ""
+    return f"; the LiDAR scan gave the solve {' and '.join(extra)} samples (not drawn)"
+
+
+def _scan_counts(scan_samples: dict[str, Any] | None) -> dict[str, int]:
+    """The per-class counts of a run's ``scan_samples`` record (``frames_without_matches``
+    and other entries left out)."""
+    return {c: int(n) for c, n in (scan_samples or {}).items()
+            if c in ("wall", "floor", "ceiling") and isinstance(n, int)}
+
+
 def _scan_note(scan_samples: dict[str, Any] | None) -> list[str]:
     """A note on the LiDAR scan's samples (used by the solve, not in the maps): the count of
     each class, and the frames without a match that took them in the first solve stage."""
@@ -697,6 +722,7 @@ def write_refine_report(
                   "timings_s": result.timings},
         reproduce=result.command,
         notes=_scan_note(getattr(result, "scan_samples", None)),
+        scan_samples=_scan_counts(getattr(result, "scan_samples", None)),
         observability=result.outcome.observability,
         deviations=getattr(result, "deviation_run", None),
     )
