@@ -114,7 +114,7 @@ def _check_bag_path(path: Path) -> None:
                        "directory)", path)
 
 
-def _open_reader(path: Path) -> Any:
+def open_reader(path: Path) -> Any:
     """An unopened ``AnyReader`` with a default type store for bags without definitions."""
     require("rosbags.highlevel", "rosbags", "ros", "reading ROS bags (import-bag)")
     from rosbags.highlevel import AnyReader
@@ -124,7 +124,7 @@ def _open_reader(path: Path) -> Any:
     return AnyReader([path], default_typestore=get_typestore(store))
 
 
-def _reader_errors() -> tuple[type[BaseException], ...]:
+def reader_errors() -> tuple[type[BaseException], ...]:
     from rosbags.highlevel import AnyReaderError
     from rosbags.rosbag1 import ReaderError as ReaderError1
     from rosbags.rosbag2 import ReaderError as ReaderError2
@@ -138,16 +138,16 @@ def list_topics(bag: str | PathLike[str]) -> list[tuple[str, str, int]]:
     path = Path(bag)
     _check_bag_path(path)
     try:
-        with _open_reader(path) as reader:
+        with open_reader(path) as reader:
             return sorted((name, str(info.msgtype), int(info.msgcount))
                           for name, info in reader.topics.items())
-    except _reader_errors() as exc:
+    except reader_errors() as exc:
         raise BagError(f"cannot read the bag ({exc})", path) from None
 
 
 # --------------------------------------------------------------------------- topics
 @dataclass(frozen=True)
-class _Topics:
+class BagConnections:
     """The connections of the image, cloud and camera_info topics (lists: a ROS1 bag may hold
     several connections per topic) and their names as the bag spells them."""
 
@@ -191,8 +191,8 @@ def _auto_camera_info(connections: list[Any], image_topic: str, bag: Path) -> li
         f"bag: {', '.join(sorted({c.topic for c in infos})) or 'none'})", bag, "camera_info")
 
 
-def _topics(reader: Any, topics: BagTopics, need_info: bool, need_tf: bool,
-            bag: Path) -> _Topics:
+def find_topics(reader: Any, topics: BagTopics, need_info: bool, need_tf: bool,
+                bag: Path) -> BagConnections:
     cons = list(reader.connections)
     img = _find(cons, topics.image, (IMAGE, COMPRESSED_IMAGE), "image", bag)
     cloud = _find(cons, topics.cloud, (POINTCLOUD2,), "cloud", bag)
@@ -209,12 +209,12 @@ def _topics(reader: Any, topics: BagTopics, need_info: bool, need_tf: bool,
                            f"from; its topics: {topic_list(cons)}", bag, "lidar_extrinsic")
     names = {"image": img[0].topic, "cloud": cloud[0].topic,
              "camera_info": info[0].topic if info else ""}
-    return _Topics(img, cloud, info, tf, names)
+    return BagConnections(img, cloud, info, tf, names)
 
 
 # --------------------------------------------------------------------------- passes
 @dataclass(frozen=True)
-class _Index:
+class BagIndex:
     """What pass 1 found: image and cloud times (I,), (C,) in seconds, the first CameraInfo
     message (or None), the frame ids of the first image and cloud, the /tf_static edges."""
 
@@ -226,7 +226,7 @@ class _Index:
     tf: list[tuple[str, str, F64]]
 
 
-def _read_stamps(reader: Any, t: _Topics, opts: ImportOptions, bag: Path) -> _Index:
+def read_stamps(reader: Any, t: BagConnections, opts: ImportOptions, bag: Path) -> BagIndex:
     """Pass 1: image and cloud times (header bytes only), the first CameraInfo message, the
     frame ids of the first image and cloud, and the /tf_static transforms."""
     ros2 = bool(reader.is2)
@@ -254,11 +254,12 @@ def _read_stamps(reader: Any, t: _Topics, opts: ImportOptions, bag: Path) -> _In
             info_msg = reader.deserialize(raw, con.msgtype)
         if opts.progress is not None and (n % PROGRESS_EVERY == 0 or n == total):
             opts.progress("index", n, total)
-    return _Index(header_or_record_times(stamps["image"]), header_or_record_times(stamps["cloud"]),
-                  info_msg, frames["image"], frames["cloud"], edges)
+    return BagIndex(header_or_record_times(stamps["image"]),
+                    header_or_record_times(stamps["cloud"]), info_msg, frames["image"],
+                    frames["cloud"], edges)
 
 
-def _extrinsic_from_tf(index: _Index, t: _Topics, bag: Path) -> F64:
+def _extrinsic_from_tf(index: BagIndex, t: BagConnections, bag: Path) -> F64:
     """(7,) ``cam_from_lidar`` along /tf_static from the cloud's frame to the image's."""
     cam, lidar = index.image_frame, index.cloud_frame
     if not cam or not lidar:
@@ -273,7 +274,7 @@ def _extrinsic_from_tf(index: _Index, t: _Topics, bag: Path) -> F64:
     return matrix_to_pose(m)
 
 
-def _stream_frames(reader: Any, t: _Topics, plan: FramePlan,
+def stream_frames(reader: Any, t: BagConnections, plan: FramePlan,
                    bag: Path) -> Iterator[tuple[int, NDArray[np.uint8], NDArray[np.float32]]]:
     """Pass 2: decode only the planned messages; yield ``(k, rgb, cloud)`` in frame order k,
     as soon as both halves of frame k (and every earlier frame) are there."""
@@ -325,7 +326,7 @@ def _missing_extrinsic(where: str | PathLike[str] | None) -> BagError:
 
 
 def _final_calibration(cal: Calibration | None, extrinsic: tuple[F64, str] | None,
-                       index: _Index, t: _Topics, bag: Path) -> Calibration:
+                       index: BagIndex, t: BagConnections, bag: Path) -> Calibration:
     """The calibration after pass 1: the file's camera or the first camera_info's; the given
     extrinsic, the file's, or (``extrinsic`` None and no file extrinsic) the one of /tf_static.
     """
@@ -347,7 +348,7 @@ def _final_calibration(cal: Calibration | None, extrinsic: tuple[F64, str] | Non
                        {"camera_info_topic": topic, "extrinsic": extrinsic[1]})
 
 
-def _provenance(bag: Path, ros2: bool, t: _Topics, cal: Calibration,
+def _provenance(bag: Path, ros2: bool, t: BagConnections, cal: Calibration,
                 opts: ImportOptions) -> dict[str, Any]:
     """The manifest's ``source`` record of an import."""
     return {
@@ -418,17 +419,17 @@ def import_bag(
             raise _missing_extrinsic(None)
         extrinsic = read_extrinsic_argument(lidar_extrinsic)
     try:
-        with _open_reader(path) as reader:
-            t = _topics(reader, topics, cal is None, from_tf, path)
-            index = _read_stamps(reader, t, opts, path)
+        with open_reader(path) as reader:
+            t = find_topics(reader, topics, cal is None, from_tf, path)
+            index = read_stamps(reader, t, opts, path)
             ti = index.t_images
             cal = _final_calibration(cal, extrinsic, index, t, path)
             assert cal.cam_from_lidar is not None
             plan = plan_frames(ti, index.t_clouds, opts, path, cal.cam_from_lidar, poses=poses)
             record = _provenance(path, bool(reader.is2), t, cal, opts)
-            seq = write_planned_frames(output, cal, _stream_frames(reader, t, plan, path), plan,
+            seq = write_planned_frames(output, cal, stream_frames(reader, t, plan, path), plan,
                                        ti, opts, record, path)
-    except _reader_errors() as exc:
+    except reader_errors() as exc:
         raise BagError(f"cannot read the bag ({' '.join(str(exc).split())})", path) from None
     camera_source = (f"camera_info topic {t.names['camera_info']}" if calib is None
                      else f"{cal.source.get('format')} file {calib}")

@@ -12,10 +12,10 @@ sessions 2–5 come as TUM files. The bag is read with ``rosbags`` (no ROS insta
 messages are decoded by :mod:`bimcap.dataset.ros` and paired by :mod:`bimcap.dataset.pairing`,
 which the generic importers (:mod:`bimcap.dataset.bag`, :mod:`bimcap.dataset.folder`) share.
 
-What the importer does:
+What the importer does: it is the generic bag importer (:func:`bimcap.dataset.bag.import_bag`'s
+passes and :func:`bimcap.dataset.importing.plan_frames`) with ConSLAM's topics and calibration:
 
-1. a first pass reads only the header stamps (the first bytes of every ROS1 message with a
-   ``std_msgs/Header``) of images and scans;
+1. a first pass reads only the header stamps of images and scans (and the first camera_info);
 2. each image is paired with the scan nearest in time, if within ``tolerance_s``; a scan is
    used at most once;
 3. with ground truth, each pair gets the ground-truth pose nearest to the *scan's* stamp within
@@ -39,6 +39,7 @@ import logging
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass, field, fields, replace
+from itertools import chain
 from os import PathLike
 from pathlib import Path
 from typing import Any
@@ -46,24 +47,41 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from bimcap.dataset.importing import PoseSensor, lidar_to_camera_poses
-from bimcap.dataset.pairing import nearest, pair_nearest, unique_increasing
-from bimcap.dataset.ros import (
-    RosMessageError,
-    camera_from_info,
-    decode_image,
+from bimcap.dataset.bag import (
+    BagTopics,
+    find_topics,
+    list_topics,
+    open_reader,
+    read_stamps,
+    reader_errors,
+    stream_frames,
+)
+from bimcap.dataset.calib import Calibration
+from bimcap.dataset.importing import (
+    DataImportError,
+    ImportOptions,
+    PoseSensor,
+    PoseTime,
+    TrajectoryInput,
+    plan_frames,
+    write_planned_frames,
+)
+from bimcap.dataset.pairing import pair_nearest  # noqa: F401  (re-exported, tests use it)
+from bimcap.dataset.ros import (  # noqa: F401  (decode_pointcloud re-exported)
+    camera_from_info_or_reason,
     decode_pointcloud,
-    header_or_record_times,
-    header_stamp,
     norm_topic,
 )
-from bimcap.dataset.sequence import MANIFEST, VLP16, Sequence, SequenceError, SequenceWriter
+from bimcap.dataset.sequence import MANIFEST, VLP16, Sequence, SequenceError
 from bimcap.geometry.camera import Camera
-from bimcap.geometry.poses import matrix_to_pose
+from bimcap.geometry.pose_formats import PoseFile
+from bimcap.geometry.poses import matrix_to_pose, pose_to_matrix
 from bimcap.geometry.trajectory import Trajectory, TrajectoryError, read_tum
-from bimcap.progress import progress
+from bimcap.progress import StageProgress
 
 F64 = NDArray[np.float64]
+#: A frame of the bag's second pass: (k, rgb (H, W, 3) uint8, cloud (M, 4) float32).
+_Frame = tuple[int, NDArray[np.uint8], NDArray[np.float32]]
 _log = logging.getLogger(__name__)
 
 TOPIC_IMAGE = "pp_rgb/synced2points"
@@ -283,104 +301,41 @@ def _load_gt(
 
 
 def _provenance(bag_path: Path, gt_label: str | None, has_gt: bool,
-                opts: ConslamImportOptions) -> dict[str, Any]:
-    """The manifest's ``source`` record of an import (without the camera's source)."""
+                opts: ConslamImportOptions, topics: dict[str, str],
+                camera_source: str) -> dict[str, Any]:
+    """The manifest's ``source`` record of an import."""
     return {
         "importer": "bimcap.dataset.conslam",
         "bag": str(bag_path.resolve()),
         "gt": gt_label,
         "gt_frame": opts.gt_frame.value if has_gt else None,
-        "topics": [TOPIC_IMAGE, TOPIC_POINTS, TOPIC_CAMERA_INFO],
+        "topics": [topics["image"], topics["cloud"], topics["camera_info"]],
         "tolerance_s": opts.tolerance_s,
         "gt_tolerance_s": opts.gt_tolerance_s,
         "stride": opts.stride,
         "timestamps": "image header stamps (bag time where zero)",
+        "camera_source": camera_source,
     }
 
 
-@dataclass(frozen=True)
-class _BagIndex:
-    """An open bag after pass 1: its reader and type store, the image, points and camera_info
-    connections, the image and scan stamps ti (I,), tp (S,) in seconds, and the camera of the
-    first camera_info message (None without a usable one)."""
-
-    path: Path
-    reader: Any
-    typestore: Any
-    con_img: Any
-    con_pts: Any
-    con_info: Any | None
-    ti: F64
-    tp: F64
-    info_camera: Camera | None
+def _gt_input(gt: Trajectory | None, gt_label: str | None,
+              opts: ConslamImportOptions) -> tuple[TrajectoryInput | None, PoseFile | None]:
+    """The ground truth as the generic importers' trajectory input: looked up at the *scan's*
+    stamp (ConSLAM's poses are per scan), stored as the sequence's ``gt``."""
+    if gt is None:
+        return None, None
+    traj = TrajectoryInput(path=gt_label or "<in memory>", sensor=opts.gt_frame, name="gt",
+                           tolerance_s=opts.gt_tolerance_s, at=PoseTime.CLOUD)
+    return traj, PoseFile(pose_to_matrix(gt.poses), gt.timestamps)
 
 
-def _index_bag(reader: Any, typestore: Any, bag_path: Path) -> _BagIndex:
-    """Find the topics (refusing a bag without images or scans) and read their stamps."""
-    by_topic = {norm_topic(c.topic): c for c in reader.connections}
-    for topic in (TOPIC_IMAGE, TOPIC_POINTS):
-        if topic not in by_topic:
-            raise ConslamError(
-                f"topic {topic!r} not in bag (has {sorted(by_topic)})", bag_path, "topics"
-            )
-    con_img, con_pts = by_topic[TOPIC_IMAGE], by_topic[TOPIC_POINTS]
-    con_info = by_topic.get(TOPIC_CAMERA_INFO)
-    ti, tp, info_camera = _read_stamps(reader, typestore, con_img, con_pts, con_info)
-    return _BagIndex(path=bag_path, reader=reader, typestore=typestore, con_img=con_img,
-                     con_pts=con_pts, con_info=con_info, ti=ti, tp=tp, info_camera=info_camera)
-
-
-def _camera_poses(plan: _FramePlan, extrinsic: F64, gt_frame: GtFrame) -> F64 | None:
-    """(K, 7) ``world_from_cam`` of the planned frames from their ground truth (None without)."""
-    if plan.world_from_gt is None:
-        return None
-    if gt_frame is GtFrame.LIDAR:
-        return lidar_to_camera_poses(plan.world_from_gt, extrinsic)
-    return plan.world_from_gt
-
-
-def _write_frames(
-    bag: _BagIndex,
-    plan: _FramePlan,
-    output: str | PathLike[str],
-    extrinsic: F64,
-    source: dict[str, Any],
-    opts: ConslamImportOptions,
-) -> tuple[SequenceWriter | None, str]:
-    """Pass 2: write the planned frames (the camera chosen at the first image); the writer
-    (None when no frame came) and where the camera came from."""
-    writer: SequenceWriter | None = None
-    cam_source = "given"
-    n = len(plan.image_index)
-    _log.info(f"writing {n} frames ({plan.n_pairs} image/scan pairs) to {output}")
-    frames = _stream_frames(bag.reader, bag.typestore, bag.con_img, bag.con_pts, plan, bag.path)
-    for k, image, cloud in progress(frames, total=n, desc="import", unit="frame"):
-        if writer is None:
-            cam, cam_source = _choose_camera(opts.camera, bag.info_camera, image.shape, bag.path)
-            writer = SequenceWriter(
-                output,
-                cam,
-                extrinsic,
-                lidar=VLP16,
-                ifc=opts.ifc,
-                source={**source, "camera_source": cam_source},
-                overwrite=opts.overwrite,
-                png_compression=opts.png_compression,
-            )
-        writer.add_frame(float(bag.ti[plan.image_index[k]]), image, cloud)
-    return writer, cam_source
-
-
-def _finish_sequence(writer: SequenceWriter | None, plan: _FramePlan,
-                     world_from_cam: F64 | None, bag_path: Path) -> Sequence:
-    """Check that every planned frame was written, add the ground truth and close."""
-    n_planned = len(plan.image_index)
-    if writer is None or len(writer.frames) != n_planned:
-        done = 0 if writer is None else len(writer.frames)
-        raise ConslamError(f"only {done} of {n_planned} frames could be assembled", bag_path)
-    if world_from_cam is not None:
-        writer.add_trajectory("gt", world_from_cam)
-    return writer.close()
+def _first_then_rest(frames: Iterator[_Frame], n: int,
+                     bag: Path) -> tuple[_Frame, Iterator[_Frame]]:
+    """The first frame of ``frames`` (to size the camera on) and an iterator over all of them."""
+    first = next(frames, None)
+    if first is None:
+        raise ConslamError(f"only 0 of {n} frames could be assembled", bag)
+    return first, chain([first], frames)
 
 
 def import_conslam(
@@ -392,6 +347,9 @@ def import_conslam(
     **legacy_options: Any,
 ) -> ConslamImportResult:
     """Import a ConSLAM ROS1 bag (and its ground truth) as a sequence directory.
+
+    The generic bag importer (:mod:`bimcap.dataset.bag`) with ConSLAM's topics, its published
+    extrinsic and camera, and its ground truth looked up at the scans' stamps.
 
     Parameters
     ----------
@@ -413,61 +371,69 @@ def import_conslam(
         On a keyword argument that is not a field of :class:`ConslamImportOptions`.
     """
     _require_rosbags()
-    from rosbags.rosbag1 import Reader, ReaderError
-    from rosbags.typesys import Stores, get_typestore
-
     opts = _import_options(options, legacy_options)
     bag_path = Path(bag)
     _check_import(bag_path, output, opts)
+    gt_traj, gt_label = _load_gt(gt)
+    try:
+        return _import(bag_path, output, gt_traj, gt_label, opts)
+    except ConslamError:
+        raise
+    except DataImportError as exc:  # the generic importer's errors, as ConSLAM's
+        raise ConslamError(exc.message, exc.path, exc.field) from None
+
+
+def _import(bag_path: Path, output: str | PathLike[str], gt: Trajectory | None,
+            gt_label: str | None, opts: ConslamImportOptions) -> ConslamImportResult:
     extrinsic = (CONSLAM_CAM_FROM_LIDAR if opts.cam_from_lidar is None
                  else np.asarray(opts.cam_from_lidar, float))
-    typestore = get_typestore(Stores.ROS1_NOETIC)
-    gt_traj, gt_label = _load_gt(gt)
-    source = _provenance(bag_path, gt_label, gt_traj is not None, opts)
+    traj, poses = _gt_input(gt, gt_label, opts)
+    import_opts = ImportOptions(tolerance_s=opts.tolerance_s, trajectory=traj, stride=opts.stride,
+                                max_frames=opts.max_frames, lidar_model=VLP16, ifc=opts.ifc,
+                                overwrite=opts.overwrite, png_compression=opts.png_compression,
+                                progress=StageProgress())
     try:
-        with Reader(bag_path) as reader:
-            index = _index_bag(reader, typestore, bag_path)
-            plan = _plan_frames(index.ti, index.tp, opts.tolerance_s, gt_traj,
-                                opts.gt_tolerance_s, opts.stride, opts.max_frames, bag_path,
-                                gt_label)
-            world_from_cam = _camera_poses(plan, extrinsic, opts.gt_frame)
-            writer, cam_source = _write_frames(index, plan, output, extrinsic, source, opts)
-    except ReaderError as exc:
-        raise ConslamError(f"cannot read the bag ({exc})", bag_path) from None
-    seq = _finish_sequence(writer, plan, world_from_cam, bag_path)
+        with open_reader(bag_path) as reader:
+            has_info = any(norm_topic(c.topic) == TOPIC_CAMERA_INFO for c in reader.connections)
+            t = find_topics(reader, BagTopics(TOPIC_IMAGE, TOPIC_POINTS,
+                                              TOPIC_CAMERA_INFO if has_info else None),
+                            need_info=False, need_tf=False, bag=bag_path)
+            index = read_stamps(reader, t, import_opts, bag_path)
+            try:
+                plan = plan_frames(index.t_images, index.t_clouds, import_opts, bag_path,
+                                   extrinsic, poses=poses)
+            except DataImportError as exc:
+                if traj is not None and exc.field == "timestamps" and "pose" in exc.message:
+                    raise ConslamError(f"no frame has a ground-truth pose within "
+                                       f"{opts.gt_tolerance_s} s", gt_label, "timestamps") from None
+                raise
+            info_camera = None
+            if index.info_msg is not None:
+                info_camera, _ = camera_from_info_or_reason(index.info_msg)
+            n = len(plan.image_index)
+            _log.info(f"writing {n} frames ({plan.n_pairs} image/scan pairs) to {output}")
+            first, frames = _first_then_rest(stream_frames(reader, t, plan, bag_path), n,
+                                             bag_path)
+            cam, cam_source = _choose_camera(opts.camera, info_camera, first[1].shape, bag_path)
+            source = _provenance(bag_path, gt_label, gt is not None, opts, t.names, cam_source)
+            seq = write_planned_frames(output, Calibration(cam, extrinsic, {}), frames, plan,
+                                       index.t_images, import_opts, source, bag_path)
+    except reader_errors() as exc:
+        raise ConslamError(f"cannot read the bag ({' '.join(str(exc).split())})",
+                           bag_path) from None
     return ConslamImportResult(
         sequence=seq,
-        n_images=len(index.ti),
-        n_scans=len(index.tp),
+        n_images=len(index.t_images),
+        n_scans=len(index.t_clouds),
         n_pairs=plan.n_pairs,
-        n_without_gt=plan.n_without_gt,
+        n_without_gt=plan.n_without_pose,
         n_frames=len(seq),
         camera_source=cam_source,
         max_pair_dt_s=plan.max_pair_dt_s,
-        max_gt_dt_s=plan.max_gt_dt_s,
-        topics={
-            "image": index.con_img.topic,
-            "points": index.con_pts.topic,
-            "camera_info": index.con_info.topic if index.con_info is not None else "",
-        },
+        max_gt_dt_s=plan.max_pose_dt_s,
+        topics={"image": t.names["image"], "points": t.names["cloud"],
+                "camera_info": t.names["camera_info"]},
     )
-
-
-@dataclass(frozen=True)
-class _FramePlan:
-    """Which messages become frames, in writing order.
-
-    image_index, scan_index: (K,) message indices (per topic, in bag order) of each frame.
-    world_from_gt: (K, 7) ground-truth poses at the frames' scans (sensor of the GT), or None.
-    """
-
-    image_index: NDArray[np.int64]
-    scan_index: NDArray[np.int64]
-    world_from_gt: F64 | None
-    n_pairs: int
-    n_without_gt: int
-    max_pair_dt_s: float
-    max_gt_dt_s: float
 
 
 def _require_rosbags() -> None:
@@ -475,117 +441,7 @@ def _require_rosbags() -> None:
     imports."""
     from bimcap.errors import require
 
-    require("rosbags.rosbag1", "rosbags", "ros", "reading ROS1 bags (import-conslam)")
-
-
-def _read_stamps(
-    reader: Any, typestore: Any, con_img: Any, con_pts: Any, con_info: Any | None
-) -> tuple[F64, F64, Camera | None]:
-    """Pass 1: image and scan stamps (header bytes only) and the first camera_info's camera."""
-    stamps: dict[int, list[tuple[float, float]]] = {con_img.id: [], con_pts.id: []}
-    info_camera: Camera | None = None
-    wanted = [con_img, con_pts] + ([con_info] if con_info is not None else [])
-    counts = [getattr(c, "msgcount", None) for c in wanted]
-    total = None if None in counts else sum(counts)
-    _log.info(f"indexing the bag: {'?' if total is None else total} messages on "
-              f"{', '.join(c.topic for c in wanted)}")
-    for con, bag_ns, raw in progress(reader.messages(connections=wanted), total=total,
-                                     desc="index", unit="msg"):
-        if con.id in stamps:
-            stamps[con.id].append((header_stamp(raw), bag_ns * 1e-9))
-        elif info_camera is None:
-            info_camera = camera_from_info(typestore.deserialize_ros1(raw, con.msgtype))
-    return (header_or_record_times(stamps[con_img.id]),
-            header_or_record_times(stamps[con_pts.id]), info_camera)
-
-
-def _plan_frames(
-    ti: F64,
-    tp: F64,
-    tolerance_s: float,
-    gt: Trajectory | None,
-    gt_tolerance_s: float,
-    stride: int,
-    max_frames: int | None,
-    bag: Path,
-    gt_label: str | None,
-) -> _FramePlan:
-    """Pair images with scans, attach ground truth, thin out; frames in increasing image time."""
-    ia, ib = pair_nearest(ti, tp, tolerance_s)
-    order = np.argsort(ti[ia], kind="stable")
-    ia, ib = ia[order], ib[order]
-    fresh = unique_increasing(ti[ia])
-    ia, ib = ia[fresh], ib[fresh]  # equal image stamps: keep the first
-    n_pairs = len(ia)
-    if n_pairs == 0:
-        raise ConslamError(
-            f"no image/scan pair within {tolerance_s} s ({len(ti)} images, {len(tp)} scans)",
-            bag,
-            "timestamps",
-        )
-    world_from_gt: F64 | None = None
-    n_without_gt = 0
-    max_gt_dt = 0.0
-    if gt is not None:
-        gi, gdt = nearest(tp[ib], gt.timestamps)
-        keep = gdt <= gt_tolerance_s
-        n_without_gt = int((~keep).sum())
-        if not keep.any():
-            raise ConslamError(
-                f"no frame has a ground-truth pose within {gt_tolerance_s} s",
-                gt_label,
-                "timestamps",
-            )
-        ia, ib, gi, gdt = ia[keep], ib[keep], gi[keep], gdt[keep]
-        world_from_gt = gt.poses[gi]
-        max_gt_dt = float(gdt.max())
-    sel = np.arange(0, len(ia), stride)[:max_frames]
-    ia, ib = ia[sel], ib[sel]
-    return _FramePlan(
-        image_index=ia,
-        scan_index=ib,
-        world_from_gt=None if world_from_gt is None else world_from_gt[sel],
-        n_pairs=n_pairs,
-        n_without_gt=n_without_gt,
-        max_pair_dt_s=float(np.abs(ti[ia] - tp[ib]).max()),
-        max_gt_dt_s=max_gt_dt,
-    )
-
-
-def _stream_frames(
-    reader: Any, typestore: Any, con_img: Any, con_pts: Any, plan: _FramePlan, bag: Path
-) -> Iterator[tuple[int, NDArray[np.uint8], NDArray[np.float32]]]:
-    """Pass 2: decode only the planned messages; yield ``(k, rgb, scan)`` in frame order k.
-
-    Images and scans arrive interleaved; a frame is yielded as soon as both halves (and every
-    earlier frame) are there, so only a few frames are ever held in memory.
-    """
-    slot = {
-        con_img.id: {int(i): k for k, i in enumerate(plan.image_index)},
-        con_pts.id: {int(j): k for k, j in enumerate(plan.scan_index)},
-    }
-    count = {con_img.id: 0, con_pts.id: 0}
-    images: dict[int, NDArray[np.uint8]] = {}
-    clouds: dict[int, NDArray[np.float32]] = {}
-    next_k = 0
-    for con, _, raw in reader.messages(connections=[con_img, con_pts]):
-        n = count[con.id]
-        count[con.id] = n + 1
-        k = slot[con.id].get(n)
-        if k is None:
-            continue
-        msg = typestore.deserialize_ros1(raw, con.msgtype)
-        try:
-            if con.id == con_img.id:
-                images[k] = decode_image(msg)
-            else:
-                clouds[k] = decode_pointcloud(msg)
-        except RosMessageError as exc:
-            where = f"{con.topic}[{n}]" + (f".{exc.field}" if exc.field else "")
-            raise ConslamError(exc.message, bag, where) from None
-        while next_k in images and next_k in clouds:
-            yield next_k, images.pop(next_k), clouds.pop(next_k)
-            next_k += 1
+    require("rosbags.highlevel", "rosbags", "ros", "reading ROS1 bags (import-conslam)")
 
 
 def _choose_camera(
@@ -628,8 +484,4 @@ def _choose_camera(
 def iter_topics(bag: str | PathLike[str]) -> Iterator[tuple[str, str, int]]:
     """(topic, message type, count) of every connection in a bag (for ``--list``)."""
     _require_rosbags()
-    from rosbags.rosbag1 import Reader
-
-    with Reader(Path(bag)) as reader:
-        for c in reader.connections:
-            yield c.topic, c.msgtype, c.msgcount
+    yield from list_topics(bag)

@@ -50,6 +50,14 @@ class PoseSensor(str, Enum):
     CAMERA = "camera"  # world_from_cam already (visual SLAM, COLMAP)
 
 
+class PoseTime(str, Enum):
+    """Which stamp of a frame its pose is looked up at: the image's (camera poses, most rigs) or
+    the cloud's (LiDAR poses written per scan, e.g. ConSLAM's ground truth)."""
+
+    IMAGE = "image"
+    CLOUD = "cloud"
+
+
 def lidar_to_camera_poses(world_from_lidar: ArrayLike, cam_from_lidar: ArrayLike) -> F64:
     """``world_from_cam = world_from_lidar ∘ cam_from_lidar⁻¹`` for (N, 7) or (7,) poses."""
     return compose(world_from_lidar, invert(cam_from_lidar))
@@ -67,6 +75,7 @@ class TrajectoryInput:
     sensor: whether the poses are the camera's or the LiDAR's.
     name: the sequence trajectory it becomes (``init``: poses to refine; ``gt``: ground truth).
     tolerance_s: largest |t_frame − t_pose| when matching by time, seconds.
+    at: whether a frame's pose is looked up at its image's stamp or its cloud's.
     """
 
     path: str | PathLike[str]
@@ -75,6 +84,7 @@ class TrajectoryInput:
     sensor: PoseSensor = PoseSensor.CAMERA
     name: str = "init"
     tolerance_s: float = 0.05
+    at: PoseTime = PoseTime.IMAGE
 
 
 @dataclass(frozen=True)
@@ -87,7 +97,7 @@ class ImportOptions:
     trajectory: poses to attach, or None.
     stride: keep every N-th frame.
     max_frames: keep at most this many frames.
-    lidar_model: the LiDAR's name in the manifest.
+    lidar_model: the LiDAR's name in the manifest, or its full :class:`LidarInfo`.
     ifc: IFC path to record in the manifest.
     overwrite: allow replacing an existing sequence at the output.
     png_compression: OpenCV PNG level 0-9 of the written images (None = OpenCV's default).
@@ -98,7 +108,7 @@ class ImportOptions:
     trajectory: TrajectoryInput | None = None
     stride: int = 1
     max_frames: int | None = None
-    lidar_model: str = "unknown"
+    lidar_model: str | LidarInfo = "unknown"
     ifc: str | PathLike[str] | None = None
     overwrite: bool = False
     png_compression: int | None = None
@@ -353,7 +363,8 @@ def plan_frames(
         names_in_time = None
         if image_names is not None:
             names_in_time = [image_names[i] for i in np.argsort(t_images, kind="stable")]
-        match = match_poses(pose_file, t_images[ia], rank[ia], names_in_time, len(t_images),
+        t_frames = t_clouds[ib] if traj.at is PoseTime.CLOUD else t_images[ia]
+        match = match_poses(pose_file, t_frames, rank[ia], names_in_time, len(t_images),
                             traj.tolerance_s, traj.path)
         n_without = int((~match.keep).sum())
         ia, ib = ia[match.keep], ib[match.keep]
@@ -398,7 +409,8 @@ def write_planned_frames(
         raise DataImportError("no LiDAR extrinsic (cam_from_lidar)", source, "calibration")
     cam = calib.camera
     writer = SequenceWriter(output, cam, calib.cam_from_lidar,
-                            lidar=LidarInfo(model=opts.lidar_model), ifc=opts.ifc,
+                            lidar=(opts.lidar_model if isinstance(opts.lidar_model, LidarInfo)
+                                   else LidarInfo(model=opts.lidar_model)), ifc=opts.ifc,
                             source=source_record, overwrite=opts.overwrite,
                             png_compression=opts.png_compression)
     n = len(plan.image_index)
@@ -425,4 +437,4 @@ def trajectory_record(traj: TrajectoryInput | None) -> dict[str, Any] | None:
     return {"path": str(traj.path), "format": PoseFormat(traj.fmt).value,
             "times": None if traj.times is None else str(traj.times),
             "sensor": PoseSensor(traj.sensor).value, "name": traj.name,
-            "tolerance_s": traj.tolerance_s}
+            "tolerance_s": traj.tolerance_s, "at": PoseTime(traj.at).value}
