@@ -169,7 +169,9 @@ def test_term_costs_are_linear_shares_with_the_tiny_prior_annotated(tmp_path: Pa
     assert cost_ax.get_yscale() == "linear" and share_ax.get_xscale() == "linear"
     widths = [p.get_width() for p in share_ax.patches]
     assert sum(widths[:3]) == pytest.approx(100.0) and widths[0] == pytest.approx(75.0)
-    assert any("→" in t.get_text() and "1e-28" in t.get_text() for t in cost_ax.texts)
+    # the prior's round-off cost reads 0, not 1e-28
+    assert any(t.get_text() == "0 →\n0" for t in cost_ax.texts)
+    assert not any("e-28" in t.get_text() for t in cost_ax.texts)
 
 
 def test_new_figures(tmp_path: Path) -> None:
@@ -182,6 +184,13 @@ def test_new_figures(tmp_path: Path) -> None:
     assert len(cbar_axes) == 1
     scatters = [c for a in fig.axes[:2] for c in a.collections if c.get_array() is not None]
     assert len(scatters) == 2 and all(s.norm.vmax == pytest.approx(30.0) for s in scatters)
+    # 0.1 cm … 30 cm: a logarithmic scale, so 1 cm and 30 cm are far apart in colour
+    assert type(scatters[0].norm).__name__ == "LogNorm" and "log scale" in cbar_axes[0].get_ylabel()
+    assert scatters[0].norm(30.0) - scatters[0].norm(1.0) > 0.5
+    narrow = plots.plot_errors_on_plan(*_PLAN, {"a": (gt, np.full(20, 0.01)),
+                                                "b": (gt, np.full(20, 0.02))})
+    lin = [c for a in narrow.axes[:2] for c in a.collections if c.get_array() is not None]
+    assert type(lin[0].norm).__name__ == "Normalize" and lin[0].norm.vmin == 0.0
     rng = np.random.default_rng(1)
     pts = rng.uniform(0, 8, (400, 3))
     labs = rng.choice([Label.WALL, Label.COLUMN, Label.FLOOR], 400).astype(np.uint8)

@@ -8,7 +8,7 @@ figure. World frame: z up, metres; the floor plan is drawn in x (right), y (up).
 from __future__ import annotations
 
 import io
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from os import PathLike
 from typing import TYPE_CHECKING, Any
 
@@ -515,7 +515,6 @@ def plot_errors_on_plan(
     margin_m: the view is every run's extent plus this margin (metres).
     """
     from matplotlib import rc_context
-    from matplotlib.colors import Normalize
 
     seg, cls = _plan_arrays(segments, segment_class)
     if not runs:
@@ -525,11 +524,34 @@ def plot_errors_on_plan(
     for n in runs:
         if len(errs[n]) != len(walks[n]):
             raise EvaluationError(f"run {n!r}: {len(walks[n])} positions but {len(errs[n])} errors")
-    vmax = max(max((float(np.nanmax(e)) for e in errs.values() if len(e)), default=1.0), 1e-3)
-    norm = Normalize(0.0, vmax)
+    norm = _error_norm(errs.values())
     # the page shows this wide figure scaled down: text one size up, read at the report's width
     with rc_context({"font.size": 12, "axes.titlesize": 12, "axes.labelsize": 12}):
         return _errors_on_plan(seg, cls, walks, errs, norm, path, title, margin_m)
+
+
+#: Errors spanning more than this ratio (largest / smallest) get a logarithmic colour scale.
+LOG_SCALE_RATIO = 30.0
+#: The smallest error a logarithmic colour scale resolves, centimetres.
+LOG_SCALE_FLOOR_CM = 0.1
+
+
+def _error_norm(errors_cm: Iterable[NDArray[np.float64]]) -> Any:
+    """The colour scale of per-frame errors (cm) shared by every panel: linear from 0 to the
+    largest, or logarithmic from the smallest (at least 0.1 cm) when they span more than
+    :data:`LOG_SCALE_RATIO` — so that a run at 1 cm and one frame of another run 4 m off do not
+    both come out in the bottom colour."""
+    from matplotlib.colors import LogNorm, Normalize
+
+    vals = np.concatenate([np.asarray(e, np.float64).reshape(-1) for e in errors_cm] or
+                          [np.zeros(0)])
+    vals = vals[np.isfinite(vals)]
+    vmax = max(float(vals.max(initial=0.0)), 1e-3)
+    positive = vals[vals > 0]
+    vmin = max(float(positive.min(initial=vmax)), LOG_SCALE_FLOOR_CM)
+    if vmax / vmin > LOG_SCALE_RATIO:
+        return LogNorm(vmin, vmax, clip=True)
+    return Normalize(0.0, vmax)
 
 
 def _errors_on_plan(seg: NDArray[np.float64], cls: NDArray[Any],
@@ -553,7 +575,8 @@ def _errors_on_plan(seg: NDArray[np.float64], cls: NDArray[Any],
         ax.grid(True, lw=0.3)
     axes[0, 0].set_ylabel("y [m]")
     if sc is not None:
-        fig.colorbar(sc, ax=list(axes[0]), label="position error [cm] (lower is better)",
+        scale = ", log scale" if type(norm).__name__ == "LogNorm" else ""
+        fig.colorbar(sc, ax=list(axes[0]), label=f"position error [cm{scale}] (lower is better)",
                      shrink=0.9)
     fig.suptitle(title)
     return _finish(fig, path)
