@@ -14,7 +14,7 @@ Usage::
 
     python bench/screenshot_report.py OUT/refine/report.html -o /tmp/shots
     python bench/screenshot_report.py --demo /tmp/demo -o /tmp/shots --width 900
-        # first runs `bimcap demo --preset tiny --frames 12 --scale 0.125 -o /tmp/demo`
+        # first runs `bimcap demo --building tiny --frames 12 --scale 0.125 -o /tmp/demo`
 """
 
 from __future__ import annotations
@@ -109,7 +109,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.demo is not None:
         from bimcap.cli import main as bimcap
 
-        rc = bimcap(["demo", "--preset", "tiny", "--frames", "12", "--scale", "0.125", "-o",
+        rc = bimcap(["demo", "--building", "tiny", "--frames", "12", "--scale", "0.125", "-o",
                      str(args.demo), "-q"])
         if rc:
             return rc

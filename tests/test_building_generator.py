@@ -466,7 +466,7 @@ def test_bad_spec_names_the_field(changes: dict, field: str) -> None:
 
 def test_cli_writes_design_and_as_built(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     out, built = tmp_path / "b.ifc", tmp_path / "b_built.ifc"
-    rc = cli_main(["generate-building", "-o", str(out), "--preset", "tiny", "--seed", "4",
+    rc = cli_main(["generate-building", "-o", str(out), "--building", "tiny", "--seed", "4",
                    "--storeys", "2", "--as-built", str(built)])
     assert rc == 0
     assert out.exists() and built.exists() and truth_path_for(built).exists()
@@ -480,7 +480,7 @@ def test_cli_writes_design_and_as_built(tmp_path: Path, capsys: pytest.CaptureFi
                      "0"]) == 2
     assert cli_main(["generate-building", "-o", str(out), "--as-built", str(out)]) == 2
     # the ceiling heights are one flag away
-    assert cli_main(["generate-building", "-o", str(tmp_path / "d.ifc"), "--preset", "tiny",
+    assert cli_main(["generate-building", "-o", str(tmp_path / "d.ifc"), "--building", "tiny",
                      "--ceiling-height", "2.6", "--corridor-ceiling-height", "2.4"]) == 0
     assert "suspended ceilings at 2.400, 2.600 m" in capsys.readouterr().out
     d = load_building_truth(truth_path_for(tmp_path / "d.ifc"))

@@ -103,6 +103,11 @@ def test_retired_spellings_still_work_with_a_warning(capsys: pytest.CaptureFixtu
     assert "--geometric-mode is deprecated, use --geometric" in err
     with pytest.raises(SystemExit):
         parser.parse_args(["bim", "house.ifc"])  # -o stays required
+    # a building preset is --building; --preset is the drift command's alone
+    for cmd in ("generate-building", "demo", "experiment"):
+        out = ["-o", "x.ifc" if cmd == "generate-building" else "d/"]
+        assert parser.parse_args([cmd, *out, "--preset", "tiny"]).building == "tiny"
+    assert "--preset is deprecated, use --building" in capsys.readouterr().err
 
 
 def _stderr_lines(capsys: pytest.CaptureFixture[str]) -> list[str]:
@@ -113,7 +118,7 @@ def test_quiet_silences_info_and_verbose_shows_debug(tmp_path: Path,
                                                      capsys: pytest.CaptureFixture[str]) -> None:
     def run(*flags: str) -> list[str]:
         out = tmp_path / f"house{len(flags)}{''.join(flags)}.ifc"
-        assert main(["generate-building", "-o", str(out), "--preset", "tiny", *flags]) == 0
+        assert main(["generate-building", "-o", str(out), "--building", "tiny", *flags]) == 0
         return _stderr_lines(capsys)
 
     default = run()

@@ -65,19 +65,19 @@ def test_an_unexpected_oserror_in_any_command_is_one_line(monkeypatch: pytest.Mo
 def test_generate_building_refuses_an_existing_file(tmp_path: Path,
                                                     capsys: pytest.CaptureFixture[str]) -> None:
     path = tmp_path / "house.ifc"
-    assert main(["generate-building", "-o", str(path), "--preset", "tiny"]) == 0
+    assert main(["generate-building", "-o", str(path), "--building", "tiny"]) == 0
     before = path.read_bytes()
     capsys.readouterr()
-    assert main(["generate-building", "-o", str(path), "--preset", "tiny", "--seed", "3"]) == 2
+    assert main(["generate-building", "-o", str(path), "--building", "tiny", "--seed", "3"]) == 2
     err = capsys.readouterr().err
     assert str(path) in err and "--overwrite" in err
     assert path.read_bytes() == before
     # The sidecar alone in the way is refused too.
     other = tmp_path / "other.ifc"
     (tmp_path / "other.truth.json").write_text("{}")
-    assert main(["generate-building", "-o", str(other), "--preset", "tiny"]) == 2
+    assert main(["generate-building", "-o", str(other), "--building", "tiny"]) == 2
     assert not other.exists()
-    assert main(["generate-building", "-o", str(path), "--preset", "tiny", "--seed", "3",
+    assert main(["generate-building", "-o", str(path), "--building", "tiny", "--seed", "3",
                  "--overwrite"]) == 0
     assert path.read_bytes() != before
 

@@ -238,7 +238,7 @@ def test_an_interrupted_rerun_leaves_the_earlier_set_whole(first_run: Path,
 @pytest.mark.slow
 def test_demo_writes_a_consistent_set_and_keeps_users_files(tmp_path: Path,
         capsys: pytest.CaptureFixture[str]) -> None:
-    args = ["demo", "-o", str(tmp_path / "demo"), "--preset", "tiny", "--frames", "8",
+    args = ["demo", "-o", str(tmp_path / "demo"), "--building", "tiny", "--frames", "8",
             "--scale", "0.125", "--no-facap", "-q", "--workers", "1"]
     assert main(args) == 0
     run = tmp_path / "demo" / "refine"
@@ -257,7 +257,7 @@ def test_demo_writes_a_consistent_set_and_keeps_users_files(tmp_path: Path,
 def test_demo_settings_are_checked_first(tmp_path: Path,
                                          capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "demo"
-    assert main(["demo", "-o", str(out), "--preset", "tiny", "--terms", "G+X", "-q"]) == 2
+    assert main(["demo", "-o", str(out), "--building", "tiny", "--terms", "G+X", "-q"]) == 2
     assert "unknown term" in _err_line(capsys)
     assert not out.exists()  # no building generated, nothing simulated
 
@@ -270,7 +270,7 @@ def test_output_path_is_an_existing_file(world: dict[str, Path], tmp_path: Path,
     seq = world["seq"]
     for args in (["refine", str(seq), "-o", str(target), *FAST],
                  ["bim", str(world["design"]), "-o", str(target)],
-                 ["demo", "-o", str(target), "--preset", "tiny", "-q"],
+                 ["demo", "-o", str(target), "--building", "tiny", "-q"],
                  ["simulate", str(world["design"]), "-o", str(target), "--frames", "2"],
                  ["evaluate", str(seq / "poses/init.tum"), str(seq / "poses/gt.tum"),
                   "-o", str(target / "metrics.json")]):
@@ -302,7 +302,7 @@ def test_os_errors_while_writing_are_one_line_and_exit_4(world: dict[str, Path],
           str(tmp_path / "m" / "metrics.json")], tmp_path / "m"),
         (["bim", str(world["design"]), "-o", str(tmp_path / "b")], tmp_path / "b"),
         (["refine", str(seq), "-o", str(tmp_path / "r"), *FAST], tmp_path / "r"),
-        (["generate-building", "-o", str(tmp_path / "g" / "x.ifc"), "--preset", "tiny"],
+        (["generate-building", "-o", str(tmp_path / "g" / "x.ifc"), "--building", "tiny"],
          tmp_path / "g"),
     ):
         assert main(args) == 4, args

@@ -102,6 +102,18 @@ def add_deprecated_option(p: Any, old: str, new: str, dest: str, **kw: Any) -> N
                    default=argparse.SUPPRESS, **kw)
 
 
+#: The building presets of bimcap.sim.building (generate-building, demo, experiment).
+BUILDING_PRESETS = ("demo", "tiny", "tower")
+
+
+def add_building_argument(p: argparse.ArgumentParser) -> None:
+    """The one spelling of a building preset: ``--building`` (``args.building``); ``--preset``,
+    its old spelling, kept hidden (``--preset`` is the drift command's drift preset)."""
+    p.add_argument("--building", choices=BUILDING_PRESETS, default="demo",
+                   help="building preset: the generator's starting parameters (default demo)")
+    add_deprecated_option(p, "--preset", "--building", "building", choices=BUILDING_PRESETS)
+
+
 def add_out_argument(p: argparse.ArgumentParser, help: str, required: bool = False,
                      **kw: Any) -> None:
     """The one spelling of a command's output, file or directory: ``-o/--out`` (``args.out``);

@@ -9,11 +9,11 @@ from bimcap.cli.refine import add_config_arguments, config_from_args
 NAME = "demo"
 HELP = "end-to-end demo on a generated building (no data needed)"
 EXAMPLES = ("bimcap demo -o demo_out",
-            "bimcap demo --preset tiny --frames 20 --no-facap -o /tmp/demo -q")
+            "bimcap demo --building tiny --frames 20 --no-facap -o /tmp/demo -q")
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    from bimcap.cli import add_out_argument
+    from bimcap.cli import add_building_argument, add_out_argument
 
     p = sub.add_parser(
         NAME,
@@ -26,7 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     )
     add_out_argument(p, "output directory (default demo_out)", default="demo_out",
                      metavar="DIR")
-    p.add_argument("--preset", default="demo", help="building preset: demo, tiny, tower")
+    add_building_argument(p)
     p.add_argument("--seed", type=int, default=0, help="seed of building, walk and drift")
     p.add_argument("--frames", type=int, default=60, help="simulated frames (default 60)")
     p.add_argument("--scale", type=float, default=0.25,
@@ -43,7 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 def run(args: argparse.Namespace) -> int:
     from bimcap.pipeline.demo import DemoOptions, run_demo
 
-    opts = DemoOptions(preset=args.preset, seed=args.seed, frames=args.frames, scale=args.scale,
+    opts = DemoOptions(preset=args.building, seed=args.seed, frames=args.frames, scale=args.scale,
                        drift=args.drift, config=config_from_args(args), facap=not args.no_facap)
     res = run_demo(args.out, opts, overwrite=args.overwrite)
     print(res.table)

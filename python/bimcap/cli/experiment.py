@@ -9,11 +9,11 @@ from bimcap.cli.refine import add_config_arguments, config_from_args
 NAME = "experiment"
 HELP = "the paper's experiments (drift presets x ablations x seeds) on the synthetic world"
 EXAMPLES = ("bimcap experiment -o exp/",
-            "bimcap experiment -o exp/ --experiments exp2 --seeds 1,2 --preset tiny")
+            "bimcap experiment -o exp/ --experiments exp2 --seeds 1,2 --building tiny")
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    from bimcap.cli import add_out_argument
+    from bimcap.cli import add_building_argument, add_out_argument
 
     p = sub.add_parser(
         NAME,
@@ -27,7 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     add_out_argument(p, "output directory", required=True, metavar="DIR")
     p.add_argument("--experiments", default="exp1,exp2,exp3", help="comma-separated drift presets")
     p.add_argument("--seeds", default="1,2,3", help="comma-separated drift seeds")
-    p.add_argument("--preset", default="demo", help="building preset: demo, tiny, tower")
+    add_building_argument(p)
     p.add_argument("--frames", type=int, default=60, help="simulated frames (default 60)")
     p.add_argument("--scale", type=float, default=0.25,
                    help="image size relative to ConSLAM's 2064x1544 (default 0.25)")
@@ -54,8 +54,8 @@ def run(args: argparse.Namespace) -> int:
     if bad or not exps or not seeds:
         raise InputError(f"--experiments must name exp1/exp2/exp3, got {args.experiments!r}",
                          field="--experiments")
-    opts = ExperimentOptions(experiments=exps, seeds=seeds, preset=args.preset, frames=args.frames,
-                             scale=args.scale, world_seed=args.world_seed,
+    opts = ExperimentOptions(experiments=exps, seeds=seeds, preset=args.building,
+                             frames=args.frames, scale=args.scale, world_seed=args.world_seed,
                              config=config_from_args(args), deviations=args.deviations)
     records = run_experiment(args.out, opts)
     print(table2_markdown(records))

@@ -26,7 +26,7 @@ _OVERRIDES: tuple[tuple[str, str, type], ...] = (
 
 
 def register(subparsers: Any) -> None:
-    from bimcap.cli import add_out_argument
+    from bimcap.cli import add_building_argument, add_out_argument
 
     p = subparsers.add_parser(
         NAME,
@@ -36,8 +36,7 @@ def register(subparsers: Any) -> None:
     )
     add_out_argument(p, "the IFC file to write", required=True, type=Path, metavar="FILE.ifc")
     p.add_argument("--seed", type=int, default=0, help="design seed (default 0)")
-    p.add_argument("--preset", choices=("demo", "tiny", "tower"), default="demo",
-                   help="starting parameters (default: demo, the default world)")
+    add_building_argument(p)
     for flag, name, kind in _OVERRIDES:
         p.add_argument(flag, dest=name, type=kind, default=None, help=f"override {name}")
     p.add_argument("--as-built", type=Path, default=None, metavar="FILE.ifc",
@@ -75,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
                                             target, "-o" if path == args.out else "--as-built")
     changes = {name: getattr(args, name) for _, name, _ in _OVERRIDES
                if getattr(args, name) is not None}
-    spec = replace_spec(PRESETS[args.preset], **changes)
+    spec = replace_spec(PRESETS[args.building], **changes)
     design = generate_building(spec, args.seed)
     design.write(args.out)
     _summary(design)

@@ -246,7 +246,7 @@ def _refine_step(out: Path, seq_dir: Path, design: Path, o: DemoOptions,
         results["facap"] = {"metrics": facap_metrics.to_dict(),
                             "map": None if mm is None else mm.to_dict()}
     outcome = solve_prepared(prepared, o.config)
-    command = (f"bimcap demo -o {out} --preset {o.preset} --seed {o.seed} --frames {o.frames} "
+    command = (f"bimcap demo -o {out} --building {o.preset} --seed {o.seed} --frames {o.frames} "
                f"--scale {o.scale} --drift {o.drift}")
     result = write_run_outputs(stage, prepared, outcome, o.config, gt, command,
                                extra_rows=extra)
