@@ -1,6 +1,7 @@
-"""The Rerun recording of a run (``refine --rerun``, ``bimcap export-rerun``), read back with
-Rerun's own reader (``rerun.chunk.RrdReader``): the entity paths, the frames on the ``frame``
-timeline, the refined cameras against ``refined.tum``, the errors against ``gt.tum``."""
+"""The Rerun recording of a run (``refine --rerun``, ``bimcap export-rerun``), loaded by the Rerun
+CLI's ``rrd verify`` and read back with Rerun's own reader (``rerun.chunk.RrdReader``): the
+entity paths, the frames on the ``frame`` timeline, the refined cameras against
+``refined.tum``, the errors against ``gt.tum``."""
 
 from __future__ import annotations
 
@@ -94,6 +95,21 @@ def test_refine_rerun_writes_the_recording_of_the_run(rerun_run: Path) -> None:
     assert len(image["EncodedImage:blob"]) == n
     assert all(m == ["image/jpeg"] for m in image["EncodedImage:media_type"])
     assert rec["/world"]["ViewCoordinates:xyz"]  # RIGHT_HAND_Z_UP, logged once
+
+
+@pytest.mark.slow
+def test_the_viewer_loads_the_recording(rerun_run: Path) -> None:
+    """Oracle: the Rerun CLI's ``rrd verify`` (Rust, the viewer's own loader), which loads the
+    file and checks every chunk against the archetypes' schemas."""
+    import subprocess
+    import sys
+
+    pytest.importorskip("rerun_cli", reason="rerun-sdk without its CLI")
+    done = subprocess.run([sys.executable, "-m", "rerun_cli", "rrd", "verify",
+                           str(rerun_run / "run.rrd")], capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "1 file verified without error" in done.stdout + done.stderr
 
 
 @pytest.mark.slow
