@@ -391,3 +391,41 @@ def test_odometry_outliers_put_a_frame_back_where_its_neighbours_motion_says() -
     assert abs(abs(np.dot(check.poses[4, 3:], truth[4, 3:])) - 1.0) < 1e-9
     assert check.distance_m[4] == pytest.approx(np.hypot(1.2, 1.0))
     np.testing.assert_array_equal(np.delete(check.poses, 4, 0), np.delete(solved, 4, 0))
+
+
+def test_odometry_limits_follow_the_trajectory_and_flag_a_frame_the_drift_left_behind() -> None:
+    """gen-demo-s11, 250 frames, Exp 2: frame 222 stayed where the drift put it (0.41 m, 10°
+    off) while the input's motion fits every other frame to a centimetre. The fixed limits (3 σ
+    of the odometry: 0.9 m, 45°) let it be; the limits from the trajectory flag it. A noisy
+    input gets limits to match."""
+    from scipy.spatial.transform import Rotation
+
+    from bimcap.registration.odometry import odometry_limits, odometry_outliers
+
+    rng = np.random.default_rng(3)
+    n = 40
+    truth = np.zeros((n, 7))
+    truth[:, 0] = 0.25 * np.arange(n)
+    truth[:, 3:] = Rotation.from_euler("z", 3.0 * np.arange(n)[:, None], degrees=True).as_quat()
+    inp = truth.copy()
+    inp[:, :3] += rng.normal(0.0, 0.003, (n, 3))  # the input's motion: right to millimetres
+    solved = truth.copy()
+    k = 22
+    solved[k, :2] += np.array([0.3, 0.28])
+    solved[k, 3:] = (Rotation.from_euler("z", 10.0, degrees=True)
+                     * Rotation.from_quat(truth[k, 3:])).as_quat()
+    assert odometry_outliers(solved, inp, 0.9, 45.0).outliers == []
+    max_m, max_deg = odometry_limits(solved, inp, 0.9, 45.0)
+    assert (max_m, max_deg) == (pytest.approx(0.15), pytest.approx(3.0))  # the floors
+    check = odometry_outliers(solved, inp, max_m, max_deg)
+    assert check.outliers == [k]
+    assert check.angle_deg[k] == pytest.approx(10.0, abs=0.01)
+    np.testing.assert_allclose(check.poses[k, :3], truth[k, :3], atol=0.02)
+    # a noisy input (decimetres, degrees between every pair of frames): limits far above the
+    # frame above, the fixed one in metres
+    noisy = truth.copy()
+    noisy[:, :3] += rng.normal(0.0, 0.25, (n, 3))
+    noisy[:, 3:] = (Rotation.from_euler("z", rng.normal(0.0, 8.0, (n, 1)), degrees=True)
+                    * Rotation.from_quat(truth[:, 3:])).as_quat()
+    max_m, max_deg = odometry_limits(truth, noisy, 0.9, 45.0)
+    assert max_m == pytest.approx(0.9) and 15.0 < max_deg <= 45.0

@@ -854,19 +854,23 @@ def _repair_run(solver: _StageSolver,
 def _odometry_repair_run(solver: _StageSolver, run: _StageRun,
                          poses: F64) -> tuple[_StageRun, F64, dict[str, Any]]:
     """Frames the solve left far from where their neighbours and the input's relative motion put
-    them (``registration.odometry.odometry_outliers``: beyond 3 σ of the odometry term), moved
-    there and solved again (:func:`_solve_moved`: kept only when the BIM agrees). Returns the
-    run and poses after it and its record."""
-    from bimcap.registration.odometry import odometry_outliers
+    them (``registration.odometry.odometry_outliers``, with the limits of ``odometry_limits``:
+    far outside how well the input's motion fits the other frames, and never looser than 3 σ of
+    the odometry term), moved there and solved again (:func:`_solve_moved`: kept only when the
+    BIM agrees). Returns the run and poses after it and its record."""
+    from bimcap.registration.odometry import odometry_limits, odometry_outliers
 
     odo = run.options.terms["odometry"]
     if not odo.enabled:
         return run, poses, {"outliers": []}
-    check = odometry_outliers(poses, solver.prepared.init.poses, 3.0 * odo.sigma)
+    init = solver.prepared.init.poses
+    max_m, max_deg = odometry_limits(poses, init, 3.0 * odo.sigma,
+                                     3.0 * odo.params["sigma_r_deg"])
+    check = odometry_outliers(poses, init, max_m, max_deg)
     if not check.outliers:
         return run, poses, check.to_dict()
-    _log.info(f"{len(check.outliers)} frame(s) lay more than {3.0 * odo.sigma:g} m from where "
-              f"their neighbours and the input's motion put them and were moved there: "
+    _log.info(f"{len(check.outliers)} frame(s) lay more than {max_m:.2f} m or {max_deg:.1f}° from "
+              f"where their neighbours and the input's motion put them and were moved there: "
               f"{check.outliers}")
     verdict, redo = _solve_moved(run.problem, run.options, poses, check.poses, check.outliers,
                                  "odometry repair")

@@ -266,36 +266,89 @@ class OdometryCheck:
     Attributes
     ----------
     poses: (N, 7) the poses with the outliers put where their neighbours' input motion says.
-    outliers: frames further than the limit from every neighbour's prediction.
+    outliers: frames further than the limits from every neighbour's prediction.
     distance_m: (frame → metres) each outlier's distance to the prediction it was given.
+    angle_deg: (frame → degrees) each outlier's rotation away from that prediction.
+    max_distance_m, max_angle_deg: the limits the check used.
     """
 
     poses: F64
     outliers: list[int] = field(default_factory=list)
     distance_m: dict[int, float] = field(default_factory=dict)
+    angle_deg: dict[int, float] = field(default_factory=dict)
+    max_distance_m: float = float("inf")
+    max_angle_deg: float = 180.0
 
     def to_dict(self) -> dict[str, Any]:
         return {"outliers": self.outliers,
-                "distance_m": {str(k): v for k, v in self.distance_m.items()}}
+                "distance_m": {str(k): v for k, v in self.distance_m.items()},
+                "angle_deg": {str(k): v for k, v in self.angle_deg.items()},
+                "max_distance_m": self.max_distance_m, "max_angle_deg": self.max_angle_deg}
 
 
-def odometry_outliers(poses: F64, input_poses: F64, max_distance_m: float) -> OdometryCheck:
+def _prediction_gaps(m_pose: F64, m_in: F64, f: int, g: int) -> tuple[F64, float, float]:
+    """Frame ``f`` predicted from neighbour ``g`` (``poses[g] ∘ input[g]⁻¹ ∘ input[f]``, 4×4) and
+    how far the solved pose of ``f`` is from it: metres and degrees."""
+    pred = np.asarray(m_pose[g] @ np.linalg.inv(m_in[g]) @ m_in[f])
+    dist = float(np.linalg.norm(pred[:3, 3] - m_pose[f][:3, 3]))
+    cos = (np.trace(pred[:3, :3].T @ m_pose[f][:3, :3]) - 1.0) / 2.0
+    return pred, dist, float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+
+
+def odometry_limits(poses: F64, input_poses: F64, max_distance_m: float, max_angle_deg: float,
+                    floor_m: float = 0.15, floor_deg: float = 3.0,
+                    k: float = 8.0) -> tuple[float, float]:
+    """Limits of :func:`odometry_outliers` that follow how well the input's relative motion
+    agrees with the solved poses on this trajectory: each frame's smallest gap to its
+    neighbours' predictions, over all frames, gives ``median + k · 1.4826 · MAD`` (metres and
+    degrees), at least ``floor_m`` / ``floor_deg`` and at most ``max_distance_m`` /
+    ``max_angle_deg``. A smooth drift (the input's motion right to a centimetre) flags a frame
+    left 0.4 m / 10° off; a noisy SLAM input keeps the looser fixed limits.
+
+    Parameters
+    ----------
+    poses, input_poses: (N, 7) solved and input ``world_from_cam``, TUM order.
+    max_distance_m, max_angle_deg: the loosest limits (e.g. 3 σ of the odometry term).
+    """
+    n = len(poses)
+    if n < 3:
+        return max_distance_m, max_angle_deg
+    m_pose = pose_to_matrix(np.asarray(poses, np.float64))
+    m_in = pose_to_matrix(np.asarray(input_poses, np.float64))
+    dist = np.empty(n)
+    ang = np.empty(n)
+    for f in range(n):
+        gaps = [_prediction_gaps(m_pose, m_in, f, g)[1:] for g in (f - 1, f + 1) if 0 <= g < n]
+        dist[f] = min(d for d, _ in gaps)
+        ang[f] = min(a for _, a in gaps)
+
+    def limit(v: F64, floor: float, cap: float) -> float:
+        med = float(np.median(v))
+        return float(min(cap, max(floor, med + k * 1.4826 * float(np.median(np.abs(v - med))))))
+
+    return limit(dist, floor_m, max_distance_m), limit(ang, floor_deg, max_angle_deg)
+
+
+def odometry_outliers(poses: F64, input_poses: F64, max_distance_m: float,
+                      max_angle_deg: float = 180.0) -> OdometryCheck:
     """Frames the solve placed far from where their neighbours and the input's relative motion
     put them, re-placed there.
 
     A frame that no match links to its neighbours is placed by its BIM samples, the odometry
     and the prior alone; a scan of a few walls can fit a place one room away as well as the
     right one, and each stage's odometry keeps the relative motion of the poses it starts from,
-    so a frame pulled away in one stage stays away in the next. The input's relative motion
-    (the SLAM's, or the drifted poses') is still right to a few decimetres: the prediction of
-    frame ``f`` from neighbour ``g`` is ``poses[g] ∘ input[g]⁻¹ ∘ input[f]``. A frame further
-    than ``max_distance_m`` from the prediction of every neighbour (both, or the one at an end)
-    is an outlier; it is moved to the prediction of its nearest neighbour that is not one.
+    so a frame pulled away in one stage stays away in the next (or one that the BIM holds where
+    the drift put it never moves). The input's relative motion (the SLAM's, or the drifted
+    poses') is still right to a few decimetres: the prediction of frame ``f`` from neighbour
+    ``g`` is ``poses[g] ∘ input[g]⁻¹ ∘ input[f]``. A frame further than ``max_distance_m`` or
+    turned more than ``max_angle_deg`` from the prediction of every neighbour (both, or the one
+    at an end) is an outlier; it is moved to the prediction of its nearest neighbour that is
+    not one. :func:`odometry_limits` gives limits that follow the trajectory.
 
     Parameters
     ----------
     poses: (N, 7) solved ``world_from_cam``, TUM order. input_poses: (N, 7) the input's.
-    max_distance_m: metres.
+    max_distance_m: metres. max_angle_deg: degrees.
 
     Returns
     -------
@@ -305,24 +358,20 @@ def odometry_outliers(poses: F64, input_poses: F64, max_distance_m: float) -> Od
     out = np.array(poses, np.float64, copy=True)
     m_pose = pose_to_matrix(np.asarray(poses, np.float64))
     m_in = pose_to_matrix(np.asarray(input_poses, np.float64))
-
-    def predicted(f: int, g: int) -> NDArray[np.float64]:
-        return np.asarray(m_pose[g] @ np.linalg.inv(m_in[g]) @ m_in[f])
-
     far = []
     for f in range(n):
-        nbs = [g for g in (f - 1, f + 1) if 0 <= g < n]
-        dist = [float(np.linalg.norm(predicted(f, g)[:3, 3] - m_pose[f][:3, 3])) for g in nbs]
-        if nbs and min(dist) > max_distance_m:
+        gaps = [_prediction_gaps(m_pose, m_in, f, g)[1:] for g in (f - 1, f + 1) if 0 <= g < n]
+        if gaps and all(d > max_distance_m or a > max_angle_deg for d, a in gaps):
             far.append(f)
-    result = OdometryCheck(out)
+    result = OdometryCheck(out, max_distance_m=max_distance_m, max_angle_deg=max_angle_deg)
     for f in far:
         nbs = sorted((g for g in (f - 1, f + 1) if 0 <= g < n and g not in far),
                      key=lambda g: abs(g - f))
         if not nbs:
             continue
-        pred = predicted(f, nbs[0])
-        result.distance_m[f] = float(np.linalg.norm(pred[:3, 3] - m_pose[f][:3, 3]))
+        pred, dist, ang = _prediction_gaps(m_pose, m_in, f, nbs[0])
+        result.distance_m[f] = dist
+        result.angle_deg[f] = ang
         out[f] = matrix_to_pose(pred)
         result.outliers.append(f)
     result.poses = out
