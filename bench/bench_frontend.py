@@ -227,7 +227,8 @@ class _Stages:
         self.t[stage] = self.t.get(stage, 0.0) + t
         ref = self.refs.get(stage)
         if ref is not None:
-            old, t_old = _timed(ref, *args, **kwargs)
+            with ref():
+                old, t_old = _timed(fn, *args, **kwargs)
             self.prev[stage] = self.prev.get(stage, 0.0) + t_old
             self.equal[stage] = self.equal.get(stage, True) and _same(out, old)
         return out

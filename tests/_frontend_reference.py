@@ -2,22 +2,35 @@
 
 Each ``*_reference`` function is the code as it was before the speed-up, verbatim; the tests
 check that the new code gives the same arrays bit for bit on real frames, and
-``bench/bench_frontend.py --world`` times both in one process (``REFERENCES``: stage name →
-a callable with the stage's own arguments that runs the stage with the old code swapped in).
+``bench/bench_frontend.py --world`` times both in one process (``REFERENCES``: stage name → a
+context in which that stage runs the old code, swapped into its module).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import AbstractContextManager, contextmanager
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
+from bimcap.fusion.completion import (
+    FusionInputError,
+    LinearOptions,
+    PlanarSmoothing,
+    PlanarSmoothingOptions,
+    SparseDepth,
+    _region_planes,
+    _require_points,
+    _sparse_arrays,
+)
 from bimcap.geometry.camera import Camera
+from bimcap.segmentation.geometric import GeometricOptions, _Plane, _threshold
 
+F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
+B = NDArray[np.bool_]
 
 
 def pixel_surface_area_reference(depth: NDArray[np.floating], camera: Camera,
@@ -43,6 +56,249 @@ def pixel_surface_area_reference(depth: NDArray[np.floating], camera: Camera,
     return np.where(z > 0, z * z * cos_alpha / (camera.fx * camera.fy) / cos, 0.0)
 
 
+# ------------------------------------------------------------- fusion.completion
+def complete_linear_reference(sparse: SparseDepth | ArrayLike,
+                              options: LinearOptions | None = None) -> F32:
+    """``bimcap.fusion.completion.complete_linear`` before issue 14 (one ``fillConvexPoly`` call
+    a triangle with numpy scalars, 2-D gathers)."""
+    import cv2
+    from scipy.spatial import Delaunay, QhullError
+
+    opts = options or LinearOptions()
+    depth, uv, z = _sparse_arrays(sparse)
+    _require_points(z, 3)
+    h, w = depth.shape
+    try:
+        tri = Delaunay(uv)
+    except QhullError as exc:
+        raise FusionInputError(
+            f"cannot triangulate the sparse returns: {exc}", field="sparse_depth"
+        ) from None
+    simp = tri.simplices
+    pa, pb, pc = uv[simp[:, 0]], uv[simp[:, 1]], uv[simp[:, 2]]
+    edge = np.maximum.reduce(
+        [
+            np.linalg.norm(pa - pb, axis=1),
+            np.linalg.norm(pb - pc, axis=1),
+            np.linalg.norm(pc - pa, axis=1),
+        ]
+    )
+    zt = z[simp]
+    ratio = zt.max(1) / zt.min(1)
+    e1, e2 = pb - pa, pc - pa
+    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]  # twice the signed area, px²
+    good = (edge <= opts.max_edge_px) & (ratio <= opts.max_depth_ratio) & (np.abs(det) > 2.0)
+    # rasterise triangle ids (cv2 fill in a loop over kept triangles is far faster than
+    # Delaunay.find_simplex on every pixel); id 0 = none
+    tri_id = np.zeros((h, w), dtype=np.int32)
+    good_idx = np.flatnonzero(good)
+    # 4 fractional bits
+    corners = np.rint(np.stack([pa, pb, pc], 1)[good_idx] * 16).astype(np.int32)
+    for k, poly in zip(good_idx, corners, strict=True):
+        cv2.fillConvexPoly(tri_id, poly, int(k) + 1, lineType=cv2.LINE_8, shift=4)
+    rows, cols = np.nonzero(tri_id)
+    k = tri_id[rows, cols] - 1
+    # per triangle, the affine function f(u, v) = a u + b v + c through its three corners, with
+    # f = 1/z (exact for a plane seen through a pinhole) or f = z; one gather per pixel. Pixel
+    # centres up to half a pixel outside their rasterised triangle are extrapolated (exact for
+    # a plane); slivers (area < 1 px²) were dropped above, so this stays well conditioned.
+    gi = good_idx
+    mat = np.ones((len(gi), 3, 3))
+    mat[:, :, :2] = np.stack([pa[gi], pb[gi], pc[gi]], 1)
+    vals = 1.0 / zt[gi] if opts.inverse_depth else zt[gi]
+    coef_good = np.linalg.solve(mat, vals[:, :, None])[:, :, 0]
+    coef = np.zeros((len(simp), 3))
+    coef[gi] = coef_good
+    ck = coef[k]
+    f = ck[:, 0] * cols + ck[:, 1] * rows + ck[:, 2]
+    out = np.zeros((h, w), dtype=np.float32)
+    if opts.inverse_depth:
+        out[rows, cols] = np.where(f > 0, 1.0 / np.maximum(f, 1e-12), 0.0)
+    else:
+        out[rows, cols] = np.maximum(f, 0.0)
+    return out
+
+
+def smooth_region_reference(
+    out: F32,
+    depth: F32,
+    rows: NDArray[np.int64],
+    cols: NDArray[np.int64],
+    camera: Camera,
+    opts: PlanarSmoothingOptions,
+    rng: np.random.Generator,
+) -> None:
+    """Move the depth of one connected region's pixels onto the nearest of its planes, in place."""
+    uv = np.stack([cols, rows], 1).astype(np.float64)
+    cur = depth[rows, cols].astype(np.float64)
+    pts = camera.backproject(uv, cur, distorted=False)
+    planes = _region_planes(pts, opts, rng)
+    if not planes:
+        return
+    pl = np.stack(planes)  # (K, 4)
+    dist = np.abs(pts @ pl[:, :3].T + pl[:, 3])  # (N, K)
+    best = np.argmin(dist, axis=1)
+    near = (
+        np.ones(len(pts), dtype=bool)
+        if len(pl) == 1
+        else (dist[np.arange(len(pts)), best] <= opts.assign_threshold_m)
+    )
+    rays = camera.rays(uv, distorted=False)
+    denom = (rays * pl[best, :3]).sum(1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z_plane = -pl[best, 3] / denom
+    ok = (
+        near
+        & np.isfinite(z_plane)
+        & (z_plane > 0)
+        & (np.abs(z_plane - cur) <= opts.max_change_rel * cur)
+    )
+    out[rows[ok], cols[ok]] = z_plane[ok].astype(np.float32)
+
+
+def smooth_planar_regions_reference(
+    depth: ArrayLike,
+    labels: ArrayLike,
+    camera: Camera,
+    options: PlanarSmoothingOptions | None = None,
+    seed: int = 0,
+) -> F32:
+    """Smooth dense depth inside planar regions (floor, ceiling, walls).
+
+    Parameters
+    ----------
+    depth: (H, W) float32 metres (0 = unknown), undistorted pinhole pixels of ``camera``.
+    labels: (H, W) uint8 label ids.
+    camera: the pinhole camera of ``depth`` (its distortion is ignored).
+    options: :class:`PlanarSmoothingOptions`; ``PLANE_FIT`` fits, per connected region of each
+        class, up to ``max_planes`` RANSAC planes to the back-projected pixels and moves each
+        pixel that lies within ``assign_threshold_m`` of its nearest plane onto it (its depth
+        becomes the plane's along the pixel ray); ``BLUR`` is the paper's blur (normalised
+        Gaussian, so that nothing outside the region or unknown leaks in).
+    seed: RANSAC seed.
+
+    Returns
+    -------
+    (H, W) float32 smoothed depth (a new array).
+    """
+    import cv2
+
+    opts = options or PlanarSmoothingOptions()
+    d = np.asarray(depth, dtype=np.float32)
+    lab = np.asarray(labels)
+    if d.shape != lab.shape or d.shape != (camera.height, camera.width):
+        raise FusionInputError(
+            f"depth {d.shape}, labels {lab.shape} and camera {camera.height}x{camera.width} differ",
+            field="labels",
+        )
+    out = d.copy()
+    rng = np.random.default_rng(seed)
+    for label in opts.labels:
+        mask = ((lab == int(label)) & (d > 0)).astype(np.uint8)
+        if mask.sum() < opts.min_region_px:
+            continue
+        if opts.mode is PlanarSmoothing.BLUR:
+            m = mask.astype(np.float32)
+            num = cv2.GaussianBlur(d * m, (0, 0), opts.blur_sigma_px)
+            den = cv2.GaussianBlur(m, (0, 0), opts.blur_sigma_px)
+            sel = mask > 0
+            out[sel] = num[sel] / np.maximum(den[sel], 1e-6)
+            continue
+        n_comp, comp = cv2.connectedComponents(mask, connectivity=4)
+        for c in range(1, n_comp):
+            rows, cols = np.nonzero(comp == c)
+            if len(rows) < opts.min_region_px:
+                continue
+            smooth_region_reference(out, d, rows, cols, camera, opts, rng)
+    return out
+
+
+# ------------------------------------------------------------- segmentation.geometric
+def ransac_vertical_reference(pts: F64, nrm: F64, up: F64, opts: GeometricOptions,
+                     rng: np.random.Generator) -> _Plane | None:
+    """Vertical plane (normal ⟂ up) from points (N, 3) with normals (N, 3): 1-point hypotheses."""
+    n = len(pts)
+    if n < 3:
+        return None
+    pick = rng.choice(n, size=min(n, opts.ransac_sample), replace=False)
+    sub, sub_n = pts[pick], nrm[pick]
+    hyp = rng.integers(0, len(sub), size=opts.ransac_iterations)
+    hn = sub_n[hyp] - (sub_n[hyp] @ up)[:, None] * up
+    ln = np.linalg.norm(hn, axis=1)
+    good = ln > 1e-6
+    hn = hn[good] / ln[good, None]
+    d = -(hn * sub[hyp[good]]).sum(1)
+    thr = _threshold(sub[:, 2], opts)[:, None]
+    cos_n = np.cos(np.deg2rad(opts.normal_agreement_deg))
+    score = ((np.abs(sub @ hn.T + d) < thr) & (np.abs(sub_n @ hn.T) > cos_n)).sum(0)
+    if len(score) == 0:
+        return None
+    best = int(np.argmax(score))
+    inl = (np.abs(sub @ hn[best] + d[best]) < thr[:, 0]) & (np.abs(sub_n @ hn[best]) > cos_n)
+    if inl.sum() < 3:
+        return None
+    # refit: a line in the horizontal plane (coordinates along two horizontal axes)
+    e1 = np.cross(up, hn[best])
+    e1 /= np.linalg.norm(e1)
+    q = sub[inl]
+    xy = np.stack([q @ e1, q @ hn[best]], 1)
+    c = xy.mean(0)
+    _, _, vt = np.linalg.svd(xy - c, full_matrices=False)
+    dir2 = vt[0]
+    normal2 = np.array([-dir2[1], dir2[0]])
+    normal = normal2[0] * e1 + normal2[1] * hn[best]
+    normal /= np.linalg.norm(normal)
+    if normal @ hn[best] < 0:
+        normal = -normal
+    centroid = q.mean(0)
+    return _Plane(normal, float(-normal @ centroid))
+
+
+def protrudes_reference(region: B, pts: F64, plane: _Plane, opts: GeometricOptions) -> bool:
+    """Does the planar region stand out of what surrounds it on the left and on the right?
+
+    Per row and side, walk outward from the region's edge (up to ``protrusion_px`` pixels) to
+    the first pixel with depth that is off the region's plane; the region protrudes on that side
+    when that point lies **behind** the plane's extension (a depth jump to the background, or
+    the other face of a convex corner: a column). A concave corner (a room corner: the adjacent
+    wall is in front of the extension) or an occluder fails. Needs ``protrusion_min_rows`` of
+    the decided rows to pass on every decided side (a side is undecided at the image border or
+    when fewer than 20 % of the rows find an off-plane pixel), and ``protrusion_sides`` decided
+    sides (default 2: a wall seen between the image border and a doorway protrudes on its one
+    visible side just as a column does; walls being far more common, a region cut by the image
+    border stays a wall).
+    """
+    rows = np.flatnonzero(region.any(1))
+    w = region.shape[1]
+    sub = region[rows]
+    left = np.argmax(sub, axis=1)
+    right = w - 1 - np.argmax(sub[:, ::-1], axis=1)
+    cam_side = np.sign(plane.offset) if plane.offset != 0 else 1.0  # the camera (origin) side
+    sides = 0
+    for edge, step in ((left, -1), (right, 1)):
+        decided = np.zeros(len(rows), dtype=bool)
+        behind = np.zeros(len(rows), dtype=bool)
+        inside_any = np.zeros(len(rows), dtype=bool)
+        margin = opts.normal_step_px + 1  # no normals there: the image border for this purpose
+        for j in range(1, opts.protrusion_px + 1):
+            col = edge + step * j
+            inside = (col >= margin) & (col < w - margin)
+            inside_any |= inside
+            colc = np.clip(col, 0, w - 1)
+            p = pts[rows, colc]
+            z = p[:, 2]
+            sd = p @ plane.normal + plane.offset
+            off = inside & (z > 0) & (np.abs(sd) > _threshold(z, opts)) & ~decided
+            behind[off] = (sd[off] * cam_side) < 0
+            decided |= off
+        if inside_any.mean() < 0.5 or decided.mean() < 0.2:
+            continue  # the image border, or nothing off the plane nearby: unknown side
+        sides += 1
+        if behind[decided].mean() < opts.protrusion_min_rows:
+            return False
+    return sides >= opts.protrusion_sides
+
+
 @contextmanager
 def swapped(module: Any, **functions: Callable[..., Any]) -> Iterator[None]:
     """Replace ``module``'s attributes by ``functions`` for the duration of the block."""
@@ -56,14 +312,40 @@ def swapped(module: Any, **functions: Callable[..., Any]) -> Iterator[None]:
             setattr(module, name, fn)
 
 
-def _semantic_sampling(*args: Any, **kwargs: Any) -> Any:
+def old_semantic_sampling() -> AbstractContextManager[None]:
     from bimcap.frontend import semantic_map
 
-    with swapped(semantic_map, pixel_surface_area=pixel_surface_area_reference):
-        return semantic_map.sample_semantic_points(*args, **kwargs)
+    return swapped(semantic_map, pixel_surface_area=pixel_surface_area_reference)
 
 
-#: Stage name (as ``bench_frontend.py --world`` prints it) → the stage run with the old code.
-REFERENCES: dict[str, Callable[..., Any]] = {
-    "semantic sampling": _semantic_sampling,
+def old_completion() -> AbstractContextManager[None]:
+    from bimcap.fusion import completion
+
+    return swapped(completion, complete_linear=complete_linear_reference)
+
+
+@contextmanager
+def old_planar_smoothing() -> Iterator[None]:
+    from bimcap import fusion
+    from bimcap.fusion import completion
+
+    with swapped(completion, smooth_planar_regions=smooth_planar_regions_reference), \
+            swapped(fusion, smooth_planar_regions=smooth_planar_regions_reference):
+        yield
+
+
+def old_segmentation() -> AbstractContextManager[None]:
+    from bimcap.segmentation import geometric
+
+    return swapped(geometric, _ransac_vertical=ransac_vertical_reference,
+                   _protrudes=protrudes_reference)
+
+
+#: Stage name (as ``bench_frontend.py --world`` prints it) → a context in which the stage's
+#: functions (and the providers that call them) run the old code.
+REFERENCES: dict[str, Callable[[], AbstractContextManager[None]]] = {
+    "semantic sampling": old_semantic_sampling,
+    "depth provider": old_completion,
+    "geometric segmentation": old_segmentation,
+    "planar smoothing": old_planar_smoothing,
 }

@@ -1,10 +1,12 @@
 """The front end's speed-ups (issue 14) give the same arrays, bit for bit, as the code before them
 (``tests/_frontend_reference.py``), on the box-room frames run through the whole chain: LiDAR
-projection, linear completion, geometric segmentation, planar smoothing, semantic sampling."""
+projection, linear completion, geometric segmentation, planar smoothing, semantic sampling; and
+BLAS / OpenCV on one thread inside the front end's jobs changes none of its arrays."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,7 +20,12 @@ from bimcap.frontend.semantic_map import (
     sample_semantic_points,
 )
 from bimcap.fusion import CompletionMethod, CompletionOptions, complete_depth, project_lidar
-from bimcap.fusion.completion import smooth_planar_regions
+from bimcap.fusion.completion import (
+    LinearOptions,
+    PlanarSmoothingOptions,
+    complete_linear,
+    smooth_planar_regions,
+)
 from bimcap.geometry.camera import Camera
 from bimcap.segmentation.geometric import segment_geometric
 
@@ -71,8 +78,120 @@ def test_semantic_sampling_same_as_before(chain: list[_Frame]) -> None:
     opts = SemanticSamplingOptions(mode=SamplingMode.DENSITY)
     for i, f in enumerate(chain):
         new = sample_semantic_points(f.labels, f.smoothed, f.camera, i, opts)
-        old = ref.REFERENCES["semantic sampling"](f.labels, f.smoothed, f.camera, i, opts)
+        with ref.old_semantic_sampling():
+            old = sample_semantic_points(f.labels, f.smoothed, f.camera, i, opts)
         assert new.keys() == old.keys()
         assert sum(len(v) for v in new.values()) > 100
         for k in new:
             assert np.array_equal(new[k], old[k])
+
+
+def test_linear_completion_same_as_before(chain: list[_Frame]) -> None:
+    for f in chain:
+        for inverse in (True, False):
+            opts = LinearOptions(inverse_depth=inverse)
+            new = complete_linear(f.sparse, opts)
+            assert np.array_equal(new, ref.complete_linear_reference(f.sparse, opts))
+        # a dense map given as an (H, W) array takes the other input path
+        assert np.array_equal(complete_linear(f.sparse.depth),
+                              ref.complete_linear_reference(f.sparse.depth))
+
+
+def test_planar_smoothing_same_as_before(chain: list[_Frame]) -> None:
+    for f in chain:
+        old = ref.smooth_planar_regions_reference(f.dense, f.labels, f.camera)
+        assert np.array_equal(f.smoothed, old)
+        # small regions too: more components, some skipped
+        opts = PlanarSmoothingOptions(min_region_px=50)
+        assert np.array_equal(smooth_planar_regions(f.dense, f.labels, f.camera, opts),
+                              ref.smooth_planar_regions_reference(f.dense, f.labels, f.camera,
+                                                                  opts))
+
+
+def test_segmentation_same_as_before(chain: list[_Frame], monkeypatch: pytest.MonkeyPatch
+                                     ) -> None:
+    """The labels, and every protrusion decision on the way (columns and walls both occur)."""
+    from bimcap.segmentation import geometric
+
+    decisions: list[tuple[bool, bool]] = []
+    new_protrudes = geometric._protrudes
+
+    def both(region, pts, plane, opts):  # type: ignore[no-untyped-def]
+        out = new_protrudes(region, pts, plane, opts)
+        decisions.append((out, ref.protrudes_reference(region, pts, plane, opts)))
+        return out
+
+    monkeypatch.setattr(geometric, "_protrudes", both)
+    # completed LiDAR depth, and the rendered depth (where the columns come out whole)
+    inputs = [(f.dense, f.camera, f.world_from_cam, f.labels) for f in chain]
+    inputs += [(g.depth, g.camera, g.world_from_cam, None) for g in frames(4, 516, 386, 7)]
+    for depth, camera, pose, before in inputs:
+        new = segment_geometric(depth, camera, pose)
+        with ref.old_segmentation():
+            old = segment_geometric(depth, camera, pose)
+        assert np.array_equal(new, old)
+        assert before is None or np.array_equal(new, before)
+    assert decisions and all(a == b for a, b in decisions)
+    assert {a for a, _ in decisions} == {True, False}
+
+
+def test_vertical_ransac_same_as_before(chain: list[_Frame]) -> None:
+    from bimcap.segmentation.geometric import (
+        GeometricOptions,
+        _points_and_normals,
+        _ransac_vertical,
+    )
+
+    opts = GeometricOptions()
+    for f in chain:
+        pts, _, nrm, nok = _points_and_normals(f.dense, f.camera, opts)
+        up = np.array([0.0, -1.0, 0.0])
+        vert = nok & (np.abs(nrm @ up) < 0.4)
+        new = _ransac_vertical(pts[vert], nrm[vert], up, opts, np.random.default_rng(3))
+        old = ref.ransac_vertical_reference(pts[vert], nrm[vert], up, opts,
+                                            np.random.default_rng(3))
+        assert new is not None and old is not None
+        assert np.array_equal(new.normal, old.normal) and new.offset == old.offset
+
+
+def test_one_thread_changes_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The whole front end (LiDAR, completion, geometric labels, smoothing, SIFT, matching) gives
+    the same arrays with BLAS and OpenCV on their default threads as on one."""
+    from contextlib import nullcontext
+
+    from _frontend_scene import SceneSequence, default_poses
+    from bimcap.features import SiftOptions
+    from bimcap.frontend import FrontendConfig, run_frontend, runner
+    from bimcap.frontend.providers import (
+        LidarDepthProvider,
+        PlanarDepthRefiner,
+        SegmenterLabelProvider,
+    )
+    from bimcap.segmentation.geometric import GeometricSegmenter
+
+    seq = SceneSequence.write(tmp_path / "seq", poses=default_poses(3), lidar=True)
+    config = FrontendConfig(sift=SiftOptions(max_num_features=1500), window=2)
+
+    def run() -> dict[str, np.ndarray]:
+        res = run_frontend(seq, config, seq.gt, LidarDepthProvider(),
+                           SegmenterLabelProvider(GeometricSegmenter(), uses_pose=True),
+                           depth_refiner=PlanarDepthRefiner(), workers=1, progress=False)
+        return {k: v for k, v in vars(res).items() if isinstance(v, np.ndarray)}
+
+    one = run()
+    monkeypatch.setattr(runner, "one_thread", nullcontext)
+    default = run()
+    assert one.keys() == default.keys() and len(one["match_frames"]) > 0
+    for k in one:
+        assert np.array_equal(one[k], default[k]), k
+
+
+def test_one_thread_restores_opencv() -> None:
+    import cv2
+
+    from bimcap.frontend.runner import one_thread
+
+    before = cv2.getNumThreads()
+    with one_thread():
+        assert cv2.getNumThreads() == 1
+    assert cv2.getNumThreads() == before

@@ -195,7 +195,16 @@ def _ransac_vertical(pts: F64, nrm: F64, up: F64, opts: GeometricOptions,
     d = -(hn * sub[hyp[good]]).sum(1)
     thr = _threshold(sub[:, 2], opts)[:, None]
     cos_n = np.cos(np.deg2rad(opts.normal_agreement_deg))
-    score = ((np.abs(sub @ hn.T + d) < thr) & (np.abs(sub_n @ hn.T) > cos_n)).sum(0)
+    # (sample, hypothesis) tables computed in place: the same numbers as the expression
+    # ((|sub·hn + d| < thr) & (|sub_n·hn| > cos_n)).sum(0) with half the temporaries
+    dist = sub @ hn.T
+    dist += d
+    np.abs(dist, out=dist)
+    agree = sub_n @ hn.T
+    np.abs(agree, out=agree)
+    ok = dist < thr
+    ok &= agree > cos_n
+    score = np.count_nonzero(ok, axis=0)
     if len(score) == 0:
         return None
     best = int(np.argmax(score))
@@ -246,22 +255,22 @@ def _protrudes(region: B, pts: F64, plane: _Plane, opts: GeometricOptions) -> bo
     right = w - 1 - np.argmax(sub[:, ::-1], axis=1)
     cam_side = np.sign(plane.offset) if plane.offset != 0 else 1.0  # the camera (origin) side
     sides = 0
+    margin = opts.normal_step_px + 1  # no normals there: the image border for this purpose
+    steps = np.arange(1, opts.protrusion_px + 1)
     for edge, step in ((left, -1), (right, 1)):
-        decided = np.zeros(len(rows), dtype=bool)
-        behind = np.zeros(len(rows), dtype=bool)
-        inside_any = np.zeros(len(rows), dtype=bool)
-        margin = opts.normal_step_px + 1  # no normals there: the image border for this purpose
-        for j in range(1, opts.protrusion_px + 1):
-            col = edge + step * j
-            inside = (col >= margin) & (col < w - margin)
-            inside_any |= inside
-            colc = np.clip(col, 0, w - 1)
-            p = pts[rows, colc]
-            z = p[:, 2]
-            sd = p @ plane.normal + plane.offset
-            off = inside & (z > 0) & (np.abs(sd) > _threshold(z, opts)) & ~decided
-            behind[off] = (sd[off] * cam_side) < 0
-            decided |= off
+        # every row's walk at once: (rows, steps) columns, then the first off-plane pixel
+        col = edge[:, None] + step * steps[None, :]
+        inside = (col >= margin) & (col < w - margin)
+        inside_any = inside.any(1)
+        colc = np.clip(col, 0, w - 1)
+        p = pts[rows[:, None], colc].reshape(-1, 3)
+        z = p[:, 2]
+        sd = p @ plane.normal + plane.offset
+        off = (inside.ravel() & (z > 0) & (np.abs(sd) > _threshold(z, opts))).reshape(col.shape)
+        decided = off.any(1)
+        first = np.argmax(off, axis=1)
+        sd_first = sd.reshape(col.shape)[np.arange(len(rows)), first]
+        behind = decided & ((sd_first * cam_side) < 0)
         if inside_any.mean() < 0.5 or decided.mean() < 0.2:
             continue  # the image border, or nothing off the plane nearby: unknown side
         sides += 1
