@@ -21,7 +21,6 @@ from bimcap.fusion.completion import (
     PlanarSmoothing,
     PlanarSmoothingOptions,
     SparseDepth,
-    _region_planes,
     _require_points,
     _sparse_arrays,
 )
@@ -119,6 +118,62 @@ def complete_linear_reference(sparse: SparseDepth | ArrayLike,
     return out
 
 
+def fit_plane_ransac_reference(
+    points: F64, threshold: float, iterations: int, rng: np.random.Generator
+) -> tuple[F64, NDArray[np.bool_]] | None:
+    """Robust plane ``n·p + d = 0`` through points (N, 3): 3-point RANSAC then least squares on
+    the inliers. Returns ((4,) plane with unit n, inlier mask) or None (< 3 points)."""
+    n = len(points)
+    if n < 3:
+        return None
+    idx = rng.integers(0, n, size=(iterations, 3))
+    a, b, c = points[idx[:, 0]], points[idx[:, 1]], points[idx[:, 2]]
+    normals = np.cross(b - a, c - a)
+    norm = np.linalg.norm(normals, axis=1)
+    ok = norm > 1e-9
+    if not ok.any():
+        return None
+    normals = normals[ok] / norm[ok, None]
+    d = -(normals * a[ok]).sum(1)
+    dist = np.abs(points @ normals.T + d)  # (N, I)
+    best = int(np.argmax((dist < threshold).sum(0)))
+    inl = dist[:, best] < threshold
+    if inl.sum() < 3:
+        return None
+    p = points[inl]
+    centroid = p.mean(0)
+    _, _, vt = np.linalg.svd(p - centroid, full_matrices=False)
+    nrm = vt[2]
+    plane = np.concatenate([nrm, [-nrm @ centroid]])
+    inl = np.abs(points @ nrm + plane[3]) < threshold
+    return plane, inl
+
+
+def region_planes_reference(
+    points: F64, opts: PlanarSmoothingOptions, rng: np.random.Generator
+) -> list[F64]:
+    """Up to ``opts.max_planes`` planes ``(4,)`` through ``points`` (N, 3), by RANSAC, each on the
+    points further than ``assign_threshold_m`` from the earlier ones; a plane needs
+    ``opts.min_region_px`` inliers."""
+    planes: list[F64] = []
+    left = points
+    while len(planes) < opts.max_planes and len(left) >= opts.min_region_px:
+        pick = rng.choice(len(left), size=min(opts.sample_size, len(left)), replace=False)
+        fit = fit_plane_ransac_reference(left[pick], opts.ransac_threshold_m,
+                                         opts.ransac_iterations, rng)
+        if fit is None:
+            break
+        plane = fit[0]
+        dist = np.abs(left @ plane[:3] + plane[3])
+        if (dist < opts.ransac_threshold_m).sum() < opts.min_region_px:
+            break
+        planes.append(plane)
+        # Drop everything the plane may claim, not only its RANSAC inliers: the noise tail of
+        # a big wall would otherwise make a ghost plane parallel to it a few centimetres away.
+        left = left[dist > opts.assign_threshold_m]
+    return planes
+
+
 def smooth_region_reference(
     out: F32,
     depth: F32,
@@ -132,7 +187,7 @@ def smooth_region_reference(
     uv = np.stack([cols, rows], 1).astype(np.float64)
     cur = depth[rows, cols].astype(np.float64)
     pts = camera.backproject(uv, cur, distorted=False)
-    planes = _region_planes(pts, opts, rng)
+    planes = region_planes_reference(pts, opts, rng)
     if not planes:
         return
     pl = np.stack(planes)  # (K, 4)

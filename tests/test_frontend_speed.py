@@ -195,3 +195,39 @@ def test_one_thread_restores_opencv() -> None:
     with one_thread():
         assert cv2.getNumThreads() == 1
     assert cv2.getNumThreads() == before
+
+
+@pytest.mark.parametrize("n", [3, 4, 511, 512, 513, 514, 1024, 1025, 3000])
+@pytest.mark.parametrize("hypotheses", [1, 2, 3, 150])
+def test_blocked_ransac_scores_same_as_whole_table(n: int, hypotheses: int) -> None:
+    """The RANSACs' scores in blocks of rows: the whole table's, for every block remainder."""
+    from bimcap.fusion.completion import _inlier_counts
+    from bimcap.segmentation.geometric import _vertical_scores
+
+    rng = np.random.default_rng(n + hypotheses)
+    pts = rng.normal(size=(n, 3)) * 3.0
+    nrm = rng.normal(size=(n, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    hn = rng.normal(size=(hypotheses, 3))
+    hn /= np.linalg.norm(hn, axis=1, keepdims=True)
+    d = rng.normal(size=hypotheses)
+    thr = (0.5 + 0.01 * np.abs(pts[:, 2]))[:, None]
+    whole = ((np.abs(pts @ hn.T + d) < thr) & (np.abs(nrm @ hn.T) > 0.5)).sum(0)
+    assert np.array_equal(_vertical_scores(pts, nrm, hn, d, thr, 0.5), whole)
+    assert np.array_equal(_inlier_counts(pts, hn, d, 0.5),
+                          (np.abs(pts @ hn.T + d) < 0.5).sum(0))
+    assert n < 500 or whole.sum() > 0  # the large tables have inliers to count
+
+
+def test_plane_ransac_same_as_before(chain: list[_Frame]) -> None:
+    from bimcap.fusion.completion import fit_plane_ransac
+
+    for f in chain:
+        rows, cols = np.nonzero(f.dense > 0)
+        pts = f.camera.backproject(np.stack([cols, rows], 1)[::7], f.dense[rows, cols][::7],
+                                   distorted=False)
+        for iterations in (1, 2, 64):
+            new = fit_plane_ransac(pts, 0.03, iterations, np.random.default_rng(1))
+            old = ref.fit_plane_ransac_reference(pts, 0.03, iterations, np.random.default_rng(1))
+            assert new is not None and old is not None
+            assert np.array_equal(new[0], old[0]) and np.array_equal(new[1], old[1])

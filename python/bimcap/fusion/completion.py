@@ -406,6 +406,25 @@ class PlanarSmoothingOptions:
     blur_sigma_px: float = 5.0
 
 
+def _inlier_counts(points: F64, normals: F64, d: F64, threshold: float) -> NDArray[np.int64]:
+    """(I,) how many of ``points`` (N, 3) lie within ``threshold`` of each plane ``normals``
+    (I, 3), ``d`` (I,): ``(|points·normalsᵀ + d| < threshold).sum(0)`` bit for bit, in blocks
+    of 512 rows that stay in the cache (a one-row block would go to BLAS's matrix-vector
+    routine, so the last block takes the remainder; one plane is computed whole)."""
+    if len(normals) < 2:
+        return (np.abs(points @ normals.T + d) < threshold).sum(0)
+    starts = list(range(0, len(points), 512))
+    if len(starts) > 1 and len(points) - starts[-1] < 2:
+        starts.pop()
+    counts = np.zeros(len(normals), np.int64)
+    for a, b in zip(starts, [*starts[1:], len(points)], strict=True):
+        dist = points[a:b] @ normals.T
+        dist += d
+        np.abs(dist, out=dist)
+        counts += np.count_nonzero(dist < threshold, axis=0)
+    return counts
+
+
 def fit_plane_ransac(
     points: F64, threshold: float, iterations: int, rng: np.random.Generator
 ) -> tuple[F64, NDArray[np.bool_]] | None:
@@ -423,9 +442,11 @@ def fit_plane_ransac(
         return None
     normals = normals[ok] / norm[ok, None]
     d = -(normals * a[ok]).sum(1)
-    dist = np.abs(points @ normals.T + d)  # (N, I)
-    best = int(np.argmax((dist < threshold).sum(0)))
-    inl = dist[:, best] < threshold
+    best = int(np.argmax(_inlier_counts(points, normals, d, threshold)))
+    # the best plane's column of the (N, I) table: a product with two columns is a
+    # matrix-matrix one, whose entries are the table's bit for bit
+    cols = [best, best] if len(normals) > 1 else [best]
+    inl = np.abs(points @ normals[cols].T + d[cols])[:, 0] < threshold
     if inl.sum() < 3:
         return None
     p = points[inl]

@@ -195,16 +195,7 @@ def _ransac_vertical(pts: F64, nrm: F64, up: F64, opts: GeometricOptions,
     d = -(hn * sub[hyp[good]]).sum(1)
     thr = _threshold(sub[:, 2], opts)[:, None]
     cos_n = np.cos(np.deg2rad(opts.normal_agreement_deg))
-    # (sample, hypothesis) tables computed in place: the same numbers as the expression
-    # ((|sub·hn + d| < thr) & (|sub_n·hn| > cos_n)).sum(0) with half the temporaries
-    dist = sub @ hn.T
-    dist += d
-    np.abs(dist, out=dist)
-    agree = sub_n @ hn.T
-    np.abs(agree, out=agree)
-    ok = dist < thr
-    ok &= agree > cos_n
-    score = np.count_nonzero(ok, axis=0)
+    score = _vertical_scores(sub, sub_n, hn, d, thr, cos_n)
     if len(score) == 0:
         return None
     best = int(np.argmax(score))
@@ -226,6 +217,45 @@ def _ransac_vertical(pts: F64, nrm: F64, up: F64, opts: GeometricOptions,
         normal = -normal
     centroid = q.mean(0)
     return _Plane(normal, float(-normal @ centroid))
+
+
+#: Rows of the RANSAC's (sample, hypothesis) tables computed at once: blocks that stay in the
+#: cache (3× faster than the whole 3000 × 150 table on the 2-core box).
+_SCORE_ROWS = 512
+
+
+def _row_blocks(n: int) -> list[tuple[int, int]]:
+    """``[start, stop)`` blocks of ``_SCORE_ROWS`` rows covering ``n``, none of one row (a
+    one-row product would go to BLAS's matrix-vector routine, whose sums may differ)."""
+    starts = list(range(0, n, _SCORE_ROWS))
+    if len(starts) > 1 and n - starts[-1] < 2:
+        starts.pop()
+    return [(a, b) for a, b in zip(starts, [*starts[1:], n], strict=True)]
+
+
+def _vertical_scores(sub: F64, sub_n: F64, hn: F64, d: F64, thr: F64, cos_n: float
+                     ) -> NDArray[np.int64]:
+    """Per hypothesis (``hn`` (I, 3) unit normals, ``d`` (I,) offsets): how many of the points
+    ``sub`` (N, 3) with normals ``sub_n`` (N, 3) lie within ``thr`` (N, 1) of its plane with a
+    normal within acos(``cos_n``) of it.
+
+    The same counts as ``((|sub·hnᵀ + d| < thr) & (|sub_n·hnᵀ| > cos_n)).sum(0)`` bit for bit
+    (each entry of a product is the same 3-term sum in any block of rows of a matrix-matrix
+    product; one hypothesis is computed whole), in blocks of rows and in place.
+    """
+    if len(hn) < 2:
+        return ((np.abs(sub @ hn.T + d) < thr) & (np.abs(sub_n @ hn.T) > cos_n)).sum(0)
+    score = np.zeros(len(hn), np.int64)
+    for a, b in _row_blocks(len(sub)):
+        dist = sub[a:b] @ hn.T
+        dist += d
+        np.abs(dist, out=dist)
+        agree = sub_n[a:b] @ hn.T
+        np.abs(agree, out=agree)
+        ok = dist < thr[a:b]
+        ok &= agree > cos_n
+        score += np.count_nonzero(ok, axis=0)
+    return score
 
 
 def _plane_inliers(pts: F64, nrm: F64, plane: _Plane, mask: B, opts: GeometricOptions) -> B:
