@@ -33,9 +33,10 @@ import time
 from pathlib import Path
 from typing import Any
 
-os.environ.setdefault("OMP_NUM_THREADS", "1")
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-os.environ.setdefault("MKL_NUM_THREADS", "1")
+if "--prepare" not in sys.argv:  # --prepare measures the library as it sets its threads itself
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    os.environ.setdefault("MKL_NUM_THREADS", "1")
 
 import numpy as np
 
@@ -216,11 +217,11 @@ def _same(a: Any, b: Any) -> bool:
 class _Stages:
     """CPU seconds per stage, and of the previous implementation where one is kept."""
 
-    def __init__(self) -> None:
+    def __init__(self, previous: bool = True) -> None:
         self.t: dict[str, float] = {}
         self.prev: dict[str, float] = {}
         self.equal: dict[str, bool] = {}
-        self.refs = _references()
+        self.refs = _references() if previous else {}
 
     def run(self, stage: str, fn: Any, *args: Any, **kwargs: Any) -> Any:
         out, t = _timed(fn, *args, **kwargs)
@@ -234,9 +235,11 @@ class _Stages:
         return out
 
 
-def bench_world(seq_dir: Path, frames: int, window: int) -> tuple[list[tuple[str, ...]], float]:
+def bench_world(seq_dir: Path, frames: int, window: int, previous: bool = True
+                ) -> tuple[list[tuple[str, ...]], float]:
     """Per-stage rows ``(stage, ms/frame, previous ms/frame, ratio, same result)`` and the total
-    ms a frame, on the first ``frames`` frames of the sequence at ``seq_dir``."""
+    ms a frame, on the first ``frames`` frames of the sequence at ``seq_dir`` (``previous``:
+    also time the previous code of the stages that have it)."""
     from bimcap.dataset import read_sequence
     from bimcap.features import extract_sift, lookup_depth, match_descriptors, verify_matches
     from bimcap.frontend.runner import FrameContext, _load_raw_image, _scan_points, get_undistorter
@@ -260,7 +263,7 @@ def bench_world(seq_dir: Path, frames: int, window: int) -> tuple[list[tuple[str
 
     scan_opts = FrontendConfig().scan
     poses = read_tum(seq.root / "poses" / "gt.tum").poses
-    st = _Stages()
+    st = _Stages(previous)
     cam = seq.camera
     feats = []
     for i in range(n):
@@ -312,6 +315,34 @@ def bench_world(seq_dir: Path, frames: int, window: int) -> tuple[list[tuple[str
     return rows, total
 
 
+def bench_prepare(seq_dir: Path, frames: int, work: Path) -> tuple[float, int]:
+    """CPU seconds of ``bimcap.pipeline.refine.prepare`` (``RefineConfig(workers=1)``, the
+    sequence's ground truth as the initial poses, ``../as_built.ifc`` if there is one else the
+    manifest's IFC, the BIM reference loaded before the timing) on
+    the first ``frames`` frames, with a fresh ``work`` directory; and the frames run. BLAS and
+    OpenCV keep the threads the library gives them."""
+    import shutil
+    from dataclasses import replace
+
+    from bimcap.dataset import read_sequence
+    from bimcap.geometry.trajectory import read_tum
+    from bimcap.pipeline.config import RefineConfig
+    from bimcap.pipeline.refine import prepare
+
+    seq = read_sequence(seq_dir)
+    n = min(frames, len(seq.frames))
+    seq = replace(seq, frames=seq.frames[:n])
+    gt = read_tum(seq_dir / "poses" / "gt.tum")
+    init = replace(gt, timestamps=gt.timestamps[:n], poses=gt.poses[:n])
+    as_built = seq_dir.parent / "as_built.ifc"  # generated worlds: the reference IFC
+    ifc = as_built if as_built.is_file() else seq.ifc_path
+    prepare(seq, ifc, init, RefineConfig(workers=1), work / "warm", quiet=True)  # BIM cache
+    shutil.rmtree(work / "run", ignore_errors=True)
+    t0 = time.process_time()
+    prepare(seq, ifc, init, RefineConfig(workers=1), work / "run", quiet=True)
+    return time.process_time() - t0, n
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=6)
@@ -321,13 +352,29 @@ def main() -> None:
                     help="a sequence directory (e.g. /tmp/gen/gen-demo-s0/seq_60_standard): "
                          "per-stage times of the whole front end on it, instead of the "
                          "features part")
+    ap.add_argument("--no-previous", action="store_true",
+                    help="with --world: do not time the previous code of the stages")
+    ap.add_argument("--prepare", action="store_true",
+                    help="with --world: CPU time of the whole prepare() (front end, cache "
+                         "writes, tracks) instead of the stages, BLAS threads as the library "
+                         "sets them")
+    ap.add_argument("--work", type=Path, default=Path("/tmp/bench_frontend"),
+                    help="with --prepare: scratch directory (its run/ is replaced)")
     args = ap.parse_args()
+    if args.world is not None and args.prepare:
+        frames = args.frames if args.frames != 6 else 60
+        cpu, n = bench_prepare(args.world, frames, args.work)
+        print(f"# prepare() on {args.world}, {n} frames, workers 1, process CPU time, load "
+              f"average {os.getloadavg()[0]:.1f}")
+        print(f"{1e3 * cpu / n:.0f} ms a frame, {n / cpu:.2f} frames/s per core "
+              f"(goal {GOAL_FPS:.0f}; {cpu:.1f} CPU s)")
+        return
     if args.world is not None:
         frames = args.frames if args.frames != 6 else 20
         window = args.window if args.window != 3 else 4
         print(f"# front end per stage on {args.world}, first {frames} frames, window {window}, "
               f"1 thread, process CPU ms a frame, load average {os.getloadavg()[0]:.1f}")
-        rows, _ = bench_world(args.world, frames, window)
+        rows, _ = bench_world(args.world, frames, window, not args.no_previous)
         w = max(len(r[0]) for r in rows)
         print(f"{'stage':<{w}}  {'ms/frame':>9}  {'previous':>9}  {'ratio':>7}  same result")
         for stage, ms, prev, ratio, same in rows:

@@ -25,11 +25,13 @@ from bimcap.fusion.completion import (
     _sparse_arrays,
 )
 from bimcap.geometry.camera import Camera
+from bimcap.labels import Label
 from bimcap.segmentation.geometric import GeometricOptions, _Plane, _threshold
 
 F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
 B = NDArray[np.bool_]
+U8 = NDArray[np.uint8]
 
 
 def pixel_surface_area_reference(depth: NDArray[np.floating], camera: Camera,
@@ -354,6 +356,56 @@ def protrudes_reference(region: B, pts: F64, plane: _Plane, opts: GeometricOptio
     return sides >= opts.protrusion_sides
 
 
+def upsample_labels_reference(
+    labels: U8,
+    region_id: NDArray[np.int32],
+    regions: list[tuple[Label, _Plane]],
+    depth: NDArray[np.float32],
+    camera: Camera,
+    opts: GeometricOptions,
+) -> U8:
+    """Bring work-resolution labels to full resolution, plane-guided along borders.
+
+    Nearest-neighbour upsampling, then every full-resolution pixel in a border cell (a work
+    pixel whose 3×3 neighbourhood holds more than one region) takes, among the planar regions
+    of that neighbourhood, the one whose plane its own 3-D point lies nearest (if within the
+    plane threshold). Plane parameters are scale-free (camera-frame metres), so the work
+    resolution's planes apply to full-resolution points directly.
+    """
+    import cv2
+
+    size = (camera.width, camera.height)
+    up = cv2.resize(labels, size, interpolation=cv2.INTER_NEAREST)
+    up[depth <= 0] = int(Label.UNKNOWN)
+    if not regions:
+        return up
+    kernel = np.ones((3, 3), np.uint8)
+    rid = region_id + 1  # 0 = none
+    lo = cv2.erode(rid.astype(np.float32), kernel)
+    hi = cv2.dilate(rid.astype(np.float32), kernel)
+    border_lo = (lo != hi).astype(np.uint8)
+    border = cv2.resize(border_lo, size, interpolation=cv2.INTER_NEAREST) > 0
+    border &= depth > 0
+    r, c = np.nonzero(border)
+    if len(r) == 0:
+        return up
+    z = depth[r, c].astype(np.float64)
+    p = np.stack([(c - camera.cx) / camera.fx * z, (r - camera.cy) / camera.fy * z, z], 1)
+    best = _threshold(z, opts) * 2.0
+    choice = np.full(len(r), -1, dtype=np.int64)
+    for k, (_, plane) in enumerate(regions):
+        near_lo = cv2.dilate((region_id == k).astype(np.uint8), kernel)
+        near = cv2.resize(near_lo, size, interpolation=cv2.INTER_NEAREST)[r, c] > 0
+        dist = np.abs(p @ plane.normal + plane.offset)
+        take = near & (dist < best)
+        best[take] = dist[take]
+        choice[take] = k
+    lut = np.array([int(lab) for lab, _ in regions], dtype=np.uint8)
+    sel = choice >= 0
+    up[r[sel], c[sel]] = lut[choice[sel]]
+    return up
+
+
 @contextmanager
 def swapped(module: Any, **functions: Callable[..., Any]) -> Iterator[None]:
     """Replace ``module``'s attributes by ``functions`` for the duration of the block."""
@@ -393,7 +445,7 @@ def old_segmentation() -> AbstractContextManager[None]:
     from bimcap.segmentation import geometric
 
     return swapped(geometric, _ransac_vertical=ransac_vertical_reference,
-                   _protrudes=protrudes_reference)
+                   _protrudes=protrudes_reference, _upsample_labels=upsample_labels_reference)
 
 
 #: Stage name (as ``bench_frontend.py --world`` prints it) → a context in which the stage's

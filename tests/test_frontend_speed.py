@@ -27,7 +27,7 @@ from bimcap.fusion.completion import (
     smooth_planar_regions,
 )
 from bimcap.geometry.camera import Camera
-from bimcap.segmentation.geometric import segment_geometric
+from bimcap.segmentation.geometric import GeometricOptions, segment_geometric
 
 
 @dataclass
@@ -133,6 +133,14 @@ def test_segmentation_same_as_before(chain: list[_Frame], monkeypatch: pytest.Mo
         assert before is None or np.array_equal(new, before)
     assert decisions and all(a == b for a, b in decisions)
     assert {a for a, _ in decisions} == {True, False}
+    # other working resolutions: other nearest-neighbour upsampling maps
+    f = chain[0]
+    for width in (100, 173, 300):
+        opts = GeometricOptions(work_width=width)
+        new = segment_geometric(f.dense, f.camera, f.world_from_cam, opts)
+        with ref.old_segmentation():
+            assert np.array_equal(new, segment_geometric(f.dense, f.camera, f.world_from_cam,
+                                                         opts))
 
 
 def test_vertical_ransac_same_as_before(chain: list[_Frame]) -> None:

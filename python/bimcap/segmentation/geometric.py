@@ -673,13 +673,18 @@ def _upsample_labels(
     r, c = np.nonzero(border)
     if len(r) == 0:
         return up
+    # the work pixel each border pixel's nearest-neighbour upsampling reads: resizing an image
+    # of work-pixel indices copies them with the same mapping as any other image
+    h_lo, w_lo = region_id.shape
+    src = cv2.resize(np.arange(h_lo * w_lo, dtype=np.int32).reshape(h_lo, w_lo), size,
+                     interpolation=cv2.INTER_NEAREST)[r, c]
     z = depth[r, c].astype(np.float64)
     p = np.stack([(c - camera.cx) / camera.fx * z, (r - camera.cy) / camera.fy * z, z], 1)
     best = _threshold(z, opts) * 2.0
     choice = np.full(len(r), -1, dtype=np.int64)
     for k, (_, plane) in enumerate(regions):
         near_lo = cv2.dilate((region_id == k).astype(np.uint8), kernel)
-        near = cv2.resize(near_lo, size, interpolation=cv2.INTER_NEAREST)[r, c] > 0
+        near = near_lo.ravel()[src] > 0
         dist = np.abs(p @ plane.normal + plane.offset)
         take = near & (dist < best)
         best[take] = dist[take]
