@@ -653,9 +653,9 @@ def one_thread() -> Iterator[None]:
 
     The front end's parallelism is one job a core (processes, or Dask threads); BLAS and OpenCV
     threads inside a job only compete with the other jobs, and the small products of the RANSACs
-    (3000 × 3 by 3 × 150) cost about 3× the CPU time with OpenBLAS's threads than without
-    (measured on the 2-core box: a 60-frame front end, 69 → 51 CPU s). The results are the same
-    bit for bit: these libraries split a product's output, not its sums, across threads
+    cost about 3× the CPU time with OpenBLAS's threads than on one (a 3000 × 150 score table:
+    8 vs 2.5 ms on the 2-core box; docs/speed.md). The results are the same bit for bit: these
+    libraries split a product's output, not its sums, across threads
     (``tests/test_frontend_speed.py`` compares a whole front end both ways).
     """
     import cv2

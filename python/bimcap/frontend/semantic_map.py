@@ -141,7 +141,7 @@ def pixel_surface_area(depth: NDArray[np.floating], camera: Camera, min_cos: flo
     z = np.asarray(depth, dtype=np.float64)
     h, w = z.shape
     # Component by component, the same arithmetic as np.gradient / np.cross / np.linalg.norm on
-    # the stacked (H, W, 3) points (bit for bit: tests/test_frontend_semantic.py), 2× cheaper.
+    # the stacked (H, W, 3) points (bit for bit: tests/test_frontend_speed.py), 2× cheaper.
     x = (np.arange(w, dtype=np.float64) - camera.cx) / camera.fx * z
     y = ((np.arange(h, dtype=np.float64) - camera.cy) / camera.fy)[:, None] * z
     xu, yu, zu = (np.gradient(c, axis=1) for c in (x, y, z))
