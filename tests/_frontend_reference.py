@@ -406,6 +406,19 @@ def upsample_labels_reference(
     return up
 
 
+# ------------------------------------------------------------- features.matching
+def top2_columns_reference(sim: NDArray[np.float32]
+                           ) -> tuple[NDArray[np.int64], NDArray[np.float32], NDArray[np.float32]]:
+    """``bimcap.features.matching._top2_columns`` before issue 14 (``np.argmax`` on axis 0)."""
+    best = np.argmax(sim, axis=0)
+    cols = np.arange(sim.shape[1])
+    s1 = sim[best, cols].copy()
+    sim[best, cols] = -np.inf
+    s2 = sim.max(axis=0)
+    sim[best, cols] = s1
+    return best, s1, s2
+
+
 @contextmanager
 def swapped(module: Any, **functions: Callable[..., Any]) -> Iterator[None]:
     """Replace ``module``'s attributes by ``functions`` for the duration of the block."""
@@ -448,6 +461,12 @@ def old_segmentation() -> AbstractContextManager[None]:
                    _protrudes=protrudes_reference, _upsample_labels=upsample_labels_reference)
 
 
+def old_matching() -> AbstractContextManager[None]:
+    from bimcap.features import matching
+
+    return swapped(matching, _top2_columns=top2_columns_reference)
+
+
 #: Stage name (as ``bench_frontend.py --world`` prints it) → a context in which the stage's
 #: functions (and the providers that call them) run the old code.
 REFERENCES: dict[str, Callable[[], AbstractContextManager[None]]] = {
@@ -455,4 +474,5 @@ REFERENCES: dict[str, Callable[[], AbstractContextManager[None]]] = {
     "depth provider": old_completion,
     "geometric segmentation": old_segmentation,
     "planar smoothing": old_planar_smoothing,
+    "matching": old_matching,
 }

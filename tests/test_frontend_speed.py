@@ -239,3 +239,26 @@ def test_plane_ransac_same_as_before(chain: list[_Frame]) -> None:
             old = ref.fit_plane_ransac_reference(pts, 0.03, iterations, np.random.default_rng(1))
             assert new is not None and old is not None
             assert np.array_equal(new[0], old[0]) and np.array_equal(new[1], old[1])
+
+
+def test_matching_same_as_before() -> None:
+    """Descriptor matches of the box-room images (every pair, both directions), and a tie."""
+    from bimcap.features import extract_sift, match_descriptors
+    from bimcap.features.matching import _top2_columns
+
+    feats = [extract_sift(f.image) for f in frames(3) + frames(2, 516, 386, 7)]
+    n = 0
+    for fa in feats:
+        for fb in feats:
+            new = match_descriptors(fa.descriptors, fb.descriptors)
+            with ref.old_matching():
+                old = match_descriptors(fa.descriptors, fb.descriptors)
+            assert np.array_equal(new, old)
+            n += len(new)
+    assert n > 1000
+    sim = np.random.default_rng(0).random((40, 30)).astype(np.float32)
+    sim[[3, 7], 5] = 2.0  # a tie: the first row is the arg-max
+    new, old = _top2_columns(sim.copy()), ref.top2_columns_reference(sim.copy())
+    assert new[0][5] == 3
+    for x, y in zip(new, old, strict=True):
+        assert np.array_equal(x, y) and x.dtype == y.dtype
