@@ -209,8 +209,8 @@ def complete_linear(sparse: SparseDepth | ArrayLike, options: LinearOptions | No
     # 4 fractional bits
     corners = np.rint(np.stack([pa, pb, pc], 1)[good_idx] * 16).astype(np.int32)
     fill, line8 = cv2.fillConvexPoly, cv2.LINE_8
-    for k, poly in zip((good_idx + 1).tolist(), list(corners), strict=True):
-        fill(tri_id, poly, k, line8, 4)
+    for tid, poly in zip((good_idx + 1).tolist(), list(corners), strict=True):
+        fill(tri_id, poly, tid, line8, 4)
     flat = np.flatnonzero(tri_id)
     k = tri_id.ravel()[flat] - 1
     rows, cols = np.divmod(flat, w)
@@ -412,7 +412,8 @@ def _inlier_counts(points: F64, normals: F64, d: F64, threshold: float) -> NDArr
     of 512 rows that stay in the cache (a one-row block would go to BLAS's matrix-vector
     routine, so the last block takes the remainder; one plane is computed whole)."""
     if len(normals) < 2:
-        return (np.abs(points @ normals.T + d) < threshold).sum(0)
+        whole: NDArray[np.int64] = (np.abs(points @ normals.T + d) < threshold).sum(0)
+        return whole
     starts = list(range(0, len(points), 512))
     if len(starts) > 1 and len(points) - starts[-1] < 2:
         starts.pop()

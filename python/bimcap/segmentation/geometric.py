@@ -244,7 +244,9 @@ def _vertical_scores(sub: F64, sub_n: F64, hn: F64, d: F64, thr: F64, cos_n: flo
     product; one hypothesis is computed whole), in blocks of rows and in place.
     """
     if len(hn) < 2:
-        return ((np.abs(sub @ hn.T + d) < thr) & (np.abs(sub_n @ hn.T) > cos_n)).sum(0)
+        whole: NDArray[np.int64] = (
+            (np.abs(sub @ hn.T + d) < thr) & (np.abs(sub_n @ hn.T) > cos_n)).sum(0)
+        return whole
     score = np.zeros(len(hn), np.int64)
     for a, b in _row_blocks(len(sub)):
         dist = sub[a:b] @ hn.T
