@@ -1,6 +1,18 @@
-"""Front-end benchmark at 1032×772 (ConSLAM's camera at half resolution), one CPU core.
+"""Front-end benchmark: per-stage CPU ms a frame on a generated world; SIFT and matching.
 
-Times are process CPU seconds of single-threaded calls (BLAS and pycolmap on one thread).
+Times are process CPU seconds of single-threaded calls (BLAS and pycolmap on one thread): on a
+machine shared with other work, wall time also counts the time other processes held the core.
+
+World part (``--world SEQ_DIR``): every stage of the front end as ``bimcap refine`` runs it
+(``make_providers`` of ``RefineConfig()``: LiDAR projection, linear completion, geometric
+segmentation, planar smoothing; SIFT, keypoint depths, semantic sampling, scan surface points; per
+pair matching and verification over ``--window`` frames), frame by frame on the sequence's first
+``--frames`` frames, with ms a frame per stage, frames/s per core next to the goal (10 at
+516×386), and, for each stage with a previous implementation kept in
+``tests/_frontend_reference.py``, that implementation's time on the same inputs in the same
+process (the ratio) and a check that both give the same arrays bit for bit.
+
+    PYTHONPATH=python python bench/bench_frontend.py --world /tmp/gen/gen-demo-s0/seq_60_standard
 
 Features part: per frame undistortion + SIFT (pycolmap, and OpenCV as the fallback), per pair
 descriptor matching (numpy, and pycolmap's brute force with ``--pycolmap-matcher``) and geometric
@@ -19,10 +31,12 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
-os.environ.setdefault("OMP_NUM_THREADS", "1")
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-os.environ.setdefault("MKL_NUM_THREADS", "1")
+if "--prepare" not in sys.argv:  # --prepare measures the library as it sets its threads itself
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    os.environ.setdefault("MKL_NUM_THREADS", "1")
 
 import numpy as np
 
@@ -176,12 +190,196 @@ def bench_features(frames: int, window: int, pycolmap_matcher: bool) -> list[tup
     return rows
 
 
+#: The issue's goal: front-end frames per second per core at 516×386, every stage included.
+GOAL_FPS = 10.0
+
+
+def _references() -> dict[str, Any]:
+    """Previous implementations of the stages (``tests/_frontend_reference.py``), by stage name."""
+    try:
+        import _frontend_reference
+    except ImportError:  # pragma: no cover - the tests folder is next to bench/
+        return {}
+    return dict(_frontend_reference.REFERENCES)
+
+
+def _same(a: Any, b: Any) -> bool:
+    """Bit-for-bit equality of two stage outputs (arrays, or dicts / tuples of them)."""
+    if isinstance(a, dict):
+        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+    if isinstance(a, (tuple, list)):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b, strict=True))
+    if hasattr(a, "__dataclass_fields__"):
+        return _same(vars(a), vars(b))
+    return bool(np.array_equal(np.asarray(a), np.asarray(b)))
+
+
+class _Stages:
+    """CPU seconds per stage, and of the previous implementation where one is kept."""
+
+    def __init__(self, previous: bool = True) -> None:
+        self.t: dict[str, float] = {}
+        self.prev: dict[str, float] = {}
+        self.equal: dict[str, bool] = {}
+        self.refs = _references() if previous else {}
+
+    def run(self, stage: str, fn: Any, *args: Any, **kwargs: Any) -> Any:
+        out, t = _timed(fn, *args, **kwargs)
+        self.t[stage] = self.t.get(stage, 0.0) + t
+        ref = self.refs.get(stage)
+        if ref is not None:
+            with ref():
+                old, t_old = _timed(fn, *args, **kwargs)
+            self.prev[stage] = self.prev.get(stage, 0.0) + t_old
+            self.equal[stage] = self.equal.get(stage, True) and _same(out, old)
+        return out
+
+
+def bench_world(seq_dir: Path, frames: int, window: int, previous: bool = True
+                ) -> tuple[list[tuple[str, ...]], float]:
+    """Per-stage rows ``(stage, ms/frame, previous ms/frame, ratio, same result)`` and the total
+    ms a frame, on the first ``frames`` frames of the sequence at ``seq_dir`` (``previous``:
+    also time the previous code of the stages that have it)."""
+    from bimcap.dataset import read_sequence
+    from bimcap.features import extract_sift, lookup_depth, match_descriptors, verify_matches
+    from bimcap.frontend.runner import FrameContext, _load_raw_image, _scan_points, get_undistorter
+    from bimcap.frontend.semantic_map import (
+        SampleSource,
+        SemanticSamplingOptions,
+        sample_semantic_points,
+    )
+    from bimcap.fusion import project_lidar
+    from bimcap.geometry.trajectory import read_tum
+    from bimcap.pipeline.config import RefineConfig
+    from bimcap.pipeline.refine import make_providers, sift_options
+
+    seq = read_sequence(seq_dir)
+    n = min(frames, len(seq.frames))
+    config = RefineConfig(workers=1)
+    depth_p, label_p, refiner = make_providers(config, seq)
+    sift = sift_options(config)
+    sampling = SemanticSamplingOptions(source=SampleSource(config.samples))
+    from bimcap.frontend.runner import FrontendConfig
+
+    scan_opts = FrontendConfig().scan
+    poses = read_tum(seq.root / "poses" / "gt.tum").poses
+    st = _Stages(previous)
+    cam = seq.camera
+    feats = []
+    for i in range(n):
+        und = get_undistorter(cam)
+        raw = st.run("load image", _load_raw_image, seq, i, cam)
+        image = st.run("undistort", und.image, raw)
+        ctx = FrameContext(seq, i, cam, und.pinhole, image, und, poses[i])
+        scan = st.run("load LiDAR", seq.load_lidar, i)
+        st.run("LiDAR projection", project_lidar, scan, seq.cam_from_lidar, cam,
+               depth_p.projection, distort=False)
+        depth = st.run("depth provider", depth_p, ctx)
+        depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0).astype(np.float32)
+        ctx.depth = depth
+        labels = st.run("geometric segmentation", label_p, ctx)
+        depth = st.run("planar smoothing", refiner, ctx, labels)
+        depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0).astype(np.float32)
+        f = st.run("SIFT", extract_sift, image, sift)
+        feats.append(f)
+        st.run("keypoint depths", lookup_depth, depth, f.uv)
+        st.run("semantic sampling", sample_semantic_points, labels, depth, und.pinhole, i,
+               sampling)
+        st.run("scan surface points", _scan_points, seq, i, und.pinhole, scan_opts)
+    pin = cam.pinhole()
+    pairs = [(a, b) for a in range(n) for b in range(a + 1, min(n, a + window + 1))]
+    for a, b in pairs:
+        m = st.run("matching", match_descriptors, feats[a].descriptors, feats[b].descriptors)
+        st.run("verification", verify_matches, feats[a].uv, feats[b].uv, m, pin)
+    # the provider's time includes its projection: report the completion alone
+    st.t["completion + support radius"] = st.t.pop("depth provider") - st.t["LiDAR projection"]
+    if "depth provider" in st.prev:
+        st.prev["completion + support radius"] = (st.prev.pop("depth provider")
+                                                  - st.t["LiDAR projection"])
+        st.equal["completion + support radius"] = st.equal.pop("depth provider")
+    rows = []
+    for stage, t in st.t.items():
+        ms = 1e3 * t / n
+        if stage in st.prev:
+            prev = 1e3 * st.prev[stage] / n
+            rows.append((stage, f"{ms:.1f}", f"{prev:.1f}", f"{prev / ms:.2f}×",
+                         "yes" if st.equal[stage] else "NO"))
+        else:
+            rows.append((stage, f"{ms:.1f}", "", "", ""))
+    total = 1e3 * sum(st.t.values()) / n
+    prev_total = total + 1e3 * sum(st.prev[k] - st.t[k] for k in st.prev) / n
+    rows.append(("total", f"{total:.1f}", f"{prev_total:.1f}", f"{prev_total / total:.2f}×", ""))
+    rows.append((f"frames/s per core (goal {GOAL_FPS:.0f})", f"{1e3 / total:.2f}",
+                 f"{1e3 / prev_total:.2f}", "", ""))
+    rows.append((f"pairs per frame (window {window})", f"{len(pairs) / n:.2f}", "", "", ""))
+    return rows, total
+
+
+def bench_prepare(seq_dir: Path, frames: int, work: Path) -> tuple[float, int]:
+    """CPU seconds of ``bimcap.pipeline.refine.prepare`` (``RefineConfig(workers=1)``, the
+    sequence's ground truth as the initial poses, ``../as_built.ifc`` if there is one else the
+    manifest's IFC, the BIM reference loaded before the timing) on
+    the first ``frames`` frames, with a fresh ``work`` directory; and the frames run. BLAS and
+    OpenCV keep the threads the library gives them."""
+    import shutil
+    from dataclasses import replace
+
+    from bimcap.dataset import read_sequence
+    from bimcap.geometry.trajectory import read_tum
+    from bimcap.pipeline.config import RefineConfig
+    from bimcap.pipeline.refine import prepare
+
+    seq = read_sequence(seq_dir)
+    n = min(frames, len(seq.frames))
+    seq = replace(seq, frames=seq.frames[:n])
+    gt = read_tum(seq_dir / "poses" / "gt.tum")
+    init = replace(gt, timestamps=gt.timestamps[:n], poses=gt.poses[:n])
+    as_built = seq_dir.parent / "as_built.ifc"  # generated worlds: the reference IFC
+    ifc = as_built if as_built.is_file() else seq.ifc_path
+    prepare(seq, ifc, init, RefineConfig(workers=1), work / "warm", quiet=True)  # BIM cache
+    shutil.rmtree(work / "run", ignore_errors=True)
+    t0 = time.process_time()
+    prepare(seq, ifc, init, RefineConfig(workers=1), work / "run", quiet=True)
+    return time.process_time() - t0, n
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=6)
     ap.add_argument("--window", type=int, default=3)
     ap.add_argument("--pycolmap-matcher", action="store_true", help="also time pycolmap's matcher")
+    ap.add_argument("--world", type=Path, default=None,
+                    help="a sequence directory (e.g. /tmp/gen/gen-demo-s0/seq_60_standard): "
+                         "per-stage times of the whole front end on it, instead of the "
+                         "features part")
+    ap.add_argument("--no-previous", action="store_true",
+                    help="with --world: do not time the previous code of the stages")
+    ap.add_argument("--prepare", action="store_true",
+                    help="with --world: CPU time of the whole prepare() (front end, cache "
+                         "writes, tracks) instead of the stages, BLAS threads as the library "
+                         "sets them")
+    ap.add_argument("--work", type=Path, default=Path("/tmp/bench_frontend"),
+                    help="with --prepare: scratch directory (its run/ is replaced)")
     args = ap.parse_args()
+    if args.world is not None and args.prepare:
+        frames = args.frames if args.frames != 6 else 60
+        cpu, n = bench_prepare(args.world, frames, args.work)
+        print(f"# prepare() on {args.world}, {n} frames, workers 1, process CPU time, load "
+              f"average {os.getloadavg()[0]:.1f}")
+        print(f"{1e3 * cpu / n:.0f} ms a frame, {n / cpu:.2f} frames/s per core "
+              f"(goal {GOAL_FPS:.0f}; {cpu:.1f} CPU s)")
+        return
+    if args.world is not None:
+        frames = args.frames if args.frames != 6 else 20
+        window = args.window if args.window != 3 else 4
+        print(f"# front end per stage on {args.world}, first {frames} frames, window {window}, "
+              f"1 thread, process CPU ms a frame, load average {os.getloadavg()[0]:.1f}")
+        rows, _ = bench_world(args.world, frames, window, not args.no_previous)
+        w = max(len(r[0]) for r in rows)
+        print(f"{'stage':<{w}}  {'ms/frame':>9}  {'previous':>9}  {'ratio':>7}  same result")
+        for stage, ms, prev, ratio, same in rows:
+            print(f"{stage:<{w}}  {ms:>9}  {prev:>9}  {ratio:>7}  {same}")
+        return
     cam = _camera()
     print(f"# front-end features benchmark: {cam.width}x{cam.height}, {args.frames} frames, "
           f"window {args.window}, 1 thread, CPU time, load average {os.getloadavg()[0]:.1f}")

@@ -33,10 +33,10 @@ import multiprocessing
 import os
 import time
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from contextlib import ExitStack
+from contextlib import ExitStack, contextmanager
 from dataclasses import asdict, dataclass, field
 from os import PathLike
 from pathlib import Path
@@ -646,6 +646,30 @@ def _load_raw_image(sequence: Any, index: int, camera: Camera) -> NDArray[np.uin
 FEATURE_ARRAYS = ("uv", "scale", "orientation", "descriptors")
 
 
+@contextmanager
+def one_thread() -> Iterator[None]:
+    """BLAS (every OpenBLAS / MKL loaded, ``threadpoolctl``) and OpenCV on one thread for the
+    block, as they were after it.
+
+    The front end's parallelism is one job a core (processes, or Dask threads); BLAS and OpenCV
+    threads inside a job only compete with the other jobs, and the small products of the RANSACs
+    cost about 3× the CPU time with OpenBLAS's threads than on one (a 3000 × 150 score table:
+    8 vs 2.5 ms on the 2-core box; docs/speed.md). The results are the same bit for bit: these
+    libraries split a product's output, not its sums, across threads
+    (``tests/test_frontend_speed.py`` compares a whole front end both ways).
+    """
+    import cv2
+    from threadpoolctl import threadpool_limits
+
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        with threadpool_limits(limits=1):
+            yield
+    finally:
+        cv2.setNumThreads(before)
+
+
 def compute_frame(job: _FrameJob, *, shared: _RunShared | None = None
                   ) -> dict[str, NDArray[Any]]:
     """All per-frame work for one frame.
@@ -656,7 +680,15 @@ def compute_frame(job: _FrameJob, *, shared: _RunShared | None = None
     Returns the SIFT arrays (``uv, scale, orientation, descriptors``; extracted unless
     ``job.features`` holds them), the keypoint depths ``depth``, the semantic samples
     ``<class>_p_in_cam`` and the timings ``time_s`` / ``sift_time_s``.
+
+    Runs with BLAS and OpenCV on one thread (:func:`one_thread`).
     """
+    with one_thread():
+        return _compute_frame(job, shared)
+
+
+def _compute_frame(job: _FrameJob, shared: _RunShared | None) -> dict[str, NDArray[Any]]:
+    """:func:`compute_frame`."""
     t0 = time.perf_counter()
     if shared is None:
         shared = _WORKER.shared
@@ -729,9 +761,12 @@ class _PairJob:
 
 
 def compute_pair(job: _PairJob) -> dict[str, NDArray[Any]]:
-    """Match and verify one pair; returns the arrays that the cache stores."""
+    """Match and verify one pair (BLAS and OpenCV on one thread); returns the arrays that the
+    cache stores."""
     t0 = time.perf_counter()
-    pm = match_pair(job.feats_a, job.feats_b, job.camera, job.frame_a, job.frame_b, job.options)
+    with one_thread():
+        pm = match_pair(job.feats_a, job.feats_b, job.camera, job.frame_a, job.frame_b,
+                        job.options)
     return {
         "idx": pm.idx,
         "num_putative": np.array(pm.num_putative),

@@ -140,17 +140,19 @@ def pixel_surface_area(depth: NDArray[np.floating], camera: Camera, min_cos: flo
     """
     z = np.asarray(depth, dtype=np.float64)
     h, w = z.shape
-    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
-    x = (u - camera.cx) / camera.fx * z
-    y = (v - camera.cy) / camera.fy * z
-    p = np.stack([x, y, z], axis=-1)
-    du = np.gradient(p, axis=1)
-    dv = np.gradient(p, axis=0)
-    n = np.cross(du, dv)
-    nn = np.linalg.norm(n, axis=-1)
-    pn = np.linalg.norm(p, axis=-1)
+    # Component by component, the same arithmetic as np.gradient / np.cross / np.linalg.norm on
+    # the stacked (H, W, 3) points (bit for bit: tests/test_frontend_speed.py), 2× cheaper.
+    x = (np.arange(w, dtype=np.float64) - camera.cx) / camera.fx * z
+    y = ((np.arange(h, dtype=np.float64) - camera.cy) / camera.fy)[:, None] * z
+    xu, yu, zu = (np.gradient(c, axis=1) for c in (x, y, z))
+    xv, yv, zv = (np.gradient(c, axis=0) for c in (x, y, z))
+    n0 = yu * zv - zu * yv
+    n1 = zu * xv - xu * zv
+    n2 = xu * yv - yu * xv
+    nn = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+    pn = np.sqrt(x * x + y * y + z * z)
     with np.errstate(invalid="ignore", divide="ignore"):
-        cos = np.abs((n * p).sum(axis=-1)) / (nn * pn)
+        cos = np.abs(n0 * x + n1 * y + n2 * z) / (nn * pn)
     cos = np.where(np.isfinite(cos), cos, 1.0)
     cos = np.clip(cos, min_cos, 1.0)
     with np.errstate(invalid="ignore", divide="ignore"):

@@ -208,10 +208,12 @@ def complete_linear(sparse: SparseDepth | ArrayLike, options: LinearOptions | No
     good_idx = np.flatnonzero(good)
     # 4 fractional bits
     corners = np.rint(np.stack([pa, pb, pc], 1)[good_idx] * 16).astype(np.int32)
-    for k, poly in zip(good_idx, corners, strict=True):
-        cv2.fillConvexPoly(tri_id, poly, int(k) + 1, lineType=cv2.LINE_8, shift=4)
-    rows, cols = np.nonzero(tri_id)
-    k = tri_id[rows, cols] - 1
+    fill, line8 = cv2.fillConvexPoly, cv2.LINE_8
+    for tid, poly in zip((good_idx + 1).tolist(), list(corners), strict=True):
+        fill(tri_id, poly, tid, line8, 4)
+    flat = np.flatnonzero(tri_id)
+    k = tri_id.ravel()[flat] - 1
+    rows, cols = np.divmod(flat, w)
     # per triangle, the affine function f(u, v) = a u + b v + c through its three corners, with
     # f = 1/z (exact for a plane seen through a pinhole) or f = z; one gather per pixel. Pixel
     # centres up to half a pixel outside their rasterised triangle are extrapolated (exact for
@@ -221,16 +223,15 @@ def complete_linear(sparse: SparseDepth | ArrayLike, options: LinearOptions | No
     mat[:, :, :2] = np.stack([pa[gi], pb[gi], pc[gi]], 1)
     vals = 1.0 / zt[gi] if opts.inverse_depth else zt[gi]
     coef_good = np.linalg.solve(mat, vals[:, :, None])[:, :, 0]
-    coef = np.zeros((len(simp), 3))
-    coef[gi] = coef_good
-    ck = coef[k]
-    f = ck[:, 0] * cols + ck[:, 1] * rows + ck[:, 2]
-    out = np.zeros((h, w), dtype=np.float32)
+    coef = np.zeros((3, len(simp)))
+    coef[:, gi] = coef_good.T
+    f = coef[0][k] * cols + coef[1][k] * rows + coef[2][k]
+    out = np.zeros(h * w, dtype=np.float32)
     if opts.inverse_depth:
-        out[rows, cols] = np.where(f > 0, 1.0 / np.maximum(f, 1e-12), 0.0)
+        out[flat] = np.where(f > 0, 1.0 / np.maximum(f, 1e-12), 0.0)
     else:
-        out[rows, cols] = np.maximum(f, 0.0)
-    return out
+        out[flat] = np.maximum(f, 0.0)
+    return out.reshape(h, w)
 
 
 # ----------------------------------------------------------------------------- classical
@@ -405,6 +406,26 @@ class PlanarSmoothingOptions:
     blur_sigma_px: float = 5.0
 
 
+def _inlier_counts(points: F64, normals: F64, d: F64, threshold: float) -> NDArray[np.int64]:
+    """(I,) how many of ``points`` (N, 3) lie within ``threshold`` of each plane ``normals``
+    (I, 3), ``d`` (I,): ``(|points·normalsᵀ + d| < threshold).sum(0)`` bit for bit, in blocks
+    of 512 rows that stay in the cache (a one-row block would go to BLAS's matrix-vector
+    routine, so the last block takes the remainder; one plane is computed whole)."""
+    if len(normals) < 2:
+        whole: NDArray[np.int64] = (np.abs(points @ normals.T + d) < threshold).sum(0)
+        return whole
+    starts = list(range(0, len(points), 512))
+    if len(starts) > 1 and len(points) - starts[-1] < 2:
+        starts.pop()
+    counts = np.zeros(len(normals), np.int64)
+    for a, b in zip(starts, [*starts[1:], len(points)], strict=True):
+        dist = points[a:b] @ normals.T
+        dist += d
+        np.abs(dist, out=dist)
+        counts += np.count_nonzero(dist < threshold, axis=0)
+    return counts
+
+
 def fit_plane_ransac(
     points: F64, threshold: float, iterations: int, rng: np.random.Generator
 ) -> tuple[F64, NDArray[np.bool_]] | None:
@@ -422,9 +443,11 @@ def fit_plane_ransac(
         return None
     normals = normals[ok] / norm[ok, None]
     d = -(normals * a[ok]).sum(1)
-    dist = np.abs(points @ normals.T + d)  # (N, I)
-    best = int(np.argmax((dist < threshold).sum(0)))
-    inl = dist[:, best] < threshold
+    best = int(np.argmax(_inlier_counts(points, normals, d, threshold)))
+    # the best plane's column of the (N, I) table: a product with two columns is a
+    # matrix-matrix one, whose entries are the table's bit for bit
+    cols = [best, best] if len(normals) > 1 else [best]
+    inl = np.abs(points @ normals[cols].T + d[cols])[:, 0] < threshold
     if inl.sum() < 3:
         return None
     p = points[inl]
@@ -472,7 +495,8 @@ def _smooth_region(
     """Move the depth of one connected region's pixels onto the nearest of its planes, in place."""
     uv = np.stack([cols, rows], 1).astype(np.float64)
     cur = depth[rows, cols].astype(np.float64)
-    pts = camera.backproject(uv, cur, distorted=False)
+    rays = camera.rays(uv, distorted=False)
+    pts = rays * cur[:, None]  # camera.backproject, sharing its rays with the plane depths below
     planes = _region_planes(pts, opts, rng)
     if not planes:
         return
@@ -484,7 +508,6 @@ def _smooth_region(
         if len(pl) == 1
         else (dist[np.arange(len(pts)), best] <= opts.assign_threshold_m)
     )
-    rays = camera.rays(uv, distorted=False)
     denom = (rays * pl[best, :3]).sum(1)
     with np.errstate(divide="ignore", invalid="ignore"):
         z_plane = -pl[best, 3] / denom
@@ -545,10 +568,17 @@ def smooth_planar_regions(
             sel = mask > 0
             out[sel] = num[sel] / np.maximum(den[sel], 1e-6)
             continue
-        n_comp, comp = cv2.connectedComponents(mask, connectivity=4)
-        for c in range(1, n_comp):
-            rows, cols = np.nonzero(comp == c)
-            if len(rows) < opts.min_region_px:
-                continue
+        n_comp, comp, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=4)
+        big = [c for c in range(1, n_comp) if stats[c, cv2.CC_STAT_AREA] >= opts.min_region_px]
+        if not big:
+            continue
+        # every big component's pixels in row-major order (what np.nonzero(comp == c) gives),
+        # from one stable sort instead of one pass over the image per component
+        flat = np.flatnonzero(comp)
+        ids = comp.ravel()[flat]
+        order = np.argsort(ids, kind="stable")
+        starts = np.searchsorted(ids[order], np.arange(n_comp + 1))
+        for c in big:
+            rows, cols = np.divmod(flat[order[starts[c]:starts[c + 1]]], comp.shape[1])
             _smooth_region(out, d, rows, cols, camera, opts, rng)
     return out

@@ -1,0 +1,478 @@
+"""The front end's previous implementations of the stages made faster (issue 14), kept as oracles.
+
+Each ``*_reference`` function is the code as it was before the speed-up, verbatim; the tests
+check that the new code gives the same arrays bit for bit on real frames, and
+``bench/bench_frontend.py --world`` times both in one process (``REFERENCES``: stage name → a
+context in which that stage runs the old code, swapped into its module).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from contextlib import AbstractContextManager, contextmanager
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from bimcap.fusion.completion import (
+    FusionInputError,
+    LinearOptions,
+    PlanarSmoothing,
+    PlanarSmoothingOptions,
+    SparseDepth,
+    _require_points,
+    _sparse_arrays,
+)
+from bimcap.geometry.camera import Camera
+from bimcap.labels import Label
+from bimcap.segmentation.geometric import GeometricOptions, _Plane, _threshold
+
+F32 = NDArray[np.float32]
+F64 = NDArray[np.float64]
+B = NDArray[np.bool_]
+U8 = NDArray[np.uint8]
+
+
+def pixel_surface_area_reference(depth: NDArray[np.floating], camera: Camera,
+                                 min_cos: float = 0.1) -> F64:
+    """``bimcap.frontend.semantic_map.pixel_surface_area`` before issue 14 (stacked points)."""
+    z = np.asarray(depth, dtype=np.float64)
+    h, w = z.shape
+    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+    x = (u - camera.cx) / camera.fx * z
+    y = (v - camera.cy) / camera.fy * z
+    p = np.stack([x, y, z], axis=-1)
+    du = np.gradient(p, axis=1)
+    dv = np.gradient(p, axis=0)
+    n = np.cross(du, dv)
+    nn = np.linalg.norm(n, axis=-1)
+    pn = np.linalg.norm(p, axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos = np.abs((n * p).sum(axis=-1)) / (nn * pn)
+    cos = np.where(np.isfinite(cos), cos, 1.0)
+    cos = np.clip(cos, min_cos, 1.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos_alpha = np.where(pn > 0, z / pn, 1.0)
+    return np.where(z > 0, z * z * cos_alpha / (camera.fx * camera.fy) / cos, 0.0)
+
+
+# ------------------------------------------------------------- fusion.completion
+def complete_linear_reference(sparse: SparseDepth | ArrayLike,
+                              options: LinearOptions | None = None) -> F32:
+    """``bimcap.fusion.completion.complete_linear`` before issue 14 (one ``fillConvexPoly`` call
+    a triangle with numpy scalars, 2-D gathers)."""
+    import cv2
+    from scipy.spatial import Delaunay, QhullError
+
+    opts = options or LinearOptions()
+    depth, uv, z = _sparse_arrays(sparse)
+    _require_points(z, 3)
+    h, w = depth.shape
+    try:
+        tri = Delaunay(uv)
+    except QhullError as exc:
+        raise FusionInputError(
+            f"cannot triangulate the sparse returns: {exc}", field="sparse_depth"
+        ) from None
+    simp = tri.simplices
+    pa, pb, pc = uv[simp[:, 0]], uv[simp[:, 1]], uv[simp[:, 2]]
+    edge = np.maximum.reduce(
+        [
+            np.linalg.norm(pa - pb, axis=1),
+            np.linalg.norm(pb - pc, axis=1),
+            np.linalg.norm(pc - pa, axis=1),
+        ]
+    )
+    zt = z[simp]
+    ratio = zt.max(1) / zt.min(1)
+    e1, e2 = pb - pa, pc - pa
+    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]  # twice the signed area, px²
+    good = (edge <= opts.max_edge_px) & (ratio <= opts.max_depth_ratio) & (np.abs(det) > 2.0)
+    # rasterise triangle ids (cv2 fill in a loop over kept triangles is far faster than
+    # Delaunay.find_simplex on every pixel); id 0 = none
+    tri_id = np.zeros((h, w), dtype=np.int32)
+    good_idx = np.flatnonzero(good)
+    # 4 fractional bits
+    corners = np.rint(np.stack([pa, pb, pc], 1)[good_idx] * 16).astype(np.int32)
+    for k, poly in zip(good_idx, corners, strict=True):
+        cv2.fillConvexPoly(tri_id, poly, int(k) + 1, lineType=cv2.LINE_8, shift=4)
+    rows, cols = np.nonzero(tri_id)
+    k = tri_id[rows, cols] - 1
+    # per triangle, the affine function f(u, v) = a u + b v + c through its three corners, with
+    # f = 1/z (exact for a plane seen through a pinhole) or f = z; one gather per pixel. Pixel
+    # centres up to half a pixel outside their rasterised triangle are extrapolated (exact for
+    # a plane); slivers (area < 1 px²) were dropped above, so this stays well conditioned.
+    gi = good_idx
+    mat = np.ones((len(gi), 3, 3))
+    mat[:, :, :2] = np.stack([pa[gi], pb[gi], pc[gi]], 1)
+    vals = 1.0 / zt[gi] if opts.inverse_depth else zt[gi]
+    coef_good = np.linalg.solve(mat, vals[:, :, None])[:, :, 0]
+    coef = np.zeros((len(simp), 3))
+    coef[gi] = coef_good
+    ck = coef[k]
+    f = ck[:, 0] * cols + ck[:, 1] * rows + ck[:, 2]
+    out = np.zeros((h, w), dtype=np.float32)
+    if opts.inverse_depth:
+        out[rows, cols] = np.where(f > 0, 1.0 / np.maximum(f, 1e-12), 0.0)
+    else:
+        out[rows, cols] = np.maximum(f, 0.0)
+    return out
+
+
+def fit_plane_ransac_reference(
+    points: F64, threshold: float, iterations: int, rng: np.random.Generator
+) -> tuple[F64, NDArray[np.bool_]] | None:
+    """Robust plane ``n·p + d = 0`` through points (N, 3): 3-point RANSAC then least squares on
+    the inliers. Returns ((4,) plane with unit n, inlier mask) or None (< 3 points)."""
+    n = len(points)
+    if n < 3:
+        return None
+    idx = rng.integers(0, n, size=(iterations, 3))
+    a, b, c = points[idx[:, 0]], points[idx[:, 1]], points[idx[:, 2]]
+    normals = np.cross(b - a, c - a)
+    norm = np.linalg.norm(normals, axis=1)
+    ok = norm > 1e-9
+    if not ok.any():
+        return None
+    normals = normals[ok] / norm[ok, None]
+    d = -(normals * a[ok]).sum(1)
+    dist = np.abs(points @ normals.T + d)  # (N, I)
+    best = int(np.argmax((dist < threshold).sum(0)))
+    inl = dist[:, best] < threshold
+    if inl.sum() < 3:
+        return None
+    p = points[inl]
+    centroid = p.mean(0)
+    _, _, vt = np.linalg.svd(p - centroid, full_matrices=False)
+    nrm = vt[2]
+    plane = np.concatenate([nrm, [-nrm @ centroid]])
+    inl = np.abs(points @ nrm + plane[3]) < threshold
+    return plane, inl
+
+
+def region_planes_reference(
+    points: F64, opts: PlanarSmoothingOptions, rng: np.random.Generator
+) -> list[F64]:
+    """Up to ``opts.max_planes`` planes ``(4,)`` through ``points`` (N, 3), by RANSAC, each on the
+    points further than ``assign_threshold_m`` from the earlier ones; a plane needs
+    ``opts.min_region_px`` inliers."""
+    planes: list[F64] = []
+    left = points
+    while len(planes) < opts.max_planes and len(left) >= opts.min_region_px:
+        pick = rng.choice(len(left), size=min(opts.sample_size, len(left)), replace=False)
+        fit = fit_plane_ransac_reference(left[pick], opts.ransac_threshold_m,
+                                         opts.ransac_iterations, rng)
+        if fit is None:
+            break
+        plane = fit[0]
+        dist = np.abs(left @ plane[:3] + plane[3])
+        if (dist < opts.ransac_threshold_m).sum() < opts.min_region_px:
+            break
+        planes.append(plane)
+        # Drop everything the plane may claim, not only its RANSAC inliers: the noise tail of
+        # a big wall would otherwise make a ghost plane parallel to it a few centimetres away.
+        left = left[dist > opts.assign_threshold_m]
+    return planes
+
+
+def smooth_region_reference(
+    out: F32,
+    depth: F32,
+    rows: NDArray[np.int64],
+    cols: NDArray[np.int64],
+    camera: Camera,
+    opts: PlanarSmoothingOptions,
+    rng: np.random.Generator,
+) -> None:
+    """Move the depth of one connected region's pixels onto the nearest of its planes, in place."""
+    uv = np.stack([cols, rows], 1).astype(np.float64)
+    cur = depth[rows, cols].astype(np.float64)
+    pts = camera.backproject(uv, cur, distorted=False)
+    planes = region_planes_reference(pts, opts, rng)
+    if not planes:
+        return
+    pl = np.stack(planes)  # (K, 4)
+    dist = np.abs(pts @ pl[:, :3].T + pl[:, 3])  # (N, K)
+    best = np.argmin(dist, axis=1)
+    near = (
+        np.ones(len(pts), dtype=bool)
+        if len(pl) == 1
+        else (dist[np.arange(len(pts)), best] <= opts.assign_threshold_m)
+    )
+    rays = camera.rays(uv, distorted=False)
+    denom = (rays * pl[best, :3]).sum(1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z_plane = -pl[best, 3] / denom
+    ok = (
+        near
+        & np.isfinite(z_plane)
+        & (z_plane > 0)
+        & (np.abs(z_plane - cur) <= opts.max_change_rel * cur)
+    )
+    out[rows[ok], cols[ok]] = z_plane[ok].astype(np.float32)
+
+
+def smooth_planar_regions_reference(
+    depth: ArrayLike,
+    labels: ArrayLike,
+    camera: Camera,
+    options: PlanarSmoothingOptions | None = None,
+    seed: int = 0,
+) -> F32:
+    """Smooth dense depth inside planar regions (floor, ceiling, walls).
+
+    Parameters
+    ----------
+    depth: (H, W) float32 metres (0 = unknown), undistorted pinhole pixels of ``camera``.
+    labels: (H, W) uint8 label ids.
+    camera: the pinhole camera of ``depth`` (its distortion is ignored).
+    options: :class:`PlanarSmoothingOptions`; ``PLANE_FIT`` fits, per connected region of each
+        class, up to ``max_planes`` RANSAC planes to the back-projected pixels and moves each
+        pixel that lies within ``assign_threshold_m`` of its nearest plane onto it (its depth
+        becomes the plane's along the pixel ray); ``BLUR`` is the paper's blur (normalised
+        Gaussian, so that nothing outside the region or unknown leaks in).
+    seed: RANSAC seed.
+
+    Returns
+    -------
+    (H, W) float32 smoothed depth (a new array).
+    """
+    import cv2
+
+    opts = options or PlanarSmoothingOptions()
+    d = np.asarray(depth, dtype=np.float32)
+    lab = np.asarray(labels)
+    if d.shape != lab.shape or d.shape != (camera.height, camera.width):
+        raise FusionInputError(
+            f"depth {d.shape}, labels {lab.shape} and camera {camera.height}x{camera.width} differ",
+            field="labels",
+        )
+    out = d.copy()
+    rng = np.random.default_rng(seed)
+    for label in opts.labels:
+        mask = ((lab == int(label)) & (d > 0)).astype(np.uint8)
+        if mask.sum() < opts.min_region_px:
+            continue
+        if opts.mode is PlanarSmoothing.BLUR:
+            m = mask.astype(np.float32)
+            num = cv2.GaussianBlur(d * m, (0, 0), opts.blur_sigma_px)
+            den = cv2.GaussianBlur(m, (0, 0), opts.blur_sigma_px)
+            sel = mask > 0
+            out[sel] = num[sel] / np.maximum(den[sel], 1e-6)
+            continue
+        n_comp, comp = cv2.connectedComponents(mask, connectivity=4)
+        for c in range(1, n_comp):
+            rows, cols = np.nonzero(comp == c)
+            if len(rows) < opts.min_region_px:
+                continue
+            smooth_region_reference(out, d, rows, cols, camera, opts, rng)
+    return out
+
+
+# ------------------------------------------------------------- segmentation.geometric
+def ransac_vertical_reference(pts: F64, nrm: F64, up: F64, opts: GeometricOptions,
+                     rng: np.random.Generator) -> _Plane | None:
+    """Vertical plane (normal ⟂ up) from points (N, 3) with normals (N, 3): 1-point hypotheses."""
+    n = len(pts)
+    if n < 3:
+        return None
+    pick = rng.choice(n, size=min(n, opts.ransac_sample), replace=False)
+    sub, sub_n = pts[pick], nrm[pick]
+    hyp = rng.integers(0, len(sub), size=opts.ransac_iterations)
+    hn = sub_n[hyp] - (sub_n[hyp] @ up)[:, None] * up
+    ln = np.linalg.norm(hn, axis=1)
+    good = ln > 1e-6
+    hn = hn[good] / ln[good, None]
+    d = -(hn * sub[hyp[good]]).sum(1)
+    thr = _threshold(sub[:, 2], opts)[:, None]
+    cos_n = np.cos(np.deg2rad(opts.normal_agreement_deg))
+    score = ((np.abs(sub @ hn.T + d) < thr) & (np.abs(sub_n @ hn.T) > cos_n)).sum(0)
+    if len(score) == 0:
+        return None
+    best = int(np.argmax(score))
+    inl = (np.abs(sub @ hn[best] + d[best]) < thr[:, 0]) & (np.abs(sub_n @ hn[best]) > cos_n)
+    if inl.sum() < 3:
+        return None
+    # refit: a line in the horizontal plane (coordinates along two horizontal axes)
+    e1 = np.cross(up, hn[best])
+    e1 /= np.linalg.norm(e1)
+    q = sub[inl]
+    xy = np.stack([q @ e1, q @ hn[best]], 1)
+    c = xy.mean(0)
+    _, _, vt = np.linalg.svd(xy - c, full_matrices=False)
+    dir2 = vt[0]
+    normal2 = np.array([-dir2[1], dir2[0]])
+    normal = normal2[0] * e1 + normal2[1] * hn[best]
+    normal /= np.linalg.norm(normal)
+    if normal @ hn[best] < 0:
+        normal = -normal
+    centroid = q.mean(0)
+    return _Plane(normal, float(-normal @ centroid))
+
+
+def protrudes_reference(region: B, pts: F64, plane: _Plane, opts: GeometricOptions) -> bool:
+    """Does the planar region stand out of what surrounds it on the left and on the right?
+
+    Per row and side, walk outward from the region's edge (up to ``protrusion_px`` pixels) to
+    the first pixel with depth that is off the region's plane; the region protrudes on that side
+    when that point lies **behind** the plane's extension (a depth jump to the background, or
+    the other face of a convex corner: a column). A concave corner (a room corner: the adjacent
+    wall is in front of the extension) or an occluder fails. Needs ``protrusion_min_rows`` of
+    the decided rows to pass on every decided side (a side is undecided at the image border or
+    when fewer than 20 % of the rows find an off-plane pixel), and ``protrusion_sides`` decided
+    sides (default 2: a wall seen between the image border and a doorway protrudes on its one
+    visible side just as a column does; walls being far more common, a region cut by the image
+    border stays a wall).
+    """
+    rows = np.flatnonzero(region.any(1))
+    w = region.shape[1]
+    sub = region[rows]
+    left = np.argmax(sub, axis=1)
+    right = w - 1 - np.argmax(sub[:, ::-1], axis=1)
+    cam_side = np.sign(plane.offset) if plane.offset != 0 else 1.0  # the camera (origin) side
+    sides = 0
+    for edge, step in ((left, -1), (right, 1)):
+        decided = np.zeros(len(rows), dtype=bool)
+        behind = np.zeros(len(rows), dtype=bool)
+        inside_any = np.zeros(len(rows), dtype=bool)
+        margin = opts.normal_step_px + 1  # no normals there: the image border for this purpose
+        for j in range(1, opts.protrusion_px + 1):
+            col = edge + step * j
+            inside = (col >= margin) & (col < w - margin)
+            inside_any |= inside
+            colc = np.clip(col, 0, w - 1)
+            p = pts[rows, colc]
+            z = p[:, 2]
+            sd = p @ plane.normal + plane.offset
+            off = inside & (z > 0) & (np.abs(sd) > _threshold(z, opts)) & ~decided
+            behind[off] = (sd[off] * cam_side) < 0
+            decided |= off
+        if inside_any.mean() < 0.5 or decided.mean() < 0.2:
+            continue  # the image border, or nothing off the plane nearby: unknown side
+        sides += 1
+        if behind[decided].mean() < opts.protrusion_min_rows:
+            return False
+    return sides >= opts.protrusion_sides
+
+
+def upsample_labels_reference(
+    labels: U8,
+    region_id: NDArray[np.int32],
+    regions: list[tuple[Label, _Plane]],
+    depth: NDArray[np.float32],
+    camera: Camera,
+    opts: GeometricOptions,
+) -> U8:
+    """Bring work-resolution labels to full resolution, plane-guided along borders.
+
+    Nearest-neighbour upsampling, then every full-resolution pixel in a border cell (a work
+    pixel whose 3×3 neighbourhood holds more than one region) takes, among the planar regions
+    of that neighbourhood, the one whose plane its own 3-D point lies nearest (if within the
+    plane threshold). Plane parameters are scale-free (camera-frame metres), so the work
+    resolution's planes apply to full-resolution points directly.
+    """
+    import cv2
+
+    size = (camera.width, camera.height)
+    up = cv2.resize(labels, size, interpolation=cv2.INTER_NEAREST)
+    up[depth <= 0] = int(Label.UNKNOWN)
+    if not regions:
+        return up
+    kernel = np.ones((3, 3), np.uint8)
+    rid = region_id + 1  # 0 = none
+    lo = cv2.erode(rid.astype(np.float32), kernel)
+    hi = cv2.dilate(rid.astype(np.float32), kernel)
+    border_lo = (lo != hi).astype(np.uint8)
+    border = cv2.resize(border_lo, size, interpolation=cv2.INTER_NEAREST) > 0
+    border &= depth > 0
+    r, c = np.nonzero(border)
+    if len(r) == 0:
+        return up
+    z = depth[r, c].astype(np.float64)
+    p = np.stack([(c - camera.cx) / camera.fx * z, (r - camera.cy) / camera.fy * z, z], 1)
+    best = _threshold(z, opts) * 2.0
+    choice = np.full(len(r), -1, dtype=np.int64)
+    for k, (_, plane) in enumerate(regions):
+        near_lo = cv2.dilate((region_id == k).astype(np.uint8), kernel)
+        near = cv2.resize(near_lo, size, interpolation=cv2.INTER_NEAREST)[r, c] > 0
+        dist = np.abs(p @ plane.normal + plane.offset)
+        take = near & (dist < best)
+        best[take] = dist[take]
+        choice[take] = k
+    lut = np.array([int(lab) for lab, _ in regions], dtype=np.uint8)
+    sel = choice >= 0
+    up[r[sel], c[sel]] = lut[choice[sel]]
+    return up
+
+
+# ------------------------------------------------------------- features.matching
+def top2_columns_reference(sim: NDArray[np.float32]
+                           ) -> tuple[NDArray[np.int64], NDArray[np.float32], NDArray[np.float32]]:
+    """``bimcap.features.matching._top2_columns`` before issue 14 (``np.argmax`` on axis 0)."""
+    best = np.argmax(sim, axis=0)
+    cols = np.arange(sim.shape[1])
+    s1 = sim[best, cols].copy()
+    sim[best, cols] = -np.inf
+    s2 = sim.max(axis=0)
+    sim[best, cols] = s1
+    return best, s1, s2
+
+
+@contextmanager
+def swapped(module: Any, **functions: Callable[..., Any]) -> Iterator[None]:
+    """Replace ``module``'s attributes by ``functions`` for the duration of the block."""
+    saved = {name: getattr(module, name) for name in functions}
+    try:
+        for name, fn in functions.items():
+            setattr(module, name, fn)
+        yield
+    finally:
+        for name, fn in saved.items():
+            setattr(module, name, fn)
+
+
+def old_semantic_sampling() -> AbstractContextManager[None]:
+    from bimcap.frontend import semantic_map
+
+    return swapped(semantic_map, pixel_surface_area=pixel_surface_area_reference)
+
+
+def old_completion() -> AbstractContextManager[None]:
+    from bimcap.fusion import completion
+
+    return swapped(completion, complete_linear=complete_linear_reference)
+
+
+@contextmanager
+def old_planar_smoothing() -> Iterator[None]:
+    from bimcap import fusion
+    from bimcap.fusion import completion
+
+    with swapped(completion, smooth_planar_regions=smooth_planar_regions_reference), \
+            swapped(fusion, smooth_planar_regions=smooth_planar_regions_reference):
+        yield
+
+
+def old_segmentation() -> AbstractContextManager[None]:
+    from bimcap.segmentation import geometric
+
+    return swapped(geometric, _ransac_vertical=ransac_vertical_reference,
+                   _protrudes=protrudes_reference, _upsample_labels=upsample_labels_reference)
+
+
+def old_matching() -> AbstractContextManager[None]:
+    from bimcap.features import matching
+
+    return swapped(matching, _top2_columns=top2_columns_reference)
+
+
+#: Stage name (as ``bench_frontend.py --world`` prints it) → a context in which the stage's
+#: functions (and the providers that call them) run the old code.
+REFERENCES: dict[str, Callable[[], AbstractContextManager[None]]] = {
+    "semantic sampling": old_semantic_sampling,
+    "depth provider": old_completion,
+    "geometric segmentation": old_segmentation,
+    "planar smoothing": old_planar_smoothing,
+    "matching": old_matching,
+}

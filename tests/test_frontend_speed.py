@@ -1,0 +1,264 @@
+"""The front end's speed-ups (issue 14) give the same arrays, bit for bit, as the code before them
+(``tests/_frontend_reference.py``), on the box-room frames run through the whole chain: LiDAR
+projection, linear completion, geometric segmentation, planar smoothing, semantic sampling; and
+BLAS / OpenCV on one thread inside the front end's jobs changes none of its arrays."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import _frontend_reference as ref
+from _fusion_scene import frames
+from bimcap.frontend.semantic_map import (
+    SamplingMode,
+    SemanticSamplingOptions,
+    pixel_surface_area,
+    sample_semantic_points,
+)
+from bimcap.fusion import CompletionMethod, CompletionOptions, complete_depth, project_lidar
+from bimcap.fusion.completion import (
+    LinearOptions,
+    PlanarSmoothingOptions,
+    complete_linear,
+    smooth_planar_regions,
+)
+from bimcap.geometry.camera import Camera
+from bimcap.segmentation.geometric import GeometricOptions, segment_geometric
+
+
+@dataclass
+class _Frame:
+    camera: Camera  # the pinhole camera of every map
+    world_from_cam: np.ndarray  # (7,)
+    sparse: object  # bimcap.fusion.SparseDepth
+    dense: np.ndarray  # (H, W) float32 linear completion
+    labels: np.ndarray  # (H, W) uint8 geometric labels
+    smoothed: np.ndarray  # (H, W) float32 after planar smoothing
+
+
+@pytest.fixture(scope="module")
+def chain() -> list[_Frame]:
+    out = []
+    for f in frames(3) + frames(2, 516, 386, 7):
+        cam = f.camera.pinhole()
+        sparse = project_lidar(f.points_in_lidar, f.cam_from_lidar, cam)
+        dense = np.asarray(complete_depth(sparse, CompletionOptions(CompletionMethod.LINEAR)),
+                           np.float32)
+        labels = segment_geometric(dense, cam, f.world_from_cam)
+        smoothed = smooth_planar_regions(dense, labels, cam)
+        out.append(_Frame(cam, f.world_from_cam, sparse, dense, labels, smoothed))
+    return out
+
+
+def test_chain_has_content(chain: list[_Frame]) -> None:
+    """The frames exercise every stage (a check that cannot pass on empty maps)."""
+    for f in chain:
+        assert (f.dense > 0).mean() > 0.5
+        assert len(np.unique(f.labels)) >= 3
+        assert not np.array_equal(f.smoothed, f.dense)
+
+
+def test_pixel_surface_area_same_as_before(chain: list[_Frame]) -> None:
+    for f in chain:
+        for depth in (f.dense, f.smoothed):
+            new = pixel_surface_area(depth, f.camera)
+            assert np.array_equal(new, ref.pixel_surface_area_reference(depth, f.camera))
+    # zeros, edges and a tilted plane, where the gradient's one-sided ends matter
+    cam = chain[0].camera
+    d = np.zeros((cam.height, cam.width), np.float32)
+    d[50:200, 30:300] = 2.0 + np.linspace(0, 1, 270, dtype=np.float32)
+    assert np.array_equal(pixel_surface_area(d, cam), ref.pixel_surface_area_reference(d, cam))
+
+
+def test_semantic_sampling_same_as_before(chain: list[_Frame]) -> None:
+    opts = SemanticSamplingOptions(mode=SamplingMode.DENSITY)
+    for i, f in enumerate(chain):
+        new = sample_semantic_points(f.labels, f.smoothed, f.camera, i, opts)
+        with ref.old_semantic_sampling():
+            old = sample_semantic_points(f.labels, f.smoothed, f.camera, i, opts)
+        assert new.keys() == old.keys()
+        assert sum(len(v) for v in new.values()) > 100
+        for k in new:
+            assert np.array_equal(new[k], old[k])
+
+
+def test_linear_completion_same_as_before(chain: list[_Frame]) -> None:
+    for f in chain:
+        for inverse in (True, False):
+            opts = LinearOptions(inverse_depth=inverse)
+            new = complete_linear(f.sparse, opts)
+            assert np.array_equal(new, ref.complete_linear_reference(f.sparse, opts))
+        # a dense map given as an (H, W) array takes the other input path
+        assert np.array_equal(complete_linear(f.sparse.depth),
+                              ref.complete_linear_reference(f.sparse.depth))
+
+
+def test_planar_smoothing_same_as_before(chain: list[_Frame]) -> None:
+    for f in chain:
+        old = ref.smooth_planar_regions_reference(f.dense, f.labels, f.camera)
+        assert np.array_equal(f.smoothed, old)
+        # small regions too: more components, some skipped
+        opts = PlanarSmoothingOptions(min_region_px=50)
+        assert np.array_equal(smooth_planar_regions(f.dense, f.labels, f.camera, opts),
+                              ref.smooth_planar_regions_reference(f.dense, f.labels, f.camera,
+                                                                  opts))
+
+
+def test_segmentation_same_as_before(chain: list[_Frame], monkeypatch: pytest.MonkeyPatch
+                                     ) -> None:
+    """The labels, and every protrusion decision on the way (columns and walls both occur)."""
+    from bimcap.segmentation import geometric
+
+    decisions: list[tuple[bool, bool]] = []
+    new_protrudes = geometric._protrudes
+
+    def both(region, pts, plane, opts):  # type: ignore[no-untyped-def]
+        out = new_protrudes(region, pts, plane, opts)
+        decisions.append((out, ref.protrudes_reference(region, pts, plane, opts)))
+        return out
+
+    monkeypatch.setattr(geometric, "_protrudes", both)
+    # completed LiDAR depth, and the rendered depth (where the columns come out whole)
+    inputs = [(f.dense, f.camera, f.world_from_cam, f.labels) for f in chain]
+    inputs += [(g.depth, g.camera, g.world_from_cam, None) for g in frames(4, 516, 386, 7)]
+    for depth, camera, pose, before in inputs:
+        new = segment_geometric(depth, camera, pose)
+        with ref.old_segmentation():
+            old = segment_geometric(depth, camera, pose)
+        assert np.array_equal(new, old)
+        assert before is None or np.array_equal(new, before)
+    assert decisions and all(a == b for a, b in decisions)
+    assert {a for a, _ in decisions} == {True, False}
+    # other working resolutions: other nearest-neighbour upsampling maps
+    f = chain[0]
+    for width in (100, 173, 300):
+        opts = GeometricOptions(work_width=width)
+        new = segment_geometric(f.dense, f.camera, f.world_from_cam, opts)
+        with ref.old_segmentation():
+            assert np.array_equal(new, segment_geometric(f.dense, f.camera, f.world_from_cam,
+                                                         opts))
+
+
+def test_vertical_ransac_same_as_before(chain: list[_Frame]) -> None:
+    from bimcap.segmentation.geometric import (
+        GeometricOptions,
+        _points_and_normals,
+        _ransac_vertical,
+    )
+
+    opts = GeometricOptions()
+    for f in chain:
+        pts, _, nrm, nok = _points_and_normals(f.dense, f.camera, opts)
+        up = np.array([0.0, -1.0, 0.0])
+        vert = nok & (np.abs(nrm @ up) < 0.4)
+        new = _ransac_vertical(pts[vert], nrm[vert], up, opts, np.random.default_rng(3))
+        old = ref.ransac_vertical_reference(pts[vert], nrm[vert], up, opts,
+                                            np.random.default_rng(3))
+        assert new is not None and old is not None
+        assert np.array_equal(new.normal, old.normal) and new.offset == old.offset
+
+
+def test_one_thread_changes_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The whole front end (LiDAR, completion, geometric labels, smoothing, SIFT, matching) gives
+    the same arrays with BLAS and OpenCV on their default threads as on one."""
+    from contextlib import nullcontext
+
+    from _frontend_scene import SceneSequence, default_poses
+    from bimcap.features import SiftOptions
+    from bimcap.frontend import FrontendConfig, run_frontend, runner
+    from bimcap.frontend.providers import (
+        LidarDepthProvider,
+        PlanarDepthRefiner,
+        SegmenterLabelProvider,
+    )
+    from bimcap.segmentation.geometric import GeometricSegmenter
+
+    seq = SceneSequence.write(tmp_path / "seq", poses=default_poses(3), lidar=True)
+    config = FrontendConfig(sift=SiftOptions(max_num_features=1500), window=2)
+
+    def run() -> dict[str, np.ndarray]:
+        res = run_frontend(seq, config, seq.gt, LidarDepthProvider(),
+                           SegmenterLabelProvider(GeometricSegmenter(), uses_pose=True),
+                           depth_refiner=PlanarDepthRefiner(), workers=1, progress=False)
+        return {k: v for k, v in vars(res).items() if isinstance(v, np.ndarray)}
+
+    one = run()
+    monkeypatch.setattr(runner, "one_thread", nullcontext)
+    default = run()
+    assert one.keys() == default.keys() and len(one["match_frames"]) > 0
+    for k in one:
+        assert np.array_equal(one[k], default[k]), k
+
+
+def test_one_thread_restores_opencv() -> None:
+    import cv2
+
+    from bimcap.frontend.runner import one_thread
+
+    before = cv2.getNumThreads()
+    with one_thread():
+        assert cv2.getNumThreads() == 1
+    assert cv2.getNumThreads() == before
+
+
+@pytest.mark.parametrize("n", [3, 4, 511, 512, 513, 514, 1024, 1025, 3000])
+@pytest.mark.parametrize("hypotheses", [1, 2, 3, 150])
+def test_blocked_ransac_scores_same_as_whole_table(n: int, hypotheses: int) -> None:
+    """The RANSACs' scores in blocks of rows: the whole table's, for every block remainder."""
+    from bimcap.fusion.completion import _inlier_counts
+    from bimcap.segmentation.geometric import _vertical_scores
+
+    rng = np.random.default_rng(n + hypotheses)
+    pts = rng.normal(size=(n, 3)) * 3.0
+    nrm = rng.normal(size=(n, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    hn = rng.normal(size=(hypotheses, 3))
+    hn /= np.linalg.norm(hn, axis=1, keepdims=True)
+    d = rng.normal(size=hypotheses)
+    thr = (0.5 + 0.01 * np.abs(pts[:, 2]))[:, None]
+    whole = ((np.abs(pts @ hn.T + d) < thr) & (np.abs(nrm @ hn.T) > 0.5)).sum(0)
+    assert np.array_equal(_vertical_scores(pts, nrm, hn, d, thr, 0.5), whole)
+    assert np.array_equal(_inlier_counts(pts, hn, d, 0.5),
+                          (np.abs(pts @ hn.T + d) < 0.5).sum(0))
+    assert n < 500 or whole.sum() > 0  # the large tables have inliers to count
+
+
+def test_plane_ransac_same_as_before(chain: list[_Frame]) -> None:
+    from bimcap.fusion.completion import fit_plane_ransac
+
+    for f in chain:
+        rows, cols = np.nonzero(f.dense > 0)
+        pts = f.camera.backproject(np.stack([cols, rows], 1)[::7], f.dense[rows, cols][::7],
+                                   distorted=False)
+        for iterations in (1, 2, 64):
+            new = fit_plane_ransac(pts, 0.03, iterations, np.random.default_rng(1))
+            old = ref.fit_plane_ransac_reference(pts, 0.03, iterations, np.random.default_rng(1))
+            assert new is not None and old is not None
+            assert np.array_equal(new[0], old[0]) and np.array_equal(new[1], old[1])
+
+
+def test_matching_same_as_before() -> None:
+    """Descriptor matches of the box-room images (every pair, both directions), and a tie."""
+    from bimcap.features import extract_sift, match_descriptors
+    from bimcap.features.matching import _top2_columns
+
+    feats = [extract_sift(f.image) for f in frames(3) + frames(2, 516, 386, 7)]
+    n = 0
+    for fa in feats:
+        for fb in feats:
+            new = match_descriptors(fa.descriptors, fb.descriptors)
+            with ref.old_matching():
+                old = match_descriptors(fa.descriptors, fb.descriptors)
+            assert np.array_equal(new, old)
+            n += len(new)
+    assert n > 1000
+    sim = np.random.default_rng(0).random((40, 30)).astype(np.float32)
+    sim[[3, 7], 5] = 2.0  # a tie: the first row is the arg-max
+    new, old = _top2_columns(sim.copy()), ref.top2_columns_reference(sim.copy())
+    assert new[0][5] == 3
+    for x, y in zip(new, old, strict=True):
+        assert np.array_equal(x, y) and x.dtype == y.dtype
