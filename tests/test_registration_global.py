@@ -269,9 +269,9 @@ def test_refine_from_a_slam_frame_reaches_the_exp2_level(tmp_path, monkeypatch) 
     out = tmp_path / "run"
     args = ["refine", str(seq), "--ifc", str(design), "--init", str(slam), "-o", str(out),
             "--no-report", "-q", "--workers", "1"]
-    # 1. Refused: every placement is "ambiguous" under a 0.2 threshold; exit 3, result.json
+    # 1. Refused: every placement is "ambiguous" under a 0 threshold; exit 3, result.json
     # holds the ranked placements (the best is the truth) and no trajectory is written.
-    strict = functools.partial(registration.GlobalAlignOptions, ambiguity_ratio=0.2)
+    strict = functools.partial(registration.GlobalAlignOptions, ambiguity_ratio=0.0)
     with monkeypatch.context() as m:
         m.setattr(registration, "GlobalAlignOptions", strict)
         assert main(args) == 3
