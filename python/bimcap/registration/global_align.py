@@ -17,8 +17,11 @@ bundle adjustment can take over:
    :class:`.plan_maps.PlanMaps`) over the full circle of yaws and every translation that puts
    the trajectory's centre inside the storey's box; the best distinct peaks are refined by
    point-to-segment ICP (:func:`.icp.icp_2d`).
-4. **score**: each hypothesis' fine score of its points (0-1) times the fraction of its camera
-   positions that lie in free space (inside the building, not in a wall). The hypotheses are
+4. **score**: each hypothesis' fine score of its points (0-1, frame by frame with a little
+   slack) times the fraction of its camera positions that lie in free space (inside the
+   building, not in a wall), times ``(1 - x) ** see_through_power`` where ``x`` is the share of
+   points whose ray from the camera passes through a plan wall (negative evidence: an alias
+   room of another width, a wall where the building has a door). The hypotheses are
    ranked; two are *distinct* when their camera positions differ by more than
    ``distinct_m`` on average, their yaws by more than ``distinct_deg`` or their floors by more
    than ``distinct_z_m``.
