@@ -17,8 +17,11 @@ bundle adjustment can take over:
    :class:`.plan_maps.PlanMaps`) over the full circle of yaws and every translation that puts
    the trajectory's centre inside the storey's box; the best distinct peaks are refined by
    point-to-segment ICP (:func:`.icp.icp_2d`).
-4. **score**: each hypothesis' fine score of its points (0-1) times the fraction of its camera
-   positions that lie in free space (inside the building, not in a wall). The hypotheses are
+4. **score**: each hypothesis' fine score of its points (0-1, frame by frame with a little
+   slack) times the fraction of its camera positions that lie in free space (inside the
+   building, not in a wall), times ``(1 - x) ** see_through_power`` where ``x`` is the share of
+   points whose ray from the camera passes through a plan wall (negative evidence: an alias
+   room of another width, a wall where the building has a door). The hypotheses are
    ranked; two are *distinct* when their camera positions differ by more than
    ``distinct_m`` on average, their yaws by more than ``distinct_deg`` or their floors by more
    than ``distinct_z_m``.
@@ -35,7 +38,7 @@ the options and results, radians inside.
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -85,6 +88,11 @@ class GlobalAlignOptions:
     free_clearance_m: a camera closer than this to a wall is not in free space.
     enclosed_rays, enclosed_min_hits: a camera is inside the building when at least
         ``enclosed_min_hits`` of ``enclosed_rays`` horizontal rays hit the plan.
+    see_through_margin_m, see_through_power: negative evidence (:func:`see_through_fraction`):
+        the share ``x`` of wall/column points whose ray from their camera passes through a
+        plan wall (the ray's first and last ``see_through_margin_m`` left out: drift and noise
+        at the camera and at the hit) multiplies the ranking score by ``(1 - x) **
+        see_through_power`` (0: not used).
     distinct_m, distinct_deg, distinct_z_m: two hypotheses are distinct when their camera
         positions differ by more than ``distinct_m`` on average, or their yaws by more than
         ``distinct_deg``, or their floors by more than ``distinct_z_m``.
@@ -121,6 +129,8 @@ class GlobalAlignOptions:
     frame_yaw_deg: float = 12.0
     frame_yaw_step_deg: float = 2.0
     frame_shift_m: float = 0.2
+    see_through_margin_m: float = 0.3
+    see_through_power: float = 3.0
     distinct_m: float = 1.0
     distinct_deg: float = 10.0
     distinct_z_m: float = 0.5
@@ -152,7 +162,7 @@ class GlobalAlignOptions:
             raise RegistrationInputError("must be in [0, enclosed_rays]", None,
                                          "enclosed_min_hits")
         for name in ("wall_band_m", "gravity_min_tilt_deg", "free_clearance_m", "frame_yaw_deg",
-                     "frame_shift_m"):
+                     "frame_shift_m", "see_through_margin_m", "see_through_power"):
             if getattr(self, name) < 0:
                 raise RegistrationInputError("must be >= 0", None, name)
 
@@ -170,13 +180,16 @@ class AlignHypothesis:
     floor_z: the storey floor (world z, metres) the trajectory is put on (None: plan without
         floors; z unchanged).
     yaw_deg: the yaw of ``world_from_slam`` (degrees, (-180, 180]).
-    score: ``fit_score × free_fraction``, the ranking score (0-1).
+    score: ``fit_score × free_fraction × (1 - see_through) ** see_through_power``, the ranking
+        score (0-1).
     fit_score: mean over frames of each frame's best fine score with a little per-frame slack
         (0-1, :func:`_frame_fit`).
     rigid_fit: mean fine score of all wall/column points, the trajectory taken as rigid.
     inlier_ratio: fraction of those within ``inlier_m`` of a same-class segment.
     free_fraction: fraction of the camera positions in free space.
     coarse_score: the correlative peak's score (0-1) before ICP.
+    see_through: fraction of the wall/column points seen through a plan wall (0-1, negative
+        evidence, :func:`see_through_fraction`).
     """
 
     world_from_slam: F64
@@ -188,6 +201,7 @@ class AlignHypothesis:
     inlier_ratio: float
     free_fraction: float
     coarse_score: float
+    see_through: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -253,8 +267,9 @@ class GlobalAlignResult:
             t = h.world_from_slam[:3]
             floor = "-" if h.floor_z is None else f"{h.floor_z:.2f} m"
             lines.append(f"  #{k}: score {h.score:.3f} (fit {h.fit_score:.3f}, free "
-                         f"{h.free_fraction:.2f}), yaw {h.yaw_deg:.1f} deg, t ({t[0]:.2f}, "
-                         f"{t[1]:.2f}, {t[2]:.2f}) m, floor {floor}")
+                         f"{h.free_fraction:.2f}, seen through walls {h.see_through:.2f}), yaw "
+                         f"{h.yaw_deg:.1f} deg, t ({t[0]:.2f}, {t[1]:.2f}, {t[2]:.2f}) m, floor "
+                         f"{floor}")
         return "\n".join(lines)
 
 
@@ -300,6 +315,52 @@ def free_space_fraction(cam_xy: NDArray[np.float64], segments: NDArray[np.float6
         hits += hit.any(1)
     free = clear & (hits >= min_hits)
     return float(free.mean()), free
+
+
+def see_through_fraction(cam_xy: F64, p_xy: F64, segments: F64, margin_m: float = 0.3,
+                         chunk: int = 2048) -> tuple[float, NDArray[np.bool_]]:
+    """Negative evidence of a placement: the share of points seen *through* a wall of the plan.
+
+    A camera sees a wall point along a straight ray; when that ray crosses a plan segment the
+    placement puts a wall where the sensor saw free space (an alias room of another width, a
+    wall where the true building has a door). The first and last ``margin_m`` of every ray are
+    left out (the drift of the camera, noise and clutter at the hit); rays shorter than
+    ``2 margin_m`` never count.
+
+    Parameters
+    ----------
+    cam_xy: (M, 2) the camera of each point, metres (world); p_xy: (M, 2) the points.
+    segments: (S, 4) the storey's plan section.
+
+    Returns
+    -------
+    The fraction (0-1) and the per-point flags (M,).
+    """
+    cam = np.asarray(cam_xy, dtype=np.float64).reshape(-1, 2)
+    pts = np.asarray(p_xy, dtype=np.float64).reshape(-1, 2)
+    seg = np.asarray(segments, dtype=np.float64).reshape(-1, 4)
+    crossed = np.zeros(len(pts), dtype=bool)
+    if len(pts) == 0 or len(seg) == 0:
+        return 0.0, crossed
+    ray = pts - cam
+    length = np.linalg.norm(ray, axis=1)
+    use = length > 2 * margin_m
+    u = ray[use] / length[use, None]
+    a_ray = cam[use] + margin_m * u
+    d_ray = ray[use] - 2 * margin_m * u
+    a, e = seg[:, :2], seg[:, 2:] - seg[:, :2]
+    hit = np.zeros(len(a_ray), dtype=bool)
+    for k in range(0, len(a_ray), chunk):
+        o, d = a_ray[k:k + chunk, None], d_ray[k:k + chunk, None]
+        den = d[..., 0] * e[None, :, 1] - d[..., 1] * e[None, :, 0]
+        w = a[None] - o
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = (w[..., 0] * e[None, :, 1] - w[..., 1] * e[None, :, 0]) / den
+            t = (w[..., 0] * d[..., 1] - w[..., 1] * d[..., 0]) / den
+        hit[k:k + chunk] = ((np.abs(den) > 1e-12) & (s >= 0) & (s <= 1) & (t >= 0)
+                            & (t <= 1)).any(1)
+    crossed[np.flatnonzero(use)] = hit
+    return float(crossed.mean()), crossed
 
 
 # ------------------------------------------------------------------------------------------------
@@ -429,10 +490,12 @@ class _Found:
     free: float
     coarse: float
     cams_xy: F64
+    see_through: float = 0.0
+    see_through_power: float = 0.0
 
     @property
     def score(self) -> float:
-        return self.fit * self.free
+        return float(self.fit * self.free * (1.0 - self.see_through) ** self.see_through_power)
 
 
 def _search_storey(scan: _Scan, storey: _Storey, plan: FloorPlan, opt: GlobalAlignOptions,
@@ -502,14 +565,18 @@ def _search_storey(scan: _Scan, storey: _Storey, plan: FloorPlan, opt: GlobalAli
         if len(found) >= opt.rescore_top:
             break
         if all(_distinct(f, g, opt) for g in found):
-            frame_fit = _frame_fit(f.corr, p_xy, p_cls, p_view, p_frame, cams_s, maps, opt)
+            frame_fit, _, _, turn, moved = _frame_fit(f.corr, p_xy, p_cls, p_view, p_frame,
+                                                      cams_s, maps, opt)
+            seen = _see_through(f.corr, turn, moved, p_xy, p_cls, p_view, p_frame, cams_s, seg,
+                                maps, opt)
             found.append(_Found(f.corr, storey, frame_fit, f.rigid_fit, f.inliers, f.free,
-                                f.coarse, f.cams_xy))
+                                f.coarse, f.cams_xy, seen, opt.see_through_power))
     timings["rescore"] += time.perf_counter() - t0
     # Fold the shift into the correction: R (p + s - c) + c + t = R (p - (c - s)) + (c - s)
     # + (t + s).
     return [_Found(Correction2D(f.corr.yaw, f.corr.t + shift, f.corr.pivot - shift), f.storey,
-                   f.fit, f.rigid_fit, f.inliers, f.free, f.coarse, f.cams_xy) for f in found]
+                   f.fit, f.rigid_fit, f.inliers, f.free, f.coarse, f.cams_xy, f.see_through,
+                   f.see_through_power) for f in found]
 
 
 def _free_map(segments: F64, bounds: tuple[float, float, float, float],
@@ -552,24 +619,38 @@ def _free_volume(cams_xy: F64, free_map: NDArray[np.float32], origin: F64, res: 
 
 
 def _frame_fit(corr: Correction2D, p_xy: F64, p_cls: I32, p_view: F64, p_frame: I32,
-               cams_xy: F64, maps: PlanMaps, opt: GlobalAlignOptions) -> float:
+               cams_xy: F64, maps: PlanMaps, opt: GlobalAlignOptions
+               ) -> tuple[float, F64, F64, float, F64]:
     """Mean over frames of each frame's best fine score when the frame alone may turn by up to
     ``±frame_yaw_deg`` about its camera and shift by up to ``±frame_shift_m``: a drifted
     trajectory is not rigid (per-frame rotation noise, a translation walk), so the rigid fit
     blurs the right placement as much as an alias; frame by frame the right one fits sharply.
 
-    ``p_*`` (M, ...) the points before ``corr``, ``cams_xy`` (N, 2) the cameras before it."""
+    ``p_*`` (M, ...) the points before ``corr``, ``cams_xy`` (N, 2) the cameras before it.
+
+    Returns
+    -------
+    The fit (0-1), and each point (M, 2) and its frame's camera (M, 2) where the frame's best
+    turn without a shift puts them (world): the turn takes out the per-frame rotation noise;
+    the shift, a smooth walk in a drifted trajectory, is left to the rigid placement (shifted
+    frames would pull their points back inside an alias room's walls); then the mean of the
+    frames' best turns (radians) and shifts (2,): the rigid placement's own error.
+    """
     n = len(cams_xy)
     q = corr.apply(p_xy)
     cam = corr.apply(cams_xy)[p_frame]
     view = p_view @ rot2(corr.yaw).T
     count = np.bincount(p_frame, minlength=n).astype(np.float64)
-    best = np.zeros(n)
+    best = np.full(n, -1.0)
+    best_still = np.full(n, -1.0)  # the best of the frame's turns without a shift
+    turn = np.zeros(n)
+    best_turn, best_shift = np.zeros(n), np.zeros((n, 2))
     step = opt.frame_yaw_step_deg
     deltas = np.deg2rad(np.arange(-opt.frame_yaw_deg, opt.frame_yaw_deg + 0.5 * step, step))
+    deltas = deltas[np.argsort(np.abs(deltas), kind="stable")]  # ties go to the smaller turn
     s = opt.frame_shift_m
-    shifts = [np.array([dx, dy]) for dx in (-s, 0.0, s) for dy in (-s, 0.0, s)] if s > 0 else [
-        np.zeros(2)]
+    shifts = [np.zeros(2)] + ([np.array([dx, dy]) for dx in (-s, 0.0, s) for dy in (-s, 0.0, s)
+                               if dx or dy] if s > 0 else [])
     for d in deltas:
         r = rot2(float(d))
         qd = (q - cam) @ r.T + cam
@@ -579,10 +660,37 @@ def _frame_fit(corr: Correction2D, p_xy: F64, p_cls: I32, p_view: F64, p_frame: 
             for lay in np.unique(layer):
                 m = layer == lay
                 sc[m] = maps.fine[lay].lookup(qd[m] + sh, maps.fine_score[lay])
-            best = np.maximum(best, np.bincount(p_frame, weights=sc, minlength=n)
-                              / np.maximum(count, 1.0))
+            mean = np.bincount(p_frame, weights=sc, minlength=n) / np.maximum(count, 1.0)
+            better = mean > best
+            best[better], best_turn[better], best_shift[better] = mean[better], d, sh
+            if not sh.any():
+                better = mean > best_still
+                best_still[better], turn[better] = mean[better], d
     has = count > 0
-    return float(best[has].mean()) if has.any() else 0.0
+    c, s_ = np.cos(turn)[p_frame], np.sin(turn)[p_frame]
+    rel = q - cam
+    q_turned = cam + np.c_[c * rel[:, 0] - s_ * rel[:, 1], s_ * rel[:, 0] + c * rel[:, 1]]
+    if not has.any():
+        return 0.0, q_turned, cam, 0.0, np.zeros(2)
+    return (float(np.maximum(best[has], 0.0).mean()), q_turned, cam,
+            float(best_turn[has].mean()), best_shift[has].mean(0))
+
+
+def _see_through(corr: Correction2D, turn: float, shift: F64, p_xy: F64, p_cls: I32,
+                 p_view: F64, p_frame: I32, cams_xy: F64, segments: F64, maps: PlanMaps,
+                 opt: GlobalAlignOptions) -> float:
+    """The share of points seen through a wall (:func:`see_through_fraction`) for the
+    placement ``corr`` polished by the mean turn (about the cameras' centroid) and shift of its
+    frames' best per-frame fits, each frame then turned by its own best turn: the negative
+    evidence must not punish the rigid placement's residual error or the per-frame yaw noise
+    (a ray that grazes a wall's end), which differ between a placement and its exact alias."""
+    centre = corr.apply(cams_xy).mean(0)
+    r = rot2(turn)
+    t = r @ (corr.pivot + corr.t - centre) + centre + shift - corr.pivot
+    polished = Correction2D(corr.yaw + turn, t, corr.pivot)
+    _, q_turned, cam, _, _ = _frame_fit(polished, p_xy, p_cls, p_view, p_frame, cams_xy, maps,
+                                        replace(opt, frame_shift_m=0.0))
+    return see_through_fraction(cam, q_turned, segments, opt.see_through_margin_m)[0]
 
 
 def _distinct(a: _Found, b: _Found, opt: GlobalAlignOptions) -> bool:
@@ -673,7 +781,7 @@ def global_align(
         m = _transform(f, gravity, scan.floor_z)
         yaw = float(np.rad2deg(np.arctan2(m[1, 0], m[0, 0])))
         hyps.append(AlignHypothesis(matrix_to_pose(m), f.storey.floor_z, yaw, f.score, f.fit,
-                                    f.rigid_fit, f.inliers, f.free, f.coarse))
+                                    f.rigid_fit, f.inliers, f.free, f.coarse, f.see_through))
     timings["total"] = time.perf_counter() - t_start
     if not ranked:
         raise GlobalAlignmentError(
