@@ -185,6 +185,37 @@ def test_the_right_storey_is_picked(demo: Scene) -> None:
     assert abs(np.median(res.poses[:, 2] - gt[:, 2])) < 0.15
 
 
+def test_identical_storeys_are_flagged_whatever_the_scores(demo: Scene) -> None:
+    """Two storeys with the demo building's plan (3.1 m apart): the scan fits both the same, the
+    SLAM frame gives no height, so the storey is unknown. Flagged through the plan (the storeys
+    are twins), not through a score ratio that noise can push either way: even with a ratio
+    threshold of 1 (scores never flag) the result is ambiguous."""
+    from bimcap.registration.global_align import _storeys, identical_storeys
+
+    n = len(demo.segments)
+    seg_z = np.r_[np.tile([0.0, 2.9], (n, 1)), np.tile([3.1, 6.0], (n, 1))]
+    segments = np.r_[demo.segments, demo.segments[:, [2, 3, 0, 1]]]  # ends swapped: same walls
+    plan = FloorPlan(segments, np.r_[demo.segment_class, demo.segment_class], seg_z,
+                     np.array([0.0, 3.1]), np.array([2.8, 5.9]))
+    assert identical_storeys(plan, _storeys(plan, 1.0)) == {0: [1], 1: [0]}
+    moved = plan.segments.copy()
+    moved[n + 3, :2] += 0.2  # one wall of the upper storey elsewhere: no longer twins
+    other = FloorPlan(moved, plan.segment_class, seg_z, plan.floor_heights,
+                      plan.ceiling_heights)
+    assert identical_storeys(other, _storeys(other, 1.0)) == {0: [], 1: []}
+    gt = poses_along(demo_tour(seed=0), 0.25, height=4.6)[60:110]
+    samples, slam = _slam_case(gt, Scene(demo.segments, demo.segment_class, 3.1, 5.9), seed=2)
+    with pytest.raises(AmbiguousAlignmentError, match="identical twin") as info:
+        global_align(slam.trajectory.poses, samples, plan,
+                     GlobalAlignOptions(ambiguity_ratio=1.0))
+    res = info.value.result
+    assert res.ambiguous and len(res.twin_floors) == 1
+    assert res.to_dict()["twin_floors"] == res.twin_floors
+    taken = global_align(slam.trajectory.poses, samples, plan,
+                         GlobalAlignOptions(ambiguity_ratio=1.0, accept_ambiguous=True))
+    assert taken.accepted_ambiguous
+
+
 def test_gravity_from_the_floor_levels_a_tilted_slam_frame(demo: Scene) -> None:
     gt = poses_along(demo_tour(seed=0), 0.25)[224:274]
     samples, slam = _slam_case(gt, demo, seed=3)

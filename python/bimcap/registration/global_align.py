@@ -26,7 +26,9 @@ bundle adjustment can take over:
    ``distinct_m`` on average, their yaws by more than ``distinct_deg`` or their floors by more
    than ``distinct_z_m``.
 5. **ambiguity**: when the second-best distinct hypothesis scores at least ``ambiguity_ratio``
-   of the best (a symmetric corridor, repeated rooms, identical storeys), the result is
+   of the best (a symmetric corridor, repeated rooms), or when the best one's storey has the
+   same plan section as another storey (:func:`identical_storeys`: a tower of identical floors,
+   which the scores cannot separate and the SLAM frame's heights do not), the result is
    ambiguous: :func:`global_align` raises :class:`AmbiguousAlignmentError` (with the ranked
    hypotheses) unless ``accept_ambiguous`` is set. A best hypothesis that fits badly raises
    :class:`GlobalAlignmentError`. Never a confident wrong answer.
@@ -218,8 +220,12 @@ class GlobalAlignResult:
     poses: (N, 7) ``world_from_cam`` of the best hypothesis (the coarse stage starts here).
     world_from_slam: (7,) the best hypothesis' transform.
     hypotheses: the best distinct hypotheses, best first (at most ``report_top``).
-    ambiguous: the second-best scores at least ``ambiguity_ratio`` of the best.
+    ambiguous: the second-best scores at least ``ambiguity_ratio`` of the best, or the best
+        placement's storey has an identical twin (``twin_floors``).
     ratio: second-best / best score (0 with a single hypothesis).
+    twin_floors: floor heights (m) of the storeys whose plan section is the same as the best
+        placement's storey's (:func:`identical_storeys`): no scan can tell them apart, so the
+        storey is unknown whatever the scores say.
     accepted_ambiguous: ambiguous, and taken anyway (``accept_ambiguous``).
     gravity_tilt_deg: the tilt of the SLAM frame estimated from the floor (degrees).
     gravity_applied: whether that tilt was taken out (above ``gravity_min_tilt_deg``).
@@ -239,6 +245,7 @@ class GlobalAlignResult:
     storeys: list[dict[str, Any]]
     timings: dict[str, float]
     options: GlobalAlignOptions
+    twin_floors: list[float] = field(default_factory=list)
     n_frames: int = field(init=False)
 
     def __post_init__(self) -> None:
@@ -252,6 +259,7 @@ class GlobalAlignResult:
             "hypotheses": [h.to_dict() for h in self.hypotheses],
             "ambiguous": self.ambiguous,
             "ratio": self.ratio,
+            "twin_floors": list(self.twin_floors),
             "accepted_ambiguous": self.accepted_ambiguous,
             "gravity_tilt_deg": self.gravity_tilt_deg,
             "gravity_applied": self.gravity_applied,
@@ -407,6 +415,30 @@ def _ceiling_above(plan: FloorPlan, z: float | None) -> float | None:
         return None
     above = plan.ceiling_heights[plan.ceiling_heights > z]
     return float(above.min()) if len(above) else None
+
+
+def identical_storeys(plan: FloorPlan, storeys: list[_Storey],
+                      tol_m: float = 0.02) -> dict[int, list[int]]:
+    """Storey index → the other storeys whose plan section is the same: as many segments, each
+    with one of the other's within ``tol_m`` at both ends (in either direction). A tower of
+    identical floors gives every storey its twins; a scan then fits each of them equally well,
+    and only the heights (which a SLAM frame does not give) could tell them apart."""
+    def ends(st: _Storey) -> F64:
+        seg = plan.segments[st.rows].reshape(-1, 2, 2)
+        flip = (seg[:, 0, 0] > seg[:, 1, 0]) | ((seg[:, 0, 0] == seg[:, 1, 0])
+                                                & (seg[:, 0, 1] > seg[:, 1, 1]))
+        seg[flip] = seg[flip, ::-1]
+        return seg.reshape(-1, 4)
+
+    def same(a: F64, b: F64) -> bool:
+        if len(a) != len(b) or not len(a):
+            return False
+        gap = np.abs(a[:, None, :] - b[None, :, :]).max(axis=2)  # (A, B) worst end, metres
+        return bool((gap.min(axis=1) <= tol_m).all() and (gap.min(axis=0) <= tol_m).all())
+
+    sections = [ends(st) for st in storeys]
+    return {i: [j for j in range(len(storeys)) if j != i and same(sections[i], sections[j])]
+            for i in range(len(storeys))}
 
 
 def _gravity(poses: F64, samples: SemanticSamples, min_points: int = 30) -> F64:
@@ -765,7 +797,9 @@ def global_align(
     # 2.-4. every storey.
     found: list[_Found] = []
     storeys = []
-    for storey in _storeys(plan, opt.plan_cut_height_m):
+    sections = _storeys(plan, opt.plan_cut_height_m)
+    twins = identical_storeys(plan, sections)
+    for storey in sections:
         here = _search_storey(scan, storey, plan, opt, rng, timings)
         storeys.append({"floor_z": storey.floor_z, "segments": len(storey.rows),
                         "best_score": max((f.score for f in here), default=0.0)})
@@ -789,14 +823,18 @@ def global_align(
             "or column points, or an empty floor plan)")
     best = ranked[0]
     ratio = ranked[1].score / best.score if len(ranked) > 1 and best.score > 0 else 0.0
-    ambiguous = ratio >= opt.ambiguity_ratio
+    best_index = next(i for i, st in enumerate(sections) if st is best.storey)
+    twin_floors = [float(sections[j].floor_z) for j in twins[best_index]
+                   if sections[j].floor_z is not None]
+    ambiguous = ratio >= opt.ambiguity_ratio or bool(twins[best_index])
     m_best = _transform(best, gravity, scan.floor_z)
     result = GlobalAlignResult(
         poses=matrix_to_pose(m_best @ pose_to_matrix(poses)),
         world_from_slam=hyps[0].world_from_slam,
         hypotheses=hyps, ambiguous=ambiguous, ratio=float(ratio),
         accepted_ambiguous=ambiguous and opt.accept_ambiguous, gravity_tilt_deg=tilt,
-        gravity_applied=applied, storeys=storeys, timings=timings, options=opt)
+        gravity_applied=applied, storeys=storeys, timings=timings, options=opt,
+        twin_floors=twin_floors)
     if best.fit < opt.min_score or best.free < opt.min_free_fraction:
         raise GlobalAlignmentError(
             f"global alignment: the best placement fits badly (fit score {best.fit:.2f}, "
@@ -804,10 +842,13 @@ def global_align(
             f"{opt.min_free_fraction:.0%}); is this the right BIM?\n" + result.describe(),
             result)
     if ambiguous and not opt.accept_ambiguous:
+        why = (f"the storey has {len(twin_floors)} identical twin(s) (floors at "
+               f"{', '.join(f'{z:.2f}' for z in twin_floors)} m) that no scan can tell apart"
+               if twins[best_index] else
+               f"the second-best placement scores {ratio:.0%} of the best (threshold "
+               f"{opt.ambiguity_ratio:.0%}; a symmetric layout or repeated rooms)")
         raise AmbiguousAlignmentError(
-            f"global alignment is ambiguous: the second-best placement scores {ratio:.0%} of "
-            f"the best (threshold {opt.ambiguity_ratio:.0%}; a symmetric layout, repeated "
-            "rooms or identical storeys). Refusing to guess; accept the best with "
+            f"global alignment is ambiguous: {why}. Refusing to guess; accept the best with "
             "--accept-ambiguous (global_align.accept_ambiguous), or give an initial "
             "trajectory in the BIM frame.\n" + result.describe(), result)
     return result
