@@ -48,9 +48,15 @@ TARGETS = {"recall": 0.95, "false_alarm_rate": 0.05, "offset_rmse_cm_gt": 1.0,
            "offset_rmse_cm_refined": 1.5, "seconds": 10.0}
 
 
+#: The as-built's datum: walls built exactly as designed (surveyed control lines), one along x
+#: and one along y, on every storey; with the ground floor slab (never shifted) for z.
+DATUM_WALLS = ("ext-south", "ext-west")
+
+
 def make_world(work: Path, world: str, frames: int, shift_sigma: float, missing: float
                ) -> tuple[Path, Path, Path]:
-    """(sequence dir, design IFC, as-built truth sidecar) of ``world``, built once."""
+    """(sequence dir, design IFC, as-built truth sidecar) of ``world``, built once; the
+    as-built keeps :data:`DATUM_WALLS` exactly at design."""
     from bimcap.dataset import add_trajectory, read_sequence
     from bimcap.sim.building import BuildingSpec, as_built, generate_building
     from bimcap.sim.drift import DriftParams, apply_drift
@@ -65,7 +71,7 @@ def make_world(work: Path, world: str, frames: int, shift_sigma: float, missing:
         root.mkdir(parents=True, exist_ok=True)
         gb = generate_building(BuildingSpec(**LAYOUTS[layout]), seed=seed, ifc_path=design)
         as_built(gb, seed=seed + 1, shift_sigma_m=shift_sigma, missing_fraction=missing,
-                 ifc_path=built)
+                 datum=DATUM_WALLS, ifc_path=built)
     seq = root / f"seq_{frames}"
     if not (seq / "manifest.json").is_file():
         cfg = SimulatorConfig(camera=CONSLAM_CAMERA.scaled(0.25), frames=frames, fps=2.0,
