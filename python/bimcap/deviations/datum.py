@@ -21,7 +21,8 @@ The correction (:func:`fit_datum`) is one rigid motion of the world, ``p' = R_z(
 centre (equivalently ``world_from_cam' = T · world_from_cam`` for every frame): it is fitted by
 trimmed least squares so that the datum elements' returns lie on their design faces (each return
 ``e`` metres in front of its face along the face normal ``m`` moves by ``m · Δp``), re-cast and
-refitted until it changes by less than 0.1 mm. Walls give x, y and, with lever arm along their
+refitted until it changes by less than 0.1 mm (the first cast takes every ray, the later ones
+only those that met the datum). Walls give x, y and, with lever arm along their
 length, yaw; columns x and y; floor slabs and ceilings z. Degrees of freedom the datum does not
 constrain are left uncorrected: x, y or yaw free in the design geometry of the datum is an error
 before any expensive work (:func:`check_datum`); z free (no slab or covering in the datum) keeps
@@ -60,7 +61,7 @@ log = logging.getLogger(__name__)
 DOF = ("x", "y", "yaw", "z")
 #: A direction of the (length-normalised) correction whose mean squared sensitivity is below
 #: this is not constrained by the datum.
-MIN_SENSITIVITY = 1e-3
+MIN_SENSITIVITY = 0.01
 #: An IFC GlobalId: 22 characters of IFC's base-64 alphabet.
 _GUID = re.compile(r"^[0-9A-Za-z_$]{22}$")
 #: The selector prefixes.
@@ -316,6 +317,12 @@ def fit_datum(model: Any, scans: ScanSet, indices: Sequence[int], spec: DatumSpe
                         rays.origins @ total[:3, :3].T + total[:3, 3])
         hits = _cast(scene, moved)
         gid = hits["gid"]
+        if it == 1:  # later fits re-cast only the rays that met the datum (a few cm move)
+            met = (gid >= 0) & gid_datum[np.clip(gid, 0, max_gid + 1)]
+            rays = ScanSet(rays.p_in_world[met], rays.frame[met], rays.origins)
+            hits = {k: (v[met] if isinstance(v, np.ndarray) and len(v) == len(met) else v)
+                    for k, v in hits.items()}
+            gid = hits["gid"]
         on = (gid >= 0) & gid_datum[np.clip(gid, 0, max_gid + 1)] & (hits["cos"] >= cos_min)
         e = (np.where(on, hits["t"], 0.0) - hits["r"]) * hits["cos"]
         on &= np.abs(e) <= opts.pass_margin_m
