@@ -13,9 +13,10 @@ datum, and scored (:mod:`bimcap.deviations.scoring`) against ``as_built.truth.js
 The datum: the as-built keeps :data:`DATUM_WALLS` (one exterior wall along x, one along y)
 exactly at design, like surveyed control lines, and records them in the truth sidecar
 (``deviations.datum``); the floor slabs are never shifted by the generator, so the ground floor's
-slab joins them for z. Rows ``gt+datum`` / ``refined+datum`` pass them as the datum
-(:mod:`bimcap.deviations.datum`: the rigid correction that puts them on the design first); every
-row scores the other elements only, so the rows with and without datum count the same elements.
+slab joins them for z. Rows ``+datum-rigid`` / ``+datum-frames`` pass them as the datum
+(:mod:`bimcap.deviations.datum`: the rigid correction that puts them on the design first, then,
+for ``-frames``, one per frame fitted jointly with the other elements' offsets); every row scores
+the other elements only, so the rows with and without datum count the same elements.
 
 Usage (resumable: worlds already in the CSV are skipped)::
 
@@ -123,11 +124,18 @@ def datum_spec(truth: Any) -> Any:
 
 
 def pose_runs(seq: Any, refined: Any, truth: Any) -> list[tuple[str, Any, Any]]:
-    """``(row name, world_from_cam trajectory, datum or None)`` of the four analyses."""
+    """``(row name, world_from_cam trajectory, datum or None)`` of the five analyses: without a
+    datum, with the rigid correction (``-rigid``) and with the per-frame joint fit
+    (``-frames``)."""
+    from dataclasses import replace
+
+    from bimcap.deviations.datum import DatumFitMode
+
     gt = seq.trajectory("gt")
-    spec = datum_spec(truth)
-    return [("gt", gt, None), ("gt+datum", gt, spec), ("refined", refined, None),
-            ("refined+datum", refined, spec)]
+    frames = datum_spec(truth)
+    rigid = replace(frames, fit=DatumFitMode.RIGID)
+    return [("gt", gt, None), ("gt+datum-frames", gt, frames), ("refined", refined, None),
+            ("refined+datum-rigid", refined, rigid), ("refined+datum-frames", refined, frames)]
 
 
 def score_world(work: Path, world: str, args: argparse.Namespace) -> list[dict[str, Any]]:
@@ -174,11 +182,13 @@ def score_world(work: Path, world: str, args: argparse.Namespace) -> list[dict[s
 
 
 def _corrected(datum: dict[str, Any], world_from_cam: Any) -> Any:
-    """(N, 7) poses moved by a report's datum correction."""
+    """(N, 7) poses moved by a report's datum correction (per frame with the joint fit)."""
     import numpy as np
 
     from bimcap.geometry.poses import compose, matrix_to_pose
 
+    if "frames" in datum:
+        return compose(np.asarray(datum["frames"]["world_datum_from_world"]), world_from_cam)
     t = matrix_to_pose(np.asarray(datum["world_datum_from_world"])[None])[0]
     return compose(np.repeat(t[None], len(world_from_cam), axis=0), world_from_cam)
 

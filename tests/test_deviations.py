@@ -340,6 +340,48 @@ def test_datum_finds_shifted_walls_under_rigidly_offset_poses(world: dict[str, P
     assert np.abs(back - seq.trajectory("gt").poses[:, :3]).max() < 0.005
     assert plain.to_dict()["datum"]["mode"] == "none"
     assert "relative to the refined poses" in plain.to_dict()["datum"]["note"]
+    # one rigid motion: the per-frame fit (the default) has nothing left to move
+    assert d["frames"]["frame_step_max_m"] < 0.003
+
+
+def test_per_frame_datum_fit_removes_frame_to_frame_pose_error(world: dict[str, Path]) -> None:
+    """Poses off by a rigid motion and by 1 cm / 0.15° of noise per frame: the rigid
+    correction leaves the noise in the offsets; the joint per-frame fit (frames placed by the
+    datum and by the elements they share) reads every S0 wall within 3 mm."""
+    from dataclasses import replace
+
+    from bimcap.dataset import read_sequence
+    from bimcap.deviations.analysis import analyse_deviations, load_design
+    from bimcap.deviations.datum import DatumFitMode, DatumSpec
+    from bimcap.deviations.refined_map import load_scans
+    from bimcap.geometry.poses import compose, matrix_to_pose
+    from bimcap.sim.building_truth import load_building_truth
+
+    truth = load_building_truth(world["truth"]).deviations
+    assert truth is not None
+    gt = read_sequence(world["seq"]).trajectory("gt").poses
+    rng = np.random.default_rng(3)
+    noise = np.repeat(np.eye(4)[None], len(gt), axis=0)
+    for t in noise:
+        yaw = np.radians(rng.normal(0.0, 0.15))
+        t[:2, :2] = [[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]
+        t[:3, 3] = rng.normal(0.0, 0.01, 3)
+    moved = compose(matrix_to_pose(noise), _rigidly_offset(gt))
+    model = load_design(world["design"])
+    scans = load_scans(read_sequence(world["seq"]), moved)
+    frames = DatumSpec.parse(DATUM)
+    assert frames is not None and frames.fit is DatumFitMode.FRAMES
+    errors = {}
+    for spec in (replace(frames, fit=DatumFitMode.RIGID), frames):
+        rep = analyse_deviations(model, scans, ifc_path=world["design"], storey="S0",
+                                 datum=spec)
+        errors[spec.fit] = {e.name: abs(e.offset_m - truth.wall_shifts[e.name])
+                            for e in rep.elements if e.ifc_class == "IfcWall"}
+    assert len(errors[DatumFitMode.FRAMES]) == 6
+    assert max(errors[DatumFitMode.RIGID].values()) > 0.004
+    assert max(errors[DatumFitMode.FRAMES].values()) < 0.003, errors
+    assert rep.datum["frames"]["n_elements"] >= 6
+    assert len(rep.datum["frames"]["world_datum_from_world"]) == len(gt)
 
 
 def test_bad_datum_input_is_refused_naming_the_flag(world: dict[str, Path]) -> None:
@@ -432,12 +474,16 @@ def test_refine_config_reads_and_writes_the_datum(tmp_path: Path) -> None:
     from bimcap.pipeline.config import ConfigError, RefineConfig, toml_text
 
     toml = tmp_path / "run.toml"
-    toml.write_text('datum = ["class:IfcColumn", "name:S0/wall/ext-*"]\n')
+    toml.write_text('datum = ["class:IfcColumn", "name:S0/wall/ext-*"]\ndatum_fit = "rigid"\n')
     cfg = RefineConfig.from_toml(toml)
-    assert cfg.datum == ["class:IfcColumn", "name:S0/wall/ext-*"]
+    assert cfg.datum == ["class:IfcColumn", "name:S0/wall/ext-*"] and cfg.datum_fit == "rigid"
     again = tmp_path / "again.toml"
     again.write_text(toml_text({"datum": cfg.datum}))
     assert RefineConfig.from_toml(again).datum == cfg.datum
+    assert RefineConfig().datum_fit == "frames"
+    toml.write_text('datum_fit = "best"\n')
+    with pytest.raises(ConfigError, match="datum_fit: unknown datum fit 'best'"):
+        RefineConfig.from_toml(toml)
     toml.write_text('datum = ["ext-south"]\n')
     with pytest.raises(ConfigError, match=r"run.toml: datum: 'ext-south' is not an IFC GlobalId"):
         RefineConfig.from_toml(toml)

@@ -53,6 +53,10 @@ def register(sub: Any) -> None:
                         "slab or ceiling is in it) that puts the datum on the design, so the "
                         "other elements' offsets are relative to it (default: relative to the "
                         "poses)")
+    p.add_argument("--datum-fit", choices=["frames", "rigid"], default="frames",
+                   help="with --datum: frames (default) = the rigid correction, then one small "
+                        "correction per frame fitted jointly with the other elements' offsets; "
+                        "rigid = one rigid correction of the whole trajectory")
     p.add_argument("--voxel", type=float, default=0.03, metavar="M",
                    help="voxel of the map the clusters and the PLY use (default 0.03 m)")
     p.add_argument("--top", type=int, default=10, metavar="N",
@@ -105,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
 
     seq_path, poses_path, ifc, out = resolve_inputs(args)
     options = DeviationOptions(tolerance_m=args.tolerance)
-    datum = DatumSpec.parse(args.datum or [], "--datum")
+    datum = DatumSpec.parse(args.datum or [], "--datum", args.datum_fit)
     check_ifc_file(ifc)
     seq = read_sequence(seq_path)
     traj = check_trajectory(seq, read_tum(poses_path), poses_path, "refined")
@@ -128,7 +132,9 @@ def run(args: argparse.Namespace) -> int:
         tx, ty, tz = (100 * v for v in d["translation_m"])
         print(f"datum: {len(d['guids'])} element(s); poses corrected by ({tx:+.1f}, {ty:+.1f}, "
               f"{tz:+.1f}) cm, yaw {d['yaw_deg']:+.3f} deg"
-              + (f"; {', '.join(d['free'])} left free" if d["free"] else ""))
+              + (f"; {', '.join(d['free'])} left free" if d["free"] else "")
+              + (f"; then per frame, {100 * d['frames']['frame_step_rms_m']:.1f} cm RMS"
+                 if "frames" in d else ""))
     else:
         print("offsets are relative to the given poses (no datum)")
     print("elements: " + ", ".join(f"{n} {k}" for k, n in rep.counts().items())

@@ -228,7 +228,12 @@ class DeviationReport:
     point_element: (P,) int32 for the map points given (``map_points``): index into
         ``elements`` of the element each point lies on, -1 for none (for the coloured PLY).
     datum: what the offsets are relative to: ``{"mode": "none", "note"}`` (the refined poses)
-        or :meth:`bimcap.deviations.datum.DatumFit.to_dict` (``"mode": "datum"``).
+        or :meth:`bimcap.deviations.datum.DatumFit.to_dict` (``"mode": "datum"``; with the
+        per-frame fit, ``"frames"``: :meth:`~bimcap.deviations.datum.FrameCorrections.to_dict`).
+    map_points: (P, 3) the map points ``point_element`` refers to, in the datum's world (not in
+        the JSON).
+    sensor_origins: (N, 3) the sensor centres the analysis used (the datum's world; not in the
+        JSON).
     """
 
     elements: list[ElementDeviation]
@@ -239,6 +244,8 @@ class DeviationReport:
     timings: dict[str, float] = field(default_factory=dict)
     point_element: I32 | None = None
     datum: dict[str, Any] = field(default_factory=dict)
+    map_points: F64 | None = None
+    sensor_origins: F64 | None = None
 
     def counts(self) -> dict[str, int]:
         """Elements per status."""
@@ -454,17 +461,25 @@ def analyse_deviations(
     datum_info: dict[str, Any]
     datum_indices: set[int] = set()
     if datum is not None:
-        from bimcap.deviations.datum import check_datum, fit_datum
+        from bimcap.deviations.datum import DatumFitMode, check_datum, fit_datum, fit_frames
 
         t0 = time.perf_counter()
         indices = datum.resolve(model)
         check_datum(model, indices, datum.source, ifc_path)
         fit = fit_datum(model, scans, indices, datum, opts, scene=scene,
                         gid_to_element=gid_to_element)
-        scans = fit.apply(scans)
-        if map_points is not None:
-            map_points = fit.apply_points(map_points)
         datum_info, datum_indices = fit.to_dict(), set(indices)
+        if datum.fit is DatumFitMode.FRAMES:
+            frames = fit_frames(model, scans, indices, fit, opts, scene=scene,
+                                gid_to_element=gid_to_element)
+            scans = frames.apply(scans)
+            datum_info["frames"] = frames.to_dict()
+            # the merged map cannot follow per-frame moves: rebuilt from the moved scans
+            map_points = None
+        else:
+            scans = fit.apply(scans)
+            if map_points is not None:
+                map_points = fit.apply_points(map_points)
         timings["datum"] = time.perf_counter() - t0
     else:
         from bimcap.deviations.datum import NO_DATUM_NOTE
@@ -515,7 +530,8 @@ def analyse_deviations(
     clusters, point_element = _clusters(scene, gid_to_element, lookup, map_points, opts)
     timings["clusters"] = time.perf_counter() - t0
     return DeviationReport(results, clusters, opts, "" if ifc_path is None else str(ifc_path),
-                           len(rays), timings, point_element, datum_info)
+                           len(rays), timings, point_element, datum_info, map_points,
+                           scans.origins)
 
 
 def _cast(scene: Any, scans: ScanSet) -> dict[str, Any]:

@@ -36,6 +36,7 @@ import logging
 import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from enum import Enum
 from typing import Any
 
 import numpy as np
@@ -77,6 +78,14 @@ class DatumError(DeviationInputError):
     element, an element that cannot be a datum, or a datum that leaves x, y or yaw free."""
 
 
+class DatumFitMode(str, Enum):
+    """How the poses are corrected to the datum."""
+
+    RIGID = "rigid"  #: one rigid motion of the whole trajectory (x, y, yaw, z)
+    FRAMES = "frames"  #: the rigid motion, then one small motion per frame, jointly with an
+    #: offset per non-datum element (free) and the datum's offsets held at zero
+
+
 @dataclass(frozen=True)
 class DatumSpec:
     """Elements declared as built right (see the module doc for the selectors).
@@ -85,13 +94,16 @@ class DatumSpec:
     ----------
     selectors: the selector strings, as given.
     source: where they came from, for messages (``"--datum"``, ``"datum"`` of a TOML file).
+    fit: how the poses are corrected to it (:class:`DatumFitMode`).
     """
 
     selectors: tuple[str, ...]
     source: str = "--datum"
+    fit: DatumFitMode = DatumFitMode.FRAMES
 
     @classmethod
-    def parse(cls, values: Iterable[str], source: str = "--datum") -> DatumSpec | None:
+    def parse(cls, values: Iterable[str], source: str = "--datum",
+              fit: DatumFitMode | str = DatumFitMode.FRAMES) -> DatumSpec | None:
         """A spec from selector strings (each may hold several, comma-separated); None when
         there are none. Raises :class:`DatumError` on a malformed selector."""
         out: list[str] = []
@@ -114,7 +126,12 @@ class DatumSpec:
                                      "name or a class use name:PATTERN or class:IfcClass",
                                      field=source)
                 out.append(sel)
-        return cls(tuple(out), source) if out else None
+        try:
+            mode = DatumFitMode(fit)
+        except ValueError:
+            raise DatumError(f"unknown datum fit {fit!r}; known: "
+                             f"{[m.value for m in DatumFitMode]}", field="datum_fit") from None
+        return cls(tuple(out), source, mode) if out else None
 
     def resolve(self, model: Any) -> list[int]:
         """Indices into ``model.elements`` of the datum (model order). Raises
@@ -150,7 +167,8 @@ class DatumSpec:
         return sorted(chosen)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"selectors": list(self.selectors), "source": self.source}
+        return {"selectors": list(self.selectors), "source": self.source,
+                "fit": self.fit.value}
 
 
 def _jacobian(points: F64, normals: F64, centre: F64, scale: float) -> F64:
@@ -355,3 +373,203 @@ def fit_datum(model: Any, scans: ScanSet, indices: Sequence[int], spec: DatumSpe
         total, (float(t_at_c[0]), float(t_at_c[1]), float(t_at_c[2])), float(np.degrees(yaw)),
         (float(centre[0]), float(centre[1]), float(centre[2])), free, n_hits, rms, it,
         spec.to_dict())
+
+
+#: Prior scales of the joint fit's per-frame steps (beyond the rigid correction): the change of
+#: the step from one frame to the next, translation (m) and yaw (degrees) — a refinement's pose
+#: error drifts smoothly along the walk — and, much weaker, the step itself (m; the yaw's at
+#: 1 m), which only fixes what nothing else does.
+FRAME_SMOOTH_M = 0.01
+FRAME_SMOOTH_YAW_DEG = 0.1
+FRAME_PRIOR_M = 0.1
+#: Each frame's returns count as this many independent observations in the joint fit (their
+#: errors are not independent: one pose, a few elements), at the LiDAR's noise
+#: (:data:`_NOISE_M`): a frame's well-seen directions follow its returns, while one that only
+#: the frame's own free elements see (a room whose partitions no other frame sees) stays near
+#: the prior instead of drifting with them.
+FRAME_EFFECTIVE_ROWS = 200
+_NOISE_M = 0.03
+
+
+@dataclass
+class FrameCorrections:
+    """Per-frame corrections of the joint fit (after the rigid one).
+
+    Attributes
+    ----------
+    world_datum_from_world: (N, 4, 4) per frame: ``world_from_cam' = T_f · world_from_cam``
+        (the rigid correction included).
+    step: (N, 4) each frame's own (dx, dy, dz in metres, yaw in degrees) beyond the rigid one,
+        about its sensor centre.
+    n_rows: returns used; n_elements: non-datum elements whose offset was estimated with them;
+        iterations: solves made; residual_rms_m: RMS of the kept residuals (m).
+    """
+
+    world_datum_from_world: F64
+    step: F64
+    n_rows: int
+    n_elements: int
+    iterations: int
+    residual_rms_m: float
+
+    def apply(self, scans: ScanSet) -> ScanSet:
+        t = self.world_datum_from_world
+        rot, trans = t[:, :3, :3], t[:, :3, 3]
+        f = scans.frame
+        p = np.einsum("rij,rj->ri", rot[f], scans.p_in_world) + trans[f]
+        o = np.einsum("nij,nj->ni", rot, scans.origins) + trans
+        return ScanSet(p, f, o)
+
+    def apply_poses(self, world_from_cam: F64) -> F64:
+        """(N, 7) TUM-order poses → the datum's world, frame by frame."""
+        from bimcap.geometry.poses import compose, matrix_to_pose
+
+        out: F64 = compose(matrix_to_pose(self.world_datum_from_world),
+                           np.asarray(world_from_cam, dtype=np.float64))
+        return out
+
+    def to_dict(self) -> dict[str, Any]:
+        """Summary, each frame's own step ``frames`` ([dx, dy, dz, yaw_deg]) and its whole
+        correction ``world_datum_from_world`` (TUM order [tx, ty, tz, qx, qy, qz, qw])."""
+        from bimcap.geometry.poses import matrix_to_pose
+
+        trans = np.linalg.norm(self.step[:, :3], axis=1)
+        return {"n_rows": self.n_rows, "n_elements": self.n_elements,
+                "iterations": self.iterations, "residual_rms_m": self.residual_rms_m,
+                "frame_step_rms_m": float(np.sqrt(np.mean(trans**2))) if len(trans) else 0.0,
+                "frame_step_max_m": float(trans.max()) if len(trans) else 0.0,
+                "frame_yaw_max_deg": float(np.abs(self.step[:, 3]).max()) if len(trans)
+                else 0.0,
+                "frames": [[round(float(v), 6) for v in row] for row in self.step],
+                "world_datum_from_world": matrix_to_pose(self.world_datum_from_world).tolist()}
+
+
+def fit_frames(model: Any, scans: ScanSet, indices: Sequence[int], rigid: DatumFit,
+               options: DeviationOptions | None = None, max_iterations: int = 4,
+               scene: Any = None, gid_to_element: dict[int, int] | None = None
+               ) -> FrameCorrections:
+    """The joint fit of :attr:`DatumFitMode.FRAMES`: from the rigidly corrected ``scans`` (not
+    yet moved: the rigid fit ``rigid`` is applied here), per frame ``f`` a small motion
+    ``ξ_f = (dx, dy, yaw, dz)`` about its sensor centre and per non-datum element its offset
+    ``δ_k`` (along the wall normal / a column's (dx, dy) / z), the datum's held at zero, by
+    trimmed linear least squares over every hitting return: ``e_i + J_i ξ_f − b_i · δ_k ≈ 0``
+    (``b_i`` the element's offset axes against the face normal, as in the analysis), each
+    frame's returns weighed as :data:`FRAME_EFFECTIVE_ROWS` observations at 3 cm, with a prior
+    on the steps (beyond the rigid correction): consecutive frames alike
+    (:data:`FRAME_SMOOTH_M`, :data:`FRAME_SMOOTH_YAW_DEG`), each small (:data:`FRAME_PRIOR_M`);
+    re-cast and refitted until the frames move by less than
+    0.2 mm (every ``4 × ray_step``-th return is used). An element seen by several frames ties
+    them together: a frame is placed by the datum it sees and by the elements it shares with
+    frames that see the datum.
+    """
+    from scipy import sparse
+
+    opts = options or DeviationOptions()
+    if scene is None or gid_to_element is None:
+        scene, gid_to_element = _scene(model, opts)
+    elements = _analysed(model, None, None)
+    datum = set(indices)
+    n_frames = len(scans.origins)
+    # columns of the unknowns: 4 per frame, then each non-datum element's offset axes
+    col0 = np.full(len(model.elements), -1, np.int64)
+    kind = np.full(len(model.elements), -1, np.int64)  # 0 wall, 1 column, 2 plate
+    axes: dict[int, F64] = {}
+    ncol = 4 * n_frames
+    for el in elements:
+        kind[el.index] = {"wall": 0, "column": 1}.get(el.kind, 2)
+        axes[el.index] = el.axes
+        if el.index not in datum:
+            col0[el.index] = ncol
+            ncol += len(el.axes)
+    max_gid = max(gid_to_element, default=-1)
+    gid_model = np.full(max_gid + 2, -1, np.int64)
+    for g, m_idx in gid_to_element.items():
+        gid_model[g] = m_idx
+    cos_min = np.cos(np.radians(opts.max_incidence_deg))
+    per_frame = np.repeat(rigid.world_datum_from_world[None], n_frames, axis=0)
+    steps = np.zeros((n_frames, 4))
+    rays = scans.subsample(4 * opts.ray_step)
+    rows_used, n_el, rms, solves = 0, 0, float("nan"), 0
+    # prior (rows of unit noise) on (dx, dy, yaw at 1 m, dz): consecutive frames' steps alike,
+    # every step small; as a (4N, 4N) information matrix
+    w_smooth = np.array([1.0, 1.0, 0.0, 1.0]) / FRAME_SMOOTH_M
+    w_smooth[2] = 1.0 / np.radians(FRAME_SMOOTH_YAW_DEG)
+    diff = np.zeros((max(n_frames - 1, 0), n_frames))
+    diff[np.arange(n_frames - 1), np.arange(n_frames - 1)] = -1.0
+    diff[np.arange(n_frames - 1), np.arange(1, n_frames)] = 1.0
+    prior_info = np.kron(diff.T @ diff, np.diag(w_smooth**2))
+    prior_info += np.eye(4 * n_frames) / FRAME_PRIOR_M**2
+    total = np.zeros((n_frames, 4))  # each frame's step so far, (dx, dy, yaw, dz)
+    for _ in range(max_iterations):
+        solves += 1
+        cur = FrameCorrections(per_frame, steps, 0, 0, 0, 0.0).apply(rays)
+        hits = _cast(scene, cur)
+        gid = hits["gid"]
+        elem = np.where(gid >= 0, gid_model[np.clip(gid, 0, max_gid + 1)], -1)
+        ok = (elem >= 0) & (hits["cos"] >= cos_min)
+        ok &= kind[np.maximum(elem, 0)] >= 0
+        e = (np.where(ok, hits["t"], 0.0) - hits["r"]) * hits["cos"]
+        ok &= np.abs(e) <= opts.pass_margin_m
+        m = hits["m"]
+        k_of = kind[np.maximum(elem, 0)]
+        # the faces that carry an offset (as the analysis uses them)
+        wall_dot = np.zeros(len(e))
+        for idx in np.unique(elem[ok & (k_of == 0)]):
+            sel = ok & (elem == idx)
+            wall_dot[sel] = m[sel] @ axes[int(idx)][0]
+        useful = np.where(k_of == 0, np.abs(wall_dot) > 0.9,
+                          np.where(k_of == 1, np.abs(m[:, 2]) < 0.3, np.abs(m[:, 2]) > 0.9))
+        ok &= useful
+        # elements with too few rows (or never seen) are left out
+        counts = np.bincount(elem[ok], minlength=len(model.elements))
+        ok &= counts[np.maximum(elem, 0)] >= opts.min_points
+        rows = np.flatnonzero(ok)
+        f = rays.frame[rows]
+        centre = cur.origins[f]
+        jac = _jacobian(hits["h"][rows], m[rows], centre, 1.0)  # (M, 4): dx, dy, yaw, dz
+        r_idx = [np.repeat(np.arange(len(rows)), 4)]
+        c_idx = [(4 * f[:, None] + np.arange(4)[None, :]).ravel()]
+        vals = [jac.ravel()]
+        el_rows = elem[rows]
+        for idx in np.unique(el_rows):
+            if col0[idx] < 0:
+                continue
+            sel = np.flatnonzero(el_rows == idx)
+            b = m[rows[sel]] @ axes[int(idx)].T  # (S, k)
+            k = b.shape[1]
+            r_idx.append(np.repeat(sel, k))
+            c_idx.append(col0[idx] + np.tile(np.arange(k), len(sel)))
+            vals.append(-b.ravel())
+        # rows of unit noise: each frame's returns worth FRAME_EFFECTIVE_ROWS observations
+        n_f = np.bincount(f, minlength=n_frames)
+        w_row = np.sqrt(FRAME_EFFECTIVE_ROWS / np.maximum(n_f[f], 1)) / _NOISE_M
+        rhs = -e[rows]
+        a = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(r_idx),
+                                                      np.concatenate(c_idx))),
+                              shape=(len(rows), ncol))
+        keep = np.ones(len(rows), dtype=bool)
+        x = np.zeros(ncol)
+        prior_rhs = np.zeros(ncol)
+        prior_rhs[:4 * n_frames] = -(prior_info @ total.ravel())  # on the whole step
+        for _ in range(3):  # trimmed least squares
+            aw = sparse.diags(w_row * keep) @ a
+            normal = (aw.T @ aw).toarray()
+            normal[:4 * n_frames, :4 * n_frames] += prior_info
+            normal[np.diag_indices(ncol)] += 1e-9
+            x = np.linalg.solve(normal, aw.T @ (w_row * keep * rhs) + prior_rhs)
+            res = rhs - a @ x
+            med = float(np.median(res[keep]))
+            mad = 1.4826 * float(np.median(np.abs(res[keep] - med)))
+            keep = np.abs(res - med) <= opts.trim_mad * max(mad, 1e-3)
+        xi = x[:4 * n_frames].reshape(n_frames, 4)
+        total += xi
+        for fi in range(n_frames):
+            step_t = _rigid(xi[fi, 0], xi[fi, 1], xi[fi, 3], xi[fi, 2], cur.origins[fi])
+            per_frame[fi] = step_t @ per_frame[fi]
+        steps += xi[:, [0, 1, 3, 2]] * np.array([1.0, 1.0, 1.0, np.degrees(1.0)])
+        rows_used = int(keep.sum())
+        n_el = int(sum(1 for idx in np.unique(el_rows) if col0[idx] >= 0))
+        rms = float(np.sqrt(np.mean((rhs - a @ x)[keep] ** 2)))
+        if np.abs(xi).max() < 2e-4:
+            break
+    return FrameCorrections(per_frame, steps, rows_used, n_el, solves, rms)

@@ -193,15 +193,16 @@ def run_deviations(sequence: Any, world_from_cam: F64, ifc: str | PathLike[str],
         map_points = map_points[keep]
     report = analyse_deviations(model, scans, options, ifc, map_points, storey=storey,
                                 datum=datum)
-    viewers = scans.origins
-    if report.datum.get("mode") == "datum":  # the map and the walk in the datum's world
-        t = np.asarray(report.datum["world_datum_from_world"], dtype=np.float64)
-        map_points = map_points @ t[:3, :3].T + t[:3, 3]
-        viewers = viewers @ t[:3, :3].T + t[:3, 3]
+    # the map and the walk in the datum's world (as analysed)
+    assert report.map_points is not None and report.sensor_origins is not None
+    assert report.point_element is not None
+    map_points, viewers = report.map_points, report.sensor_origins
+    if z_range is not None:  # a map rebuilt by the per-frame datum fit: cropped again
+        keep = (map_points[:, 2] >= z_range[0]) & (map_points[:, 2] < z_range[1])
+        map_points, report.point_element = map_points[keep], report.point_element[keep]
     out = Path(out_dir)
     write_deviations_json(out / "deviations.json", report)
     write_deviations_csv(out / "deviations.csv", report)
-    assert report.point_element is not None
     write_deviation_ply(out / "deviations.ply", map_points, report, report.point_element)
     from bimcap.deviations.plot import plot_deviations_on_plan
 

@@ -195,6 +195,9 @@ class RefineConfig:
         ``class:IfcClass``; TOML ``datum = ["class:IfcColumn", "2O2Fr$t4X7Zf8NOew3FLOH"]``):
         the deviations are measured after the rigid correction that puts them on the design.
         Empty (default): relative to the refined poses.
+    datum_fit: ``"frames"`` (default: the rigid correction, then one per frame fitted jointly
+        with the other elements' offsets) or ``"rigid"`` (:class:`bimcap.deviations.datum.
+        DatumFitMode`).
     """
 
     method: Method = Method.BIMCAP
@@ -227,6 +230,7 @@ class RefineConfig:
     rerun: bool = False
     global_align: GlobalAlignMode = GlobalAlignMode.AUTO
     datum: list[str] = field(default_factory=list)
+    datum_fit: str = "frames"
     accept_ambiguous: bool = False
     lidar_scan: bool | None = None
     scan_sigma_m: float | None = 0.02
@@ -315,9 +319,9 @@ class RefineConfig:
         from bimcap.deviations.datum import DatumError, DatumSpec
 
         try:
-            DatumSpec.parse(self.datum, "datum")
+            DatumSpec.parse(self.datum, "datum", self.datum_fit)
         except DatumError as exc:
-            raise ConfigError(exc.message, field="datum") from None
+            raise ConfigError(exc.message, field=exc.field or "datum") from None
         self.datum = list(self.datum)
         for name, value, allowed in (("loss", self.loss, LOSSES),
                                      ("geometric_mode", self.geometric_mode, GEOMETRIC_MODES)):

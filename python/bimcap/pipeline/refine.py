@@ -1306,7 +1306,7 @@ def validate_datum(config: RefineConfig, ifc: Path, deviations: bool) -> DatumPl
     expensive stage; None without one. A datum without ``deviations`` is not used (a warning)."""
     from bimcap.deviations.datum import DatumSpec, check_datum
 
-    spec = DatumSpec.parse(config.datum, "--datum / datum")
+    spec = DatumSpec.parse(config.datum, "--datum / datum", config.datum_fit)
     if spec is None:
         return None
     if not deviations:
