@@ -345,9 +345,10 @@ def test_datum_finds_shifted_walls_under_rigidly_offset_poses(world: dict[str, P
 
 
 def test_per_frame_datum_fit_removes_frame_to_frame_pose_error(world: dict[str, Path]) -> None:
-    """Poses off by a rigid motion and by 1 cm / 0.15° of noise per frame: the rigid
-    correction leaves the noise in the offsets; the joint per-frame fit (frames placed by the
-    datum and by the elements they share) reads every S0 wall within 3 mm."""
+    """Poses off by a rigid motion and, from the middle of the walk on, by 2 cm more in x and y
+    (what a refinement leaves when part of the walk was pulled elsewhere): the rigid correction
+    leaves a centimetre in the walls that half sees; the joint per-frame fit (frames placed by
+    the datum and by the elements they share) reads every S0 wall within 3 mm."""
     from dataclasses import replace
 
     from bimcap.dataset import read_sequence
@@ -360,13 +361,10 @@ def test_per_frame_datum_fit_removes_frame_to_frame_pose_error(world: dict[str, 
     truth = load_building_truth(world["truth"]).deviations
     assert truth is not None
     gt = read_sequence(world["seq"]).trajectory("gt").poses
-    rng = np.random.default_rng(3)
-    noise = np.repeat(np.eye(4)[None], len(gt), axis=0)
-    for t in noise:
-        yaw = np.radians(rng.normal(0.0, 0.15))
-        t[:2, :2] = [[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]
-        t[:3, 3] = rng.normal(0.0, 0.01, 3)
-    moved = compose(matrix_to_pose(noise), _rigidly_offset(gt))
+    n = len(gt)
+    step = np.repeat(np.eye(4)[None], n, axis=0)
+    step[:, :2, 3] = 0.02 * np.clip((np.arange(n) - n / 2) / 2, 0, 1)[:, None]
+    moved = compose(matrix_to_pose(step), _rigidly_offset(gt))
     model = load_design(world["design"])
     scans = load_scans(read_sequence(world["seq"]), moved)
     frames = DatumSpec.parse(DATUM)
@@ -378,7 +376,7 @@ def test_per_frame_datum_fit_removes_frame_to_frame_pose_error(world: dict[str, 
         errors[spec.fit] = {e.name: abs(e.offset_m - truth.wall_shifts[e.name])
                             for e in rep.elements if e.ifc_class == "IfcWall"}
     assert len(errors[DatumFitMode.FRAMES]) == 6
-    assert max(errors[DatumFitMode.RIGID].values()) > 0.004
+    assert max(errors[DatumFitMode.RIGID].values()) > 0.008
     assert max(errors[DatumFitMode.FRAMES].values()) < 0.003, errors
     assert rep.datum["frames"]["n_elements"] >= 6
     assert len(rep.datum["frames"]["world_datum_from_world"]) == len(gt)
