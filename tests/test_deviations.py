@@ -212,8 +212,9 @@ def test_bad_options_name_the_field() -> None:
 def test_refine_with_deviations_then_the_run_directory(world: dict[str, Path], tmp_path: Path,
                                                        capsys: pytest.CaptureFixture[str]
                                                        ) -> None:
-    """``refine --deviations`` writes the map and the deviations into the run's set; ``bimcap
-    deviations RUN_DIR`` finds the sequence and the IFC from the run's result.json."""
+    """``refine --deviations --datum`` writes the map and the deviations (relative to the datum)
+    into the run's set; ``bimcap deviations RUN_DIR`` finds the sequence and the IFC from the
+    run's result.json."""
     import json
 
     pytest.importorskip("bimcap._core", reason="the C++ core is not built")
@@ -223,10 +224,13 @@ def test_refine_with_deviations_then_the_run_directory(world: dict[str, Path], t
     run = tmp_path / "run"
     gt = world["seq"] / "poses" / "gt.tum"
     rc = main(["refine", str(world["seq"]), "-o", str(run), "--init", str(gt), "--deviations",
-               "-q", "--workers", "1"])
+               "-q", "--workers", "1", "--datum", ",".join(DATUM)])
     assert rc == 0
     assert "deviations: " in capsys.readouterr().out
     doc = json.loads((run / "result.json").read_text())
+    assert doc["deviations"]["datum"]["mode"] == "datum"
+    assert doc["deviations"]["datum"]["names"] == ["S0/wall/ext-south", "S0/wall/ext-west",
+                                                   "S0/slab/floor"]
     assert {"map_refined.ply", "deviations.json", "deviations.csv", "deviations.ply",
             "deviations.png", "deviations.ifc", "deviations.bcfzip"} <= set(doc["outputs"])
     html = (run / "report.html").read_text()
