@@ -235,6 +235,7 @@ def test_refine_with_deviations_then_the_run_directory(world: dict[str, Path], t
             "deviations.png", "deviations.ifc", "deviations.bcfzip"} <= set(doc["outputs"])
     html = (run / "report.html").read_text()
     assert "Scan vs BIM: deviations" in html and "S0/column/corridor-1" in html
+    assert "Offsets relative to the datum (3 element(s)" in html
     assert verify_outputs(run) == []
     assert doc["inputs"]["ifc"] == str(world["design"].resolve())
     dev = json.loads((run / "deviations.json").read_text())
