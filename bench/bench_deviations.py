@@ -7,8 +7,16 @@ as-built (walls shifted along their normals and columns offset by σ ``--shift-s
 simulated in the as-built (``--frames`` frames at the demo's rig: 516×386, VLP-16, 2 fps), the
 paper's exp2 drift as the initial poses and a default ``bimcap refine`` against the *design* (the
 deviations are in the scan, not in the BIM). The deviations (:mod:`bimcap.deviations`) are then
-computed with the ground-truth poses and with the refined poses, and scored
-(:mod:`bimcap.deviations.scoring`) against ``as_built.truth.json``.
+computed with the ground-truth poses and with the refined poses, each without and with the
+datum, and scored (:mod:`bimcap.deviations.scoring`) against ``as_built.truth.json``.
+
+The datum: the as-built keeps :data:`DATUM_WALLS` (one exterior wall along x, one along y)
+exactly at design, like surveyed control lines, and records them in the truth sidecar
+(``deviations.datum``); the floor slabs are never shifted by the generator, so the ground floor's
+slab joins them for z. Rows ``+datum-rigid`` / ``+datum-frames`` pass them as the datum
+(:mod:`bimcap.deviations.datum`: the rigid correction that puts them on the design first, then,
+for ``-frames``, one per frame fitted jointly with the other elements' offsets); every row scores
+the other elements only, so the rows with and without datum count the same elements.
 
 Usage (resumable: worlds already in the CSV are skipped)::
 
@@ -48,9 +56,15 @@ TARGETS = {"recall": 0.95, "false_alarm_rate": 0.05, "offset_rmse_cm_gt": 1.0,
            "offset_rmse_cm_refined": 1.5, "seconds": 10.0}
 
 
+#: The as-built's datum: walls built exactly as designed (surveyed control lines), one along x
+#: and one along y, on every storey; with the ground floor slab (never shifted) for z.
+DATUM_WALLS = ("ext-south", "ext-west")
+
+
 def make_world(work: Path, world: str, frames: int, shift_sigma: float, missing: float
                ) -> tuple[Path, Path, Path]:
-    """(sequence dir, design IFC, as-built truth sidecar) of ``world``, built once."""
+    """(sequence dir, design IFC, as-built truth sidecar) of ``world``, built once; the
+    as-built keeps :data:`DATUM_WALLS` exactly at design."""
     from bimcap.dataset import add_trajectory, read_sequence
     from bimcap.sim.building import BuildingSpec, as_built, generate_building
     from bimcap.sim.drift import DriftParams, apply_drift
@@ -65,7 +79,7 @@ def make_world(work: Path, world: str, frames: int, shift_sigma: float, missing:
         root.mkdir(parents=True, exist_ok=True)
         gb = generate_building(BuildingSpec(**LAYOUTS[layout]), seed=seed, ifc_path=design)
         as_built(gb, seed=seed + 1, shift_sigma_m=shift_sigma, missing_fraction=missing,
-                 ifc_path=built)
+                 datum=DATUM_WALLS, ifc_path=built)
     seq = root / f"seq_{frames}"
     if not (seq / "manifest.json").is_file():
         cfg = SimulatorConfig(camera=CONSLAM_CAMERA.scaled(0.25), frames=frames, fps=2.0,
@@ -97,6 +111,33 @@ def refined_poses(work: Path, world: str, seq_dir: Path, design: Path, workers: 
     return outcome.refined
 
 
+def datum_spec(truth: Any) -> Any:
+    """The bench's datum (:class:`bimcap.deviations.datum.DatumSpec`): the truth's datum
+    elements by name, and the ground floor's slab (never shifted) for z."""
+    from bimcap.deviations.datum import DatumSpec
+
+    if not truth.datum:
+        raise SystemExit("the as-built has no datum (a world built before it had one): "
+                         "use a new --work")
+    return DatumSpec.parse([f"name:{n}" for n in truth.datum] + ["name:S0/slab/floor"],
+                           "bench datum")
+
+
+def pose_runs(seq: Any, refined: Any, truth: Any) -> list[tuple[str, Any, Any]]:
+    """``(row name, world_from_cam trajectory, datum or None)`` of the five analyses: without a
+    datum, with the rigid correction (``-rigid``) and with the per-frame joint fit
+    (``-frames``)."""
+    from dataclasses import replace
+
+    from bimcap.deviations.datum import DatumFitMode
+
+    gt = seq.trajectory("gt")
+    frames = datum_spec(truth)
+    rigid = replace(frames, fit=DatumFitMode.RIGID)
+    return [("gt", gt, None), ("gt+datum-frames", gt, frames), ("refined", refined, None),
+            ("refined+datum-rigid", refined, rigid), ("refined+datum-frames", refined, frames)]
+
+
 def score_world(work: Path, world: str, args: argparse.Namespace) -> list[dict[str, Any]]:
     from bimcap.dataset import read_sequence
     from bimcap.deviations.analysis import analyse_deviations, load_design
@@ -113,14 +154,18 @@ def score_world(work: Path, world: str, args: argparse.Namespace) -> list[dict[s
     gt = seq.trajectory("gt")
     refined = refined_poses(work, world, seq_dir, design, args.workers)
     rows = []
-    for name, traj in (("gt", gt), ("refined", refined)):
+    for name, traj, datum in pose_runs(seq, refined, truth):
         t0 = time.perf_counter()
         model = load_design(design)
         scans = load_scans(seq, traj.poses)
-        report = analyse_deviations(model, scans, ifc_path=design)
+        report = analyse_deviations(model, scans, ifc_path=design, datum=datum)
         seconds = time.perf_counter() - t0
-        sc = score_deviations(report, truth.wall_shifts, truth.column_offsets, truth.missing)
-        err = trajectory_metrics(traj.poses, gt.poses, AlignMode.NONE).ate_pos_m.rmse
+        sc = score_deviations(report, truth.wall_shifts, truth.column_offsets, truth.missing,
+                              exclude=truth.datum)
+        poses = traj.poses
+        if report.datum.get("mode") == "datum":  # the corrected poses' error
+            poses = _corrected(report.datum, poses)
+        err = trajectory_metrics(poses, gt.poses, AlignMode.NONE).ate_pos_m.rmse
         rows.append({
             "world": world, "poses": name, "frames": len(gt), "pose_err_cm": 100 * err,
             "elements": sc.elements, "observed": sc.observed, "shifted": sc.shifted,
@@ -134,6 +179,18 @@ def score_world(work: Path, world: str, args: argparse.Namespace) -> list[dict[s
               f"missing {sc.missing_found}/{sc.missing_seen} (false {sc.false_missing}) | "
               f"offset RMSE {100 * sc.offset_rmse_m:.2f} cm | {seconds:.1f} s", flush=True)
     return rows
+
+
+def _corrected(datum: dict[str, Any], world_from_cam: Any) -> Any:
+    """(N, 7) poses moved by a report's datum correction (per frame with the joint fit)."""
+    import numpy as np
+
+    from bimcap.geometry.poses import compose, matrix_to_pose
+
+    if "frames" in datum:
+        return compose(np.asarray(datum["frames"]["world_datum_from_world"]), world_from_cam)
+    t = matrix_to_pose(np.asarray(datum["world_datum_from_world"])[None])[0]
+    return compose(np.repeat(t[None], len(world_from_cam), axis=0), world_from_cam)
 
 
 ELEMENT_FIELDS = ("world", "poses", "name", "ifc_class", "status", "true_m", "offset_m",
@@ -160,11 +217,12 @@ def element_rows(work: Path, world: str, args: argparse.Namespace) -> list[dict[
     refined = refined_poses(work, world, seq_dir, design, args.workers)
     model = load_design(design)
     rows = []
-    for name, traj in (("gt", seq.trajectory("gt")), ("refined", refined)):
-        report = analyse_deviations(model, load_scans(seq, traj.poses), ifc_path=design)
+    for name, traj, datum in pose_runs(seq, refined, truth):
+        report = analyse_deviations(model, load_scans(seq, traj.poses), ifc_path=design,
+                                    datum=datum)
         tol = report.options.tolerance_m
         for e in report.elements:
-            if e.status is ElementStatus.UNOBSERVED:
+            if e.status is ElementStatus.UNOBSERVED or e.name in truth.datum:
                 continue
             flagged = e.status in (ElementStatus.DEVIATING, ElementStatus.MISSING)
             err: float | None = None
@@ -204,11 +262,11 @@ def summarise(path: Path) -> str:
     lines = ["| poses | worlds | pose ATE [cm] | recall ≥ 3 cm | false alarms | missing found "
              "| false missing | offset RMSE [cm] | time [s] (max) |",
              "|---|---|---|---|---|---|---|---|---|"]
-    groups = [("gt", [r for r in rows if r["poses"] == "gt"]),
-              ("refined", [r for r in rows if r["poses"] == "refined"]),
-              (f"refined, pose ATE ≤ {GOOD_POSES_CM:g} cm",
-               [r for r in rows if r["poses"] == "refined"
-                and float(r["pose_err_cm"]) <= GOOD_POSES_CM])]
+    kinds = list(dict.fromkeys(r["poses"] for r in rows))
+    groups = [(k, [r for r in rows if r["poses"] == k]) for k in kinds]
+    groups += [(f"{k}, pose ATE ≤ {GOOD_POSES_CM:g} cm",
+                [r for r in rows if r["poses"] == k and float(r["pose_err_cm"]) <= GOOD_POSES_CM])
+               for k in kinds if k.startswith("refined")]
     for poses, sel in groups:
         if not sel:
             continue
@@ -231,7 +289,7 @@ def summarise(path: Path) -> str:
     lines += ["", "Worst world per column (the table above pools the worlds):", "",
               "| poses | recall ≥ 3 cm | false alarms | offset RMSE [cm] | pose ATE [cm] "
               "| time [s] |", "|---|---|---|---|---|---|"]
-    for poses in ("gt", "refined"):
+    for poses in kinds:
         sel = [r for r in rows if r["poses"] == poses]
         if not sel:
             continue

@@ -304,6 +304,38 @@ def test_as_built_missing_elements(demo: GeneratedBuilding) -> None:
     assert removed == {m for m in dev.missing if "/wall/part-" in m}
 
 
+def test_as_built_datum_is_at_design_and_recorded(demo: GeneratedBuilding, tmp_path: Path
+                                                  ) -> None:
+    """Datum walls and columns keep the design's geometry and are recorded in the sidecar; the
+    other elements' shifts and the missing ones are those of the same seed without a datum."""
+    from bimcap.sim.building_truth import load_building_truth
+
+    plain = as_built(demo, 5, missing_fraction=0.3)
+    built = as_built(demo, 5, missing_fraction=0.3, datum=("ext-south", "ext-west"),
+                     ifc_path=tmp_path / "built.ifc")
+    dev, ref = built.truth.deviations, plain.truth.deviations
+    assert dev is not None and ref is not None
+    datum = {"S0/wall/ext-south", "S0/wall/ext-west"}
+    assert set(dev.datum) == datum and not ref.datum
+    assert dev.wall_shifts["S0/wall/ext-south"] == 0.0 == dev.wall_shifts["S0/wall/ext-west"]
+    assert ref.wall_shifts["S0/wall/ext-south"] != 0.0
+    for w in datum:  # the same line (the ends follow the shifted walls they butt into)
+        a, b = built.truth.wall(w), demo.truth.wall(w)
+        assert np.dot(a.start, b.normal) == pytest.approx(np.dot(b.start, b.normal), abs=1e-9)
+        assert np.dot(a.end, b.normal) == pytest.approx(np.dot(b.end, b.normal), abs=1e-9)
+    assert {k: v for k, v in dev.wall_shifts.items() if k not in datum} == \
+        {k: v for k, v in ref.wall_shifts.items() if k not in datum}
+    assert dev.missing == ref.missing and dev.column_offsets == ref.column_offsets
+    # a removable datum (a column) is never left out
+    col = as_built(demo, 5, missing_fraction=1.0, datum=("column/corridor-1",)).truth.deviations
+    assert col is not None and col.datum == ("S0/column/corridor-1",)
+    assert col.column_offsets["S0/column/corridor-1"] == (0.0, 0.0)
+    assert "S0/column/corridor-1" not in col.missing
+    assert load_building_truth(tmp_path / "built.truth.json").deviations == dev
+    with pytest.raises(BuildingSpecError, match="datum: unknown wall or column key 'ext-up'"):
+        as_built(demo, 5, datum=("ext-up",))
+
+
 def test_as_built_without_deviation_is_the_design(demo: GeneratedBuilding) -> None:
     same = as_built(demo, 1, shift_sigma_m=0.0, missing_fraction=0.0)
     assert same.truth.walls == demo.truth.walls and same.truth.columns == demo.truth.columns

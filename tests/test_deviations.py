@@ -151,6 +151,7 @@ def test_deviations_cli_writes_json_csv_ply(world: dict[str, Path], tmp_path: Pa
     assert "1 missing" in text and "S0/wall/corr-south" in text
     doc = json.loads((out / "deviations.json").read_text())
     assert doc["format"] == "bimcap-deviations"
+    assert doc["datum"]["mode"] == "none" and "no datum" in text
     first = doc["elements"][0]
     assert {"guid", "ifc_class", "name", "storey", "status", "offset_m", "coverage",
             "n_points"} <= set(first)
@@ -211,8 +212,9 @@ def test_bad_options_name_the_field() -> None:
 def test_refine_with_deviations_then_the_run_directory(world: dict[str, Path], tmp_path: Path,
                                                        capsys: pytest.CaptureFixture[str]
                                                        ) -> None:
-    """``refine --deviations`` writes the map and the deviations into the run's set; ``bimcap
-    deviations RUN_DIR`` finds the sequence and the IFC from the run's result.json."""
+    """``refine --deviations --datum`` writes the map and the deviations (relative to the datum)
+    into the run's set; ``bimcap deviations RUN_DIR`` finds the sequence and the IFC from the
+    run's result.json."""
     import json
 
     pytest.importorskip("bimcap._core", reason="the C++ core is not built")
@@ -222,14 +224,18 @@ def test_refine_with_deviations_then_the_run_directory(world: dict[str, Path], t
     run = tmp_path / "run"
     gt = world["seq"] / "poses" / "gt.tum"
     rc = main(["refine", str(world["seq"]), "-o", str(run), "--init", str(gt), "--deviations",
-               "-q", "--workers", "1"])
+               "-q", "--workers", "1", "--datum", ",".join(DATUM)])
     assert rc == 0
     assert "deviations: " in capsys.readouterr().out
     doc = json.loads((run / "result.json").read_text())
+    assert doc["deviations"]["datum"]["mode"] == "datum"
+    assert doc["deviations"]["datum"]["names"] == ["S0/wall/ext-south", "S0/wall/ext-west",
+                                                   "S0/slab/floor"]
     assert {"map_refined.ply", "deviations.json", "deviations.csv", "deviations.ply",
             "deviations.png", "deviations.ifc", "deviations.bcfzip"} <= set(doc["outputs"])
     html = (run / "report.html").read_text()
     assert "Scan vs BIM: deviations" in html and "S0/column/corridor-1" in html
+    assert "Offsets relative to the datum (3 element(s)" in html
     assert verify_outputs(run) == []
     assert doc["inputs"]["ifc"] == str(world["design"].resolve())
     dev = json.loads((run / "deviations.json").read_text())
@@ -278,3 +284,213 @@ def test_clutter_comes_out_as_a_cluster(world: dict[str, Path], report: Any) -> 
     assert len(report.clusters) <= 2 * len(placed)
     big = report.clusters[0]
     assert 0.3 < big.extent[2] < 2.0 and big.n_points >= 30
+
+
+# ------------------------------------------------------------------------------ datum
+#: The tiny world's datum: the two walls the as-built keeps at design, and the floor for z.
+DATUM = ("name:S0/wall/ext-south", "name:S0/wall/ext-west", "name:S0/slab/floor")
+
+
+def _rigidly_offset(world_from_cam: np.ndarray) -> np.ndarray:
+    """The poses moved by one rigid motion of the world: (+2.5, −2.0, +1.0) cm and 0.4° yaw
+    about the origin, what a refinement pulled towards the design leaves in common."""
+    from bimcap.geometry.poses import compose, matrix_to_pose
+
+    yaw = np.radians(0.4)
+    t = np.eye(4)
+    t[:3, :3] = [[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]]
+    t[:3, 3] = [0.025, -0.020, 0.010]
+    return compose(np.repeat(matrix_to_pose(t[None]), len(world_from_cam), axis=0),
+                   world_from_cam)
+
+
+def test_datum_finds_shifted_walls_under_rigidly_offset_poses(world: dict[str, Path]) -> None:
+    """Poses off by one rigid motion: without a datum the walls read wrong by up to 1.5 cm; with
+    the datum (two walls built right, and the floor) every S0 wall reads its applied shift, the
+    correction undoes the motion, and the report says what the offsets are relative to."""
+    from bimcap.dataset import read_sequence
+    from bimcap.deviations.analysis import analyse_deviations, load_design
+    from bimcap.deviations.datum import DatumSpec
+    from bimcap.deviations.refined_map import load_scans
+    from bimcap.sim.building_truth import load_building_truth
+
+    truth = load_building_truth(world["truth"]).deviations
+    assert truth is not None and "S0/wall/ext-south" in truth.datum
+    seq = read_sequence(world["seq"])
+    moved = _rigidly_offset(seq.trajectory("gt").poses)
+    model = load_design(world["design"])
+    scans = load_scans(seq, moved)
+    plain = analyse_deviations(model, scans, ifc_path=world["design"], storey="S0")
+    spec = DatumSpec.parse(DATUM)
+    fixed = analyse_deviations(model, scans, ifc_path=world["design"], storey="S0", datum=spec)
+    walls = [e.name for e in plain.elements if e.ifc_class == "IfcWall"]
+    assert len(walls) == 6
+    err_plain = [abs(plain.by_name(n).offset_m - truth.wall_shifts[n]) for n in walls]
+    err_fixed = [abs(fixed.by_name(n).offset_m - truth.wall_shifts[n]) for n in walls]
+    assert max(err_plain) > 0.01  # the case that fails without a datum
+    assert max(err_fixed) < 0.004, dict(zip(walls, err_fixed, strict=True))
+    # the shifted corridor walls: found, with their offsets
+    for name in ("S0/wall/corr-south", "S0/wall/corr-north"):
+        e = fixed.by_name(name)
+        assert e.status.value == "deviating" and not e.datum
+        assert e.offset_m == pytest.approx(truth.wall_shifts[name], abs=0.004)
+    assert fixed.by_name("S0/wall/ext-south").datum
+    assert fixed.by_name("S0/slab/floor").offset_m == pytest.approx(0.0, abs=0.003)
+    d = fixed.to_dict()["datum"]
+    assert d["mode"] == "datum" and d["free"] == []
+    assert d["yaw_deg"] == pytest.approx(-0.4, abs=0.05)
+    # the correction maps the offset poses' sensor centres back onto the true ones
+    t = np.asarray(d["world_datum_from_world"])
+    back = moved[:, :3] @ t[:3, :3].T + t[:3, 3]
+    assert np.abs(back - seq.trajectory("gt").poses[:, :3]).max() < 0.005
+    assert plain.to_dict()["datum"]["mode"] == "none"
+    assert "relative to the refined poses" in plain.to_dict()["datum"]["note"]
+    # one rigid motion: the per-frame fit (the default) has little left to move (its own
+    # noise: a few millimetres on this 12-frame walk)
+    assert d["frames"]["frame_step_max_m"] < 0.006
+
+
+def test_per_frame_datum_fit_removes_frame_to_frame_pose_error(world: dict[str, Path]) -> None:
+    """Poses off by a rigid motion and, from the middle of the walk on, by 2 cm more in x and y
+    (what a refinement leaves when part of the walk was pulled elsewhere): the rigid correction
+    leaves a centimetre in the walls that half sees; the joint per-frame fit (frames placed by
+    the datum and by the elements they share) reads every S0 wall within 3 mm."""
+    from dataclasses import replace
+
+    from bimcap.dataset import read_sequence
+    from bimcap.deviations.analysis import analyse_deviations, load_design
+    from bimcap.deviations.datum import DatumFitMode, DatumSpec
+    from bimcap.deviations.refined_map import load_scans
+    from bimcap.geometry.poses import compose, matrix_to_pose
+    from bimcap.sim.building_truth import load_building_truth
+
+    truth = load_building_truth(world["truth"]).deviations
+    assert truth is not None
+    gt = read_sequence(world["seq"]).trajectory("gt").poses
+    n = len(gt)
+    step = np.repeat(np.eye(4)[None], n, axis=0)
+    step[:, :2, 3] = 0.02 * np.clip((np.arange(n) - n / 2) / 2, 0, 1)[:, None]
+    moved = compose(matrix_to_pose(step), _rigidly_offset(gt))
+    model = load_design(world["design"])
+    scans = load_scans(read_sequence(world["seq"]), moved)
+    frames = DatumSpec.parse(DATUM)
+    assert frames is not None and frames.fit is DatumFitMode.FRAMES
+    errors = {}
+    for spec in (replace(frames, fit=DatumFitMode.RIGID), frames):
+        rep = analyse_deviations(model, scans, ifc_path=world["design"], storey="S0",
+                                 datum=spec)
+        errors[spec.fit] = {e.name: abs(e.offset_m - truth.wall_shifts[e.name])
+                            for e in rep.elements if e.ifc_class == "IfcWall"}
+    assert len(errors[DatumFitMode.FRAMES]) == 6
+    assert max(errors[DatumFitMode.RIGID].values()) > 0.008
+    assert max(errors[DatumFitMode.FRAMES].values()) < 0.003, errors
+    assert rep.datum["frames"]["n_elements"] >= 6
+    assert len(rep.datum["frames"]["world_datum_from_world"]) == len(gt)
+
+
+def test_bad_datum_input_is_refused_naming_the_flag(world: dict[str, Path]) -> None:
+    from bimcap.deviations.analysis import load_design
+    from bimcap.deviations.datum import DatumError, DatumSpec, check_datum
+
+    with pytest.raises(DatumError, match=r"--datum: 'ext-south' is not an IFC GlobalId"):
+        DatumSpec.parse(["ext-south"])
+    with pytest.raises(DatumError, match=r"--datum: unknown selector 'tag:x'"):
+        DatumSpec.parse(["tag:x"])
+    assert DatumSpec.parse(["", " , "]) is None
+    model = load_design(world["design"])
+    unknown = "0123456789abcdefABCDEF"
+    with pytest.raises(DatumError, match=f"--datum: unknown IFC GUID '{unknown}'"):
+        DatumSpec.parse([unknown]).resolve(model)  # type: ignore[union-attr]
+    with pytest.raises(DatumError, match=r"'name:S9/\*' matches no element"):
+        DatumSpec.parse(["name:S9/*"]).resolve(model)  # type: ignore[union-attr]
+    with pytest.raises(DatumError, match="only walls, columns, floor slabs and ceilings"):
+        DatumSpec.parse(["class:IfcDoor"]).resolve(model)  # type: ignore[union-attr]
+    # parallel walls only: x (along them) is free (their length gives yaw); one column: yaw
+    parallel = DatumSpec.parse(["name:S0/wall/ext-south,name:S0/wall/corr-*"])
+    assert parallel is not None
+    with pytest.raises(DatumError, match=r"--datum: the datum \(3 element\(s\): .*\) leaves x "
+                       "free: add an element of another orientation"):
+        check_datum(model, parallel.resolve(model))
+    one = DatumSpec.parse(["name:S0/column/hall"])
+    assert one is not None
+    with pytest.raises(DatumError, match="leaves yaw free"):
+        check_datum(model, one.resolve(model))
+    columns = DatumSpec.parse(["class:IfcColumn"])  # the corridor's and the hall's
+    assert columns is not None and check_datum(model, columns.resolve(model)) == ["z"]
+    # two walls of different orientation: x, y, yaw; z only with a slab or a ceiling
+    walls = DatumSpec.parse(DATUM[:2])
+    assert walls is not None and check_datum(model, walls.resolve(model)) == ["z"]
+    full = DatumSpec.parse(DATUM)
+    assert full is not None and check_datum(model, full.resolve(model)) == []
+
+
+def test_deviations_cli_with_a_datum(world: dict[str, Path], tmp_path: Path,
+                                     capsys: pytest.CaptureFixture[str]) -> None:
+    """``--datum`` on rigidly offset poses: the corridor walls read their shifts; the JSON and
+    the CSV mark the datum. A GUID the model lacks: exit 2 before the scans are read, naming
+    the flag and the GUID; so does ``refine --deviations --datum``."""
+    import csv
+    import json
+
+    from bimcap.cli import main
+    from bimcap.geometry.trajectory import Trajectory, write_tum
+    from bimcap.sim.building_truth import load_building_truth
+
+    seq = world["seq"]
+    from bimcap.dataset import read_sequence
+
+    gt = read_sequence(seq).trajectory("gt")
+    poses = tmp_path / "offset.tum"
+    write_tum(poses, Trajectory(gt.timestamps, _rigidly_offset(gt.poses)))
+    out = tmp_path / "dev"
+    base = ["deviations", "--sequence", str(seq), "--poses", str(poses), "--ifc",
+            str(world["design"]), "--storey", "S0"]
+    rc = main([*base, "-o", str(out), "--datum", ",".join(DATUM)])
+    assert rc == 0
+    text = capsys.readouterr().out
+    assert "datum: 3 element(s); poses corrected by" in text
+    doc = json.loads((out / "deviations.json").read_text())
+    truth = load_building_truth(world["truth"]).deviations
+    assert truth is not None
+    by_name = {e["name"]: e for e in doc["elements"]}
+    assert by_name["S0/wall/corr-south"]["offset_m"] == pytest.approx(
+        truth.wall_shifts["S0/wall/corr-south"], abs=0.004)
+    assert doc["datum"]["mode"] == "datum" and by_name["S0/wall/ext-west"]["datum"] is True
+    with (out / "deviations.csv").open() as fh:
+        rows = {r["name"]: r for r in csv.DictReader(fh)}
+    assert rows["S0/wall/ext-west"]["datum"] == "True"
+    assert rows["S0/wall/corr-south"]["datum"] == "False"
+    unknown = "0123456789abcdefABCDEF"
+    rc = main([*base, "-o", str(tmp_path / "bad"), "--datum", f"name:S0/wall/ext-*,{unknown}"])
+    err = capsys.readouterr().err
+    assert rc == 2 and f"--datum: unknown IFC GUID '{unknown}'" in err
+    assert "Traceback" not in err and not (tmp_path / "bad").exists()
+    rc = main([*base, "-o", str(tmp_path / "bad"), "--datum", "name:S0/wall/corr-*"])
+    assert rc == 2 and "leaves x free" in capsys.readouterr().err
+    rc = main(["refine", str(seq), "-o", str(tmp_path / "run"), "--init", str(poses),
+               "--deviations", "--datum", unknown, "-q"])
+    err = capsys.readouterr().err
+    assert rc == 2 and f"--datum / datum: unknown IFC GUID '{unknown}'" in err
+    assert not (tmp_path / "run" / "refined.tum").exists()
+
+
+def test_refine_config_reads_and_writes_the_datum(tmp_path: Path) -> None:
+    from bimcap.pipeline.config import ConfigError, RefineConfig, toml_text
+
+    toml = tmp_path / "run.toml"
+    toml.write_text('datum = ["class:IfcColumn", "name:S0/wall/ext-*"]\ndatum_fit = "rigid"\n')
+    cfg = RefineConfig.from_toml(toml)
+    assert cfg.datum == ["class:IfcColumn", "name:S0/wall/ext-*"] and cfg.datum_fit == "rigid"
+    again = tmp_path / "again.toml"
+    again.write_text(toml_text({"datum": cfg.datum}))
+    assert RefineConfig.from_toml(again).datum == cfg.datum
+    assert RefineConfig().datum_fit == "frames"
+    toml.write_text('datum_fit = "best"\n')
+    with pytest.raises(ConfigError, match="datum_fit: unknown datum fit 'best'"):
+        RefineConfig.from_toml(toml)
+    toml.write_text('datum = ["ext-south"]\n')
+    with pytest.raises(ConfigError, match=r"run.toml: datum: 'ext-south' is not an IFC GlobalId"):
+        RefineConfig.from_toml(toml)
+    toml.write_text('datum = "class:IfcColumn"\n')
+    with pytest.raises(ConfigError, match="datum: must be a list of selectors"):
+        RefineConfig.from_toml(toml)

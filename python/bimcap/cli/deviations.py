@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -45,6 +46,17 @@ def register(sub: Any) -> None:
     p.add_argument("--tolerance", type=float, default=0.02, metavar="M",
                    help="offsets beyond this are 'deviating' (default 0.02 m)")
     p.add_argument("--storey", help="analyse only this storey's elements (by name)")
+    p.add_argument("--datum", action="append", metavar="SEL",
+                   help="an element declared as built right: its IFC GUID, name:PATTERN (shell "
+                        "pattern on the Name) or class:IfcClass; repeat or comma-separate. The "
+                        "poses are first corrected by the rigid motion (x, y, yaw; z when a "
+                        "slab or ceiling is in it) that puts the datum on the design, so the "
+                        "other elements' offsets are relative to it (default: relative to the "
+                        "poses)")
+    p.add_argument("--datum-fit", choices=["frames", "rigid"], default="frames",
+                   help="with --datum: frames (default) = the rigid correction, then one small "
+                        "correction per frame fitted jointly with the other elements' offsets; "
+                        "rigid = one rigid correction of the whole trajectory")
     p.add_argument("--voxel", type=float, default=0.03, metavar="M",
                    help="voxel of the map the clusters and the PLY use (default 0.03 m)")
     p.add_argument("--top", type=int, default=10, metavar="N",
@@ -88,7 +100,8 @@ def resolve_inputs(args: argparse.Namespace) -> tuple[Path, Path, Path, Path]:
 def run(args: argparse.Namespace) -> int:
     from bimcap.bim.ingest import check_ifc_file
     from bimcap.dataset import read_sequence
-    from bimcap.deviations.analysis import DeviationInputError, DeviationOptions
+    from bimcap.deviations.analysis import DeviationInputError, DeviationOptions, load_design
+    from bimcap.deviations.datum import DatumSpec, check_datum
     from bimcap.deviations.outputs import DEVIATION_OUTPUTS, run_deviations
     from bimcap.geometry.trajectory import read_tum
     from bimcap.io.atomic import check_not_input
@@ -96,6 +109,7 @@ def run(args: argparse.Namespace) -> int:
 
     seq_path, poses_path, ifc, out = resolve_inputs(args)
     options = DeviationOptions(tolerance_m=args.tolerance)
+    datum = DatumSpec.parse(args.datum or [], "--datum", args.datum_fit)
     check_ifc_file(ifc)
     seq = read_sequence(seq_path)
     traj = check_trajectory(seq, read_tum(poses_path), poses_path, "refined")
@@ -103,9 +117,26 @@ def run(args: argparse.Namespace) -> int:
         check_not_input(out / name, [poses_path, ifc, seq.manifest_path])
         if (out / name).exists() and not args.overwrite:
             raise DeviationInputError("exists; pass --overwrite to replace it", out / name)
+    model = load_design(ifc)
+    if datum is not None:  # before the scans: an unknown GUID or a free yaw fails fast
+        free = check_datum(model, datum.resolve(model), datum.source, ifc)
+        if free:
+            print(f"warning: the datum leaves {', '.join(free)} free: the poses' "
+                  f"{', '.join(free)} is kept", file=sys.stderr)
     out.mkdir(parents=True, exist_ok=True)
-    result = run_deviations(seq, traj.poses, ifc, out, options, args.storey, args.voxel)
+    result = run_deviations(seq, traj.poses, ifc, out, options, args.storey, args.voxel,
+                            datum=datum, model=model)
     rep = result.report
+    d = rep.datum
+    if d.get("mode") == "datum":
+        tx, ty, tz = (100 * v for v in d["translation_m"])
+        print(f"datum: {len(d['guids'])} element(s); poses corrected by ({tx:+.1f}, {ty:+.1f}, "
+              f"{tz:+.1f}) cm, yaw {d['yaw_deg']:+.3f} deg"
+              + (f"; {', '.join(d['free'])} left free" if d["free"] else "")
+              + (f"; then per frame, {100 * d['frames']['frame_step_rms_m']:.1f} cm RMS"
+                 if "frames" in d else ""))
+    else:
+        print("offsets are relative to the given poses (no datum)")
     print("elements: " + ", ".join(f"{n} {k}" for k, n in rep.counts().items())
           + f"; {len(rep.clusters)} unexplained clusters; {result.seconds:.1f} s")
     judged = [e for e in rep.elements if e.offset_m is not None]

@@ -100,7 +100,8 @@ def config_from_args(args: argparse.Namespace) -> RefineConfig:
     keys = ("method", "terms", "weighting", "loss", "geometric_mode", "completion",
             "completion_model", "segmentation", "segmentation_model", "labels_dir", "coarse",
             "rotation_first", "staged", "window", "max_match_distance", "workers", "lidar_nan",
-            "max_lost_fraction", "colmap", "accept_ambiguous", "lidar_scan", "rerun")
+            "max_lost_fraction", "colmap", "accept_ambiguous", "lidar_scan", "rerun", "datum",
+            "datum_fit")
     overrides: dict[str, Any] = {k: getattr(args, k) for k in keys
                                  if getattr(args, k, None) is not None}
     if getattr(args, "global_align", None) is not None:
@@ -145,6 +146,14 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--deviations", action="store_true",
                    help="also write the scan-vs-BIM deviations under the refined poses "
                         "(deviations.json/.csv/.ply; see bimcap deviations)")
+    p.add_argument("--datum", action="append", metavar="SEL",
+                   help="with --deviations: an element declared as built right (IFC GUID, "
+                        "name:PATTERN or class:IfcClass; repeat or comma-separate): the "
+                        "deviations are measured after the rigid correction (x, y, yaw; z from "
+                        "slabs) that puts the datum on the design (overrides the config's datum)")
+    p.add_argument("--datum-fit", choices=["frames", "rigid"],
+                   help="with --datum: frames (default: rigid, then per frame jointly with the "
+                        "other elements' offsets) or rigid (one correction of the trajectory)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace files in OUT that bimcap did not write (default: refuse)")
     p.add_argument("--print-config", action="store_true",

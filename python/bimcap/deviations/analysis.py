@@ -159,6 +159,8 @@ class ElementDeviation:
     n_points: returns that hit it.
     rays: returns whose ray reaches it in the model (hits + passes).
     passes: returns that pass through it (free space where it should be).
+    datum: declared as built right (:mod:`bimcap.deviations.datum`): the poses were corrected
+        so that its offset is zero; its status says how well it then fits.
     """
 
     guid: str
@@ -173,6 +175,7 @@ class ElementDeviation:
     passes: int
     offset_xy_m: tuple[float, float] | None = None
     tilt_deg: float | None = None
+    datum: bool = False
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -181,7 +184,7 @@ class ElementDeviation:
             "coverage": self.coverage, "n_points": self.n_points, "rays": self.rays,
             "passes": self.passes,
             "offset_xy_m": None if self.offset_xy_m is None else list(self.offset_xy_m),
-            "tilt_deg": self.tilt_deg,
+            "tilt_deg": self.tilt_deg, "datum": self.datum,
         }
 
 
@@ -224,6 +227,13 @@ class DeviationReport:
     timings: seconds per step.
     point_element: (P,) int32 for the map points given (``map_points``): index into
         ``elements`` of the element each point lies on, -1 for none (for the coloured PLY).
+    datum: what the offsets are relative to: ``{"mode": "none", "note"}`` (the refined poses)
+        or :meth:`bimcap.deviations.datum.DatumFit.to_dict` (``"mode": "datum"``; with the
+        per-frame fit, ``"frames"``: :meth:`~bimcap.deviations.datum.FrameCorrections.to_dict`).
+    map_points: (P, 3) the map points ``point_element`` refers to, in the datum's world (not in
+        the JSON).
+    sensor_origins: (N, 3) the sensor centres the analysis used (the datum's world; not in the
+        JSON).
     """
 
     elements: list[ElementDeviation]
@@ -233,6 +243,9 @@ class DeviationReport:
     rays: int = 0
     timings: dict[str, float] = field(default_factory=dict)
     point_element: I32 | None = None
+    datum: dict[str, Any] = field(default_factory=dict)
+    map_points: F64 | None = None
+    sensor_origins: F64 | None = None
 
     def counts(self) -> dict[str, int]:
         """Elements per status."""
@@ -251,7 +264,7 @@ class DeviationReport:
         return {
             "format": "bimcap-deviations", "version": 1, "ifc": self.ifc,
             "options": self.options.to_dict(), "counts": self.counts(), "rays": self.rays,
-            "timings": dict(self.timings),
+            "timings": dict(self.timings), "datum": self.datum,
             "elements": [e.to_dict() for e in self.elements],
             "clusters": [c.to_dict() for c in self.clusters],
         }
@@ -415,6 +428,7 @@ def analyse_deviations(
     map_points: F64 | None = None,
     seed: int = 0,
     storey: str | None = None,
+    datum: Any = None,
 ) -> DeviationReport:
     """Per-element deviations of the scanned building from ``model``.
 
@@ -431,6 +445,10 @@ def analyse_deviations(
         ``scans`` at ``cluster_voxel_m / 3``.
     seed: seed of the surface sampling (coverage).
     storey: analyse only the elements of this storey (by name); every element still occludes.
+    datum: a :class:`bimcap.deviations.datum.DatumSpec`: the scans (and ``map_points``) are
+        first moved by the rigid correction that puts the datum's returns on its design faces
+        (:func:`~bimcap.deviations.datum.fit_datum`), and every offset is relative to the datum;
+        None: relative to the given poses (``report.datum["mode"] == "none"``).
     """
     opts = options or DeviationOptions()
     timings: dict[str, float] = {}
@@ -439,6 +457,34 @@ def analyse_deviations(
     scene, gid_to_element = _scene(model, opts)
     element_of_model = {el.index: k for k, el in enumerate(elements)}
     timings["scene"] = time.perf_counter() - t0
+
+    datum_info: dict[str, Any]
+    datum_indices: set[int] = set()
+    if datum is not None:
+        from bimcap.deviations.datum import DatumFitMode, check_datum, fit_datum, fit_frames
+
+        t0 = time.perf_counter()
+        indices = datum.resolve(model)
+        check_datum(model, indices, datum.source, ifc_path)
+        fit = fit_datum(model, scans, indices, datum, opts, scene=scene,
+                        gid_to_element=gid_to_element)
+        datum_info, datum_indices = fit.to_dict(), set(indices)
+        if datum.fit is DatumFitMode.FRAMES:
+            frames = fit_frames(model, scans, indices, fit, opts, scene=scene,
+                                gid_to_element=gid_to_element)
+            scans = frames.apply(scans)
+            datum_info["frames"] = frames.to_dict()
+            # the merged map cannot follow per-frame moves: rebuilt from the moved scans
+            map_points = None
+        else:
+            scans = fit.apply(scans)
+            if map_points is not None:
+                map_points = fit.apply_points(map_points)
+        timings["datum"] = time.perf_counter() - t0
+    else:
+        from bimcap.deviations.datum import NO_DATUM_NOTE
+
+        datum_info = {"mode": "none", "note": NO_DATUM_NOTE}
 
     t0 = time.perf_counter()
     rays = scans.subsample(opts.ray_step)
@@ -475,6 +521,7 @@ def analyse_deviations(
         rows = hit_rows[bounds[k]:bounds[k + 1]]
         results.append(_judge(el, rows, hits, e_front, int(n_hit[k]), int(n_pass[k]), opts,
                               rng, occupancy_probe))
+        results[-1].datum = el.index in datum_indices
     timings["elements"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -483,7 +530,8 @@ def analyse_deviations(
     clusters, point_element = _clusters(scene, gid_to_element, lookup, map_points, opts)
     timings["clusters"] = time.perf_counter() - t0
     return DeviationReport(results, clusters, opts, "" if ifc_path is None else str(ifc_path),
-                           len(rays), timings, point_element)
+                           len(rays), timings, point_element, datum_info, map_points,
+                           scans.origins)
 
 
 def _cast(scene: Any, scans: ScanSet) -> dict[str, Any]:

@@ -4,7 +4,9 @@ one-call :func:`run_deviations` that writes them from a sequence, poses and an I
 ``deviations.json`` is :meth:`DeviationReport.to_dict`: ``{"format": "bimcap-deviations",
 "version": 1, "ifc", "options", "counts": {status: n}, "rays", "timings", "elements": [{"guid",
 "ifc_class", "name", "storey", "status", "offset_m", "coverage", "n_points", "rays", "passes",
-"offset_xy_m", "tilt_deg"}], "clusters": [{"n_points", "centroid", "min", "max", "extent"}]}``.
+"offset_xy_m", "tilt_deg", "datum"}], "clusters": [{"n_points", "centroid", "min", "max",
+"extent"}], "datum": {"mode": "none", "note"} | {"mode": "datum", "world_datum_from_world", ...}}``
+(:mod:`bimcap.deviations.datum`: what the offsets are relative to).
 The CSV has one row per element with the same fields (``offset_xy_m`` split into ``offset_x_m``
 / ``offset_y_m``). ``deviations.ply`` is the refined map coloured by the offset of the element each
 point lies on (blue −2 × tolerance … white 0 … red +2 × tolerance; grey: no analysed element;
@@ -38,7 +40,7 @@ F64 = NDArray[np.float64]
 
 #: The CSV's columns, in order.
 CSV_FIELDS = ("guid", "ifc_class", "name", "storey", "status", "offset_m", "coverage", "n_points",
-              "rays", "passes", "offset_x_m", "offset_y_m", "tilt_deg")
+              "rays", "passes", "offset_x_m", "offset_y_m", "tilt_deg", "datum")
 #: Files :func:`run_deviations` writes into its output directory.
 DEVIATION_OUTPUTS = ("deviations.json", "deviations.csv", "deviations.ply", "deviations.png",
                      "deviations.ifc", "deviations.bcfzip")
@@ -156,7 +158,8 @@ class DeviationRun:
 
 def run_deviations(sequence: Any, world_from_cam: F64, ifc: str | PathLike[str], out_dir: Path,
                    options: DeviationOptions | None = None, storey: str | None = None,
-                   voxel_m: float = 0.03, map_points: F64 | None = None) -> DeviationRun:
+                   voxel_m: float = 0.03, map_points: F64 | None = None, datum: Any = None,
+                   model: Any = None) -> DeviationRun:
     """Analyse ``sequence`` under ``world_from_cam`` (N, 7) against ``ifc`` and write
     :data:`DEVIATION_OUTPUTS` into ``out_dir`` (which must exist).
 
@@ -170,12 +173,17 @@ def run_deviations(sequence: Any, world_from_cam: F64, ifc: str | PathLike[str],
     storey: keep only the elements and map points of this storey (by name).
     voxel_m: voxel of the map the clusters and the coloured PLY use (metres).
     map_points: (P, 3) the refined map, if already built (else built from the scans).
+    datum: a :class:`bimcap.deviations.datum.DatumSpec`: offsets relative to it (the map, the
+        PLY, the picture and the BCF viewpoints in its corrected world); None: relative to
+        ``world_from_cam``.
+    model: the design already loaded (:func:`~bimcap.deviations.analysis.load_design`).
     """
     from bimcap.deviations.analysis import analyse_deviations, load_design
     from bimcap.deviations.refined_map import load_scans, storey_z_range, voxel_downsample
 
     t0 = time.perf_counter()
-    model = load_design(ifc)
+    if model is None:
+        model = load_design(ifc)
     scans = load_scans(sequence, world_from_cam)
     z_range = storey_z_range(model.storeys, storey) if storey is not None else None
     if map_points is None:
@@ -183,20 +191,27 @@ def run_deviations(sequence: Any, world_from_cam: F64, ifc: str | PathLike[str],
     if z_range is not None:
         keep = (map_points[:, 2] >= z_range[0]) & (map_points[:, 2] < z_range[1])
         map_points = map_points[keep]
-    report = analyse_deviations(model, scans, options, ifc, map_points, storey=storey)
+    report = analyse_deviations(model, scans, options, ifc, map_points, storey=storey,
+                                datum=datum)
+    # the map and the walk in the datum's world (as analysed)
+    assert report.map_points is not None and report.sensor_origins is not None
+    assert report.point_element is not None
+    map_points, viewers = report.map_points, report.sensor_origins
+    if z_range is not None:  # a map rebuilt by the per-frame datum fit: cropped again
+        keep = (map_points[:, 2] >= z_range[0]) & (map_points[:, 2] < z_range[1])
+        map_points, report.point_element = map_points[keep], report.point_element[keep]
     out = Path(out_dir)
     write_deviations_json(out / "deviations.json", report)
     write_deviations_csv(out / "deviations.csv", report)
-    assert report.point_element is not None
     write_deviation_ply(out / "deviations.ply", map_points, report, report.point_element)
     from bimcap.deviations.plot import plot_deviations_on_plan
 
     plot_deviations_on_plan(model, report, out / "deviations.png", storey,
-                            walk_xy=scans.origins[:, :2])
+                            walk_xy=viewers[:, :2])
     write_deviation_ifc(ifc, report, out / "deviations.ifc")
     from bimcap.deviations.bcf import write_deviation_bcf
 
-    write_deviation_bcf(out / "deviations.bcfzip", report, model, viewers=scans.origins,
+    write_deviation_bcf(out / "deviations.bcfzip", report, model, viewers=viewers,
                         ifc_path=ifc)
     files = {name: out / name for name in DEVIATION_OUTPUTS}
     return DeviationRun(report, files, time.perf_counter() - t0)

@@ -15,6 +15,9 @@ that this stage does not depend on the simulator. Definitions (``tol`` = the rep
   counts elements reported ``missing`` that are present;
 * **offset RMSE**: over walls and columns with an offset, ``offset_m`` − the applied shift (walls,
   along the same normal) or the length of ``offset_xy_m`` − the applied ``(dx, dy)`` (columns).
+
+Elements named in ``exclude`` (e.g. a datum: declared as built right, so not judged) are left out
+of every count.
 """
 
 from __future__ import annotations
@@ -67,14 +70,21 @@ class DeviationScore:
 
 def score_deviations(report: DeviationReport, wall_shifts: Mapping[str, float],
                      column_offsets: Mapping[str, tuple[float, float]],
-                     missing: Iterable[str], recall_min_m: float = 0.03) -> DeviationScore:
-    """Score ``report`` against the applied deviations (by element name; see the module doc)."""
+                     missing: Iterable[str], recall_min_m: float = 0.03,
+                     exclude: Iterable[str] = ()) -> DeviationScore:
+    """Score ``report`` against the applied deviations (by element name; see the module doc),
+    leaving out the elements named in ``exclude``."""
     tol = report.options.tolerance_m
     gone = set(missing)
+    skip = set(exclude)
     observed = shifted = detected = false_alarms = 0
     missing_seen = missing_found = false_missing = 0
     errors: list[float] = []
+    n_elements = 0
     for e in report.elements:
+        if e.name in skip:
+            continue
+        n_elements += 1
         flagged = e.status in (ElementStatus.DEVIATING, ElementStatus.MISSING)
         if e.name in gone:
             if e.rays >= report.options.min_rays:
@@ -104,5 +114,5 @@ def score_deviations(report: DeviationReport, wall_shifts: Mapping[str, float],
             detected += e.status is ElementStatus.DEVIATING
         elif true_size < tol and flagged:
             false_alarms += 1
-    return DeviationScore(len(report.elements), observed, shifted, detected, false_alarms,
+    return DeviationScore(n_elements, observed, shifted, detected, false_alarms,
                           missing_seen, missing_found, false_missing, errors)

@@ -190,6 +190,14 @@ class RefineConfig:
     accept_ambiguous: when the global alignment is ambiguous (the second-best placement scores
         nearly as well as the best), take the best anyway instead of refusing (flagged in
         ``result.json``).
+    datum: with ``refine --deviations``, the elements declared as built right
+        (:mod:`bimcap.deviations.datum` selectors: IFC GUIDs, ``name:PATTERN``,
+        ``class:IfcClass``; TOML ``datum = ["class:IfcColumn", "2O2Fr$t4X7Zf8NOew3FLOH"]``):
+        the deviations are measured after the rigid correction that puts them on the design.
+        Empty (default): relative to the refined poses.
+    datum_fit: ``"frames"`` (default: the rigid correction, then one per frame fitted jointly
+        with the other elements' offsets) or ``"rigid"`` (:class:`bimcap.deviations.datum.
+        DatumFitMode`).
     """
 
     method: Method = Method.BIMCAP
@@ -221,6 +229,8 @@ class RefineConfig:
     colmap: ColmapExport = ColmapExport.IMAGES
     rerun: bool = False
     global_align: GlobalAlignMode = GlobalAlignMode.AUTO
+    datum: list[str] = field(default_factory=list)
+    datum_fit: str = "frames"
     accept_ambiguous: bool = False
     lidar_scan: bool | None = None
     scan_sigma_m: float | None = 0.02
@@ -304,6 +314,15 @@ class RefineConfig:
                               field="registration")
         if not isinstance(self.features, dict):
             raise ConfigError("features must be a table of SiftOptions fields", field="features")
+        if isinstance(self.datum, str) or not isinstance(self.datum, (list, tuple)):
+            raise ConfigError(f"must be a list of selectors, got {self.datum!r}", field="datum")
+        from bimcap.deviations.datum import DatumError, DatumSpec
+
+        try:
+            DatumSpec.parse(self.datum, "datum", self.datum_fit)
+        except DatumError as exc:
+            raise ConfigError(exc.message, field=exc.field or "datum") from None
+        self.datum = list(self.datum)
         for name, value, allowed in (("loss", self.loss, LOSSES),
                                      ("geometric_mode", self.geometric_mode, GEOMETRIC_MODES)):
             if value is not None and value.lower() not in allowed:
@@ -433,6 +452,8 @@ def toml_text(settings: dict[str, Any], header: str = "") -> str:
             return repr(v)
         if isinstance(v, Enum):
             v = v.value
+        if isinstance(v, (list, tuple)):
+            return "[" + ", ".join(value(x) for x in v) + "]"
         return '"' + str(v).replace("\\", "\\\\").replace('"', '\\"') + '"'
 
     def table(name: str, d: dict[str, Any]) -> list[str]:

@@ -1297,6 +1297,35 @@ def validate_run(
     return RunPlan(seq, ifc_path, traj, gt_traj, base, outputs)
 
 
+@dataclass
+class DatumPlan:
+    """A datum checked before the run: the spec and the design model it was resolved in."""
+
+    spec: Any  #: bimcap.deviations.datum.DatumSpec
+    model: Any  #: bimcap.bim.ingest.BimModel (furniture included, as the deviations load it)
+
+
+def validate_datum(config: RefineConfig, ifc: Path, deviations: bool) -> DatumPlan | None:
+    """The config's datum resolved in ``ifc`` and checked (x, y and yaw constrained) before any
+    expensive stage; None without one. A datum without ``deviations`` is not used (a warning)."""
+    from bimcap.deviations.datum import DatumSpec, check_datum
+
+    spec = DatumSpec.parse(config.datum, "--datum / datum", config.datum_fit)
+    if spec is None:
+        return None
+    if not deviations:
+        _log.warning("datum %s given without --deviations: not used", list(spec.selectors))
+        return None
+    from bimcap.deviations.analysis import load_design
+
+    model = load_design(ifc)
+    free = check_datum(model, spec.resolve(model), spec.source, ifc)
+    if free:
+        _log.warning("the datum leaves %s free: the refined poses' %s is kept", ", ".join(free),
+                    ", ".join(free))
+    return DatumPlan(spec, model)
+
+
 def write_map_refined(path: Path, sequence: Any, world_from_cam: F64, label_points: F64,
                       label_values: Any) -> Any:
     """Write ``map_refined.ply``: every LiDAR scan of ``sequence`` through ``world_from_cam``
@@ -1321,6 +1350,7 @@ def write_run_outputs(
     report: bool = True,
     extra_rows: list[Any] | None = None,
     deviations_ifc: Path | None = None,
+    datum: Any = None,
 ) -> RefineResult:
     """Write one run's outputs into ``stage`` (an open output set's staging directory):
     ``refined.tum``, ``summary.json``, ``map_before.ply`` / ``map_after.ply``, the LiDAR map
@@ -1329,7 +1359,8 @@ def write_run_outputs(
     ``report.html`` and its ``figures/`` (``extra_rows``: more runs shown beside, e.g. FACaP),
     and with ``config.rerun`` the Rerun recording ``run.rrd`` (:func:`write_run_recording`).
     With ``deviations_ifc``, the scan-vs-BIM deviations against that IFC under the refined poses
-    (``deviations.*``, and a report section). With ``gt`` the result carries the metrics before
+    (``deviations.*``, and a report section), relative to ``datum`` (a resolved
+    :class:`DatumPlan`) when given. With ``gt`` the result carries the metrics before
     and after. The result's
     ``out_dir`` is ``stage``; the caller points it at the final directory before committing."""
     header = f"bimcap {config.method.value} {config.effective_terms} refined world_from_cam"
@@ -1354,10 +1385,12 @@ def write_run_outputs(
         from bimcap.deviations.outputs import run_deviations
 
         dev = run_deviations(prepared.sequence, outcome.refined.poses, deviations_ifc, stage,
-                             map_points=refined_map.points)
+                             map_points=refined_map.points,
+                             datum=None if datum is None else datum.spec,
+                             model=None if datum is None else datum.model)
         result.deviation_run = dev
         result.deviations = {"counts": dev.report.counts(), "clusters": len(dev.report.clusters),
-                             "seconds": dev.seconds}
+                             "seconds": dev.seconds, "datum": dev.report.datum}
         result.files.update({p.stem + p.suffix.replace(".", "_"): p.name
                              for p in dev.files.values()})
         result.timings["deviations"] = dev.seconds
@@ -1449,6 +1482,7 @@ def _refine(sequence: str | PathLike[str], out_dir: str | PathLike[str],
     cfg = config or RefineConfig()
     out = Path(out_dir)
     plan = validate_run(sequence, out, cfg, ifc, init, gt, overwrite)
+    datum = validate_datum(cfg, plan.ifc, deviations)
     stage = plan.outputs.open()
     try:
         t_start = time.perf_counter()
@@ -1461,7 +1495,8 @@ def _refine(sequence: str | PathLike[str], out_dir: str | PathLike[str],
                 "the building; the refined trajectory is unusable and was not written (FACaP's "
                 "plain least squares has no prior: try --method bimcap, or more overlap)")
         result = write_run_outputs(stage, prepared, outcome, cfg, plan.gt, command, report,
-                                   deviations_ifc=plan.ifc if deviations else None)
+                                   deviations_ifc=plan.ifc if deviations else None,
+                                   datum=datum)
         result.inputs = run_inputs(plan.sequence, plan.ifc, init, gt)
         result.timings["total"] = time.perf_counter() - t_start
         result.out_dir = out

@@ -335,6 +335,22 @@ def _deviations_html(inp: ReportInput) -> list[str]:
              f"{len(rep.clusters)} clusters of points no element explains. Files: "
              "deviations.json / .csv / .ply / .ifc (property set BIMCaP_Deviation) / .bcfzip (a "
              "BCF topic per deviating or missing element).</p>"]
+    d = rep.datum
+    if d.get("mode") == "datum":
+        tx, ty, tz = (100 * v for v in d["translation_m"])
+        frames = d.get("frames")
+        parts.append(
+            f"<p>Offsets relative to the datum ({len(d['names'])} element(s) declared as built "
+            f"right: {html.escape(', '.join(d['names'][:8]))}): the poses were corrected by "
+            f"({tx:+.1f}, {ty:+.1f}, {tz:+.1f}) cm and {d['yaw_deg']:+.3f}° as a whole"
+            + (f", then per frame ({100 * frames['frame_step_rms_m']:.1f} cm RMS)"
+               if frames else "")
+            + (f"; left free: {html.escape(', '.join(d['free']))}" if d["free"] else "")
+            + ".</p>")
+    else:
+        parts.append("<p>No datum: offsets are relative to the refined poses, which the "
+                     "refinement fits to the design (a displacement common to the building goes "
+                     "into the poses; <code>--datum</code> declares elements built right).</p>")
     png = dev.files.get("deviations.png")
     if png is not None and Path(png).is_file():
         parts.append(_img(Path(png), "walls and columns coloured by offset; missing: red cross"))

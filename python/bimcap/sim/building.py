@@ -41,6 +41,7 @@ import hashlib
 import logging
 import math
 import uuid
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, replace
 from os import PathLike
 from pathlib import Path
@@ -904,6 +905,7 @@ def generate_building(spec: BuildingSpec | None = None, seed: int = 0,
 
 def as_built(design: BuildingSpec | GeneratedBuilding, seed: int, shift_sigma_m: float = 0.03,
              missing_fraction: float = 0.1, *, design_seed: int | None = None,
+             datum: Sequence[str] = (),
              ifc_path: str | PathLike[str] | None = None) -> GeneratedBuilding:
     """The building as built: walls shifted, columns offset, some interior elements missing.
 
@@ -916,6 +918,10 @@ def as_built(design: BuildingSpec | GeneratedBuilding, seed: int, shift_sigma_m:
         column's offset per axis; clipped to ±2.5 sigma and to less than half an interior wall.
     missing_fraction: fraction of the removable elements (partitions, columns, door and window
         fills) left out; never exterior walls, corridor walls, slabs or ceilings.
+    datum: plan keys of walls (``"ext-south"``) and columns (``"column/corridor-1"``) built
+        exactly as designed on every storey and never left out, like surveyed control lines;
+        recorded as ``truth.deviations.datum`` (element ids). The random draws of the other
+        elements are those without a datum.
     ifc_path: if given, the IFC and sidecar are written there.
 
     Returns
@@ -935,6 +941,11 @@ def as_built(design: BuildingSpec | GeneratedBuilding, seed: int, shift_sigma_m:
         raise BuildingSpecError(f"must be in [0, 1] (got {missing_fraction})", None,
                                 "missing_fraction")
     plan = _make_plan(spec, np.random.default_rng(dseed))
+    known = set(plan.positions) | {c.key for c in plan.columns}
+    for key in datum:
+        if key not in known:
+            raise BuildingSpecError(f"unknown wall or column key {key!r} (known: "
+                                    f"{sorted(known)})", None, "datum")
     rng = np.random.default_rng([dseed, int(seed), 0xA5B1])
     limit = min(2.5 * shift_sigma_m, 0.45 * spec.interior_wall_thickness_m)
     positions: list[dict[str, float]] = []
@@ -946,6 +957,8 @@ def as_built(design: BuildingSpec | GeneratedBuilding, seed: int, shift_sigma_m:
         for key in sorted(pos):
             shift = float(np.clip(rng.normal(0.0, shift_sigma_m) if shift_sigma_m else 0.0,
                                   -limit, limit))
+            if key in datum:
+                shift = 0.0
             # Positions are y for x-walls (normal +y) and x for y-walls (normal -x).
             pos[key] += shift if _is_x_wall(key) else -shift
             wall_shifts[f"S{k}/wall/{key}"] = shift
@@ -953,18 +966,23 @@ def as_built(design: BuildingSpec | GeneratedBuilding, seed: int, shift_sigma_m:
         for c in plan.columns:
             off = np.clip(rng.normal(0.0, shift_sigma_m, size=2) if shift_sigma_m
                           else np.zeros(2), -limit, limit)
+            if c.key in datum:
+                off = np.zeros(2)
             col_offsets[f"S{k}/{c.key}"] = (float(off[0]), float(off[1]))
             removable.append(f"S{k}/{c.key}")
         removable += [f"S{k}/wall/{key}" for key in sorted(pos) if key.startswith("part-")]
         removable += [f"S{k}/{o.key}" for o in plan.openings
                       if not (o.ground_floor_only and k != 0)]
+    datum_ids = tuple(sorted(f"S{k}/wall/{key}" if key in plan.positions else f"S{k}/{key}"
+                             for k in range(spec.storeys) for key in datum))
+    removable = [r for r in removable if r not in datum_ids]
     n_missing = int(round(missing_fraction * len(removable)))  # noqa: RUF046 (numpy < 2)
     missing = sorted(str(x) for x in rng.choice(removable, size=n_missing, replace=False))
     # Elements that are missing have no shift/offset to speak of.
     wall_shifts = {k: v for k, v in wall_shifts.items() if k not in missing}
     col_offsets = {k: v for k, v in col_offsets.items() if k not in missing}
     dev = Deviations(int(seed), float(shift_sigma_m), float(missing_fraction), wall_shifts,
-                     col_offsets, tuple(missing))
+                     col_offsets, tuple(missing), datum_ids)
     f, truth = _assemble(spec, dseed, plan, Variant.AS_BUILT, positions, col_offsets,
                          set(missing), dev)
     out = GeneratedBuilding(spec, dseed, f, truth)

@@ -38,7 +38,9 @@ Sidecar ``NAME.truth.json`` (read it with :func:`load_building_truth`)::
      "deviations": null | {"seed", "shift_sigma_m", "missing_fraction",
                            "wall_shifts": {wall id: metres along +normal},
                            "column_offsets": {column id: [dx, dy]},
-                           "missing": [element ids absent from this IFC]}}
+                           "missing": [element ids absent from this IFC],
+                           "datum": [element ids built exactly as designed, like surveyed
+                                     control lines (absent in older files: none)]}}
 
 Ids are the IFC ``Name`` of each element (openings are named ``<door/window id>/opening``);
 GUIDs are the same in a design file and its as-built.
@@ -370,6 +372,7 @@ class Deviations:
     wall_shifts: dict[str, float] = field(default_factory=dict)  # id -> metres along +normal
     column_offsets: dict[str, tuple[float, float]] = field(default_factory=dict)  # id -> (dx, dy)
     missing: tuple[str, ...] = ()  # element ids absent from the as-built IFC
+    datum: tuple[str, ...] = ()  # element ids built exactly as designed (control lines)
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -379,6 +382,7 @@ class Deviations:
             "wall_shifts": dict(self.wall_shifts),
             "column_offsets": {k: list(v) for k, v in self.column_offsets.items()},
             "missing": list(self.missing),
+            "datum": list(self.datum),
         }
 
     @classmethod
@@ -387,7 +391,7 @@ class Deviations:
             int(d["seed"]), float(d["shift_sigma_m"]), float(d["missing_fraction"]),
             {k: float(v) for k, v in d["wall_shifts"].items()},
             {k: _xy(v) for k, v in d["column_offsets"].items()},
-            tuple(d["missing"]),
+            tuple(d["missing"]), tuple(d.get("datum", ())),
         )
 
 
