@@ -187,22 +187,17 @@ def test_the_right_storey_is_picked(demo: Scene) -> None:
 
 def test_identical_storeys_are_flagged_whatever_the_scores(demo: Scene) -> None:
     """Two storeys with the demo building's plan (3.1 m apart): the scan fits both the same, the
-    SLAM frame gives no height, so the storey is unknown. Flagged through the plan (the storeys
-    are twins), not through a score ratio that noise can push either way: even with a ratio
-    threshold of 1 (scores never flag) the result is ambiguous."""
-    from bimcap.registration.global_align import _storeys, identical_storeys
+    SLAM frame gives no height, so the storey is unknown. Flagged because the other storey
+    explains the placed scan exactly as well (twin_storeys), not through a score ratio that noise
+    can push either way: even with a ratio threshold of 1 (scores never flag) it is ambiguous.
+    With one wall the walk sees moved on the other storey, the storeys are told apart."""
+    from bimcap.registration.global_align import _storeys, twin_storeys
 
     n = len(demo.segments)
     seg_z = np.r_[np.tile([0.0, 2.9], (n, 1)), np.tile([3.1, 6.0], (n, 1))]
     segments = np.r_[demo.segments, demo.segments[:, [2, 3, 0, 1]]]  # ends swapped: same walls
     plan = FloorPlan(segments, np.r_[demo.segment_class, demo.segment_class], seg_z,
                      np.array([0.0, 3.1]), np.array([2.8, 5.9]))
-    assert identical_storeys(plan, _storeys(plan, 1.0)) == {0: [1], 1: [0]}
-    moved = plan.segments.copy()
-    moved[n + 3, :2] += 0.2  # one wall of the upper storey elsewhere: no longer twins
-    other = FloorPlan(moved, plan.segment_class, seg_z, plan.floor_heights,
-                      plan.ceiling_heights)
-    assert identical_storeys(other, _storeys(other, 1.0)) == {0: [], 1: []}
     gt = poses_along(demo_tour(seed=0), 0.25, height=4.6)[60:110]
     samples, slam = _slam_case(gt, Scene(demo.segments, demo.segment_class, 3.1, 5.9), seed=2)
     with pytest.raises(AmbiguousAlignmentError, match="identical twin") as info:
@@ -214,6 +209,17 @@ def test_identical_storeys_are_flagged_whatever_the_scores(demo: Scene) -> None:
     taken = global_align(slam.trajectory.poses, samples, plan,
                          GlobalAlignOptions(ambiguity_ratio=1.0, accept_ambiguous=True))
     assert taken.accepted_ambiguous
+    # the unit: points on the storeys' shared walls; one storey with a wall elsewhere
+    sections = _storeys(plan, 1.0)
+    wall = demo.segments[0]
+    on_wall = wall[:2] + np.linspace(0.05, 0.95, 200)[:, None] * (wall[2:] - wall[:2])
+    assert twin_storeys(on_wall, sections[0], sections, plan) == [1]
+    moved = plan.segments.copy()
+    moved[n] += np.array([0.0, 0.3, 0.0, 0.3]) if wall[0] != wall[2] else [0.3, 0.0, 0.3, 0.0]
+    other = FloorPlan(moved, plan.segment_class, seg_z, plan.floor_heights,
+                      plan.ceiling_heights)
+    moved_sections = _storeys(other, 1.0)
+    assert twin_storeys(on_wall, moved_sections[0], moved_sections, other) == []
 
 
 def test_gravity_from_the_floor_levels_a_tilted_slam_frame(demo: Scene) -> None:

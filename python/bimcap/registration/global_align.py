@@ -26,9 +26,9 @@ bundle adjustment can take over:
    ``distinct_m`` on average, their yaws by more than ``distinct_deg`` or their floors by more
    than ``distinct_z_m``.
 5. **ambiguity**: when the second-best distinct hypothesis scores at least ``ambiguity_ratio``
-   of the best (a symmetric corridor, repeated rooms), or when the best one's storey has the
-   same plan section as another storey (:func:`identical_storeys`: a tower of identical floors,
-   which the scores cannot separate and the SLAM frame's heights do not), the result is
+   of the best (a symmetric corridor, repeated rooms), or when another storey explains the
+   placed scan exactly as the best one's does (:func:`twin_storeys`: a tower of identical
+   floors, which the scores cannot separate and the SLAM frame's heights do not), the result is
    ambiguous: :func:`global_align` raises :class:`AmbiguousAlignmentError` (with the ranked
    hypotheses) unless ``accept_ambiguous`` is set. A best hypothesis that fits badly raises
    :class:`GlobalAlignmentError`. Never a confident wrong answer.
@@ -58,7 +58,7 @@ from bimcap.registration.errors import (
     GlobalAlignmentError,
     RegistrationInputError,
 )
-from bimcap.registration.icp import Correction2D, icp_2d, rot2
+from bimcap.registration.icp import Correction2D, icp_2d, point_segment_distance, rot2
 from bimcap.registration.plan_maps import PlanMaps
 
 F64 = NDArray[np.float64]
@@ -223,9 +223,9 @@ class GlobalAlignResult:
     ambiguous: the second-best scores at least ``ambiguity_ratio`` of the best, or the best
         placement's storey has an identical twin (``twin_floors``).
     ratio: second-best / best score (0 with a single hypothesis).
-    twin_floors: floor heights (m) of the storeys whose plan section is the same as the best
-        placement's storey's (:func:`identical_storeys`): no scan can tell them apart, so the
-        storey is unknown whatever the scores say.
+    twin_floors: floor heights (m) of the storeys that explain the placed scan exactly as the
+        best placement's storey does (:func:`twin_storeys`): the storey is unknown whatever the
+        scores say.
     accepted_ambiguous: ambiguous, and taken anyway (``accept_ambiguous``).
     gravity_tilt_deg: the tilt of the SLAM frame estimated from the floor (degrees).
     gravity_applied: whether that tilt was taken out (above ``gravity_min_tilt_deg``).
@@ -417,28 +417,32 @@ def _ceiling_above(plan: FloorPlan, z: float | None) -> float | None:
     return float(above.min()) if len(above) else None
 
 
-def identical_storeys(plan: FloorPlan, storeys: list[_Storey],
-                      tol_m: float = 0.02) -> dict[int, list[int]]:
-    """Storey index → the other storeys whose plan section is the same: as many segments, each
-    with one of the other's within ``tol_m`` at both ends (in either direction). A tower of
-    identical floors gives every storey its twins; a scan then fits each of them equally well,
-    and only the heights (which a SLAM frame does not give) could tell them apart."""
-    def ends(st: _Storey) -> F64:
-        seg = plan.segments[st.rows].reshape(-1, 2, 2)
-        flip = (seg[:, 0, 0] > seg[:, 1, 0]) | ((seg[:, 0, 0] == seg[:, 1, 0])
-                                                & (seg[:, 0, 1] > seg[:, 1, 1]))
-        seg[flip] = seg[flip, ::-1]
-        return seg.reshape(-1, 4)
-
-    def same(a: F64, b: F64) -> bool:
-        if len(a) != len(b) or not len(a):
-            return False
-        gap = np.abs(a[:, None, :] - b[None, :, :]).max(axis=2)  # (A, B) worst end, metres
-        return bool((gap.min(axis=1) <= tol_m).all() and (gap.min(axis=0) <= tol_m).all())
-
-    sections = [ends(st) for st in storeys]
-    return {i: [j for j in range(len(storeys)) if j != i and same(sections[i], sections[j])]
-            for i in range(len(storeys))}
+def twin_storeys(q_xy: F64, best: _Storey, storeys: list[_Storey], plan: FloorPlan,
+                 near_m: float = 0.15, tol_m: float = 0.02, max_share: float = 0.01,
+                 max_points: int = 5000) -> list[int]:
+    """The other storeys that explain the placed scan exactly as ``best`` does: of the wall and
+    column points ``q_xy`` (M, 2, the best placement) within ``near_m`` of ``best``'s plan
+    section, at most ``max_share`` are nearer to or further from the other storey's section by
+    more than ``tol_m``. A tower of identical floors (or floors identical wherever the walk
+    looked) gives such twins; the SLAM frame's heights cannot tell them apart, so the storey is
+    unknown whatever the scores say. Indices into ``storeys``."""
+    q = np.asarray(q_xy, np.float64).reshape(-1, 2)
+    if len(q) > max_points:
+        q = q[np.linspace(0, len(q) - 1, max_points).astype(np.int64)]
+    if not len(q) or not len(best.rows):
+        return []
+    d_best = point_segment_distance(q, plan.segments[best.rows])[0]
+    near = d_best <= near_m
+    if not near.any():
+        return []
+    out = []
+    for j, st in enumerate(storeys):
+        if st is best or not len(st.rows):
+            continue
+        d = point_segment_distance(q[near], plan.segments[st.rows])[0]
+        if float(np.mean(np.abs(d - d_best[near]) > tol_m)) <= max_share:
+            out.append(j)
+    return out
 
 
 def _gravity(poses: F64, samples: SemanticSamples, min_points: int = 30) -> F64:
@@ -798,7 +802,6 @@ def global_align(
     found: list[_Found] = []
     storeys = []
     sections = _storeys(plan, opt.plan_cut_height_m)
-    twins = identical_storeys(plan, sections)
     for storey in sections:
         here = _search_storey(scan, storey, plan, opt, rng, timings)
         storeys.append({"floor_z": storey.floor_z, "segments": len(storey.rows),
@@ -823,10 +826,10 @@ def global_align(
             "or column points, or an empty floor plan)")
     best = ranked[0]
     ratio = ranked[1].score / best.score if len(ranked) > 1 and best.score > 0 else 0.0
-    best_index = next(i for i, st in enumerate(sections) if st is best.storey)
-    twin_floors = [float(sections[j].floor_z) for j in twins[best_index]
-                   if sections[j].floor_z is not None]
-    ambiguous = ratio >= opt.ambiguity_ratio or bool(twins[best_index])
+    twins = twin_storeys(best.corr.apply(scan.xy), best.storey, sections, plan,
+                         near_m=opt.inlier_m)
+    twin_floors = [float(sections[j].floor_z) for j in twins if sections[j].floor_z is not None]
+    ambiguous = ratio >= opt.ambiguity_ratio or bool(twins)
     m_best = _transform(best, gravity, scan.floor_z)
     result = GlobalAlignResult(
         poses=matrix_to_pose(m_best @ pose_to_matrix(poses)),
@@ -844,7 +847,7 @@ def global_align(
     if ambiguous and not opt.accept_ambiguous:
         why = (f"the storey has {len(twin_floors)} identical twin(s) (floors at "
                f"{', '.join(f'{z:.2f}' for z in twin_floors)} m) that no scan can tell apart"
-               if twins[best_index] else
+               if twins else
                f"the second-best placement scores {ratio:.0%} of the best (threshold "
                f"{opt.ambiguity_ratio:.0%}; a symmetric layout or repeated rooms)")
         raise AmbiguousAlignmentError(
