@@ -66,7 +66,17 @@ DEFAULT_WORLDS = ("gen-demo-s11,gen-demo-s23,gen-small-s3,gen-small-s8,gen-large
 
 
 def _shared_ifc_dir() -> Path:
-    return Path(__file__).resolve().parents[1].parent / "shared" / "data" / "ifc"
+    """``../shared/data/ifc`` beside the checkout; from a git worktree (whose ``.git`` is a file
+    naming ``<main>/.git/worktrees/<name>``), the one beside the main checkout."""
+    repo = Path(__file__).resolve().parents[1]
+    candidates = [repo.parent / "shared" / "data" / "ifc"]
+    dot_git = repo / ".git"
+    if dot_git.is_file():
+        text = dot_git.read_text(encoding="utf-8").strip()
+        if text.startswith("gitdir:"):
+            main = Path(text.partition(":")[2].strip()).resolve().parents[2]
+            candidates.append(main.parent / "shared" / "data" / "ifc")
+    return next((c for c in candidates if c.is_dir()), candidates[0])
 
 
 #: The hard setting's wrong labels: 15 % of the labelled pixels (the issue asks 10–20 %), in
