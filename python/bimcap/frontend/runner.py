@@ -73,6 +73,7 @@ from bimcap.frontend.semantic_map import (
     SemanticMap,
     SemanticSamplingOptions,
     build_semantic_map,
+    check_label_orientation,
     sample_semantic_points,
     write_semantic_ply,
 )
@@ -696,7 +697,9 @@ def compute_frame(job: _FrameJob, *, shared: _RunShared | None = None
     if cfg.sampling.source is SampleSource.RETURNS and ctx.measured_depth is not None:
         sample_depth = np.asarray(ctx.measured_depth, np.float32)
         _check_map(sample_depth, und.pinhole, i, "measured depth (from the depth provider)")
-    samples = sample_semantic_points(labels, sample_depth, und.pinhole, i, cfg.sampling)
+    checked, _ = check_label_orientation(labels, depth, und.pinhole, ctx.world_from_cam,
+                                         cfg.sampling)
+    samples = sample_semantic_points(checked, sample_depth, und.pinhole, i, cfg.sampling)
     out: dict[str, NDArray[Any]] = {**feats, "depth": kp_depth}
     for lab, prefix in SEMANTIC_CLASSES.items():
         out[f"{prefix}_p_in_cam"] = samples[lab]
@@ -911,6 +914,8 @@ def _frame_cache_keys(ctx: _RunContext) -> tuple[list[str], list[str]]:
     shared, cfg = ctx.shared, ctx.shared.config
     providers = (shared.depth_provider, shared.label_provider, shared.depth_refiner)
     pose_dependent = any(uses_pose(p) for p in providers if p is not None)
+    # the label check takes gravity from the initial pose
+    pose_dependent |= cfg.sampling.orientation_check_deg is not None
     feat_settings = {"camera": shared.sequence.camera.to_dict(), "sift": cfg.sift.to_dict()}
     frame_settings = {
         "depth_lookup": cfg.depth_lookup.to_dict(),
