@@ -19,10 +19,11 @@ Cache: three kinds of entries, so that a change redoes only what depends on it.
 on the two frames' feature keys and the matching settings; ``frame`` entries (depth, labels →
 keypoint depths, semantic samples) on all of the frame's files, the providers, the look-up and
 sampling settings, and the frame's initial pose if a provider declares ``uses_pose = True`` (the
-no-weights segmenter takes gravity from it). A provider may define ``cache_token`` (a string that
-changes whenever its output would); otherwise its class name and ``repr`` are used, which for a
-dataclass includes its settings. The match filters, tracks and landmarks are recomputed on every
-run (they are cheap and depend on the initial poses).
+no-weights segmenter takes gravity from it) or the sampling checks the labels against the depth
+(``SemanticSamplingOptions.orientation_check_deg``, gravity again). A provider may define
+``cache_token`` (a string that changes whenever its output would); otherwise its class name and
+``repr`` are used, which for a dataclass includes its settings. The match filters, tracks and
+landmarks are recomputed on every run (they are cheap and depend on the initial poses).
 """
 
 from __future__ import annotations
