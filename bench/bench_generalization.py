@@ -20,8 +20,12 @@ Per world, frame count and setting, the default ``bimcap refine`` configuration 
 
 Settings: ``standard`` is the demo's rig (516×386, VLP-16 with 3 cm range noise, 12° down-look,
 geometric segmenter); ``hard`` has 8 cm range noise with 20 % dropouts, a 1.5× focal length
-(narrower view), and (when the simulator offers it) 15 % wrong labels used through
-``--segmentation ground_truth``.
+(narrower view), and 15 % wrong labels (:data:`HARD_LABEL_NOISE`: blobs plus class boundaries
+wandering by 2 px) that the refinement reads as its labels (``--segmentation ground_truth``
+reads ``labels/``, the noisy ones; the truth is in ``labels_gt/``). A hard world simulated before
+the labels were noisy (its manifest records no label noise) is refined with the default geometric
+segmenter, as before. ``hard-geometric`` refines the hard worlds (the same sequences) with the
+default geometric segmenter instead, as a user without a learned segmenter would.
 
 Usage (resumable: rows already in the CSV are skipped)::
 
@@ -63,21 +67,43 @@ DEFAULT_WORLDS = ("gen-demo-s11,gen-demo-s23,gen-small-s3,gen-small-s8,gen-large
 
 
 def _shared_ifc_dir() -> Path:
-    return Path(__file__).resolve().parents[1].parent / "shared" / "data" / "ifc"
+    """``../shared/data/ifc`` beside the checkout; from a git worktree (whose ``.git`` is a file
+    naming ``<main>/.git/worktrees/<name>``), the one beside the main checkout."""
+    repo = Path(__file__).resolve().parents[1]
+    candidates = [repo.parent / "shared" / "data" / "ifc"]
+    dot_git = repo / ".git"
+    if dot_git.is_file():
+        text = dot_git.read_text(encoding="utf-8").strip()
+        if text.startswith("gitdir:"):
+            main = Path(text.partition(":")[2].strip()).resolve().parents[2]
+            candidates.append(main.parent / "shared" / "data" / "ifc")
+    return next((c for c in candidates if c.is_dir()), candidates[0])
+
+
+#: The hard setting's wrong labels: 15 % of the labelled pixels (the issue asks 10–20 %), in
+#: blobs and near class boundaries (which wander by up to 2 px).
+HARD_LABEL_NOISE = {"fraction": 0.15, "boundary_px": 2.0}
+
+
+#: The settings: each names the simulated world it runs on.
+SETTINGS = {"standard": "standard", "hard": "hard", "hard-geometric": "hard"}
 
 
 def _sim_config(setting: str, frames: int) -> Any:
+    from bimcap.sim.label_noise import LabelNoiseConfig
     from bimcap.sim.lidar import LidarConfig
     from bimcap.sim.simulator import CONSLAM_CAMERA, SimulatorConfig
     from bimcap.sim.walk import WalkConfig
 
     camera = CONSLAM_CAMERA.scaled(0.25)
     lidar = LidarConfig()
+    label_noise = LabelNoiseConfig()
     if setting == "hard":
         camera = replace(camera, fx=camera.fx * 1.5, fy=camera.fy * 1.5)
         lidar = replace(lidar, range_noise_m=0.08, dropout=0.2)
+        label_noise = LabelNoiseConfig(**HARD_LABEL_NOISE)
     return SimulatorConfig(camera=camera, frames=frames, fps=2.0, lidar=lidar,
-                           walk=WalkConfig(pitch_deg=-12.0), workers=0)
+                           walk=WalkConfig(pitch_deg=-12.0), workers=0, label_noise=label_noise)
 
 
 def world_runs(work: Path, world: str) -> tuple[Any, Path, dict[str, Any]]:
@@ -171,8 +197,12 @@ def run(args: argparse.Namespace) -> None:
         for world in args.worlds.split(","):
             for frames in (int(f) for f in args.frames.split(",")):
                 for setting in args.settings.split(","):
+                    if setting not in SETTINGS:
+                        raise SystemExit(f"--settings: {setting!r} is not one of "
+                                         f"{', '.join(SETTINGS)}")
                     t0 = time.perf_counter()
-                    seq_dir, reference, design = make_world(work, world, frames, setting)
+                    seq_dir, reference, design = make_world(work, world, frames,
+                                                            SETTINGS[setting])
                     seq = read_sequence(seq_dir)
                     gt = seq.trajectory("gt")
                     seed = int(world.rpartition("-s")[2]) if world.startswith("gen") else 1
@@ -231,13 +261,20 @@ def _upgrade_header(out: Path) -> None:
 
 
 def _labels_are_noisy(seq: Any) -> bool:
-    """Whether the simulator wrote wrong labels on purpose (its provenance says so)."""
+    """Whether the simulator wrote wrong labels on purpose: its manifest's ``source`` records
+    the label noise it measured (``label_noise_measured``, None without noise) and the one it
+    was asked for (``config.label_noise``)."""
     src = getattr(seq, "source", None) or {}
-    sim = src.get("simulator", src) if isinstance(src, dict) else {}
-    noise = sim.get("label_noise") if isinstance(sim, dict) else None
+    if not isinstance(src, dict):
+        return False
+    if src.get("label_noise_measured"):
+        return True
+    cfg = src.get("config")
+    noise = cfg.get("label_noise") if isinstance(cfg, dict) else None
     if isinstance(noise, dict):
-        return float(noise.get("fraction", 0.0) or 0.0) > 0
-    return bool(noise)
+        return float(noise.get("fraction", 0.0) or 0.0) > 0 or float(
+            noise.get("boundary_px", 0.0) or 0.0) > 0
+    return False
 
 
 def summarise(paths: list[str]) -> None:
@@ -314,7 +351,8 @@ def main() -> None:
     ap.add_argument("--work", default="/tmp/bimcap_generalization", help="worlds and caches")
     ap.add_argument("--worlds", default=DEFAULT_WORLDS, help="comma list (see the module doc)")
     ap.add_argument("--frames", default="60", help="comma list of walk lengths, e.g. 60,250")
-    ap.add_argument("--settings", default="standard", help="standard, hard or both")
+    ap.add_argument("--settings", default="standard",
+                    help="comma list of standard, hard, hard-geometric")
     ap.add_argument("--workers", type=int, default=None, help="front-end processes")
     ap.add_argument("--runs", default="",
                     help="comma list of fixed, exp1, exp2, exp3, design (default: all)")

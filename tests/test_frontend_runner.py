@@ -206,11 +206,17 @@ def test_pose_dependent_provider_recomputes_on_new_poses(seq: SceneSequence,
     r = run_frontend(seq, CONFIG, poses, DEPTH, _PoseLabels(), cache_dir=cache, workers=1,
                      progress=False)
     assert (r.run.features_computed, r.run.frames_computed, r.run.pairs_computed) == (0, 1, 0)
-    # a provider that does not use the pose ignores pose changes
-    r0 = run_frontend(seq, CONFIG, seq.gt, DEPTH, LABELS, cache_dir=cache, workers=1,
-                      progress=False)
-    r1 = run_frontend(seq, CONFIG, poses, DEPTH, LABELS, cache_dir=cache, workers=1, progress=False)
+    # a provider that does not use the pose ignores pose changes, unless the label check (which
+    # takes gravity from the pose) is on: then the changed frame is redone
+    off = dataclasses.replace(CONFIG, sampling=SemanticSamplingOptions(orientation_check_deg=None))
+    r0 = run_frontend(seq, off, seq.gt, DEPTH, LABELS, cache_dir=cache, workers=1, progress=False)
+    r1 = run_frontend(seq, off, poses, DEPTH, LABELS, cache_dir=cache, workers=1, progress=False)
     assert r0.run.frames_computed == NUM_FRAMES and r1.run.frames_computed == 0
+    r2 = run_frontend(seq, CONFIG, seq.gt, DEPTH, LABELS, cache_dir=cache, workers=1,
+                      progress=False)
+    r3 = run_frontend(seq, CONFIG, poses, DEPTH, LABELS, cache_dir=cache, workers=1,
+                      progress=False)
+    assert r2.run.frames_computed == NUM_FRAMES and r3.run.frames_computed == 1
 
 
 @pytest.mark.slow

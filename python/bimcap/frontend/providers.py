@@ -132,13 +132,23 @@ class SegmenterLabelProvider:
     segmenter: an object with ``segment(FrameInput) -> (H, W) uint8``.
     uses_pose: whether its labels depend on the initial pose (True for the geometric segmenter,
         which takes gravity from it; then a new initial trajectory re-segments). Keys the cache.
+    range_noise: whether to measure the range noise of the frame's LiDAR scan
+        (:func:`bimcap.segmentation.geometric.scan_range_noise`) and pass it as
+        ``FrameInput.range_noise_m`` (the geometric segmenter adapts to it).
     """
 
     segmenter: Any
     uses_pose: bool = True
+    range_noise: bool = False
 
     def __call__(self, ctx: FrameContext) -> NDArray[np.uint8]:
         from bimcap.segmentation import FrameInput
+
+        noise = None
+        if self.range_noise and hasattr(ctx.sequence, "load_lidar"):
+            from bimcap.segmentation.geometric import scan_range_noise
+
+            noise = scan_range_noise(ctx.sequence.load_lidar(ctx.index))
 
         frame = FrameInput(
             camera=ctx.pinhole,
@@ -147,6 +157,7 @@ class SegmenterLabelProvider:
             world_from_cam=ctx.world_from_cam,
             stem=_frame_stem(ctx),
             index=ctx.index,
+            range_noise_m=noise,
         )
         return np.asarray(self.segmenter.segment(frame), dtype=np.uint8)
 

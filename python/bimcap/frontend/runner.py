@@ -19,10 +19,11 @@ Cache: three kinds of entries, so that a change redoes only what depends on it.
 on the two frames' feature keys and the matching settings; ``frame`` entries (depth, labels →
 keypoint depths, semantic samples) on all of the frame's files, the providers, the look-up and
 sampling settings, and the frame's initial pose if a provider declares ``uses_pose = True`` (the
-no-weights segmenter takes gravity from it). A provider may define ``cache_token`` (a string that
-changes whenever its output would); otherwise its class name and ``repr`` are used, which for a
-dataclass includes its settings. The match filters, tracks and landmarks are recomputed on every
-run (they are cheap and depend on the initial poses).
+no-weights segmenter takes gravity from it) or the sampling checks the labels against the depth
+(``SemanticSamplingOptions.orientation_check_deg``, gravity again). A provider may define
+``cache_token`` (a string that changes whenever its output would); otherwise its class name and
+``repr`` are used, which for a dataclass includes its settings. The match filters, tracks and
+landmarks are recomputed on every run (they are cheap and depend on the initial poses).
 """
 
 from __future__ import annotations
@@ -73,6 +74,7 @@ from bimcap.frontend.semantic_map import (
     SemanticMap,
     SemanticSamplingOptions,
     build_semantic_map,
+    check_label_orientation,
     sample_semantic_points,
     write_semantic_ply,
 )
@@ -728,7 +730,9 @@ def _compute_frame(job: _FrameJob, shared: _RunShared | None) -> dict[str, NDArr
     if cfg.sampling.source is SampleSource.RETURNS and ctx.measured_depth is not None:
         sample_depth = np.asarray(ctx.measured_depth, np.float32)
         _check_map(sample_depth, und.pinhole, i, "measured depth (from the depth provider)")
-    samples = sample_semantic_points(labels, sample_depth, und.pinhole, i, cfg.sampling)
+    checked, _ = check_label_orientation(labels, depth, und.pinhole, ctx.world_from_cam,
+                                         cfg.sampling)
+    samples = sample_semantic_points(checked, sample_depth, und.pinhole, i, cfg.sampling)
     out: dict[str, NDArray[Any]] = {**feats, "depth": kp_depth}
     for lab, prefix in SEMANTIC_CLASSES.items():
         out[f"{prefix}_p_in_cam"] = samples[lab]
@@ -946,6 +950,8 @@ def _frame_cache_keys(ctx: _RunContext) -> tuple[list[str], list[str]]:
     shared, cfg = ctx.shared, ctx.shared.config
     providers = (shared.depth_provider, shared.label_provider, shared.depth_refiner)
     pose_dependent = any(uses_pose(p) for p in providers if p is not None)
+    # the label check takes gravity from the initial pose
+    pose_dependent |= cfg.sampling.orientation_check_deg is not None
     feat_settings = {"camera": shared.sequence.camera.to_dict(), "sift": cfg.sift.to_dict()}
     frame_settings = {
         "depth_lookup": cfg.depth_lookup.to_dict(),

@@ -129,7 +129,8 @@ def make_providers(config: RefineConfig, sequence: Any) -> tuple[Any, Any, Any]:
     elif config.segmentation is LabelSource.GEOMETRIC:
         from bimcap.segmentation.geometric import GeometricSegmenter
 
-        labels = SegmenterLabelProvider(GeometricSegmenter(), uses_pose=True)
+        labels = SegmenterLabelProvider(GeometricSegmenter(), uses_pose=True,
+                                        range_noise=True)
     elif config.segmentation is LabelSource.DISK:
         from bimcap.segmentation.disk import DiskLabelProvider, DiskMaskProvider
 

@@ -35,6 +35,10 @@ class FrameInput:
     image: (H, W, 3) uint8 RGB, undistorted. depth: (H, W) float32 dense depth, metres.
     camera: the pinhole camera of both. world_from_cam: (7,) TUM-order initial pose (its
     rotation gives gravity). stem: the frame's file stem (disk providers). index: frame index.
+    range_noise_m: the depth sensor's range noise σ (metres) measured on the frame's own scan
+    (:func:`bimcap.segmentation.geometric.scan_range_noise`), None when unknown; the geometric
+    segmenter widens its normals and plane thresholds when it is well above what its defaults
+    are made for.
     """
 
     camera: Camera
@@ -43,6 +47,7 @@ class FrameInput:
     world_from_cam: NDArray[np.float64] | None = None
     stem: str | None = None
     index: int = 0
+    range_noise_m: float | None = None
 
 
 class SegmentationProvider(Protocol):
