@@ -420,6 +420,11 @@ def _robust_fit(b: F64, e: F64, trim_mad: float) -> tuple[F64, NDArray[np.bool_]
 
 
 # ------------------------------------------------------------------------------ analysis
+#: What the report says without a datum.
+NO_DATUM_NOTE = ("no datum: offsets are relative to the refined poses, which the refinement fits "
+                 "to the design (a common displacement of the building goes into the poses)")
+
+
 def analyse_deviations(
     model: Any,
     scans: ScanSet,
@@ -458,33 +463,13 @@ def analyse_deviations(
     element_of_model = {el.index: k for k, el in enumerate(elements)}
     timings["scene"] = time.perf_counter() - t0
 
-    datum_info: dict[str, Any]
+    datum_info: dict[str, Any] = {"mode": "none", "note": NO_DATUM_NOTE}
     datum_indices: set[int] = set()
     if datum is not None:
-        from bimcap.deviations.datum import DatumFitMode, check_datum, fit_datum, fit_frames
-
         t0 = time.perf_counter()
-        indices = datum.resolve(model)
-        check_datum(model, indices, datum.source, ifc_path)
-        fit = fit_datum(model, scans, indices, datum, opts, scene=scene,
-                        gid_to_element=gid_to_element)
-        datum_info, datum_indices = fit.to_dict(), set(indices)
-        if datum.fit is DatumFitMode.FRAMES:
-            frames = fit_frames(model, scans, indices, fit, opts, scene=scene,
-                                gid_to_element=gid_to_element)
-            scans = frames.apply(scans)
-            datum_info["frames"] = frames.to_dict()
-            # the merged map cannot follow per-frame moves: rebuilt from the moved scans
-            map_points = None
-        else:
-            scans = fit.apply(scans)
-            if map_points is not None:
-                map_points = fit.apply_points(map_points)
+        scans, map_points, datum_info, datum_indices = datum.apply(
+            model, scans, map_points, opts, scene, gid_to_element, ifc_path)
         timings["datum"] = time.perf_counter() - t0
-    else:
-        from bimcap.deviations.datum import NO_DATUM_NOTE
-
-        datum_info = {"mode": "none", "note": NO_DATUM_NOTE}
 
     t0 = time.perf_counter()
     rays = scans.subsample(opts.ray_step)

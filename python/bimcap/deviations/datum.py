@@ -68,9 +68,6 @@ _GUID = re.compile(r"^[0-9A-Za-z_$]{22}$")
 #: The selector prefixes.
 PREFIXES = ("guid", "name", "class")
 
-#: What the report says without a datum.
-NO_DATUM_NOTE = ("no datum: offsets are relative to the refined poses, which the refinement fits "
-                 "to the design (a common displacement of the building goes into the poses)")
 
 
 class DatumError(DeviationInputError):
@@ -169,6 +166,27 @@ class DatumSpec:
     def to_dict(self) -> dict[str, Any]:
         return {"selectors": list(self.selectors), "source": self.source,
                 "fit": self.fit.value}
+
+    def apply(self, model: Any, scans: ScanSet, map_points: F64 | None, opts: Any, scene: Any,
+              gid_to_element: dict[int, int], ifc_path: Any
+              ) -> tuple[ScanSet, F64 | None, dict[str, Any], set[int]]:
+        """The datum step of :func:`bimcap.deviations.analysis.analyse_deviations`: resolve and
+        check the datum, fit the correction (:func:`fit_datum`, then :func:`fit_frames` in the
+        per-frame mode) and move the scans (and ``map_points``; None after a per-frame fit,
+        which the merged map cannot follow). Returns the moved scans and map, the record of the
+        fit (``report.datum``) and the datum's element indices (model order)."""
+        indices = self.resolve(model)
+        check_datum(model, indices, self.source, ifc_path)
+        fit = fit_datum(model, scans, indices, self, opts, scene=scene,
+                        gid_to_element=gid_to_element)
+        info = fit.to_dict()
+        if self.fit is DatumFitMode.FRAMES:
+            frames = fit_frames(model, scans, indices, fit, opts, scene=scene,
+                                gid_to_element=gid_to_element)
+            info["frames"] = frames.to_dict()
+            return frames.apply(scans), None, info, set(indices)
+        moved_map = None if map_points is None else fit.apply_points(map_points)
+        return fit.apply(scans), moved_map, info, set(indices)
 
 
 def _jacobian(points: F64, normals: F64, centre: F64, scale: float) -> F64:
