@@ -4,8 +4,6 @@ segmenter (or the simulator's label noise) gives them, are dropped; right labels
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 import pytest
 
@@ -66,15 +64,12 @@ def test_close_wall_under_8cm_noise_is_kept() -> None:
     from bimcap.fusion import CompletionOptions, complete_depth, project_lidar
     from bimcap.fusion.synthetic import (
         BoxRoomScene,
-        SpinningLidar,
         default_cam_from_lidar,
-        default_camera,
         look_pose,
+        narrow_ring_rig,
     )
 
-    cam = default_camera(516, 386)
-    cam = replace(cam, fx=cam.fx * 1.5, fy=cam.fy * 1.5)
-    lidar = SpinningLidar(channels=16, vertical_fov_deg=(-15.0, 15.0), noise_m=0.08)
+    cam, lidar = narrow_ring_rig(0.08)
     f = BoxRoomScene().render(cam, look_pose(np.array([7.0, 3.0, 1.5]), 0.0, 10.0),
                               default_cam_from_lidar(), lidar, 0)
     dense = complete_depth(project_lidar(f.points_in_lidar, f.cam_from_lidar, f.camera),

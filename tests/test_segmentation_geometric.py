@@ -128,19 +128,14 @@ def test_clutter_is_not_taken_for_columns_or_walls() -> None:
 def _noisy_wall_frames(noise_m: float) -> list:
     """Three frames of the box room through a narrow (1.5× focal length) camera looking at walls
     2–3 m away, with a VLP-16-like ring LiDAR whose ranges have ``noise_m`` Gaussian noise."""
-    from dataclasses import replace
-
     from bimcap.fusion.synthetic import (
         BoxRoomScene,
-        SpinningLidar,
         default_cam_from_lidar,
-        default_camera,
         look_pose,
+        narrow_ring_rig,
     )
 
-    cam = default_camera(516, 386)
-    cam = replace(cam, fx=cam.fx * 1.5, fy=cam.fy * 1.5)
-    lidar = SpinningLidar(channels=16, vertical_fov_deg=(-15.0, 15.0), noise_m=noise_m)
+    cam, lidar = narrow_ring_rig(noise_m)
     scene = BoxRoomScene()
     return [scene.render(cam, look_pose(np.array([x, 3.0, 1.5]), yaw, 12.0),
                          default_cam_from_lidar(), lidar, i)

@@ -13,7 +13,7 @@ the simulator's sequences as well; this module only makes the fusion stage testa
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -202,6 +202,15 @@ def default_camera(width: int = 1032, height: int = 772, distorted: bool = False
     dist = (-0.054366, 0.118389, 0.001781, -0.003908, 0.0) if distorted else (0.0,) * 5
     s = width / 1032.0
     return Camera(width, height, 1175.9 * s, 1176.8 * s, 508.4 * s, 394.1 * s, dist)  # type: ignore[arg-type]
+
+
+def narrow_ring_rig(noise_m: float, focal_scale: float = 1.5) -> tuple[Camera, SpinningLidar]:
+    """The hard settings' rig: the 516×386 camera with its focal length times ``focal_scale``
+    (a narrower view) and a VLP-16-like ring LiDAR (16 channels, ±15°) whose ranges have
+    ``noise_m`` Gaussian noise (metres)."""
+    cam = default_camera(516, 386)
+    cam = replace(cam, fx=cam.fx * focal_scale, fy=cam.fy * focal_scale)
+    return cam, SpinningLidar(channels=16, vertical_fov_deg=(-15.0, 15.0), noise_m=noise_m)
 
 
 def look_pose(eye: F64, yaw_deg: float, pitch_deg: float, roll_deg: float = 0.0) -> F64:
