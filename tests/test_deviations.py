@@ -229,8 +229,7 @@ def test_refine_with_deviations_then_the_run_directory(world: dict[str, Path], t
     assert "deviations: " in capsys.readouterr().out
     doc = json.loads((run / "result.json").read_text())
     assert doc["deviations"]["datum"]["mode"] == "datum"
-    assert doc["deviations"]["datum"]["names"] == ["S0/wall/ext-south", "S0/wall/ext-west",
-                                                   "S0/slab/floor"]
+    assert doc["deviations"]["datum"]["names"] == DATUM_NAMES
     assert {"map_refined.ply", "deviations.json", "deviations.csv", "deviations.ply",
             "deviations.png", "deviations.ifc", "deviations.bcfzip"} <= set(doc["outputs"])
     html = (run / "report.html").read_text()
@@ -242,9 +241,18 @@ def test_refine_with_deviations_then_the_run_directory(world: dict[str, Path], t
     status = {e["name"]: e["status"] for e in dev["elements"]}
     assert status["S0/column/corridor-1"] == "missing"
     assert status["S0/wall/corr-south"] == "deviating"  # -4.2 cm
-    rc = main(["deviations", str(run)])
+    capsys.readouterr()
+    rc = main(["deviations", str(run)])  # the run's datum is used again
     assert rc == 0
-    assert (run / "deviations" / "deviations.json").is_file()
+    again = json.loads((run / "deviations" / "deviations.json").read_text())
+    assert again["datum"]["mode"] == "datum" and again["datum"]["names"] == DATUM_NAMES
+    assert "datum of the refine run" in capsys.readouterr().err
+    rc = main(["deviations", str(run), "--no-datum", "-o", str(tmp_path / "plain")])
+    assert rc == 0
+    plain = json.loads((tmp_path / "plain" / "deviations.json").read_text())
+    assert plain["datum"]["mode"] == "none"
+    assert main(["deviations", str(run), "--no-datum", "--datum", DATUM[0], "-o",
+                 str(tmp_path / "both")]) != 0
 
 
 @pytest.mark.slow
@@ -289,6 +297,7 @@ def test_clutter_comes_out_as_a_cluster(world: dict[str, Path], report: Any) -> 
 # ------------------------------------------------------------------------------ datum
 #: The tiny world's datum: the two walls the as-built keeps at design, and the floor for z.
 DATUM = ("name:S0/wall/ext-south", "name:S0/wall/ext-west", "name:S0/slab/floor")
+DATUM_NAMES = [sel.removeprefix("name:") for sel in DATUM]
 
 
 def _rigidly_offset(world_from_cam: np.ndarray) -> np.ndarray:

@@ -53,10 +53,14 @@ def register(sub: Any) -> None:
                         "slab or ceiling is in it) that puts the datum on the design, so the "
                         "other elements' offsets are relative to it (default: relative to the "
                         "poses)")
-    p.add_argument("--datum-fit", choices=["frames", "rigid"], default="frames",
+    p.add_argument("--datum-fit", choices=["frames", "rigid"], default=None,
                    help="with --datum: frames (default) = the rigid correction, then one small "
                         "correction per frame fitted jointly with the other elements' offsets; "
                         "rigid = one rigid correction of the whole trajectory")
+    p.add_argument("--no-datum", action="store_true",
+                   help="ignore the datum of the refine run in RUN_DIR (by default its "
+                        "--datum / datum and --datum-fit are used again when --datum is not "
+                        "given)")
     p.add_argument("--voxel", type=float, default=0.03, metavar="M",
                    help="voxel of the map the clusters and the PLY use (default 0.03 m)")
     p.add_argument("--top", type=int, default=10, metavar="N",
@@ -64,6 +68,24 @@ def register(sub: Any) -> None:
     add_overwrite_argument(p, "existing deviations.* files in OUT")
     p.set_defaults(func=run, output_dirs=["out"], input_paths=["run_dir", "sequence", "poses",
                                                               "ifc"])
+
+
+def run_datum(args: argparse.Namespace) -> tuple[list[str], str]:
+    """The datum selectors and fit to use: ``--datum`` / ``--datum-fit`` when given, else (unless
+    ``--no-datum``) those the refine run in ``RUN_DIR`` was given (its ``result.json`` →
+    ``config``), else none. ``([], "frames")`` for no datum."""
+    from bimcap.io.outputs import read_result
+
+    fit = args.datum_fit
+    if args.datum or args.no_datum or args.run_dir is None:
+        return list(args.datum or []) if not args.no_datum else [], fit or "frames"
+    doc = read_result(args.run_dir) or {}
+    config = doc.get("config") if isinstance(doc.get("config"), dict) else {}
+    selectors = config.get("datum") or []
+    if not isinstance(selectors, list) or not all(isinstance(x, str) for x in selectors):
+        return [], fit or "frames"
+    run_fit = config.get("datum_fit")
+    return list(selectors), fit or (run_fit if isinstance(run_fit, str) else "frames")
 
 
 def resolve_inputs(args: argparse.Namespace) -> tuple[Path, Path, Path, Path]:
@@ -109,7 +131,15 @@ def run(args: argparse.Namespace) -> int:
 
     seq_path, poses_path, ifc, out = resolve_inputs(args)
     options = DeviationOptions(tolerance_m=args.tolerance)
-    datum = DatumSpec.parse(args.datum or [], "--datum", args.datum_fit)
+    if args.no_datum and args.datum:
+        raise DeviationInputError("--no-datum and --datum exclude each other", None, "--datum")
+    selectors, fit = run_datum(args)
+    from_run = bool(selectors) and not args.datum
+    datum = DatumSpec.parse(selectors, "datum of RUN_DIR/result.json" if from_run else "--datum",
+                            fit)
+    if from_run:
+        print(f"datum of the refine run: {', '.join(selectors)} (fit: {fit}); --no-datum "
+              "ignores it", file=sys.stderr)
     check_ifc_file(ifc)
     seq = read_sequence(seq_path)
     traj = check_trajectory(seq, read_tum(poses_path), poses_path, "refined")

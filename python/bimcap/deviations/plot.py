@@ -3,7 +3,8 @@
 Each wall and column is drawn as the convex hull of its mesh's xy (a wall's rectangle); colour:
 the offset on a diverging scale (blue −2 × tolerance … white … red +2 × tolerance; a column by the
 length of its offset), grey hatched when unobserved, a red cross over a dashed outline when
-missing; the unexplained clusters as orange boxes; the walk (sensor centres) as a thin line.
+missing; a datum element (declared as built right) outlined in green; the unexplained clusters as
+orange boxes; the walk (sensor centres) as a thin line. A legend below the plan names each mark.
 """
 
 from __future__ import annotations
@@ -16,6 +17,9 @@ from numpy.typing import NDArray
 
 from bimcap.deviations.analysis import DeviationReport, ElementStatus
 from bimcap.labels import Label
+
+#: edge colour of a datum element (declared as built right)
+DATUM_COLOUR = "tab:green"
 
 
 def _cross(a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
@@ -68,7 +72,8 @@ def plot_deviations_on_plan(model: Any, report: DeviationReport,
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.colors import TwoSlopeNorm
-    from matplotlib.patches import Polygon, Rectangle
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch, Polygon, Rectangle
 
     storey = storey if storey is not None else busiest_storey(report)
     meshes = {e.guid: e for e in model.elements}
@@ -95,19 +100,36 @@ def plot_deviations_on_plan(model: Any, report: DeviationReport,
             ax.add_patch(Polygon(poly, closed=True, fc="0.85", ec="0.6", hatch="///", lw=0.5))
         else:
             colour = cmap(norm(100 * e.offset_m))
-            ax.add_patch(Polygon(poly, closed=True, fc=colour,
-                                 ec="black" if e.status is ElementStatus.DEVIATING else "0.5",
-                                 lw=1.2 if e.status is ElementStatus.DEVIATING else 0.5))
+            edge, lw = ("black", 1.2) if e.status is ElementStatus.DEVIATING else ("0.5", 0.5)
+            if e.datum:
+                edge, lw = DATUM_COLOUR, 1.6
+            ax.add_patch(Polygon(poly, closed=True, fc=colour, ec=edge, lw=lw))
             if e.status is ElementStatus.DEVIATING:
                 c = poly.mean(axis=0)
-                ax.annotate(f"{100 * e.offset_m:+.1f}", c, fontsize=7, ha="center",
-                            va="center")
+                ax.annotate(f"{100 * e.offset_m:+.1f} cm", c, xytext=(0, 8),
+                            textcoords="offset points", fontsize=8, ha="center",
+                            va="bottom", bbox={"boxstyle": "round,pad=0.15", "fc": "white",
+                                               "ec": "none", "alpha": 0.8})
     for cl in report.clusters:
         ax.add_patch(Rectangle(cl.min[:2], cl.extent[0], cl.extent[1], fill=False, ec="orange",
                                lw=1.0, ls=":"))
+    handles: list[Any] = [
+        Patch(fc=cmap(norm(150 * tol)), ec="black", lw=1.2,
+              label=f"deviating (beyond {100 * tol:.0f} cm; offset in cm)"),
+        Patch(fc=cmap(norm(0.0)), ec="0.5", lw=0.5, label="ok"),
+        Line2D([], [], ls="--", color="red", marker="x", ms=8, mew=2, label="missing"),
+        Patch(fc="0.85", ec="0.6", hatch="///", lw=0.5, label="unobserved"),
+    ]
+    if any(e.datum for e, _ in shown):
+        handles.append(Patch(fc="white", ec=DATUM_COLOUR, lw=1.6,
+                             label="datum (declared as built right)"))
+    if report.clusters:
+        handles.append(Patch(fill=False, ec="orange", ls=":", label="points no element explains"))
     if walk_xy is not None and len(walk_xy):
-        ax.plot(walk_xy[:, 0], walk_xy[:, 1], "-", color="0.3", lw=0.6, label="walk")
-        ax.legend(loc="upper right", fontsize=8)
+        (line,) = ax.plot(walk_xy[:, 0], walk_xy[:, 1], "-", color="0.3", lw=0.6, label="walk")
+        handles.append(line)
+    ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=4,
+              fontsize=8, frameon=False)
     ax.autoscale_view()
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")

@@ -332,7 +332,8 @@ def _deviations_html(inp: ReportInput) -> list[str]:
     parts = ["<h2>Scan vs BIM: deviations</h2>",
              f"<p>Per IFC element, under the refined poses (tolerance "
              f"{100 * rep.options.tolerance_m:g} cm): {html.escape(counts)}; "
-             f"{len(rep.clusters)} clusters of points no element explains. Files: "
+             f"{len(rep.clusters)} cluster{'' if len(rep.clusters) == 1 else 's'} of points "
+             "no element explains. Files: "
              "deviations.json / .csv / .ply / .ifc (property set BIMCaP_Deviation) / .bcfzip (a "
              "BCF topic per deviating or missing element).</p>"]
     d = rep.datum
