@@ -224,10 +224,16 @@ def test_refine_with_deviations_then_the_run_directory(world: dict[str, Path], t
     run = tmp_path / "run"
     gt = world["seq"] / "poses" / "gt.tum"
     rc = main(["refine", str(world["seq"]), "-o", str(run), "--init", str(gt), "--deviations",
-               "-q", "--workers", "1", "--datum", ",".join(DATUM)])
+               "-q", "--workers", "1", "--datum", ",".join(DATUM), "--map-storey", "S0"])
     assert rc == 0
     assert "deviations: " in capsys.readouterr().out
     doc = json.loads((run / "result.json").read_text())
+    z_min, z_max = doc["map_refined"]["z_range"]  # S0: from 0.3 m under it to S1's elevation
+    assert z_min == pytest.approx(-0.3) and 2.5 < z_max < 4.0
+    import open3d as o3d
+
+    z = np.asarray(o3d.io.read_point_cloud(str(run / "map_refined.ply")).points)[:, 2]
+    assert len(z) > 1000 and z.min() >= z_min - 0.03 and z.max() < z_max + 0.03
     assert doc["deviations"]["datum"]["mode"] == "datum"
     assert doc["deviations"]["datum"]["names"] == DATUM_NAMES
     assert {"map_refined.ply", "deviations.json", "deviations.csv", "deviations.ply",
@@ -253,6 +259,22 @@ def test_refine_with_deviations_then_the_run_directory(world: dict[str, Path], t
     assert plain["datum"]["mode"] == "none"
     assert main(["deviations", str(run), "--no-datum", "--datum", DATUM[0], "-o",
                  str(tmp_path / "both")]) != 0
+
+
+def test_refine_refuses_an_unknown_map_storey_before_the_front_end(
+        world: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``--map-storey`` names a storey the IFC does not have: a one-line error naming the field
+    and the storeys there are, from the BIM reference, before any frame is processed."""
+    pytest.importorskip("bimcap._core", reason="the C++ core is not built")
+    from bimcap.cli import main
+
+    run = tmp_path / "run"
+    rc = main(["refine", str(world["seq"]), "-o", str(run), "--init",
+               str(world["seq"] / "poses" / "gt.tum"), "--workers", "1", "--map-storey", "S9"])
+    err = capsys.readouterr().err
+    assert rc != 0 and "map_storey" in err and "'S9'" in err and "S0" in err and "S1" in err
+    assert "front end over" not in err
+    assert not (run / "result.json").exists()
 
 
 @pytest.mark.slow

@@ -101,7 +101,7 @@ def config_from_args(args: argparse.Namespace) -> RefineConfig:
             "completion_model", "segmentation", "segmentation_model", "labels_dir", "coarse",
             "rotation_first", "staged", "window", "max_match_distance", "workers", "lidar_nan",
             "max_lost_fraction", "colmap", "accept_ambiguous", "lidar_scan", "rerun", "datum",
-            "datum_fit")
+            "datum_fit", "map_storey")
     overrides: dict[str, Any] = {k: getattr(args, k) for k in keys
                                  if getattr(args, k, None) is not None}
     if getattr(args, "global_align", None) is not None:
@@ -154,6 +154,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--datum-fit", choices=["frames", "rigid"],
                    help="with --datum: frames (default: rigid, then per frame jointly with the "
                         "other elements' offsets) or rigid (one correction of the trajectory)")
+    p.add_argument("--map-storey", metavar="NAME",
+                   help="crop map_refined.ply to this storey of the IFC (by name; checked "
+                        "before the front end; default: every return)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace files in OUT that bimcap did not write (default: refuse)")
     p.add_argument("--print-config", action="store_true",

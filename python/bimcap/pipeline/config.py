@@ -198,6 +198,9 @@ class RefineConfig:
     datum_fit: ``"frames"`` (default: the rigid correction, then one per frame fitted jointly
         with the other elements' offsets) or ``"rigid"`` (:class:`bimcap.deviations.datum.
         DatumFitMode`).
+    map_storey: crop ``map_refined.ply`` to this storey of the IFC (by name: from 0.3 m under
+        its elevation to the next storey's); None (default) keeps every return. Checked
+        against the BIM reference's storeys before the front end runs.
     """
 
     method: Method = Method.BIMCAP
@@ -231,6 +234,7 @@ class RefineConfig:
     global_align: GlobalAlignMode = GlobalAlignMode.AUTO
     datum: list[str] = field(default_factory=list)
     datum_fit: str = "frames"
+    map_storey: str | None = None
     accept_ambiguous: bool = False
     lidar_scan: bool | None = None
     scan_sigma_m: float | None = 0.02
@@ -323,6 +327,10 @@ class RefineConfig:
         except DatumError as exc:
             raise ConfigError(exc.message, field=exc.field or "datum") from None
         self.datum = list(self.datum)
+        if self.map_storey is not None and (not isinstance(self.map_storey, str)
+                                            or not self.map_storey.strip()):
+            raise ConfigError(f"must be a storey name, got {self.map_storey!r}",
+                              field="map_storey")
         for name, value, allowed in (("loss", self.loss, LOSSES),
                                      ("geometric_mode", self.geometric_mode, GEOMETRIC_MODES)):
             if value is not None and value.lower() not in allowed:

@@ -241,6 +241,7 @@ def _prepare(sequence: str | PathLike[str] | Any, ifc: str | PathLike[str] | Non
     if source is ReferenceSource.SHARED:
         _log.info("BIM reference from the shared cache (bimcap.io.cache)")
     timings["bim"] = time.perf_counter() - t0
+    check_map_storey(config, ref.storeys, ifc_path)
 
     t0 = time.perf_counter()
     executor = executor_options(config)
@@ -1327,16 +1328,39 @@ def validate_datum(config: RefineConfig, ifc: Path, deviations: bool) -> DatumPl
     return DatumPlan(spec, model)
 
 
+def check_map_storey(config: RefineConfig, storeys: list[Any], ifc: Path) -> None:
+    """Raise :class:`ConfigError` (field ``map_storey``, naming the IFC's storeys) when
+    ``config.map_storey`` is not a storey of ``storeys`` (the BIM reference's)."""
+    from bimcap.pipeline.config import ConfigError
+
+    if config.map_storey is None:
+        return
+    names = [s.name for s in storeys]
+    if config.map_storey not in names:
+        raise ConfigError(f"no storey {config.map_storey!r} in {ifc} (storeys: "
+                          f"{', '.join(names) or 'none'})", field="map_storey")
+
+
 def write_map_refined(path: Path, sequence: Any, world_from_cam: F64, label_points: F64,
-                      label_values: Any) -> Any:
+                      label_values: Any, storeys: list[Any] | None = None,
+                      storey: str | None = None) -> Any:
     """Write ``map_refined.ply``: every LiDAR scan of ``sequence`` through ``world_from_cam``
     (N, 7) and the sequence's ``cam_from_lidar``, voxel-downsampled, labelled from the front end's
-    samples (``label_points`` (K, 3), ``label_values`` (K,)); returns the
+    samples (``label_points`` (K, 3), ``label_values`` (K,)), cropped to ``storey`` of
+    ``storeys`` when given (:func:`bimcap.deviations.refined_map.storey_z_range`); returns the
     :class:`bimcap.deviations.refined_map.RefinedMap`."""
-    from bimcap.deviations.refined_map import build_refined_map, load_scans, write_refined_map
+    from bimcap.deviations.refined_map import (
+        build_refined_map,
+        load_scans,
+        storey_z_range,
+        write_refined_map,
+    )
 
+    z_range = (storey_z_range(sorted(storeys or [], key=lambda s: s.elevation_m), storey)
+               if storey is not None else None)
     scans = load_scans(sequence, world_from_cam)
-    refined_map = build_refined_map(scans, label_points=label_points, label_values=label_values)
+    refined_map = build_refined_map(scans, label_points=label_points, label_values=label_values,
+                                    z_range=z_range)
     write_refined_map(path, refined_map)
     return refined_map
 
@@ -1370,7 +1394,8 @@ def write_run_outputs(
     prepared.map_source.write_semantic_map(stage / "map_before.ply", prepared.init.poses)
     smap = prepared.map_source.write_semantic_map(stage / "map_after.ply", outcome.refined.poses)
     refined_map = write_map_refined(stage / "map_refined.ply", prepared.sequence,
-                                    outcome.refined.poses, smap.points, smap.labels)
+                                    outcome.refined.poses, smap.points, smap.labels,
+                                    prepared.reference.storeys, config.map_storey)
     result = RefineResult(out_dir=stage, config=config, init=prepared.init,
                           refined=outcome.refined, outcome=outcome,
                           timings={**prepared.timings, "solve": outcome.seconds},
