@@ -48,6 +48,7 @@ from numpy.typing import NDArray
 
 from bimcap.errors import InputError
 from bimcap.features.matching import MatchOptions, PairMatches, match_pair, sequential_pairs
+from bimcap.features.pair_chain import PairChainOptions, chain_inconsistent_pairs
 from bimcap.features.sift import Features, SiftOptions, extract_sift
 from bimcap.features.tracks import (
     DepthLookupOptions,
@@ -322,6 +323,9 @@ class FrontendConfig:
         (:func:`bimcap.fusion.scan.scan_surface_points`); None: none. Sequences without a
         LiDAR give none either way.
     min_track_length: observations per track (>= 2).
+    pair_chain: drop the pairs whose relative pose contradicts the chain of consecutive pairs
+        between their frames (a repeated texture matched on another wall,
+        :mod:`bimcap.features.pair_chain`); None keeps every pair (the peers' front end).
     """
 
     sift: SiftOptions = field(default_factory=SiftOptions)
@@ -332,6 +336,7 @@ class FrontendConfig:
     sampling: SemanticSamplingOptions = field(default_factory=SemanticSamplingOptions)
     scan: ScanSamplingOptions | None = field(default_factory=ScanSamplingOptions)
     min_track_length: int = 2
+    pair_chain: PairChainOptions | None = field(default_factory=PairChainOptions)
 
     def __post_init__(self) -> None:
         if self.window < 1:
@@ -349,6 +354,7 @@ class FrontendConfig:
             "sampling": self.sampling.to_dict(),
             "scan": None if self.scan is None else self.scan.to_dict(),
             "min_track_length": self.min_track_length,
+            "pair_chain": None if self.pair_chain is None else self.pair_chain.to_dict(),
         }
 
 
@@ -1251,6 +1257,15 @@ def _assemble(
     """Flatten per-frame and per-pair results into the solver's arrays."""
     uvs = [np.asarray(d["uv"], np.float64).reshape(-1, 2) for d in frames]
     depths = [np.asarray(d["depth"], np.float64).reshape(-1) for d in frames]
+    if cfg.pair_chain is not None:
+        check = chain_inconsistent_pairs(pairs, uvs, depths, pinhole, cfg.pair_chain)
+        if check.dropped:
+            _log.info(f"{len(check.dropped)} pair(s) of frames contradict the chain of "
+                      f"consecutive pairs between them (a repeated texture?) and are dropped: "
+                      + ", ".join(f"{a}-{b} ({px:.0f} px)" for (a, b), px
+                                  in zip(check.dropped, check.median_px, strict=True)))
+            bad = set(check.dropped)
+            pairs = [p for p in pairs if (p.frame_a, p.frame_b) not in bad]
     obs = assemble_match_observations(pairs, uvs, depths, pinhole, init, cfg.filters)
     tracks = build_tracks([len(u) for u in uvs], pairs, cfg.min_track_length)
     t_uv = np.zeros((len(tracks.obs_frame), 2))

@@ -220,6 +220,7 @@ def _prepare(sequence: str | PathLike[str] | Any, ifc: str | PathLike[str] | Non
     """:func:`prepare`."""
     from bimcap.bim.cache import ReferenceSource, reference_for
     from bimcap.dataset import read_sequence
+    from bimcap.features.pair_chain import PairChainOptions
     from bimcap.features.tracks import MatchFilterOptions
     from bimcap.frontend.runner import FrontendConfig, run_frontend
     from bimcap.frontend.semantic_map import SampleSource, SemanticSamplingOptions
@@ -260,7 +261,9 @@ def _prepare(sequence: str | PathLike[str] | Any, ifc: str | PathLike[str] | Non
         fe_seq,
         FrontendConfig(window=config.window, sift=sift_options(config),
                        filters=MatchFilterOptions(max_initial_distance_m=config.max_match_distance),
-                       sampling=SemanticSamplingOptions(source=SampleSource(config.samples))),
+                       sampling=SemanticSamplingOptions(source=SampleSource(config.samples)),
+                       # FACaP keeps the peers' front end: every verified pair.
+                       pair_chain=None if config.method is Method.FACAP else PairChainOptions()),
         traj, depth, labels,
         cache_dir=work / "cache", workers=config.workers,
         progress=_log.isEnabledFor(logging.INFO),
