@@ -75,7 +75,6 @@ from bimcap.frontend.semantic_map import (
     SemanticSamplingOptions,
     build_semantic_map,
     check_label_orientation,
-    label_supported_pixels,
     sample_semantic_points,
     write_semantic_ply,
 )
@@ -731,12 +730,6 @@ def _compute_frame(job: _FrameJob, shared: _RunShared | None) -> dict[str, NDArr
     if cfg.sampling.source is SampleSource.RETURNS and ctx.measured_depth is not None:
         sample_depth = np.asarray(ctx.measured_depth, np.float32)
         _check_map(sample_depth, und.pinhole, i, "measured depth (from the depth provider)")
-    elif cfg.sampling.support_check and ctx.measured_depth is not None:
-        # no sample whose depth is interpolated across two surfaces (label_supported_pixels)
-        measured = np.asarray(ctx.measured_depth)
-        _check_map(measured, und.pinhole, i, "measured depth (from the depth provider)")
-        supported = label_supported_pixels(labels, measured, cfg.sampling.support_tolerance_px)
-        sample_depth = np.where(supported, depth, 0.0).astype(np.float32)
     checked, _ = check_label_orientation(labels, depth, und.pinhole, ctx.world_from_cam,
                                          cfg.sampling)
     samples = sample_semantic_points(checked, sample_depth, und.pinhole, i, cfg.sampling)

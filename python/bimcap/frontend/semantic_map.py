@@ -84,18 +84,18 @@ class SemanticSamplingOptions:
     floor_density, ceiling_density, wall_density, column_density: samples per m² (DENSITY).
     floor_stride, ceiling_stride, wall_stride, column_stride: keep every k-th pixel (STRIDE).
     max_per_frame: at most this many samples per class and frame (None: no cap).
-    min_depth_m, max_depth_m: pixels outside this depth range are ignored.
+    min_depth_m, max_depth_m: pixels outside this depth range are ignored. The far limit is
+        the LiDAR scan samples' (``bimcap.fusion.scan.ScanSamplingOptions.max_range_m``):
+        beyond 15 m a VLP-16's rings are over 0.5 m apart and a pixel's depth is an
+        interpolation (and a plane fit) over metres; on Office_A's 30 m corridor view the
+        wall samples came out 1-2 cm short, all of one sign (30 m: fixed point 0.64 cm,
+        15 m: 0.35 cm; docs/generalization.md).
     seed: seed of the random choices.
     orientation_check_deg: :func:`check_label_orientation`'s tolerance in degrees (None: no
         check; the samples then do not depend on the initial pose).
     orientation_strict_deg: a pixel whose normal is within this many degrees of the other
         orientation (floor/ceiling: horizontal normal; wall/column: vertical) is dropped alone.
     orientation_work_width: the check's working resolution (pixels across).
-    support_check: with dense depth and the sensor's returns at hand, keep a sample only where
-        the returns its depth is interpolated from carry its own class
-        (:func:`label_supported_pixels`); otherwise the interpolation bridges two surfaces.
-    support_tolerance_px: how far to the side (pixels) a return still counts as the one above
-        or below a pixel (a VLP-16's returns are about 2 px apart along a ring at 516 px).
     """
 
     source: SampleSource = SampleSource.DENSE
@@ -110,13 +110,11 @@ class SemanticSamplingOptions:
     column_stride: int = 150
     max_per_frame: int | None = 2000
     min_depth_m: float = 0.1
-    max_depth_m: float = 30.0
+    max_depth_m: float = 15.0
     seed: int = 0
     orientation_check_deg: float | None = 45.0
     orientation_strict_deg: float = 20.0
     orientation_work_width: int = 258
-    support_check: bool = True
-    support_tolerance_px: int = 2
 
     def __post_init__(self) -> None:
         if self.orientation_check_deg is not None and not (
@@ -329,57 +327,6 @@ def pixel_surface_area(depth: NDArray[np.floating], camera: Camera, min_cos: flo
     with np.errstate(invalid="ignore", divide="ignore"):
         cos_alpha = np.where(pn > 0, z / pn, 1.0)
     return np.where(z > 0, z * z * cos_alpha / (camera.fx * camera.fy) / cos, 0.0)
-
-
-def label_supported_pixels(labels: NDArray[np.integer], measured_depth: NDArray[np.floating],
-                           tolerance_px: int = 2) -> NDArray[np.bool_]:
-    """Pixels whose completed depth comes from returns of their own class.
-
-    A spinning LiDAR's rings are far apart in the image (2° ≈ 20 px for a VLP-16 at 516 px), so
-    a pixel's completed depth is interpolated between the nearest return above it and the
-    nearest return below it. Where one of the two lies on another class — the ceiling above a
-    wall's top edge, the floor beyond its foot — the interpolation runs across the corner and
-    the depth is a chord in front of both surfaces: 1–3 cm at 30 m, all of one sign, a pull that
-    no robust loss removes. A pixel is *supported* when the label at both returns (the nearest
-    in its column or up to ``tolerance_px`` to either side) is its own; a pixel with no return
-    above or below is not judged (supported).
-
-    Parameters
-    ----------
-    labels: (H, W) label ids. measured_depth: (H, W) the returns' depth, 0 where none.
-
-    Returns
-    -------
-    (H, W) bool.
-    """
-    lab = np.asarray(labels)
-    ret = np.asarray(measured_depth) > 0
-    if lab.shape != ret.shape or lab.ndim != 2:
-        raise SemanticMapError(f"labels {lab.shape} and measured depth {ret.shape} must be the "
-                               "same (H, W)")
-    h, w = lab.shape
-    rows = np.arange(h)[:, None]
-    cols = np.arange(w)[None, :]
-    ok = np.ones((h, w), bool)
-    for flip in (False, True):  # the nearest return above, then below
-        r = ret[::-1] if flip else ret
-        row_of = np.where(r, rows, -1)
-        last = np.maximum.accumulate(row_of, axis=0)  # (H, W) last return row at or before
-        best = np.full((h, w), -1)
-        best_col = np.broadcast_to(cols, (h, w)).copy()
-        for shift in range(-tolerance_px, tolerance_px + 1):
-            src = np.clip(cols + shift, 0, w - 1)
-            cand = last[:, src[0]]
-            better = cand > best
-            best = np.where(better, cand, best)
-            best_col = np.where(better, src, best_col)
-        found = best >= 0
-        row = h - 1 - best if flip else best
-        lab_at = lab[np.clip(row, 0, h - 1), best_col]
-        if flip:
-            lab_at, found = lab_at[::-1], found[::-1]
-        ok &= ~found | (lab_at == lab)
-    return ok
 
 
 def sample_semantic_points(
