@@ -634,31 +634,14 @@ def stage_options(base: Any, stage: Any, config: RefineConfig) -> Any | None:
     return opts
 
 
-#: Tukey's biweight constant (in noise scales) of the last solve's BIM terms: 95 % efficiency
-#: under Gaussian noise; a sample further than 4.685 σ (9.4 cm at 2 cm) from its face no longer
-#: pulls at all.
-SCAN_TUKEY_SCALE = 4.685
-
-
 def scan_stage_options(opts: Any, config: RefineConfig) -> Any:
     """The options of the last solve with the LiDAR scan's samples: ``opts`` with the BIM terms'
-    noise scale set to ``config.scan_sigma_m`` and their loss to Tukey's biweight at
-    :data:`SCAN_TUKEY_SCALE` (unchanged when ``scan_sigma_m`` is None).
-
-    The solve starts from converged poses, so a sample several noise scales off its face is not
-    on the BIM (furniture near a wall, a door leaf in its opening, a fitting): the Cauchy loss's
-    influence decays only as σ²/r, and hundreds of such samples at 5–30 cm still pulled
-    (Duplex from the ground truth: −0.30 cm mean in y with Cauchy, −0.19 cm with Tukey); the
-    biweight gives them none."""
-    from bimcap.optimize.options import Loss
-
+    noise scale set to ``config.scan_sigma_m`` (unchanged when None)."""
     if config.scan_sigma_m is None:
         return opts
     out = copy.deepcopy(opts)
     for key in ("wall", "column", "floor", "ceiling"):
         out.terms[key].sigma = float(config.scan_sigma_m)
-        out.terms[key].loss = Loss.TUKEY
-        out.terms[key].loss_scale = SCAN_TUKEY_SCALE
     out.check()
     return out
 
