@@ -84,7 +84,12 @@ class SemanticSamplingOptions:
     floor_density, ceiling_density, wall_density, column_density: samples per m² (DENSITY).
     floor_stride, ceiling_stride, wall_stride, column_stride: keep every k-th pixel (STRIDE).
     max_per_frame: at most this many samples per class and frame (None: no cap).
-    min_depth_m, max_depth_m: pixels outside this depth range are ignored.
+    min_depth_m, max_depth_m: pixels outside this depth range are ignored. The far limit is
+        the LiDAR scan samples' (``bimcap.fusion.scan.ScanSamplingOptions.max_range_m``):
+        beyond 15 m a VLP-16's rings are over 0.5 m apart and a pixel's depth is an
+        interpolation (and a plane fit) over metres; on Office_A's 30 m corridor view the
+        wall samples came out 1-2 cm short, all of one sign (30 m: fixed point 0.64 cm,
+        15 m: 0.35 cm; docs/generalization.md).
     seed: seed of the random choices.
     orientation_check_deg: :func:`check_label_orientation`'s tolerance in degrees (None: no
         check; the samples then do not depend on the initial pose).
@@ -105,7 +110,7 @@ class SemanticSamplingOptions:
     column_stride: int = 150
     max_per_frame: int | None = 2000
     min_depth_m: float = 0.1
-    max_depth_m: float = 30.0
+    max_depth_m: float = 15.0
     seed: int = 0
     orientation_check_deg: float | None = 45.0
     orientation_strict_deg: float = 20.0
