@@ -1334,14 +1334,15 @@ def validate_datum(config: RefineConfig, ifc: Path, deviations: bool) -> DatumPl
 def check_map_storey(config: RefineConfig, storeys: list[Any], ifc: Path) -> None:
     """Raise :class:`ConfigError` (field ``map_storey``, naming the IFC's storeys) when
     ``config.map_storey`` is not a storey of ``storeys`` (the BIM reference's)."""
+    from bimcap.deviations.refined_map import RefinedMapError, storey_z_range
     from bimcap.pipeline.config import ConfigError
 
     if config.map_storey is None:
         return
-    names = [s.name for s in storeys]
-    if config.map_storey not in names:
-        raise ConfigError(f"no storey {config.map_storey!r} in {ifc} (storeys: "
-                          f"{', '.join(names) or 'none'})", field="map_storey")
+    try:
+        storey_z_range(storeys, config.map_storey)
+    except RefinedMapError as exc:
+        raise ConfigError(f"{exc.message} ({ifc})", field="map_storey") from None
 
 
 def write_map_refined(path: Path, sequence: Any, world_from_cam: F64, label_points: F64,
