@@ -204,6 +204,7 @@ void SolverOptions::Check() const {
   CheckNonNegative("parameter_tolerance", parameter_tolerance);
   CheckPositive("max_time_s", max_time_s);
   if (num_threads < 1) throw OptionsError("num_threads", "must be >= 1");
+  if (batch_size < 1) throw OptionsError("batch_size", "must be >= 1");
 }
 
 std::vector<std::string> OptionKeys() {
@@ -239,6 +240,7 @@ std::map<std::string, std::string> OptionsToKeyValues(const SolverOptions& o) {
   kv["parameter_tolerance"] = FormatDouble(o.parameter_tolerance);
   kv["max_time_s"] = FormatDouble(o.max_time_s);
   kv["num_threads"] = std::to_string(o.num_threads);
+  kv["batch_size"] = std::to_string(o.batch_size);
   kv["linear_solver"] = EnumToString(o.linear_solver);
   kv["compute_covariance"] = o.compute_covariance ? "1" : "0";
   kv["verbose"] = o.verbose ? "1" : "0";
@@ -280,6 +282,8 @@ SolverOptions OptionsFromKeyValues(const std::map<std::string, std::string>& val
       o.max_time_s = ParseDouble(key, value);
     } else if (key == "num_threads") {
       o.num_threads = ParseInt(key, value);
+    } else if (key == "batch_size") {
+      o.batch_size = ParseInt(key, value);
     } else if (key == "linear_solver") {
       o.linear_solver = EnumFromString<LinearSolver>(key, value);
     } else if (key == "compute_covariance") {
@@ -328,7 +332,8 @@ std::vector<OptionSpec> OptionSpecs() {
       {"linear_solver", EnumNames<LinearSolver>::Get()},
       {"loss", EnumNames<LossType>::Get()},
   };
-  const std::vector<std::string> ints = {"outer_iterations", "max_iterations", "num_threads"};
+  const std::vector<std::string> ints = {"outer_iterations", "max_iterations", "num_threads",
+                                         "batch_size"};
   std::vector<OptionSpec> out;
   for (const auto& [key, value] : OptionsToKeyValues(SolverOptions())) {
     const std::string leaf = key.substr(key.find('.') == std::string::npos ? 0 : key.find('.') + 1);

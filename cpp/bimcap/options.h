@@ -72,6 +72,11 @@ struct SolverOptions {
   double parameter_tolerance = 1e-8;
   double max_time_s = 1e6;
   int num_threads = 2;
+  // At most this many observations of a term that share their parameter blocks (a frame's
+  // floor points, the matches of a frame pair) go into one Ceres residual block, the term's loss
+  // applied to each (cost_functions/batched.h): the same cost and gradient, a fraction of
+  // Ceres' per-block work. 1: one residual block per observation, with Ceres' loss.
+  int batch_size = 64;
   LinearSolver linear_solver = LinearSolver::kAuto;
   bool compute_covariance = false;
   bool verbose = false;

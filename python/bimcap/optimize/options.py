@@ -8,7 +8,7 @@ file stores all come from ``bimcap._core``; this module is their typed Python vi
 (``prior.sigma_r_deg``), then ``pixel_sigma``, ``association_gate``, ``outer_iterations``,
 ``association_change_tolerance``, ``max_iterations``, ``function_tolerance``,
 ``gradient_tolerance``, ``parameter_tolerance``, ``max_time_s``, ``num_threads``,
-``linear_solver``, ``compute_covariance``, ``verbose``; ``bimcap._core.option_specs()`` lists
+``batch_size``, ``linear_solver``, ``compute_covariance``, ``verbose``; ``bimcap._core.option_specs()`` lists
 them with their kinds and defaults.
 """
 
@@ -199,6 +199,10 @@ class SolverOptions:
     parameter_tolerance: float = _default("parameter_tolerance")
     max_time_s: float = _default("max_time_s")
     num_threads: int = _default("num_threads")
+    #: Observations of a term that share their poses per Ceres residual block, the term's loss
+    #: applied to each (the same cost and gradient, less of Ceres' per-block work); 1: one
+    #: block per observation with Ceres' loss.
+    batch_size: int = _default("batch_size")
     linear_solver: LinearSolver = _default("linear_solver")
     #: Pose covariance (N, 6, 6) in the tangent space [dt, dtheta] via ceres::Covariance.
     compute_covariance: bool = _default("compute_covariance")
@@ -357,6 +361,7 @@ _GLOBAL_TYPES: dict[str, type] = {
     "parameter_tolerance": float,
     "max_time_s": float,
     "num_threads": int,
+    "batch_size": int,
     "linear_solver": LinearSolver,
     "compute_covariance": bool,
     "verbose": bool,
