@@ -198,6 +198,7 @@ void SolverOptions::Check() const {
   CheckPositive("association_gate", association_gate);
   if (outer_iterations < 1) throw OptionsError("outer_iterations", "must be >= 1");
   CheckNonNegative("association_change_tolerance", association_change_tolerance);
+  CheckNonNegative("round_function_tolerance", round_function_tolerance);
   if (max_iterations < 0) throw OptionsError("max_iterations", "must be >= 0");
   CheckNonNegative("function_tolerance", function_tolerance);
   CheckNonNegative("gradient_tolerance", gradient_tolerance);
@@ -234,6 +235,7 @@ std::map<std::string, std::string> OptionsToKeyValues(const SolverOptions& o) {
   kv["association_gate"] = FormatDouble(o.association_gate);
   kv["outer_iterations"] = std::to_string(o.outer_iterations);
   kv["association_change_tolerance"] = FormatDouble(o.association_change_tolerance);
+  kv["round_function_tolerance"] = FormatDouble(o.round_function_tolerance);
   kv["max_iterations"] = std::to_string(o.max_iterations);
   kv["function_tolerance"] = FormatDouble(o.function_tolerance);
   kv["gradient_tolerance"] = FormatDouble(o.gradient_tolerance);
@@ -268,6 +270,8 @@ SolverOptions OptionsFromKeyValues(const std::map<std::string, std::string>& val
       o.association_gate = ParseDouble(key, value);
     } else if (key == "association_change_tolerance") {
       o.association_change_tolerance = ParseDouble(key, value);
+    } else if (key == "round_function_tolerance") {
+      o.round_function_tolerance = ParseDouble(key, value);
     } else if (key == "outer_iterations") {
       o.outer_iterations = ParseInt(key, value);
     } else if (key == "max_iterations") {

@@ -375,8 +375,15 @@ void RunOuterIterations(const SolverOptions& options, const Associator& associat
                         SolverState* state, Summary* summary) {
   ceres::Solver::Options solver_options = CeresOptions(options);
   double remaining_time = options.max_time_s;
+  // A round whose association is then re-run stops at round_function_tolerance; once the
+  // association settles (or in the last round) Ceres runs to function_tolerance.
+  bool settled = false;
   for (int round = 0; round < options.outer_iterations; ++round) {
     if (round > 0) build();
+    const bool last = associator.empty() || settled || round + 1 == options.outer_iterations;
+    solver_options.function_tolerance =
+        last ? options.function_tolerance
+             : std::max(options.function_tolerance, options.round_function_tolerance);
     solver_options.linear_solver_type = ChooseLinearSolver(options, builder->has_landmarks());
     solver_options.linear_solver_ordering =
         builder->has_landmarks() ? builder->ordering() : nullptr;
@@ -402,7 +409,11 @@ void RunOuterIterations(const SolverOptions& options, const Associator& associat
     }
     ++summary->outer_iterations;
     NormalizeQuaternions(&state->poses);
-    if (associator.empty() || !associator.Run(state, false, summary) || remaining_time <= 0) return;
+    if (associator.empty() || remaining_time <= 0) return;
+    const bool changed = associator.Run(state, false, summary);
+    const bool tight = solver_options.function_tolerance == options.function_tolerance;
+    if (!changed && tight) return;
+    settled = !changed;
   }
 }
 

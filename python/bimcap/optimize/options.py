@@ -6,9 +6,10 @@ file stores all come from ``bimcap._core``; this module is their typed Python vi
 ``geometric_mode``, ``weighting``, ``plane_mode``, ``refine_mode``, per term
 ``<key>.enabled|paper_weight|weight|sigma|loss|loss_scale`` and the term's own parameters
 (``prior.sigma_r_deg``), then ``pixel_sigma``, ``association_gate``, ``outer_iterations``,
-``association_change_tolerance``, ``max_iterations``, ``function_tolerance``,
-``gradient_tolerance``, ``parameter_tolerance``, ``max_time_s``, ``num_threads``,
-``batch_size``, ``linear_solver``, ``compute_covariance``, ``verbose``; ``bimcap._core.option_specs()`` lists
+``association_change_tolerance``, ``round_function_tolerance``, ``max_iterations``,
+``function_tolerance``, ``gradient_tolerance``, ``parameter_tolerance``, ``max_time_s``,
+``num_threads``, ``batch_size``, ``linear_solver``, ``compute_covariance``, ``verbose``;
+``bimcap._core.option_specs()`` lists
 them with their kinds and defaults.
 """
 
@@ -193,6 +194,10 @@ class SolverOptions:
     outer_iterations: int = _default("outer_iterations")
     #: W / Co: stop re-associating once at most this fraction of the points changed segment.
     association_change_tolerance: float = _default("association_change_tolerance")
+    #: W / Co: Ceres' function tolerance in a round whose poses only seed the next association;
+    #: the round on the settled association (or the last) runs to ``function_tolerance``.
+    #: 0: ``function_tolerance`` in every round.
+    round_function_tolerance: float = _default("round_function_tolerance")
     max_iterations: int = _default("max_iterations")
     function_tolerance: float = _default("function_tolerance")
     gradient_tolerance: float = _default("gradient_tolerance")
@@ -355,6 +360,7 @@ _GLOBAL_TYPES: dict[str, type] = {
     "association_gate": float,
     "outer_iterations": int,
     "association_change_tolerance": float,
+    "round_function_tolerance": float,
     "max_iterations": int,
     "function_tolerance": float,
     "gradient_tolerance": float,
