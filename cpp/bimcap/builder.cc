@@ -1,8 +1,11 @@
 #include "bimcap/builder.h"
 
 #include <Eigen/Eigenvalues>
+#include <algorithm>
 #include <cmath>
+#include <utility>
 
+#include "bimcap/cost_functions/batched.h"
 #include "bimcap/terms.h"
 
 namespace bimcap {
@@ -82,7 +85,10 @@ void ProblemBuilder::Build() {
   for (auto& t : terms_) t = TermBlocks();
 
   // 1. Residuals, term by term in registry order.
-  for (int t = 0; t < NumTerms(); ++t) Terms()[t].add(*this, t);
+  for (int t = 0; t < NumTerms(); ++t) {
+    Terms()[t].add(*this, t);
+    FlushObservations(t);
+  }
 
   // 2. Manifolds, 3. gauge. A pose without residuals is not in the problem and stays as it is.
   num_free_poses_ = 0;
@@ -117,6 +123,48 @@ void ProblemBuilder::Build() {
       if (problem_->HasParameterBlock(plane)) ordering_->AddElementToGroup(plane, 1);
     }
   }
+}
+
+void ProblemBuilder::AddObservation(ceres::CostFunction* cost, std::vector<double*> parameters) {
+  const auto [it, inserted] = pending_index_.try_emplace(parameters, pending_.size());
+  if (inserted) pending_.push_back({std::move(parameters), {}});
+  pending_[it->second].samples.emplace_back(cost, pending_count_++);
+}
+
+void ProblemBuilder::FlushObservations(int term) {
+  TermBlocks& blocks = terms_[term];
+  ceres::LossFunction* loss = losses_[term].get();
+  const size_t batch = static_cast<size_t>(std::max(1, options_.batch_size));
+  if (batch == 1) {
+    // One block per observation with the term's loss, in the order they were added.
+    std::vector<std::pair<int64_t, size_t>> order;  // index, group
+    for (size_t g = 0; g < pending_.size(); ++g) {
+      for (const auto& sample : pending_[g].samples) order.emplace_back(sample.second, g);
+    }
+    std::sort(order.begin(), order.end());
+    std::vector<size_t> next(pending_.size(), 0);
+    for (const auto& [index, g] : order) {
+      ceres::CostFunction* cost = pending_[g].samples[next[g]++].first;
+      blocks.ids.push_back(problem_->AddResidualBlock(cost, loss, pending_[g].parameters));
+    }
+  } else {
+    for (const PendingGroup& group : pending_) {
+      const auto& samples = group.samples;
+      // Chunks of at most `batch`, as even as the count allows.
+      const size_t chunks = (samples.size() + batch - 1) / batch;
+      for (size_t c = 0; c < chunks; ++c) {
+        const size_t begin = samples.size() * c / chunks;
+        const size_t end = samples.size() * (c + 1) / chunks;
+        auto* batched = new BatchedCostFunction(loss, blocks.residual_size);
+        for (size_t i = begin; i < end; ++i)
+          batched->Add(std::unique_ptr<ceres::CostFunction>(samples[i].first), samples[i].second);
+        blocks.ids.push_back(problem_->AddResidualBlock(batched, nullptr, group.parameters));
+      }
+    }
+  }
+  pending_.clear();
+  pending_index_.clear();
+  pending_count_ = 0;
 }
 
 void ProblemBuilder::InitFacapPlanes() {

@@ -16,6 +16,7 @@
 #include <ceres/ordered_groups.h>
 #include <ceres/problem.h>
 
+#include <map>
 #include <memory>
 #include <vector>
 
@@ -42,6 +43,8 @@ struct TermBlocks {
   int64_t num_residual_blocks = 0;  // observations in the problem (N of the paper's mean)
   int64_t num_skipped = 0;          // observations left out (no depth, unassociated, ...)
   int residual_size = 0;
+  // The term's Ceres residual blocks: one observation with the term's loss, or several that
+  // share their parameter blocks in a BatchedCostFunction (no Ceres loss; see AddObservation).
   std::vector<ceres::ResidualBlockId> ids;
 };
 
@@ -76,6 +79,12 @@ class ProblemBuilder {
   // weighting).
   bool Prepare(int term, int64_t count, double sigma, int residual_size);
   TermBlocks& blocks(int term) { return terms_[term]; }
+  // Adds one observation of the term being added (its cost function, owned from here on, on
+  // `parameters`). The observations of a term that share their parameter blocks go into residual
+  // blocks of up to options.batch_size observations (BatchedCostFunction, with the term's loss
+  // inside); a lone one, or every one with batch_size = 1, into a block of its own with the term's
+  // loss. The blocks are made by FlushObservations, once the term's add function has returned.
+  void AddObservation(ceres::CostFunction* cost, std::vector<double*> parameters);
   ceres::LossFunction* mutable_loss(int term) { return losses_[term].get(); }
   double* Pose(int64_t frame) { return state_->poses.data() + kPoseSize * frame; }
   double* TrackPoint(int64_t point) { return state_->track_points.data() + 3 * point; }
@@ -84,9 +93,20 @@ class ProblemBuilder {
   void MarkLandmarks() { has_landmarks_ = true; }
 
  private:
+  // Groups the pending observations of `term` by parameter blocks and adds its residual blocks.
+  void FlushObservations(int term);
+
+  struct PendingGroup {
+    std::vector<double*> parameters;
+    std::vector<std::pair<ceres::CostFunction*, int64_t>> samples;  // cost, index in the term
+  };
+
   const ProblemData& data_;
   const SolverOptions& options_;
   SolverState* state_;
+  std::vector<PendingGroup> pending_;
+  std::map<std::vector<double*>, size_t> pending_index_;
+  int64_t pending_count_ = 0;
   std::unique_ptr<ceres::Problem> problem_;
   std::vector<TermBlocks> terms_;
   std::vector<std::unique_ptr<ceres::LossFunction>> losses_;

@@ -198,12 +198,14 @@ void SolverOptions::Check() const {
   CheckPositive("association_gate", association_gate);
   if (outer_iterations < 1) throw OptionsError("outer_iterations", "must be >= 1");
   CheckNonNegative("association_change_tolerance", association_change_tolerance);
+  CheckNonNegative("round_function_tolerance", round_function_tolerance);
   if (max_iterations < 0) throw OptionsError("max_iterations", "must be >= 0");
   CheckNonNegative("function_tolerance", function_tolerance);
   CheckNonNegative("gradient_tolerance", gradient_tolerance);
   CheckNonNegative("parameter_tolerance", parameter_tolerance);
   CheckPositive("max_time_s", max_time_s);
   if (num_threads < 1) throw OptionsError("num_threads", "must be >= 1");
+  if (batch_size < 1) throw OptionsError("batch_size", "must be >= 1");
 }
 
 std::vector<std::string> OptionKeys() {
@@ -233,12 +235,14 @@ std::map<std::string, std::string> OptionsToKeyValues(const SolverOptions& o) {
   kv["association_gate"] = FormatDouble(o.association_gate);
   kv["outer_iterations"] = std::to_string(o.outer_iterations);
   kv["association_change_tolerance"] = FormatDouble(o.association_change_tolerance);
+  kv["round_function_tolerance"] = FormatDouble(o.round_function_tolerance);
   kv["max_iterations"] = std::to_string(o.max_iterations);
   kv["function_tolerance"] = FormatDouble(o.function_tolerance);
   kv["gradient_tolerance"] = FormatDouble(o.gradient_tolerance);
   kv["parameter_tolerance"] = FormatDouble(o.parameter_tolerance);
   kv["max_time_s"] = FormatDouble(o.max_time_s);
   kv["num_threads"] = std::to_string(o.num_threads);
+  kv["batch_size"] = std::to_string(o.batch_size);
   kv["linear_solver"] = EnumToString(o.linear_solver);
   kv["compute_covariance"] = o.compute_covariance ? "1" : "0";
   kv["verbose"] = o.verbose ? "1" : "0";
@@ -266,6 +270,8 @@ SolverOptions OptionsFromKeyValues(const std::map<std::string, std::string>& val
       o.association_gate = ParseDouble(key, value);
     } else if (key == "association_change_tolerance") {
       o.association_change_tolerance = ParseDouble(key, value);
+    } else if (key == "round_function_tolerance") {
+      o.round_function_tolerance = ParseDouble(key, value);
     } else if (key == "outer_iterations") {
       o.outer_iterations = ParseInt(key, value);
     } else if (key == "max_iterations") {
@@ -280,6 +286,8 @@ SolverOptions OptionsFromKeyValues(const std::map<std::string, std::string>& val
       o.max_time_s = ParseDouble(key, value);
     } else if (key == "num_threads") {
       o.num_threads = ParseInt(key, value);
+    } else if (key == "batch_size") {
+      o.batch_size = ParseInt(key, value);
     } else if (key == "linear_solver") {
       o.linear_solver = EnumFromString<LinearSolver>(key, value);
     } else if (key == "compute_covariance") {
@@ -328,7 +336,8 @@ std::vector<OptionSpec> OptionSpecs() {
       {"linear_solver", EnumNames<LinearSolver>::Get()},
       {"loss", EnumNames<LossType>::Get()},
   };
-  const std::vector<std::string> ints = {"outer_iterations", "max_iterations", "num_threads"};
+  const std::vector<std::string> ints = {"outer_iterations", "max_iterations", "num_threads",
+                                         "batch_size"};
   std::vector<OptionSpec> out;
   for (const auto& [key, value] : OptionsToKeyValues(SolverOptions())) {
     const std::string leaf = key.substr(key.find('.') == std::string::npos ? 0 : key.find('.') + 1);

@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "bimcap/builder.h"
+#include "bimcap/cost_functions/batched.h"
 #include "bimcap/terms.h"
 
 namespace bimcap {
@@ -62,14 +63,40 @@ struct NonFinite {
 
 constexpr double kInf = std::numeric_limits<double>::infinity();
 
-// Evaluates every residual block of the active terms, one by one, straight through its cost
-// function (no Jacobians; Ceres' own evaluation would log a page per bad block), and reports
-// the blocks whose residual, or whose cost ½ ρ(‖r‖²) under the term's loss, is not finite.
-// One pass over the residuals: cheaper than a single Ceres iteration (about 1 % of a solve).
-NonFinite FindNonFinite(ProblemBuilder& builder, const SolverState& state) {
-  NonFinite out;
+// Calls visit(residuals, ok, index, parameters) for each observation of active term `t`, with
+// its raw residuals (the term's residual_size values, no loss; ok: its cost function succeeded),
+// its index in the term and its parameter blocks, straight through the observation's own cost
+// function, batched or not (no Jacobians; Ceres' evaluation would log a page per bad block).
+template <typename Visit>
+void ForEachObservation(ProblemBuilder& builder, int t, Visit visit) {
+  const TermBlocks& term = builder.terms()[t];
   std::vector<double> residuals;
   std::vector<double*> parameters;
+  int64_t index = 0;  // of the next unbatched block
+  for (const ceres::ResidualBlockId id : term.ids) {
+    const ceres::CostFunction* cost_function =
+        builder.problem().GetCostFunctionForResidualBlock(id);
+    builder.problem().GetParameterBlocksForResidualBlock(id, &parameters);
+    const auto* batched = dynamic_cast<const BatchedCostFunction*>(cost_function);
+    if (batched == nullptr) {
+      residuals.assign(static_cast<size_t>(cost_function->num_residuals()), 0.0);
+      const bool ok = cost_function->Evaluate(parameters.data(), residuals.data(), nullptr);
+      visit(residuals, ok, index++, parameters);
+      continue;
+    }
+    for (int i = 0; i < batched->num_samples(); ++i) {
+      residuals.assign(static_cast<size_t>(batched->residuals_per_sample()), 0.0);
+      const bool ok = batched->sample(i).Evaluate(parameters.data(), residuals.data(), nullptr);
+      visit(residuals, ok, batched->sample_index(i), parameters);
+    }
+  }
+}
+
+// Evaluates every observation of the active terms and reports those whose residual, or whose
+// cost ½ ρ(‖r‖²) under the term's loss, is not finite. One pass over the residuals: cheaper
+// than a single Ceres iteration (about 1 % of a solve).
+NonFinite FindNonFinite(ProblemBuilder& builder, const SolverState& state) {
+  NonFinite out;
   const double* poses_begin = state.poses.data();
   const double* poses_end = poses_begin + state.poses.size();
   const double* points_begin = state.track_points.data();
@@ -78,33 +105,34 @@ NonFinite FindNonFinite(ProblemBuilder& builder, const SolverState& state) {
     const TermBlocks& term = builder.terms()[t];
     if (!term.active) continue;
     const ceres::LossFunction* loss = builder.loss(t);
-    for (size_t b = 0; b < term.ids.size(); ++b) {
-      const ceres::CostFunction* cost_function =
-          builder.problem().GetCostFunctionForResidualBlock(term.ids[b]);
-      builder.problem().GetParameterBlocksForResidualBlock(term.ids[b], &parameters);
-      residuals.assign(static_cast<size_t>(cost_function->num_residuals()), 0.0);
-      bool ok = cost_function->Evaluate(parameters.data(), residuals.data(), nullptr);
-      double sq = 0.0;
-      for (const double r : residuals) {
-        ok = ok && std::isfinite(r);
-        sq += r * r;
-      }
-      double rho[3] = {sq, 1.0, 0.0};
-      if (ok && loss != nullptr) loss->Evaluate(sq, rho);
-      if (ok && std::isfinite(0.5 * rho[0])) continue;
-      ++out.count;
-      if (out.found()) continue;
-      out.term = t;
-      out.block = static_cast<int64_t>(b);
-      out.term_blocks = static_cast<int64_t>(term.ids.size());
-      for (const double* p : parameters) {
-        if (p >= poses_begin && p < poses_end) {
-          out.frames.push_back((p - poses_begin) / kPoseSize);
-        } else if (p >= points_begin && p < points_end) {
-          out.points.push_back((p - points_begin) / 3);
-        }
-      }
-    }
+    // The first bad observation of the term by index (batches group them by frame).
+    bool first_term = !out.found();
+    ForEachObservation(builder, t,
+                       [&](const std::vector<double>& residuals, bool ok, int64_t index,
+                           const std::vector<double*>& parameters) {
+                         double sq = 0.0;
+                         for (const double r : residuals) {
+                           ok = ok && std::isfinite(r);
+                           sq += r * r;
+                         }
+                         double rho[3] = {sq, 1.0, 0.0};
+                         if (ok && loss != nullptr) loss->Evaluate(sq, rho);
+                         if (ok && std::isfinite(0.5 * rho[0])) return;
+                         ++out.count;
+                         if (!first_term || (out.term == t && index >= out.block)) return;
+                         out.term = t;
+                         out.block = index;
+                         out.term_blocks = term.num_residual_blocks;
+                         out.frames.clear();
+                         out.points.clear();
+                         for (const double* p : parameters) {
+                           if (p >= poses_begin && p < poses_end) {
+                             out.frames.push_back((p - poses_begin) / kPoseSize);
+                           } else if (p >= points_begin && p < points_end) {
+                             out.points.push_back((p - points_begin) / 3);
+                           }
+                         }
+                       });
   }
   return out;
 }
@@ -138,40 +166,35 @@ std::string DescribeNonFinite(const NonFinite& bad, const char* when) {
 }
 
 // Per-term cost (with the loss) and raw squared sum (without it, divided by s²), from one
-// evaluation of the term's residuals: cost = ½ Σ_blocks ρ(‖r_block‖²), as Ceres computes it.
-// A term whose evaluation fails (a non-finite residual) gets an infinite cost.
-std::vector<TermCosts> EvaluateTerms(ProblemBuilder& builder, int num_threads) {
+// evaluation of the term's observations: cost = ½ Σ_observations ρ(‖r‖²), as Ceres computes
+// it. A term whose evaluation fails (a non-finite residual) gets an infinite cost.
+std::vector<TermCosts> EvaluateTerms(ProblemBuilder& builder) {
   std::vector<TermCosts> out(Terms().size());
-  std::vector<double> residuals;
   for (int t = 0; t < NumTerms(); ++t) {
     const TermBlocks& term = builder.terms()[t];
     if (!term.active || term.ids.empty()) continue;
-    ceres::Problem::EvaluateOptions eval;
-    eval.residual_blocks = term.ids;
-    eval.apply_loss_function = false;
-    eval.num_threads = num_threads;
-    double plain = 0.0;
-    if (!builder.problem().Evaluate(eval, &plain, &residuals, nullptr, nullptr)) {
+    const ceres::LossFunction* loss = builder.loss(t);
+    double plain = 0.0, cost = 0.0;
+    bool all_ok = true;
+    ForEachObservation(
+        builder, t,
+        [&](const std::vector<double>& residuals, bool ok, int64_t, const std::vector<double*>&) {
+          double sq = 0.0;
+          for (const double r : residuals) sq += r * r;
+          all_ok = all_ok && ok && std::isfinite(sq);
+          plain += 0.5 * sq;
+          if (loss == nullptr) return;
+          double rho[3];
+          loss->Evaluate(sq, rho);
+          cost += 0.5 * rho[0];
+        });
+    if (!all_ok) {
       out[t].cost = kInf;
       out[t].sq_sum = kInf;
       continue;
     }
     out[t].sq_sum = 2.0 * plain / (term.sqrt_weight * term.sqrt_weight);
-    const ceres::LossFunction* loss = builder.loss(t);
-    if (loss == nullptr) {
-      out[t].cost = plain;
-      continue;
-    }
-    const size_t size = static_cast<size_t>(term.residual_size);
-    double cost = 0.0;
-    for (size_t b = 0; b + size <= residuals.size(); b += size) {
-      double sq = 0.0;
-      for (size_t k = 0; k < size; ++k) sq += residuals[b + k] * residuals[b + k];
-      double rho[3];
-      loss->Evaluate(sq, rho);
-      cost += 0.5 * rho[0];
-    }
-    out[t].cost = cost;
+    out[t].cost = loss == nullptr ? plain : cost;
   }
   return out;
 }
@@ -352,8 +375,15 @@ void RunOuterIterations(const SolverOptions& options, const Associator& associat
                         SolverState* state, Summary* summary) {
   ceres::Solver::Options solver_options = CeresOptions(options);
   double remaining_time = options.max_time_s;
+  // A round whose association is then re-run stops at round_function_tolerance; once the
+  // association settles (or in the last round) Ceres runs to function_tolerance.
+  bool settled = false;
   for (int round = 0; round < options.outer_iterations; ++round) {
     if (round > 0) build();
+    const bool last = associator.empty() || settled || round + 1 == options.outer_iterations;
+    solver_options.function_tolerance =
+        last ? options.function_tolerance
+             : std::max(options.function_tolerance, options.round_function_tolerance);
     solver_options.linear_solver_type = ChooseLinearSolver(options, builder->has_landmarks());
     solver_options.linear_solver_ordering =
         builder->has_landmarks() ? builder->ordering() : nullptr;
@@ -379,7 +409,11 @@ void RunOuterIterations(const SolverOptions& options, const Associator& associat
     }
     ++summary->outer_iterations;
     NormalizeQuaternions(&state->poses);
-    if (associator.empty() || !associator.Run(state, false, summary) || remaining_time <= 0) return;
+    if (associator.empty() || remaining_time <= 0) return;
+    const bool changed = associator.Run(state, false, summary);
+    const bool tight = solver_options.function_tolerance == options.function_tolerance;
+    if (!changed && tight) return;
+    settled = !changed;
   }
 }
 
@@ -450,13 +484,13 @@ SolveResult Solve(const ProblemData& data, const SolverOptions& options) {
     Record(initial_costs, builder, options, true, &summary);
     Record(initial_costs, builder, options, false, &summary);  // nothing moved
   } else {
-    initial_costs = EvaluateTerms(builder, options.num_threads);
+    initial_costs = EvaluateTerms(builder);
     Record(initial_costs, builder, options, true, &summary);
     summary.success = true;
     RunOuterIterations(options, associator, build, &builder, &state, &summary);
     // Final costs on the final association.
     if (state.segment_of != built_with) build();
-    Record(EvaluateTerms(builder, options.num_threads), builder, options, false, &summary);
+    Record(EvaluateTerms(builder), builder, options, false, &summary);
     if (summary.success && !std::isfinite(summary.final_cost)) {
       const NonFinite final_bad = FindNonFinite(builder, state);
       summary.success = false;

@@ -7,6 +7,7 @@
 #include <memory>
 #include <random>
 #include <sstream>
+#include <string>
 
 #include "bimcap/cost_functions/landmark.h"
 #include "bimcap/cost_functions/point_consistency.h"
@@ -518,6 +519,38 @@ TEST(AnalyticJacobians, MatchAutoDiff) {
   }
   EXPECT_GT(interior, 20);
   EXPECT_GT(past_end, 20);
+  int behind = 0;
+  for (int trial = 0; trial < 400; ++trial) {
+    SCOPED_TRACE("two-frame reprojection, trial " + std::to_string(trial));
+    Pose7 a = RandomPose(&rng), b = RandomPose(&rng);
+    if (trial % 2 == 1) {
+      const double sa = scale(rng), sb = scale(rng);
+      for (int k = 3; k < 7; ++k) {
+        a[k] *= sa;
+        b[k] *= sb;
+      }
+    }
+    // b placed so that a's point is in front of it (some behind: zero residual and Jacobians).
+    const Eigen::Vector3d p_a(g(rng), g(rng), trial % 20 == 0 ? -0.5 : 1.0 + std::abs(g(rng)));
+    const Eigen::Vector3d world = Eigen::Map<const Eigen::Quaterniond>(a.data() + 3) * p_a +
+                                  Eigen::Map<const Eigen::Vector3d>(a.data());
+    const Eigen::Vector3d p_b(0.3 * g(rng), 0.3 * g(rng), trial % 10 == 5 ? -1.0 : 2.0 + g(rng));
+    behind += p_b.z() < 0 ? 1 : 0;
+    const Eigen::Vector3d t_b = world - Eigen::Map<const Eigen::Quaterniond>(b.data() + 3) * p_b;
+    for (int k = 0; k < 3; ++k) b[k] = t_b[k];
+    const Eigen::Vector2d uv(300 + 30 * g(rng), 200 + 30 * g(rng));
+    const Eigen::Vector4d k(500 + g(rng), 480 + g(rng), 320, 240);
+    const double s = 0.1 + std::abs(g(rng));
+    const double sigma_px = 0.5 + std::abs(g(rng));
+    for (const double sigma_z : {0.0, 0.02, 0.3}) {
+      std::unique_ptr<ceres::CostFunction> y(
+          ReprojectionCostFunctor::Create(p_a, uv, k, s, sigma_px, sigma_z));
+      std::unique_ptr<ceres::CostFunction> z(
+          ReprojectionCostFunction::Create(p_a, uv, k, s, sigma_px, sigma_z));
+      ExpectSameAsAutoDiff(*z, *y, {a.data(), b.data()});
+    }
+  }
+  EXPECT_GT(behind, 20);
 }
 
 }  // namespace

@@ -3,8 +3,11 @@
 #define BIMCAP_COST_FUNCTIONS_REPROJECTION_H_
 
 #include <ceres/autodiff_cost_function.h>
+#include <ceres/jet.h>
+#include <ceres/sized_cost_function.h>
 
 #include <Eigen/Core>
+#include <cmath>
 
 #include "bimcap/pose.h"
 
@@ -46,6 +49,41 @@ bool ProjectPinhole(const double* intrinsics, const Eigen::Matrix<T, 3, 1>& p_in
 // Parameter blocks:
 //   world_from_cam_a [7]: tx ty tz qx qy qz qw of the frame the depth belongs to
 //   world_from_cam_b [7]: the same for the frame the keypoint is re-observed in
+// The residual of ReprojectionCostFunctor (below) from the point in camera b, p_b, and the
+// direction it moves in with the depth, dp_b = ∂p_b/∂z_a = R_bᵀ R_a ray_a. False (and r = 0)
+// for a point at or behind camera b's centre.
+template <typename T>
+bool ReprojectionResidual(const Eigen::Matrix<T, 3, 1>& p_b_in_cam,
+                          const Eigen::Matrix<T, 3, 1>& dp_b, const Eigen::Vector2d& uv_b,
+                          const Eigen::Vector4d& intrinsics_b, double sqrt_weight,
+                          double pixel_sigma, double depth_sigma, T* residuals) {
+  using std::sqrt;
+  T uv[2];
+  if (!ProjectPinhole(intrinsics_b.data(), p_b_in_cam, uv)) {
+    residuals[0] = T(0.0);
+    residuals[1] = T(0.0);
+    return false;
+  }
+  const T e0 = uv[0] - T(uv_b.x());
+  const T e1 = uv[1] - T(uv_b.y());
+  const T s = T(sqrt_weight);
+  if (depth_sigma <= 0.0) {
+    residuals[0] = s * e0;
+    residuals[1] = s * e1;
+    return true;
+  }
+  const T iz = T(1.0) / p_b_in_cam.z();
+  const T j0 = T(intrinsics_b[0]) * iz * (dp_b.x() - p_b_in_cam.x() * iz * dp_b.z());
+  const T j1 = T(intrinsics_b[1]) * iz * (dp_b.y() - p_b_in_cam.y() * iz * dp_b.z());
+  const T sp = T(pixel_sigma), sz = T(depth_sigma);
+  const T q = sqrt(sp * sp + sz * sz * (j0 * j0 + j1 * j1));
+  const T c = sz * sz / (q * (q + sp));
+  const T je = j0 * e0 + j1 * e1;
+  residuals[0] = s * (e0 - c * j0 * je);
+  residuals[1] = s * (e1 - c * j1 * je);
+  return true;
+}
+
 struct ReprojectionCostFunctor {
   // `p_a_in_cam` = z_a · ray_a; `sqrt_weight` = s; `pixel_sigma` = σ_px (> 0);
   // `depth_sigma` = σ_z (metres, ≥ 0; 0 = the plain reprojection error s · e).
@@ -73,34 +111,17 @@ struct ReprojectionCostFunctor {
     const Eigen::Matrix<T, 3, 1> p_in_world =
         CamToWorld(world_from_cam_a, p_a_in_cam.cast<T>().eval());
     const Eigen::Matrix<T, 3, 1> p_b_in_cam = WorldToCam(world_from_cam_b, p_in_world);
-    T uv[2];
-    if (!ProjectPinhole(intrinsics_b.data(), p_b_in_cam, uv)) {
-      residuals[0] = T(0.0);
-      residuals[1] = T(0.0);
-      return true;
+    const bool whiten = depth_sigma > 0.0 && p_a_in_cam.z() > 0.0;
+    Eigen::Matrix<T, 3, 1> dp_b = Eigen::Matrix<T, 3, 1>::Zero();
+    if (whiten) {
+      // ∂p_b/∂z_a = R_bᵀ R_a ray_a: the rotation part of the same map, applied to the ray.
+      const Eigen::Map<const Eigen::Quaternion<T>> q_a(world_from_cam_a + 3);
+      const Eigen::Map<const Eigen::Quaternion<T>> q_b(world_from_cam_b + 3);
+      const Eigen::Matrix<T, 3, 1> ray_a = (p_a_in_cam / p_a_in_cam.z()).cast<T>();
+      dp_b = q_b.conjugate() * (q_a * ray_a);
     }
-    const T e0 = uv[0] - T(uv_b.x());
-    const T e1 = uv[1] - T(uv_b.y());
-    const T s = T(sqrt_weight);
-    if (depth_sigma <= 0.0 || p_a_in_cam.z() <= 0.0) {
-      residuals[0] = s * e0;
-      residuals[1] = s * e1;
-      return true;
-    }
-    // ∂p_b/∂z_a = R_bᵀ R_a ray_a: the rotation part of the same map, applied to the ray.
-    const Eigen::Map<const Eigen::Quaternion<T>> q_a(world_from_cam_a + 3);
-    const Eigen::Map<const Eigen::Quaternion<T>> q_b(world_from_cam_b + 3);
-    const Eigen::Matrix<T, 3, 1> ray_a = (p_a_in_cam / p_a_in_cam.z()).cast<T>();
-    const Eigen::Matrix<T, 3, 1> dp_b = q_b.conjugate() * (q_a * ray_a);
-    const T iz = T(1.0) / p_b_in_cam.z();
-    const T j0 = T(intrinsics_b[0]) * iz * (dp_b.x() - p_b_in_cam.x() * iz * dp_b.z());
-    const T j1 = T(intrinsics_b[1]) * iz * (dp_b.y() - p_b_in_cam.y() * iz * dp_b.z());
-    const T sp = T(pixel_sigma), sz = T(depth_sigma);
-    const T q = sqrt(sp * sp + sz * sz * (j0 * j0 + j1 * j1));
-    const T c = sz * sz / (q * (q + sp));
-    const T je = j0 * e0 + j1 * e1;
-    residuals[0] = s * (e0 - c * j0 * je);
-    residuals[1] = s * (e1 - c * j1 * je);
+    ReprojectionResidual(p_b_in_cam, dp_b, uv_b, intrinsics_b, sqrt_weight, pixel_sigma,
+                         whiten ? depth_sigma : 0.0, residuals);
     return true;
   }
 
@@ -110,6 +131,100 @@ struct ReprojectionCostFunctor {
   const double sqrt_weight;
   const double pixel_sigma;
   const double depth_sigma;
+};
+
+// ReprojectionCostFunctor with its Jacobians by the chain rule (what the builder uses: G is the
+// largest term, and the functor's autodiff carries 14 derivatives through every operation).
+// The residual depends on the poses only through p_b and dp_b (ReprojectionResidual):
+//
+//   p_w  = R_a p_a + t_a,   p_b = R_bᵀ (p_w − t_b),   v = R_a ray_a,   dp_b = R_bᵀ v
+//   ∂r/∂t_a = G_p M,        ∂r/∂q_a = G_p M D_a + G_d M D_v,
+//   ∂r/∂t_b = −G_p M,       ∂r/∂q_b = G_p Q_p + G_d Q_v,
+//
+// with G_p = ∂r/∂p_b and G_d = ∂r/∂dp_b (2 × 3, autodiff of ReprojectionResidual with a
+// 6-wide Jet), M = ∂p_b/∂p_w, D_a = ∂(R_a p_a)/∂q_a, D_v = ∂v/∂q_a, Q_p = ∂p_b/∂q_b and
+// Q_v = ∂dp_b/∂q_b (CamToWorldWithJacobian, WorldToCamWithJacobian: the ambient Jacobians
+// autodiff gives, to rounding).
+class ReprojectionCostFunction final : public ceres::SizedCostFunction<2, kPoseSize, kPoseSize> {
+ public:
+  ReprojectionCostFunction(const Eigen::Vector3d& p_a_in_cam, const Eigen::Vector2d& uv_b,
+                           const Eigen::Vector4d& intrinsics_b, double sqrt_weight,
+                           double pixel_sigma, double depth_sigma)
+      : p_a_in_cam_(p_a_in_cam),
+        uv_b_(uv_b),
+        intrinsics_b_(intrinsics_b),
+        sqrt_weight_(sqrt_weight),
+        pixel_sigma_(pixel_sigma),
+        depth_sigma_(depth_sigma > 0.0 && p_a_in_cam.z() > 0.0 ? depth_sigma : 0.0) {}
+
+  static ceres::CostFunction* Create(const Eigen::Vector3d& p_a_in_cam, const Eigen::Vector2d& uv_b,
+                                     const Eigen::Vector4d& intrinsics_b, double sqrt_weight,
+                                     double pixel_sigma = 1.0, double depth_sigma = 0.0) {
+    return new ReprojectionCostFunction(p_a_in_cam, uv_b, intrinsics_b, sqrt_weight, pixel_sigma,
+                                        depth_sigma);
+  }
+
+  bool Evaluate(double const* const* parameters, double* residuals,
+                double** jacobians) const override {
+    const double* a = parameters[0];
+    const double* b = parameters[1];
+    const bool jac = jacobians != nullptr && (jacobians[0] != nullptr || jacobians[1] != nullptr);
+    Eigen::Matrix<double, 3, 4> d_a, q_p, d_v, q_v;
+    Eigen::Matrix3d m;
+    const Eigen::Vector3d p_w = CamToWorldWithJacobian(a, p_a_in_cam_, jac ? &d_a : nullptr);
+    const Eigen::Vector3d p_b =
+        WorldToCamWithJacobian(b, p_w, jac ? &m : nullptr, jac ? &q_p : nullptr);
+    const bool whiten = depth_sigma_ > 0.0;
+    Eigen::Vector3d dp_b = Eigen::Vector3d::Zero();
+    if (whiten) {
+      const double a_rotation[kPoseSize] = {0.0, 0.0, 0.0, a[3], a[4], a[5], a[6]};
+      const double b_rotation[kPoseSize] = {0.0, 0.0, 0.0, b[3], b[4], b[5], b[6]};
+      const Eigen::Vector3d v =
+          CamToWorldWithJacobian(a_rotation, p_a_in_cam_ / p_a_in_cam_.z(), jac ? &d_v : nullptr);
+      dp_b = WorldToCamWithJacobian(b_rotation, v, nullptr, jac ? &q_v : nullptr);
+    }
+    // The residuals in doubles (the same with and without Jacobians), their derivatives from
+    // the Jets.
+    ReprojectionResidual(p_b, dp_b, uv_b_, intrinsics_b_, sqrt_weight_, pixel_sigma_, depth_sigma_,
+                         residuals);
+    if (!jac) return true;
+    using Jet6 = ceres::Jet<double, 6>;
+    Eigen::Matrix<Jet6, 3, 1> p_jet, dp_jet;
+    for (int k = 0; k < 3; ++k) {
+      p_jet[k] = Jet6(p_b[k], k);
+      dp_jet[k] = Jet6(dp_b[k], 3 + k);
+    }
+    Jet6 r[2];
+    ReprojectionResidual(p_jet, dp_jet, uv_b_, intrinsics_b_, sqrt_weight_, pixel_sigma_,
+                         depth_sigma_, r);
+    Eigen::Matrix<double, 2, 3> g_p, g_d;
+    for (int i = 0; i < 2; ++i) {
+      g_p.row(i) = r[i].v.head<3>().transpose();
+      g_d.row(i) = r[i].v.tail<3>().transpose();
+    }
+    const Eigen::Matrix<double, 2, 3> g_p_m = g_p * m;
+    if (jacobians[0] != nullptr) {
+      Eigen::Map<Eigen::Matrix<double, 2, kPoseSize, Eigen::RowMajor>> j(jacobians[0]);
+      j.leftCols<3>() = g_p_m;
+      j.rightCols<4>() = g_p_m * d_a;
+      if (whiten) j.rightCols<4>() += g_d * m * d_v;
+    }
+    if (jacobians[1] != nullptr) {
+      Eigen::Map<Eigen::Matrix<double, 2, kPoseSize, Eigen::RowMajor>> j(jacobians[1]);
+      j.leftCols<3>() = -g_p_m;
+      j.rightCols<4>() = g_p * q_p;
+      if (whiten) j.rightCols<4>() += g_d * q_v;
+    }
+    return true;
+  }
+
+ private:
+  const Eigen::Vector3d p_a_in_cam_;
+  const Eigen::Vector2d uv_b_;
+  const Eigen::Vector4d intrinsics_b_;
+  const double sqrt_weight_;
+  const double pixel_sigma_;
+  const double depth_sigma_;  // 0 where the functor keeps the plain error
 };
 
 }  // namespace bimcap

@@ -42,7 +42,6 @@ void AddMatches(ProblemBuilder& builder, int term_id) {
   if (!builder.Prepare(term_id, count, sigma, reprojection ? 2 : 3)) return;
   TermBlocks& term = builder.blocks(term_id);
   term.num_skipped = skipped;
-  ceres::LossFunction* loss = builder.mutable_loss(term_id);
   const double s = term.sqrt_weight;
   // Reprojection in robust weighting whitens each error by its keypoint depth's noise
   // (depth.sigma, see reprojection.h); the peers' weighting keeps the plain error.
@@ -58,27 +57,27 @@ void AddMatches(ProblemBuilder& builder, int term_id) {
     const double* k_b = data.cameras.row(data.frame_camera(b));
     if (reprojection) {
       if (depth_a > 0) {
-        term.ids.push_back(builder.problem().AddResidualBlock(
-            ReprojectionCostFunctor::Create(
+        builder.AddObservation(
+            ReprojectionCostFunction::Create(
                 BackprojectPixel(k_a, uv[0], uv[1], depth_a), Eigen::Vector2d(uv[2], uv[3]),
                 Eigen::Vector4d(k_b[0], k_b[1], k_b[2], k_b[3]), s, pixel_sigma, depth_sigma),
-            loss, builder.Pose(a), builder.Pose(b)));
+            {builder.Pose(a), builder.Pose(b)});
       }
       if (depth_b > 0) {
-        term.ids.push_back(builder.problem().AddResidualBlock(
-            ReprojectionCostFunctor::Create(
+        builder.AddObservation(
+            ReprojectionCostFunction::Create(
                 BackprojectPixel(k_b, uv[2], uv[3], depth_b), Eigen::Vector2d(uv[0], uv[1]),
                 Eigen::Vector4d(k_a[0], k_a[1], k_a[2], k_a[3]), s, pixel_sigma, depth_sigma),
-            loss, builder.Pose(b), builder.Pose(a)));
+            {builder.Pose(b), builder.Pose(a)});
       }
     } else if (depth_a > 0 && depth_b > 0) {
-      term.ids.push_back(builder.problem().AddResidualBlock(
+      builder.AddObservation(
           PointConsistencyCostFunction::Create(BackprojectPixel(k_a, uv[0], uv[1], depth_a),
                                                BackprojectPixel(k_b, uv[2], uv[3], depth_b), s),
-          loss, builder.Pose(a), builder.Pose(b)));
+          {builder.Pose(a), builder.Pose(b)});
     }
   }
-  term.num_residual_blocks = static_cast<int64_t>(term.ids.size());
+  term.num_residual_blocks = count;
 }
 
 // G as landmark bundle adjustment: one reprojection per track observation (px).

@@ -49,20 +49,17 @@ void AddPlaneTerm(ProblemBuilder& builder, int term_id) {
   }
   if (!builder.Prepare(term_id, frame.rows, builder.options().term(term_id).sigma, 1)) return;
   TermBlocks& term = builder.blocks(term_id);
-  ceres::LossFunction* loss = builder.mutable_loss(term_id);
   double* facap_plane = builder.FacapPlane(term_id);
   for (int64_t i = 0; i < frame.rows; ++i) {
     const Eigen::Vector3d p(p_in_cam(i, 0), p_in_cam(i, 1), p_in_cam(i, 2));
     if (facap) {
-      term.ids.push_back(builder.problem().AddResidualBlock(
-          PointToVariablePlaneCostFunctor::Create(p, term.sqrt_weight), loss,
-          builder.Pose(frame(i)), facap_plane));
+      builder.AddObservation(PointToVariablePlaneCostFunctor::Create(p, term.sqrt_weight),
+                             {builder.Pose(frame(i)), facap_plane});
     } else {
       const double* pl = data.F64("planes").row(plane(i));
-      term.ids.push_back(builder.problem().AddResidualBlock(
-          PointToPlaneCostFunction::Create(p, Eigen::Vector4d(pl[0], pl[1], pl[2], pl[3]),
-                                           term.sqrt_weight),
-          loss, builder.Pose(frame(i))));
+      builder.AddObservation(PointToPlaneCostFunction::Create(
+                                 p, Eigen::Vector4d(pl[0], pl[1], pl[2], pl[3]), term.sqrt_weight),
+                             {builder.Pose(frame(i))});
     }
   }
   term.num_residual_blocks = frame.rows;

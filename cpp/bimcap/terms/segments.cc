@@ -72,17 +72,15 @@ void AddSegmentTerm(ProblemBuilder& builder, int term_id) {
   }
   TermBlocks& term = builder.blocks(term_id);
   term.num_skipped = frame.rows - count;
-  ceres::LossFunction* loss = builder.mutable_loss(term_id);
   const ArrayRef<double> segments = data.F64("segments");
   for (int64_t i = 0; i < frame.rows; ++i) {
     const int s = association[i];
     if (s < 0) continue;
     const double* seg = segments.row(s);
-    term.ids.push_back(builder.problem().AddResidualBlock(
-        PointToSegmentCostFunction::Create(
-            Eigen::Vector3d(p_in_cam(i, 0), p_in_cam(i, 1), p_in_cam(i, 2)),
-            Eigen::Vector4d(seg[0], seg[1], seg[2], seg[3]), term.sqrt_weight),
-        loss, builder.Pose(frame(i))));
+    builder.AddObservation(PointToSegmentCostFunction::Create(
+                               Eigen::Vector3d(p_in_cam(i, 0), p_in_cam(i, 1), p_in_cam(i, 2)),
+                               Eigen::Vector4d(seg[0], seg[1], seg[2], seg[3]), term.sqrt_weight),
+                           {builder.Pose(frame(i))});
   }
   term.num_residual_blocks = count;
 }

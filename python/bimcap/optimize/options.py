@@ -6,9 +6,10 @@ file stores all come from ``bimcap._core``; this module is their typed Python vi
 ``geometric_mode``, ``weighting``, ``plane_mode``, ``refine_mode``, per term
 ``<key>.enabled|paper_weight|weight|sigma|loss|loss_scale`` and the term's own parameters
 (``prior.sigma_r_deg``), then ``pixel_sigma``, ``association_gate``, ``outer_iterations``,
-``association_change_tolerance``, ``max_iterations``, ``function_tolerance``,
-``gradient_tolerance``, ``parameter_tolerance``, ``max_time_s``, ``num_threads``,
-``linear_solver``, ``compute_covariance``, ``verbose``; ``bimcap._core.option_specs()`` lists
+``association_change_tolerance``, ``round_function_tolerance``, ``max_iterations``,
+``function_tolerance``, ``gradient_tolerance``, ``parameter_tolerance``, ``max_time_s``,
+``num_threads``, ``batch_size``, ``linear_solver``, ``compute_covariance``, ``verbose``;
+``bimcap._core.option_specs()`` lists
 them with their kinds and defaults.
 """
 
@@ -193,12 +194,20 @@ class SolverOptions:
     outer_iterations: int = _default("outer_iterations")
     #: W / Co: stop re-associating once at most this fraction of the points changed segment.
     association_change_tolerance: float = _default("association_change_tolerance")
+    #: W / Co: Ceres' function tolerance in a round whose poses only seed the next association;
+    #: the round on the settled association (or the last) runs to ``function_tolerance``.
+    #: 0: ``function_tolerance`` in every round.
+    round_function_tolerance: float = _default("round_function_tolerance")
     max_iterations: int = _default("max_iterations")
     function_tolerance: float = _default("function_tolerance")
     gradient_tolerance: float = _default("gradient_tolerance")
     parameter_tolerance: float = _default("parameter_tolerance")
     max_time_s: float = _default("max_time_s")
     num_threads: int = _default("num_threads")
+    #: Observations of a term that share their poses per Ceres residual block, the term's loss
+    #: applied to each (the same cost and gradient, less of Ceres' per-block work); 1: one
+    #: block per observation with Ceres' loss.
+    batch_size: int = _default("batch_size")
     linear_solver: LinearSolver = _default("linear_solver")
     #: Pose covariance (N, 6, 6) in the tangent space [dt, dtheta] via ceres::Covariance.
     compute_covariance: bool = _default("compute_covariance")
@@ -351,12 +360,14 @@ _GLOBAL_TYPES: dict[str, type] = {
     "association_gate": float,
     "outer_iterations": int,
     "association_change_tolerance": float,
+    "round_function_tolerance": float,
     "max_iterations": int,
     "function_tolerance": float,
     "gradient_tolerance": float,
     "parameter_tolerance": float,
     "max_time_s": float,
     "num_threads": int,
+    "batch_size": int,
     "linear_solver": LinearSolver,
     "compute_covariance": bool,
     "verbose": bool,
