@@ -86,6 +86,50 @@ def test_refined_map_crops_to_a_storey(scans: Any) -> None:
         storey_z_range(storeys, "S9")
 
 
+def test_streamed_refined_map_equals_the_whole_merge(world: dict[str, Path], scans: Any) -> None:
+    """``stream_refined_map`` (a few scans at a time, what ``bimcap refine`` writes) gives the
+    map of ``build_refined_map`` on every return at once: the same voxels, their centroids to
+    the rounding of the sums, the same labels, returns and frames."""
+    from bimcap.dataset import read_sequence
+    from bimcap.deviations.refined_map import build_refined_map, stream_refined_map
+
+    seq = read_sequence(world["seq"])
+    samples = scans.p_in_world[::500]
+    values = np.arange(len(samples)) % 4 + 1
+    whole = build_refined_map(scans, label_points=samples, label_values=values, z_range=(0.5, 2.0))
+    streamed = stream_refined_map(seq, seq.trajectory("gt").poses, label_points=samples,
+                                  label_values=values, z_range=(0.5, 2.0), chunk_frames=3)
+    assert len(streamed.points) == len(whole.points) > 1000
+    np.testing.assert_allclose(streamed.points, whole.points, rtol=0, atol=1e-12)
+    assert np.array_equal(streamed.labels, whole.labels)
+    assert (streamed.returns, streamed.frames) == (whole.returns, whole.frames)
+    assert streamed.returns < len(scans)  # the crop dropped the floor and the ceiling
+
+
+def test_voxel_accumulator_in_chunks_is_the_voxel_centroid() -> None:
+    """Centroids on the world-aligned grid, whatever the chunking: checked against a direct
+    computation per voxel (floor(p / voxel) as the voxel's index)."""
+    from bimcap.deviations.refined_map import RefinedMapError, VoxelAccumulator
+
+    rng = np.random.default_rng(3)
+    p = rng.uniform(-2.0, 2.0, (5000, 3))
+    acc = VoxelAccumulator(0.5)
+    for part in np.array_split(p, 7):
+        acc.add(part)
+    cells = np.floor(p / 0.5).astype(int)
+    _, inverse = np.unique(cells, axis=0, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    expected = np.array([p[inverse == v].mean(axis=0) for v in range(inverse.max() + 1)])
+    got = acc.centroids()
+    assert len(got) == len(expected) == 512 and acc.points_added == 5000
+    order = np.lexsort(expected.T)
+    np.testing.assert_allclose(got[np.lexsort(got.T)], expected[order], atol=1e-12)
+    with pytest.raises(RefinedMapError, match="km from the world origin"):
+        acc.add(np.array([[1e9, 0.0, 0.0]]))
+    with pytest.raises(RefinedMapError, match="voxel_m"):
+        VoxelAccumulator(0.0)
+
+
 @pytest.fixture(scope="module")
 def report(world: dict[str, Path], scans: Any) -> Any:
     from bimcap.deviations.analysis import analyse_deviations, load_design

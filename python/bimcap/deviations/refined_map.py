@@ -169,12 +169,81 @@ class RefinedMap:
                 "z_range": None if self.z_range is None else list(self.z_range)}
 
 
+class VoxelAccumulator:
+    """Running centroids of the points in cubic voxels of edge ``voxel_m`` (metres) on the
+    world-aligned grid: voxel ``k`` covers ``[k · voxel_m, (k + 1) · voxel_m)`` on each axis, so
+    the points may arrive in chunks (a few scans at a time) and two maps of the same scene share
+    their voxels. Memory grows with the voxels, not with the points.
+
+    Voxel indices must lie within ±2²⁰ on each axis (±31 km at 3 cm); points beyond raise
+    :class:`RefinedMapError`.
+    """
+
+    _BITS = 21
+    _HALF = 1 << (_BITS - 1)
+
+    def __init__(self, voxel_m: float) -> None:
+        if not voxel_m > 0:
+            raise RefinedMapError(f"must be > 0 (got {voxel_m})", field="voxel_m")
+        self.voxel_m = float(voxel_m)
+        self._keys = np.zeros(0, np.int64)
+        self._sums = np.zeros((0, 3))
+        self._counts = np.zeros(0, np.int64)
+        self.points_added = 0
+
+    def add(self, points: F64) -> None:
+        """Add (P, 3) points (world metres); non-finite rows raise."""
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        if len(p) == 0:
+            return
+        cell = np.floor(p / self.voxel_m)
+        if not np.all(np.abs(cell) < self._HALF):
+            raise RefinedMapError(
+                f"points lie more than {self._HALF * self.voxel_m / 1000:.0f} km from the world "
+                "origin (or are not finite)", field="p_in_world")
+        k = cell.astype(np.int64) + self._HALF
+        key = (k[:, 0] << (2 * self._BITS)) | (k[:, 1] << self._BITS) | k[:, 2]
+        keys, inverse = np.unique(np.concatenate([self._keys, key]), return_inverse=True)
+        inverse = inverse.reshape(-1)
+        sums = np.empty((len(keys), 3))
+        for axis in range(3):
+            sums[:, axis] = np.bincount(inverse, np.concatenate([self._sums[:, axis], p[:, axis]]),
+                                        minlength=len(keys))
+        counts = np.bincount(inverse, np.concatenate([self._counts, np.ones(len(p), np.int64)]),
+                             minlength=len(keys))
+        self._keys, self._sums, self._counts = keys, sums, counts.round().astype(np.int64)
+        self.points_added += len(p)
+
+    def centroids(self) -> F64:
+        """(V, 3) centroid of each voxel, in the order of the voxels' packed keys."""
+        return self._sums / self._counts[:, None] if len(self._keys) else np.zeros((0, 3))
+
+
+def _in_z_range(p: F64, z_range: tuple[float, float] | None) -> F64:
+    if z_range is None:
+        return p
+    return p[(p[:, 2] >= z_range[0]) & (p[:, 2] < z_range[1])]
+
+
+def _labelled_map(acc: VoxelAccumulator, frames: int, label_points: F64 | None,
+                  label_values: NDArray[np.integer] | None, label_radius_m: float,
+                  z_range: tuple[float, float] | None) -> RefinedMap:
+    centroids = acc.centroids()
+    if label_points is not None and label_values is not None:
+        labels = transfer_labels(centroids, label_points, label_values, label_radius_m)
+    else:
+        labels = np.full(len(centroids), int(Label.UNKNOWN), np.uint8)
+    return RefinedMap(centroids, labels, acc.voxel_m, frames, acc.points_added, z_range)
+
+
 def build_refined_map(scans: ScanSet, voxel_m: float = DEFAULT_VOXEL_M,
                       label_points: F64 | None = None,
                       label_values: NDArray[np.integer] | None = None,
                       label_radius_m: float = DEFAULT_LABEL_RADIUS_M,
                       z_range: tuple[float, float] | None = None) -> RefinedMap:
-    """Merge ``scans`` into a voxel map, labelled from the front end's samples.
+    """Merge ``scans`` into a voxel map (:class:`VoxelAccumulator`'s grid), labelled from the
+    front end's samples. :func:`stream_refined_map` gives the same map from a sequence without
+    holding every return.
 
     Parameters
     ----------
@@ -185,16 +254,31 @@ def build_refined_map(scans: ScanSet, voxel_m: float = DEFAULT_VOXEL_M,
     label_radius_m: largest distance of a voxel to the sample whose label it takes.
     z_range: keep only returns with ``z_min <= z < z_max`` (a storey; see :func:`storey_z_range`).
     """
-    p = scans.p_in_world
-    if z_range is not None:
-        p = p[(p[:, 2] >= z_range[0]) & (p[:, 2] < z_range[1])]
-    centroids, _ = voxel_downsample(p, voxel_m)
-    if label_points is not None and label_values is not None:
-        labels = transfer_labels(centroids, label_points, label_values, label_radius_m)
-    else:
-        labels = np.full(len(centroids), int(Label.UNKNOWN), np.uint8)
-    return RefinedMap(centroids, labels, float(voxel_m), len(np.unique(scans.frame)), len(p),
-                      z_range)
+    acc = VoxelAccumulator(voxel_m)
+    acc.add(_in_z_range(scans.p_in_world, z_range))
+    return _labelled_map(acc, len(np.unique(scans.frame)), label_points, label_values,
+                         label_radius_m, z_range)
+
+
+def stream_refined_map(sequence: Any, world_from_cam: F64, voxel_m: float = DEFAULT_VOXEL_M,
+                       label_points: F64 | None = None,
+                       label_values: NDArray[np.integer] | None = None,
+                       label_radius_m: float = DEFAULT_LABEL_RADIUS_M,
+                       z_range: tuple[float, float] | None = None,
+                       chunk_frames: int = 32) -> RefinedMap:
+    """:func:`build_refined_map` of :func:`load_scans` (``sequence``, ``world_from_cam`` (N, 7)),
+    reading ``chunk_frames`` scans at a time: the same voxels and centroids (to the rounding of
+    their sums), with memory bounded by the map instead of every return (a 1000-frame VLP-16
+    walk has 28 M returns, 0.7 GB as float64, and its merge peaked at 2.9 GB)."""
+    n = len(sequence.frames)
+    acc = VoxelAccumulator(voxel_m)
+    frames = 0
+    step = max(1, int(chunk_frames))
+    for start in range(0, n, step):
+        chunk = load_scans(sequence, world_from_cam, frames=range(start, min(n, start + step)))
+        frames += len(np.unique(chunk.frame))
+        acc.add(_in_z_range(chunk.p_in_world, z_range))
+    return _labelled_map(acc, frames, label_points, label_values, label_radius_m, z_range)
 
 
 def storey_z_range(storeys: list[Any], name: str, below_m: float = 0.3

@@ -1354,17 +1354,15 @@ def write_map_refined(path: Path, sequence: Any, world_from_cam: F64, label_poin
     ``storeys`` when given (:func:`bimcap.deviations.refined_map.storey_z_range`); returns the
     :class:`bimcap.deviations.refined_map.RefinedMap`."""
     from bimcap.deviations.refined_map import (
-        build_refined_map,
-        load_scans,
         storey_z_range,
+        stream_refined_map,
         write_refined_map,
     )
 
     z_range = (storey_z_range(sorted(storeys or [], key=lambda s: s.elevation_m), storey)
                if storey is not None else None)
-    scans = load_scans(sequence, world_from_cam)
-    refined_map = build_refined_map(scans, label_points=label_points, label_values=label_values,
-                                    z_range=z_range)
+    refined_map = stream_refined_map(sequence, world_from_cam, label_points=label_points,
+                                     label_values=label_values, z_range=z_range)
     write_refined_map(path, refined_map)
     return refined_map
 
