@@ -23,6 +23,8 @@ sigma = 0.03``), a ``[registration]`` table (``bimcap.registration.CoarseOptions
     xy_range_m = 2.0
     [features]
     backend = "opencv"         # or "pycolmap"
+    [geometric]
+    work_width = 258           # the geometric segmenter's working resolution (pixels across)
 
 The front end's per-frame work can run on Dask (``executor = "dask"``, ``bimcap refine --dask``)
 with a ``[dask]`` table (``bimcap.frontend.ExecutorOptions``; docs/dask.md)::
@@ -167,6 +169,8 @@ class RefineConfig:
         applied after the preset, ``loss`` and ``geometric_mode``.
     registration: overrides of ``bimcap.registration.CoarseOptions`` fields (the coarse stage).
     features: overrides of ``bimcap.features.SiftOptions`` fields (the front end's keypoints).
+    geometric: overrides of ``bimcap.segmentation.geometric.GeometricOptions`` fields (the
+        geometric segmenter of ``segmentation = "geometric"``, e.g. its ``work_width``).
     colmap: the COLMAP model of the refined reconstruction in ``colmap/`` (:class:`ColmapExport`):
         ``images`` (default: the model and undistorted copies of the images), ``model`` (the
         model alone: no image copies, for long sequences) or ``off``.
@@ -229,6 +233,7 @@ class RefineConfig:
     solver: dict[str, Any] = field(default_factory=dict)
     registration: dict[str, Any] = field(default_factory=dict)
     features: dict[str, Any] = field(default_factory=dict)
+    geometric: dict[str, Any] = field(default_factory=dict)
     colmap: ColmapExport = ColmapExport.IMAGES
     rerun: bool = False
     global_align: GlobalAlignMode = GlobalAlignMode.AUTO
@@ -318,6 +323,9 @@ class RefineConfig:
                               field="registration")
         if not isinstance(self.features, dict):
             raise ConfigError("features must be a table of SiftOptions fields", field="features")
+        if not isinstance(self.geometric, dict):
+            raise ConfigError("geometric must be a table of GeometricOptions fields",
+                              field="geometric")
         if isinstance(self.datum, str) or not isinstance(self.datum, (list, tuple)):
             raise ConfigError(f"must be a list of selectors, got {self.datum!r}", field="datum")
         from bimcap.deviations.datum import DatumError, DatumSpec
