@@ -235,11 +235,18 @@ class _Stages:
         return out
 
 
-def bench_world(seq_dir: Path, frames: int, window: int, previous: bool = True
-                ) -> tuple[list[tuple[str, ...]], float]:
+#: The front-end defaults before the result-changing speed-ups of 2026-11-26 (issue 14; their
+#: accuracy is in docs/speed.md): ``--before-defaults`` times these beside the current ones.
+BEFORE_DEFAULTS = {"window": 4, "geometric": {"work_width": 258}}
+
+
+def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool = True,
+                before_defaults: bool = False) -> tuple[list[tuple[str, ...]], float]:
     """Per-stage rows ``(stage, ms/frame, previous ms/frame, ratio, same result)`` and the total
     ms a frame, on the first ``frames`` frames of the sequence at ``seq_dir`` (``previous``:
-    also time the previous code of the stages that have it)."""
+    also time the previous code of the stages that have it; ``before_defaults``: instead, as
+    "previous", the stages whose settings changed (segmentation, matching, verification) with
+    :data:`BEFORE_DEFAULTS`, on the same inputs in the same process; window None: the config's)."""
     from bimcap.dataset import read_sequence
     from bimcap.features import extract_sift, lookup_depth, match_descriptors, verify_matches
     from bimcap.frontend.runner import FrameContext, _load_raw_image, _scan_points, get_undistorter
@@ -256,7 +263,15 @@ def bench_world(seq_dir: Path, frames: int, window: int, previous: bool = True
     seq = read_sequence(seq_dir)
     n = min(frames, len(seq.frames))
     config = RefineConfig(workers=1)
+    window = config.window if window is None else window
     depth_p, label_p, refiner = make_providers(config, seq)
+    old_label_p = None
+    if before_defaults:
+        from dataclasses import replace
+
+        previous = False
+        old_config = replace(config, geometric=dict(BEFORE_DEFAULTS["geometric"]))
+        old_label_p = make_providers(old_config, seq)[1]
     sift = sift_options(config)
     sampling = SemanticSamplingOptions(source=SampleSource(config.samples))
     from bimcap.frontend.runner import FrontendConfig
@@ -278,6 +293,11 @@ def bench_world(seq_dir: Path, frames: int, window: int, previous: bool = True
         depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0).astype(np.float32)
         ctx.depth = depth
         labels = st.run("geometric segmentation", label_p, ctx)
+        if old_label_p is not None:
+            _, t_old = _timed(old_label_p, ctx)
+            seg = "geometric segmentation"
+            st.prev[seg] = st.prev.get(seg, 0.0) + t_old
+            st.equal[seg] = False
         depth = st.run("planar smoothing", refiner, ctx, labels)
         depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0).astype(np.float32)
         f = st.run("SIFT", extract_sift, image, sift)
@@ -288,9 +308,22 @@ def bench_world(seq_dir: Path, frames: int, window: int, previous: bool = True
         st.run("scan surface points", _scan_points, seq, i, und.pinhole, scan_opts)
     pin = cam.pinhole()
     pairs = [(a, b) for a in range(n) for b in range(a + 1, min(n, a + window + 1))]
-    for a, b in pairs:
-        m = st.run("matching", match_descriptors, feats[a].descriptors, feats[b].descriptors)
-        st.run("verification", verify_matches, feats[a].uv, feats[b].uv, m, pin)
+    if old_label_p is None:
+        for a, b in pairs:
+            m = st.run("matching", match_descriptors, feats[a].descriptors, feats[b].descriptors)
+            st.run("verification", verify_matches, feats[a].uv, feats[b].uv, m, pin)
+    else:  # each pair timed once, counted in the windows that hold it
+        old_window = int(BEFORE_DEFAULTS["window"])  # type: ignore[call-overload]
+        for a in range(n):
+            for b in range(a + 1, min(n, a + max(window, old_window) + 1)):
+                m, tm = _timed(match_descriptors, feats[a].descriptors, feats[b].descriptors)
+                _, tv = _timed(verify_matches, feats[a].uv, feats[b].uv, m, pin)
+                for stage, t in (("matching", tm), ("verification", tv)):
+                    if b - a <= window:
+                        st.t[stage] = st.t.get(stage, 0.0) + t
+                    if b - a <= old_window:
+                        st.prev[stage] = st.prev.get(stage, 0.0) + t
+                    st.equal[stage] = window == old_window
     # the provider's time includes its projection: report the completion alone
     st.t["completion + support radius"] = st.t.pop("depth provider") - st.t["LiDAR projection"]
     if "depth provider" in st.prev:
@@ -302,8 +335,8 @@ def bench_world(seq_dir: Path, frames: int, window: int, previous: bool = True
         ms = 1e3 * t / n
         if stage in st.prev:
             prev = 1e3 * st.prev[stage] / n
-            rows.append((stage, f"{ms:.1f}", f"{prev:.1f}", f"{prev / ms:.2f}×",
-                         "yes" if st.equal[stage] else "NO"))
+            same = "yes" if st.equal[stage] else "settings" if before_defaults else "NO"
+            rows.append((stage, f"{ms:.1f}", f"{prev:.1f}", f"{prev / ms:.2f}×", same))
         else:
             rows.append((stage, f"{ms:.1f}", "", "", ""))
     total = 1e3 * sum(st.t.values()) / n
@@ -354,6 +387,10 @@ def main() -> None:
                          "features part")
     ap.add_argument("--no-previous", action="store_true",
                     help="with --world: do not time the previous code of the stages")
+    ap.add_argument("--before-defaults", action="store_true",
+                    help="with --world: as 'previous', the stages with the front-end settings "
+                         "before the result-changing speed-ups (window 4, segmentation at 258 "
+                         "pixels across), on the same inputs in the same process")
     ap.add_argument("--prepare", action="store_true",
                     help="with --world: CPU time of the whole prepare() (front end, cache "
                          "writes, tracks) instead of the stages, BLAS threads as the library "
@@ -371,10 +408,13 @@ def main() -> None:
         return
     if args.world is not None:
         frames = args.frames if args.frames != 6 else 20
-        window = args.window if args.window != 3 else 4
-        print(f"# front end per stage on {args.world}, first {frames} frames, window {window}, "
-              f"1 thread, process CPU ms a frame, load average {os.getloadavg()[0]:.1f}")
-        rows, _ = bench_world(args.world, frames, window, not args.no_previous)
+        window = args.window if args.window != 3 else None
+        print(f"# front end per stage on {args.world}, first {frames} frames, window "
+              f"{window or 'of the config'}, 1 thread, process CPU ms a frame, load average "
+              f"{os.getloadavg()[0]:.1f}"
+              + (f"; 'previous' = the settings {BEFORE_DEFAULTS}" if args.before_defaults else ""))
+        rows, _ = bench_world(args.world, frames, window, not args.no_previous,
+                              args.before_defaults)
         w = max(len(r[0]) for r in rows)
         print(f"{'stage':<{w}}  {'ms/frame':>9}  {'previous':>9}  {'ratio':>7}  same result")
         for stage, ms, prev, ratio, same in rows:

@@ -19,7 +19,14 @@ from bimcap.cli import main
 from bimcap.optimize import GeometricMode, Loss, PlaneMode, Preset, SolverOptions, Weighting
 from bimcap.optimize.errors import SolverInputError
 from bimcap.pipeline.config import GEOMETRIC_MODES, LOSSES, ConfigError, RefineConfig
-from bimcap.pipeline.refine import coarse_options, sift_options, solver_options, validate_settings
+from bimcap.pipeline.refine import (
+    coarse_options,
+    geometric_options,
+    make_providers,
+    sift_options,
+    solver_options,
+    validate_settings,
+)
 from bimcap.registration import CoarseOptions
 
 
@@ -101,6 +108,33 @@ def test_features_table_reaches_the_sift_options() -> None:
         assert info.value.field == key, table
 
 
+def test_geometric_table_reaches_the_segmenter(tmp_path: Path) -> None:
+    from bimcap.segmentation.geometric import GeometricOptions
+
+    assert geometric_options(RefineConfig()) == GeometricOptions()
+    toml = tmp_path / "run.toml"
+    toml.write_text("[geometric]\nwork_width = 129\nransac_iterations = 60\n")
+    config = RefineConfig.from_toml(toml)
+    opts = geometric_options(config)
+    assert (opts.work_width, opts.ransac_iterations) == (129, 60)
+    assert opts.plane_threshold_m == GeometricOptions().plane_threshold_m
+
+    class _Seq:  # make_providers reads only what the sources need
+        has_labels = False
+        has_depth = False
+
+    _, labels, _ = make_providers(config, _Seq())  # type: ignore[arg-type]
+    assert labels.segmenter.options == opts
+    for table, key in (({"work_width": 16}, "geometric.work_width"),
+                       ({"work_px": 100}, "geometric.work_px"),
+                       ({"work_width": 1.5}, "geometric.work_width")):
+        with pytest.raises(ConfigError) as info:
+            validate_settings(RefineConfig(geometric=table))
+        assert info.value.field == key, table
+    with pytest.raises(ConfigError, match="geometric"):
+        RefineConfig(geometric=[1])  # type: ignore[arg-type]
+
+
 def _print_config(*flags: str) -> str:
     out = io.StringIO()
     with contextlib.redirect_stdout(out):
@@ -118,7 +152,7 @@ def test_print_config_reads_back_to_the_same_run(tmp_path: Path, flags: tuple[st
     given = tmp_path / "given.toml"
     given.write_text("[solver]\nassociation_gate = 0.3\n[solver.wall]\nsigma = 0.02\n"
                      "[registration]\nxy_range_m = 1.5\nview_bins = 2\n"
-                     "[features]\nbackend = \"opencv\"\n")
+                     "[features]\nbackend = \"opencv\"\n[geometric]\nwork_width = 200\n")
     text = _print_config("--config", str(given), *flags)
     assert "[solver.wall]" in text and "[registration]" in text
     printed = tmp_path / "printed.toml"
@@ -129,6 +163,8 @@ def test_print_config_reads_back_to_the_same_run(tmp_path: Path, flags: tuple[st
     assert asdict(coarse_options(again)) == asdict(coarse_options(original))
     assert sift_options(again) == sift_options(original) and sift_options(again).backend.value == \
         "opencv"
+    assert geometric_options(again) == geometric_options(original)
+    assert geometric_options(again).work_width == 200
     assert coarse_options(again).xy_range_m == 1.5 and solver_options(again).wall.sigma == 0.02
     for name in ("method", "completion", "segmentation", "window", "workers", "effective_terms",
                  "effective_weighting", "effective_coarse", "effective_solve_match_distance"):

@@ -14,7 +14,7 @@ sigma = 0.03``), a ``[registration]`` table (``bimcap.registration.CoarseOptions
     loss = "cauchy"
     completion = "linear"      # linear | classical | onnx | hybrid | ground_truth
     segmentation = "geometric" # geometric | disk | onnx | ground_truth
-    window = 4
+    window = 2
     colmap = "images"          # images | model | off: the COLMAP workspace colmap/
     rerun = false              # true: also write run.rrd, a Rerun recording (rerun extra)
     [solver]
@@ -23,6 +23,8 @@ sigma = 0.03``), a ``[registration]`` table (``bimcap.registration.CoarseOptions
     xy_range_m = 2.0
     [features]
     backend = "opencv"         # or "pycolmap"
+    [geometric]
+    work_width = 258           # the geometric segmenter's working resolution (pixels across)
 
 The front end's per-frame work can run on Dask (``executor = "dask"``, ``bimcap refine --dask``)
 with a ``[dask]`` table (``bimcap.frontend.ExecutorOptions``; docs/dask.md)::
@@ -139,7 +141,10 @@ class RefineConfig:
         robust-loss scales widened 4× (``bimcap.registration.Schedule.default``). Off by
         default: without G each frame fits the plan on its own and corridor frames slide, so
         on the demo world it failed 3 of 9 runs (0.25–0.79 m) that the single solve converges.
-    window: match each frame with its next ``window`` frames.
+    window: match each frame with its next ``window`` frames. 2 (was 4 until 2026-11-26): 1.8
+        pairs a frame instead of 3.5, half the matching and verification, and on four worlds ×
+        (fixed point, Exp. 2) of ``bench/bench_generalization.py`` every BIMCaP run within
+        0.014 cm / 0.003° of window 4's (docs/speed.md).
     max_match_distance: the peers' filter on matches (metres between the two back-projected
         points under the initial poses; the paper used 0.4). None (default) keeps every
         geometrically verified match: with per-frame rotation drift the filter drops most of them.
@@ -167,6 +172,8 @@ class RefineConfig:
         applied after the preset, ``loss`` and ``geometric_mode``.
     registration: overrides of ``bimcap.registration.CoarseOptions`` fields (the coarse stage).
     features: overrides of ``bimcap.features.SiftOptions`` fields (the front end's keypoints).
+    geometric: overrides of ``bimcap.segmentation.geometric.GeometricOptions`` fields (the
+        geometric segmenter of ``segmentation = "geometric"``, e.g. its ``work_width``).
     colmap: the COLMAP model of the refined reconstruction in ``colmap/`` (:class:`ColmapExport`):
         ``images`` (default: the model and undistorted copies of the images), ``model`` (the
         model alone: no image copies, for long sequences) or ``off``.
@@ -217,7 +224,7 @@ class RefineConfig:
     rotation_first: bool = False
     staged: bool = False
     samples: str = "dense"
-    window: int = 4
+    window: int = 2
     max_match_distance: float | None = None
     solve_match_distance: float | None = None
     workers: int | None = None
@@ -229,6 +236,7 @@ class RefineConfig:
     solver: dict[str, Any] = field(default_factory=dict)
     registration: dict[str, Any] = field(default_factory=dict)
     features: dict[str, Any] = field(default_factory=dict)
+    geometric: dict[str, Any] = field(default_factory=dict)
     colmap: ColmapExport = ColmapExport.IMAGES
     rerun: bool = False
     global_align: GlobalAlignMode = GlobalAlignMode.AUTO
@@ -318,6 +326,9 @@ class RefineConfig:
                               field="registration")
         if not isinstance(self.features, dict):
             raise ConfigError("features must be a table of SiftOptions fields", field="features")
+        if not isinstance(self.geometric, dict):
+            raise ConfigError("geometric must be a table of GeometricOptions fields",
+                              field="geometric")
         if isinstance(self.datum, str) or not isinstance(self.datum, (list, tuple)):
             raise ConfigError(f"must be a list of selectors, got {self.datum!r}", field="datum")
         from bimcap.deviations.datum import DatumError, DatumSpec

@@ -129,7 +129,8 @@ def make_providers(config: RefineConfig, sequence: Any) -> tuple[Any, Any, Any]:
     elif config.segmentation is LabelSource.GEOMETRIC:
         from bimcap.segmentation.geometric import GeometricSegmenter
 
-        labels = SegmenterLabelProvider(GeometricSegmenter(), uses_pose=True,
+        labels = SegmenterLabelProvider(GeometricSegmenter(geometric_options(config)),
+                                        uses_pose=True,
                                         range_noise=True)
     elif config.segmentation is LabelSource.DISK:
         from bimcap.segmentation.disk import DiskLabelProvider, DiskMaskProvider
@@ -975,7 +976,8 @@ def effective_settings(config: RefineConfig) -> dict[str, Any]:
         else:
             solver[key] = typed
     out = {k: v for k, v in config.to_dict().items()
-           if k not in ("solver", "registration", "features") and not k.startswith("effective_")}
+           if k not in ("solver", "registration", "features", "geometric")
+           and not k.startswith("effective_")}
     out.update(terms=config.effective_terms, weighting=config.effective_weighting,
                coarse=config.effective_coarse, lidar_scan=config.effective_lidar_scan,
                solve_match_distance=config.effective_solve_match_distance or 0.0,
@@ -984,6 +986,7 @@ def effective_settings(config: RefineConfig) -> dict[str, Any]:
     out["solver"] = solver
     out["registration"] = asdict(coarse_options(config))
     out["features"] = sift_options(config).to_dict()
+    out["geometric"] = asdict(geometric_options(config))
     return out
 
 
@@ -1005,6 +1008,17 @@ def sift_options(config: RefineConfig) -> Any:
     from bimcap.pipeline.config import options_from_table
 
     return options_from_table(SiftOptions, config.features, "features", FeatureError)
+
+
+def geometric_options(config: RefineConfig) -> Any:
+    """``bimcap.segmentation.geometric.GeometricOptions`` with the config's ``[geometric]`` table
+    applied (errors name ``geometric.<key>``)."""
+    from bimcap.pipeline.config import options_from_table
+    from bimcap.segmentation.errors import SegmentationInputError
+    from bimcap.segmentation.geometric import GeometricOptions
+
+    return options_from_table(GeometricOptions, config.geometric, "geometric",
+                              SegmentationInputError)
 
 
 def _coarse(prepared: Prepared, poses: F64, options: Any = None) -> tuple[F64, dict[str, Any]]:
@@ -1216,6 +1230,7 @@ def validate_settings(config: RefineConfig) -> Any:
     base = solver_options(config)
     coarse_options(config)
     sift_options(config)
+    geometric_options(config)
     solver_stages = [stage_options(base, stage, config) for stage in schedule_for(config).stages
                      if stage.kind is not StageKind.COARSE]
     if all(o is None for o in solver_stages):
