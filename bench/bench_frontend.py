@@ -235,8 +235,9 @@ class _Stages:
         return out
 
 
-#: The front-end defaults before the result-changing speed-ups of 2026-11-26 (issue 14; their
-#: accuracy is in docs/speed.md): ``--before-defaults`` times these beside the current ones.
+#: The front end's default settings (window 4, segmentation 258 px across): ``--before-defaults``
+#: times these beside a run with other settings (e.g. ``--window 2``; their accuracy is in
+#: docs/speed.md).
 BEFORE_DEFAULTS = {"window": 4, "geometric": {"work_width": 258}}
 
 
@@ -388,9 +389,9 @@ def main() -> None:
     ap.add_argument("--no-previous", action="store_true",
                     help="with --world: do not time the previous code of the stages")
     ap.add_argument("--before-defaults", action="store_true",
-                    help="with --world: as 'previous', the stages with the front-end settings "
-                         "before the result-changing speed-ups (window 4, segmentation at 258 "
-                         "pixels across), on the same inputs in the same process")
+                    help="with --world: as 'previous', the stages with the default settings "
+                         "(window 4, segmentation at 258 pixels across) beside --window N, "
+                         "on the same inputs in the same process")
     ap.add_argument("--prepare", action="store_true",
                     help="with --world: CPU time of the whole prepare() (front end, cache "
                          "writes, tracks) instead of the stages, BLAS threads as the library "

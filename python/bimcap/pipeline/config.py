@@ -14,7 +14,7 @@ sigma = 0.03``), a ``[registration]`` table (``bimcap.registration.CoarseOptions
     loss = "cauchy"
     completion = "linear"      # linear | classical | onnx | hybrid | ground_truth
     segmentation = "geometric" # geometric | disk | onnx | ground_truth
-    window = 2
+    window = 4
     colmap = "images"          # images | model | off: the COLMAP workspace colmap/
     rerun = false              # true: also write run.rrd, a Rerun recording (rerun extra)
     [solver]
@@ -141,10 +141,10 @@ class RefineConfig:
         robust-loss scales widened 4× (``bimcap.registration.Schedule.default``). Off by
         default: without G each frame fits the plan on its own and corridor frames slide, so
         on the demo world it failed 3 of 9 runs (0.25–0.79 m) that the single solve converges.
-    window: match each frame with its next ``window`` frames. 2 (was 4 until 2026-11-26): 1.8
-        pairs a frame instead of 3.5, half the matching and verification, and on four worlds ×
-        (fixed point, Exp. 2) of ``bench/bench_generalization.py`` every BIMCaP run within
-        0.014 cm / 0.003° of window 4's (docs/speed.md).
+    window: match each frame with its next ``window`` frames. 2 halves the matching and the
+        verification (1.8 pairs a frame instead of 3.5) for 6 % of the front end's time, and
+        moved BIMCaP's rotation by up to +0.002° on four worlds (docs/speed.md): not the
+        default.
     max_match_distance: the peers' filter on matches (metres between the two back-projected
         points under the initial poses; the paper used 0.4). None (default) keeps every
         geometrically verified match: with per-frame rotation drift the filter drops most of them.
@@ -224,7 +224,7 @@ class RefineConfig:
     rotation_first: bool = False
     staged: bool = False
     samples: str = "dense"
-    window: int = 2
+    window: int = 4
     max_match_distance: float | None = None
     solve_match_distance: float | None = None
     workers: int | None = None
