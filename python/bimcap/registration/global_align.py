@@ -76,7 +76,8 @@ class GlobalAlignOptions:
     yaw_step_deg: yaw grid of the full-circle search.
     view_bins: ray-direction bins of the visibility test (:mod:`.plan_maps`).
     top_k: peaks of the correlative volume refined by ICP, per storey.
-    max_points: random subsample of the wall/column points for ICP and scoring.
+    max_points: random subsample of the wall/column points for scoring.
+    icp_points: at most this many of them (every k-th) drive the ICP of each peak.
     icp_radius_start_m, icp_radius_end_m, icp_iterations, icp_huber_m: the ICP of each peak.
     fine_resolution_m, fine_sigma_m, inlier_m: the maps that score a hypothesis after ICP.
     wall_band_m: wall/column points within this height of the floor or ceiling are ignored.
@@ -99,8 +100,10 @@ class GlobalAlignOptions:
         positions differ by more than ``distinct_m`` on average, or their yaws by more than
         ``distinct_deg``, or their floors by more than ``distinct_z_m``.
     ambiguity_ratio: second-best / best score at or above which the result is ambiguous.
-    min_score, min_free_fraction: the best hypothesis must have at least this fine score and
-        this fraction of cameras in free space, else :class:`GlobalAlignmentError`.
+    min_score, min_free_fraction, max_see_through: the best hypothesis must have at least this
+        fine score and this fraction of cameras in free space, and see at most this share of
+        its points through plan walls, else :class:`GlobalAlignmentError` (a placement that
+        puts walls where the sensor saw through is no fit, however the others score).
     accept_ambiguous: take the best hypothesis even when the result is ambiguous (flagged in
         the result, never hidden).
     report_top: hypotheses kept in the result.
@@ -113,6 +116,7 @@ class GlobalAlignOptions:
     view_bins: int = 4
     top_k: int = 30
     max_points: int = 4000
+    icp_points: int = 2000
     icp_radius_start_m: float = 0.8
     icp_radius_end_m: float = 0.12
     icp_iterations: int = 15
@@ -125,8 +129,8 @@ class GlobalAlignOptions:
     level_from_floor: bool = True
     gravity_min_tilt_deg: float = 2.0
     free_clearance_m: float = 0.15
-    enclosed_rays: int = 8
-    enclosed_min_hits: int = 7
+    enclosed_rays: int = 16
+    enclosed_min_hits: int = 10
     rescore_top: int = 4
     frame_yaw_deg: float = 12.0
     frame_yaw_step_deg: float = 2.0
@@ -139,6 +143,7 @@ class GlobalAlignOptions:
     ambiguity_ratio: float = 0.9
     min_score: float = 0.55
     min_free_fraction: float = 0.5
+    max_see_through: float = 0.15
     accept_ambiguous: bool = False
     report_top: int = 5
     seed: int = 0
@@ -152,12 +157,13 @@ class GlobalAlignOptions:
                 raise RegistrationInputError(f"must be finite, got {value}", None, name)
             if name in positive and not value > 0:
                 raise RegistrationInputError(f"must be > 0, got {value}", None, name)
-        for name in ("view_bins", "top_k", "max_points", "icp_iterations", "enclosed_rays",
+        for name in ("view_bins", "top_k", "max_points", "icp_points", "icp_iterations",
+                     "enclosed_rays",
                      "rescore_top", "report_top"):
             if getattr(self, name) < 1:
                 raise RegistrationInputError(f"must be >= 1, got {getattr(self, name)}", None,
                                              name)
-        for name in ("ambiguity_ratio", "min_score", "min_free_fraction"):
+        for name in ("ambiguity_ratio", "min_score", "min_free_fraction", "max_see_through"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise RegistrationInputError("must be in [0, 1]", None, name)
         if not 0 <= self.enclosed_min_hits <= self.enclosed_rays:
@@ -410,6 +416,19 @@ def _storeys(plan: FloorPlan, cut_m: float) -> list[_Storey]:
     return sorted(out, key=lambda s: -np.inf if s.floor_z is None else s.floor_z)
 
 
+def _section_key(plan: FloorPlan, storey: _Storey) -> bytes:
+    """Bytes equal for two storeys with the same plan section (segments, either end first,
+    in any order, to 1 mm; classes) and the same floor-to-ceiling height (1 cm)."""
+    seg = np.round(plan.segments[storey.rows] * 1000.0).astype(np.int64)
+    flip = (seg[:, 0] > seg[:, 2]) | ((seg[:, 0] == seg[:, 2]) & (seg[:, 1] > seg[:, 3]))
+    seg[flip] = seg[flip][:, [2, 3, 0, 1]]
+    rows = np.c_[seg, plan.segment_class[storey.rows].astype(np.int64)]
+    rows = rows[np.lexsort(rows.T[::-1])]
+    height = (-1 if storey.floor_z is None or storey.ceiling_z is None
+              else round(100.0 * (storey.ceiling_z - storey.floor_z)))
+    return rows.tobytes() + np.int64(height).tobytes()
+
+
 def _ceiling_above(plan: FloorPlan, z: float | None) -> float | None:
     if z is None or not len(plan.ceiling_heights):
         return None
@@ -581,8 +600,11 @@ def _search_storey(scan: _Scan, storey: _Storey, plan: FloorPlan, opt: GlobalAli
 
     found: list[_Found] = []
     fitted: list[_Found] = []
+    # ICP on an even share of the sample (every k-th point: all frames keep their share).
+    k = max(1, -(-len(p_xy) // opt.icp_points))
+    i_xy, i_cls, i_view = p_xy[::k], p_cls[::k], p_view[::k]
     for peak in peaks:
-        fit = icp_2d(p_xy, p_cls, associate, Correction2D(peak.yaw, peak.t, centre), p_view,
+        fit = icp_2d(i_xy, i_cls, associate, Correction2D(peak.yaw, peak.t, centre), i_view,
                      opt.icp_radius_start_m, opt.icp_radius_end_m, opt.icp_iterations,
                      opt.icp_huber_m, opt.inlier_m)
         corr = fit.correction
@@ -616,20 +638,34 @@ def _search_storey(scan: _Scan, storey: _Storey, plan: FloorPlan, opt: GlobalAli
 
 
 def _free_map(segments: F64, bounds: tuple[float, float, float, float],
-              opt: GlobalAlignOptions, close_m: float = 0.7) -> NDArray[np.float32]:
+              opt: GlobalAlignOptions) -> NDArray[np.float32]:
     """(H, W) 1 where a camera may stand, on the coarse grid of the storey's maps (same bounds,
-    margin 3 m, ``resolution_m``): not outside the building (the open space reachable from the
-    map's border once gaps narrower than ``2 close_m``, doors and windows, are closed) and at
-    least ``free_clearance_m`` from every wall. A raster approximation of
-    :func:`free_space_fraction`, for the search."""
-    from scipy.ndimage import label
+    margin 3 m, ``resolution_m``): inside the building (at least ``enclosed_min_hits`` of
+    ``enclosed_rays`` straight lines from the pixel meet a wall pixel, the raster twin of
+    :func:`free_space_fraction`'s rays, so that windows and doors, gaps in a plan section, do
+    not let the outside in) and at least ``free_clearance_m`` from every wall."""
+    import cv2
 
     dist = DistanceField.from_segments(segments, opt.resolution_m, bounds, 3.0).distance_m
-    open_ = dist > close_m
-    lab, _ = label(open_)
-    border = np.unique(np.r_[lab[0], lab[-1], lab[:, 0], lab[:, -1]])
-    outside = np.isin(lab, border[border > 0])
-    return (~outside & (dist >= opt.free_clearance_m)).astype(np.float32)
+    wall = (dist <= opt.resolution_m).astype(np.uint8)
+    h, w = wall.shape
+    size = int(np.ceil(np.hypot(h, w))) + 2
+    pad = np.zeros((size, size), np.uint8)
+    r0, c0 = (size - h) // 2, (size - w) // 2
+    pad[r0:r0 + h, c0:c0 + w] = wall
+    centre = ((size - 1) / 2.0, (size - 1) / 2.0)
+    hits = np.zeros((size, size), np.int32)
+    for k in range(opt.enclosed_rays):
+        # Turn the image so that ray k points along +u, look ahead along each row, turn back.
+        ang = 360.0 * (k + 0.5) / opt.enclosed_rays
+        fwd = cv2.getRotationMatrix2D(centre, -ang, 1.0)
+        turned = cv2.warpAffine(pad, fwd, (size, size), flags=cv2.INTER_NEAREST)
+        ahead = np.flip(np.maximum.accumulate(np.flip(turned, 1), axis=1), 1)
+        back = cv2.warpAffine(ahead, cv2.invertAffineTransform(fwd), (size, size),
+                              flags=cv2.INTER_NEAREST)
+        hits += back
+    inside = hits[r0:r0 + h, c0:c0 + w] >= opt.enclosed_min_hits
+    return (inside & (dist >= opt.free_clearance_m)).astype(np.float32)
 
 
 def _free_volume(cams_xy: F64, free_map: NDArray[np.float32], origin: F64, res: float,
@@ -692,10 +728,7 @@ def _frame_fit(corr: Correction2D, p_xy: F64, p_cls: I32, p_view: F64, p_frame: 
         qd = (q - cam) @ r.T + cam
         layer = maps.layer_of(p_cls, view @ r.T)
         for sh in shifts:
-            sc = np.zeros(len(qd))
-            for lay in np.unique(layer):
-                m = layer == lay
-                sc[m] = maps.fine[lay].lookup(qd[m] + sh, maps.fine_score[lay])
+            sc = maps.fine_score_at(qd + sh, layer)
             mean = np.bincount(p_frame, weights=sc, minlength=n) / np.maximum(count, 1.0)
             better = mean > best
             best[better], best_turn[better], best_shift[better] = mean[better], d, sh
@@ -802,8 +835,15 @@ def global_align(
     found: list[_Found] = []
     storeys = []
     sections = _storeys(plan, opt.plan_cut_height_m)
+    searched: dict[bytes, list[_Found]] = {}
     for storey in sections:
-        here = _search_storey(scan, storey, plan, opt, rng, timings)
+        # A storey whose plan section and height repeat one searched already (a tower of
+        # identical floors) gets that storey's placements: the search would find the same.
+        key = _section_key(plan, storey)
+        if key in searched:
+            here = [replace(f, storey=storey) for f in searched[key]]
+        else:
+            here = searched[key] = _search_storey(scan, storey, plan, opt, rng, timings)
         storeys.append({"floor_z": storey.floor_z, "segments": len(storey.rows),
                         "best_score": max((f.score for f in here), default=0.0)})
         found += here
@@ -838,12 +878,14 @@ def global_align(
         accepted_ambiguous=ambiguous and opt.accept_ambiguous, gravity_tilt_deg=tilt,
         gravity_applied=applied, storeys=storeys, timings=timings, options=opt,
         twin_floors=twin_floors)
-    if best.fit < opt.min_score or best.free < opt.min_free_fraction:
+    if (best.fit < opt.min_score or best.free < opt.min_free_fraction
+            or best.see_through > opt.max_see_through):
         raise GlobalAlignmentError(
             f"global alignment: the best placement fits badly (fit score {best.fit:.2f}, "
             f"minimum {opt.min_score}; cameras in free space {best.free:.0%}, minimum "
-            f"{opt.min_free_fraction:.0%}); is this the right BIM?\n" + result.describe(),
-            result)
+            f"{opt.min_free_fraction:.0%}; points seen through walls {best.see_through:.0%}, "
+            f"maximum {opt.max_see_through:.0%}); is this the right BIM?\n"
+            + result.describe(), result)
     if ambiguous and not opt.accept_ambiguous:
         why = (f"the storey has {len(twin_floors)} identical twin(s) (floors at "
                f"{', '.join(f'{z:.2f}' for z in twin_floors)} m) that no scan can tell apart"
