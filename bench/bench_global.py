@@ -201,7 +201,7 @@ def run_registration(world: World, seed: int, frames: int) -> dict[str, Any]:
         nan = float("nan")
         return {**row, "right": False, "cam_err_m": nan, "yaw_err_deg": nan, "ratio": nan,
                 "right_storey": False, "score": nan, "fit": nan, "free": nan,
-                "see_through": nan}
+                "see_through": nan, "constraint": nan, "alias_ratio": nan}
     est = compose(res.world_from_slam, slam.trajectory.poses)
     true = compose(invert(slam.slam_from_world), slam.trajectory.poses)
     cam_err = float(np.linalg.norm(est[:, :3] - true[:, :3], axis=1).mean())
@@ -213,7 +213,9 @@ def run_registration(world: World, seed: int, frames: int) -> dict[str, Any]:
     return {**row, "right": right, "cam_err_m": cam_err, "yaw_err_deg": yaw_err,
             "ratio": res.ratio, "right_storey": floor is not None
             and abs(floor - scene.floor_z) < 0.3, "score": best.score, "fit": best.fit_score,
-            "free": best.free_fraction, "see_through": best.see_through}
+            "free": best.free_fraction, "see_through": best.see_through,
+            "constraint": best.constraint,
+            "alias_ratio": float("nan") if res.alias is None else res.alias.score_ratio}
 
 
 def summarise(rows: list[dict[str, Any]]) -> str:

@@ -144,6 +144,13 @@ class GlobalAlignOptions:
     min_score: float = 0.55
     min_free_fraction: float = 0.5
     max_see_through: float = 0.15
+    min_constraint: float = 0.2
+    alias_check: bool = True
+    alias_points: int = 1500
+    alias_top: int = 10
+    alias_tol_m: float = 0.1
+    alias_rescore: int = 3
+    alias_max_difference: float = 0.2
     accept_ambiguous: bool = False
     report_top: int = 5
     seed: int = 0
@@ -151,7 +158,8 @@ class GlobalAlignOptions:
     def __post_init__(self) -> None:
         positive = ("resolution_m", "sigma_m", "yaw_step_deg", "icp_radius_start_m",
                     "icp_radius_end_m", "icp_huber_m", "fine_resolution_m", "fine_sigma_m",
-                    "inlier_m", "frame_yaw_step_deg", "distinct_m", "distinct_deg", "distinct_z_m")
+                    "inlier_m", "frame_yaw_step_deg", "distinct_m", "distinct_deg", "distinct_z_m",
+                    "alias_tol_m")
         for name, value in asdict(self).items():
             if isinstance(value, float) and not np.isfinite(value):
                 raise RegistrationInputError(f"must be finite, got {value}", None, name)
@@ -159,11 +167,12 @@ class GlobalAlignOptions:
                 raise RegistrationInputError(f"must be > 0, got {value}", None, name)
         for name in ("view_bins", "top_k", "max_points", "icp_points", "icp_iterations",
                      "enclosed_rays",
-                     "rescore_top", "report_top"):
+                     "rescore_top", "report_top", "alias_points", "alias_top"):
             if getattr(self, name) < 1:
                 raise RegistrationInputError(f"must be >= 1, got {getattr(self, name)}", None,
                                              name)
-        for name in ("ambiguity_ratio", "min_score", "min_free_fraction", "max_see_through"):
+        for name in ("ambiguity_ratio", "min_score", "min_free_fraction", "max_see_through",
+                     "min_constraint", "alias_max_difference"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise RegistrationInputError("must be in [0, 1]", None, name)
         if not 0 <= self.enclosed_min_hits <= self.enclosed_rays:
@@ -210,6 +219,7 @@ class AlignHypothesis:
     free_fraction: float
     coarse_score: float
     see_through: float = 0.0
+    constraint: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -252,6 +262,7 @@ class GlobalAlignResult:
     timings: dict[str, float]
     options: GlobalAlignOptions
     twin_floors: list[float] = field(default_factory=list)
+    alias: PlanAlias | None = None
     n_frames: int = field(init=False)
 
     def __post_init__(self) -> None:
@@ -266,6 +277,7 @@ class GlobalAlignResult:
             "ambiguous": self.ambiguous,
             "ratio": self.ratio,
             "twin_floors": list(self.twin_floors),
+            "alias": None if self.alias is None else self.alias.to_dict(),
             "accepted_ambiguous": self.accepted_ambiguous,
             "gravity_tilt_deg": self.gravity_tilt_deg,
             "gravity_applied": self.gravity_applied,
@@ -547,36 +559,62 @@ class _Found:
     cams_xy: F64
     see_through: float = 0.0
     see_through_power: float = 0.0
+    constraint: float = 0.0
 
     @property
     def score(self) -> float:
         return float(self.fit * self.free * (1.0 - self.see_through) ** self.see_through_power)
 
 
-def _search_storey(scan: _Scan, storey: _Storey, plan: FloorPlan, opt: GlobalAlignOptions,
-                   rng: np.random.Generator, timings: dict[str, float]) -> list[_Found]:
-    """Steps 3-4 on one storey: full-circle correlative search over the storey's box, ICP of
-    the top peaks, fine score and free-space fraction of each."""
+@dataclass(frozen=True)
+class _StoreyMaps:
+    """One storey's search maps: its plan section (S, 4) and classes (S,), box bounds, centre
+    (2,) and half-width (m), the layered score maps, a 0.1 m distance field and the coarse
+    raster of where a camera may stand (:func:`_free_map`)."""
+
+    seg: F64
+    seg_cls: I32
+    bounds: tuple[float, float, float, float]
+    centre: F64
+    half: float
+    maps: PlanMaps
+    field_: DistanceField
+    free_map: NDArray[np.float32]
+
+
+def _storey_maps(storey: _Storey, plan: FloorPlan, opt: GlobalAlignOptions) -> _StoreyMaps:
     seg = plan.segments[storey.rows]
     seg_cls = plan.segment_class[storey.rows]
+    box_xy = seg.reshape(-1, 2)
+    lo, hi = box_xy.min(0), box_xy.max(0)
+    bounds = (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
+    maps = PlanMaps.build(seg, seg_cls, bounds, 3.0, opt.view_bins, opt.resolution_m,
+                          opt.sigma_m, opt.fine_resolution_m, opt.fine_sigma_m, 3.0)
+    return _StoreyMaps(seg, seg_cls, bounds, 0.5 * (lo + hi), float(np.max(0.5 * (hi - lo))) + 1.0,
+                       maps, DistanceField.from_segments(seg, 0.1, bounds, 3.0),
+                       _free_map(seg, bounds, opt))
+
+
+def _keep(scan: _Scan, storey: _Storey, opt: GlobalAlignOptions) -> NDArray[np.bool_]:
+    """(M,) the wall/column points of ``scan`` between the floor and ceiling bands of
+    ``storey`` (its plan section holds walls only at those heights)."""
     keep = np.ones(len(scan.xy), dtype=bool)
     if scan.floor_z is not None and opt.wall_band_m > 0:
         keep &= scan.z > scan.floor_z + opt.wall_band_m
         if storey.floor_z is not None and storey.ceiling_z is not None:
             keep &= scan.z < scan.floor_z + (storey.ceiling_z - storey.floor_z) - opt.wall_band_m
+    return keep
+
+
+def _search_storey(scan: _Scan, storey: _Storey, sm: _StoreyMaps, opt: GlobalAlignOptions,
+                   rng: np.random.Generator, timings: dict[str, float]) -> list[_Found]:
+    """Steps 3-4 on one storey: full-circle correlative search over the storey's box, ICP of
+    the top peaks, fine score and free-space fraction of each."""
+    seg, keep = sm.seg, _keep(scan, storey, opt)
     xy, view, cls, frame = scan.xy[keep], scan.view[keep], scan.cls[keep], scan.frame[keep]
     if len(xy) < 20 or len(seg) == 0:
         return []
-    t0 = time.perf_counter()
-    box_xy = seg.reshape(-1, 2)
-    lo, hi = box_xy.min(0), box_xy.max(0)
-    centre = 0.5 * (lo + hi)
-    half = float(np.max(0.5 * (hi - lo))) + 1.0
-    bounds = (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
-    maps = PlanMaps.build(seg, seg_cls, bounds, 3.0, opt.view_bins, opt.resolution_m,
-                          opt.sigma_m, opt.fine_resolution_m, opt.fine_sigma_m, 3.0)
-    field_ = DistanceField.from_segments(seg, 0.1, bounds, 3.0)
-    timings["maps"] += time.perf_counter() - t0
+    maps, field_, centre, half = sm.maps, sm.field_, sm.centre, sm.half
     # Shift the scan so that its camera centroid sits on the box centre: the translations of
     # the search then put the centroid anywhere in the box.
     shift = centre - scan.cams[:, :2].mean(0)
@@ -586,8 +624,7 @@ def _search_storey(scan: _Scan, storey: _Storey, plan: FloorPlan, opt: GlobalAli
     yaws = np.arange(-np.pi, np.pi, np.deg2rad(opt.yaw_step_deg))
     vol, res, n = score_volume(xy_s[occ], cls[occ], view[occ], maps, centre, yaws, half)
     # The trajectory's own shape: the share of its cameras in free space, for every (yaw, t).
-    free_map = _free_map(seg, bounds, opt)
-    vol *= _free_volume(cams_s, free_map, maps.coarse[0].origin_xy, res, centre, yaws, n)
+    vol *= _free_volume(cams_s, sm.free_map, maps.coarse[0].origin_xy, res, centre, yaws, n)
     peaks = top_hypotheses(vol, yaws, res, n, opt.top_k, opt.distinct_m,
                            np.deg2rad(opt.distinct_deg))
     timings["correlative"] += time.perf_counter() - t0
@@ -614,7 +651,8 @@ def _search_storey(scan: _Scan, storey: _Storey, plan: FloorPlan, opt: GlobalAli
         free, _ = free_space_fraction(cams_w, seg, field_, opt.free_clearance_m,
                                       opt.enclosed_rays, opt.enclosed_min_hits)
         fitted.append(_Found(corr, storey, 0.0, float(sc.mean()),
-                             float((dist < opt.inlier_m).mean()), free, peak.score, cams_w))
+                             float((dist < opt.inlier_m).mean()), free, peak.score, cams_w,
+                             constraint=fit.constraint))
     timings["icp"] += time.perf_counter() - t0
     # The per-frame fit of the best rigid fits (the slow, sharp score), one per distinct place.
     t0 = time.perf_counter()
@@ -627,14 +665,180 @@ def _search_storey(scan: _Scan, storey: _Storey, plan: FloorPlan, opt: GlobalAli
                                                       cams_s, maps, opt)
             seen = _see_through(f.corr, turn, moved, p_xy, p_cls, p_view, p_frame, cams_s, seg,
                                 maps, opt)
-            found.append(_Found(f.corr, storey, frame_fit, f.rigid_fit, f.inliers, f.free,
-                                f.coarse, f.cams_xy, seen, opt.see_through_power))
+            found.append(replace(f, fit=frame_fit, see_through=seen,
+                                 see_through_power=opt.see_through_power))
     timings["rescore"] += time.perf_counter() - t0
     # Fold the shift into the correction: R (p + s - c) + c + t = R (p - (c - s)) + (c - s)
     # + (t + s).
-    return [_Found(Correction2D(f.corr.yaw, f.corr.t + shift, f.corr.pivot - shift), f.storey,
-                   f.fit, f.rigid_fit, f.inliers, f.free, f.coarse, f.cams_xy, f.see_through,
-                   f.see_through_power) for f in found]
+    return [replace(f, corr=Correction2D(f.corr.yaw, f.corr.t + shift, f.corr.pivot - shift))
+            for f in found]
+
+
+def _score_at(init: Correction2D, storey: _Storey, sm: _StoreyMaps, p_xy: F64, p_cls: I32,
+              p_view: F64, p_frame: I32, cams_xy: F64, opt: GlobalAlignOptions) -> _Found:
+    """The real scan's ranking score at a placement near ``init``: ICP (as a peak of the
+    search), then the per-frame fit, free share and see-through share (``p_*`` (M, ...) the
+    points and ``cams_xy`` (N, 2) the cameras, levelled SLAM frame)."""
+    maps = sm.maps
+
+    def associate(q: F64, q_class: I32, v: F64) -> tuple[F64, F64]:
+        return maps.nearest(q, maps.layer_of(q_class, v))
+
+    k = max(1, -(-len(p_xy) // opt.icp_points))
+    fit = icp_2d(p_xy[::k], p_cls[::k], associate, init, p_view[::k], opt.icp_radius_start_m,
+                 opt.icp_radius_end_m, opt.icp_iterations, opt.icp_huber_m, opt.inlier_m)
+    corr = fit.correction
+    layer = maps.layer_of(p_cls, p_view @ rot2(corr.yaw).T)
+    sc, dist = maps.fine_eval(corr.apply(p_xy), layer)
+    cams_w = corr.apply(cams_xy)
+    free, _ = free_space_fraction(cams_w, sm.seg, sm.field_, opt.free_clearance_m,
+                                  opt.enclosed_rays, opt.enclosed_min_hits)
+    frame_fit, _, _, turn, moved = _frame_fit(corr, p_xy, p_cls, p_view, p_frame, cams_xy, maps,
+                                              opt)
+    seen = _see_through(corr, turn, moved, p_xy, p_cls, p_view, p_frame, cams_xy, sm.seg, maps,
+                        opt)
+    return _Found(corr, storey, frame_fit, float(sc.mean()), float((dist < opt.inlier_m).mean()),
+                  free, 0.0, cams_w, seen, opt.see_through_power, fit.constraint)
+
+
+def _compose(a: Correction2D, b: Correction2D) -> Correction2D:
+    """``a ∘ b`` (b first), with ``b``'s pivot."""
+    t = rot2(a.yaw) @ (b.pivot + b.t - a.pivot) + a.pivot + a.t - b.pivot
+    return Correction2D(a.yaw + b.yaw, t, b.pivot)
+
+
+@dataclass(frozen=True)
+class PlanAlias:
+    """Another placement where the plan repeats what the best placement's scan saw
+    (:func:`_plan_alias`).
+
+    Attributes
+    ----------
+    floor_z: its storey's floor (m; None: plan without floors).
+    yaw_deg: its yaw relative to the best placement (degrees, (-180, 180]).
+    moved_m: mean distance between the cameras of the two placements (m).
+    match: share of the plan points the best placement's scan saw that lie on a same-class wall
+        of the plan (within ``alias_tol_m``) when moved to this placement (0-1).
+    free_fraction: share of the moved cameras in free space (0-1).
+    see_through: share of those plan points seen through a wall from the moved cameras (0-1).
+    difference: ``(1 - match) + (1 - free_fraction) + see_through``: the evidence that tells
+        the two placements apart.
+    misfit: the share of the real scan's wall points that the best placement leaves off the
+        plan (beyond ``inlier_m``, the trajectory taken as rigid) plus its share seen through
+        walls: how much the scan itself disagrees with its best placement.
+    """
+
+    floor_z: float | None
+    yaw_deg: float
+    moved_m: float
+    match: float
+    free_fraction: float
+    see_through: float
+    difference: float
+    score: float = 0.0
+    score_ratio: float = 0.0
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def _plan_alias(best: _Found, scan: _Scan, sections: list[_Storey], plan: FloorPlan,
+                storey_maps: dict[bytes, _StoreyMaps], opt: GlobalAlignOptions,
+                rng: np.random.Generator) -> PlanAlias | None:
+    """The placement, distinct from ``best``, where the plan looks most like what ``best``'s
+    scan saw (a point-symmetric duplex, a repeated room): the scan's wall points are replaced by
+    their nearest plan points under ``best`` (an ideal, noise- and drift-free scan of the same
+    walls from the same cameras) and that ideal scan is searched over every storey like the
+    real one (correlative search, ICP of the top ``alias_top`` peaks). Its ``difference`` is
+    what a perfect scan could tell apart; when it is no larger than the real scan's own
+    ``misfit`` the scan cannot tell the two placements apart: the result is ambiguous, however
+    the scores rank them (drift can make the alias fit better than the truth)."""
+    keep = _keep(scan, best.storey, opt)
+    sm_best = storey_maps[_section_key(plan, best.storey)]
+    xy, cls, frame = scan.xy[keep], scan.cls[keep], scan.frame[keep]
+    if len(xy) < 20:
+        return None
+    sel = np.linspace(0, len(xy) - 1, min(len(xy), opt.alias_points)).astype(np.int64)
+    xy, cls, frame = xy[sel], cls[sel], frame[sel]
+    cams = best.cams_xy
+    q = best.corr.apply(xy)
+    layer = sm_best.maps.layer_of(cls, q - cams[frame])
+    dist, closest = sm_best.maps.nearest(q, layer)
+    on = dist < opt.inlier_m
+    if on.sum() < 20:
+        return None
+    p_xy, p_cls, p_frame = closest[on], cls[on], frame[on]
+    p_view = p_xy - cams[p_frame]
+    # The ideal scan's own rays graze wall ends at the best placement too: only more counts.
+    seen_here = see_through_fraction(cams[p_frame], p_xy, sm_best.seg,
+                                     opt.see_through_margin_m)[0]
+    cands: list[tuple[float, Correction2D, _Storey, PlanAlias]] = []
+    yaws = np.arange(-np.pi, np.pi, np.deg2rad(opt.yaw_step_deg))
+    done: set[bytes] = set()
+    for storey in sections:
+        key = _section_key(plan, storey)
+        if key in done or key not in storey_maps:
+            continue
+        done.add(key)
+        sm = storey_maps[key]
+        shift = sm.centre - cams.mean(0)
+        ps, cs = p_xy + shift, cams + shift
+        occ = _subsample(ps, p_cls, 0.5 * opt.resolution_m, 40 * opt.max_points, rng)
+        vol, res, n = score_volume(ps[occ], p_cls[occ], p_view[occ], sm.maps, sm.centre, yaws,
+                                   sm.half)
+        vol *= _free_volume(cs, sm.free_map, sm.maps.coarse[0].origin_xy, res, sm.centre, yaws,
+                            n)
+        peaks = top_hypotheses(vol, yaws, res, n, opt.alias_top, opt.distinct_m,
+                               np.deg2rad(opt.distinct_deg))
+
+        def associate(q_: F64, q_class: I32, v: F64, sm: _StoreyMaps = sm
+                      ) -> tuple[F64, F64]:
+            return sm.maps.nearest(q_, sm.maps.layer_of(q_class, v))
+
+        for peak in peaks:
+            fit = icp_2d(ps, p_cls, associate, Correction2D(peak.yaw, peak.t, sm.centre), p_view,
+                         opt.icp_radius_start_m, 0.5 * opt.alias_tol_m, opt.icp_iterations,
+                         opt.icp_huber_m, opt.alias_tol_m)
+            corr = fit.correction
+            cams_w = corr.apply(cs)
+            # The alias must be elsewhere: another storey, or moved / turned in this one (``corr``
+            # moves the best placement's points; the identity is the best placement itself).
+            yaw = float(np.rad2deg(np.angle(np.exp(1j * corr.yaw))))
+            moved = float(np.linalg.norm(cams_w - cams, axis=1).mean())
+            dz = (0.0 if storey.floor_z is None or best.storey.floor_z is None
+                  else abs(storey.floor_z - best.storey.floor_z))
+            if moved <= opt.distinct_m and abs(yaw) <= opt.distinct_deg and dz <= opt.distinct_z_m:
+                continue
+            moved_q = corr.apply(ps)
+            match = float(sm.maps.fine_score_at(moved_q, sm.maps.layer_of(
+                p_cls, p_view @ rot2(corr.yaw).T)).mean())
+            free, _ = free_space_fraction(cams_w, sm.seg, sm.field_, opt.free_clearance_m,
+                                          opt.enclosed_rays, opt.enclosed_min_hits)
+            seen = see_through_fraction(cams_w[p_frame], moved_q, sm.seg,
+                                        opt.see_through_margin_m)[0]
+            diff = (1.0 - match) + (1.0 - free) + max(0.0, seen - seen_here)
+            # ``corr`` takes the shifted points into the world: fold the shift in (as
+            # :func:`_search_storey` does), then apply it after ``best``.
+            in_world = Correction2D(corr.yaw, corr.t + shift, corr.pivot - shift)
+            cands.append((diff, _compose(in_world, best.corr), storey,
+                          PlanAlias(storey.floor_z, yaw, moved, match, free, seen, diff)))
+    # The real scan where the plan repeats best: the search may have missed the place, or
+    # drift may have ranked it below the alias.
+    cands.sort(key=lambda c: c[0])
+    out: PlanAlias | None = None
+    every = np.flatnonzero(keep)
+    every = every[np.linspace(0, len(every) - 1, min(len(every), opt.max_points)).astype(np.int64)]
+    all_xy, all_cls, all_frame = scan.xy[every], scan.cls[every], scan.frame[every]
+    all_view = scan.view[every]
+    for diff, corr, storey, alias in cands[:opt.alias_rescore]:
+        if diff > opt.alias_max_difference:
+            break
+        f = _score_at(corr, storey, storey_maps[_section_key(plan, storey)], all_xy, all_cls,
+                      all_view, all_frame, scan.cams[:, :2], opt)
+        ratio = f.score / best.score if best.score > 0 else 0.0
+        if out is None or ratio > out.score_ratio:
+            out = replace(alias, score=f.score, score_ratio=ratio)
+    return out
 
 
 def _free_map(segments: F64, bounds: tuple[float, float, float, float],
@@ -836,6 +1040,7 @@ def global_align(
     storeys = []
     sections = _storeys(plan, opt.plan_cut_height_m)
     searched: dict[bytes, list[_Found]] = {}
+    storey_maps: dict[bytes, _StoreyMaps] = {}
     for storey in sections:
         # A storey whose plan section and height repeat one searched already (a tower of
         # identical floors) gets that storey's placements: the search would find the same.
@@ -843,7 +1048,11 @@ def global_align(
         if key in searched:
             here = [replace(f, storey=storey) for f in searched[key]]
         else:
-            here = searched[key] = _search_storey(scan, storey, plan, opt, rng, timings)
+            t0 = time.perf_counter()
+            storey_maps[key] = _storey_maps(storey, plan, opt)
+            timings["maps"] += time.perf_counter() - t0
+            here = searched[key] = _search_storey(scan, storey, storey_maps[key], opt, rng,
+                                                  timings)
         storeys.append({"floor_z": storey.floor_z, "segments": len(storey.rows),
                         "best_score": max((f.score for f in here), default=0.0)})
         found += here
@@ -858,7 +1067,8 @@ def global_align(
         m = _transform(f, gravity, scan.floor_z)
         yaw = float(np.rad2deg(np.arctan2(m[1, 0], m[0, 0])))
         hyps.append(AlignHypothesis(matrix_to_pose(m), f.storey.floor_z, yaw, f.score, f.fit,
-                                    f.rigid_fit, f.inliers, f.free, f.coarse, f.see_through))
+                                    f.rigid_fit, f.inliers, f.free, f.coarse, f.see_through,
+                                    f.constraint))
     timings["total"] = time.perf_counter() - t_start
     if not ranked:
         raise GlobalAlignmentError(
@@ -869,7 +1079,13 @@ def global_align(
     twins = twin_storeys(best.corr.apply(scan.xy), best.storey, sections, plan,
                          near_m=opt.inlier_m)
     twin_floors = [float(sections[j].floor_z) for j in twins if sections[j].floor_z is not None]
-    ambiguous = ratio >= opt.ambiguity_ratio or bool(twins)
+    t0 = time.perf_counter()
+    alias = (_plan_alias(best, scan, sections, plan, storey_maps, opt, rng)
+             if opt.alias_check else None)
+    timings["alias"] = time.perf_counter() - t0
+    timings["total"] = time.perf_counter() - t_start
+    aliased = alias is not None and alias.score_ratio >= opt.ambiguity_ratio
+    ambiguous = ratio >= opt.ambiguity_ratio or bool(twins) or aliased
     m_best = _transform(best, gravity, scan.floor_z)
     result = GlobalAlignResult(
         poses=matrix_to_pose(m_best @ pose_to_matrix(poses)),
@@ -877,14 +1093,16 @@ def global_align(
         hypotheses=hyps, ambiguous=ambiguous, ratio=float(ratio),
         accepted_ambiguous=ambiguous and opt.accept_ambiguous, gravity_tilt_deg=tilt,
         gravity_applied=applied, storeys=storeys, timings=timings, options=opt,
-        twin_floors=twin_floors)
+        twin_floors=twin_floors, alias=alias)
     if (best.fit < opt.min_score or best.free < opt.min_free_fraction
-            or best.see_through > opt.max_see_through):
+            or best.see_through > opt.max_see_through or best.constraint < opt.min_constraint):
         raise GlobalAlignmentError(
             f"global alignment: the best placement fits badly (fit score {best.fit:.2f}, "
             f"minimum {opt.min_score}; cameras in free space {best.free:.0%}, minimum "
             f"{opt.min_free_fraction:.0%}; points seen through walls {best.see_through:.0%}, "
-            f"maximum {opt.max_see_through:.0%}); is this the right BIM?\n"
+            f"maximum {opt.max_see_through:.0%}; wall directions {best.constraint:.2f}, minimum "
+            f"{opt.min_constraint}: below it the walls seen hold the placement in one direction "
+            "only); is this the right BIM?\n"
             + result.describe(), result)
     if ambiguous and not opt.accept_ambiguous:
         why = (f"the storey has {len(twin_floors)} identical twin(s) (floors at "
