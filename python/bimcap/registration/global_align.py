@@ -28,9 +28,12 @@ bundle adjustment can take over:
 5. **ambiguity**: when the second-best distinct hypothesis scores at least ``ambiguity_ratio``
    of the best (a symmetric corridor, repeated rooms), or when another storey explains the
    placed scan exactly as the best one's does (:func:`twin_storeys`: a tower of identical
-   floors, which the scores cannot separate and the SLAM frame's heights do not), the result is
-   ambiguous: :func:`global_align` raises :class:`AmbiguousAlignmentError` (with the ranked
-   hypotheses) unless ``accept_ambiguous`` is set. A best hypothesis that fits badly raises
+   floors, which the scores cannot separate and the SLAM frame's heights do not), or when the
+   plan repeats what the best placement saw somewhere else and the real scan placed there
+   scores at least ``ambiguity_ratio`` of the best (:func:`_plan_alias`: a point-symmetric
+   duplex, where drift can rank the wrong unit first), the result is ambiguous:
+   :func:`global_align` raises :class:`AmbiguousAlignmentError` (with the ranked hypotheses)
+   unless ``accept_ambiguous`` is set. A best hypothesis that fits badly raises
    :class:`GlobalAlignmentError`. Never a confident wrong answer.
 
 Arrays follow docs/architecture.md: poses ``(N, 7)`` TUM order, metres; angles in degrees in
@@ -104,6 +107,10 @@ class GlobalAlignOptions:
         fine score and this fraction of cameras in free space, and see at most this share of
         its points through plan walls, else :class:`GlobalAlignmentError` (a placement that
         puts walls where the sensor saw through is no fit, however the others score).
+    alias_check, alias_points, alias_top, alias_tol_m, alias_rescore, alias_max_difference: the
+        search for where else the plan repeats what the best placement saw
+        (:func:`_plan_alias`): on/off, points of the ideal scan, peaks refined per storey, ICP
+        tolerance, aliases rescored with the real scan, largest ideal difference rescored.
     accept_ambiguous: take the best hypothesis even when the result is ambiguous (flagged in
         the result, never hidden).
     report_top: hypotheses kept in the result.
@@ -141,10 +148,9 @@ class GlobalAlignOptions:
     distinct_deg: float = 10.0
     distinct_z_m: float = 0.5
     ambiguity_ratio: float = 0.9
-    min_score: float = 0.55
+    min_score: float = 0.65
     min_free_fraction: float = 0.5
     max_see_through: float = 0.15
-    min_constraint: float = 0.2
     alias_check: bool = True
     alias_points: int = 1500
     alias_top: int = 10
@@ -172,7 +178,7 @@ class GlobalAlignOptions:
                 raise RegistrationInputError(f"must be >= 1, got {getattr(self, name)}", None,
                                              name)
         for name in ("ambiguity_ratio", "min_score", "min_free_fraction", "max_see_through",
-                     "min_constraint", "alias_max_difference"):
+                     "alias_max_difference"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise RegistrationInputError("must be in [0, 1]", None, name)
         if not 0 <= self.enclosed_min_hits <= self.enclosed_rays:
@@ -207,6 +213,8 @@ class AlignHypothesis:
     coarse_score: the correlative peak's score (0-1) before ICP.
     see_through: fraction of the wall/column points seen through a plan wall (0-1, negative
         evidence, :func:`see_through_fraction`).
+    constraint: how well the ICP inliers' wall directions hold the placement (0: free along
+        one direction, 0.5: equally in every direction; :class:`.icp.IcpResult`).
     """
 
     world_from_slam: F64
@@ -242,6 +250,8 @@ class GlobalAlignResult:
     twin_floors: floor heights (m) of the storeys that explain the placed scan exactly as the
         best placement's storey does (:func:`twin_storeys`): the storey is unknown whatever the
         scores say.
+    alias: where else the plan repeats what the best placement saw, and the real scan's score
+        there (:func:`_plan_alias`; None: nowhere, or ``alias_check`` off).
     accepted_ambiguous: ambiguous, and taken anyway (``accept_ambiguous``).
     gravity_tilt_deg: the tilt of the SLAM frame estimated from the floor (degrees).
     gravity_applied: whether that tilt was taken out (above ``gravity_min_tilt_deg``).
@@ -721,11 +731,14 @@ class PlanAlias:
         of the plan (within ``alias_tol_m``) when moved to this placement (0-1).
     free_fraction: share of the moved cameras in free space (0-1).
     see_through: share of those plan points seen through a wall from the moved cameras (0-1).
-    difference: ``(1 - match) + (1 - free_fraction) + see_through``: the evidence that tells
-        the two placements apart.
-    misfit: the share of the real scan's wall points that the best placement leaves off the
-        plan (beyond ``inlier_m``, the trajectory taken as rigid) plus its share seen through
-        walls: how much the scan itself disagrees with its best placement.
+    difference: ``(1 - match) + (1 - free_fraction) + max(0, see_through - s0)`` (``s0``: the
+        ideal scan's share seen through walls at the best placement, grazing wall ends): what a
+        perfect scan could tell apart; the aliases with the smallest difference (at most
+        ``alias_max_difference``) get the real scan's score.
+    score: the real scan's ranking score at this placement (ICP from it, then as a peak of the
+        search: per-frame fit × free share × (1 - see-through) ** power).
+    score_ratio: ``score`` / the best placement's score, both by :func:`_score_at` on the same
+        points; at or above ``ambiguity_ratio`` the result is ambiguous.
     """
 
     floor_z: float | None
@@ -749,10 +762,13 @@ def _plan_alias(best: _Found, scan: _Scan, sections: list[_Storey], plan: FloorP
     scan saw (a point-symmetric duplex, a repeated room): the scan's wall points are replaced by
     their nearest plan points under ``best`` (an ideal, noise- and drift-free scan of the same
     walls from the same cameras) and that ideal scan is searched over every storey like the
-    real one (correlative search, ICP of the top ``alias_top`` peaks). Its ``difference`` is
-    what a perfect scan could tell apart; when it is no larger than the real scan's own
-    ``misfit`` the scan cannot tell the two placements apart: the result is ambiguous, however
-    the scores rank them (drift can make the alias fit better than the truth)."""
+    real one (correlative search, ICP of the top ``alias_top`` peaks, same free-space factor).
+    The ``alias_rescore`` placements where the plan repeats most closely then get the *real*
+    scan's score (:func:`_score_at`): the search may have missed them, and drift can rank the
+    truth below its alias (a duplex of two point-symmetric units: the wrong unit fitted better
+    in 3 of 20 runs). The returned alias is the one whose real score is highest; the caller
+    flags the result when that score is at least ``ambiguity_ratio`` of the best's.
+    None: too few points, or no distinct placement within ``alias_max_difference``."""
     keep = _keep(scan, best.storey, opt)
     sm_best = storey_maps[_section_key(plan, best.storey)]
     xy, cls, frame = scan.xy[keep], scan.cls[keep], scan.frame[keep]
@@ -830,12 +846,17 @@ def _plan_alias(best: _Found, scan: _Scan, sections: list[_Storey], plan: FloorP
     every = every[np.linspace(0, len(every) - 1, min(len(every), opt.max_points)).astype(np.int64)]
     all_xy, all_cls, all_frame = scan.xy[every], scan.cls[every], scan.frame[every]
     all_view = scan.view[every]
+    if not cands or cands[0][0] > opt.alias_max_difference:
+        return None
+    # The best placement scored the same way, on the same points (the search drew its own).
+    best_score = _score_at(best.corr, best.storey, sm_best, all_xy, all_cls, all_view, all_frame,
+                           scan.cams[:, :2], opt).score
     for diff, corr, storey, alias in cands[:opt.alias_rescore]:
         if diff > opt.alias_max_difference:
             break
         f = _score_at(corr, storey, storey_maps[_section_key(plan, storey)], all_xy, all_cls,
                       all_view, all_frame, scan.cams[:, :2], opt)
-        ratio = f.score / best.score if best.score > 0 else 0.0
+        ratio = f.score / best_score if best_score > 0 else 0.0
         if out is None or ratio > out.score_ratio:
             out = replace(alias, score=f.score, score_ratio=ratio)
     return out
@@ -1095,21 +1116,25 @@ def global_align(
         gravity_applied=applied, storeys=storeys, timings=timings, options=opt,
         twin_floors=twin_floors, alias=alias)
     if (best.fit < opt.min_score or best.free < opt.min_free_fraction
-            or best.see_through > opt.max_see_through or best.constraint < opt.min_constraint):
+            or best.see_through > opt.max_see_through):
         raise GlobalAlignmentError(
             f"global alignment: the best placement fits badly (fit score {best.fit:.2f}, "
             f"minimum {opt.min_score}; cameras in free space {best.free:.0%}, minimum "
             f"{opt.min_free_fraction:.0%}; points seen through walls {best.see_through:.0%}, "
-            f"maximum {opt.max_see_through:.0%}; wall directions {best.constraint:.2f}, minimum "
-            f"{opt.min_constraint}: below it the walls seen hold the placement in one direction "
-            "only); is this the right BIM?\n"
+            f"maximum {opt.max_see_through:.0%}); is this the right BIM?\n"
             + result.describe(), result)
     if ambiguous and not opt.accept_ambiguous:
-        why = (f"the storey has {len(twin_floors)} identical twin(s) (floors at "
-               f"{', '.join(f'{z:.2f}' for z in twin_floors)} m) that no scan can tell apart"
-               if twins else
-               f"the second-best placement scores {ratio:.0%} of the best (threshold "
-               f"{opt.ambiguity_ratio:.0%}; a symmetric layout or repeated rooms)")
+        if twins:
+            why = (f"the storey has {len(twin_floors)} identical twin(s) (floors at "
+                   f"{', '.join(f'{z:.2f}' for z in twin_floors)} m) that no scan can tell apart")
+        elif aliased and alias is not None and alias.score_ratio > ratio:
+            why = (f"the plan repeats what the scan saw {alias.moved_m:.1f} m away, turned by "
+                   f"{alias.yaw_deg:.0f} deg, and the scan placed there scores "
+                   f"{alias.score_ratio:.0%} of the best (threshold {opt.ambiguity_ratio:.0%}; "
+                   "a point-symmetric or repeated layout)")
+        else:
+            why = (f"the second-best placement scores {ratio:.0%} of the best (threshold "
+                   f"{opt.ambiguity_ratio:.0%}; a symmetric layout or repeated rooms)")
         raise AmbiguousAlignmentError(
             f"global alignment is ambiguous: {why}. Refusing to guess; accept the best with "
             "--accept-ambiguous (global_align.accept_ambiguous), or give an initial "
