@@ -737,8 +737,9 @@ class PlanAlias:
         ``alias_max_difference``) get the real scan's score.
     score: the real scan's ranking score at this placement (ICP from it, then as a peak of the
         search: per-frame fit × free share × (1 - see-through) ** power).
-    score_ratio: ``score`` / the best placement's score, both by :func:`_score_at` on the same
-        points; at or above ``ambiguity_ratio`` the result is ambiguous.
+    score_ratio: ``score`` / the best placement's score (the lower of its search score and its
+        :func:`_score_at` score on the same points); at or above ``ambiguity_ratio`` the result
+        is ambiguous.
     """
 
     floor_z: float | None
@@ -848,9 +849,11 @@ def _plan_alias(best: _Found, scan: _Scan, sections: list[_Storey], plan: FloorP
     all_view = scan.view[every]
     if not cands or cands[0][0] > opt.alias_max_difference:
         return None
-    # The best placement scored the same way, on the same points (the search drew its own).
-    best_score = _score_at(best.corr, best.storey, sm_best, all_xy, all_cls, all_view, all_frame,
-                           scan.cams[:, :2], opt).score
+    # The best placement scored the same way, on the same points (the search drew its own);
+    # either of its two scores may be the lower one, and the lower decides (when in doubt,
+    # flag: with the rescored one alone a Duplex_A run stayed silently wrong).
+    best_score = min(best.score, _score_at(best.corr, best.storey, sm_best, all_xy, all_cls,
+                                           all_view, all_frame, scan.cams[:, :2], opt).score)
     for diff, corr, storey, alias in cands[:opt.alias_rescore]:
         if diff > opt.alias_max_difference:
             break
