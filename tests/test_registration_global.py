@@ -356,10 +356,11 @@ def test_refine_from_a_slam_frame_reaches_the_exp2_level(tmp_path, monkeypatch) 
 
 @pytest.mark.slow
 @pytest.mark.needs_shared
+@pytest.mark.filterwarnings("ignore")  # the real models warn (an attic without a ceiling plane)
 @pytest.mark.parametrize(("model", "seeds"), [("Duplex_A_20110907", (8, 14, 19)),
                                               ("AC20-FZK-Haus", (11,))])
-def test_real_models_are_never_silently_wrong(ifc_dir, model: str, seeds: tuple[int, ...]
-                                              ) -> None:
+def test_real_models_are_never_silently_wrong(ifc_dir, monkeypatch, model: str,
+                                              seeds: tuple[int, ...]) -> None:
     """The runs of ``bench/bench_global.py`` (Exp 2 drift, SLAM frame, 60 frames) that were
     placed wrong without a flag: Duplex_A is two point-symmetric units (drift ranked the wrong
     unit first: seeds 8, 14, 19, flagged now by the plan alias); the AC20-FZK-Haus attic's plan
@@ -367,12 +368,14 @@ def test_real_models_are_never_silently_wrong(ifc_dir, model: str, seeds: tuple[
     90 deg, with a per-frame fit of 0.59 where every right placement of the bench fits >= 0.71;
     refused now under the 0.65 minimum). Each must now be right, flagged or refused."""
     import importlib.util
+    import sys
     from pathlib import Path
 
     path = Path(__file__).resolve().parents[1] / "bench" / "bench_global.py"
     spec = importlib.util.spec_from_file_location("bench_global", path)
     assert spec is not None and spec.loader is not None
     bench = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, "bench_global", bench)  # its dataclasses look it up
     spec.loader.exec_module(bench)
     world = bench._ifc_world(f"ifc-{model}", ifc_dir)
     for seed in seeds:
