@@ -48,6 +48,7 @@ class World:
     plan: Any  # FloorPlan
     scenes: list[Any]  # Scene per storey
     tours: list[F64]  # (T, 2) per storey
+    closed: bool = True  # the tours are closed loops (walked three times round)
 
 
 def _building(spec: Any, seed: int) -> Any:
@@ -94,6 +95,74 @@ def _world(name: str) -> World:
     return World(name, plan, scenes, [p[1] for p in parts])
 
 
+def _shared_ifc_dir() -> Path:
+    """``../shared/data/ifc`` beside the checkout; from a git worktree (whose ``.git`` is a file
+    naming ``<main>/.git/worktrees/<name>``), the one beside the main checkout."""
+    repo = Path(__file__).resolve().parents[1]
+    candidates = [repo.parent / "shared" / "data" / "ifc"]
+    dot_git = repo / ".git"
+    if dot_git.is_file():
+        text = dot_git.read_text(encoding="utf-8").strip()
+        if text.startswith("gitdir:"):
+            main = Path(text.partition(":")[2].strip()).resolve().parents[2]
+            candidates.append(main.parent / "shared" / "data" / "ifc")
+    return next((c for c in candidates if c.is_dir()), candidates[0])
+
+
+def _ifc_world(name: str, ifc_dir: Path, min_walkable_m2: float = 10.0) -> World:
+    """A real model as a world of the registration level: the plan is the BIM reference's
+    (every storey, as ``bimcap refine`` builds it; cached in ``$BIMCAP_CACHE_DIR``); each storey
+    the walker can walk (:func:`bimcap.sim.walkable.survey_level` on the model's meshes, door
+    leaves removed, at least ``min_walkable_m2``) gives a scene, its plan section extruded from
+    its floor to its ceiling (2.5 m above the floor where the plan has none: a pitched roof),
+    and a walk through its free space (:func:`bimcap.sim.walk.plan_walk`, 120 s, one fixed
+    draw: the seeds pick where along it the 60 frames start)."""
+    from bimcap.bim import load_model
+    from bimcap.bim.cache import reference_for
+    from bimcap.labels import Label
+    from bimcap.registration import FloorPlan, GlobalAlignOptions
+    from bimcap.registration.global_align import _storeys
+    from bimcap.registration.synthetic import Scene
+    from bimcap.sim.render import World as MeshWorld
+    from bimcap.sim.simulator import missing_floor_parts, model_parts
+    from bimcap.sim.walk import WalkConfig, plan_walk
+    from bimcap.sim.walkable import Level, WalkableOptions, door_footprints, survey_level
+
+    ifc = ifc_dir / f"{name.removeprefix('ifc-')}.ifc"
+    if not ifc.is_file():
+        raise SystemExit(f"{ifc}: not found (the real IFCs live in ../shared/data/ifc)")
+    ref, _ = reference_for(ifc, None)
+    plan = FloorPlan.from_planes(ref.segments, ref.segment_class, ref.segment_z, ref.planes,
+                                 ref.plane_kind)
+    sections = _storeys(plan, GlobalAlignOptions().plan_cut_height_m)
+    model = load_model(ifc)
+    parts = model_parts(model)
+    parts += missing_floor_parts(model)[0]
+    doors = door_footprints([p for p in parts if p.label == Label.DOOR])
+    mesh = MeshWorld.from_parts([p for p in parts if p.label != Label.DOOR], seed=0)
+    cfg = WalkConfig()
+    scenes, tours = [], []
+    for st in model.storeys:
+        survey, free = survey_level(mesh, Level(st.name, st.elevation_m), doors, cfg,
+                                    WalkableOptions(resolution_m=cfg.grid_m))
+        if survey.walkable_m2 < min_walkable_m2:
+            continue
+        near = [s for s in sections if s.floor_z is not None
+                and abs(s.floor_z - free.z_floor) < 0.5]
+        if not near:
+            continue
+        sec = min(near, key=lambda s: abs(s.floor_z - free.z_floor))  # type: ignore[operator]
+        floor = float(sec.floor_z)  # type: ignore[arg-type]
+        ceiling = floor + 2.5 if sec.ceiling_z is None else float(sec.ceiling_z)
+        scenes.append(Scene(plan.segments[sec.rows], plan.segment_class[sec.rows].astype(
+            np.int32), floor, ceiling))
+        tours.append(plan_walk(free, 120.0, np.random.default_rng([len(tours), 7]),
+                               cfg).path_xy)
+    if not scenes:
+        raise SystemExit(f"{ifc}: no storey the walker can walk")
+    return World(name, plan, scenes, tours, closed=False)
+
+
 def run_registration(world: World, seed: int, frames: int) -> dict[str, Any]:
     """One global alignment on ``world``; the outcome and its numbers."""
     from bimcap.geometry import Trajectory
@@ -109,7 +178,7 @@ def run_registration(world: World, seed: int, frames: int) -> dict[str, Any]:
     rng = np.random.default_rng([seed, 77])
     k = int(rng.integers(len(world.scenes)))
     scene = world.scenes[k]
-    walk = poses_along(np.concatenate([world.tours[k]] * 3), 0.25,
+    walk = poses_along(np.concatenate([world.tours[k]] * (3 if world.closed else 1)), 0.25,
                        height=scene.floor_z + 1.5)
     start = int(rng.integers(0, len(walk) - frames))
     gt = walk[start:start + frames]
@@ -129,18 +198,24 @@ def run_registration(world: World, seed: int, frames: int) -> dict[str, Any]:
     row: dict[str, Any] = {"world": world.name, "seed": seed, "storey": k, "outcome": outcome,
                            "seconds": seconds, "cpu_seconds": cpu}
     if res is None:
-        return {**row, "right": False, "cam_err_m": float("nan"), "yaw_err_deg": float("nan"),
-                "ratio": float("nan"), "right_storey": False}
+        nan = float("nan")
+        return {**row, "right": False, "cam_err_m": nan, "yaw_err_deg": nan, "ratio": nan,
+                "right_storey": False, "score": nan, "fit": nan, "free": nan,
+                "see_through": nan, "constraint": nan, "alias_ratio": nan}
     est = compose(res.world_from_slam, slam.trajectory.poses)
     true = compose(invert(slam.slam_from_world), slam.trajectory.poses)
     cam_err = float(np.linalg.norm(est[:, :3] - true[:, :3], axis=1).mean())
     rel = compose(res.world_from_slam, slam.slam_from_world)
     yaw_err = float(np.rad2deg(2 * np.arccos(min(abs(rel[6]), 1.0))))
     right = cam_err < 1.0 and yaw_err < 10.0
-    floor = res.hypotheses[0].floor_z
+    best = res.hypotheses[0]
+    floor = best.floor_z
     return {**row, "right": right, "cam_err_m": cam_err, "yaw_err_deg": yaw_err,
             "ratio": res.ratio, "right_storey": floor is not None
-            and abs(floor - scene.floor_z) < 0.3}
+            and abs(floor - scene.floor_z) < 0.3, "score": best.score, "fit": best.fit_score,
+            "free": best.free_fraction, "see_through": best.see_through,
+            "constraint": best.constraint,
+            "alias_ratio": float("nan") if res.alias is None else res.alias.score_ratio}
 
 
 def summarise(rows: list[dict[str, Any]]) -> str:
@@ -217,10 +292,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--pipeline", type=int, default=0, metavar="N",
                    help="also run the whole refine on N demo sequences")
     p.add_argument("--work", type=Path, default=Path("/tmp/bench_global"))
+    p.add_argument("--ifc-dir", type=Path, default=_shared_ifc_dir(),
+                   help="where the real models (worlds ifc-<name>) live")
     args = p.parse_args(argv)
     rows = []
     for name in args.worlds.split(","):
-        world = _world(name)
+        world = (_ifc_world(name, args.ifc_dir) if name.startswith("ifc-") else _world(name))
         for seed in range(args.seeds):
             row = run_registration(world, seed, args.frames)
             rows.append(row)

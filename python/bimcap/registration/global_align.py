@@ -28,9 +28,12 @@ bundle adjustment can take over:
 5. **ambiguity**: when the second-best distinct hypothesis scores at least ``ambiguity_ratio``
    of the best (a symmetric corridor, repeated rooms), or when another storey explains the
    placed scan exactly as the best one's does (:func:`twin_storeys`: a tower of identical
-   floors, which the scores cannot separate and the SLAM frame's heights do not), the result is
-   ambiguous: :func:`global_align` raises :class:`AmbiguousAlignmentError` (with the ranked
-   hypotheses) unless ``accept_ambiguous`` is set. A best hypothesis that fits badly raises
+   floors, which the scores cannot separate and the SLAM frame's heights do not), or when the
+   plan repeats what the best placement saw somewhere else and the real scan placed there
+   scores at least ``ambiguity_ratio`` of the best (:func:`_plan_alias`: a point-symmetric
+   duplex, where drift can rank the wrong unit first), the result is ambiguous:
+   :func:`global_align` raises :class:`AmbiguousAlignmentError` (with the ranked hypotheses)
+   unless ``accept_ambiguous`` is set. A best hypothesis that fits badly raises
    :class:`GlobalAlignmentError`. Never a confident wrong answer.
 
 Arrays follow docs/architecture.md: poses ``(N, 7)`` TUM order, metres; angles in degrees in
@@ -76,7 +79,8 @@ class GlobalAlignOptions:
     yaw_step_deg: yaw grid of the full-circle search.
     view_bins: ray-direction bins of the visibility test (:mod:`.plan_maps`).
     top_k: peaks of the correlative volume refined by ICP, per storey.
-    max_points: random subsample of the wall/column points for ICP and scoring.
+    max_points: random subsample of the wall/column points for scoring.
+    icp_points: at most this many of them (every k-th) drive the ICP of each peak.
     icp_radius_start_m, icp_radius_end_m, icp_iterations, icp_huber_m: the ICP of each peak.
     fine_resolution_m, fine_sigma_m, inlier_m: the maps that score a hypothesis after ICP.
     wall_band_m: wall/column points within this height of the floor or ceiling are ignored.
@@ -99,8 +103,14 @@ class GlobalAlignOptions:
         positions differ by more than ``distinct_m`` on average, or their yaws by more than
         ``distinct_deg``, or their floors by more than ``distinct_z_m``.
     ambiguity_ratio: second-best / best score at or above which the result is ambiguous.
-    min_score, min_free_fraction: the best hypothesis must have at least this fine score and
-        this fraction of cameras in free space, else :class:`GlobalAlignmentError`.
+    min_score, min_free_fraction, max_see_through: the best hypothesis must have at least this
+        fine score and this fraction of cameras in free space, and see at most this share of
+        its points through plan walls, else :class:`GlobalAlignmentError` (a placement that
+        puts walls where the sensor saw through is no fit, however the others score).
+    alias_check, alias_points, alias_top, alias_tol_m, alias_rescore, alias_max_difference: the
+        search for where else the plan repeats what the best placement saw
+        (:func:`_plan_alias`): on/off, points of the ideal scan, peaks refined per storey, ICP
+        tolerance, aliases rescored with the real scan, largest ideal difference rescored.
     accept_ambiguous: take the best hypothesis even when the result is ambiguous (flagged in
         the result, never hidden).
     report_top: hypotheses kept in the result.
@@ -113,6 +123,7 @@ class GlobalAlignOptions:
     view_bins: int = 4
     top_k: int = 30
     max_points: int = 4000
+    icp_points: int = 2000
     icp_radius_start_m: float = 0.8
     icp_radius_end_m: float = 0.12
     icp_iterations: int = 15
@@ -125,8 +136,8 @@ class GlobalAlignOptions:
     level_from_floor: bool = True
     gravity_min_tilt_deg: float = 2.0
     free_clearance_m: float = 0.15
-    enclosed_rays: int = 8
-    enclosed_min_hits: int = 7
+    enclosed_rays: int = 16
+    enclosed_min_hits: int = 10
     rescore_top: int = 4
     frame_yaw_deg: float = 12.0
     frame_yaw_step_deg: float = 2.0
@@ -137,8 +148,15 @@ class GlobalAlignOptions:
     distinct_deg: float = 10.0
     distinct_z_m: float = 0.5
     ambiguity_ratio: float = 0.9
-    min_score: float = 0.55
+    min_score: float = 0.65
     min_free_fraction: float = 0.5
+    max_see_through: float = 0.15
+    alias_check: bool = True
+    alias_points: int = 1500
+    alias_top: int = 10
+    alias_tol_m: float = 0.1
+    alias_rescore: int = 3
+    alias_max_difference: float = 0.2
     accept_ambiguous: bool = False
     report_top: int = 5
     seed: int = 0
@@ -146,18 +164,21 @@ class GlobalAlignOptions:
     def __post_init__(self) -> None:
         positive = ("resolution_m", "sigma_m", "yaw_step_deg", "icp_radius_start_m",
                     "icp_radius_end_m", "icp_huber_m", "fine_resolution_m", "fine_sigma_m",
-                    "inlier_m", "frame_yaw_step_deg", "distinct_m", "distinct_deg", "distinct_z_m")
+                    "inlier_m", "frame_yaw_step_deg", "distinct_m", "distinct_deg", "distinct_z_m",
+                    "alias_tol_m")
         for name, value in asdict(self).items():
             if isinstance(value, float) and not np.isfinite(value):
                 raise RegistrationInputError(f"must be finite, got {value}", None, name)
             if name in positive and not value > 0:
                 raise RegistrationInputError(f"must be > 0, got {value}", None, name)
-        for name in ("view_bins", "top_k", "max_points", "icp_iterations", "enclosed_rays",
-                     "rescore_top", "report_top"):
+        for name in ("view_bins", "top_k", "max_points", "icp_points", "icp_iterations",
+                     "enclosed_rays",
+                     "rescore_top", "report_top", "alias_points", "alias_top"):
             if getattr(self, name) < 1:
                 raise RegistrationInputError(f"must be >= 1, got {getattr(self, name)}", None,
                                              name)
-        for name in ("ambiguity_ratio", "min_score", "min_free_fraction"):
+        for name in ("ambiguity_ratio", "min_score", "min_free_fraction", "max_see_through",
+                     "alias_max_difference"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise RegistrationInputError("must be in [0, 1]", None, name)
         if not 0 <= self.enclosed_min_hits <= self.enclosed_rays:
@@ -192,6 +213,8 @@ class AlignHypothesis:
     coarse_score: the correlative peak's score (0-1) before ICP.
     see_through: fraction of the wall/column points seen through a plan wall (0-1, negative
         evidence, :func:`see_through_fraction`).
+    constraint: how well the ICP inliers' wall directions hold the placement (0: free along
+        one direction, 0.5: equally in every direction; :class:`.icp.IcpResult`).
     """
 
     world_from_slam: F64
@@ -204,6 +227,7 @@ class AlignHypothesis:
     free_fraction: float
     coarse_score: float
     see_through: float = 0.0
+    constraint: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -226,6 +250,8 @@ class GlobalAlignResult:
     twin_floors: floor heights (m) of the storeys that explain the placed scan exactly as the
         best placement's storey does (:func:`twin_storeys`): the storey is unknown whatever the
         scores say.
+    alias: where else the plan repeats what the best placement saw, and the real scan's score
+        there (:func:`_plan_alias`; None: nowhere, or ``alias_check`` off).
     accepted_ambiguous: ambiguous, and taken anyway (``accept_ambiguous``).
     gravity_tilt_deg: the tilt of the SLAM frame estimated from the floor (degrees).
     gravity_applied: whether that tilt was taken out (above ``gravity_min_tilt_deg``).
@@ -246,6 +272,7 @@ class GlobalAlignResult:
     timings: dict[str, float]
     options: GlobalAlignOptions
     twin_floors: list[float] = field(default_factory=list)
+    alias: PlanAlias | None = None
     n_frames: int = field(init=False)
 
     def __post_init__(self) -> None:
@@ -260,6 +287,7 @@ class GlobalAlignResult:
             "ambiguous": self.ambiguous,
             "ratio": self.ratio,
             "twin_floors": list(self.twin_floors),
+            "alias": None if self.alias is None else self.alias.to_dict(),
             "accepted_ambiguous": self.accepted_ambiguous,
             "gravity_tilt_deg": self.gravity_tilt_deg,
             "gravity_applied": self.gravity_applied,
@@ -410,6 +438,19 @@ def _storeys(plan: FloorPlan, cut_m: float) -> list[_Storey]:
     return sorted(out, key=lambda s: -np.inf if s.floor_z is None else s.floor_z)
 
 
+def _section_key(plan: FloorPlan, storey: _Storey) -> bytes:
+    """Bytes equal for two storeys with the same plan section (segments, either end first,
+    in any order, to 1 mm; classes) and the same floor-to-ceiling height (1 cm)."""
+    seg = np.round(plan.segments[storey.rows] * 1000.0).astype(np.int64)
+    flip = (seg[:, 0] > seg[:, 2]) | ((seg[:, 0] == seg[:, 2]) & (seg[:, 1] > seg[:, 3]))
+    seg[flip] = seg[flip][:, [2, 3, 0, 1]]
+    rows = np.c_[seg, plan.segment_class[storey.rows].astype(np.int64)]
+    rows = rows[np.lexsort(rows.T[::-1])]
+    height = (-1 if storey.floor_z is None or storey.ceiling_z is None
+              else round(100.0 * (storey.ceiling_z - storey.floor_z)))
+    return rows.tobytes() + np.int64(height).tobytes()
+
+
 def _ceiling_above(plan: FloorPlan, z: float | None) -> float | None:
     if z is None or not len(plan.ceiling_heights):
         return None
@@ -528,36 +569,62 @@ class _Found:
     cams_xy: F64
     see_through: float = 0.0
     see_through_power: float = 0.0
+    constraint: float = 0.0
 
     @property
     def score(self) -> float:
         return float(self.fit * self.free * (1.0 - self.see_through) ** self.see_through_power)
 
 
-def _search_storey(scan: _Scan, storey: _Storey, plan: FloorPlan, opt: GlobalAlignOptions,
-                   rng: np.random.Generator, timings: dict[str, float]) -> list[_Found]:
-    """Steps 3-4 on one storey: full-circle correlative search over the storey's box, ICP of
-    the top peaks, fine score and free-space fraction of each."""
+@dataclass(frozen=True)
+class _StoreyMaps:
+    """One storey's search maps: its plan section (S, 4) and classes (S,), box bounds, centre
+    (2,) and half-width (m), the layered score maps, a 0.1 m distance field and the coarse
+    raster of where a camera may stand (:func:`_free_map`)."""
+
+    seg: F64
+    seg_cls: I32
+    bounds: tuple[float, float, float, float]
+    centre: F64
+    half: float
+    maps: PlanMaps
+    field_: DistanceField
+    free_map: NDArray[np.float32]
+
+
+def _storey_maps(storey: _Storey, plan: FloorPlan, opt: GlobalAlignOptions) -> _StoreyMaps:
     seg = plan.segments[storey.rows]
     seg_cls = plan.segment_class[storey.rows]
+    box_xy = seg.reshape(-1, 2)
+    lo, hi = box_xy.min(0), box_xy.max(0)
+    bounds = (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
+    maps = PlanMaps.build(seg, seg_cls, bounds, 3.0, opt.view_bins, opt.resolution_m,
+                          opt.sigma_m, opt.fine_resolution_m, opt.fine_sigma_m, 3.0)
+    return _StoreyMaps(seg, seg_cls, bounds, 0.5 * (lo + hi), float(np.max(0.5 * (hi - lo))) + 1.0,
+                       maps, DistanceField.from_segments(seg, 0.1, bounds, 3.0),
+                       _free_map(seg, bounds, opt))
+
+
+def _keep(scan: _Scan, storey: _Storey, opt: GlobalAlignOptions) -> NDArray[np.bool_]:
+    """(M,) the wall/column points of ``scan`` between the floor and ceiling bands of
+    ``storey`` (its plan section holds walls only at those heights)."""
     keep = np.ones(len(scan.xy), dtype=bool)
     if scan.floor_z is not None and opt.wall_band_m > 0:
         keep &= scan.z > scan.floor_z + opt.wall_band_m
         if storey.floor_z is not None and storey.ceiling_z is not None:
             keep &= scan.z < scan.floor_z + (storey.ceiling_z - storey.floor_z) - opt.wall_band_m
+    return keep
+
+
+def _search_storey(scan: _Scan, storey: _Storey, sm: _StoreyMaps, opt: GlobalAlignOptions,
+                   rng: np.random.Generator, timings: dict[str, float]) -> list[_Found]:
+    """Steps 3-4 on one storey: full-circle correlative search over the storey's box, ICP of
+    the top peaks, fine score and free-space fraction of each."""
+    seg, keep = sm.seg, _keep(scan, storey, opt)
     xy, view, cls, frame = scan.xy[keep], scan.view[keep], scan.cls[keep], scan.frame[keep]
     if len(xy) < 20 or len(seg) == 0:
         return []
-    t0 = time.perf_counter()
-    box_xy = seg.reshape(-1, 2)
-    lo, hi = box_xy.min(0), box_xy.max(0)
-    centre = 0.5 * (lo + hi)
-    half = float(np.max(0.5 * (hi - lo))) + 1.0
-    bounds = (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
-    maps = PlanMaps.build(seg, seg_cls, bounds, 3.0, opt.view_bins, opt.resolution_m,
-                          opt.sigma_m, opt.fine_resolution_m, opt.fine_sigma_m, 3.0)
-    field_ = DistanceField.from_segments(seg, 0.1, bounds, 3.0)
-    timings["maps"] += time.perf_counter() - t0
+    maps, field_, centre, half = sm.maps, sm.field_, sm.centre, sm.half
     # Shift the scan so that its camera centroid sits on the box centre: the translations of
     # the search then put the centroid anywhere in the box.
     shift = centre - scan.cams[:, :2].mean(0)
@@ -567,8 +634,7 @@ def _search_storey(scan: _Scan, storey: _Storey, plan: FloorPlan, opt: GlobalAli
     yaws = np.arange(-np.pi, np.pi, np.deg2rad(opt.yaw_step_deg))
     vol, res, n = score_volume(xy_s[occ], cls[occ], view[occ], maps, centre, yaws, half)
     # The trajectory's own shape: the share of its cameras in free space, for every (yaw, t).
-    free_map = _free_map(seg, bounds, opt)
-    vol *= _free_volume(cams_s, free_map, maps.coarse[0].origin_xy, res, centre, yaws, n)
+    vol *= _free_volume(cams_s, sm.free_map, maps.coarse[0].origin_xy, res, centre, yaws, n)
     peaks = top_hypotheses(vol, yaws, res, n, opt.top_k, opt.distinct_m,
                            np.deg2rad(opt.distinct_deg))
     timings["correlative"] += time.perf_counter() - t0
@@ -581,8 +647,11 @@ def _search_storey(scan: _Scan, storey: _Storey, plan: FloorPlan, opt: GlobalAli
 
     found: list[_Found] = []
     fitted: list[_Found] = []
+    # ICP on an even share of the sample (every k-th point: all frames keep their share).
+    k = max(1, -(-len(p_xy) // opt.icp_points))
+    i_xy, i_cls, i_view = p_xy[::k], p_cls[::k], p_view[::k]
     for peak in peaks:
-        fit = icp_2d(p_xy, p_cls, associate, Correction2D(peak.yaw, peak.t, centre), p_view,
+        fit = icp_2d(i_xy, i_cls, associate, Correction2D(peak.yaw, peak.t, centre), i_view,
                      opt.icp_radius_start_m, opt.icp_radius_end_m, opt.icp_iterations,
                      opt.icp_huber_m, opt.inlier_m)
         corr = fit.correction
@@ -592,7 +661,8 @@ def _search_storey(scan: _Scan, storey: _Storey, plan: FloorPlan, opt: GlobalAli
         free, _ = free_space_fraction(cams_w, seg, field_, opt.free_clearance_m,
                                       opt.enclosed_rays, opt.enclosed_min_hits)
         fitted.append(_Found(corr, storey, 0.0, float(sc.mean()),
-                             float((dist < opt.inlier_m).mean()), free, peak.score, cams_w))
+                             float((dist < opt.inlier_m).mean()), free, peak.score, cams_w,
+                             constraint=fit.constraint))
     timings["icp"] += time.perf_counter() - t0
     # The per-frame fit of the best rigid fits (the slow, sharp score), one per distinct place.
     t0 = time.perf_counter()
@@ -605,31 +675,225 @@ def _search_storey(scan: _Scan, storey: _Storey, plan: FloorPlan, opt: GlobalAli
                                                       cams_s, maps, opt)
             seen = _see_through(f.corr, turn, moved, p_xy, p_cls, p_view, p_frame, cams_s, seg,
                                 maps, opt)
-            found.append(_Found(f.corr, storey, frame_fit, f.rigid_fit, f.inliers, f.free,
-                                f.coarse, f.cams_xy, seen, opt.see_through_power))
+            found.append(replace(f, fit=frame_fit, see_through=seen,
+                                 see_through_power=opt.see_through_power))
     timings["rescore"] += time.perf_counter() - t0
     # Fold the shift into the correction: R (p + s - c) + c + t = R (p - (c - s)) + (c - s)
     # + (t + s).
-    return [_Found(Correction2D(f.corr.yaw, f.corr.t + shift, f.corr.pivot - shift), f.storey,
-                   f.fit, f.rigid_fit, f.inliers, f.free, f.coarse, f.cams_xy, f.see_through,
-                   f.see_through_power) for f in found]
+    return [replace(f, corr=Correction2D(f.corr.yaw, f.corr.t + shift, f.corr.pivot - shift))
+            for f in found]
+
+
+def _score_at(init: Correction2D, storey: _Storey, sm: _StoreyMaps, p_xy: F64, p_cls: I32,
+              p_view: F64, p_frame: I32, cams_xy: F64, opt: GlobalAlignOptions) -> _Found:
+    """The real scan's ranking score at a placement near ``init``: ICP (as a peak of the
+    search), then the per-frame fit, free share and see-through share (``p_*`` (M, ...) the
+    points and ``cams_xy`` (N, 2) the cameras, levelled SLAM frame)."""
+    maps = sm.maps
+
+    def associate(q: F64, q_class: I32, v: F64) -> tuple[F64, F64]:
+        return maps.nearest(q, maps.layer_of(q_class, v))
+
+    k = max(1, -(-len(p_xy) // opt.icp_points))
+    fit = icp_2d(p_xy[::k], p_cls[::k], associate, init, p_view[::k], opt.icp_radius_start_m,
+                 opt.icp_radius_end_m, opt.icp_iterations, opt.icp_huber_m, opt.inlier_m)
+    corr = fit.correction
+    layer = maps.layer_of(p_cls, p_view @ rot2(corr.yaw).T)
+    sc, dist = maps.fine_eval(corr.apply(p_xy), layer)
+    cams_w = corr.apply(cams_xy)
+    free, _ = free_space_fraction(cams_w, sm.seg, sm.field_, opt.free_clearance_m,
+                                  opt.enclosed_rays, opt.enclosed_min_hits)
+    frame_fit, _, _, turn, moved = _frame_fit(corr, p_xy, p_cls, p_view, p_frame, cams_xy, maps,
+                                              opt)
+    seen = _see_through(corr, turn, moved, p_xy, p_cls, p_view, p_frame, cams_xy, sm.seg, maps,
+                        opt)
+    return _Found(corr, storey, frame_fit, float(sc.mean()), float((dist < opt.inlier_m).mean()),
+                  free, 0.0, cams_w, seen, opt.see_through_power, fit.constraint)
+
+
+def _compose(a: Correction2D, b: Correction2D) -> Correction2D:
+    """``a ∘ b`` (b first), with ``b``'s pivot."""
+    t = rot2(a.yaw) @ (b.pivot + b.t - a.pivot) + a.pivot + a.t - b.pivot
+    return Correction2D(a.yaw + b.yaw, t, b.pivot)
+
+
+@dataclass(frozen=True)
+class PlanAlias:
+    """Another placement where the plan repeats what the best placement's scan saw
+    (:func:`_plan_alias`).
+
+    Attributes
+    ----------
+    floor_z: its storey's floor (m; None: plan without floors).
+    yaw_deg: its yaw relative to the best placement (degrees, (-180, 180]).
+    moved_m: mean distance between the cameras of the two placements (m).
+    match: share of the plan points the best placement's scan saw that lie on a same-class wall
+        of the plan (within ``alias_tol_m``) when moved to this placement (0-1).
+    free_fraction: share of the moved cameras in free space (0-1).
+    see_through: share of those plan points seen through a wall from the moved cameras (0-1).
+    difference: ``(1 - match) + (1 - free_fraction) + max(0, see_through - s0)`` (``s0``: the
+        ideal scan's share seen through walls at the best placement, grazing wall ends): what a
+        perfect scan could tell apart; the aliases with the smallest difference (at most
+        ``alias_max_difference``) get the real scan's score.
+    score: the real scan's ranking score at this placement (ICP from it, then as a peak of the
+        search: per-frame fit × free share × (1 - see-through) ** power).
+    score_ratio: ``score`` / the best placement's score (the lower of its search score and its
+        :func:`_score_at` score on the same points); at or above ``ambiguity_ratio`` the result
+        is ambiguous.
+    """
+
+    floor_z: float | None
+    yaw_deg: float
+    moved_m: float
+    match: float
+    free_fraction: float
+    see_through: float
+    difference: float
+    score: float = 0.0
+    score_ratio: float = 0.0
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def _plan_alias(best: _Found, scan: _Scan, sections: list[_Storey], plan: FloorPlan,
+                storey_maps: dict[bytes, _StoreyMaps], opt: GlobalAlignOptions,
+                rng: np.random.Generator) -> PlanAlias | None:
+    """The placement, distinct from ``best``, where the plan looks most like what ``best``'s
+    scan saw (a point-symmetric duplex, a repeated room): the scan's wall points are replaced by
+    their nearest plan points under ``best`` (an ideal, noise- and drift-free scan of the same
+    walls from the same cameras) and that ideal scan is searched over every storey like the
+    real one (correlative search, ICP of the top ``alias_top`` peaks, same free-space factor).
+    The ``alias_rescore`` placements where the plan repeats most closely then get the *real*
+    scan's score (:func:`_score_at`): the search may have missed them, and drift can rank the
+    truth below its alias (a duplex of two point-symmetric units: the wrong unit fitted better
+    in 3 of 20 runs). The returned alias is the one whose real score is highest; the caller
+    flags the result when that score is at least ``ambiguity_ratio`` of the best's.
+    None: too few points, or no distinct placement within ``alias_max_difference``."""
+    keep = _keep(scan, best.storey, opt)
+    sm_best = storey_maps[_section_key(plan, best.storey)]
+    xy, cls, frame = scan.xy[keep], scan.cls[keep], scan.frame[keep]
+    if len(xy) < 20:
+        return None
+    sel = np.linspace(0, len(xy) - 1, min(len(xy), opt.alias_points)).astype(np.int64)
+    xy, cls, frame = xy[sel], cls[sel], frame[sel]
+    cams = best.cams_xy
+    q = best.corr.apply(xy)
+    layer = sm_best.maps.layer_of(cls, q - cams[frame])
+    dist, closest = sm_best.maps.nearest(q, layer)
+    on = dist < opt.inlier_m
+    if on.sum() < 20:
+        return None
+    p_xy, p_cls, p_frame = closest[on], cls[on], frame[on]
+    p_view = p_xy - cams[p_frame]
+    # The ideal scan's own rays graze wall ends at the best placement too: only more counts.
+    seen_here = see_through_fraction(cams[p_frame], p_xy, sm_best.seg,
+                                     opt.see_through_margin_m)[0]
+    cands: list[tuple[float, Correction2D, _Storey, PlanAlias]] = []
+    yaws = np.arange(-np.pi, np.pi, np.deg2rad(opt.yaw_step_deg))
+    done: set[bytes] = set()
+    for storey in sections:
+        key = _section_key(plan, storey)
+        if key in done or key not in storey_maps:
+            continue
+        done.add(key)
+        sm = storey_maps[key]
+        shift = sm.centre - cams.mean(0)
+        ps, cs = p_xy + shift, cams + shift
+        occ = _subsample(ps, p_cls, 0.5 * opt.resolution_m, 40 * opt.max_points, rng)
+        vol, res, n = score_volume(ps[occ], p_cls[occ], p_view[occ], sm.maps, sm.centre, yaws,
+                                   sm.half)
+        vol *= _free_volume(cs, sm.free_map, sm.maps.coarse[0].origin_xy, res, sm.centre, yaws,
+                            n)
+        peaks = top_hypotheses(vol, yaws, res, n, opt.alias_top, opt.distinct_m,
+                               np.deg2rad(opt.distinct_deg))
+
+        def associate(q_: F64, q_class: I32, v: F64, sm: _StoreyMaps = sm
+                      ) -> tuple[F64, F64]:
+            return sm.maps.nearest(q_, sm.maps.layer_of(q_class, v))
+
+        for peak in peaks:
+            fit = icp_2d(ps, p_cls, associate, Correction2D(peak.yaw, peak.t, sm.centre), p_view,
+                         opt.icp_radius_start_m, 0.5 * opt.alias_tol_m, opt.icp_iterations,
+                         opt.icp_huber_m, opt.alias_tol_m)
+            corr = fit.correction
+            cams_w = corr.apply(cs)
+            # The alias must be elsewhere: another storey, or moved / turned in this one (``corr``
+            # moves the best placement's points; the identity is the best placement itself).
+            yaw = float(np.rad2deg(np.angle(np.exp(1j * corr.yaw))))
+            moved = float(np.linalg.norm(cams_w - cams, axis=1).mean())
+            dz = (0.0 if storey.floor_z is None or best.storey.floor_z is None
+                  else abs(storey.floor_z - best.storey.floor_z))
+            if moved <= opt.distinct_m and abs(yaw) <= opt.distinct_deg and dz <= opt.distinct_z_m:
+                continue
+            moved_q = corr.apply(ps)
+            match = float(sm.maps.fine_score_at(moved_q, sm.maps.layer_of(
+                p_cls, p_view @ rot2(corr.yaw).T)).mean())
+            free, _ = free_space_fraction(cams_w, sm.seg, sm.field_, opt.free_clearance_m,
+                                          opt.enclosed_rays, opt.enclosed_min_hits)
+            seen = see_through_fraction(cams_w[p_frame], moved_q, sm.seg,
+                                        opt.see_through_margin_m)[0]
+            diff = (1.0 - match) + (1.0 - free) + max(0.0, seen - seen_here)
+            # ``corr`` takes the shifted points into the world: fold the shift in (as
+            # :func:`_search_storey` does), then apply it after ``best``.
+            in_world = Correction2D(corr.yaw, corr.t + shift, corr.pivot - shift)
+            cands.append((diff, _compose(in_world, best.corr), storey,
+                          PlanAlias(storey.floor_z, yaw, moved, match, free, seen, diff)))
+    # The real scan where the plan repeats best: the search may have missed the place, or
+    # drift may have ranked it below the alias.
+    cands.sort(key=lambda c: c[0])
+    out: PlanAlias | None = None
+    every = np.flatnonzero(keep)
+    every = every[np.linspace(0, len(every) - 1, min(len(every), opt.max_points)).astype(np.int64)]
+    all_xy, all_cls, all_frame = scan.xy[every], scan.cls[every], scan.frame[every]
+    all_view = scan.view[every]
+    if not cands or cands[0][0] > opt.alias_max_difference:
+        return None
+    # The best placement scored the same way, on the same points (the search drew its own);
+    # either of its two scores may be the lower one, and the lower decides (when in doubt,
+    # flag: with the rescored one alone a Duplex_A run stayed silently wrong).
+    best_score = min(best.score, _score_at(best.corr, best.storey, sm_best, all_xy, all_cls,
+                                           all_view, all_frame, scan.cams[:, :2], opt).score)
+    for diff, corr, storey, alias in cands[:opt.alias_rescore]:
+        if diff > opt.alias_max_difference:
+            break
+        f = _score_at(corr, storey, storey_maps[_section_key(plan, storey)], all_xy, all_cls,
+                      all_view, all_frame, scan.cams[:, :2], opt)
+        ratio = f.score / best_score if best_score > 0 else 0.0
+        if out is None or ratio > out.score_ratio:
+            out = replace(alias, score=f.score, score_ratio=ratio)
+    return out
 
 
 def _free_map(segments: F64, bounds: tuple[float, float, float, float],
-              opt: GlobalAlignOptions, close_m: float = 0.7) -> NDArray[np.float32]:
+              opt: GlobalAlignOptions) -> NDArray[np.float32]:
     """(H, W) 1 where a camera may stand, on the coarse grid of the storey's maps (same bounds,
-    margin 3 m, ``resolution_m``): not outside the building (the open space reachable from the
-    map's border once gaps narrower than ``2 close_m``, doors and windows, are closed) and at
-    least ``free_clearance_m`` from every wall. A raster approximation of
-    :func:`free_space_fraction`, for the search."""
-    from scipy.ndimage import label
+    margin 3 m, ``resolution_m``): inside the building (at least ``enclosed_min_hits`` of
+    ``enclosed_rays`` straight lines from the pixel meet a wall pixel, the raster twin of
+    :func:`free_space_fraction`'s rays, so that windows and doors, gaps in a plan section, do
+    not let the outside in) and at least ``free_clearance_m`` from every wall."""
+    import cv2
 
     dist = DistanceField.from_segments(segments, opt.resolution_m, bounds, 3.0).distance_m
-    open_ = dist > close_m
-    lab, _ = label(open_)
-    border = np.unique(np.r_[lab[0], lab[-1], lab[:, 0], lab[:, -1]])
-    outside = np.isin(lab, border[border > 0])
-    return (~outside & (dist >= opt.free_clearance_m)).astype(np.float32)
+    wall = (dist <= opt.resolution_m).astype(np.uint8)
+    h, w = wall.shape
+    size = int(np.ceil(np.hypot(h, w))) + 2
+    pad = np.zeros((size, size), np.uint8)
+    r0, c0 = (size - h) // 2, (size - w) // 2
+    pad[r0:r0 + h, c0:c0 + w] = wall
+    centre = ((size - 1) / 2.0, (size - 1) / 2.0)
+    hits = np.zeros((size, size), np.int32)
+    for k in range(opt.enclosed_rays):
+        # Turn the image so that ray k points along +u, look ahead along each row, turn back.
+        ang = 360.0 * (k + 0.5) / opt.enclosed_rays
+        fwd = cv2.getRotationMatrix2D(centre, -ang, 1.0)
+        turned = cv2.warpAffine(pad, fwd, (size, size), flags=cv2.INTER_NEAREST)
+        ahead = np.flip(np.maximum.accumulate(np.flip(turned, 1), axis=1), 1)
+        back = cv2.warpAffine(ahead, cv2.invertAffineTransform(fwd), (size, size),
+                              flags=cv2.INTER_NEAREST)
+        hits += back
+    inside = hits[r0:r0 + h, c0:c0 + w] >= opt.enclosed_min_hits
+    return (inside & (dist >= opt.free_clearance_m)).astype(np.float32)
 
 
 def _free_volume(cams_xy: F64, free_map: NDArray[np.float32], origin: F64, res: float,
@@ -692,10 +956,7 @@ def _frame_fit(corr: Correction2D, p_xy: F64, p_cls: I32, p_view: F64, p_frame: 
         qd = (q - cam) @ r.T + cam
         layer = maps.layer_of(p_cls, view @ r.T)
         for sh in shifts:
-            sc = np.zeros(len(qd))
-            for lay in np.unique(layer):
-                m = layer == lay
-                sc[m] = maps.fine[lay].lookup(qd[m] + sh, maps.fine_score[lay])
+            sc = maps.fine_score_at(qd + sh, layer)
             mean = np.bincount(p_frame, weights=sc, minlength=n) / np.maximum(count, 1.0)
             better = mean > best
             best[better], best_turn[better], best_shift[better] = mean[better], d, sh
@@ -802,8 +1063,20 @@ def global_align(
     found: list[_Found] = []
     storeys = []
     sections = _storeys(plan, opt.plan_cut_height_m)
+    searched: dict[bytes, list[_Found]] = {}
+    storey_maps: dict[bytes, _StoreyMaps] = {}
     for storey in sections:
-        here = _search_storey(scan, storey, plan, opt, rng, timings)
+        # A storey whose plan section and height repeat one searched already (a tower of
+        # identical floors) gets that storey's placements: the search would find the same.
+        key = _section_key(plan, storey)
+        if key in searched:
+            here = [replace(f, storey=storey) for f in searched[key]]
+        else:
+            t0 = time.perf_counter()
+            storey_maps[key] = _storey_maps(storey, plan, opt)
+            timings["maps"] += time.perf_counter() - t0
+            here = searched[key] = _search_storey(scan, storey, storey_maps[key], opt, rng,
+                                                  timings)
         storeys.append({"floor_z": storey.floor_z, "segments": len(storey.rows),
                         "best_score": max((f.score for f in here), default=0.0)})
         found += here
@@ -818,7 +1091,8 @@ def global_align(
         m = _transform(f, gravity, scan.floor_z)
         yaw = float(np.rad2deg(np.arctan2(m[1, 0], m[0, 0])))
         hyps.append(AlignHypothesis(matrix_to_pose(m), f.storey.floor_z, yaw, f.score, f.fit,
-                                    f.rigid_fit, f.inliers, f.free, f.coarse, f.see_through))
+                                    f.rigid_fit, f.inliers, f.free, f.coarse, f.see_through,
+                                    f.constraint))
     timings["total"] = time.perf_counter() - t_start
     if not ranked:
         raise GlobalAlignmentError(
@@ -829,7 +1103,13 @@ def global_align(
     twins = twin_storeys(best.corr.apply(scan.xy), best.storey, sections, plan,
                          near_m=opt.inlier_m)
     twin_floors = [float(sections[j].floor_z) for j in twins if sections[j].floor_z is not None]
-    ambiguous = ratio >= opt.ambiguity_ratio or bool(twins)
+    t0 = time.perf_counter()
+    alias = (_plan_alias(best, scan, sections, plan, storey_maps, opt, rng)
+             if opt.alias_check else None)
+    timings["alias"] = time.perf_counter() - t0
+    timings["total"] = time.perf_counter() - t_start
+    aliased = alias is not None and alias.score_ratio >= opt.ambiguity_ratio
+    ambiguous = ratio >= opt.ambiguity_ratio or bool(twins) or aliased
     m_best = _transform(best, gravity, scan.floor_z)
     result = GlobalAlignResult(
         poses=matrix_to_pose(m_best @ pose_to_matrix(poses)),
@@ -837,19 +1117,27 @@ def global_align(
         hypotheses=hyps, ambiguous=ambiguous, ratio=float(ratio),
         accepted_ambiguous=ambiguous and opt.accept_ambiguous, gravity_tilt_deg=tilt,
         gravity_applied=applied, storeys=storeys, timings=timings, options=opt,
-        twin_floors=twin_floors)
-    if best.fit < opt.min_score or best.free < opt.min_free_fraction:
+        twin_floors=twin_floors, alias=alias)
+    if (best.fit < opt.min_score or best.free < opt.min_free_fraction
+            or best.see_through > opt.max_see_through):
         raise GlobalAlignmentError(
             f"global alignment: the best placement fits badly (fit score {best.fit:.2f}, "
             f"minimum {opt.min_score}; cameras in free space {best.free:.0%}, minimum "
-            f"{opt.min_free_fraction:.0%}); is this the right BIM?\n" + result.describe(),
-            result)
+            f"{opt.min_free_fraction:.0%}; points seen through walls {best.see_through:.0%}, "
+            f"maximum {opt.max_see_through:.0%}); is this the right BIM?\n"
+            + result.describe(), result)
     if ambiguous and not opt.accept_ambiguous:
-        why = (f"the storey has {len(twin_floors)} identical twin(s) (floors at "
-               f"{', '.join(f'{z:.2f}' for z in twin_floors)} m) that no scan can tell apart"
-               if twins else
-               f"the second-best placement scores {ratio:.0%} of the best (threshold "
-               f"{opt.ambiguity_ratio:.0%}; a symmetric layout or repeated rooms)")
+        if twins:
+            why = (f"the storey has {len(twin_floors)} identical twin(s) (floors at "
+                   f"{', '.join(f'{z:.2f}' for z in twin_floors)} m) that no scan can tell apart")
+        elif aliased and alias is not None and alias.score_ratio > ratio:
+            why = (f"the plan repeats what the scan saw {alias.moved_m:.1f} m away, turned by "
+                   f"{alias.yaw_deg:.0f} deg, and the scan placed there scores "
+                   f"{alias.score_ratio:.0%} of the best (threshold {opt.ambiguity_ratio:.0%}; "
+                   "a point-symmetric or repeated layout)")
+        else:
+            why = (f"the second-best placement scores {ratio:.0%} of the best (threshold "
+                   f"{opt.ambiguity_ratio:.0%}; a symmetric layout or repeated rooms)")
         raise AmbiguousAlignmentError(
             f"global alignment is ambiguous: {why}. Refusing to guess; accept the best with "
             "--accept-ambiguous (global_align.accept_ambiguous), or give an initial "

@@ -16,6 +16,7 @@ layer as the corridor walls' outer faces.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -268,12 +269,42 @@ class PlanMaps:
         slot = np.where(np.asarray(p_class) == Label.COLUMN, 1, 0)
         return slot * self.n_bins + view_bin(view_xy, self.n_bins, self.bin_offset)
 
+    def _stack(self) -> _Stack | None:
+        """The fine rasters of every layer stacked (L, H, W), built once; None when the layers'
+        grids differ (then the per-layer loops are used)."""
+        cached = self.__dict__.get("_stacked", False)
+        if cached is not False:
+            return cast("_Stack | None", cached)
+        out: _Stack | None = None
+        f0 = self.fine[0] if self.fine else None
+        if f0 is not None and all(
+                f.distance_m.shape == f0.distance_m.shape and f.resolution_m == f0.resolution_m
+                and np.array_equal(f.origin_xy, f0.origin_xy) and f.nearest_segment is not None
+                for f in self.fine):
+            nearest = np.stack([
+                self.rows[k][f.nearest_segment] if len(self.rows[k])
+                else np.full(f.distance_m.shape, -1, np.int64)
+                for k, f in enumerate(self.fine)])  # type: ignore[index]
+            out = _Stack(f0.origin_xy, f0.resolution_m, nearest,
+                         np.stack([f.distance_m for f in self.fine]), np.stack(self.fine_score))
+        self.__dict__["_stacked"] = out
+        return out
+
     def nearest(self, q_xy: NDArray[np.float64], layer: NDArray[np.int64]) -> tuple[F64, F64]:
         """(dist (M,), closest (M, 2)): the exact distance to the segment that the fine raster
         names nearest in each point's layer; ``inf`` (and the point) for an empty layer."""
         q = np.asarray(q_xy, dtype=np.float64).reshape(-1, 2)
         dist = np.full(len(q), np.inf)
         closest = q.copy()
+        st = self._stack()
+        if st is not None:
+            _, h, w = st.nearest.shape
+            uv = np.rint((q - st.origin_xy) / st.resolution_m).astype(np.int64)
+            idx = st.nearest[np.asarray(layer, np.int64), np.clip(uv[:, 1], 0, h - 1),
+                             np.clip(uv[:, 0], 0, w - 1)]
+            ok = idx >= 0
+            dist[ok], closest[ok] = distance_to_segments(q[ok], self.segments, idx[ok])
+            return dist, closest
         for lay in np.unique(layer):
             r = self.rows[lay]
             if len(r) == 0:
@@ -283,10 +314,26 @@ class PlanMaps:
             dist[m], closest[m] = distance_to_segments(q[m], self.segments, idx)
         return dist, closest
 
+    def fine_score_at(self, q_xy: NDArray[np.float64], layer: NDArray[np.int64]) -> F64:
+        """(M,) each point's score in its layer's fine score map (bilinear)."""
+        st = self._stack()
+        if st is not None:
+            return _lookup_stack(st, st.score, q_xy, layer)
+        q = np.asarray(q_xy, dtype=np.float64).reshape(-1, 2)
+        score = np.zeros(len(q))
+        for lay in np.unique(layer):
+            m = layer == lay
+            score[m] = self.fine[lay].lookup(q[m], self.fine_score[lay])
+        return score
+
     def fine_eval(self, q_xy: NDArray[np.float64], layer: NDArray[np.int64]
                   ) -> tuple[F64, F64]:
         """(score (M,), raster distance (M,)) of each point in its layer's fine maps."""
         q = np.asarray(q_xy, dtype=np.float64).reshape(-1, 2)
+        st = self._stack()
+        if st is not None:
+            return (_lookup_stack(st, st.score, q, layer),
+                    _lookup_stack(st, st.distance, q, layer, distance=True))
         score = np.zeros(len(q))
         dist = np.full(len(q), np.inf)
         for lay in np.unique(layer):
@@ -294,3 +341,34 @@ class PlanMaps:
             score[m] = self.fine[lay].lookup(q[m], self.fine_score[lay])
             dist[m] = self.fine[lay].lookup(q[m])
         return score, dist
+
+
+@dataclass(frozen=True)
+class _Stack:
+    """The fine rasters of a :class:`PlanMaps`, one grid for all layers: nearest segment row
+    (L, H, W; -1 for an empty layer), distance and score (L, H, W)."""
+
+    origin_xy: F64
+    resolution_m: float
+    nearest: NDArray[np.int64]
+    distance: F32
+    score: F32
+
+
+def _lookup_stack(st: _Stack, images: F32, q_xy: NDArray[np.float64],
+                  layer: NDArray[np.int64], distance: bool = False) -> F64:
+    """:meth:`DistanceField.lookup` of each point (M, 2) in its layer's image of ``images``
+    (L, H, W), the same arithmetic in one pass."""
+    uv = ((np.asarray(q_xy, dtype=np.float64) - st.origin_xy) / st.resolution_m).reshape(-1, 2)
+    _, h, w = images.shape
+    lay = np.asarray(layer, np.int64)
+    u = np.clip(uv[:, 0], 0.0, w - 1.000001)
+    v = np.clip(uv[:, 1], 0.0, h - 1.000001)
+    u0, v0 = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
+    fu, fv = u - u0, v - v0
+    val = ((images[lay, v0, u0] * (1 - fu) + images[lay, v0, u0 + 1] * fu) * (1 - fv)
+           + (images[lay, v0 + 1, u0] * (1 - fu) + images[lay, v0 + 1, u0 + 1] * fu) * fv
+           ).astype(np.float64)
+    if distance:
+        val = val + np.hypot(uv[:, 0] - u, uv[:, 1] - v) * st.resolution_m
+    return val
