@@ -6,7 +6,14 @@ import numpy as np
 
 from bimcap.geometry.poses import invert, transform_points
 from bimcap.optimize import SolverOptions
-from bimcap.optimize.observability import DOF_NAMES, bim_observability, irls_weight
+from bimcap.optimize.observability import (
+    DOF_NAMES,
+    FrameObservability,
+    Observability,
+    bim_observability,
+    irls_weight,
+    unanchored_frames,
+)
 from bimcap.optimize.options import Loss
 
 
@@ -70,3 +77,24 @@ def test_outliers_weigh_less_under_a_robust_loss() -> None:
     np.testing.assert_allclose(irls_weight(Loss.CAUCHY, 1.0, r), [1.0, 0.5, 1.0 / 101.0])
     np.testing.assert_allclose(irls_weight(Loss.NONE, 1.0, r), 1.0)
     np.testing.assert_allclose(irls_weight(Loss.HUBER, 2.0, r), [1.0, 1.0, 0.2])
+
+
+def _obs(observed: list[list[str]]) -> Observability:
+    return Observability(frames=[FrameObservability(frame=i, samples={}, sigma=np.zeros(6),
+                                                    observed=list(o))
+                                 for i, o in enumerate(observed)])
+
+
+def test_unanchored_frames_follow_g_components() -> None:
+    full, wall = list(DOF_NAMES), ["along", "pitch", "yaw"]
+    # 0-1-2 chained, 2 fully observed; 3 alone on one wall; 4-5 an island that together
+    # observe everything; 6-7 an island of wall-only frames.
+    obs = _obs([wall, wall, full, wall, ["along", "across", "yaw"], ["up", "roll", "pitch"],
+                wall, wall])
+    matches = np.array([[0, 1], [1, 0], [2, 1], [4, 5], [6, 7], [7, 6]])
+    assert unanchored_frames(matches, obs) == [3, 6, 7]
+    # a link needs min_matches matches: 0-1 and 6-7 have two, 1-2 and 4-5 one
+    assert unanchored_frames(matches, obs, min_matches=2) == [0, 1, 3, 4, 5, 6, 7]
+    # without G every frame stands alone
+    assert unanchored_frames(None, obs) == [0, 1, 3, 4, 5, 6, 7]
+    assert unanchored_frames(np.zeros((0, 2), np.int32), _obs([full, full])) == []
