@@ -330,3 +330,40 @@ def _marginal_sigma(info: F64) -> F64:
     leak = (vecs[:, ~keep] ** 2).sum(1) > 1e-6
     sigma[~leak] = np.sqrt(np.maximum(np.diag(cov)[~leak], 0.0))
     return sigma
+
+
+def unanchored_frames(match_frames: NDArray[np.integer] | None, observability: Observability,
+                      min_matches: int = 1) -> list[int]:
+    """Frames whose G component the BIM terms do not fully observe.
+
+    The frames are joined into components by G: two frames are linked when at least
+    ``min_matches`` matches join them (``match_frames``, (M, 2) frame indices, one row per
+    match). A component is *anchored* when each of the six degrees of freedom
+    (:data:`DOF_NAMES`, in each frame's heading-aligned axes) is observed by the BIM terms in
+    at least one of its frames (:attr:`FrameObservability.observed`): G carries it to the
+    others. The frames of the other components — a frame with no matches that sees one wall,
+    an island of frames matched only to each other that see no floor — have directions that
+    nothing but their own noisy samples and the weak pose prior decide. Returns their indices,
+    ascending.
+    """
+    n = len(observability.frames)
+    parent = list(range(n))
+
+    def find(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    if match_frames is not None and len(match_frames):
+        pairs, counts = np.unique(np.sort(np.asarray(match_frames, np.int64), axis=1), axis=0,
+                                  return_counts=True)
+        for (a, b), c in zip(pairs, counts, strict=True):
+            if c >= min_matches and a != b and 0 <= a < n and 0 <= b < n:
+                parent[find(int(a))] = find(int(b))
+    seen: dict[int, set[str]] = {}
+    for f in observability.frames:
+        if 0 <= f.frame < n:
+            seen.setdefault(find(f.frame), set()).update(f.observed)
+    anchored = {root for root, dofs in seen.items() if dofs >= set(DOF_NAMES)}
+    return [i for i in range(n) if find(i) not in anchored]
