@@ -118,7 +118,11 @@ class PlaneOptions:
     ----------
     max_tilt_deg: faces within this angle of horizontal count as floor / ceiling faces; steeper
         ones (ramps, pitched roofs) give no plane (module docstring).
-    height_tol_m: visible faces whose heights differ by less than this share one plane.
+    height_tol_m: visible faces whose heights differ by less than this share one plane (at the
+        area-weighted mean of their heights). Only numerical noise: Duplex_A's floor finishes at
+        0, 13 and 19 mm became one plane at 16.2 mm with 2 cm, 2.8 mm under the 19 mm floor the
+        walk is on, and the fixed point's cameras settled 0.2 cm low
+        (docs/generalization.md, "What pulled the fixed point").
     hide_gap_m: a top face is hidden where another element's bottom face lies within this above
         it (a finish floor on its structural slab, a raised floor, a wall), a bottom face where
         another element's top face lies within this below it (a slab over its ceiling covering).
@@ -127,7 +131,7 @@ class PlaneOptions:
     """
 
     max_tilt_deg: float = 1.0
-    height_tol_m: float = 0.02
+    height_tol_m: float = 0.002
     hide_gap_m: float = 0.25
     min_area_m2: float = 0.25
     simplify_m: float = 0.005

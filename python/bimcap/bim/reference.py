@@ -41,7 +41,8 @@ from bimcap.io.atomic import atomic_write_bytes, atomic_write_json
 from bimcap.labels import Label
 
 FORMAT = "bimcap-bim-reference"
-VERSION = 2  # 2: planes are the visible surfaces only (bimcap.bim.planes); caches of 1 are rebuilt
+VERSION = 3  # 2: planes are the visible surfaces only (bimcap.bim.planes); caches of 1 are rebuilt
+# 3: planes no longer average faces up to 2 cm apart (PlaneOptions.height_tol_m 2 mm)
 
 
 @dataclass(frozen=True)

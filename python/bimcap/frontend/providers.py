@@ -187,6 +187,7 @@ class PlanarDepthRefiner:
         if ctx.depth is None:
             raise FrontendInputError("no depth to refine", None, f"frames[{ctx.index}].depth")
         return np.asarray(
-            smooth_planar_regions(ctx.depth, labels, ctx.pinhole, self.options, seed=self.seed),
+            smooth_planar_regions(ctx.depth, labels, ctx.pinhole, self.options, seed=self.seed,
+                                  measured=ctx.measured_depth),
             np.float32,
         )

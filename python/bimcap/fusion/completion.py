@@ -372,6 +372,13 @@ class PlanarSmoothing(Enum):
     BLUR = "blur"  #: the paper's: normalised Gaussian blur inside the region
 
 
+class PlaneFitPoints(Enum):
+    """What :func:`smooth_planar_regions` (PLANE_FIT) fits a region's planes to."""
+
+    RETURNS = "returns"  #: the sensor's own returns inside the region (the pixels without enough)
+    PIXELS = "pixels"  #: every pixel of the region, interpolated ones included
+
+
 @dataclass(frozen=True)
 class PlanarSmoothingOptions:
     """Settings of :func:`smooth_planar_regions`.
@@ -392,6 +399,14 @@ class PlanarSmoothingOptions:
     max_change_rel: no pixel moves when its depth would change by more than this fraction (a
         labelling error should not drag depth onto the plane).
     blur_sigma_px: BLUR.
+    fit_to: what the planes are fitted to (:class:`PlaneFitPoints`) when the measured depth is
+        given. The returns: an interpolated pixel is no measurement, and across a concave
+        corner (wall over floor, wall beside wall) its depth is a chord through the room, short
+        of both surfaces; fitted to every pixel the floor plane came out 3-5 mm above the floor
+        and the walls 1-2 mm in front of themselves, all of one sign, and pulled the fixed point
+        (Duplex_A 0.40 cm, docs/generalization.md "What pulled the fixed point").
+    min_region_returns: with RETURNS, a region with fewer returns (or a plane with fewer inlier
+        returns) is fitted to its pixels instead.
     """
 
     mode: PlanarSmoothing = PlanarSmoothing.PLANE_FIT
@@ -404,6 +419,8 @@ class PlanarSmoothingOptions:
     assign_threshold_m: float = 0.08
     max_change_rel: float = 0.15
     blur_sigma_px: float = 5.0
+    fit_to: PlaneFitPoints = PlaneFitPoints.RETURNS
+    min_region_returns: int = 40
 
 
 def _inlier_counts(points: F64, normals: F64, d: F64, threshold: float) -> NDArray[np.int64]:
@@ -460,21 +477,23 @@ def fit_plane_ransac(
 
 
 def _region_planes(
-    points: F64, opts: PlanarSmoothingOptions, rng: np.random.Generator
+    points: F64, opts: PlanarSmoothingOptions, rng: np.random.Generator,
+    min_points: int | None = None,
 ) -> list[F64]:
     """Up to ``opts.max_planes`` planes ``(4,)`` through ``points`` (N, 3), by RANSAC, each on the
     points further than ``assign_threshold_m`` from the earlier ones; a plane needs
-    ``opts.min_region_px`` inliers."""
+    ``min_points`` inliers (None: ``opts.min_region_px``)."""
+    need = opts.min_region_px if min_points is None else min_points
     planes: list[F64] = []
     left = points
-    while len(planes) < opts.max_planes and len(left) >= opts.min_region_px:
+    while len(planes) < opts.max_planes and len(left) >= need:
         pick = rng.choice(len(left), size=min(opts.sample_size, len(left)), replace=False)
         fit = fit_plane_ransac(left[pick], opts.ransac_threshold_m, opts.ransac_iterations, rng)
         if fit is None:
             break
         plane = fit[0]
         dist = np.abs(left @ plane[:3] + plane[3])
-        if (dist < opts.ransac_threshold_m).sum() < opts.min_region_px:
+        if (dist < opts.ransac_threshold_m).sum() < need:
             break
         planes.append(plane)
         # Drop everything the plane may claim, not only its RANSAC inliers: the noise tail of
@@ -491,13 +510,24 @@ def _smooth_region(
     camera: Camera,
     opts: PlanarSmoothingOptions,
     rng: np.random.Generator,
+    measured: F32 | None = None,
 ) -> None:
-    """Move the depth of one connected region's pixels onto the nearest of its planes, in place."""
+    """Move the depth of one connected region's pixels onto the nearest of its planes, in place;
+    the planes are fitted to the region's returns (``measured`` (H, W), 0 = none) when it has
+    ``opts.min_region_returns`` of them and ``opts.fit_to`` asks for it, else to its pixels."""
     uv = np.stack([cols, rows], 1).astype(np.float64)
     cur = depth[rows, cols].astype(np.float64)
     rays = camera.rays(uv, distorted=False)
     pts = rays * cur[:, None]  # camera.backproject, sharing its rays with the plane depths below
-    planes = _region_planes(pts, opts, rng)
+    planes: list[F64] = []
+    if measured is not None and opts.fit_to is PlaneFitPoints.RETURNS:
+        z_ret = measured[rows, cols].astype(np.float64)
+        has = z_ret > 0
+        if has.sum() >= opts.min_region_returns:
+            planes = _region_planes(rays[has] * z_ret[has, None], opts, rng,
+                                    opts.min_region_returns)
+    if not planes:
+        planes = _region_planes(pts, opts, rng)
     if not planes:
         return
     pl = np.stack(planes)  # (K, 4)
@@ -526,6 +556,7 @@ def smooth_planar_regions(
     camera: Camera,
     options: PlanarSmoothingOptions | None = None,
     seed: int = 0,
+    measured: ArrayLike | None = None,
 ) -> F32:
     """Smooth dense depth inside planar regions (floor, ceiling, walls).
 
@@ -540,6 +571,9 @@ def smooth_planar_regions(
         becomes the plane's along the pixel ray); ``BLUR`` is the paper's blur (normalised
         Gaussian, so that nothing outside the region or unknown leaks in).
     seed: RANSAC seed.
+    measured: (H, W) float32 depth of the sensor's own returns at their pixels (0 = none; the
+        sparse map ``depth`` was completed from); with ``options.fit_to`` RETURNS the planes are
+        fitted to them (:class:`PlanarSmoothingOptions`). None: to the pixels.
 
     Returns
     -------
@@ -555,6 +589,10 @@ def smooth_planar_regions(
             f"depth {d.shape}, labels {lab.shape} and camera {camera.height}x{camera.width} differ",
             field="labels",
         )
+    meas = None if measured is None else np.asarray(measured, dtype=np.float32)
+    if meas is not None and meas.shape != d.shape:
+        raise FusionInputError(f"measured depth {meas.shape} and depth {d.shape} differ",
+                               field="measured")
     out = d.copy()
     rng = np.random.default_rng(seed)
     for label in opts.labels:
@@ -580,5 +618,5 @@ def smooth_planar_regions(
         starts = np.searchsorted(ids[order], np.arange(n_comp + 1))
         for c in big:
             rows, cols = np.divmod(flat[order[starts[c]:starts[c + 1]]], comp.shape[1])
-            _smooth_region(out, d, rows, cols, camera, opts, rng)
+            _smooth_region(out, d, rows, cols, camera, opts, rng, meas)
     return out
