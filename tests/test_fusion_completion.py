@@ -275,12 +275,15 @@ def test_plane_fit_to_the_returns_is_unbiased_in_a_concave_corner() -> None:
     assert chord.max() > 0.02  # the corner's interpolated pixels: centimetres inside the room
     pixels = smooth_planar_regions(dense, labels, cam, PlanarSmoothingOptions(
         fit_to=PlaneFitPoints.PIXELS), measured=sp.depth)
-    returns = smooth_planar_regions(dense, labels, cam, PlanarSmoothingOptions(),
-                                    measured=sp.depth)
+    returns = smooth_planar_regions(dense, labels, cam, PlanarSmoothingOptions(
+        fit_to=PlaneFitPoints.RETURNS), measured=sp.depth)
     assert abs(floor_height(returns)) < 2e-4
     assert floor_height(pixels) > 5e-4  # what the fit to every pixel gave (0.96 mm)
     # without the returns the fit falls back to the pixels
+    np.testing.assert_array_equal(smooth_planar_regions(
+        dense, labels, cam, PlanarSmoothingOptions(fit_to=PlaneFitPoints.RETURNS)), pixels)
+    # the default (PIXELS, docs/generalization.md) is the fit to every pixel
     np.testing.assert_array_equal(
-        smooth_planar_regions(dense, labels, cam, PlanarSmoothingOptions()), pixels)
+        smooth_planar_regions(dense, labels, cam, measured=sp.depth), pixels)
     with pytest.raises(FusionInputError, match="measured"):
         smooth_planar_regions(dense, labels, cam, measured=sp.depth[:-1])
