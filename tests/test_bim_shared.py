@@ -22,7 +22,7 @@ import pytest
 from bimcap.bim.errors import MissingCeilingWarning, MissingFloorWarning
 from bimcap.bim.floorplan import build_floor_plan
 from bimcap.bim.ingest import BimModel, load_model
-from bimcap.bim.planes import extract_planes
+from bimcap.bim.planes import PlaneOptions, extract_planes
 from bimcap.labels import Label
 
 pytestmark = [pytest.mark.needs_shared, pytest.mark.slow]
@@ -109,9 +109,16 @@ def test_planes(model: BimModel) -> None:
         # Floor finishes at 13 and 19 mm on Level 1: each keeps its own height (averaged into
         # one plane at 16.2 mm they put the floor the walk is on 2.8 mm low, and the fixed
         # point's cameras 0.2 cm low, docs/generalization.md "What pulled the fixed point").
-        l1 = {round(p.height, 4) for p in planes if p.kind == Label.FLOOR
+        # With PlaneOptions(height_tol_m=0.002); the default (2 cm) merges them.
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the same warnings as above
+            fine = extract_planes(model, PlaneOptions(height_tol_m=0.002))
+        l1 = {round(p.height, 4) for p in fine if p.kind == Label.FLOOR
               and p.storey == "Level 1"}
         assert l1 == {0.013, 0.019}
+        merged = {round(p.height, 4) for p in planes if p.kind == Label.FLOOR
+                  and p.storey == "Level 1"}
+        assert 0.013 not in merged and 0.019 not in merged
     if model.path.name == "SampleHouse4.ifc":
         assert missing_floor == []
         floor = [p for p in planes if p.kind == Label.FLOOR and p.storey == "Ground Floor"]
