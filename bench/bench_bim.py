@@ -22,8 +22,11 @@ import time
 import warnings
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/'s own helpers
+from shared_paths import shared_ifc_dir
+
 REPO = Path(__file__).resolve().parents[1]
-SHARED = REPO.parent / "shared" / "data" / "ifc"
+SHARED = shared_ifc_dir()
 MODELS = ["AC20-FZK-Haus.ifc", "SampleHouse4.ifc", "Duplex_A_20110907.ifc",
           "Office_A_20110811.ifc"]
 

@@ -18,8 +18,11 @@ import sys
 import tempfile
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/'s own helpers
+from shared_paths import shared_ifc_dir
+
 REPO = Path(__file__).resolve().parents[1]
-SHARED = REPO.parent / "shared" / "data" / "ifc"
+SHARED = shared_ifc_dir()
 
 _CHILD = """
 import sys, time

@@ -40,12 +40,16 @@ from __future__ import annotations
 import argparse
 import csv
 import math
+import sys
 import time
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/'s own helpers
+from shared_paths import shared_ifc_dir
 
 FIELDS = ("world", "kind", "frames", "setting", "run", "method", "init_pos_m", "init_rot_deg",
           "pos_m", "rot_deg", "yaw_deg", "pitch_deg", "roll_deg", "fully_observed",
@@ -65,19 +69,6 @@ DEFAULT_WORLDS = ("gen-demo-s11,gen-demo-s23,gen-small-s3,gen-small-s8,gen-large
                   "gen-twostorey-s6,ifc-AC20-FZK-Haus,ifc-SampleHouse4,ifc-Duplex_A_20110907,"
                   "ifc-Office_A_20110811")
 
-
-def _shared_ifc_dir() -> Path:
-    """``../shared/data/ifc`` beside the checkout; from a git worktree (whose ``.git`` is a file
-    naming ``<main>/.git/worktrees/<name>``), the one beside the main checkout."""
-    repo = Path(__file__).resolve().parents[1]
-    candidates = [repo.parent / "shared" / "data" / "ifc"]
-    dot_git = repo / ".git"
-    if dot_git.is_file():
-        text = dot_git.read_text(encoding="utf-8").strip()
-        if text.startswith("gitdir:"):
-            main = Path(text.partition(":")[2].strip()).resolve().parents[2]
-            candidates.append(main.parent / "shared" / "data" / "ifc")
-    return next((c for c in candidates if c.is_dir()), candidates[0])
 
 
 #: The hard setting's wrong labels: 15 % of the labelled pixels (the issue asks 10–20 %), in
@@ -141,7 +132,7 @@ def make_world(work: Path, world: str, frames: int, setting: str) -> tuple[Path,
         if not (seq / "manifest.json").is_file():
             simulate(design, seq, _sim_config(setting, frames), seed=seed, as_built_ifc=built)
         return seq, built, design
-    ifc = _shared_ifc_dir() / f"{rest}.ifc"
+    ifc = shared_ifc_dir() / f"{rest}.ifc"
     if not ifc.is_file():
         raise SystemExit(f"{ifc}: not found (the real IFCs live in ../shared/data/ifc)")
     if not (seq / "manifest.json").is_file():

@@ -36,6 +36,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/'s own helpers
+from shared_paths import shared_ifc_dir
+
 F64 = NDArray[np.float64]
 
 
@@ -94,19 +97,6 @@ def _world(name: str) -> World:
     scenes: list[Scene] = [p[0] for p in parts]
     return World(name, plan, scenes, [p[1] for p in parts])
 
-
-def _shared_ifc_dir() -> Path:
-    """``../shared/data/ifc`` beside the checkout; from a git worktree (whose ``.git`` is a file
-    naming ``<main>/.git/worktrees/<name>``), the one beside the main checkout."""
-    repo = Path(__file__).resolve().parents[1]
-    candidates = [repo.parent / "shared" / "data" / "ifc"]
-    dot_git = repo / ".git"
-    if dot_git.is_file():
-        text = dot_git.read_text(encoding="utf-8").strip()
-        if text.startswith("gitdir:"):
-            main = Path(text.partition(":")[2].strip()).resolve().parents[2]
-            candidates.append(main.parent / "shared" / "data" / "ifc")
-    return next((c for c in candidates if c.is_dir()), candidates[0])
 
 
 def _ifc_world(name: str, ifc_dir: Path, min_walkable_m2: float = 10.0) -> World:
@@ -292,7 +282,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--pipeline", type=int, default=0, metavar="N",
                    help="also run the whole refine on N demo sequences")
     p.add_argument("--work", type=Path, default=Path("/tmp/bench_global"))
-    p.add_argument("--ifc-dir", type=Path, default=_shared_ifc_dir(),
+    p.add_argument("--ifc-dir", type=Path, default=shared_ifc_dir(),
                    help="where the real models (worlds ifc-<name>) live")
     args = p.parse_args(argv)
     rows = []

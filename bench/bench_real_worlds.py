@@ -22,10 +22,14 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench/'s own helpers
+from shared_paths import shared_ifc_dir
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -99,7 +103,7 @@ def refine_runs(ifc: Path, work: Path, frames: int, scale: float, seeds: list[in
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--ifc-dir", type=Path, default=REPO.parent / "shared" / "data" / "ifc")
+    ap.add_argument("--ifc-dir", type=Path, default=shared_ifc_dir())
     ap.add_argument("--refine", default="", help="comma-separated model name prefixes")
     ap.add_argument("--frames", type=int, default=50)
     ap.add_argument("--scale", type=float, default=0.25)
