@@ -170,10 +170,14 @@ class PlanarDepthRefiner:
     ----------
     options: ``bimcap.fusion.PlanarSmoothingOptions`` (None: defaults).
     seed: RANSAC seed.
+    range_noise: whether to measure the range noise of the frame's LiDAR scan
+        (:func:`bimcap.segmentation.geometric.scan_range_noise`) and smooth with
+        ``options.for_noise(σ)`` (wider plane thresholds above 4.5 cm of noise).
     """
 
     options: PlanarSmoothingOptions | None = None
     seed: int = 0
+    range_noise: bool = True
 
     def __post_init__(self) -> None:
         from bimcap.fusion import PlanarSmoothingOptions  # concrete defaults key the cache
@@ -186,8 +190,13 @@ class PlanarDepthRefiner:
 
         if ctx.depth is None:
             raise FrontendInputError("no depth to refine", None, f"frames[{ctx.index}].depth")
+        options = self.options
+        if self.range_noise and options is not None and hasattr(ctx.sequence, "load_lidar"):
+            from bimcap.segmentation.geometric import scan_range_noise
+
+            options = options.for_noise(scan_range_noise(ctx.sequence.load_lidar(ctx.index)))
         return np.asarray(
-            smooth_planar_regions(ctx.depth, labels, ctx.pinhole, self.options, seed=self.seed,
+            smooth_planar_regions(ctx.depth, labels, ctx.pinhole, options, seed=self.seed,
                                   measured=ctx.measured_depth),
             np.float32,
         )
