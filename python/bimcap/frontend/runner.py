@@ -757,6 +757,10 @@ def _scan_points(seq: Any, i: int, pinhole: Camera, options: ScanSamplingOptions
     scan = np.asarray(seq.load_lidar(i))
     if scan.ndim != 2 or scan.shape[1] < 3 or len(scan) == 0:
         return np.zeros((0, 3)), np.zeros((0, 3))
+    from bimcap.segmentation.geometric import scan_range_noise
+
+    # the voxel grows with the scan's own range noise (ScanSamplingOptions.for_noise)
+    options = options.for_noise(scan_range_noise(scan))
     return scan_surface_points(scan, seq.cam_from_lidar, pinhole, options)
 
 
