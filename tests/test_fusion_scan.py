@@ -137,3 +137,34 @@ def test_degenerate_scans_and_bad_options() -> None:
         ScanSamplingOptions(max_tilt_deg=60.0)
     with pytest.raises(ScanSamplingError):
         ScanSamplingOptions(min_range_m=5.0, max_range_m=1.0)
+
+
+def test_a_scan_with_8_cm_of_range_noise_is_sampled_with_a_coarser_voxel() -> None:
+    """At 8 cm of range noise (the bench's hard setting) 10 cm voxel means are too noisy for
+    their neighbourhoods to look planar: fewer walls, and floor samples that are walls with a
+    tilted normal. ``for_noise`` grows the voxel with the noise (at most twice) and gets more
+    walls, every floor sample on the floor; at the reference noise nothing changes."""
+    world_from_lidar = _world_from_lidar(35.0, 6.0)
+    world_from_cam = compose(world_from_lidar, invert(CAM_FROM_LIDAR))
+    opts = ScanSamplingOptions()
+    assert opts.for_noise(0.03) == opts and opts.for_noise(None) == opts
+    assert opts.for_noise(0.08).voxel_m == pytest.approx(0.2)  # 2.67x, capped at 2x
+
+    def sampled(o: ScanSamplingOptions) -> dict[Label, np.ndarray]:
+        p_cam, n_cam = scan_surface_points(_scan(world_from_lidar, noise_m=0.08),
+                                           CAM_FROM_LIDAR, CAMERA, o)
+        return classify_scan_points(p_cam, n_cam, world_from_cam, frame_index=3, options=o)
+
+    made_for_3cm, widened = sampled(opts), sampled(opts.for_noise(0.08))
+    assert len(widened[Label.WALL]) > 1.3 * len(made_for_3cm[Label.WALL])
+
+    def floor_off(classes: dict[Label, np.ndarray]) -> int:
+        """Floor samples more than 10 cm off the floor (walls whose normal came out tilted)."""
+        dist = _face_distance(transform_points(world_from_cam, classes[Label.FLOOR]))["floor"]
+        return int((dist > 0.1).sum())
+
+    assert floor_off(made_for_3cm) > 10
+    assert floor_off(widened) <= 2
+    for classes in (made_for_3cm, widened):
+        dist = _face_distance(transform_points(world_from_cam, classes[Label.WALL]))["wall"]
+        assert np.median(dist) < 0.04
