@@ -737,7 +737,7 @@ def _solve_prepared(prepared: Prepared, config: RefineConfig, max_plane_rounds: 
     t0 = time.perf_counter()
     poses = prepared.init.poses.copy()
     base = solver_options(config)
-    noise = sequence_range_noise(prepared.sequence)
+    noise = sequence_range_noise(getattr(prepared, "sequence", None))
     widened = pixel_sigma_for_noise(base, config, noise)
     if widened is not base:
         _log.info(f"LiDAR range noise {noise * 100:.1f} cm: G's pixel noise scale "
