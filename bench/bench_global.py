@@ -211,7 +211,7 @@ def run_registration(world: World, seed: int, frames: int) -> dict[str, Any]:
         return {**row, "right": False, "cam_err_m": nan, "yaw_err_deg": nan, "ratio": nan,
                 "right_storey": False, "score": nan, "fit": nan, "free": nan,
                 "see_through": nan, "constraint": nan, "alias_ratio": nan,
-                "alias_difference": nan, "twins": 0}
+                "alias_difference": nan, "alias_fit": nan, "twins": 0}
     est = compose(res.world_from_slam, slam.trajectory.poses)
     true = compose(invert(slam.slam_from_world), slam.trajectory.poses)
     cam_err = float(np.linalg.norm(est[:, :3] - true[:, :3], axis=1).mean())
@@ -227,6 +227,7 @@ def run_registration(world: World, seed: int, frames: int) -> dict[str, Any]:
             "constraint": best.constraint,
             "alias_ratio": float("nan") if res.alias is None else res.alias.score_ratio,
             "alias_difference": float("nan") if res.alias is None else res.alias.difference,
+            "alias_fit": float("nan") if res.alias is None else res.alias.fit_score,
             "twins": len(res.twin_floors)}
 
 
