@@ -30,7 +30,8 @@ bundle adjustment can take over:
    placed scan exactly as the best one's does (:func:`twin_storeys`: a tower of identical
    floors, which the scores cannot separate and the SLAM frame's heights do not), or when the
    plan repeats what the best placement saw somewhere else and the real scan placed there
-   scores at least ``ambiguity_ratio`` of the best (:func:`_plan_alias`: a point-symmetric
+   scores at least ``ambiguity_ratio`` of the best, or fits there acceptably where the plan
+   repeats almost exactly (:func:`_plan_alias`, :func:`_alias_ambiguous`: a point-symmetric
    duplex, where drift can rank the wrong unit first), the result is ambiguous:
    :func:`global_align` raises :class:`AmbiguousAlignmentError` (with the ranked hypotheses)
    unless ``accept_ambiguous`` is set. A best hypothesis that fits badly raises
@@ -897,8 +898,9 @@ def _alias_ambiguous(alias: PlanAlias, opt: GlobalAlignOptions) -> bool:
     point-symmetric units (bench_global, 20 seeds each with 2 cm and 2 mm floor planes; median
     0.04). There a perfect scan scores the two alike and the real scan's gap between them is
     what drift, clutter and the local optima of ICP make of it: the real ratio at those aliases
-    spread from 0.71 to 1.04, and a 3 mm change of a floor plane moved seed 14 from >= 0.9 to
-    0.875 (placed 7.3 m off, unflagged, under the ratio threshold alone). The smallest ideal
+    spread from 0.69 to 1.09 (docs/global_align.md, "Near-exact aliases"), and a 3 mm change
+    of a floor plane moved seed 14 from >= 0.9 to 0.875 (placed 7.3 m off, unflagged, under the
+    ratio threshold alone). The smallest ideal
     difference of an alias behind a right, unflagged placement on the generated worlds was
     0.107 (the 180 deg image of a corridor of jittered room widths); the limit, 0.1, sits
     nearer that side: a miss there costs a flag, a miss on the other a wrong placement."""
