@@ -99,16 +99,21 @@ def _world(name: str) -> World:
 
 
 
-def _ifc_world(name: str, ifc_dir: Path, min_walkable_m2: float = 10.0) -> World:
+def _ifc_world(name: str, ifc_dir: Path, min_walkable_m2: float = 10.0,
+               height_tol_m: float | None = None) -> World:
     """A real model as a world of the registration level: the plan is the BIM reference's
     (every storey, as ``bimcap refine`` builds it; cached in ``$BIMCAP_CACHE_DIR``); each storey
     the walker can walk (:func:`bimcap.sim.walkable.survey_level` on the model's meshes, door
     leaves removed, at least ``min_walkable_m2``) gives a scene, its plan section extruded from
     its floor to its ceiling (2.5 m above the floor where the plan has none: a pitched roof),
     and a walk through its free space (:func:`bimcap.sim.walk.plan_walk`, 120 s, one fixed
-    draw: the seeds pick where along it the 60 frames start)."""
+    draw: the seeds pick where along it the 60 frames start). ``height_tol_m``: floor planes
+    merged within this (:class:`bimcap.bim.planes.PlaneOptions`; None: the default, and the
+    reference comes from the cache; otherwise it is built here, uncached)."""
     from bimcap.bim import load_model
     from bimcap.bim.cache import reference_for
+    from bimcap.bim.planes import PlaneOptions
+    from bimcap.bim.reference import ReferenceOptions, build_reference
     from bimcap.labels import Label
     from bimcap.registration import FloorPlan, GlobalAlignOptions
     from bimcap.registration.global_align import _storeys
@@ -121,11 +126,15 @@ def _ifc_world(name: str, ifc_dir: Path, min_walkable_m2: float = 10.0) -> World
     ifc = ifc_dir / f"{name.removeprefix('ifc-')}.ifc"
     if not ifc.is_file():
         raise SystemExit(f"{ifc}: not found (the real IFCs live in ../shared/data/ifc)")
-    ref, _ = reference_for(ifc, None)
+    model = load_model(ifc)
+    if height_tol_m is None:
+        ref, _ = reference_for(ifc, None)
+    else:
+        ref = build_reference(model, ReferenceOptions(planes=PlaneOptions(
+            height_tol_m=height_tol_m)))
     plan = FloorPlan.from_planes(ref.segments, ref.segment_class, ref.segment_z, ref.planes,
                                  ref.plane_kind)
     sections = _storeys(plan, GlobalAlignOptions().plan_cut_height_m)
-    model = load_model(ifc)
     parts = model_parts(model)
     parts += missing_floor_parts(model)[0]
     doors = door_footprints([p for p in parts if p.label == Label.DOOR])
@@ -191,7 +200,8 @@ def run_registration(world: World, seed: int, frames: int) -> dict[str, Any]:
         nan = float("nan")
         return {**row, "right": False, "cam_err_m": nan, "yaw_err_deg": nan, "ratio": nan,
                 "right_storey": False, "score": nan, "fit": nan, "free": nan,
-                "see_through": nan, "constraint": nan, "alias_ratio": nan}
+                "see_through": nan, "constraint": nan, "alias_ratio": nan,
+                "alias_difference": nan, "alias_fit": nan, "twins": 0}
     est = compose(res.world_from_slam, slam.trajectory.poses)
     true = compose(invert(slam.slam_from_world), slam.trajectory.poses)
     cam_err = float(np.linalg.norm(est[:, :3] - true[:, :3], axis=1).mean())
@@ -205,7 +215,10 @@ def run_registration(world: World, seed: int, frames: int) -> dict[str, Any]:
             and abs(floor - scene.floor_z) < 0.3, "score": best.score, "fit": best.fit_score,
             "free": best.free_fraction, "see_through": best.see_through,
             "constraint": best.constraint,
-            "alias_ratio": float("nan") if res.alias is None else res.alias.score_ratio}
+            "alias_ratio": float("nan") if res.alias is None else res.alias.score_ratio,
+            "alias_difference": float("nan") if res.alias is None else res.alias.difference,
+            "alias_fit": float("nan") if res.alias is None else res.alias.fit_score,
+            "twins": len(res.twin_floors)}
 
 
 def summarise(rows: list[dict[str, Any]]) -> str:
@@ -276,6 +289,8 @@ def run_pipeline(n: int, work: Path, frames: int) -> list[dict[str, Any]]:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--seeds", type=int, default=20)
+    p.add_argument("--seed-list", default=None, metavar="S,S",
+                   help="run these seeds only (instead of 0..seeds-1)")
     p.add_argument("--worlds", default="demo,long,tiny,stack,tower")
     p.add_argument("--frames", type=int, default=60)
     p.add_argument("--csv", type=Path, default=None)
@@ -284,15 +299,22 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--work", type=Path, default=Path("/tmp/bench_global"))
     p.add_argument("--ifc-dir", type=Path, default=shared_ifc_dir(),
                    help="where the real models (worlds ifc-<name>) live")
+    p.add_argument("--plane-height-tol-m", type=float, default=None, metavar="M",
+                   help="real models: floor planes merged within M (PlaneOptions.height_tol_m; "
+                   "default: the package default, cached reference)")
     args = p.parse_args(argv)
     rows = []
     for name in args.worlds.split(","):
-        world = (_ifc_world(name, args.ifc_dir) if name.startswith("ifc-") else _world(name))
-        for seed in range(args.seeds):
+        world = (_ifc_world(name, args.ifc_dir, height_tol_m=args.plane_height_tol_m)
+                 if name.startswith("ifc-") else _world(name))
+        seeds = (range(args.seeds) if args.seed_list is None
+                 else [int(v) for v in args.seed_list.split(",")])
+        for seed in seeds:
             row = run_registration(world, seed, args.frames)
             rows.append(row)
             print(f"{name} seed {seed}: {row['outcome']}, right {row['right']}, cam error "
-                  f"{row['cam_err_m']:.2f} m, ratio {row['ratio']:.2f}, "
+                  f"{row['cam_err_m']:.2f} m, ratio {row['ratio']:.2f}, alias ratio "
+                  f"{row['alias_ratio']:.3f} (difference {row['alias_difference']:.3f}), "
                   f"{row['seconds']:.1f} s", file=sys.stderr, flush=True)
     print(summarise(rows))
     placed = [r for r in rows if r["outcome"] == "placed"]

@@ -30,7 +30,8 @@ bundle adjustment can take over:
    placed scan exactly as the best one's does (:func:`twin_storeys`: a tower of identical
    floors, which the scores cannot separate and the SLAM frame's heights do not), or when the
    plan repeats what the best placement saw somewhere else and the real scan placed there
-   scores at least ``ambiguity_ratio`` of the best (:func:`_plan_alias`: a point-symmetric
+   scores at least ``ambiguity_ratio`` of the best, or fits there acceptably where the plan
+   repeats almost exactly (:func:`_plan_alias`, :func:`_alias_ambiguous`: a point-symmetric
    duplex, where drift can rank the wrong unit first), the result is ambiguous:
    :func:`global_align` raises :class:`AmbiguousAlignmentError` (with the ranked hypotheses)
    unless ``accept_ambiguous`` is set. A best hypothesis that fits badly raises
@@ -111,6 +112,12 @@ class GlobalAlignOptions:
         search for where else the plan repeats what the best placement saw
         (:func:`_plan_alias`): on/off, points of the ideal scan, peaks refined per storey, ICP
         tolerance, aliases rescored with the real scan, largest ideal difference rescored.
+    alias_exact_difference: an alias where the plan repeats what the scan saw almost exactly
+        (ideal difference at most this) makes the result ambiguous whatever the ratio of the
+        real scores, when the real scan placed there would itself be accepted (``min_score``,
+        ``min_free_fraction``, ``max_see_through``): the plan gives a perfect scan next to
+        nothing to tell the two apart, so the real scan's gap is drift and noise
+        (:func:`_alias_ambiguous`).
     accept_ambiguous: take the best hypothesis even when the result is ambiguous (flagged in
         the result, never hidden).
     report_top: hypotheses kept in the result.
@@ -157,6 +164,7 @@ class GlobalAlignOptions:
     alias_tol_m: float = 0.1
     alias_rescore: int = 3
     alias_max_difference: float = 0.2
+    alias_exact_difference: float = 0.1
     accept_ambiguous: bool = False
     report_top: int = 5
     seed: int = 0
@@ -178,7 +186,7 @@ class GlobalAlignOptions:
                 raise RegistrationInputError(f"must be >= 1, got {getattr(self, name)}", None,
                                              name)
         for name in ("ambiguity_ratio", "min_score", "min_free_fraction", "max_see_through",
-                     "alias_max_difference"):
+                     "alias_max_difference", "alias_exact_difference"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise RegistrationInputError("must be in [0, 1]", None, name)
         if not 0 <= self.enclosed_min_hits <= self.enclosed_rays:
@@ -740,6 +748,9 @@ class PlanAlias:
     score_ratio: ``score`` / the best placement's score (the lower of its search score and its
         :func:`_score_at` score on the same points); at or above ``ambiguity_ratio`` the result
         is ambiguous.
+    fit_score, scan_free_fraction, scan_see_through: the real scan's per-frame fit, share of
+        cameras in free space and share of points seen through walls at this placement (what
+        the best placement must reach to be accepted; :func:`_alias_ambiguous`).
     """
 
     floor_z: float | None
@@ -751,6 +762,9 @@ class PlanAlias:
     difference: float
     score: float = 0.0
     score_ratio: float = 0.0
+    fit_score: float = 0.0
+    scan_free_fraction: float = 0.0
+    scan_see_through: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -768,7 +782,9 @@ def _plan_alias(best: _Found, scan: _Scan, sections: list[_Storey], plan: FloorP
     scan's score (:func:`_score_at`): the search may have missed them, and drift can rank the
     truth below its alias (a duplex of two point-symmetric units: the wrong unit fitted better
     in 3 of 20 runs). The returned alias is the one whose real score is highest; the caller
-    flags the result when that score is at least ``ambiguity_ratio`` of the best's.
+    flags the result when that score is at least ``ambiguity_ratio`` of the best's, or
+    ``alias_exact_ratio`` where the plan repeats almost exactly (:func:`_alias_ambiguous`); an
+    alias that makes the result ambiguous is returned before one that does not.
     None: too few points, or no distinct placement within ``alias_max_difference``."""
     keep = _keep(scan, best.storey, opt)
     sm_best = storey_maps[_section_key(plan, best.storey)]
@@ -860,9 +876,40 @@ def _plan_alias(best: _Found, scan: _Scan, sections: list[_Storey], plan: FloorP
         f = _score_at(corr, storey, storey_maps[_section_key(plan, storey)], all_xy, all_cls,
                       all_view, all_frame, scan.cams[:, :2], opt)
         ratio = f.score / best_score if best_score > 0 else 0.0
-        if out is None or ratio > out.score_ratio:
-            out = replace(alias, score=f.score, score_ratio=ratio)
+        here = replace(alias, score=f.score, score_ratio=ratio, fit_score=f.fit,
+                       scan_free_fraction=f.free, scan_see_through=f.see_through)
+        if out is None or ((_alias_ambiguous(here, opt), ratio)
+                           > (_alias_ambiguous(out, opt), out.score_ratio)):
+            out = here
     return out
+
+
+def _alias_ambiguous(alias: PlanAlias, opt: GlobalAlignOptions) -> bool:
+    """Whether ``alias`` makes the result ambiguous: the real scan scores at least
+    ``ambiguity_ratio`` of the best there, or the plan repeats what the best placement saw
+    almost exactly (ideal difference at most ``alias_exact_difference``) and the real scan
+    placed there would itself be accepted (per-frame fit at least ``min_score``, cameras in
+    free space at least ``min_free_fraction``, points seen through walls at most
+    ``max_see_through``), whatever the ratio.
+
+    Why no ratio at a near-exact alias: the ideal difference is what a perfect scan could tell
+    apart. At an exact repeat it is not 0 (the ICP tolerance, the fine score's width, the best
+    placement's own cameras near walls): 0.03-0.08 at the 180 deg image of Duplex_A's two
+    point-symmetric units (bench_global, 20 seeds each with 2 cm and 2 mm floor planes; median
+    0.04). There a perfect scan scores the two alike and the real scan's gap between them is
+    what drift, clutter and the local optima of ICP make of it: the real ratio at those aliases
+    spread from 0.69 to 1.09 (docs/global_align.md, "Near-exact aliases"), and a 3 mm change
+    of a floor plane moved seed 14 from >= 0.9 to 0.875 (placed 7.3 m off, unflagged, under the
+    ratio threshold alone). The smallest ideal
+    difference of an alias behind a right, unflagged placement on the generated worlds was
+    0.107 (the 180 deg image of a corridor of jittered room widths); the limit, 0.1, sits
+    nearer that side: a miss there costs a flag, a miss on the other a wrong placement."""
+    if alias.score_ratio >= opt.ambiguity_ratio:
+        return True
+    return (alias.difference <= opt.alias_exact_difference
+            and alias.fit_score >= opt.min_score
+            and alias.scan_free_fraction >= opt.min_free_fraction
+            and alias.scan_see_through <= opt.max_see_through)
 
 
 def _free_map(segments: F64, bounds: tuple[float, float, float, float],
@@ -1108,7 +1155,7 @@ def global_align(
              if opt.alias_check else None)
     timings["alias"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start
-    aliased = alias is not None and alias.score_ratio >= opt.ambiguity_ratio
+    aliased = alias is not None and _alias_ambiguous(alias, opt)
     ambiguous = ratio >= opt.ambiguity_ratio or bool(twins) or aliased
     m_best = _transform(best, gravity, scan.floor_z)
     result = GlobalAlignResult(
@@ -1130,11 +1177,17 @@ def global_align(
         if twins:
             why = (f"the storey has {len(twin_floors)} identical twin(s) (floors at "
                    f"{', '.join(f'{z:.2f}' for z in twin_floors)} m) that no scan can tell apart")
-        elif aliased and alias is not None and alias.score_ratio > ratio:
+        elif aliased and alias is not None and (alias.score_ratio > ratio
+                                                 or ratio < opt.ambiguity_ratio):
+            exact = alias.score_ratio < opt.ambiguity_ratio
             why = (f"the plan repeats what the scan saw {alias.moved_m:.1f} m away, turned by "
-                   f"{alias.yaw_deg:.0f} deg, and the scan placed there scores "
-                   f"{alias.score_ratio:.0%} of the best (threshold {opt.ambiguity_ratio:.0%}; "
-                   "a point-symmetric or repeated layout)")
+                   f"{alias.yaw_deg:.0f} deg (ideal difference {alias.difference:.2f}), and the "
+                   f"scan placed there scores {alias.score_ratio:.0%} of the best ("
+                   + (f"the plan repeats within {opt.alias_exact_difference:.2f}, so no ratio "
+                      f"tells them apart, and the scan fits there too: fit "
+                      f"{alias.fit_score:.2f}, free {alias.scan_free_fraction:.0%}" if exact
+                      else f"threshold {opt.ambiguity_ratio:.0%}")
+                   + "; a point-symmetric or repeated layout)")
         else:
             why = (f"the second-best placement scores {ratio:.0%} of the best (threshold "
                    f"{opt.ambiguity_ratio:.0%}; a symmetric layout or repeated rooms)")
