@@ -123,8 +123,10 @@ class PlaneOptions:
         19 mm become one plane at 16.2 mm, 2.8 mm under the 19 mm floor the walk is on (its
         fixed point 0.43 cm; 0.41 cm with 2 mm). 2 mm is not the default: with it one global
         alignment of Duplex_A (bench_global seed 14) scored its 180-degree alias at 0.875 of
-        the best instead of flagging it, a silently wrong placement
-        (docs/generalization.md, "What still pulled the fixed point").
+        the best, a silently wrong placement before the near-exact alias rule
+        (docs/global_align.md, "Near-exact aliases"; flagged since), and the fixed point's
+        gain is one world's 0.02 cm (docs/generalization.md, "What still pulled the fixed
+        point").
     hide_gap_m: a top face is hidden where another element's bottom face lies within this above
         it (a finish floor on its structural slab, a raised floor, a wall), a bottom face where
         another element's top face lies within this below it (a slab over its ceiling covering).
