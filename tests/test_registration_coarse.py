@@ -375,3 +375,27 @@ def test_tracked_translation_a_window_confirms_is_kept(demo: Scene) -> None:
     res = coarse_register(init, samples, demo.floor_plan(), CoarseOptions())
     assert not res.translation_dropped and res.accepted.any()
     assert pose_errors(res.poses, gt)[0].max() < 0.3
+
+
+def test_a_window_is_not_put_in_a_storey_its_cameras_do_not_fit() -> None:
+    """Duplex_A 250 frames, Exp 2, window 140-149: its only floor points came from two frames
+    about 1 m low, their median (-1.02 m) lay nearer the 1.1 m crawl space's floor (-1.25 m)
+    than the ground floor (0.016 m), and the window's walls were matched against the crawl
+    space's plan: 1.6 m off, accepted. The cameras stood 1.5-1.9 m above those floor points
+    (whatever their z error), above the crawl space's ceiling (-0.13 m): that storey cannot
+    hold them."""
+    from bimcap.registration._coarse_steps import _pick_floor, _pick_height
+    from bimcap.registration.coarse import FloorPlan
+
+    plan = FloorPlan(np.array([[0.0, 0.0, 1.0, 0.0]]), np.array([1]),
+                     floor_heights=np.array([-1.25, 0.016, 3.12]),
+                     ceiling_heights=np.array([-0.13, 1.2, 2.6, 5.7]))  # 1.2: a soffit
+    floor_z, low_cams = np.full(20, -1.02), np.full(20, 0.5)
+    assert _pick_height(plan.floor_heights, -1.02) == -1.25  # by height alone: the crawl space
+    assert _pick_floor(plan, floor_z, low_cams, 0.5) == pytest.approx(0.016)
+    # cameras 0.8 m above their floor points fit in the crawl space: nearest floor as before
+    assert _pick_floor(plan, floor_z, np.full(20, -0.22), -0.22) == -1.25
+    # the soffit at 1.2 m does not make the ground floor too low for a camera 1.5 m up
+    assert _pick_floor(plan, np.full(5, 0.3), np.full(5, 1.8), 1.8) == pytest.approx(0.016)
+    # no floor points: the highest floor at or below the cameras, as before
+    assert _pick_floor(plan, np.zeros(0), np.zeros(0), 1.5) == pytest.approx(0.016)

@@ -62,7 +62,7 @@ from bimcap.progress import progress
 from bimcap.registration._coarse_steps import (
     _CLASSES,
     _Candidate,
-    _pick_height,
+    _pick_floor,
     _register_window,
     _split_windows,
     _StageClock,
@@ -485,8 +485,7 @@ def _level_frames(poses: F64, samples: SemanticSamples, plan: FloorPlan,
         return out
 
     def floor_z_of(floor_pts: F64, cam_z: float) -> float | None:
-        ref = float(np.median(floor_pts[:, 2])) if len(floor_pts) else cam_z
-        return _pick_height(plan.floor_heights, ref, below=not len(floor_pts))
+        return _pick_floor(plan, floor_pts[:, 2], cam_z, cam_z)
 
     fopt = FrameLevelOptions(yaw_range_deg=opt.frame_yaw_range_deg,
                              yaw_step_deg=opt.yaw_step_deg, xy_range_m=opt.frame_xy_range_m,
