@@ -10,7 +10,9 @@
    The tracked translation is a proposal of single frames, each of which may fit an alias (a
    mirrored flat, a repeated room): if the windows below are searched from it and none is
    accepted, it is dropped and the windows start again from the input positions (with the
-   per-frame rotations); ``CoarseResult.translation_dropped`` records it.
+   per-frame rotations); ``CoarseResult.translation_dropped`` records it. Otherwise it stands
+   only in the accepted windows: a rejected window's frames drop their own and take the
+   accepted windows' interpolated corrections (``frame_translation_per_window``).
 
 Then per window of ``window_frames`` consecutive frames (whose relative poses are trusted: drift is
 smooth):
