@@ -89,6 +89,10 @@ def test_refine_from_the_truth_stays_there(tiny_demo, tmp_path: Path) -> None:
     obs = outcome.to_dict()["observability"]
     assert len(obs["frames"]) == len(gt) and obs["dof"][-1] == "yaw"
     assert 0 < obs["fully_observed_frames"] <= len(gt)
+    # the refined trajectory follows the input's motion: the motion check finds no block
+    motion = outcome.to_dict()["motion_check"]
+    assert motion["failed"] is False and motion["breaks"] == []
+    assert motion["segments"] == [[0, len(gt)]]
 
 
 @pytest.mark.slow
@@ -121,6 +125,7 @@ def test_refine_cli_outputs_and_never_overwrites(tiny_demo, tmp_path: Path) -> N
     assert check["failed"] == [] and set(check["terms"]) <= {"F", "Ce"}
     assert check["terms"]["F"]["samples"] > 0 and check["terms"]["F"]["median_abs_m"] < 0.05
     assert result["solve"]["problem"]["plane_choice"]["floor"]["assigned"] > 0
+    assert result["solve"]["motion_check"]["failed"] is False  # and so is the motion check
     for name in ("refined.tum", "summary.json", "map_before.ply", "map_after.ply"):
         assert (out / name).is_file()
     assert (seq / "poses" / "gt.tum").read_bytes() == gt_before

@@ -329,9 +329,11 @@ def test_true_pose_is_a_fixed_point_in_a_real_duplex(ifc_dir, tmp_path) -> None:
 
 
 
-def _with_tracked_translation(monkeypatch: pytest.MonkeyPatch, offset_xy: np.ndarray) -> None:
+def _with_tracked_translation(monkeypatch: pytest.MonkeyPatch, offset_xy: np.ndarray,
+                              frames: slice = slice(None)) -> None:
     """Make stage 0's tracked translation that of the truth plus ``offset_xy`` (2,) metres on
-    every frame (what the per-frame track reports when its frames lock onto an alias)."""
+    ``frames`` (default every frame: what the per-frame track reports when its frames lock
+    onto an alias)."""
     from dataclasses import replace
 
     from bimcap.registration import coarse
@@ -341,7 +343,7 @@ def _with_tracked_translation(monkeypatch: pytest.MonkeyPatch, offset_xy: np.nda
     def aliased(*args: object, **kwargs: object) -> object:
         fl = real(*args, **kwargs)
         t3 = fl.translation.copy()
-        t3[:, :2] += offset_xy
+        t3[frames, :2] += offset_xy
         return replace(fl, translation=t3,
                        drift_m=float(np.median(np.linalg.norm(t3, axis=1))))
 
@@ -375,3 +377,48 @@ def test_tracked_translation_a_window_confirms_is_kept(demo: Scene) -> None:
     res = coarse_register(init, samples, demo.floor_plan(), CoarseOptions())
     assert not res.translation_dropped and res.accepted.any()
     assert pose_errors(res.poses, gt)[0].max() < 0.3
+
+
+def test_tracked_translation_stands_only_in_windows_that_confirm_it(
+        demo: Scene, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Duplex_A 250 frames, Exp 2: stage 0 tracked runs of 15-20 frames 1.3-2.4 m off (a
+    look-alike room) while the windows elsewhere confirmed the true drift. Here the middle
+    window's frames are tracked 2.6 m north, into the rooms beside the corridor: that window is
+    not accepted, and its frames must drop their own translation for the accepted windows'
+    corrections, not keep the alias (the bundle adjustment holds a block placed there)."""
+    gt = corridor_walk(30, x0=2.5)
+    samples = scan_sequence(gt, demo, seed=5, clutter_fraction=0.03)
+    init = per_frame_drift(gt, 3, 6.0, 3.0, 0.01, np.array([0.8, 0.4, 0.1]))
+    _with_tracked_translation(monkeypatch, np.array([0.0, 2.6]), slice(10, 20))
+    res = coarse_register(init, samples, demo.floor_plan(), CoarseOptions())
+    assert res.accepted[:10].all() and res.accepted[20:].all() and not res.accepted[10:20].any()
+    t_err, _ = pose_errors(res.poses, gt)
+    assert t_err.max() < 0.3, t_err
+    # without the rule the middle window's frames keep the alias
+    off = coarse_register(init, samples, demo.floor_plan(),
+                          CoarseOptions(frame_translation_per_window=False))
+    assert pose_errors(off.poses, gt)[0][10:20].min() > 1.0
+
+
+def test_a_window_is_not_put_in_a_storey_its_cameras_do_not_fit() -> None:
+    """Duplex_A 250 frames, Exp 2, window 140-149: its only floor points came from two frames
+    about 1 m low, their median (-1.02 m) lay nearer the 1.1 m crawl space's floor (-1.25 m)
+    than the ground floor (0.016 m), and the window's walls were matched against the crawl
+    space's plan: 1.6 m off, accepted. The cameras stood 1.5-1.9 m above those floor points
+    (whatever their z error), above the crawl space's ceiling (-0.13 m): that storey cannot
+    hold them."""
+    from bimcap.registration._coarse_steps import _pick_floor, _pick_height
+    from bimcap.registration.coarse import FloorPlan
+
+    plan = FloorPlan(np.array([[0.0, 0.0, 1.0, 0.0]]), np.array([1]),
+                     floor_heights=np.array([-1.25, 0.016, 3.12]),
+                     ceiling_heights=np.array([-0.13, 1.2, 2.6, 5.7]))  # 1.2: a soffit
+    floor_z, low_cams = np.full(20, -1.02), np.full(20, 0.5)
+    assert _pick_height(plan.floor_heights, -1.02) == -1.25  # by height alone: the crawl space
+    assert _pick_floor(plan, floor_z, low_cams, 0.5) == pytest.approx(0.016)
+    # cameras 0.8 m above their floor points fit in the crawl space: nearest floor as before
+    assert _pick_floor(plan, floor_z, np.full(20, -0.22), -0.22) == -1.25
+    # the soffit at 1.2 m does not make the ground floor too low for a camera 1.5 m up
+    assert _pick_floor(plan, np.full(5, 0.3), np.full(5, 1.8), 1.8) == pytest.approx(0.016)
+    # no floor points: the highest floor at or below the cameras, as before
+    assert _pick_floor(plan, np.zeros(0), np.zeros(0), 1.5) == pytest.approx(0.016)

@@ -429,3 +429,86 @@ def test_odometry_limits_follow_the_trajectory_and_flag_a_frame_the_drift_left_b
                     * Rotation.from_quat(truth[:, 3:])).as_quat()
     max_m, max_deg = odometry_limits(truth, noisy, 0.9, 45.0)
     assert max_m == pytest.approx(0.9) and 15.0 < max_deg <= 45.0
+
+
+def _walk(n: int) -> np.ndarray:
+    """(n, 7) cameras 0.3 m apart along x, turning 2° a frame about the z axis."""
+    from scipy.spatial.transform import Rotation
+
+    poses = np.zeros((n, 7))
+    poses[:, 0] = 0.3 * np.arange(n)
+    poses[:, 3:] = Rotation.from_euler("z", 2.0 * np.arange(n)[:, None], degrees=True).as_quat()
+    return poses
+
+
+def _matches(poses: np.ndarray, pairs: list[tuple[int, int]], k: np.ndarray,
+             seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """30 matches per pair, exact under ``poses``: points 2-4 m in front of the first camera,
+    projected into both (``match_frames``, ``match_uv``, ``match_depth``)."""
+    from bimcap.geometry.poses import invert, transform_points
+
+    rng = np.random.default_rng(seed)
+    frames, uv, depth = [], [], []
+    for a, b in pairs:
+        p_a = np.c_[rng.uniform(-0.5, 0.5, (30, 2)), rng.uniform(2.0, 4.0, 30)]
+        p_b = transform_points(invert(poses[[b] * 30]), transform_points(poses[[a] * 30], p_a))
+        proj = [np.c_[k[0] * p[:, 0] / p[:, 2] + k[2], k[1] * p[:, 1] / p[:, 2] + k[3]]
+                for p in (p_a, p_b)]
+        frames.append(np.tile([a, b], (30, 1)))
+        uv.append(np.hstack(proj))
+        depth.append(np.c_[p_a[:, 2], p_b[:, 2]])
+    return np.vstack(frames).astype(np.int32), np.vstack(uv), np.vstack(depth)
+
+
+def test_motion_check_flags_a_block_placed_elsewhere() -> None:
+    """Duplex_A 250 frames, Exp 2: frames 120-179 were solved 1.55 m off as a block (a
+    look-alike room), every solve converged and every frame counted as observed. Inside the
+    block each frame follows its neighbours, so the per-frame odometry check sees nothing; the
+    motion check finds the block's two ends, and no match links across them: it fails."""
+    from bimcap.registration.odometry import motion_check, odometry_outliers
+
+    rng = np.random.default_rng(1)
+    n = 40
+    truth = _walk(n)
+    inp = truth.copy()
+    inp[:, :2] += np.cumsum(rng.normal(0.0, 0.01, (n, 2)), axis=0)  # a slow drift
+    solved = truth.copy()
+    solved[15:27, :2] += np.array([1.5, -0.3])  # the block
+    assert odometry_outliers(solved, inp, 0.5, 45.0).outliers == []
+    k = np.array([500.0, 500.0, 320.0, 240.0])
+    pairs = [(f, f + 1) for f in range(n - 1) if f not in (14, 26)]  # nothing links across
+    check = motion_check(solved, inp, *_matches(solved, pairs, k), k)
+    assert check.failed
+    assert [b.frame for b in check.breaks] == [14, 26]
+    assert check.segments == [(0, 15), (15, 27), (27, n)]
+    assert all(b.distance_m == pytest.approx(np.hypot(1.5, 0.3), abs=0.1) for b in check.breaks)
+    assert all(b.spanning_matches == 0 and not b.supported for b in check.breaks)
+    assert "FAILED" in check.message() and "15-26" in check.message()
+    record = check.to_dict()
+    assert record["failed"] and record["segments"][1] == [15, 27]
+    # the right trajectory: no break, whatever the input's drift and placement
+    ok = motion_check(truth, inp, *_matches(truth, pairs, k), k)
+    assert not ok.failed and ok.breaks == [] and ok.segments == [(0, n)]
+    assert ok.max_distance_m == pytest.approx(0.5)  # the floor: the drift fits to millimetres
+
+
+def test_motion_check_a_jump_the_matches_support_is_the_inputs() -> None:
+    """A jump of the input (a SLAM relocalisation) that the refined poses take out: the
+    matches across it agree with the refined poses, so the break is supported and the check
+    passes; the same break with the matches of the wrong placement is not."""
+    from bimcap.registration.odometry import motion_check
+
+    n = 30
+    truth = _walk(n)
+    inp = truth.copy()
+    inp[12:, :2] += np.array([0.0, 1.2])  # the input jumped between frames 11 and 12
+    k = np.array([500.0, 500.0, 320.0, 240.0])
+    pairs = [(f, f + 1) for f in range(n - 1)] + [(10, 12), (11, 13)]
+    check = motion_check(truth, inp, *_matches(truth, pairs, k), k)
+    assert [b.frame for b in check.breaks] == [11]
+    brk = check.breaks[0]
+    assert brk.supported and brk.spanning_matches == 90 and brk.spanning_median_px < 1.0
+    assert not check.failed and "ok" in check.message()
+    wrong = motion_check(truth, inp, *_matches(inp, pairs, k), k)
+    assert wrong.failed and wrong.breaks[0].spanning_median_px > 10.0
+    assert motion_check(truth, inp).failed  # without matches nothing supports a break

@@ -517,6 +517,9 @@ class SolveOutcome:
     #: the matches' reprojection errors at the initial and the refined poses
     #: (:func:`reprojection_stats`: ``{"before": {...}, "after": {...}}``), None without matches
     reprojection: dict[str, Any] | None = None
+    #: where the refined trajectory breaks from the input's relative motion and whether the
+    #: matches support it (``registration.odometry.MotionCheck``); None when not checked
+    motion_check: Any = None
 
     @property
     def summary(self) -> Any:
@@ -548,6 +551,7 @@ class SolveOutcome:
             "global_align": self.global_align,
             "diverged_frames": self.diverged_frames,
             "reprojection": self.reprojection,
+            "motion_check": None if self.motion_check is None else self.motion_check.to_dict(),
         }
 
 
@@ -783,6 +787,7 @@ def _solve_prepared(prepared: Prepared, config: RefineConfig, max_plane_rounds: 
     before, after = (reprojection_stats(arrays, p) for p in (prepared.init.poses, poses))
     reprojection = None if before is None or after is None else {"before": before,
                                                                   "after": after}
+    motion = _logged_motion_check(arrays, poses, prepared.init.poses)
     diverged = diverged_frames(poses, prepared.reference)
     if diverged:
         _log.warning(f"the {config.method.value} solve diverged: frame(s) {diverged[:10]} "
@@ -800,6 +805,7 @@ def _solve_prepared(prepared: Prepared, config: RefineConfig, max_plane_rounds: 
         global_align=global_info,
         diverged_frames=diverged,
         reprojection=reprojection,
+        motion_check=motion,
     )
 
 
@@ -986,6 +992,21 @@ def _logged_plane_checks(problem: Any, poses: F64, limit_m: float) -> list[Any]:
     for c in checks:
         _log.log(logging.WARNING if c.failed else logging.INFO, c.message())
     return checks
+
+
+def _logged_motion_check(arrays: dict[str, Any], poses: F64, input_poses: F64) -> Any:
+    """``registration.odometry.motion_check`` of the refined ``poses`` against the input's
+    relative motion, judged by the problem's matches, logged (a failed one as a warning): a
+    block of frames placed in an alias converges, passes the plane checks and is observed
+    like any other; only its break from the input's motion, which no match supports, shows."""
+    from bimcap.registration.odometry import motion_check
+
+    cams = arrays.get("cameras")
+    check = motion_check(poses, input_poses, arrays.get("match_frames"), arrays.get("match_uv"),
+                         arrays.get("match_depth"),
+                         None if cams is None or not len(cams) else np.asarray(cams)[0])
+    _log.log(logging.WARNING if check.failed else logging.INFO, check.message())
+    return check
 
 
 def _repair(problem: Any, opts: Any, result: Any) -> tuple[dict[str, Any], Any]:

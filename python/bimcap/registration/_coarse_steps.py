@@ -145,6 +145,44 @@ def _pick_height(heights: F64, z: float, below: bool = False) -> float | None:
     return float(heights[np.abs(heights - z).argmin()])
 
 
+def _storey_top(plan: FloorPlan, floor_z: float) -> float | None:
+    """The height (m) a camera standing on the floor at ``floor_z`` must stay below: the highest
+    BIM ceiling under the next floor above (that floor when no ceiling lies between); None when
+    nothing lies above. The highest, not the lowest, ceiling: a soffit or a dropped ceiling over
+    part of a storey does not make the storey low."""
+    above = plan.floor_heights[plan.floor_heights > floor_z + 1e-6]
+    next_floor = float(above.min()) if len(above) else np.inf
+    ceil = plan.ceiling_heights[(plan.ceiling_heights > floor_z + 1e-6)
+                                & (plan.ceiling_heights < next_floor)]
+    if len(ceil):
+        return float(ceil.max())
+    return None if not np.isfinite(next_floor) else next_floor
+
+
+def _pick_floor(plan: FloorPlan, floor_pts_z: F64, cam_z: F64 | float, fallback_z: float
+                ) -> float | None:
+    """The BIM floor height (m) a window's or a frame's cameras stand on.
+
+    With floor points (``floor_pts_z`` (M,) world z, ``cam_z`` (M,) or scalar: the z of the
+    camera that saw each point): the floor nearest their median among the storeys the cameras
+    fit in. The cameras' height above their own floor points (median of ``cam_z -
+    floor_pts_z``) does not depend on the cameras' z error, which drift makes large (Exp. 2:
+    up to 1 m a frame); a storey whose ceiling (:func:`_storey_top`) lies below its floor plus
+    that height cannot hold them (Duplex_A's 1.1 m crawl space under the ground floor, which two
+    frames' floor points 1 m low made the nearest floor of a window: its walls were then matched
+    against the crawl space's plan, 1.6 m off). When no storey fits, every one counts. Without
+    floor points: the highest floor at or below ``fallback_z`` (the camera height)."""
+    heights = plan.floor_heights
+    if len(floor_pts_z) == 0:
+        return _pick_height(heights, fallback_z, below=True)
+    ref_z = float(np.median(floor_pts_z))
+    above_floor = float(np.median(np.asarray(cam_z) - floor_pts_z))
+    tops = [_storey_top(plan, float(f)) for f in heights]
+    fits = np.array([t is None or t > f + above_floor for f, t in zip(heights, tops, strict=True)],
+                    dtype=bool)
+    return _pick_height(heights[fits] if fits.any() else heights, ref_z)
+
+
 def _split_windows(poses: F64, samples: SemanticSamples, opt: CoarseOptions) -> _Windows:
     """All labelled points in the world at ``poses`` (N, 7), once, and their windows."""
     n = len(poses)
@@ -195,7 +233,8 @@ def _register_window(w: int, wins: _Windows, poses: F64, plan: FloorPlan,
     pts = {c: wins.world_pts[c][idx[c]] for c in _CLASSES}
     # 1. gravity and height.
     t0 = time.perf_counter()
-    level, floor_z, ceil_z = _level_step(pts, pivot3, plan, opt)
+    floor_cam_z = poses[wins.frames["floor"][idx["floor"]], 2]
+    level, floor_z, ceil_z = _level_step(pts, floor_cam_z, pivot3, plan, opt)
     lm = level.matrix()
     timings["level"] += time.perf_counter() - t0
     # 2. planar points after levelling (with the ray direction camera → point), wall band,
@@ -231,14 +270,15 @@ def _register_window(w: int, wins: _Windows, poses: F64, plan: FloorPlan,
     return _WindowFit(level=level, candidates=found, maps=maps, meta=meta)
 
 
-def _level_step(pts: dict[str, F64], pivot3: F64, plan: FloorPlan, opt: CoarseOptions
-                ) -> tuple[LevelResult, float | None, float | None]:
+def _level_step(pts: dict[str, F64], floor_cam_z: F64, pivot3: F64, plan: FloorPlan,
+                opt: CoarseOptions) -> tuple[LevelResult, float | None, float | None]:
     """Step 1: the window's levelling about ``pivot3`` (3,) and its BIM floor and ceiling
-    heights (metres, None when the plan has none)."""
-    ref_z = float(np.median(pts["floor"][:, 2])) if len(pts["floor"]) else float(pivot3[2])
-    floor_z = _pick_height(plan.floor_heights, ref_z, below=not len(pts["floor"]))
+    heights (metres, None when the plan has none); ``floor_cam_z`` (M,): the z of the camera
+    that saw each floor point (:func:`_pick_floor`)."""
+    floor_z = _pick_floor(plan, pts["floor"][:, 2], floor_cam_z, float(pivot3[2]))
     ceil_z = None
     if len(plan.ceiling_heights):
+        ref_z = float(np.median(pts["floor"][:, 2])) if len(pts["floor"]) else float(pivot3[2])
         above = plan.ceiling_heights[plan.ceiling_heights > (floor_z if floor_z is not None
                                                              else ref_z)]
         ceil_z = float(above.min()) if len(above) else None

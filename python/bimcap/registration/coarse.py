@@ -10,7 +10,9 @@
    The tracked translation is a proposal of single frames, each of which may fit an alias (a
    mirrored flat, a repeated room): if the windows below are searched from it and none is
    accepted, it is dropped and the windows start again from the input positions (with the
-   per-frame rotations); ``CoarseResult.translation_dropped`` records it.
+   per-frame rotations); ``CoarseResult.translation_dropped`` records it. Otherwise it stands
+   only in the accepted windows: a rejected window's frames drop their own and take the
+   accepted windows' interpolated corrections (``frame_translation_per_window``).
 
 Then per window of ``window_frames`` consecutive frames (whose relative poses are trusted: drift is
 smooth):
@@ -62,7 +64,7 @@ from bimcap.progress import progress
 from bimcap.registration._coarse_steps import (
     _CLASSES,
     _Candidate,
-    _pick_height,
+    _pick_floor,
     _register_window,
     _split_windows,
     _StageClock,
@@ -264,6 +266,10 @@ class CoarseOptions:
         full pass also hands back (full 0.03-0.14 m, probe 0.01-0.14 m); where the full pass
         reads a drift of 0.35 m or more the probe read 0.38 m or more (Exp. 1: 0.67 m or more)
         or could not tell.
+    frame_translation_per_window: stage 0's tracked translation stands only in accepted
+        windows; the frames of rejected windows take, on their stage-0 rotations alone, the
+        interpolation of the accepted windows' whole corrections (see
+        :func:`_confirmed_translation`; off: they keep their own tracked translation).
     """
 
     window_frames: int = 10
@@ -319,6 +325,7 @@ class CoarseOptions:
     near_probe_frames: int = 15
     near_probe_m: float = 0.15
     near_probe_min_tracked: int = 5
+    frame_translation_per_window: bool = True
 
     def __post_init__(self) -> None:
         self.validate()
@@ -485,8 +492,7 @@ def _level_frames(poses: F64, samples: SemanticSamples, plan: FloorPlan,
         return out
 
     def floor_z_of(floor_pts: F64, cam_z: float) -> float | None:
-        ref = float(np.median(floor_pts[:, 2])) if len(floor_pts) else cam_z
-        return _pick_height(plan.floor_heights, ref, below=not len(floor_pts))
+        return _pick_floor(plan, floor_pts[:, 2], cam_z, cam_z)
 
     fopt = FrameLevelOptions(yaw_range_deg=opt.frame_yaw_range_deg,
                              yaw_step_deg=opt.yaw_step_deg, xy_range_m=opt.frame_xy_range_m,
@@ -610,6 +616,10 @@ class _Oriented:
     unchanged: bool
     translated: bool = False
     probe_drift_m: float | None = None
+    #: with ``translated``: (N, 3) the tracked translation applied to each frame (metres) and
+    #: (N, 7) the poses with stage 0's rotations alone
+    applied_translation: F64 | None = None
+    rotated_poses: F64 | None = None
 
 
 def _checked_poses(world_from_cam: ArrayLike) -> F64:
@@ -697,10 +707,15 @@ def _apply_frame_level(poses: F64, frame_level: FrameLevelResult, opt: CoarseOpt
         shrink = np.clip(1.0 - opt.frame_deadband_m / np.maximum(norm, 1e-12), 0.0, 1.0)
         m[:, :3, 3] += t3 * shrink[:, None]
     unchanged = near and not opt.frame_rotate_when_near
+    applied, rotated = None, None
+    if translated:
+        applied = m[:, :3, 3] - frame_level.world_from_world[:, :3, 3]
+        rotated = matrix_to_pose(frame_level.world_from_world @ pose_to_matrix(poses))
     if not unchanged:
         poses = matrix_to_pose(m @ pose_to_matrix(poses))
     return _Oriented(poses=poses, frame_level=frame_level, skip_windows=near,
-                     unchanged=unchanged, translated=translated)
+                     unchanged=unchanged, translated=translated, applied_translation=applied,
+                     rotated_poses=rotated)
 
 
 @dataclass(frozen=True)
@@ -830,6 +845,35 @@ def _apply_windows(windows: list[WindowResult], nodes: list[Any], mats: list[F64
     return per_frame, accepted_frames
 
 
+def _confirmed_translation(world: F64, accepted: NDArray[np.bool_], oriented: _Oriented,
+                           wp: _WindowPass) -> F64:
+    """Stage 0's tracked translation kept only where a window confirms it.
+
+    ``world`` (N, 4, 4): the output poses, each frame's window correction applied to the poses
+    the windows started from (with the tracked translation). A frame's tracked translation is
+    its own fit, which may lock onto an alias (on Duplex_A 250 frames, Exp. 2, runs of 15-20
+    frames were tracked 1.3-2.4 m off, to a look-alike room); only a window whose points, seen
+    together, register there confirms it. The frames of a rejected window therefore drop it and
+    take, on their stage-0 rotations alone, the interpolation of the accepted windows' whole
+    corrections (window correction after the window's mean tracked translation); the frames of
+    accepted windows are kept. Without a translation from stage 0 or an accepted window,
+    ``world`` is returned as it is."""
+    if (not oriented.translated or oriented.applied_translation is None
+            or oriented.rotated_poses is None or not wp.nodes or accepted.all()):
+        return world
+    moved = np.tile(np.eye(4), (len(wp.mats), 1, 1))
+    for k, node in enumerate(wp.nodes):
+        wr = next(w for w in wp.windows if w.accepted and 0.5 * (w.start + w.stop - 1) == node)
+        moved[k, :3, 3] = oriented.applied_translation[wr.start:wr.stop].mean(0)
+    whole = _interpolate(np.asarray(wp.nodes), [m @ t for m, t in zip(wp.mats, moved,
+                                                                        strict=True)],
+                         len(world))
+    out = world.copy()
+    rejected = ~accepted
+    out[rejected] = whole[rejected] @ pose_to_matrix(oriented.rotated_poses[rejected])
+    return out
+
+
 def _frame_fit(out_poses: F64, samples: SemanticSamples, wins: _Windows,
                win_maps: list[PlanMaps], opt: CoarseOptions) -> tuple[F64, F64]:
     """Per-frame fit at the output poses (N, 7): ``(fine score (N,), inlier ratio (N,))`` of
@@ -931,7 +975,10 @@ def coarse_register(
     if oriented.unchanged and not accepted_frames.any():
         out_poses = input_poses.copy()  # bit for bit: no pose round trip
     else:
-        out_poses = matrix_to_pose(per_frame @ pose_to_matrix(poses))
+        world = per_frame @ pose_to_matrix(poses)
+        if opt.frame_translation_per_window:
+            world = _confirmed_translation(world, accepted_frames, oriented, wp)
+        out_poses = matrix_to_pose(world)
     frame_score, frame_inl = _frame_fit(out_poses, samples, wins, win_maps, opt)
     timings["apply"] += time.perf_counter() - t0
     return CoarseResult(poses=out_poses, frame_score=frame_score,

@@ -20,6 +20,7 @@ undistorted pinhole pixels of one camera ``[fx, fy, cx, cy]``.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -376,3 +377,143 @@ def odometry_outliers(poses: F64, input_poses: F64, max_distance_m: float,
         result.outliers.append(f)
     result.poses = out
     return result
+
+
+@dataclass(frozen=True)
+class MotionBreak:
+    """One place where the solved trajectory leaves the input's relative motion.
+
+    Attributes
+    ----------
+    frame: the break lies between ``frame`` and ``frame + 1``.
+    distance_m, angle_deg: how far the solved pose of ``frame + 1`` lies from where the solved
+        pose of ``frame`` and the input's relative motion put it.
+    spanning_matches: matches between a frame up to ``frame`` and one after it.
+    spanning_median_px: their median reprojection error (pixels, both directions, keypoints
+        with depth) at the solved poses; None without any (or without the matches).
+    supported: the matches say the jump is right (enough of them, within the limit): the input
+        jumped there, not the solve.
+    """
+
+    frame: int
+    distance_m: float
+    angle_deg: float
+    spanning_matches: int
+    spanning_median_px: float | None
+    supported: bool
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"frame": self.frame, "distance_m": self.distance_m, "angle_deg": self.angle_deg,
+                "spanning_matches": self.spanning_matches,
+                "spanning_median_px": self.spanning_median_px, "supported": self.supported}
+
+
+@dataclass
+class MotionCheck:
+    """What :func:`motion_check` found: the breaks of the solved trajectory from the input's
+    relative motion, and the blocks of frames between them.
+
+    Attributes
+    ----------
+    breaks: every break (:class:`MotionBreak`), in frame order.
+    segments: ``[start, stop)`` frame ranges between the breaks (one segment: no break).
+    max_distance_m, max_angle_deg: the limits used (:func:`motion_check`).
+    largest_distance_m: the largest step gap over the trajectory (metres).
+    """
+
+    breaks: list[MotionBreak]
+    segments: list[tuple[int, int]]
+    max_distance_m: float
+    max_angle_deg: float
+    largest_distance_m: float
+
+    @property
+    def failed(self) -> bool:
+        """A break that no match supports: a block of frames may sit in an alias."""
+        return any(not b.supported for b in self.breaks)
+
+    def message(self) -> str:
+        """One line for the log."""
+        if not self.breaks:
+            return (f"motion check ok: every step of the refined trajectory follows the input's "
+                    f"relative motion (largest gap {self.largest_distance_m:.2f} m, limits "
+                    f"{self.max_distance_m:.2f} m / {self.max_angle_deg:.1f}°)")
+        where = ", ".join(
+            f"{b.frame}-{b.frame + 1} ({b.distance_m:.2f} m, {b.angle_deg:.1f}°, "
+            + ("supported by the matches" if b.supported else
+               "no match links across" if b.spanning_matches == 0 else
+               f"{b.spanning_matches} matches at {b.spanning_median_px:.0f} px")
+            + ")" for b in self.breaks)
+        blocks = ", ".join(f"{a}-{b - 1}" for a, b in self.segments)
+        head = "motion check FAILED" if self.failed else "motion check ok"
+        tail = (": a block of frames may be placed in an alias (a repeated or mirrored room)"
+                if self.failed else ": the input jumped there")
+        return (f"{head}: the refined trajectory leaves the input's relative motion (limits "
+                f"{self.max_distance_m:.2f} m / {self.max_angle_deg:.1f}°) between frames "
+                f"{where}; blocks {blocks}{tail}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"failed": self.failed, "breaks": [b.to_dict() for b in self.breaks],
+                "segments": [list(s) for s in self.segments],
+                "max_distance_m": self.max_distance_m, "max_angle_deg": self.max_angle_deg,
+                "largest_distance_m": self.largest_distance_m}
+
+
+def motion_check(poses: F64, input_poses: F64, match_frames: I32 | None = None,
+                 match_uv: F64 | None = None, match_depth: F64 | None = None,
+                 intrinsics: F64 | None = None, floor_m: float = 0.5, floor_deg: float = 15.0,
+                 k: float = 8.0, min_matches: int = 20, max_median_px: float = 10.0
+                 ) -> MotionCheck:
+    """Where the solved trajectory breaks from the input's relative motion, and whether the
+    matches say the break is right.
+
+    Drift bends the input slowly, so the correction that takes the input to the solved poses
+    changes little from one frame to the next: the solved pose of frame ``f + 1`` lies near its
+    prediction from frame ``f`` (``poses[f] ∘ input[f]⁻¹ ∘ input[f + 1]``, as in
+    :func:`odometry_outliers`). A run of frames that the solve placed somewhere else as a
+    block (a stretch of the walk registered to a look-alike room, held there by the BIM and by
+    its own matches) keeps that prediction inside the block and breaks it at both ends, while
+    every solve converges and every frame is observed. A step is a break when its gap exceeds
+    ``median + k · 1.4826 · MAD`` of all steps' gaps (metres and degrees), at least ``floor_m``
+    / ``floor_deg``. The matches between a frame up to ``f`` and one after it judge the break:
+    at least ``min_matches`` of them with a median reprojection error up to ``max_median_px``
+    at the solved poses support it (the input jumped, the images agree with the solve);
+    otherwise it is unsupported and the check fails.
+
+    Parameters
+    ----------
+    poses, input_poses: (N, 7) solved and input ``world_from_cam``, TUM order.
+    match_frames, match_uv, match_depth, intrinsics: the matches (see
+        :func:`reprojection_errors`); None: no break is supported.
+    """
+    n = len(poses)
+    m_pose = pose_to_matrix(np.asarray(poses, np.float64))
+    m_in = pose_to_matrix(np.asarray(input_poses, np.float64))
+    if n < 3:
+        return MotionCheck([], [(0, n)], floor_m, floor_deg, 0.0)
+    gaps = np.array([_prediction_gaps(m_pose, m_in, f + 1, f)[1:] for f in range(n - 1)])
+    med = np.median(gaps, axis=0)
+    mad = 1.4826 * np.median(np.abs(gaps - med), axis=0)
+    max_m = float(max(floor_m, med[0] + k * mad[0]))
+    max_deg = float(max(floor_deg, med[1] + k * mad[1]))
+    at = np.flatnonzero((gaps[:, 0] > max_m) | (gaps[:, 1] > max_deg))
+    src = dst = err = None
+    if match_frames is not None and len(match_frames) and intrinsics is not None:
+        src, dst, err = reprojection_errors(np.asarray(poses, np.float64),
+                                            np.asarray(match_frames), np.asarray(match_uv),
+                                            np.asarray(match_depth), np.asarray(intrinsics))
+    breaks = []
+    for f in at.tolist():
+        count, median = 0, None
+        if err is not None:
+            mf = np.asarray(match_frames)
+            count = int(((mf.min(axis=1) <= f) & (mf.max(axis=1) > f)).sum())
+            across = (np.minimum(src, dst) <= f) & (np.maximum(src, dst) > f)
+            median = float(np.median(err[across])) if across.any() else None
+        supported = count >= min_matches and median is not None and median <= max_median_px
+        breaks.append(MotionBreak(frame=int(f), distance_m=float(gaps[f, 0]),
+                                  angle_deg=float(gaps[f, 1]), spanning_matches=count,
+                                  spanning_median_px=median, supported=supported))
+    cuts = [0, *[b.frame + 1 for b in breaks], n]
+    segments = list(itertools.pairwise(cuts))
+    return MotionCheck(breaks, segments, max_m, max_deg, float(gaps[:, 0].max()))
