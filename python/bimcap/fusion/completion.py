@@ -405,8 +405,9 @@ class PlanarSmoothingOptions:
         of both surfaces; fitted to every pixel the floor plane came out 3-5 mm above the floor
         and the walls 1-2 mm in front of themselves, all of one sign, and pulled the fixed point
         (Duplex_A 0.40 cm, docs/generalization.md "What pulled the fixed point").
-        PIXELS stays the default: with RETURNS, SampleHouse4's Exp 2 ended at 0.84 cm instead
-        of 0.27 (frames 43-54 off by 1.6-2.0 cm; not understood yet).
+        RETURNS is the default since its fit is refitted robustly (``returns_refit_*``; without
+        it SampleHouse4's Exp 2 ended at 0.84 cm instead of 0.27): fixed point and Exp 2 at
+        least as good as PIXELS on the ten benchmark worlds (docs/generalization.md).
     min_region_returns: with RETURNS, a region with fewer returns (or a plane with fewer inlier
         returns) is fitted to its pixels instead.
     returns_refit_iterations, returns_refit_sigmas: with RETURNS, each plane's least squares is
@@ -431,7 +432,7 @@ class PlanarSmoothingOptions:
     assign_threshold_m: float = 0.08
     max_change_rel: float = 0.15
     blur_sigma_px: float = 5.0
-    fit_to: PlaneFitPoints = PlaneFitPoints.PIXELS
+    fit_to: PlaneFitPoints = PlaneFitPoints.RETURNS
     min_region_returns: int = 40
     returns_refit_iterations: int = 3
     returns_refit_sigmas: float = 2.5
