@@ -54,3 +54,22 @@ def test_pixel_sigma_grows_with_the_range_noise_above_the_reference() -> None:
     mine = RefineConfig(solver={"pixel_sigma": 3.0})
     opts = refine.solver_options(mine)
     assert refine.pixel_sigma_for_noise(opts, mine, 0.08) is opts
+
+
+def test_noise_factor_is_the_one_rule_of_every_noise_adaptation() -> None:
+    """Unknown, non-finite or not above the limit: None (thresholds unchanged); above: σ / ref.
+    Each option's ``for_noise`` follows it (the segmenter's, the refiner's, the scan's)."""
+    import math
+
+    from bimcap.fusion import PlanarSmoothingOptions
+    from bimcap.fusion.scan import ScanSamplingOptions
+    from bimcap.geometry.noise import noise_factor
+    from bimcap.segmentation.geometric import GeometricOptions
+
+    assert noise_factor(None, 0.03, 1.5) is None
+    assert noise_factor(math.nan, 0.03, 1.5) is None
+    assert noise_factor(0.045, 0.03, 1.5) is None  # at the limit: unchanged
+    assert noise_factor(0.08, 0.03, 1.5) == 0.08 / 0.03
+    for opts in (PlanarSmoothingOptions(), ScanSamplingOptions(), GeometricOptions()):
+        assert opts.for_noise(0.045) is opts and opts.for_noise(None) is opts
+        assert opts.for_noise(0.08) != opts

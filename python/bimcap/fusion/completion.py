@@ -35,6 +35,7 @@ from numpy.typing import ArrayLike, NDArray
 from bimcap.fusion.projection import FusionInputError, SparseDepth
 from bimcap.fusion.sparse import downsample_sparse
 from bimcap.geometry import Camera
+from bimcap.geometry.noise import noise_factor
 from bimcap.labels import Label
 from bimcap.methods import CompletionMethod
 
@@ -465,9 +466,8 @@ class PlanarSmoothingOptions:
         at 6-7 cm rms (the interpolation's 5.5 cm), and with the widened thresholds falls to
         under 1 cm on walls seen whole (frames 40, 52, 57, 58: rms 0.7-2.0 cm).
         """
-        if range_noise_m is None or not np.isfinite(range_noise_m):
-            return self
-        if range_noise_m <= self.noise_adapt_above * self.noise_reference_m:
+        if (range_noise_m is None or noise_factor(range_noise_m, self.noise_reference_m,
+                                                  self.noise_adapt_above) is None):
             return self
         return replace(
             self,

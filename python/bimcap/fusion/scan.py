@@ -35,6 +35,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from bimcap.errors import BimcapError
 from bimcap.geometry import Camera, quat_to_rotmat
+from bimcap.geometry.noise import noise_factor
 from bimcap.labels import Label
 
 F64 = NDArray[np.float64]
@@ -80,11 +81,10 @@ class ScanSamplingOptions:
         voxels the neighbourhoods' PCA no longer looked planar and the scan gave a few samples a
         frame (gen-small-s3 hard frames 55-57: 30, 3 and 3 walls) where it is meant to give the
         walls all around a frame that sees one wall."""
-        if range_noise_m is None or not np.isfinite(range_noise_m):
+        k = noise_factor(range_noise_m, self.noise_reference_m, self.noise_adapt_above)
+        if k is None:
             return self
-        if range_noise_m <= self.noise_adapt_above * self.noise_reference_m:
-            return self
-        scale = min(self.max_voxel_scale, float(range_noise_m) / self.noise_reference_m)
+        scale = min(self.max_voxel_scale, k)
         return replace(self, voxel_m=self.voxel_m * scale)
 
     def __post_init__(self) -> None:

@@ -692,13 +692,13 @@ def pixel_sigma_for_noise(opts: Any, config: RefineConfig, range_noise_m: float 
     were placed by their keypoints' depth errors (fixed point 1.79 cm / 0.407°, 1.29 / 0.332
     with it). Unchanged when the ``[solver]`` table sets ``pixel_sigma``, when σ is unknown,
     and at the standard worlds' 3 cm."""
-    if range_noise_m is None or not np.isfinite(range_noise_m) or "pixel_sigma" in config.solver:
-        return opts
-    if range_noise_m <= adapt_above * PIXEL_SIGMA_NOISE_REFERENCE_M:
+    from bimcap.geometry.noise import noise_factor
+
+    k = noise_factor(range_noise_m, PIXEL_SIGMA_NOISE_REFERENCE_M, adapt_above)
+    if k is None or "pixel_sigma" in config.solver:
         return opts
     out = copy.deepcopy(opts)
-    out.pixel_sigma = opts.pixel_sigma * min(max_scale,
-                                             range_noise_m / PIXEL_SIGMA_NOISE_REFERENCE_M)
+    out.pixel_sigma = opts.pixel_sigma * min(max_scale, k)
     out.check()
     return out
 

@@ -58,6 +58,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from bimcap.geometry import Camera, quat_to_rotmat
+from bimcap.geometry.noise import noise_factor
 from bimcap.labels import Label
 from bimcap.segmentation.base import U8, FrameInput, check_shape
 from bimcap.segmentation.errors import SegmentationInputError
@@ -118,11 +119,10 @@ class GeometricOptions:
         baseline ``normal_step_px`` × 0.75 k, its box ``normal_smooth_px`` × 0.8 k (odd), and the
         plane threshold at least ``noise_threshold_sigmas`` · σ (none of them below the given
         value). 8 cm noise: step 2 → 4 px, box 5 → 11 px, threshold 4 → 12 cm."""
-        if range_noise_m is None or not np.isfinite(range_noise_m):
+        k = noise_factor(range_noise_m, self.noise_reference_m, self.noise_adapt_above)
+        if k is None or range_noise_m is None:
             return self
-        if range_noise_m <= self.noise_adapt_above * self.noise_reference_m:
-            return self
-        k = min(4.0, range_noise_m / self.noise_reference_m)
+        k = min(4.0, k)
         smooth = round(self.normal_smooth_px * 0.8 * k)
         return replace(
             self,
