@@ -85,3 +85,44 @@ def test_lidar_depth_only_where_the_lidar_supports_it(seq: SceneSequence) -> Non
     assert (dist > radius).any() and (masked[dist > radius] == 0).all()
     near = dist <= radius
     assert np.array_equal(masked[near], full[near])
+
+
+class _ScanBehind:
+    """``seq`` whose LiDAR scans lie behind the camera (a view out of a window into the sky)."""
+
+    def __init__(self, seq: SceneSequence, keep: int) -> None:
+        self._seq, self._keep = seq, keep
+        self.cam_from_lidar = seq.cam_from_lidar
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self._seq, name)
+
+    def load_lidar(self, i: int) -> np.ndarray:
+        from bimcap.geometry.poses import invert, transform_points
+
+        scan = np.array(self._seq.load_lidar(i), dtype=np.float64)
+        p_in_cam = transform_points(np.asarray(self.cam_from_lidar), scan[:, :3])
+        behind = p_in_cam.copy()
+        behind[:, 2] = -np.abs(behind[:, 2]) - 0.01  # all behind the image plane
+        keep = np.argsort(p_in_cam[:, 2])[-self._keep:] if self._keep else np.array([], int)
+        behind[keep] = p_in_cam[keep]
+        scan[:, :3] = transform_points(invert(np.asarray(self.cam_from_lidar)), behind)
+        return scan
+
+
+@pytest.mark.parametrize("keep", [0, 2])
+def test_a_scan_that_misses_the_image_gives_no_depth(seq: SceneSequence, keep: int) -> None:
+    """A frame whose scan has (almost) no return in the image gets an empty depth map, not an
+    error that stops the run (SampleHouse4's 250-frame walk, frame 168: 23 106 returns, none in
+    view, looking out of a window)."""
+    from bimcap.frontend.runner import FrameContext, Undistorter
+    from bimcap.fusion import project_lidar
+
+    blind = _ScanBehind(seq, keep)
+    und = Undistorter(TEST_CAMERA)
+    ctx = FrameContext(blind, 0, TEST_CAMERA, und.pinhole, und.image(seq.load_image(0)), und,
+                       seq.gt[0])
+    sparse = project_lidar(blind.load_lidar(0), seq.cam_from_lidar, TEST_CAMERA, distort=False)
+    assert int((sparse.depth > 0).sum()) <= keep  # the scan misses the image
+    depth = LidarDepthProvider()(ctx)
+    assert depth.shape == (TEST_CAMERA.height, TEST_CAMERA.width) and not depth.any()

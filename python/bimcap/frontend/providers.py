@@ -15,6 +15,7 @@ All are frozen dataclasses (picklable, and their ``repr`` keys the cache).
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -24,6 +25,11 @@ from numpy.typing import NDArray
 
 from bimcap.frontend.errors import FrontendInputError
 from bimcap.frontend.runner import FrameContext
+
+_LOG = logging.getLogger(__name__)
+
+#: Fewer LiDAR returns in the image than this (a triangle's worth) and a frame gets no depth.
+MIN_RETURNS_IN_VIEW = 3
 
 if TYPE_CHECKING:  # the fusion / segmentation stages are imported only when used
     from bimcap.fusion import CompletionOptions, PlanarSmoothingOptions, ProjectionOptions
@@ -85,7 +91,21 @@ class LidarDepthProvider:
             raise FrontendInputError(_scan_message(len(xyz), valid, exc), _lidar_path(ctx),
                                      f"frames[{ctx.index}].lidar") from None
         ctx.measured_depth = np.asarray(sparse.depth, np.float32)
-        dense = np.array(complete_depth(sparse, self.completion, image=ctx.image), np.float32)
+        empty = np.zeros((ctx.camera.height, ctx.camera.width), np.float32)
+        in_view = int(np.count_nonzero(sparse.depth > 0))
+        if in_view < MIN_RETURNS_IN_VIEW:
+            # The scan misses the image (a view out of a window into the sky, a driver that cut
+            # the scan): this frame gets no depth, like a scan of NaNs dropped above.
+            _LOG.debug("frame %d: %d LiDAR returns in view, no depth", ctx.index, in_view)
+            return empty
+        try:
+            dense = np.array(complete_depth(sparse, self.completion, image=ctx.image), np.float32)
+        except FusionInputError as exc:
+            if exc.field != "sparse_depth":
+                raise
+            # Returns on one line (a single ring across the image) cannot be triangulated.
+            _LOG.debug("frame %d: no depth (%s)", ctx.index, exc)
+            return empty
         method = getattr(self.completion, "method", None)
         learned = method is not None and method.name in ("ONNX", "HYBRID")
         if self.support_radius is not None and not learned:
