@@ -756,12 +756,7 @@ def _solve_prepared(prepared: Prepared, config: RefineConfig, max_plane_rounds: 
     first = solver if pixels is prepared else replace(solver, prepared=pixels)
     poses, global_info = _global_align(pixels, poses, config)
     run, poses, coarse_info = _run_schedule(first, base, poses)
-    # BIMCaP drops the wall / column samples the BIM does not explain once a solve converged
-    gate = None if facap else sample_gate_for_noise(noise)
-    sample_checks: list[dict[str, Any]] = []
-    run, poses = _drop_inconsistent_samples(first, run, poses, gate, sample_checks)
     if first is not solver:
-        solver.prepared = _without_inconsistent(solver.prepared, poses, gate)[0]
         _log.info(f"adding the LiDAR scan's samples: solving stage {run.stage.name} again")
         run = solver.run(run.stage, run.options, poses, choose_sample_planes(prepared, poses))
         poses = run.result.poses
@@ -774,8 +769,6 @@ def _solve_prepared(prepared: Prepared, config: RefineConfig, max_plane_rounds: 
                           f"no match links them and the BIM does not observe all their directions")
             run = solver.run(run.stage, tight, poses, choose_sample_planes(prepared, poses))
             poses = run.result.poses
-    if not facap:
-        run, poses = _drop_inconsistent_samples(solver, run, poses, gate, sample_checks)
     rounds: list[dict[str, int]] = []
     checks: list[Any] = []
     repair = None
@@ -814,65 +807,6 @@ def _solve_prepared(prepared: Prepared, config: RefineConfig, max_plane_rounds: 
         reprojection=reprojection,
         motion_check=motion,
     )
-
-
-#: A wall or column sample further than this many range-noise σ in plan from every segment of
-#: its class at the converged poses is dropped (:func:`_drop_inconsistent_samples`).
-SAMPLE_GATE_SIGMAS = 3.0
-
-
-def sample_gate_for_noise(range_noise_m: float | None) -> float | None:
-    """The distance (metres) from the BIM beyond which :func:`_drop_inconsistent_samples` drops
-    a converged solve's wall and column samples: :data:`SAMPLE_GATE_SIGMAS` × the LiDAR's
-    measured range noise σ (:func:`sequence_range_noise`); None (nothing dropped) when σ is
-    unknown."""
-    if range_noise_m is None or not np.isfinite(range_noise_m) or range_noise_m <= 0:
-        return None
-    return SAMPLE_GATE_SIGMAS * float(range_noise_m)
-
-
-def _without_inconsistent(prepared: Prepared, poses: F64, gate_m: float | None
-                          ) -> tuple[Prepared, Any]:
-    """``prepared`` without the wall and column samples that the BIM does not explain at
-    ``poses`` (``registration.sample_check.inconsistent_samples`` with ``gate_m``), and the
-    check (None without a gate; ``prepared`` itself when nothing is dropped)."""
-    from bimcap.registration.sample_check import inconsistent_samples
-
-    if gate_m is None:
-        return prepared, None
-    fe, ref = prepared.frontend, prepared.reference
-    arrays = {**fe.to_problem_arrays(), "segments": ref.segments,
-              "segment_class": ref.segment_class}
-    check = inconsistent_samples(arrays, poses, gate_m)
-    if not check.total_dropped:
-        return prepared, check
-    kept = {f"{term}_{part}": np.asarray(getattr(fe, f"{term}_{part}"))[keep]
-            for term, keep in check.keep.items() for part in ("frame", "p_in_cam")}
-    return replace(prepared, frontend=replace(fe, **kept)), check
-
-
-def _drop_inconsistent_samples(solver: _StageSolver, run: _StageRun, poses: F64,
-                               gate_m: float | None, record: list[dict[str, Any]],
-                               max_rounds: int = 3) -> tuple[_StageRun, F64]:
-    """Drop the wall and column samples that the BIM does not explain at the converged
-    ``poses`` (:func:`_without_inconsistent`: further than ``gate_m`` in plan from every
-    segment of their class, in frames where they are a minority) and solve the last stage
-    again without them, until none is dropped (at most ``max_rounds`` times): the second
-    association pass, with a gate that follows the range noise. ``solver.prepared`` keeps the
-    reduced front end for the solves after it; each round's check is appended to ``record``.
-    Returns the run and the poses after it."""
-    for _ in range(max_rounds):
-        reduced, check = _without_inconsistent(solver.prepared, poses, gate_m)
-        if check is None or not check.total_dropped:
-            break
-        record.append(check.to_dict())
-        _log.info(f"{check.total_dropped} wall/column sample(s) of {len(check.frames)} frame(s) "
-                  f"lie more than {gate_m:.2f} m from the BIM at the refined poses: solving "
-                  f"stage {run.stage.name} again without them")
-        solver.prepared = reduced
-        run = solver.run(run.stage, run.options, poses, choose_sample_planes(reduced, poses))
-        poses = run.result.poses
-    return run, poses
 
 
 def _unanchored(run: _StageRun, poses: F64) -> frozenset[int]:
