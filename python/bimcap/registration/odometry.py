@@ -384,14 +384,17 @@ def odometry_candidates(poses: F64, input_poses: F64, frames: list[int]) -> list
     motion: one ``(N, 7)`` array per candidate, ``poses`` with ``frames`` re-placed.
 
     For each frame, each neighbour (``f ± 1``, nearest first, those not in ``frames``) predicts
-    it (:func:`odometry_outliers`); each prediction gives two candidates, its position with its
-    own rotation and with the frame's solved rotation. The input's relative rotation is only as
+    it (:func:`odometry_outliers`); each prediction gives two candidates, its position with the
+    frame's solved rotation and with its own rotation. The input's relative rotation is only as
     good as its per-frame rotation noise (the paper's drift: several degrees per frame, drawn
-    independently), while a frame the BIM terms placed in the wrong room often has the right
-    rotation (the walls' directions repeat): AC20-FZK-Haus Exp 1 frame 30 was solved 2.7 m off
-    but 0.9° from the truth, and its neighbour's prediction 24 cm but 12.5° off, outside the
-    basin of its own walls. Candidate ``k`` holds each frame's ``k``-th (its last, when it has
-    fewer); frames without a neighbour outside ``frames`` keep their pose.
+    independently), while a frame the BIM terms placed in an alias (the storey above, a
+    look-alike room) often has the right rotation, as the walls' directions repeat:
+    AC20-FZK-Haus Exp 1 frame 30 was solved on the storey above, 2.7 m off but 0.9° from the
+    truth, and its neighbour's prediction 24 cm but 12.5° off, outside the basin of its own
+    walls. The solved rotation comes first: where the BIM agrees as well with either (a frame
+    that sees too little to tell), it is the BIM's. Candidate ``k`` holds each frame's ``k``-th
+    (its last, when it has fewer); frames without a neighbour outside ``frames`` keep their
+    pose.
 
     Parameters
     ----------
@@ -410,7 +413,7 @@ def odometry_candidates(poses: F64, input_poses: F64, frames: list[int]) -> list
             pred = matrix_to_pose(_prediction_gaps(m_pose, m_in, f, g)[0])
             turned = pred.copy()
             turned[3:] = poses[f][3:]
-            own += [pred, turned]
+            own += [turned, pred]
         if own:
             per_frame[f] = own
     count = max((len(v) for v in per_frame.values()), default=0)
