@@ -431,6 +431,94 @@ def test_odometry_limits_follow_the_trajectory_and_flag_a_frame_the_drift_left_b
     assert max_m == pytest.approx(0.9) and 15.0 < max_deg <= 45.0
 
 
+def _storey_above_run(lift: float, k: int, input_yaw_deg: float) -> tuple[Any, Any, np.ndarray,
+                                                                          np.ndarray]:
+    """A tiny two-storey world (the synthetic room and the same room ``lift`` metres above it:
+    same walls, its own floor and ceiling) and a solved stage in which frame ``k``, which no
+    match links to another frame, sits on the storey above (every sample of it fits there). The
+    input's pose of ``k`` is turned by ``input_yaw_deg`` (the paper's drift draws each frame's
+    rotation offset independently). Returns the stage solver, the stage run, the solved poses
+    and the truth."""
+    from types import SimpleNamespace
+
+    from scipy.spatial.transform import Rotation
+
+    from bimcap.bim.planes import ReferencePlane
+    from bimcap.geometry import Trajectory
+    from bimcap.optimize.synthetic import make_synthetic_problem
+    from bimcap.pipeline.config import RefineConfig
+    from bimcap.pipeline.refine import (
+        Prepared,
+        _StageRun,
+        _StageSolver,
+        build_problem,
+        choose_sample_planes,
+        solver_options,
+    )
+
+    syn = make_synthetic_problem(num_frames=12, seed=2, pair_offsets=(1, 2), num_columns=0)
+    a = syn.problem.arrays()
+    gt, cfg = syn.gt_poses, syn.config
+    (lx, ly), h = cfg.size, cfg.height
+    room = np.array([[0.0, 0.0], [lx, 0.0], [lx, ly], [0.0, ly]])
+    planes = []
+    for z in (0.0, lift):  # [nx, ny, nz, d]: floors face up, ceilings down
+        planes += [ReferencePlane(Label.FLOOR, None, np.array([0.0, 0.0, 1.0, -z]), room),
+                   ReferencePlane(Label.CEILING, None, np.array([0.0, 0.0, -1.0, z + h]), room)]
+    walls = a["segment_class"] == int(Label.WALL)
+    reference = SimpleNamespace(
+        plane_info=planes, planes=np.array([p.plane for p in planes]),
+        segments=np.tile(a["segments"][walls], (2, 1)),
+        segment_class=np.tile(a["segment_class"][walls], 2),
+        segment_z=np.concatenate([[[0.0, h]] * int(walls.sum()),
+                                  [[lift, lift + h]] * int(walls.sum())]))
+    unlinked = (a["match_frames"] != k).all(axis=1)
+    arrays = {**{n: a[n][unlinked] for n in ("match_frames", "match_uv", "match_depth")},
+              **{f"{t}_{n}": a[f"{t}_{n}"] for t in ("floor", "ceiling", "wall")
+                 for n in ("frame", "p_in_cam")}}
+    arrays["column_frame"], arrays["column_p_in_cam"] = np.zeros(0, np.int32), np.zeros((0, 3))
+    inp = syn.problem.poses.copy()  # the input: the truth with a small drift
+    inp[k, 3:] = (Rotation.from_euler("z", input_yaw_deg, degrees=True)
+                  * Rotation.from_quat(inp[k, 3:])).as_quat()
+    camera = SimpleNamespace(pinhole=lambda: SimpleNamespace(intrinsics=np.array(cfg.intrinsics)))
+    prepared = Prepared(sequence=SimpleNamespace(camera=camera), reference=reference,
+                        frontend=SimpleNamespace(to_problem_arrays=lambda: dict(arrays)),
+                        init=Trajectory(np.arange(len(gt), dtype=np.float64), inp))
+    solved = gt.copy()
+    solved[k, 2] += lift
+    config = RefineConfig()
+    solver = _StageSolver(prepared=prepared, config=config, max_dist=None, normals=None)
+    chosen = choose_sample_planes(prepared, solved)
+    problem, stats = build_problem(prepared, solved, planes_chosen=chosen)
+    run = _StageRun(stage=SimpleNamespace(name="all"), options=solver_options(config),
+                    chosen=chosen, problem=problem, stats=stats,
+                    result=SimpleNamespace(poses=solved))
+    return solver, run, solved, gt
+
+
+@pytest.mark.parametrize(("k", "input_yaw_deg"), [(3, 0.0), (4, 12.0)])
+def test_the_odometry_repair_gives_a_moved_frame_the_planes_where_it_lands(
+        k: int, input_yaw_deg: float) -> None:
+    """AC20-FZK-Haus Exp 1: frame 30, which no match links to its neighbours, was solved on the
+    storey above (2.7 m up, the same walls). The odometry repair moved it to its neighbour's
+    prediction, but solved it with the planes its floor samples were given up there (the upper
+    storey's floor): they pulled it 24 cm up (here: straight back up, or the repair rejected).
+    The moved frame's planes are now chosen where it lands. With the input's rotation of the
+    frame 12° off, the prediction's rotation leaves a frame that sees one wall and a little floor
+    16 cm off; the frame's own solved rotation, with the prediction's position, does not."""
+    from bimcap.pipeline.refine import _odometry_repair_run
+
+    solver, run, solved, gt = _storey_above_run(lift=2.9, k=k, input_yaw_deg=input_yaw_deg)
+    assert run.problem.arrays()["floor_plane"][run.problem.arrays()["floor_frame"] == k].min() == 2
+    run, poses, record = _odometry_repair_run(solver, run, solved)
+    assert record["outliers"] == [k] and record["accepted"]
+    assert np.linalg.norm(poses[k, :3] - gt[k, :3]) < 0.03
+    a = run.problem.arrays()
+    assert (a["floor_plane"][a["floor_frame"] == k] == 0).all()  # the lower storey's floor
+    if input_yaw_deg:  # the candidates: each neighbour's prediction, turned as input or as solved
+        assert len(record["candidate_agreement"]) == 4
+
+
 def _walk(n: int) -> np.ndarray:
     """(n, 7) cameras 0.3 m apart along x, turning 2° a frame about the z axis."""
     from scipy.spatial.transform import Rotation

@@ -17,6 +17,7 @@ import copy
 import json
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from os import PathLike
 from pathlib import Path
@@ -444,6 +445,37 @@ def changed_planes(a: Any, b: Any, planes: F64) -> tuple[int, int]:
         changed += int((~same).sum())
         total += len(pa)
     return changed, total
+
+
+def merge_plane_choices(kept: Any, fresh: Any, frames: list[int],
+                        samples: dict[Label, tuple[NDArray[np.int32], F64]]) -> Any:
+    """``kept`` (a ``PlaneChoiceResult``) with the samples and per-frame model of ``frames``
+    taken from ``fresh`` (another choice over the same samples, e.g. at other poses).
+
+    Parameters
+    ----------
+    kept, fresh: ``PlaneChoiceResult`` of the same samples (N frames).
+    frames: the frames whose choice comes from ``fresh``.
+    samples: per kind ``(frame (M,), p_in_cam (M, 3))``, aligned with the choices
+        (:func:`_plane_samples`).
+    """
+    from bimcap.bim.plane_choice import PlaneChoice, PlaneChoiceResult
+
+    pick = np.asarray(sorted(frames), np.int64)
+    choices = {}
+    for kind, old in kept.choices.items():
+        new = fresh.choices[kind]
+        take = np.isin(samples[kind][0], pick)
+        choices[kind] = PlaneChoice(plane=np.where(take, new.plane, old.plane),
+                                    rejection=np.where(take, new.rejection, old.rejection),
+                                    height_error_m=np.where(take, new.height_error_m,
+                                                            old.height_error_m))
+    offset, tilt = kept.frame_offset_m.copy(), kept.frame_tilt.copy()
+    measured = kept.tilt_measured.copy()
+    offset[pick], tilt[pick] = fresh.frame_offset_m[pick], fresh.frame_tilt[pick]
+    measured[pick] = fresh.tilt_measured[pick]
+    return PlaneChoiceResult(choices=choices, frame_offset_m=offset, frame_tilt=tilt,
+                             tilt_measured=measured)
 
 
 def plane_checks(problem: Any, poses: F64, limit_m: float = 0.05) -> list[Any]:
@@ -882,12 +914,7 @@ class _StageSolver:
         """Build the problem at ``poses`` with the planes ``chosen`` and solve ``stage``."""
         from bimcap.optimize import solve
 
-        problem, stats = build_problem(self.prepared, poses, self.max_dist, self.normals,
-                                       planes_chosen=chosen)
-        if self.held:
-            fixed = np.asarray(problem.pose_fixed, np.int32).copy()
-            fixed[sorted(self.held)] = 1
-            problem = problem.replace(pose_fixed=fixed)
+        problem, stats = self._build(poses, chosen)
         _log.info(f"solving {self.config.method.value} stage {stage.name} "
                   f"({opts.refine_mode.value.lower()}, {self.config.effective_weighting}): "
                   f"{stats.brief()}")
@@ -898,6 +925,33 @@ class _StageSolver:
                                 f"{result.summary.message}")
         return _StageRun(stage=stage, options=opts, chosen=chosen, problem=problem, stats=stats,
                          result=result)
+
+    def moved(self, run: _StageRun, moved: F64, frames: list[int]) -> _StageRun:
+        """``run``'s problem (and planes) from ``moved``, the poses after a repair re-placed
+        ``frames``, not yet solved (``result`` is still ``run``'s).
+
+        The floor and ceiling samples of ``frames`` get their planes again at the moved poses
+        (:func:`choose_sample_planes`, each frame's own offset and tilt estimated: the moved
+        pose is a prediction), every other sample keeps ``run``'s plane. The planes a frame's
+        samples were given where the repair found it are those of another room or storey:
+        AC20-FZK-Haus Exp 1 frame 30, moved 2.7 m by the odometry repair, kept 12 floor samples
+        on the upper storey's floor (2.7 m up) and no others, and they pulled it 24 cm up."""
+        fresh = choose_sample_planes(self.prepared, moved)
+        chosen = merge_plane_choices(run.chosen, fresh, frames,
+                                     _plane_samples(self.prepared.frontend.to_problem_arrays()))
+        problem, stats = self._build(moved, chosen)
+        return replace(run, chosen=chosen, problem=problem, stats=stats)
+
+    def _build(self, poses: F64, chosen: Any) -> tuple[Any, ProblemStats]:
+        """:func:`build_problem` at ``poses`` with the planes ``chosen``, the ``held`` frames
+        fixed."""
+        problem, stats = build_problem(self.prepared, poses, self.max_dist, self.normals,
+                                       planes_chosen=chosen)
+        if self.held:
+            fixed = np.asarray(problem.pose_fixed, np.int32).copy()
+            fixed[sorted(self.held)] = 1
+            problem = problem.replace(pose_fixed=fixed)
+        return problem, stats
 
 
 def _run_schedule(solver: _StageSolver, base: Any,
@@ -948,12 +1002,19 @@ def _rechoose_planes(solver: _StageSolver, run: _StageRun, poses: F64, max_round
 
 def _repair_run(solver: _StageSolver,
                 run: _StageRun, poses: F64) -> tuple[_StageRun, F64, dict[str, Any]]:
-    """:func:`_repair` of the last stage's result: the run and poses after it, and its record."""
-    repair, redo = _repair(run.problem, run.options, run.result)
+    """:func:`_repair` of the last stage's result, the repaired frames' planes chosen again
+    (:meth:`_StageSolver.moved`): the run and poses after it, and its record."""
+    moved: list[_StageRun] = []
+
+    def replan(poses_moved: F64, frames: list[int]) -> Any:
+        moved.append(solver.moved(run, poses_moved, frames))
+        return moved[-1].problem
+
+    repair, redo = _repair(run.problem, run.options, run.result, replan)
     if redo is None:
         return run, poses, repair
     solver.summaries.append(redo.summary)
-    return replace(run, result=redo), redo.poses, repair
+    return replace(moved[-1], result=redo), redo.poses, repair
 
 
 def _odometry_repair_run(solver: _StageSolver, run: _StageRun,
@@ -961,9 +1022,17 @@ def _odometry_repair_run(solver: _StageSolver, run: _StageRun,
     """Frames the solve left far from where their neighbours and the input's relative motion put
     them (``registration.odometry.odometry_outliers``, with the limits of ``odometry_limits``:
     far outside how well the input's motion fits the other frames, and never looser than 3 σ of
-    the odometry term), moved there and solved again (:func:`_solve_moved`: kept only when the
-    BIM agrees). Returns the run and poses after it and its record."""
-    from bimcap.registration.odometry import odometry_limits, odometry_outliers
+    the odometry term), moved there, their planes chosen again (:meth:`_StageSolver.moved`),
+    and solved again (:func:`_solve_moved`: kept only when the BIM agrees). Each outlier starts
+    from the candidate of ``registration.odometry.odometry_candidates`` (each neighbour's
+    prediction, with its rotation or the frame's own) that agrees best with the BIM after a solve
+    of the outliers alone (:func:`_best_candidates`). Returns the run and poses after it and its
+    record."""
+    from bimcap.registration.odometry import (
+        odometry_candidates,
+        odometry_limits,
+        odometry_outliers,
+    )
 
     odo = run.options.terms["odometry"]
     if not odo.enabled:
@@ -977,13 +1046,47 @@ def _odometry_repair_run(solver: _StageSolver, run: _StageRun,
     _log.info(f"{len(check.outliers)} frame(s) lay more than {max_m:.2f} m or {max_deg:.1f}° from "
               f"where their neighbours and the input's motion put them and were moved there: "
               f"{check.outliers}")
-    verdict, redo = _solve_moved(run.problem, run.options, poses, check.poses, check.outliers,
-                                 "odometry repair")
-    record = {**check.to_dict(), **verdict}
+    start, agreement = _best_candidates(solver, run, odometry_candidates(poses, init,
+                                                                         check.outliers),
+                                        check.outliers)
+    moved = solver.moved(run, start, check.outliers)
+    verdict, redo = _solve_moved(run.problem, run.options, poses, start, check.outliers,
+                                 "odometry repair", moved_problem=moved.problem)
+    record = {**check.to_dict(), "candidate_agreement": agreement, **verdict}
     if redo is None:
         return run, poses, record
     solver.summaries.append(redo.summary)
-    return replace(run, result=redo), redo.poses, record
+    return replace(moved, result=redo), redo.poses, record
+
+
+def _best_candidates(solver: _StageSolver, run: _StageRun, candidates: list[F64],
+                     frames: list[int]) -> tuple[F64, list[list[float | None]]]:
+    """Each of ``frames`` solved from every candidate (``(N, 7)`` poses, e.g.
+    ``registration.odometry.odometry_candidates``) with every other frame held, its planes
+    chosen at the candidate (:meth:`_StageSolver.moved`); per frame the solved pose that agrees
+    best with the BIM (``registration.odometry.bim_agreement``; the first on a tie). Returns the
+    poses (the first candidate's elsewhere) and each candidate's agreements (candidate × frame,
+    None: no BIM sample)."""
+    from bimcap.optimize import solve
+    from bimcap.registration.odometry import bim_agreement
+
+    best = np.array(candidates[0], np.float64, copy=True)
+    score = np.full(len(frames), -np.inf)
+    table: list[list[float | None]] = []
+    for cand in candidates:
+        moved = solver.moved(run, cand, frames)
+        fixed = np.ones(len(cand), np.int32)
+        fixed[frames] = 0
+        fixed[sorted(solver.held)] = 1
+        solved = solve(moved.problem.replace(pose_fixed=fixed), run.options, check=False)
+        agree = bim_agreement(moved.problem.arrays(), solved.poses, frames)
+        table.append([None if np.isnan(v) else float(v) for v in agree])
+        if not solved.summary.success:
+            continue
+        for i, f in enumerate(frames):
+            if agree[i] > score[i]:
+                score[i], best[f] = agree[i], solved.poses[f]
+    return best, table
 
 
 def _logged_plane_checks(problem: Any, poses: F64, limit_m: float) -> list[Any]:
@@ -1009,11 +1112,14 @@ def _logged_motion_check(arrays: dict[str, Any], poses: F64, input_poses: F64) -
     return check
 
 
-def _repair(problem: Any, opts: Any, result: Any) -> tuple[dict[str, Any], Any]:
+def _repair(problem: Any, opts: Any, result: Any,
+            replan: Callable[[F64, list[int]], Any] | None = None
+            ) -> tuple[dict[str, Any], Any]:
     """Frames the solve left inconsistent with their neighbours' matches, re-placed from them by
     PnP (``registration.odometry``) and solved again (:func:`_solve_moved`: kept only when the
-    BIM agrees). Returns the repair's record and the new solve's result (None when no frame
-    needed it or the repair was rejected)."""
+    BIM agrees). ``replan(moved_poses, repaired_frames)`` gives the problem to solve from the
+    repaired poses (None: ``problem`` itself). Returns the repair's record and the new solve's
+    result (None when no frame needed it or the repair was rejected)."""
     from bimcap.registration.odometry import repair_inconsistent_frames
 
     a = problem.arrays()
@@ -1024,26 +1130,31 @@ def _repair(problem: Any, opts: Any, result: Any) -> tuple[dict[str, Any], Any]:
     _log.info(f"{len(rep.repaired)} frame(s) disagreed with their neighbours' matches "
               f"(median reprojection error > 10 px) and were re-placed from them: "
               f"{rep.repaired}")
-    verdict, redo = _solve_moved(problem, opts, result.poses, rep.poses, rep.repaired, "repair")
+    verdict, redo = _solve_moved(problem, opts, result.poses, rep.poses, rep.repaired, "repair",
+                                 moved_problem=None if replan is None else
+                                 replan(rep.poses, rep.repaired))
     return {**rep.to_dict(), **verdict}, redo
 
 
 def _solve_moved(problem: Any, opts: Any, poses: F64, moved: F64, frames: list[int], what: str,
-                 max_agreement_loss: float = 0.05) -> tuple[dict[str, Any], Any]:
+                 max_agreement_loss: float = 0.05,
+                 moved_problem: Any = None) -> tuple[dict[str, Any], Any]:
     """Solve ``problem`` again from ``moved`` (``poses`` with ``frames`` re-placed by a repair)
     and keep the result only when no moved frame agrees less with the BIM than at ``poses``
     (:func:`bim_agreement`, by more than ``max_agreement_loss``). A repair is a proposal to leave
     a local minimum and the BIM is its judge: the look-alike matches of a repeated texture cannot
     fool it, and the solve's cost cannot judge (the association gate drops the samples of a frame
-    moved far off). Returns the verdict (``accepted``, ``bim_agreement_before`` / ``_after``)
-    and the new solve's result, or None when rejected."""
+    moved far off). ``moved_problem``: the problem built at ``moved`` (the moved frames' planes
+    chosen there, :meth:`_StageSolver.moved`), solved and judged in place of ``problem``; each
+    pose is judged with the planes chosen for it. Returns the verdict (``accepted``,
+    ``bim_agreement_before`` / ``_after``) and the new solve's result, or None when rejected."""
     from bimcap.optimize import solve
     from bimcap.registration.odometry import bim_agreement
 
-    redo = solve(problem.replace(poses=moved), opts, check=False)
-    a = problem.arrays()
-    before = bim_agreement(a, poses, frames)
-    after = bim_agreement(a, redo.poses, frames)
+    start = problem.replace(poses=moved) if moved_problem is None else moved_problem
+    redo = solve(start, opts, check=False)
+    before = bim_agreement(problem.arrays(), poses, frames)
+    after = bim_agreement(start.arrays(), redo.poses, frames)
     verdict: dict[str, Any] = {
         "bim_agreement_before": [None if np.isnan(v) else float(v) for v in before],
         "bim_agreement_after": [None if np.isnan(v) else float(v) for v in after]}

@@ -379,6 +379,53 @@ def odometry_outliers(poses: F64, input_poses: F64, max_distance_m: float,
     return result
 
 
+def odometry_candidates(poses: F64, input_poses: F64, frames: list[int]) -> list[F64]:
+    """Where the poses of ``frames`` may lie, from their neighbours and the input's relative
+    motion: one ``(N, 7)`` array per candidate, ``poses`` with ``frames`` re-placed.
+
+    For each frame, each neighbour (``f ± 1``, nearest first, those not in ``frames``) predicts
+    it (:func:`odometry_outliers`); each prediction gives two candidates, its position with the
+    frame's solved rotation and with its own rotation. The input's relative rotation is only as
+    good as its per-frame rotation noise (the paper's drift: several degrees per frame, drawn
+    independently), while a frame the BIM terms placed in an alias (the storey above, a
+    look-alike room) often has the right rotation, as the walls' directions repeat:
+    AC20-FZK-Haus Exp 1 frame 30 was solved on the storey above, 2.7 m off but 0.9° from the
+    truth, and its neighbour's prediction 24 cm but 12.5° off, outside the basin of its own
+    walls. The solved rotation comes first: where the BIM agrees as well with either (a frame
+    that sees too little to tell), it is the BIM's. Candidate ``k`` holds each frame's ``k``-th
+    (its last, when it has fewer); frames without a neighbour outside ``frames`` keep their
+    pose.
+
+    Parameters
+    ----------
+    poses: (N, 7) solved ``world_from_cam``, TUM order. input_poses: (N, 7) the input's.
+    frames: the frames to re-place.
+    """
+    n = len(poses)
+    m_pose = pose_to_matrix(np.asarray(poses, np.float64))
+    m_in = pose_to_matrix(np.asarray(input_poses, np.float64))
+    per_frame: dict[int, list[F64]] = {}
+    for f in frames:
+        nbs = sorted((g for g in (f - 1, f + 1) if 0 <= g < n and g not in frames),
+                     key=lambda g: (abs(g - f), g))
+        own: list[F64] = []
+        for g in nbs:
+            pred = matrix_to_pose(_prediction_gaps(m_pose, m_in, f, g)[0])
+            turned = pred.copy()
+            turned[3:] = poses[f][3:]
+            own += [turned, pred]
+        if own:
+            per_frame[f] = own
+    count = max((len(v) for v in per_frame.values()), default=0)
+    out = []
+    for k in range(count):
+        c = np.array(poses, np.float64, copy=True)
+        for f, own in per_frame.items():
+            c[f] = own[min(k, len(own) - 1)]
+        out.append(c)
+    return out
+
+
 @dataclass(frozen=True)
 class MotionBreak:
     """One place where the solved trajectory leaves the input's relative motion.
