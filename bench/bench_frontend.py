@@ -287,7 +287,9 @@ def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool =
         raw = st.run("load image", _load_raw_image, seq, i, cam)
         image = st.run("undistort", und.image, raw)
         ctx = FrameContext(seq, i, cam, und.pinhole, image, und, poses[i])
-        scan = st.run("load LiDAR", seq.load_lidar, i)
+        # read once for every stage (FrameContext.lidar); the code before it read it per stage
+        scan = st.run("load LiDAR", ctx.lidar if hasattr(ctx, "lidar") else seq.load_lidar,
+                      *(() if hasattr(ctx, "lidar") else (i,)))
         st.run("LiDAR projection", project_lidar, scan, seq.cam_from_lidar, cam,
                depth_p.projection, distort=False)
         depth = st.run("depth provider", depth_p, ctx)
@@ -306,7 +308,10 @@ def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool =
         st.run("keypoint depths", lookup_depth, depth, f.uv)
         st.run("semantic sampling", sample_semantic_points, labels, depth, und.pinhole, i,
                sampling)
-        st.run("scan surface points", _scan_points, seq, i, und.pinhole, scan_opts)
+        if hasattr(ctx, "lidar"):
+            st.run("scan surface points", _scan_points, ctx, scan_opts)
+        else:  # the code before the frame's scan was read once (PYTHONPATH at an export)
+            st.run("scan surface points", _scan_points, seq, i, und.pinhole, scan_opts)
     pin = cam.pinhole()
     pairs = [(a, b) for a in range(n) for b in range(a + 1, min(n, a + window + 1))]
     if old_label_p is None:
