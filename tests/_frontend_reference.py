@@ -455,10 +455,12 @@ def old_planar_smoothing() -> Iterator[None]:
 
 
 def old_segmentation() -> AbstractContextManager[None]:
+    """``segment_geometric`` as of a219de7 (``_geometric_reference``), whose vertical RANSAC,
+    protrusion walk and upsampling were checked against the ``*_reference`` functions above."""
+    import _geometric_reference
     from bimcap.segmentation import geometric
 
-    return swapped(geometric, _ransac_vertical=ransac_vertical_reference,
-                   _protrudes=protrudes_reference, _upsample_labels=upsample_labels_reference)
+    return swapped(geometric, segment_geometric=_geometric_reference.segment_geometric)
 
 
 def old_matching() -> AbstractContextManager[None]:

@@ -110,56 +110,81 @@ def test_planar_smoothing_same_as_before(chain: list[_Frame]) -> None:
 
 def test_segmentation_same_as_before(chain: list[_Frame], monkeypatch: pytest.MonkeyPatch
                                      ) -> None:
-    """The labels, and every protrusion decision on the way (columns and walls both occur)."""
+    """The labels (the code as of a219de7, ``_geometric_reference``), and every protrusion
+    decision on the way (columns and walls both occur), also against the walk before issue 14."""
+    import _geometric_reference as before
     from bimcap.segmentation import geometric
 
-    decisions: list[tuple[bool, bool]] = []
+    decisions: list[tuple[bool, bool, bool]] = []
     new_protrudes = geometric._protrudes
 
     def both(region, pts, plane, opts):  # type: ignore[no-untyped-def]
         out = new_protrudes(region, pts, plane, opts)
-        decisions.append((out, ref.protrudes_reference(region, pts, plane, opts)))
+        full = region.full_mask()
+        decisions.append((out, before._protrudes(full, pts, plane, opts),
+                          ref.protrudes_reference(full, pts, plane, opts)))
         return out
 
     monkeypatch.setattr(geometric, "_protrudes", both)
     # completed LiDAR depth, and the rendered depth (where the columns come out whole)
     inputs = [(f.dense, f.camera, f.world_from_cam, f.labels) for f in chain]
     inputs += [(g.depth, g.camera, g.world_from_cam, None) for g in frames(4, 516, 386, 7)]
-    for depth, camera, pose, before in inputs:
+    for depth, camera, pose, labels in inputs:
         new = segment_geometric(depth, camera, pose)
-        with ref.old_segmentation():
-            old = segment_geometric(depth, camera, pose)
+        old = before.segment_geometric(depth, camera, pose)
         assert np.array_equal(new, old)
-        assert before is None or np.array_equal(new, before)
-    assert decisions and all(a == b for a, b in decisions)
-    assert {a for a, _ in decisions} == {True, False}
-    # other working resolutions: other nearest-neighbour upsampling maps
+        assert labels is None or np.array_equal(new, labels)
+        with ref.old_segmentation():  # what the bench times as the previous code
+            assert np.array_equal(geometric.segment_geometric(depth, camera, pose), new)
+    assert decisions and all(a == b == c for a, b, c in decisions)
+    assert {a for a, _, _ in decisions} == {True, False}
+    # other working resolutions (other nearest-neighbour upsampling maps), noisier settings
     f = chain[0]
-    for width in (100, 173, 300):
-        opts = GeometricOptions(work_width=width)
+    for opts in (GeometricOptions(work_width=100), GeometricOptions(work_width=173),
+                 GeometricOptions(work_width=300), GeometricOptions().for_noise(0.08)):
         new = segment_geometric(f.dense, f.camera, f.world_from_cam, opts)
-        with ref.old_segmentation():
-            assert np.array_equal(new, segment_geometric(f.dense, f.camera, f.world_from_cam,
-                                                         opts))
+        assert np.array_equal(new, before.segment_geometric(f.dense, f.camera, f.world_from_cam,
+                                                            opts))
+
+
+def test_normals_same_as_before(chain: list[_Frame]) -> None:
+    """Points, normals and their masks, component by component: the stacked code's bit for bit
+    (signed zeros included), with and without the box blur."""
+    import _geometric_reference as before
+    from bimcap.segmentation.geometric import _points_and_normals
+
+    for f in chain:
+        for step, box in ((2, 5), (3, 1), (4, 11)):
+            opts = GeometricOptions(normal_step_px=step, normal_smooth_px=box)
+            for new, old in zip(_points_and_normals(f.dense, f.camera, opts),
+                                before._points_and_normals(f.dense, f.camera, opts),
+                                strict=True):
+                assert new.dtype == old.dtype and new.shape == old.shape
+                assert new.tobytes() == old.tobytes()
 
 
 def test_vertical_ransac_same_as_before(chain: list[_Frame]) -> None:
+    import _geometric_reference as before
     from bimcap.segmentation.geometric import (
-        GeometricOptions,
         _points_and_normals,
         _ransac_vertical,
+        _work_scene,
     )
 
     opts = GeometricOptions()
     for f in chain:
+        scene = _work_scene(f.dense, f.camera, f.world_from_cam, opts)
         pts, _, nrm, nok = _points_and_normals(f.dense, f.camera, opts)
         up = np.array([0.0, -1.0, 0.0])
         vert = nok & (np.abs(nrm @ up) < 0.4)
-        new = _ransac_vertical(pts[vert], nrm[vert], up, opts, np.random.default_rng(3))
+        new = _ransac_vertical(scene, np.flatnonzero(vert), up, opts, np.random.default_rng(3))
         old = ref.ransac_vertical_reference(pts[vert], nrm[vert], up, opts,
                                             np.random.default_rng(3))
-        assert new is not None and old is not None
+        old_a219 = before._ransac_vertical(pts[vert], nrm[vert], up, opts,
+                                           np.random.default_rng(3))
+        assert new is not None and old is not None and old_a219 is not None
         assert np.array_equal(new.normal, old.normal) and new.offset == old.offset
+        assert np.array_equal(new.normal, old_a219.normal) and new.offset == old_a219.offset
 
 
 def test_one_thread_changes_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
