@@ -72,6 +72,13 @@ def test_pixel_surface_area_same_as_before(chain: list[_Frame]) -> None:
     d = np.zeros((cam.height, cam.width), np.float32)
     d[50:200, 30:300] = 2.0 + np.linspace(0, 1, 270, dtype=np.float32)
     assert np.array_equal(pixel_surface_area(d, cam), ref.pixel_surface_area_reference(d, cam))
+    # heights around the blocks of rows: the first and last rows' one-sided differences
+    rng = np.random.default_rng(0)
+    for h in (2, 3, 31, 32, 33, 64, 65, 97):
+        d = (1.0 + 3.0 * rng.random((h, 9))).astype(np.float32)
+        d[rng.random(d.shape) < 0.2] = 0.0
+        new = pixel_surface_area(d, cam)
+        assert new.tobytes() == ref.pixel_surface_area_reference(d, cam).tobytes()
 
 
 def test_semantic_sampling_same_as_before(chain: list[_Frame]) -> None:
