@@ -242,7 +242,7 @@ def test_one_thread_restores_opencv() -> None:
 def test_blocked_ransac_scores_same_as_whole_table(n: int, hypotheses: int) -> None:
     """The RANSACs' scores in blocks of rows: the whole table's, for every block remainder."""
     from bimcap.fusion.completion import _inlier_counts
-    from bimcap.segmentation.geometric import _vertical_scores
+    from bimcap.segmentation.geometric import _plane_scores
 
     rng = np.random.default_rng(n + hypotheses)
     pts = rng.normal(size=(n, 3)) * 3.0
@@ -253,7 +253,8 @@ def test_blocked_ransac_scores_same_as_whole_table(n: int, hypotheses: int) -> N
     d = rng.normal(size=hypotheses)
     thr = (0.5 + 0.01 * np.abs(pts[:, 2]))[:, None]
     whole = ((np.abs(pts @ hn.T + d) < thr) & (np.abs(nrm @ hn.T) > 0.5)).sum(0)
-    assert np.array_equal(_vertical_scores(pts, nrm, hn, d, thr, 0.5), whole)
+    assert np.array_equal(_plane_scores(pts, hn, d, thr, nrm, 0.5), whole)
+    assert np.array_equal(_plane_scores(pts, hn, d, thr), (np.abs(pts @ hn.T + d) < thr).sum(0))
     assert np.array_equal(_inlier_counts(pts, hn, d, 0.5),
                           (np.abs(pts @ hn.T + d) < 0.5).sum(0))
     assert n < 500 or whole.sum() > 0  # the large tables have inliers to count

@@ -262,7 +262,7 @@ def _ransac_horizontal(scene: _WorkScene, cand: NDArray[np.int64], up: F64, cos_
     nrm, a = nrm[good], a[good]
     d = -(nrm * a).sum(1)
     thr = scene.thr_flat[pick][:, None]  # _threshold of the sample's depths
-    score = (np.abs(sub @ nrm.T + d) < thr).sum(0)
+    score = _plane_scores(sub, nrm, d, thr)
     best = int(np.argmax(score))
     inl = np.abs(sub @ nrm[best] + d[best]) < thr[:, 0]
     if inl.sum() < 3:
@@ -292,7 +292,7 @@ def _ransac_vertical(scene: _WorkScene, cand: NDArray[np.int64], up: F64,
     d = -(hn * sub[hyp[good]]).sum(1)
     thr = scene.thr_flat[pick][:, None]  # _threshold of the sample's depths
     cos_n = np.cos(np.deg2rad(opts.normal_agreement_deg))
-    score = _vertical_scores(sub, sub_n, hn, d, thr, cos_n)
+    score = _plane_scores(sub, hn, d, thr, sub_n, cos_n)
     if len(score) == 0:
         return None
     best = int(np.argmax(score))
@@ -330,29 +330,32 @@ def _row_blocks(n: int) -> list[tuple[int, int]]:
     return [(a, b) for a, b in zip(starts, [*starts[1:], n], strict=True)]
 
 
-def _vertical_scores(sub: F64, sub_n: F64, hn: F64, d: F64, thr: F64, cos_n: float
-                     ) -> NDArray[np.int64]:
+def _plane_scores(sub: F64, hn: F64, d: F64, thr: F64, sub_n: F64 | None = None,
+                  cos_n: float = 0.0) -> NDArray[np.int64]:
     """Per hypothesis (``hn`` (I, 3) unit normals, ``d`` (I,) offsets): how many of the points
-    ``sub`` (N, 3) with normals ``sub_n`` (N, 3) lie within ``thr`` (N, 1) of its plane with a
-    normal within acos(``cos_n``) of it.
+    ``sub`` (N, 3) lie within ``thr`` (N, 1) of its plane and (unless ``sub_n`` is None) have a
+    normal (``sub_n`` (N, 3)) within acos(``cos_n``) of it.
 
     The same counts as ``((|sub·hnᵀ + d| < thr) & (|sub_n·hnᵀ| > cos_n)).sum(0)`` bit for bit
     (each entry of a product is the same 3-term sum in any block of rows of a matrix-matrix
     product; one hypothesis is computed whole), in blocks of rows and in place.
     """
     if len(hn) < 2:
-        whole: NDArray[np.int64] = (
-            (np.abs(sub @ hn.T + d) < thr) & (np.abs(sub_n @ hn.T) > cos_n)).sum(0)
+        ok_whole = np.abs(sub @ hn.T + d) < thr
+        if sub_n is not None:
+            ok_whole &= np.abs(sub_n @ hn.T) > cos_n
+        whole: NDArray[np.int64] = ok_whole.sum(0)
         return whole
     score = np.zeros(len(hn), np.int64)
     for a, b in _row_blocks(len(sub)):
         dist = sub[a:b] @ hn.T
         dist += d
         np.abs(dist, out=dist)
-        agree = sub_n[a:b] @ hn.T
-        np.abs(agree, out=agree)
         ok = dist < thr[a:b]
-        ok &= agree > cos_n
+        if sub_n is not None:
+            agree = sub_n[a:b] @ hn.T
+            np.abs(agree, out=agree)
+            ok &= agree > cos_n
         score += np.count_nonzero(ok, axis=0)
     return score
 
