@@ -25,6 +25,7 @@ All depth maps are float32 metres, 0 = unknown, in undistorted pinhole pixels.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field, replace
 from enum import Enum
 from typing import TYPE_CHECKING
@@ -173,6 +174,17 @@ def fill_nearest(sparse: SparseDepth | ArrayLike) -> F32:
 
 
 # ----------------------------------------------------------------------------- linear
+@functools.lru_cache(maxsize=4)
+def _pixel_grid(h: int, w: int) -> tuple[F64, F64]:
+    """(H·W,) float64 row and column of every pixel in row-major order (read-only; cached per
+    image size)."""
+    rows = np.repeat(np.arange(h, dtype=np.float64), w)
+    cols = np.tile(np.arange(w, dtype=np.float64), h)
+    rows.flags.writeable = False
+    cols.flags.writeable = False
+    return rows, cols
+
+
 def complete_linear(sparse: SparseDepth | ArrayLike, options: LinearOptions | None = None) -> F32:
     """LINEAR: Delaunay barycentric interpolation (module docstring). Pixels outside the hull or in
     masked triangles stay 0."""
@@ -214,7 +226,8 @@ def complete_linear(sparse: SparseDepth | ArrayLike, options: LinearOptions | No
         fill(tri_id, poly, tid, line8, 4)
     flat = np.flatnonzero(tri_id)
     k = tri_id.ravel()[flat] - 1
-    rows, cols = np.divmod(flat, w)
+    grid_rows, grid_cols = _pixel_grid(h, w)
+    rows, cols = grid_rows[flat], grid_cols[flat]  # np.divmod(flat, w), as float64
     # per triangle, the affine function f(u, v) = a u + b v + c through its three corners, with
     # f = 1/z (exact for a plane seen through a pinhole) or f = z; one gather per pixel. Pixel
     # centres up to half a pixel outside their rasterised triangle are extrapolated (exact for
