@@ -295,3 +295,26 @@ def test_matching_same_as_before() -> None:
     assert new[0][5] == 3
     for x, y in zip(new, old, strict=True):
         assert np.array_equal(x, y) and x.dtype == y.dtype
+
+
+def test_scan_range_noise_same_as_before() -> None:
+    """The range noise of ring scans (ties in azimuth, non-finite and zero rows included): the
+    a219de7 code's value exactly (it picks the segmentation's and smoothing's thresholds)."""
+    import _geometric_reference as before
+    from bimcap.segmentation.geometric import scan_range_noise
+
+    rng = np.random.default_rng(5)
+    elev = np.deg2rad(np.arange(-15.0, 16.0, 2.0))
+    azim = np.deg2rad(np.round(np.arange(0.0, 360.0, 0.2), 1))
+    e, a = (g.ravel() for g in np.meshgrid(elev, azim))
+    # a 6 m × 4 m room seen from near its middle: range to the nearest wall along each ray
+    d = np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)], 1)
+    with np.errstate(divide="ignore"):
+        t = np.min(np.abs(np.stack([3.2 / d[:, 0], 2.1 / d[:, 1], 1.4 / d[:, 2]], 1)), 1)
+    for sigma in (0.01, 0.03, 0.08):
+        p = d * (t + rng.normal(0.0, sigma, len(t)))[:, None]
+        p = np.concatenate([p, p[:50], np.full((3, 3), np.nan), np.zeros((2, 3))])  # ties
+        p = p[rng.permutation(len(p))].astype(np.float32)
+        new = scan_range_noise(p)
+        assert new is not None and new == before.scan_range_noise(p)
+        assert 0.5 * sigma < new < 2.0 * sigma

@@ -155,7 +155,8 @@ def scan_range_noise(p_in_sensor: NDArray[np.floating], ring_bin_deg: float = 0.
     if p.ndim != 2 or p.shape[1] < 3 or len(p) < 3:
         return None
     p = p[:, :3]
-    r = np.linalg.norm(p, axis=1)
+    x, y, z = p[:, 0], p[:, 1], p[:, 2]
+    r = np.sqrt(x * x + y * y + z * z)  # np.linalg.norm(p, axis=1), column by column
     keep = np.isfinite(r) & (r > 0)
     p, r = p[keep], r[keep]
     if len(r) < 3:
@@ -163,7 +164,9 @@ def scan_range_noise(p_in_sensor: NDArray[np.floating], ring_bin_deg: float = 0.
     elevation = np.degrees(np.arcsin(np.clip(p[:, 2] / r, -1.0, 1.0)))
     azimuth = np.degrees(np.arctan2(p[:, 1], p[:, 0]))
     ring = np.round(elevation / ring_bin_deg).astype(np.int64)
-    order = np.lexsort((azimuth, ring))
+    # np.lexsort((azimuth, ring)): stable sorts by azimuth, then by ring
+    order = np.argsort(azimuth, kind="stable")
+    order = order[np.argsort(ring[order], kind="stable")]
     r, azimuth, ring = r[order], azimuth[order], ring[order]
     step_a, step_b = azimuth[1:-1] - azimuth[:-2], azimuth[2:] - azimuth[1:-1]
     ok = ((ring[1:-1] == ring[:-2]) & (ring[1:-1] == ring[2:]) & (step_a < max_step_deg)
