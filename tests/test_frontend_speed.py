@@ -67,6 +67,7 @@ def test_pixel_surface_area_same_as_before(chain: list[_Frame]) -> None:
         for depth in (f.dense, f.smoothed):
             new = pixel_surface_area(depth, f.camera)
             assert np.array_equal(new, ref.pixel_surface_area_reference(depth, f.camera))
+            assert new.tobytes() == ref.pixel_surface_area_a219de7(depth, f.camera).tobytes()
     # zeros, edges and a tilted plane, where the gradient's one-sided ends matter
     cam = chain[0].camera
     d = np.zeros((cam.height, cam.width), np.float32)
@@ -99,6 +100,7 @@ def test_linear_completion_same_as_before(chain: list[_Frame]) -> None:
             opts = LinearOptions(inverse_depth=inverse)
             new = complete_linear(f.sparse, opts)
             assert np.array_equal(new, ref.complete_linear_reference(f.sparse, opts))
+            assert new.tobytes() == ref.complete_linear_a219de7(f.sparse, opts).tobytes()
         # a dense map given as an (H, W) array takes the other input path
         assert np.array_equal(complete_linear(f.sparse.depth),
                               ref.complete_linear_reference(f.sparse.depth))
@@ -113,6 +115,16 @@ def test_planar_smoothing_same_as_before(chain: list[_Frame]) -> None:
         assert np.array_equal(smooth_planar_regions(f.dense, f.labels, f.camera, opts),
                               ref.smooth_planar_regions_reference(f.dense, f.labels, f.camera,
                                                                   opts))
+        # fitted to the returns (the front end's default since the code before issue 14), with
+        # the a219de7 code's rays, distance tables and per-pixel gathers as the reference
+        measured = np.asarray(f.sparse.depth, np.float32)
+        for o in (PlanarSmoothingOptions(), PlanarSmoothingOptions(min_region_px=50),
+                  PlanarSmoothingOptions().for_noise(0.08)):
+            new = smooth_planar_regions(f.dense, f.labels, f.camera, o, measured=measured)
+            old = ref.smooth_planar_regions_a219de7(f.dense, f.labels, f.camera, o,
+                                                    measured=measured)
+            assert new.tobytes() == old.tobytes()
+            assert not np.array_equal(new, f.smoothed)  # the returns' fit moved other pixels
 
 
 def test_segmentation_same_as_before(chain: list[_Frame], monkeypatch: pytest.MonkeyPatch
