@@ -722,8 +722,7 @@ def smooth_planar_regions(
     out = d.copy()
     out_flat, d_flat = out.ravel(), d.ravel()
     meas_flat = None if meas is None else meas.ravel()
-    ray_x: F64 | None = None
-    ray_y: F64 | None = None
+    rays: tuple[F64, F64] | None = None  # (H·W,) x and y of the pixels' rays, once needed
     rng = np.random.default_rng(seed)
     for label in opts.labels:
         mask = ((lab == int(label)) & (d > 0)).astype(np.uint8)
@@ -746,12 +745,12 @@ def smooth_planar_regions(
         ids = comp.ravel()[flat]
         order = np.argsort(ids, kind="stable")
         starts = np.searchsorted(ids[order], np.arange(n_comp + 1))
-        if ray_x is None:  # every pixel's ray (x, y, 1), as Camera.rays computes it
+        if rays is None:  # every pixel's ray (x, y, 1), as Camera.rays computes it
             h, w = d.shape
-            ray_x = np.broadcast_to((np.arange(w, dtype=np.float64) - camera.cx) / camera.fx,
-                                    (h, w)).ravel()
-            ray_y = np.repeat((np.arange(h, dtype=np.float64) - camera.cy) / camera.fy, w)
+            rays = (np.broadcast_to((np.arange(w, dtype=np.float64) - camera.cx) / camera.fx,
+                                    (h, w)).ravel(),
+                    np.repeat((np.arange(h, dtype=np.float64) - camera.cy) / camera.fy, w))
         for c in big:
-            _smooth_region(out_flat, d_flat, flat[order[starts[c]:starts[c + 1]]], ray_x, ray_y,
+            _smooth_region(out_flat, d_flat, flat[order[starts[c]:starts[c + 1]]], *rays,
                            opts, rng, meas_flat)
     return out

@@ -54,6 +54,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -407,8 +408,7 @@ class _Region:
         return cls(box[0], box[1], mask[box], pts)
 
     @classmethod
-    def component(cls, comp: NDArray[np.int32], c: int, stats: NDArray[np.int32], pts: F64
-                  ) -> _Region:
+    def component(cls, comp: NDArray[Any], c: int, stats: NDArray[Any], pts: F64) -> _Region:
         """Connected component ``c`` of the label image ``comp`` (h, w) with its OpenCV
         ``stats`` row (left, top, width, height, area)."""
         x, y, bw, bh = (int(v) for v in stats[c, :4])
