@@ -20,7 +20,9 @@ from bimcap.fusion.completion import (
     LinearOptions,
     PlanarSmoothing,
     PlanarSmoothingOptions,
+    PlaneFitPoints,
     SparseDepth,
+    _region_planes,
     _require_points,
     _sparse_arrays,
 )
@@ -270,6 +272,236 @@ def smooth_planar_regions_reference(
     return out
 
 
+# ------------------------------------------------------------- a219de7
+# ``pixel_surface_area`` and ``complete_linear`` as of a219de7 (after the first speed-ups of
+# issue 14, before the vectorised stages), verbatim but for the names: what the bench's
+# previous-code column times.
+def pixel_surface_area_a219de7(depth: NDArray[np.floating], camera: Camera,
+                              min_cos: float = 0.1) -> F64:
+    """Surface area in m² that each pixel of an undistorted depth map covers.
+
+    The pixel's solid angle is ``cos³α / (fx·fy)`` and its range ``z / cos α``, so it covers
+    ``z²·cos α / (fx·fy·cos θ)``: α is the angle between the ray and the optical axis, θ between the
+    ray and the surface normal from the depth map's gradient (``cos θ`` clamped at ``min_cos``).
+
+    Returns
+    -------
+    (H, W) float64, 0 where depth is 0.
+    """
+    z = np.asarray(depth, dtype=np.float64)
+    h, w = z.shape
+    # Component by component, the same arithmetic as np.gradient / np.cross / np.linalg.norm on
+    # the stacked (H, W, 3) points (bit for bit: tests/test_frontend_speed.py), 2× cheaper.
+    x = (np.arange(w, dtype=np.float64) - camera.cx) / camera.fx * z
+    y = ((np.arange(h, dtype=np.float64) - camera.cy) / camera.fy)[:, None] * z
+    xu, yu, zu = (np.gradient(c, axis=1) for c in (x, y, z))
+    xv, yv, zv = (np.gradient(c, axis=0) for c in (x, y, z))
+    n0 = yu * zv - zu * yv
+    n1 = zu * xv - xu * zv
+    n2 = xu * yv - yu * xv
+    nn = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+    pn = np.sqrt(x * x + y * y + z * z)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos = np.abs(n0 * x + n1 * y + n2 * z) / (nn * pn)
+    cos = np.where(np.isfinite(cos), cos, 1.0)
+    cos = np.clip(cos, min_cos, 1.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos_alpha = np.where(pn > 0, z / pn, 1.0)
+    return np.where(z > 0, z * z * cos_alpha / (camera.fx * camera.fy) / cos, 0.0)
+
+
+def complete_linear_a219de7(sparse: SparseDepth | ArrayLike,
+                            options: LinearOptions | None = None) -> F32:
+    """LINEAR: Delaunay barycentric interpolation (module docstring). Pixels outside the hull or in
+    masked triangles stay 0."""
+    import cv2
+    from scipy.spatial import Delaunay, QhullError
+
+    opts = options or LinearOptions()
+    depth, uv, z = _sparse_arrays(sparse)
+    _require_points(z, 3)
+    h, w = depth.shape
+    try:
+        tri = Delaunay(uv)
+    except QhullError as exc:
+        raise FusionInputError(
+            f"cannot triangulate the sparse returns: {exc}", field="sparse_depth"
+        ) from None
+    simp = tri.simplices
+    pa, pb, pc = uv[simp[:, 0]], uv[simp[:, 1]], uv[simp[:, 2]]
+    edge = np.maximum.reduce(
+        [
+            np.linalg.norm(pa - pb, axis=1),
+            np.linalg.norm(pb - pc, axis=1),
+            np.linalg.norm(pc - pa, axis=1),
+        ]
+    )
+    zt = z[simp]
+    ratio = zt.max(1) / zt.min(1)
+    e1, e2 = pb - pa, pc - pa
+    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]  # twice the signed area, px²
+    good = (edge <= opts.max_edge_px) & (ratio <= opts.max_depth_ratio) & (np.abs(det) > 2.0)
+    # rasterise triangle ids (cv2 fill in a loop over kept triangles is far faster than
+    # Delaunay.find_simplex on every pixel); id 0 = none
+    tri_id = np.zeros((h, w), dtype=np.int32)
+    good_idx = np.flatnonzero(good)
+    # 4 fractional bits
+    corners = np.rint(np.stack([pa, pb, pc], 1)[good_idx] * 16).astype(np.int32)
+    fill, line8 = cv2.fillConvexPoly, cv2.LINE_8
+    for tid, poly in zip((good_idx + 1).tolist(), list(corners), strict=True):
+        fill(tri_id, poly, tid, line8, 4)
+    flat = np.flatnonzero(tri_id)
+    k = tri_id.ravel()[flat] - 1
+    rows, cols = np.divmod(flat, w)
+    # per triangle, the affine function f(u, v) = a u + b v + c through its three corners, with
+    # f = 1/z (exact for a plane seen through a pinhole) or f = z; one gather per pixel. Pixel
+    # centres up to half a pixel outside their rasterised triangle are extrapolated (exact for
+    # a plane); slivers (area < 1 px²) were dropped above, so this stays well conditioned.
+    gi = good_idx
+    mat = np.ones((len(gi), 3, 3))
+    mat[:, :, :2] = np.stack([pa[gi], pb[gi], pc[gi]], 1)
+    vals = 1.0 / zt[gi] if opts.inverse_depth else zt[gi]
+    coef_good = np.linalg.solve(mat, vals[:, :, None])[:, :, 0]
+    coef = np.zeros((3, len(simp)))
+    coef[:, gi] = coef_good.T
+    f = coef[0][k] * cols + coef[1][k] * rows + coef[2][k]
+    out = np.zeros(h * w, dtype=np.float32)
+    if opts.inverse_depth:
+        out[flat] = np.where(f > 0, 1.0 / np.maximum(f, 1e-12), 0.0)
+    else:
+        out[flat] = np.maximum(f, 0.0)
+    return out.reshape(h, w)
+
+
+# ------------------------------------------------------------- planar smoothing at a219de7
+# ``bimcap.fusion.completion._smooth_region`` / ``smooth_planar_regions`` as of a219de7 (with the
+# returns' fit), before the vectorised stages; verbatim but for the names.
+def smooth_region_a219de7(
+    out: F32,
+    depth: F32,
+    rows: NDArray[np.int64],
+    cols: NDArray[np.int64],
+    camera: Camera,
+    opts: PlanarSmoothingOptions,
+    rng: np.random.Generator,
+    measured: F32 | None = None,
+) -> None:
+    """Move the depth of one connected region's pixels onto the nearest of its planes, in place;
+    the planes are fitted to the region's returns (``measured`` (H, W), 0 = none) when it has
+    ``opts.min_region_returns`` of them and ``opts.fit_to`` asks for it, else to its pixels."""
+    uv = np.stack([cols, rows], 1).astype(np.float64)
+    cur = depth[rows, cols].astype(np.float64)
+    rays = camera.rays(uv, distorted=False)
+    pts = rays * cur[:, None]  # camera.backproject, sharing its rays with the plane depths below
+    planes: list[F64] = []
+    if measured is not None and opts.fit_to is PlaneFitPoints.RETURNS:
+        z_ret = measured[rows, cols].astype(np.float64)
+        has = z_ret > 0
+        if has.sum() >= opts.min_region_returns:
+            p_ret = rays[has] * z_ret[has, None]
+            planes = _region_planes(p_ret, opts, rng, opts.min_region_returns,
+                                    opts.returns_refit_iterations)
+            if planes:
+                pl = np.stack(planes)
+                d_ret = np.abs(p_ret @ pl[:, :3].T + pl[:, 3]).min(1)
+                if 1.4826 * float(np.median(d_ret)) > opts.returns_max_sigma_m:
+                    planes = []  # the returns too noisy for their fit: the pixels'
+    if not planes:
+        planes = _region_planes(pts, opts, rng)
+    if not planes:
+        return
+    pl = np.stack(planes)  # (K, 4)
+    dist = np.abs(pts @ pl[:, :3].T + pl[:, 3])  # (N, K)
+    best = np.argmin(dist, axis=1)
+    near = (
+        np.ones(len(pts), dtype=bool)
+        if len(pl) == 1
+        else (dist[np.arange(len(pts)), best] <= opts.assign_threshold_m)
+    )
+    denom = (rays * pl[best, :3]).sum(1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z_plane = -pl[best, 3] / denom
+    ok = (
+        near
+        & np.isfinite(z_plane)
+        & (z_plane > 0)
+        & (np.abs(z_plane - cur) <= opts.max_change_rel * cur)
+    )
+    out[rows[ok], cols[ok]] = z_plane[ok].astype(np.float32)
+
+
+def smooth_planar_regions_a219de7(
+    depth: ArrayLike,
+    labels: ArrayLike,
+    camera: Camera,
+    options: PlanarSmoothingOptions | None = None,
+    seed: int = 0,
+    measured: ArrayLike | None = None,
+) -> F32:
+    """Smooth dense depth inside planar regions (floor, ceiling, walls).
+
+    Parameters
+    ----------
+    depth: (H, W) float32 metres (0 = unknown), undistorted pinhole pixels of ``camera``.
+    labels: (H, W) uint8 label ids.
+    camera: the pinhole camera of ``depth`` (its distortion is ignored).
+    options: :class:`PlanarSmoothingOptions`; ``PLANE_FIT`` fits, per connected region of each
+        class, up to ``max_planes`` RANSAC planes to the back-projected pixels and moves each
+        pixel that lies within ``assign_threshold_m`` of its nearest plane onto it (its depth
+        becomes the plane's along the pixel ray); ``BLUR`` is the paper's blur (normalised
+        Gaussian, so that nothing outside the region or unknown leaks in).
+    seed: RANSAC seed.
+    measured: (H, W) float32 depth of the sensor's own returns at their pixels (0 = none; the
+        sparse map ``depth`` was completed from); with ``options.fit_to`` RETURNS the planes are
+        fitted to them (:class:`PlanarSmoothingOptions`). None: to the pixels.
+
+    Returns
+    -------
+    (H, W) float32 smoothed depth (a new array).
+    """
+    import cv2
+
+    opts = options or PlanarSmoothingOptions()
+    d = np.asarray(depth, dtype=np.float32)
+    lab = np.asarray(labels)
+    if d.shape != lab.shape or d.shape != (camera.height, camera.width):
+        raise FusionInputError(
+            f"depth {d.shape}, labels {lab.shape} and camera {camera.height}x{camera.width} differ",
+            field="labels",
+        )
+    meas = None if measured is None else np.asarray(measured, dtype=np.float32)
+    if meas is not None and meas.shape != d.shape:
+        raise FusionInputError(f"measured depth {meas.shape} and depth {d.shape} differ",
+                               field="measured")
+    out = d.copy()
+    rng = np.random.default_rng(seed)
+    for label in opts.labels:
+        mask = ((lab == int(label)) & (d > 0)).astype(np.uint8)
+        if mask.sum() < opts.min_region_px:
+            continue
+        if opts.mode is PlanarSmoothing.BLUR:
+            m = mask.astype(np.float32)
+            num = cv2.GaussianBlur(d * m, (0, 0), opts.blur_sigma_px)
+            den = cv2.GaussianBlur(m, (0, 0), opts.blur_sigma_px)
+            sel = mask > 0
+            out[sel] = num[sel] / np.maximum(den[sel], 1e-6)
+            continue
+        n_comp, comp, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=4)
+        big = [c for c in range(1, n_comp) if stats[c, cv2.CC_STAT_AREA] >= opts.min_region_px]
+        if not big:
+            continue
+        # every big component's pixels in row-major order (what np.nonzero(comp == c) gives),
+        # from one stable sort instead of one pass over the image per component
+        flat = np.flatnonzero(comp)
+        ids = comp.ravel()[flat]
+        order = np.argsort(ids, kind="stable")
+        starts = np.searchsorted(ids[order], np.arange(n_comp + 1))
+        for c in big:
+            rows, cols = np.divmod(flat[order[starts[c]:starts[c + 1]]], comp.shape[1])
+            smooth_region_a219de7(out, d, rows, cols, camera, opts, rng, meas)
+    return out
+
+
 # ------------------------------------------------------------- segmentation.geometric
 def ransac_vertical_reference(pts: F64, nrm: F64, up: F64, opts: GeometricOptions,
                      rng: np.random.Generator) -> _Plane | None:
@@ -435,13 +667,13 @@ def swapped(module: Any, **functions: Callable[..., Any]) -> Iterator[None]:
 def old_semantic_sampling() -> AbstractContextManager[None]:
     from bimcap.frontend import semantic_map
 
-    return swapped(semantic_map, pixel_surface_area=pixel_surface_area_reference)
+    return swapped(semantic_map, pixel_surface_area=pixel_surface_area_a219de7)
 
 
 def old_completion() -> AbstractContextManager[None]:
     from bimcap.fusion import completion
 
-    return swapped(completion, complete_linear=complete_linear_reference)
+    return swapped(completion, complete_linear=complete_linear_a219de7)
 
 
 @contextmanager
@@ -449,16 +681,18 @@ def old_planar_smoothing() -> Iterator[None]:
     from bimcap import fusion
     from bimcap.fusion import completion
 
-    with swapped(completion, smooth_planar_regions=smooth_planar_regions_reference), \
-            swapped(fusion, smooth_planar_regions=smooth_planar_regions_reference):
+    with swapped(completion, smooth_planar_regions=smooth_planar_regions_a219de7), \
+            swapped(fusion, smooth_planar_regions=smooth_planar_regions_a219de7):
         yield
 
 
 def old_segmentation() -> AbstractContextManager[None]:
+    """``segment_geometric`` as of a219de7 (``_geometric_reference``), whose vertical RANSAC,
+    protrusion walk and upsampling were checked against the ``*_reference`` functions above."""
+    import _geometric_reference
     from bimcap.segmentation import geometric
 
-    return swapped(geometric, _ransac_vertical=ransac_vertical_reference,
-                   _protrudes=protrudes_reference, _upsample_labels=upsample_labels_reference)
+    return swapped(geometric, segment_geometric=_geometric_reference.segment_geometric)
 
 
 def old_matching() -> AbstractContextManager[None]:

@@ -67,11 +67,19 @@ def test_pixel_surface_area_same_as_before(chain: list[_Frame]) -> None:
         for depth in (f.dense, f.smoothed):
             new = pixel_surface_area(depth, f.camera)
             assert np.array_equal(new, ref.pixel_surface_area_reference(depth, f.camera))
+            assert new.tobytes() == ref.pixel_surface_area_a219de7(depth, f.camera).tobytes()
     # zeros, edges and a tilted plane, where the gradient's one-sided ends matter
     cam = chain[0].camera
     d = np.zeros((cam.height, cam.width), np.float32)
     d[50:200, 30:300] = 2.0 + np.linspace(0, 1, 270, dtype=np.float32)
     assert np.array_equal(pixel_surface_area(d, cam), ref.pixel_surface_area_reference(d, cam))
+    # heights around the blocks of rows: the first and last rows' one-sided differences
+    rng = np.random.default_rng(0)
+    for h in (2, 3, 31, 32, 33, 64, 65, 97):
+        d = (1.0 + 3.0 * rng.random((h, 9))).astype(np.float32)
+        d[rng.random(d.shape) < 0.2] = 0.0
+        new = pixel_surface_area(d, cam)
+        assert new.tobytes() == ref.pixel_surface_area_reference(d, cam).tobytes()
 
 
 def test_semantic_sampling_same_as_before(chain: list[_Frame]) -> None:
@@ -92,6 +100,7 @@ def test_linear_completion_same_as_before(chain: list[_Frame]) -> None:
             opts = LinearOptions(inverse_depth=inverse)
             new = complete_linear(f.sparse, opts)
             assert np.array_equal(new, ref.complete_linear_reference(f.sparse, opts))
+            assert new.tobytes() == ref.complete_linear_a219de7(f.sparse, opts).tobytes()
         # a dense map given as an (H, W) array takes the other input path
         assert np.array_equal(complete_linear(f.sparse.depth),
                               ref.complete_linear_reference(f.sparse.depth))
@@ -106,60 +115,95 @@ def test_planar_smoothing_same_as_before(chain: list[_Frame]) -> None:
         assert np.array_equal(smooth_planar_regions(f.dense, f.labels, f.camera, opts),
                               ref.smooth_planar_regions_reference(f.dense, f.labels, f.camera,
                                                                   opts))
+        # fitted to the returns (the front end's default since the code before issue 14), with
+        # the a219de7 code's rays, distance tables and per-pixel gathers as the reference
+        measured = np.asarray(f.sparse.depth, np.float32)
+        for o in (PlanarSmoothingOptions(), PlanarSmoothingOptions(min_region_px=50),
+                  PlanarSmoothingOptions().for_noise(0.08)):
+            new = smooth_planar_regions(f.dense, f.labels, f.camera, o, measured=measured)
+            old = ref.smooth_planar_regions_a219de7(f.dense, f.labels, f.camera, o,
+                                                    measured=measured)
+            assert new.tobytes() == old.tobytes()
+            assert not np.array_equal(new, f.smoothed)  # the returns' fit moved other pixels
 
 
 def test_segmentation_same_as_before(chain: list[_Frame], monkeypatch: pytest.MonkeyPatch
                                      ) -> None:
-    """The labels, and every protrusion decision on the way (columns and walls both occur)."""
+    """The labels (the code as of a219de7, ``_geometric_reference``), and every protrusion
+    decision on the way (columns and walls both occur), also against the walk before issue 14."""
+    import _geometric_reference as before
     from bimcap.segmentation import geometric
 
-    decisions: list[tuple[bool, bool]] = []
+    decisions: list[tuple[bool, bool, bool]] = []
     new_protrudes = geometric._protrudes
 
     def both(region, pts, plane, opts):  # type: ignore[no-untyped-def]
         out = new_protrudes(region, pts, plane, opts)
-        decisions.append((out, ref.protrudes_reference(region, pts, plane, opts)))
+        full = region.full_mask()
+        decisions.append((out, before._protrudes(full, pts, plane, opts),
+                          ref.protrudes_reference(full, pts, plane, opts)))
         return out
 
     monkeypatch.setattr(geometric, "_protrudes", both)
     # completed LiDAR depth, and the rendered depth (where the columns come out whole)
     inputs = [(f.dense, f.camera, f.world_from_cam, f.labels) for f in chain]
     inputs += [(g.depth, g.camera, g.world_from_cam, None) for g in frames(4, 516, 386, 7)]
-    for depth, camera, pose, before in inputs:
+    for depth, camera, pose, labels in inputs:
         new = segment_geometric(depth, camera, pose)
-        with ref.old_segmentation():
-            old = segment_geometric(depth, camera, pose)
+        old = before.segment_geometric(depth, camera, pose)
         assert np.array_equal(new, old)
-        assert before is None or np.array_equal(new, before)
-    assert decisions and all(a == b for a, b in decisions)
-    assert {a for a, _ in decisions} == {True, False}
-    # other working resolutions: other nearest-neighbour upsampling maps
+        assert labels is None or np.array_equal(new, labels)
+        with ref.old_segmentation():  # what the bench times as the previous code
+            assert np.array_equal(geometric.segment_geometric(depth, camera, pose), new)
+    assert decisions and all(a == b == c for a, b, c in decisions)
+    assert {a for a, _, _ in decisions} == {True, False}
+    # other working resolutions (other nearest-neighbour upsampling maps), noisier settings
     f = chain[0]
-    for width in (100, 173, 300):
-        opts = GeometricOptions(work_width=width)
+    for opts in (GeometricOptions(work_width=100), GeometricOptions(work_width=173),
+                 GeometricOptions(work_width=300), GeometricOptions().for_noise(0.08)):
         new = segment_geometric(f.dense, f.camera, f.world_from_cam, opts)
-        with ref.old_segmentation():
-            assert np.array_equal(new, segment_geometric(f.dense, f.camera, f.world_from_cam,
-                                                         opts))
+        assert np.array_equal(new, before.segment_geometric(f.dense, f.camera, f.world_from_cam,
+                                                            opts))
+
+
+def test_normals_same_as_before(chain: list[_Frame]) -> None:
+    """Points, normals and their masks, component by component: the stacked code's bit for bit
+    (signed zeros included), with and without the box blur."""
+    import _geometric_reference as before
+    from bimcap.segmentation.geometric import _points_and_normals
+
+    for f in chain:
+        for step, box in ((2, 5), (3, 1), (4, 11)):
+            opts = GeometricOptions(normal_step_px=step, normal_smooth_px=box)
+            for new, old in zip(_points_and_normals(f.dense, f.camera, opts),
+                                before._points_and_normals(f.dense, f.camera, opts),
+                                strict=True):
+                assert new.dtype == old.dtype and new.shape == old.shape
+                assert new.tobytes() == old.tobytes()
 
 
 def test_vertical_ransac_same_as_before(chain: list[_Frame]) -> None:
+    import _geometric_reference as before
     from bimcap.segmentation.geometric import (
-        GeometricOptions,
         _points_and_normals,
         _ransac_vertical,
+        _work_scene,
     )
 
     opts = GeometricOptions()
     for f in chain:
+        scene = _work_scene(f.dense, f.camera, f.world_from_cam, opts)
         pts, _, nrm, nok = _points_and_normals(f.dense, f.camera, opts)
         up = np.array([0.0, -1.0, 0.0])
         vert = nok & (np.abs(nrm @ up) < 0.4)
-        new = _ransac_vertical(pts[vert], nrm[vert], up, opts, np.random.default_rng(3))
+        new = _ransac_vertical(scene, np.flatnonzero(vert), up, opts, np.random.default_rng(3))
         old = ref.ransac_vertical_reference(pts[vert], nrm[vert], up, opts,
                                             np.random.default_rng(3))
-        assert new is not None and old is not None
+        old_a219 = before._ransac_vertical(pts[vert], nrm[vert], up, opts,
+                                           np.random.default_rng(3))
+        assert new is not None and old is not None and old_a219 is not None
         assert np.array_equal(new.normal, old.normal) and new.offset == old.offset
+        assert np.array_equal(new.normal, old_a219.normal) and new.offset == old_a219.offset
 
 
 def test_one_thread_changes_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -210,7 +254,7 @@ def test_one_thread_restores_opencv() -> None:
 def test_blocked_ransac_scores_same_as_whole_table(n: int, hypotheses: int) -> None:
     """The RANSACs' scores in blocks of rows: the whole table's, for every block remainder."""
     from bimcap.fusion.completion import _inlier_counts
-    from bimcap.segmentation.geometric import _vertical_scores
+    from bimcap.segmentation.geometric import _plane_scores
 
     rng = np.random.default_rng(n + hypotheses)
     pts = rng.normal(size=(n, 3)) * 3.0
@@ -221,7 +265,8 @@ def test_blocked_ransac_scores_same_as_whole_table(n: int, hypotheses: int) -> N
     d = rng.normal(size=hypotheses)
     thr = (0.5 + 0.01 * np.abs(pts[:, 2]))[:, None]
     whole = ((np.abs(pts @ hn.T + d) < thr) & (np.abs(nrm @ hn.T) > 0.5)).sum(0)
-    assert np.array_equal(_vertical_scores(pts, nrm, hn, d, thr, 0.5), whole)
+    assert np.array_equal(_plane_scores(pts, hn, d, thr, nrm, 0.5), whole)
+    assert np.array_equal(_plane_scores(pts, hn, d, thr), (np.abs(pts @ hn.T + d) < thr).sum(0))
     assert np.array_equal(_inlier_counts(pts, hn, d, 0.5),
                           (np.abs(pts @ hn.T + d) < 0.5).sum(0))
     assert n < 500 or whole.sum() > 0  # the large tables have inliers to count
@@ -262,3 +307,26 @@ def test_matching_same_as_before() -> None:
     assert new[0][5] == 3
     for x, y in zip(new, old, strict=True):
         assert np.array_equal(x, y) and x.dtype == y.dtype
+
+
+def test_scan_range_noise_same_as_before() -> None:
+    """The range noise of ring scans (ties in azimuth, non-finite and zero rows included): the
+    a219de7 code's value exactly (it picks the segmentation's and smoothing's thresholds)."""
+    import _geometric_reference as before
+    from bimcap.segmentation.geometric import scan_range_noise
+
+    rng = np.random.default_rng(5)
+    elev = np.deg2rad(np.arange(-15.0, 16.0, 2.0))
+    azim = np.deg2rad(np.round(np.arange(0.0, 360.0, 0.2), 1))
+    e, a = (g.ravel() for g in np.meshgrid(elev, azim))
+    # a 6 m × 4 m room seen from near its middle: range to the nearest wall along each ray
+    d = np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)], 1)
+    with np.errstate(divide="ignore"):
+        t = np.min(np.abs(np.stack([3.2 / d[:, 0], 2.1 / d[:, 1], 1.4 / d[:, 2]], 1)), 1)
+    for sigma in (0.01, 0.03, 0.08):
+        p = d * (t + rng.normal(0.0, sigma, len(t)))[:, None]
+        p = np.concatenate([p, p[:50], np.full((3, 3), np.nan), np.zeros((2, 3))])  # ties
+        p = p[rng.permutation(len(p))].astype(np.float32)
+        new = scan_range_noise(p)
+        assert new is not None and new == before.scan_range_noise(p)
+        assert 0.5 * sigma < new < 2.0 * sigma

@@ -77,7 +77,7 @@ class LidarDepthProvider:
             raise FrontendInputError(
                 "the sequence has no LiDAR (load_lidar / cam_from_lidar)", None, "lidar"
             )
-        scan = seq.load_lidar(ctx.index)
+        scan = ctx.lidar()
         drop = self.projection is not None and self.projection.nan_policy is NanPolicy.DROP
         xyz = np.asarray(scan)[:, :3] if np.ndim(scan) == 2 else np.zeros((0, 3))
         valid = int(np.isfinite(xyz).all(axis=1).sum())
@@ -166,9 +166,7 @@ class SegmenterLabelProvider:
 
         noise = None
         if self.range_noise and hasattr(ctx.sequence, "load_lidar"):
-            from bimcap.segmentation.geometric import scan_range_noise
-
-            noise = scan_range_noise(ctx.sequence.load_lidar(ctx.index))
+            noise = ctx.range_noise_m()
 
         frame = FrameInput(
             camera=ctx.pinhole,
@@ -212,9 +210,7 @@ class PlanarDepthRefiner:
             raise FrontendInputError("no depth to refine", None, f"frames[{ctx.index}].depth")
         options = self.options
         if self.range_noise and options is not None and hasattr(ctx.sequence, "load_lidar"):
-            from bimcap.segmentation.geometric import scan_range_noise
-
-            options = options.for_noise(scan_range_noise(ctx.sequence.load_lidar(ctx.index)))
+            options = options.for_noise(ctx.range_noise_m())
         return np.asarray(
             smooth_planar_regions(ctx.depth, labels, ctx.pinhole, options, seed=self.seed,
                                   measured=ctx.measured_depth),

@@ -188,6 +188,9 @@ class FrameContext:
     measured_depth: (H, W) float32 depth of the sensor's own returns at their pixels (0
         elsewhere), set by depth providers that have them (the LiDAR's z-buffer); None when the
         provider has no such thing (ground truth, a learned model alone).
+
+    The frame's LiDAR scan and its range noise are read and measured once, on first use
+    (:meth:`lidar`, :meth:`range_noise_m`), for every stage that needs them.
     """
 
     sequence: Any
@@ -199,6 +202,25 @@ class FrameContext:
     world_from_cam: NDArray[np.float64]
     depth: NDArray[np.float32] | None = None
     measured_depth: NDArray[np.float32] | None = None
+    _lidar: NDArray[np.floating] | None = field(default=None, repr=False, compare=False)
+    _range_noise: tuple[float | None] | None = field(default=None, repr=False, compare=False)
+
+    def lidar(self) -> NDArray[np.floating]:
+        """The frame's scan ``sequence.load_lidar(index)`` (M, ≥3) sensor-frame metres, read
+        on the first call; the same array afterwards (do not modify it)."""
+        if self._lidar is None:
+            self._lidar = self.sequence.load_lidar(self.index)
+        return self._lidar
+
+    def range_noise_m(self) -> float | None:
+        """The scan's range noise σ in metres
+        (:func:`bimcap.segmentation.geometric.scan_range_noise` of :meth:`lidar`; None when it
+        cannot be measured), computed on the first call."""
+        if self._range_noise is None:
+            from bimcap.segmentation.geometric import scan_range_noise
+
+            self._range_noise = (scan_range_noise(self.lidar()),)
+        return self._range_noise[0]
 
 
 class DepthProvider(Protocol):
@@ -742,26 +764,24 @@ def _compute_frame(job: _FrameJob, shared: _RunShared | None) -> dict[str, NDArr
     out: dict[str, NDArray[Any]] = {**feats, "depth": kp_depth}
     for lab, prefix in SEMANTIC_CLASSES.items():
         out[f"{prefix}_p_in_cam"] = samples[lab]
-    out["scan_p_in_cam"], out["scan_n_in_cam"] = _scan_points(seq, i, und.pinhole, cfg.scan)
+    out["scan_p_in_cam"], out["scan_n_in_cam"] = _scan_points(ctx, cfg.scan)
     out["sift_time_s"] = np.array(sift_time)
     out["time_s"] = np.array(time.perf_counter() - t0)
     return out
 
 
-def _scan_points(seq: Any, i: int, pinhole: Camera, options: ScanSamplingOptions | None
-                 ) -> tuple[F64, F64]:
+def _scan_points(ctx: FrameContext, options: ScanSamplingOptions | None) -> tuple[F64, F64]:
     """The frame's scan surface points outside the view (empty without options or LiDAR)."""
+    seq, i = ctx.sequence, ctx.index
     has_scan = getattr(seq.frames[i], "lidar", None) is not None
     if options is None or not has_scan or not hasattr(seq, "cam_from_lidar"):
         return np.zeros((0, 3)), np.zeros((0, 3))
-    scan = np.asarray(seq.load_lidar(i))
+    scan = np.asarray(ctx.lidar())
     if scan.ndim != 2 or scan.shape[1] < 3 or len(scan) == 0:
         return np.zeros((0, 3)), np.zeros((0, 3))
-    from bimcap.segmentation.geometric import scan_range_noise
-
     # the voxel grows with the scan's own range noise (ScanSamplingOptions.for_noise)
-    options = options.for_noise(scan_range_noise(scan))
-    return scan_surface_points(scan, seq.cam_from_lidar, pinhole, options)
+    options = options.for_noise(ctx.range_noise_m())
+    return scan_surface_points(scan, seq.cam_from_lidar, ctx.pinhole, options)
 
 
 @dataclass

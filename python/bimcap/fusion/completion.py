@@ -25,6 +25,7 @@ All depth maps are float32 metres, 0 = unknown, in undistorted pinhole pixels.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field, replace
 from enum import Enum
 from typing import TYPE_CHECKING
@@ -173,6 +174,17 @@ def fill_nearest(sparse: SparseDepth | ArrayLike) -> F32:
 
 
 # ----------------------------------------------------------------------------- linear
+@functools.lru_cache(maxsize=4)
+def _pixel_grid(h: int, w: int) -> tuple[F64, F64]:
+    """(H·W,) float64 row and column of every pixel in row-major order (read-only; cached per
+    image size)."""
+    rows = np.repeat(np.arange(h, dtype=np.float64), w)
+    cols = np.tile(np.arange(w, dtype=np.float64), h)
+    rows.flags.writeable = False
+    cols.flags.writeable = False
+    return rows, cols
+
+
 def complete_linear(sparse: SparseDepth | ArrayLike, options: LinearOptions | None = None) -> F32:
     """LINEAR: Delaunay barycentric interpolation (module docstring). Pixels outside the hull or in
     masked triangles stay 0."""
@@ -214,7 +226,8 @@ def complete_linear(sparse: SparseDepth | ArrayLike, options: LinearOptions | No
         fill(tri_id, poly, tid, line8, 4)
     flat = np.flatnonzero(tri_id)
     k = tri_id.ravel()[flat] - 1
-    rows, cols = np.divmod(flat, w)
+    grid_rows, grid_cols = _pixel_grid(h, w)
+    rows, cols = grid_rows[flat], grid_cols[flat]  # np.divmod(flat, w), as float64
     # per triangle, the affine function f(u, v) = a u + b v + c through its three corners, with
     # f = 1/z (exact for a plane seen through a pinhole) or f = z; one gather per pixel. Pixel
     # centres up to half a pixel outside their rasterised triangle are extrapolated (exact for
@@ -584,29 +597,43 @@ def _region_planes(
     return planes
 
 
+def _points(x: F64, y: F64, z: F64) -> F64:
+    """(N, 3) points ``rays · z`` for rays ``(x, y, 1)`` (N,) each and z-depths ``z`` (N,): the
+    products ``Camera.backproject`` forms (``1 · z`` is ``z``)."""
+    p = np.empty((len(z), 3))
+    np.multiply(x, z, out=p[:, 0])
+    np.multiply(y, z, out=p[:, 1])
+    p[:, 2] = z
+    return p
+
+
 def _smooth_region(
     out: F32,
     depth: F32,
-    rows: NDArray[np.int64],
-    cols: NDArray[np.int64],
-    camera: Camera,
+    flat: NDArray[np.int64],
+    ray_x: F64,
+    ray_y: F64,
     opts: PlanarSmoothingOptions,
     rng: np.random.Generator,
     measured: F32 | None = None,
 ) -> None:
     """Move the depth of one connected region's pixels onto the nearest of its planes, in place;
-    the planes are fitted to the region's returns (``measured`` (H, W), 0 = none) when it has
-    ``opts.min_region_returns`` of them and ``opts.fit_to`` asks for it, else to its pixels."""
-    uv = np.stack([cols, rows], 1).astype(np.float64)
-    cur = depth[rows, cols].astype(np.float64)
-    rays = camera.rays(uv, distorted=False)
-    pts = rays * cur[:, None]  # camera.backproject, sharing its rays with the plane depths below
+    the planes are fitted to the region's returns (``measured``, 0 = none) when it has
+    ``opts.min_region_returns`` of them and ``opts.fit_to`` asks for it, else to its pixels.
+
+    ``out``, ``depth``, ``measured``: (H·W,) raveled maps; ``flat``: (N,) the region's pixels
+    (raveled indices, row-major order); ``ray_x``, ``ray_y``: (H·W,) the pinhole rays' x and y
+    (z = 1) of every pixel (``Camera.rays``).
+    """
+    x, y = ray_x[flat], ray_y[flat]
+    cur = depth[flat].astype(np.float64)
+    pts = None
     planes: list[F64] = []
     if measured is not None and opts.fit_to is PlaneFitPoints.RETURNS:
-        z_ret = measured[rows, cols].astype(np.float64)
+        z_ret = measured[flat].astype(np.float64)
         has = z_ret > 0
         if has.sum() >= opts.min_region_returns:
-            p_ret = rays[has] * z_ret[has, None]
+            p_ret = _points(x[has], y[has], z_ret[has])
             planes = _region_planes(p_ret, opts, rng, opts.min_region_returns,
                                     opts.returns_refit_iterations)
             if planes:
@@ -615,27 +642,38 @@ def _smooth_region(
                 if 1.4826 * float(np.median(d_ret)) > opts.returns_max_sigma_m:
                     planes = []  # the returns too noisy for their fit: the pixels'
     if not planes:
+        pts = _points(x, y, cur)
         planes = _region_planes(pts, opts, rng)
     if not planes:
         return
     pl = np.stack(planes)  # (K, 4)
-    dist = np.abs(pts @ pl[:, :3].T + pl[:, 3])  # (N, K)
-    best = np.argmin(dist, axis=1)
-    near = (
-        np.ones(len(pts), dtype=bool)
-        if len(pl) == 1
-        else (dist[np.arange(len(pts)), best] <= opts.assign_threshold_m)
-    )
-    denom = (rays * pl[best, :3]).sum(1)
+    if len(pl) == 1:  # every pixel on the one plane
+        near: NDArray[np.bool_] | bool = True
+        n0, n1, n2, offset = pl[0]
+        denom = x * n0 + y * n1 + n2  # the ray (x, y, 1) · n, summed left to right
+    else:
+        if pts is None:
+            pts = _points(x, y, cur)
+        dist = pts @ pl[:, :3].T  # (N, K) |n·p + d|, in place
+        dist += pl[:, 3]
+        np.abs(dist, out=dist)
+        best = np.argmin(dist, axis=1)
+        nearest = dist[:, 0].copy()  # the minimum column by column: min(axis=1)'s values
+        for k in range(1, len(pl)):
+            np.minimum(nearest, dist[:, k], out=nearest)
+        near = nearest <= opts.assign_threshold_m
+        denom = x * pl[best, 0] + y * pl[best, 1] + pl[best, 2]
+        offset = pl[best, 3]
     with np.errstate(divide="ignore", invalid="ignore"):
-        z_plane = -pl[best, 3] / denom
+        z_plane = -offset / denom
     ok = (
-        near
-        & np.isfinite(z_plane)
+        np.isfinite(z_plane)
         & (z_plane > 0)
         & (np.abs(z_plane - cur) <= opts.max_change_rel * cur)
     )
-    out[rows[ok], cols[ok]] = z_plane[ok].astype(np.float32)
+    if near is not True:
+        ok &= near
+    out[flat[ok]] = z_plane[ok].astype(np.float32)
 
 
 def smooth_planar_regions(
@@ -682,6 +720,9 @@ def smooth_planar_regions(
         raise FusionInputError(f"measured depth {meas.shape} and depth {d.shape} differ",
                                field="measured")
     out = d.copy()
+    out_flat, d_flat = out.ravel(), d.ravel()
+    meas_flat = None if meas is None else meas.ravel()
+    rays: tuple[F64, F64] | None = None  # (H·W,) x and y of the pixels' rays, once needed
     rng = np.random.default_rng(seed)
     for label in opts.labels:
         mask = ((lab == int(label)) & (d > 0)).astype(np.uint8)
@@ -704,7 +745,12 @@ def smooth_planar_regions(
         ids = comp.ravel()[flat]
         order = np.argsort(ids, kind="stable")
         starts = np.searchsorted(ids[order], np.arange(n_comp + 1))
+        if rays is None:  # every pixel's ray (x, y, 1), as Camera.rays computes it
+            h, w = d.shape
+            rays = (np.broadcast_to((np.arange(w, dtype=np.float64) - camera.cx) / camera.fx,
+                                    (h, w)).ravel(),
+                    np.repeat((np.arange(h, dtype=np.float64) - camera.cy) / camera.fy, w))
         for c in big:
-            rows, cols = np.divmod(flat[order[starts[c]:starts[c + 1]]], comp.shape[1])
-            _smooth_region(out, d, rows, cols, camera, opts, rng, meas)
+            _smooth_region(out_flat, d_flat, flat[order[starts[c]:starts[c + 1]]], *rays,
+                           opts, rng, meas_flat)
     return out

@@ -109,8 +109,8 @@ class ScanSamplingOptions:
 
 def _voxel_means(points: F64, voxel: float) -> F64:
     keys = np.floor(points / voxel).astype(np.int64)
-    keys -= keys.min(axis=0)
-    span = keys.max(axis=0) + 1
+    keys -= np.array([keys[:, j].min() for j in range(3)])  # keys.min(axis=0), column by column
+    span = np.array([keys[:, j].max() for j in range(3)]) + 1
     flat = (keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2]
     _, inverse, counts = np.unique(flat, return_inverse=True, return_counts=True)
     sums = np.stack([np.bincount(inverse, points[:, j], len(counts)) for j in range(3)], axis=1)
@@ -156,7 +156,8 @@ def scan_surface_points(points_in_lidar: ArrayLike, cam_from_lidar: ArrayLike, c
     if pts.ndim != 2 or pts.shape[1] < 3:
         raise ScanSamplingError(f"a scan must be (M, 3+), got {pts.shape}")
     pts = pts[:, :3]
-    pts = pts[np.isfinite(pts).all(axis=1)]
+    finite = np.isfinite(pts)
+    pts = pts[finite[:, 0] & finite[:, 1] & finite[:, 2]]  # rows with three finite coordinates
     rng = np.linalg.norm(pts, axis=1)
     pts = pts[(rng >= opts.min_range_m) & (rng <= opts.max_range_m)]
     empty = np.zeros((0, 3))

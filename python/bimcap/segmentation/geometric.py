@@ -52,7 +52,9 @@ the limit the options are used as given (same labels as without a noise estimate
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -155,7 +157,8 @@ def scan_range_noise(p_in_sensor: NDArray[np.floating], ring_bin_deg: float = 0.
     if p.ndim != 2 or p.shape[1] < 3 or len(p) < 3:
         return None
     p = p[:, :3]
-    r = np.linalg.norm(p, axis=1)
+    x, y, z = p[:, 0], p[:, 1], p[:, 2]
+    r = np.sqrt(x * x + y * y + z * z)  # np.linalg.norm(p, axis=1), column by column
     keep = np.isfinite(r) & (r > 0)
     p, r = p[keep], r[keep]
     if len(r) < 3:
@@ -163,7 +166,9 @@ def scan_range_noise(p_in_sensor: NDArray[np.floating], ring_bin_deg: float = 0.
     elevation = np.degrees(np.arcsin(np.clip(p[:, 2] / r, -1.0, 1.0)))
     azimuth = np.degrees(np.arctan2(p[:, 1], p[:, 0]))
     ring = np.round(elevation / ring_bin_deg).astype(np.int64)
-    order = np.lexsort((azimuth, ring))
+    # np.lexsort((azimuth, ring)): stable sorts by azimuth, then by ring
+    order = np.argsort(azimuth, kind="stable")
+    order = order[np.argsort(ring[order], kind="stable")]
     r, azimuth, ring = r[order], azimuth[order], ring[order]
     step_a, step_b = azimuth[1:-1] - azimuth[:-2], azimuth[2:] - azimuth[1:-1]
     ok = ((ring[1:-1] == ring[:-2]) & (ring[1:-1] == ring[2:]) & (step_a < max_step_deg)
@@ -182,6 +187,15 @@ class _Plane:
 
 def _points_and_normals(depth: NDArray[np.float32], cam: Camera, opts: GeometricOptions
                         ) -> tuple[F64, B, F64, B]:
+    """Points (h, w, 3), valid (h, w), unit normals facing the camera (h, w, 3; 0 where no
+    normal) and where there is a normal (h, w), of the depth ``depth`` (h, w) seen by ``cam``.
+
+    The normal is the cross product of the central differences along u and v
+    (``normal_step_px``), box-blurred (``normal_smooth_px``), normalised and turned toward the
+    camera; computed component by component on the pixels that can have one (``np.cross``,
+    ``np.linalg.norm`` and the sum over the last axis do the same products and left-to-right
+    sums on stacked (h, w, 3) arrays).
+    """
     import cv2
 
     h, w = depth.shape
@@ -194,45 +208,59 @@ def _points_and_normals(depth: NDArray[np.float32], cam: Camera, opts: Geometric
     pts[..., 2] = z
     valid = z > 0
     s = opts.normal_step_px
-    du = np.zeros_like(pts)
-    dv = np.zeros_like(pts)
-    du[:, s:-s] = pts[:, 2 * s :] - pts[:, : -2 * s]
-    dv[s:-s] = pts[2 * s :] - pts[: -2 * s]
     ok = np.zeros((h, w), dtype=bool)
     zc = z[s:-s, s:-s]
     jump = 0.05 * zc + 0.05  # metres: neighbours farther apart in depth are across an edge
-    ok[s:-s, s:-s] = (
+    ok_in = (
         valid[s:-s, s:-s]
         & (z[s:-s, 2 * s :] > 0) & (z[s:-s, : -2 * s] > 0)
         & (z[2 * s :, s:-s] > 0) & (z[: -2 * s, s:-s] > 0)
         & (np.abs(z[s:-s, 2 * s :] - z[s:-s, : -2 * s]) < 2 * jump)
         & (np.abs(z[2 * s :, s:-s] - z[: -2 * s, s:-s]) < 2 * jump)
     )
-    n = np.cross(du, dv)
-    n[~ok] = 0.0
+    ok[s:-s, s:-s] = ok_in
+    # central differences du (along u) and dv (along v) where both exist: the interior
+    du = [pts[s:-s, 2 * s :, i] - pts[s:-s, : -2 * s, i] for i in range(3)]
+    dv = [pts[2 * s :, s:-s, i] - pts[: -2 * s, s:-s, i] for i in range(3)]
+    cross = (du[1] * dv[2] - du[2] * dv[1],
+             du[2] * dv[0] - du[0] * dv[2],
+             du[0] * dv[1] - du[1] * dv[0])
     k = opts.normal_smooth_px
+    n = np.zeros((h, w, 3), dtype=np.float32 if k > 1 else np.float64)
+    for i in range(3):
+        n[s:-s, s:-s, i] = np.where(ok_in, cross[i], 0.0)
     if k > 1:
-        n = cv2.blur(n.astype(np.float32), (k, k)).astype(np.float64)
-    norm = np.linalg.norm(n, axis=2)
+        n = cv2.blur(n, (k, k)).astype(np.float64)
+    n0, n1, n2 = n[..., 0], n[..., 1], n[..., 2]
+    norm = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
     ok &= norm > 1e-12
-    n = n / np.maximum(norm, 1e-12)[..., None]
-    flip = (n * pts).sum(2) > 0  # face the camera
-    n[flip] *= -1.0
+    n /= np.maximum(norm, 1e-12)[..., None]
+    flip = (n0 * pts[..., 0] + n1 * pts[..., 1] + n2 * pts[..., 2]) > 0  # face the camera
+    np.negative(n, out=n, where=flip[..., None])
     n[~ok] = 0.0
     return pts, valid, n, ok
+
+
+def _cross3(a: F64, b: F64) -> F64:
+    """``np.cross`` of two (3,) vectors: the same products and differences, without its
+    array-shape handling (a few µs instead of ~20 per call)."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
+                     a[0] * b[1] - a[1] * b[0]])
 
 
 def _threshold(z: F64, opts: GeometricOptions) -> F64:
     return opts.plane_threshold_m + opts.plane_threshold_rel * z
 
 
-def _ransac_horizontal(pts: F64, up: F64, cos_max: float, opts: GeometricOptions,
-                       rng: np.random.Generator) -> _Plane | None:
-    """Plane through points (N, 3) whose normal is within acos(cos_max) of ±up."""
-    n = len(pts)
+def _ransac_horizontal(scene: _WorkScene, cand: NDArray[np.int64], up: F64, cos_max: float,
+                       opts: GeometricOptions, rng: np.random.Generator) -> _Plane | None:
+    """Plane through the points of the pixels ``cand`` (N,) (raveled indices, row-major) whose
+    normal is within acos(cos_max) of ±up. Only the RANSAC's sample of them is read."""
+    n = len(cand)
     if n < 3:
         return None
-    sub = pts[rng.choice(n, size=min(n, opts.ransac_sample), replace=False)]
+    pick = cand[rng.choice(n, size=min(n, opts.ransac_sample), replace=False)]
+    sub = scene.pts_flat[pick]
     idx = rng.integers(0, len(sub), size=(opts.ransac_iterations, 3))
     a, b, c = sub[idx[:, 0]], sub[idx[:, 1]], sub[idx[:, 2]]
     nrm = np.cross(b - a, c - a)
@@ -245,8 +273,8 @@ def _ransac_horizontal(pts: F64, up: F64, cos_max: float, opts: GeometricOptions
         return None
     nrm, a = nrm[good], a[good]
     d = -(nrm * a).sum(1)
-    thr = _threshold(sub[:, 2], opts)[:, None]
-    score = (np.abs(sub @ nrm.T + d) < thr).sum(0)
+    thr = scene.thr_flat[pick][:, None]  # _threshold of the sample's depths
+    score = _plane_scores(sub, nrm, d, thr)
     best = int(np.argmax(score))
     inl = np.abs(sub @ nrm[best] + d[best]) < thr[:, 0]
     if inl.sum() < 3:
@@ -258,23 +286,25 @@ def _ransac_horizontal(pts: F64, up: F64, cos_max: float, opts: GeometricOptions
     return _Plane(normal, float(-normal @ centroid))
 
 
-def _ransac_vertical(pts: F64, nrm: F64, up: F64, opts: GeometricOptions,
-                     rng: np.random.Generator) -> _Plane | None:
-    """Vertical plane (normal ⟂ up) from points (N, 3) with normals (N, 3): 1-point hypotheses."""
-    n = len(pts)
+def _ransac_vertical(scene: _WorkScene, cand: NDArray[np.int64], up: F64,
+                     opts: GeometricOptions, rng: np.random.Generator) -> _Plane | None:
+    """Vertical plane (normal ⟂ up) through the points (with their normals) of the pixels
+    ``cand`` (N,) (raveled indices, row-major): 1-point hypotheses. Only the RANSAC's sample of
+    them is read."""
+    n = len(cand)
     if n < 3:
         return None
-    pick = rng.choice(n, size=min(n, opts.ransac_sample), replace=False)
-    sub, sub_n = pts[pick], nrm[pick]
+    pick = cand[rng.choice(n, size=min(n, opts.ransac_sample), replace=False)]
+    sub, sub_n = scene.pts_flat[pick], scene.nrm_flat[pick]
     hyp = rng.integers(0, len(sub), size=opts.ransac_iterations)
     hn = sub_n[hyp] - (sub_n[hyp] @ up)[:, None] * up
     ln = np.linalg.norm(hn, axis=1)
     good = ln > 1e-6
     hn = hn[good] / ln[good, None]
     d = -(hn * sub[hyp[good]]).sum(1)
-    thr = _threshold(sub[:, 2], opts)[:, None]
+    thr = scene.thr_flat[pick][:, None]  # _threshold of the sample's depths
     cos_n = np.cos(np.deg2rad(opts.normal_agreement_deg))
-    score = _vertical_scores(sub, sub_n, hn, d, thr, cos_n)
+    score = _plane_scores(sub, hn, d, thr, sub_n, cos_n)
     if len(score) == 0:
         return None
     best = int(np.argmax(score))
@@ -282,7 +312,7 @@ def _ransac_vertical(pts: F64, nrm: F64, up: F64, opts: GeometricOptions,
     if inl.sum() < 3:
         return None
     # refit: a line in the horizontal plane (coordinates along two horizontal axes)
-    e1 = np.cross(up, hn[best])
+    e1 = _cross3(up, hn[best])
     e1 /= np.linalg.norm(e1)
     q = sub[inl]
     xy = np.stack([q @ e1, q @ hn[best]], 1)
@@ -312,40 +342,97 @@ def _row_blocks(n: int) -> list[tuple[int, int]]:
     return [(a, b) for a, b in zip(starts, [*starts[1:], n], strict=True)]
 
 
-def _vertical_scores(sub: F64, sub_n: F64, hn: F64, d: F64, thr: F64, cos_n: float
-                     ) -> NDArray[np.int64]:
+def _plane_scores(sub: F64, hn: F64, d: F64, thr: F64, sub_n: F64 | None = None,
+                  cos_n: float = 0.0) -> NDArray[np.int64]:
     """Per hypothesis (``hn`` (I, 3) unit normals, ``d`` (I,) offsets): how many of the points
-    ``sub`` (N, 3) with normals ``sub_n`` (N, 3) lie within ``thr`` (N, 1) of its plane with a
-    normal within acos(``cos_n``) of it.
+    ``sub`` (N, 3) lie within ``thr`` (N, 1) of its plane and (unless ``sub_n`` is None) have a
+    normal (``sub_n`` (N, 3)) within acos(``cos_n``) of it.
 
     The same counts as ``((|sub·hnᵀ + d| < thr) & (|sub_n·hnᵀ| > cos_n)).sum(0)`` bit for bit
     (each entry of a product is the same 3-term sum in any block of rows of a matrix-matrix
     product; one hypothesis is computed whole), in blocks of rows and in place.
     """
     if len(hn) < 2:
-        whole: NDArray[np.int64] = (
-            (np.abs(sub @ hn.T + d) < thr) & (np.abs(sub_n @ hn.T) > cos_n)).sum(0)
+        ok_whole = np.abs(sub @ hn.T + d) < thr
+        if sub_n is not None:
+            ok_whole &= np.abs(sub_n @ hn.T) > cos_n
+        whole: NDArray[np.int64] = ok_whole.sum(0)
         return whole
     score = np.zeros(len(hn), np.int64)
     for a, b in _row_blocks(len(sub)):
         dist = sub[a:b] @ hn.T
         dist += d
         np.abs(dist, out=dist)
-        agree = sub_n[a:b] @ hn.T
-        np.abs(agree, out=agree)
         ok = dist < thr[a:b]
-        ok &= agree > cos_n
-        score += np.count_nonzero(ok, axis=0)
+        if sub_n is not None:
+            agree = sub_n[a:b] @ hn.T
+            np.abs(agree, out=agree)
+            ok &= agree > cos_n
+        # the block's counts (at most _SCORE_ROWS + 1 < 2¹⁶): a byte-wise sum, not count_nonzero
+        score += np.add.reduce(ok.view(np.uint8), axis=0, dtype=np.uint16)
     return score
 
 
-def _plane_inliers(pts: F64, nrm: F64, plane: _Plane, mask: B, opts: GeometricOptions) -> B:
-    dist = np.abs(pts @ plane.normal + plane.offset)
+def _plane_inliers(scene: _WorkScene, plane: _Plane, mask: B, opts: GeometricOptions) -> B:
+    """(h, w) the pixels of ``mask`` within the threshold of ``plane`` whose normal agrees."""
+    dist = scene.pts @ plane.normal
+    dist += plane.offset
+    np.abs(dist, out=dist)
+    agree = scene.nrm @ plane.normal
+    np.abs(agree, out=agree)
     cos_n = np.cos(np.deg2rad(opts.normal_agreement_deg))
-    return mask & (dist < _threshold(pts[..., 2], opts)) & (np.abs(nrm @ plane.normal) > cos_n)
+    inl = dist < scene.thr
+    inl &= agree > cos_n
+    inl &= mask
+    return inl
 
 
-def _protrudes(region: B, pts: F64, plane: _Plane, opts: GeometricOptions) -> bool:
+@dataclass
+class _Region:
+    """A region of the working image: its bounding box ``rows`` × ``cols`` and its pixels
+    ``mask`` inside the box; its points (M, 3) in row-major order (``pts[full mask]``) are
+    gathered once, on first use (:meth:`points`)."""
+
+    rows: slice
+    cols: slice
+    mask: B  # (box height, box width)
+    pts: F64  # (h, w, 3) the whole image's points
+    _p: F64 | None = None
+
+    @classmethod
+    def from_mask(cls, mask: B, pts: F64) -> _Region:
+        """The region of the pixels ``mask`` (h, w) (not empty)."""
+        rows = np.flatnonzero(mask.any(1))
+        cols = np.flatnonzero(mask.any(0))
+        box = (slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1))
+        return cls(box[0], box[1], mask[box], pts)
+
+    @classmethod
+    def component(cls, comp: NDArray[Any], c: int, stats: NDArray[Any], pts: F64) -> _Region:
+        """Connected component ``c`` of the label image ``comp`` (h, w) with its OpenCV
+        ``stats`` row (left, top, width, height, area)."""
+        x, y, bw, bh = (int(v) for v in stats[c, :4])
+        rows, cols = slice(y, y + bh), slice(x, x + bw)
+        return cls(rows, cols, comp[rows, cols] == c, pts)
+
+    @property
+    def top(self) -> int:
+        return int(self.rows.start)
+
+    def points(self) -> F64:
+        """(M, 3) the region's points, row-major."""
+        if self._p is None:
+            self._p = self.pts[self.rows, self.cols][self.mask]
+        return self._p
+
+    def full_mask(self) -> B:
+        """(h, w) the region's pixels."""
+        out = np.zeros(self.pts.shape[:2], dtype=bool)
+        out[self.rows, self.cols] = self.mask
+        return out
+
+
+def _protrudes(region: _Region, pts: F64, plane: _Plane, opts: GeometricOptions) -> bool:
     """Does the planar region stand out of what surrounds it on the left and on the right?
 
     Per row and side, walk outward from the region's edge (up to ``protrusion_px`` pixels) to
@@ -359,11 +446,13 @@ def _protrudes(region: B, pts: F64, plane: _Plane, opts: GeometricOptions) -> bo
     visible side just as a column does; walls being far more common, a region cut by the image
     border stays a wall).
     """
-    rows = np.flatnonzero(region.any(1))
-    w = region.shape[1]
-    sub = region[rows]
-    left = np.argmax(sub, axis=1)
-    right = w - 1 - np.argmax(sub[:, ::-1], axis=1)
+    box_rows = np.flatnonzero(region.mask.any(1))
+    rows = box_rows + region.top
+    w = pts.shape[1]
+    sub = region.mask[box_rows]
+    x0 = region.cols.start
+    left = np.argmax(sub, axis=1) + x0
+    right = x0 + sub.shape[1] - 1 - np.argmax(sub[:, ::-1], axis=1)
     cam_side = np.sign(plane.offset) if plane.offset != 0 else 1.0  # the camera (origin) side
     sides = 0
     margin = opts.normal_step_px + 1  # no normals there: the image border for this purpose
@@ -390,28 +479,30 @@ def _protrudes(region: B, pts: F64, plane: _Plane, opts: GeometricOptions) -> bo
     return sides >= opts.protrusion_sides
 
 
-def _reaches_up(region: B, pts: F64, up: F64, top_needed: float, opts: GeometricOptions) -> bool:
-    """Does the region reach ``top_needed`` metres above the camera (or the image's top rows)?"""
-    rows = np.flatnonzero(region.any(1))
-    if rows[0] <= opts.normal_step_px + 1:
-        return True
-    return float(np.percentile(pts[region] @ up, 98)) >= top_needed
+def _reaches_up(region: _Region, up: F64, top_needed: float, opts: GeometricOptions,
+                height: F64 | None = None) -> bool:
+    """Does the region reach ``top_needed`` metres above the camera (or the image's top rows)?
+    ``height``: (M,) its points' heights along ``up``, when already computed."""
+    if region.top <= opts.normal_step_px + 1 or top_needed == -np.inf:
+        return True  # (every finite height reaches -inf: the plane's region reaches up)
+    hgt = region.points() @ up if height is None else height
+    return float(np.percentile(hgt, 98)) >= top_needed
 
 
 def _classify_vertical_region(
-    region: B, pts: F64, plane: _Plane, up: F64, top_needed: float, opts: GeometricOptions
+    region: _Region, pts: F64, plane: _Plane, up: F64, top_needed: float, opts: GeometricOptions
 ) -> Label:
-    if not _reaches_up(region, pts, up, top_needed, opts):
+    if not _reaches_up(region, up, top_needed, opts):
         return Label.CLUTTER  # walls and columns reach the ceiling; crates and tables do not
-    cols = np.flatnonzero(region.any(0))
-    w = region.shape[1]
+    w = pts.shape[1]
     margin = opts.normal_step_px + 1
-    if cols[0] <= margin and cols[-1] >= w - 1 - margin:
+    if region.cols.start <= margin and region.cols.stop - 1 >= w - 1 - margin:
         return Label.WALL
-    t = np.cross(up, plane.normal)
+    t = _cross3(up, plane.normal)
     t /= np.linalg.norm(t)
-    s = pts[region] @ t
-    width = float(np.percentile(s, 98) - np.percentile(s, 2))
+    s = region.points() @ t
+    lo, hi = np.percentile(s, [2, 98])
+    width = float(hi - lo)
     if width >= opts.column_max_width_m or width < opts.column_min_width_m:
         return Label.WALL  # too wide, or as thin as a doorway's reveal (a wall's thickness)
     return Label.COLUMN if _protrudes(region, pts, plane, opts) else Label.WALL
@@ -429,6 +520,22 @@ class _WorkScene:
     height: F64  # (h, w) metres along ``up`` from the camera
     min_plane: int  # pixels a plane needs
     min_region: int  # pixels a region needs
+    thr: F64  # (h, w) the plane threshold at each pixel's depth (``_threshold``)
+
+    @property
+    def pts_flat(self) -> F64:
+        """(h·w, 3) ``pts`` raveled (a view)."""
+        return self.pts.reshape(-1, 3)
+
+    @property
+    def nrm_flat(self) -> F64:
+        """(h·w, 3) ``nrm`` raveled (a view)."""
+        return self.nrm.reshape(-1, 3)
+
+    @property
+    def thr_flat(self) -> F64:
+        """(h·w,) ``thr`` raveled (a view)."""
+        return self.thr.reshape(-1)
 
 
 @dataclass
@@ -456,6 +563,14 @@ class _Labelling:
         self.labels[mask] = int(label)
         self.assigned |= mask
         self.region_id[mask] = len(self.regions)
+        self.regions.append((label, plane))
+
+    def add_box_region(self, region: _Region, label: Label, plane: _Plane) -> None:
+        """:meth:`add_region` of a :class:`_Region` (written inside its bounding box)."""
+        box = (region.rows, region.cols)
+        self.labels[box][region.mask] = int(label)
+        self.assigned[box] |= region.mask
+        self.region_id[box][region.mask] = len(self.regions)
         self.regions.append((label, plane))
 
 
@@ -532,6 +647,7 @@ def _work_scene(d: NDArray[np.float32], cam: Camera, pose: F64, opts: GeometricO
         pts=pts, valid=valid, nrm=nrm, nok=nok, up=up, height=pts @ up,
         min_plane=max(20, int(opts.min_plane_fraction * h * w)),
         min_region=max(10, int(opts.min_region_fraction * h * w)),
+        thr=_threshold(pts[..., 2], opts),
     )
 
 
@@ -569,10 +685,10 @@ def _horizontal_planes(scene: _WorkScene, assigned: B, cand: B, cos_h: float,
     for _ in range(opts.max_horizontal_planes):
         if remaining.sum() < scene.min_plane:
             break
-        plane = _ransac_horizontal(scene.pts[remaining], scene.up, cos_h, opts, rng)
+        plane = _ransac_horizontal(scene, np.flatnonzero(remaining), scene.up, cos_h, opts, rng)
         if plane is None:
             break
-        inl = _plane_inliers(scene.pts, scene.nrm, plane, scene.nok & ~assigned, opts)
+        inl = _plane_inliers(scene, plane, scene.nok & ~assigned, opts)
         if (inl & remaining).sum() < scene.min_plane:
             break
         # the plane's height along up: points p with n·p + offset = 0 → height ≈ -offset (n ≈ ±up)
@@ -616,16 +732,16 @@ def _walls_and_columns(scene: _WorkScene, state: _Labelling, up_ref: F64, top_ne
     for _ in range(opts.max_vertical_planes):
         if remaining.sum() < scene.min_plane:
             break
-        plane = _ransac_vertical(scene.pts[remaining], scene.nrm[remaining], up_ref, opts, rng)
+        plane = _ransac_vertical(scene, np.flatnonzero(remaining), up_ref, opts, rng)
         if plane is None:
             break
-        inl = _plane_inliers(scene.pts, scene.nrm, plane, remaining, opts)
+        inl = _plane_inliers(scene, plane, remaining, opts)
         if inl.sum() < scene.min_plane:
             break
         remaining &= ~inl
         # whether the plane reaches the ceiling is judged on all its inliers: noise may split a
         # wall into an upper and a lower region, and the lower one is no crate
-        plane_reaches = _reaches_up(inl, scene.pts, up_ref, top_needed, opts)
+        plane_reaches = _reaches_up(_Region.from_mask(inl, scene.pts), up_ref, top_needed, opts)
         _label_plane_regions(scene, state, inl, plane, up_ref,
                              top_needed if not plane_reaches else -np.inf, opts)
     return remaining
@@ -641,9 +757,9 @@ def _label_plane_regions(scene: _WorkScene, state: _Labelling, inl: B, plane: _P
     for c in range(1, n_comp):
         if stats[c, cv2.CC_STAT_AREA] < scene.min_region:
             continue
-        region = comp == c
+        region = _Region.component(comp, c, stats, scene.pts)
         lab = _classify_vertical_region(region, scene.pts, plane, up_ref, top_needed, opts)
-        state.add_region(region, lab, plane)
+        state.add_box_region(region, lab, plane)
 
 
 def _curved_columns(scene: _WorkScene, state: _Labelling, remaining: B, up_ref: F64,
@@ -657,25 +773,27 @@ def _curved_columns(scene: _WorkScene, state: _Labelling, remaining: B, up_ref: 
     for c in range(1, n_comp):
         if stats[c, cv2.CC_STAT_AREA] < scene.min_region:
             continue
-        region = comp == c
+        region = _Region.component(comp, c, stats, scene.pts)
         if _is_curved_column(region, scene.pts, up_ref, top_needed, opts):
-            state.labels[region] = int(Label.COLUMN)
-            state.assigned |= region
+            box = (region.rows, region.cols)
+            state.labels[box][region.mask] = int(Label.COLUMN)
+            state.assigned[box] |= region.mask
 
 
-def _is_curved_column(region: B, pts: F64, up_ref: F64, top_needed: float,
+def _is_curved_column(region: _Region, pts: F64, up_ref: F64, top_needed: float,
                       opts: GeometricOptions) -> bool:
-    """Is the region (h, w) of points ``pts`` (h, w, 3) tall, narrow, reaching up and standing
-    out of its surroundings (a crease between walls does not)?"""
-    p = pts[region]
+    """Is the region of points ``pts`` (h, w, 3) tall, narrow, reaching up and standing out of
+    its surroundings (a crease between walls does not)?"""
+    p = region.points()
     hgt = p @ up_ref
     horiz = p - np.outer(hgt, up_ref)
     hc = horiz - horiz.mean(0)
     # ≈ full width of a uniform spread
     extent = 2.0 * np.sqrt(max(np.linalg.eigvalsh(hc.T @ hc / len(hc))[-1], 0.0)) * 1.73
-    tall = np.percentile(hgt, 98) - np.percentile(hgt, 2)
+    lo, hi = np.percentile(hgt, [2, 98])
+    tall = hi - lo
     if not (extent < opts.column_max_width_m and tall > opts.column_min_height_m
-            and _reaches_up(region, pts, up_ref, top_needed, opts)):
+            and _reaches_up(region, up_ref, top_needed, opts, hgt)):
         return False
     # one protruding side is enough here: a curved region is no wall end
     return _protrudes(region, pts, _vertical_fit(p, up_ref), replace(opts, protrusion_sides=1))
@@ -721,6 +839,20 @@ def _fill_creases(scene: _WorkScene, state: _Labelling, opts: GeometricOptions) 
     state.labels[r, c] = best_label
 
 
+@functools.lru_cache(maxsize=4)
+def _upsampled_index(shape_lo: tuple[int, int], size: tuple[int, int]) -> NDArray[np.int32]:
+    """(H, W) the raveled index of the work pixel (of an image of ``shape_lo`` (h, w)) that
+    nearest-neighbour upsampling to ``size`` (W, H) reads at each pixel: an image of work-pixel
+    indices resized with the same mapping as any other image (read-only; cached per sizes)."""
+    import cv2
+
+    h_lo, w_lo = shape_lo
+    src: NDArray[np.int32] = cv2.resize(np.arange(h_lo * w_lo, dtype=np.int32).reshape(h_lo, w_lo),
+                                        size, interpolation=cv2.INTER_NEAREST)
+    src.flags.writeable = False
+    return src
+
+
 def _upsample_labels(
     labels: U8,
     region_id: NDArray[np.int32],
@@ -756,9 +888,7 @@ def _upsample_labels(
         return up
     # the work pixel each border pixel's nearest-neighbour upsampling reads: resizing an image
     # of work-pixel indices copies them with the same mapping as any other image
-    h_lo, w_lo = region_id.shape
-    src = cv2.resize(np.arange(h_lo * w_lo, dtype=np.int32).reshape(h_lo, w_lo), size,
-                     interpolation=cv2.INTER_NEAREST)[r, c]
+    src = _upsampled_index(region_id.shape, size)[r, c]
     z = depth[r, c].astype(np.float64)
     p = np.stack([(c - camera.cx) / camera.fx * z, (r - camera.cy) / camera.fy * z, z], 1)
     best = _threshold(z, opts) * 2.0

@@ -1,0 +1,796 @@
+"""A frozen copy of ``bimcap.segmentation.geometric`` at a219de7, before its vectorised stages
+(issue 14), unchanged but for this paragraph: the oracle of ``tests/test_frontend_speed.py`` and
+of the previous-code column of ``bench/bench_frontend.py --world`` (``_frontend_reference``).
+
+A segmenter that needs no weights: floor, ceiling, walls and columns from depth and gravity.
+
+Inputs: dense depth (undistorted pinhole pixels), the camera and the initial ``world_from_cam``
+(only its rotation is used: the world's z axis is up, so ``up_in_cam = R_wcᵀ [0, 0, 1]``).
+The work runs on a depth map resampled (nearest-neighbour) to ``work_width`` pixels across
+(default 258: ¼ of a 1032-pixel image); labels come back to full resolution by nearest-neighbour
+upsampling refined along region borders with the fitted planes (:func:`_upsample_labels`). The
+IoU reported by the bench includes what this costs.
+
+1. **Points and normals.** Back-project every pixel; normal = cross product of the central
+   differences of the points along u and v (``normal_step_px``), invalid across depth jumps,
+   box-smoothed (``normal_smooth_px``), oriented toward the camera.
+2. **Floor / ceiling.** Candidates: normal within ``horizontal_angle_deg`` of up (down) and the
+   point at least ``floor_min_drop_m`` below (``ceiling_min_rise_m`` above) the camera. A RANSAC
+   plane (hypotheses whose normal is within the same angle of up) is fitted, refitted by least
+   squares, and up to ``max_horizontal_planes`` are extracted; the **lowest** up-facing plane is
+   the floor, the **highest** down-facing one the ceiling, others are clutter (tables, sills).
+   Pixels within ``plane_threshold(z)`` of the plane whose normal agrees are labelled. Because
+   labelling uses the fitted plane rather than heights from the pose, a pitch error of several
+   degrees in the initial pose only tilts the candidate cone, not the result; the floor's (or
+   ceiling's) fitted normal then replaces the pose's up vector for the walls, unless it is more
+   than ``max_up_correction_deg`` (10°) away from it (then the fit, not the pose, is suspect:
+   badly completed floor depth).
+3. **Walls and columns.** Candidates: normal within ``vertical_angle_deg`` of horizontal. Vertical
+   planes are extracted one at a time by RANSAC with one-point hypotheses (a point and its
+   normal made horizontal), refitted by a 2-D line fit in the horizontal plane. Each plane's
+   inliers are split into connected image regions; a region is a **column** when it is narrow
+   (horizontal extent < ``column_max_width_m``: a BIM column's faces are a few decimetres wide,
+   a wall's metres), lies wholly inside the image (a wall cut by the image border can look
+   narrow), and protrudes (on both sides the surface next to it is not in front of it: a wall
+   piece next to a column has the column in front of it on one side). Otherwise it is a wall.
+   Curved columns: left-over vertical-normal pixels that no plane takes form regions; a region
+   taller than ``column_min_height_m``, narrower than ``column_max_width_m`` and protruding is
+   a column (a round column's normals turn continuously, so no plane takes it, but it is tall
+   and thin). Walls and columns reach the ceiling: a vertical region whose top stays more than
+   ``top_gap_m`` below the fitted ceiling (when no ceiling is seen: below
+   ``top_without_ceiling_m`` relative to the camera, i.e. about 1.1 m above the floor for a
+   hand-held camera), and that is not cut by the image's top, is clutter (crates, tables).
+4. Everything else with depth is clutter; no depth is unknown. Pixels left undecided (no normal
+   at depth edges, blended normals along creases) take the label of the planar region within
+   ``crease_px`` whose plane they lie on (the nearest such plane).
+
+**Noisy depth.** The defaults are made for a LiDAR with about 3 cm range noise
+(``noise_reference_m``). When the frame's range noise σ is known (``FrameInput.range_noise_m``,
+measured on its own scan by :func:`scan_range_noise`) and exceeds ``noise_adapt_above`` ×
+``noise_reference_m``, :meth:`GeometricOptions.for_noise` widens the normal baseline and its
+smoothing with k = σ / ``noise_reference_m`` and raises the plane threshold to
+``noise_threshold_sigmas`` · σ: with 8 cm noise and 2-pixel central differences the normals of a
+wall seen from 2 m point anywhere, and RANSAC then fits "floors" and "ceilings" on walls. Below
+the limit the options are used as given (same labels as without a noise estimate).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from bimcap.geometry import Camera, quat_to_rotmat
+from bimcap.geometry.noise import noise_factor
+from bimcap.labels import Label
+from bimcap.segmentation.base import U8, FrameInput, check_shape
+from bimcap.segmentation.errors import SegmentationInputError
+
+F64 = NDArray[np.float64]
+B = NDArray[np.bool_]
+
+
+@dataclass(frozen=True)
+class GeometricOptions:
+    """Settings of :func:`segment_geometric` (angles in degrees, lengths in metres, pixels at the
+    working resolution)."""
+
+    work_width: int = 258
+    normal_step_px: int = 2
+    normal_smooth_px: int = 5
+    horizontal_angle_deg: float = 25.0
+    vertical_angle_deg: float = 25.0
+    normal_agreement_deg: float = 30.0
+    floor_min_drop_m: float = 0.4
+    ceiling_min_rise_m: float = 0.3
+    plane_threshold_m: float = 0.04
+    plane_threshold_rel: float = 0.01
+    ransac_iterations: int = 150
+    ransac_sample: int = 3000
+    max_horizontal_planes: int = 2
+    max_vertical_planes: int = 8
+    min_plane_fraction: float = 0.004
+    min_region_fraction: float = 0.002
+    column_max_width_m: float = 1.2
+    column_min_width_m: float = 0.0
+    column_min_height_m: float = 1.0
+    protrusion_px: int = 24
+    protrusion_min_rows: float = 0.6
+    crease_px: int = 8
+    protrusion_sides: int = 2
+    top_gap_m: float = 0.4
+    top_without_ceiling_m: float = -0.4
+    max_up_correction_deg: float = 10.0
+    seed: int = 0
+    noise_reference_m: float = 0.03
+    noise_adapt_above: float = 1.5
+    noise_threshold_sigmas: float = 1.5
+
+    def __post_init__(self) -> None:
+        if self.work_width < 32:
+            raise SegmentationInputError("work_width must be >= 32 pixels", field="work_width")
+        if not (self.noise_reference_m > 0 and self.noise_adapt_above >= 1.0
+                and self.noise_threshold_sigmas > 0):
+            raise SegmentationInputError(
+                "noise_reference_m and noise_threshold_sigmas must be > 0, noise_adapt_above "
+                ">= 1", field="noise_reference_m")
+
+    def for_noise(self, range_noise_m: float | None) -> GeometricOptions:
+        """These options for depth with range noise σ = ``range_noise_m`` (metres; None or not
+        finite: unknown, unchanged). Unchanged up to ``noise_adapt_above`` ×
+        ``noise_reference_m``; above, with k = σ / ``noise_reference_m`` (at most 4): the normal
+        baseline ``normal_step_px`` × 0.75 k, its box ``normal_smooth_px`` × 0.8 k (odd), and the
+        plane threshold at least ``noise_threshold_sigmas`` · σ (none of them below the given
+        value). 8 cm noise: step 2 → 4 px, box 5 → 11 px, threshold 4 → 12 cm."""
+        k = noise_factor(range_noise_m, self.noise_reference_m, self.noise_adapt_above)
+        if k is None or range_noise_m is None:
+            return self
+        k = min(4.0, k)
+        smooth = round(self.normal_smooth_px * 0.8 * k)
+        return replace(
+            self,
+            normal_step_px=max(self.normal_step_px, round(self.normal_step_px * 0.75 * k)),
+            normal_smooth_px=max(self.normal_smooth_px, smooth | 1),
+            plane_threshold_m=max(self.plane_threshold_m,
+                                  self.noise_threshold_sigmas * range_noise_m),
+        )
+
+
+def scan_range_noise(p_in_sensor: NDArray[np.floating], ring_bin_deg: float = 0.5,
+                     max_step_deg: float = 0.5) -> float | None:
+    """The range noise σ (metres) of a spinning LiDAR's scan, from the scan alone.
+
+    Returns of one ring (elevation binned to ``ring_bin_deg``, sorted by azimuth) at equal
+    azimuth steps below ``max_step_deg`` see nearly the same surface, so their range's second
+    difference r[k-1] − 2 r[k] + r[k+1] is the noise (σ √6) plus a curvature term that is
+    negligible at such steps; σ = median |Δ²r| / (0.6745 √6) (robust to depth edges). The ring
+    spacing of the sensor must exceed ``ring_bin_deg`` (a VLP-16's is 2°).
+
+    Parameters
+    ----------
+    p_in_sensor: (M, ≥3) points in the sensor frame (x y z, metres; more columns are ignored).
+
+    Returns
+    -------
+    σ in metres, or None when fewer than 100 triples qualify.
+    """
+    p = np.asarray(p_in_sensor, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] < 3 or len(p) < 3:
+        return None
+    p = p[:, :3]
+    r = np.linalg.norm(p, axis=1)
+    keep = np.isfinite(r) & (r > 0)
+    p, r = p[keep], r[keep]
+    if len(r) < 3:
+        return None
+    elevation = np.degrees(np.arcsin(np.clip(p[:, 2] / r, -1.0, 1.0)))
+    azimuth = np.degrees(np.arctan2(p[:, 1], p[:, 0]))
+    ring = np.round(elevation / ring_bin_deg).astype(np.int64)
+    order = np.lexsort((azimuth, ring))
+    r, azimuth, ring = r[order], azimuth[order], ring[order]
+    step_a, step_b = azimuth[1:-1] - azimuth[:-2], azimuth[2:] - azimuth[1:-1]
+    ok = ((ring[1:-1] == ring[:-2]) & (ring[1:-1] == ring[2:]) & (step_a < max_step_deg)
+          & (step_b < max_step_deg) & (np.abs(step_a - step_b) < 0.1 * max_step_deg))
+    if int(ok.sum()) < 100:
+        return None
+    second = r[:-2] - 2.0 * r[1:-1] + r[2:]
+    return float(np.median(np.abs(second[ok])) / (0.6745 * np.sqrt(6.0)))
+
+
+@dataclass(frozen=True)
+class _Plane:
+    normal: F64  # (3,) unit, camera frame
+    offset: float  # n·p + offset = 0
+
+
+def _points_and_normals(depth: NDArray[np.float32], cam: Camera, opts: GeometricOptions
+                        ) -> tuple[F64, B, F64, B]:
+    import cv2
+
+    h, w = depth.shape
+    u = (np.arange(w) - cam.cx) / cam.fx
+    v = (np.arange(h) - cam.cy) / cam.fy
+    z = depth.astype(np.float64)
+    pts = np.empty((h, w, 3))
+    pts[..., 0] = u[None, :] * z
+    pts[..., 1] = v[:, None] * z
+    pts[..., 2] = z
+    valid = z > 0
+    s = opts.normal_step_px
+    du = np.zeros_like(pts)
+    dv = np.zeros_like(pts)
+    du[:, s:-s] = pts[:, 2 * s :] - pts[:, : -2 * s]
+    dv[s:-s] = pts[2 * s :] - pts[: -2 * s]
+    ok = np.zeros((h, w), dtype=bool)
+    zc = z[s:-s, s:-s]
+    jump = 0.05 * zc + 0.05  # metres: neighbours farther apart in depth are across an edge
+    ok[s:-s, s:-s] = (
+        valid[s:-s, s:-s]
+        & (z[s:-s, 2 * s :] > 0) & (z[s:-s, : -2 * s] > 0)
+        & (z[2 * s :, s:-s] > 0) & (z[: -2 * s, s:-s] > 0)
+        & (np.abs(z[s:-s, 2 * s :] - z[s:-s, : -2 * s]) < 2 * jump)
+        & (np.abs(z[2 * s :, s:-s] - z[: -2 * s, s:-s]) < 2 * jump)
+    )
+    n = np.cross(du, dv)
+    n[~ok] = 0.0
+    k = opts.normal_smooth_px
+    if k > 1:
+        n = cv2.blur(n.astype(np.float32), (k, k)).astype(np.float64)
+    norm = np.linalg.norm(n, axis=2)
+    ok &= norm > 1e-12
+    n = n / np.maximum(norm, 1e-12)[..., None]
+    flip = (n * pts).sum(2) > 0  # face the camera
+    n[flip] *= -1.0
+    n[~ok] = 0.0
+    return pts, valid, n, ok
+
+
+def _threshold(z: F64, opts: GeometricOptions) -> F64:
+    return opts.plane_threshold_m + opts.plane_threshold_rel * z
+
+
+def _ransac_horizontal(pts: F64, up: F64, cos_max: float, opts: GeometricOptions,
+                       rng: np.random.Generator) -> _Plane | None:
+    """Plane through points (N, 3) whose normal is within acos(cos_max) of ±up."""
+    n = len(pts)
+    if n < 3:
+        return None
+    sub = pts[rng.choice(n, size=min(n, opts.ransac_sample), replace=False)]
+    idx = rng.integers(0, len(sub), size=(opts.ransac_iterations, 3))
+    a, b, c = sub[idx[:, 0]], sub[idx[:, 1]], sub[idx[:, 2]]
+    nrm = np.cross(b - a, c - a)
+    ln = np.linalg.norm(nrm, axis=1)
+    good = ln > 1e-9
+    nrm = nrm[good] / ln[good, None]
+    a = a[good]
+    good = np.abs(nrm @ up) >= cos_max
+    if not good.any():
+        return None
+    nrm, a = nrm[good], a[good]
+    d = -(nrm * a).sum(1)
+    thr = _threshold(sub[:, 2], opts)[:, None]
+    score = (np.abs(sub @ nrm.T + d) < thr).sum(0)
+    best = int(np.argmax(score))
+    inl = np.abs(sub @ nrm[best] + d[best]) < thr[:, 0]
+    if inl.sum() < 3:
+        return None
+    q = sub[inl]
+    centroid = q.mean(0)
+    _, _, vt = np.linalg.svd(q - centroid, full_matrices=False)
+    normal = vt[2] if vt[2] @ nrm[best] > 0 else -vt[2]
+    return _Plane(normal, float(-normal @ centroid))
+
+
+def _ransac_vertical(pts: F64, nrm: F64, up: F64, opts: GeometricOptions,
+                     rng: np.random.Generator) -> _Plane | None:
+    """Vertical plane (normal ⟂ up) from points (N, 3) with normals (N, 3): 1-point hypotheses."""
+    n = len(pts)
+    if n < 3:
+        return None
+    pick = rng.choice(n, size=min(n, opts.ransac_sample), replace=False)
+    sub, sub_n = pts[pick], nrm[pick]
+    hyp = rng.integers(0, len(sub), size=opts.ransac_iterations)
+    hn = sub_n[hyp] - (sub_n[hyp] @ up)[:, None] * up
+    ln = np.linalg.norm(hn, axis=1)
+    good = ln > 1e-6
+    hn = hn[good] / ln[good, None]
+    d = -(hn * sub[hyp[good]]).sum(1)
+    thr = _threshold(sub[:, 2], opts)[:, None]
+    cos_n = np.cos(np.deg2rad(opts.normal_agreement_deg))
+    score = _vertical_scores(sub, sub_n, hn, d, thr, cos_n)
+    if len(score) == 0:
+        return None
+    best = int(np.argmax(score))
+    inl = (np.abs(sub @ hn[best] + d[best]) < thr[:, 0]) & (np.abs(sub_n @ hn[best]) > cos_n)
+    if inl.sum() < 3:
+        return None
+    # refit: a line in the horizontal plane (coordinates along two horizontal axes)
+    e1 = np.cross(up, hn[best])
+    e1 /= np.linalg.norm(e1)
+    q = sub[inl]
+    xy = np.stack([q @ e1, q @ hn[best]], 1)
+    c = xy.mean(0)
+    _, _, vt = np.linalg.svd(xy - c, full_matrices=False)
+    dir2 = vt[0]
+    normal2 = np.array([-dir2[1], dir2[0]])
+    normal = normal2[0] * e1 + normal2[1] * hn[best]
+    normal /= np.linalg.norm(normal)
+    if normal @ hn[best] < 0:
+        normal = -normal
+    centroid = q.mean(0)
+    return _Plane(normal, float(-normal @ centroid))
+
+
+#: Rows of the RANSAC's (sample, hypothesis) tables computed at once: blocks that stay in the
+#: cache (3× faster than the whole 3000 × 150 table on the 2-core box).
+_SCORE_ROWS = 512
+
+
+def _row_blocks(n: int) -> list[tuple[int, int]]:
+    """``[start, stop)`` blocks of ``_SCORE_ROWS`` rows covering ``n``, none of one row (a
+    one-row product would go to BLAS's matrix-vector routine, whose sums may differ)."""
+    starts = list(range(0, n, _SCORE_ROWS))
+    if len(starts) > 1 and n - starts[-1] < 2:
+        starts.pop()
+    return [(a, b) for a, b in zip(starts, [*starts[1:], n], strict=True)]
+
+
+def _vertical_scores(sub: F64, sub_n: F64, hn: F64, d: F64, thr: F64, cos_n: float
+                     ) -> NDArray[np.int64]:
+    """Per hypothesis (``hn`` (I, 3) unit normals, ``d`` (I,) offsets): how many of the points
+    ``sub`` (N, 3) with normals ``sub_n`` (N, 3) lie within ``thr`` (N, 1) of its plane with a
+    normal within acos(``cos_n``) of it.
+
+    The same counts as ``((|sub·hnᵀ + d| < thr) & (|sub_n·hnᵀ| > cos_n)).sum(0)`` bit for bit
+    (each entry of a product is the same 3-term sum in any block of rows of a matrix-matrix
+    product; one hypothesis is computed whole), in blocks of rows and in place.
+    """
+    if len(hn) < 2:
+        whole: NDArray[np.int64] = (
+            (np.abs(sub @ hn.T + d) < thr) & (np.abs(sub_n @ hn.T) > cos_n)).sum(0)
+        return whole
+    score = np.zeros(len(hn), np.int64)
+    for a, b in _row_blocks(len(sub)):
+        dist = sub[a:b] @ hn.T
+        dist += d
+        np.abs(dist, out=dist)
+        agree = sub_n[a:b] @ hn.T
+        np.abs(agree, out=agree)
+        ok = dist < thr[a:b]
+        ok &= agree > cos_n
+        score += np.count_nonzero(ok, axis=0)
+    return score
+
+
+def _plane_inliers(pts: F64, nrm: F64, plane: _Plane, mask: B, opts: GeometricOptions) -> B:
+    dist = np.abs(pts @ plane.normal + plane.offset)
+    cos_n = np.cos(np.deg2rad(opts.normal_agreement_deg))
+    return mask & (dist < _threshold(pts[..., 2], opts)) & (np.abs(nrm @ plane.normal) > cos_n)
+
+
+def _protrudes(region: B, pts: F64, plane: _Plane, opts: GeometricOptions) -> bool:
+    """Does the planar region stand out of what surrounds it on the left and on the right?
+
+    Per row and side, walk outward from the region's edge (up to ``protrusion_px`` pixels) to
+    the first pixel with depth that is off the region's plane; the region protrudes on that side
+    when that point lies **behind** the plane's extension (a depth jump to the background, or
+    the other face of a convex corner: a column). A concave corner (a room corner: the adjacent
+    wall is in front of the extension) or an occluder fails. Needs ``protrusion_min_rows`` of
+    the decided rows to pass on every decided side (a side is undecided at the image border or
+    when fewer than 20 % of the rows find an off-plane pixel), and ``protrusion_sides`` decided
+    sides (default 2: a wall seen between the image border and a doorway protrudes on its one
+    visible side just as a column does; walls being far more common, a region cut by the image
+    border stays a wall).
+    """
+    rows = np.flatnonzero(region.any(1))
+    w = region.shape[1]
+    sub = region[rows]
+    left = np.argmax(sub, axis=1)
+    right = w - 1 - np.argmax(sub[:, ::-1], axis=1)
+    cam_side = np.sign(plane.offset) if plane.offset != 0 else 1.0  # the camera (origin) side
+    sides = 0
+    margin = opts.normal_step_px + 1  # no normals there: the image border for this purpose
+    steps = np.arange(1, opts.protrusion_px + 1)
+    for edge, step in ((left, -1), (right, 1)):
+        # every row's walk at once: (rows, steps) columns, then the first off-plane pixel
+        col = edge[:, None] + step * steps[None, :]
+        inside = (col >= margin) & (col < w - margin)
+        inside_any = inside.any(1)
+        colc = np.clip(col, 0, w - 1)
+        p = pts[rows[:, None], colc].reshape(-1, 3)
+        z = p[:, 2]
+        sd = p @ plane.normal + plane.offset
+        off = (inside.ravel() & (z > 0) & (np.abs(sd) > _threshold(z, opts))).reshape(col.shape)
+        decided = off.any(1)
+        first = np.argmax(off, axis=1)
+        sd_first = sd.reshape(col.shape)[np.arange(len(rows)), first]
+        behind = decided & ((sd_first * cam_side) < 0)
+        if inside_any.mean() < 0.5 or decided.mean() < 0.2:
+            continue  # the image border, or nothing off the plane nearby: unknown side
+        sides += 1
+        if behind[decided].mean() < opts.protrusion_min_rows:
+            return False
+    return sides >= opts.protrusion_sides
+
+
+def _reaches_up(region: B, pts: F64, up: F64, top_needed: float, opts: GeometricOptions) -> bool:
+    """Does the region reach ``top_needed`` metres above the camera (or the image's top rows)?"""
+    rows = np.flatnonzero(region.any(1))
+    if rows[0] <= opts.normal_step_px + 1:
+        return True
+    return float(np.percentile(pts[region] @ up, 98)) >= top_needed
+
+
+def _classify_vertical_region(
+    region: B, pts: F64, plane: _Plane, up: F64, top_needed: float, opts: GeometricOptions
+) -> Label:
+    if not _reaches_up(region, pts, up, top_needed, opts):
+        return Label.CLUTTER  # walls and columns reach the ceiling; crates and tables do not
+    cols = np.flatnonzero(region.any(0))
+    w = region.shape[1]
+    margin = opts.normal_step_px + 1
+    if cols[0] <= margin and cols[-1] >= w - 1 - margin:
+        return Label.WALL
+    t = np.cross(up, plane.normal)
+    t /= np.linalg.norm(t)
+    s = pts[region] @ t
+    width = float(np.percentile(s, 98) - np.percentile(s, 2))
+    if width >= opts.column_max_width_m or width < opts.column_min_width_m:
+        return Label.WALL  # too wide, or as thin as a doorway's reveal (a wall's thickness)
+    return Label.COLUMN if _protrudes(region, pts, plane, opts) else Label.WALL
+
+
+@dataclass
+class _WorkScene:
+    """The depth at the working resolution, back-projected: what every step reads."""
+
+    pts: F64  # (h, w, 3) camera-frame points, metres
+    valid: B  # (h, w) pixels with depth
+    nrm: F64  # (h, w, 3) unit normals facing the camera (0 where ``nok`` is False)
+    nok: B  # (h, w) pixels with a normal
+    up: F64  # (3,) the pose's up, camera frame
+    height: F64  # (h, w) metres along ``up`` from the camera
+    min_plane: int  # pixels a plane needs
+    min_region: int  # pixels a region needs
+
+
+@dataclass
+class _Labelling:
+    """The labels being decided and the planar regions found so far (working resolution)."""
+
+    labels: U8  # (h, w) Label ids
+    assigned: B  # (h, w) pixels taken by a plane or a region
+    region_id: NDArray[np.int32]  # (h, w) index into ``regions``, -1 = none
+    regions: list[tuple[Label, _Plane]] = field(default_factory=list)  # planar regions
+    planes: dict[Label, _Plane] = field(default_factory=dict)  # the floor's / ceiling's plane
+    chosen: dict[Label, B] = field(default_factory=dict)  # the floor's / ceiling's pixels
+
+    @classmethod
+    def start(cls, valid: B) -> _Labelling:
+        """Clutter wherever there is depth (``valid`` (h, w)), unknown elsewhere; no regions."""
+        h, w = valid.shape
+        labels = np.full((h, w), int(Label.UNKNOWN), dtype=np.uint8)
+        labels[valid] = int(Label.CLUTTER)
+        return cls(labels=labels, assigned=np.zeros((h, w), dtype=bool),
+                   region_id=np.full((h, w), -1, dtype=np.int32))
+
+    def add_region(self, mask: B, label: Label, plane: _Plane) -> None:
+        """Label the pixels ``mask`` (h, w) as a planar region of ``plane``."""
+        self.labels[mask] = int(label)
+        self.assigned |= mask
+        self.region_id[mask] = len(self.regions)
+        self.regions.append((label, plane))
+
+
+def segment_geometric(
+    depth: NDArray[np.float32],
+    camera: Camera,
+    world_from_cam: F64,
+    options: GeometricOptions | None = None,
+) -> U8:
+    """Label floor, ceiling, walls and columns from dense depth and gravity (module docstring).
+
+    Parameters
+    ----------
+    depth: (H, W) float32 z-depth in metres, 0 = unknown, pixels of the pinhole ``camera``.
+    camera: the pinhole camera of ``depth`` (distortion ignored).
+    world_from_cam: (7,) TUM-order pose; only the rotation is used (world z is up).
+    options: :class:`GeometricOptions`.
+
+    Returns
+    -------
+    (H, W) uint8 :class:`Label` ids.
+    """
+    import cv2
+
+    opts = options or GeometricOptions()
+    d_full, pose = _checked_inputs(depth, camera, world_from_cam)
+    rng = np.random.default_rng(opts.seed)
+    scale = min(1.0, opts.work_width / camera.width)
+    cam = camera.pinhole().scaled(scale) if scale < 1.0 else camera.pinhole()
+    d = (cv2.resize(d_full, (cam.width, cam.height), interpolation=cv2.INTER_NEAREST)
+         if scale < 1.0 else d_full)
+    scene = _work_scene(d, cam, pose, opts)
+    state = _Labelling.start(scene.valid)
+    if not scene.valid.any():
+        return cv2.resize(state.labels, (camera.width, camera.height),
+                          interpolation=cv2.INTER_NEAREST)
+    _floor_and_ceiling(scene, state, opts, rng)
+    up_ref = _refined_up(state.planes, scene.up, opts)
+    top_needed = _top_needed(scene, state, up_ref, opts)
+    remaining = _walls_and_columns(scene, state, up_ref, top_needed, opts, rng)
+    _curved_columns(scene, state, remaining, up_ref, top_needed, opts)
+    _fill_creases(scene, state, opts)
+    if scale < 1.0:
+        return _upsample_labels(state.labels, state.region_id, state.regions, d_full, camera,
+                                opts)
+    return state.labels
+
+
+def _checked_inputs(depth: NDArray[np.float32], camera: Camera, world_from_cam: F64
+                    ) -> tuple[NDArray[np.float32], F64]:
+    """``(depth (H, W) float32 metres, pose (7,))`` checked against ``camera``; raises
+    :class:`SegmentationInputError` naming the bad input."""
+    d_full = np.asarray(depth, dtype=np.float32)
+    if d_full.ndim != 2:
+        raise SegmentationInputError(f"depth must be (H, W), got {d_full.shape}", field="depth")
+    check_shape(d_full, camera, "depth")
+    if not np.isfinite(d_full).all():
+        raise SegmentationInputError("depth has NaN/inf values", field="depth")
+    pose = np.asarray(world_from_cam, dtype=np.float64)
+    if pose.shape != (7,) or not np.isfinite(pose).all():
+        raise SegmentationInputError(
+            f"world_from_cam must be a finite (7,) pose, got {pose.shape}", field="world_from_cam"
+        )
+    return d_full, pose
+
+
+def _work_scene(d: NDArray[np.float32], cam: Camera, pose: F64, opts: GeometricOptions
+                ) -> _WorkScene:
+    """Points, normals and heights of the working-resolution depth ``d`` (h, w) seen by ``cam``."""
+    pts, valid, nrm, nok = _points_and_normals(d, cam, opts)
+    up = quat_to_rotmat(pose[3:]).T @ np.array([0.0, 0.0, 1.0])
+    h, w = d.shape
+    return _WorkScene(
+        pts=pts, valid=valid, nrm=nrm, nok=nok, up=up, height=pts @ up,
+        min_plane=max(20, int(opts.min_plane_fraction * h * w)),
+        min_region=max(10, int(opts.min_region_fraction * h * w)),
+    )
+
+
+def _floor_and_ceiling(scene: _WorkScene, state: _Labelling, opts: GeometricOptions,
+                       rng: np.random.Generator) -> None:
+    """The floor (lowest up-facing plane) and the ceiling (highest down-facing one); the other
+    horizontal planes found (tables, sills) are left as clutter."""
+    cos_h = np.cos(np.deg2rad(opts.horizontal_angle_deg))
+    cos_up = scene.nrm @ scene.up
+    for label, sign, cand in (
+        (Label.FLOOR, 1.0,
+         scene.nok & (cos_up > cos_h) & (scene.height < -opts.floor_min_drop_m)),
+        (Label.CEILING, -1.0,
+         scene.nok & (cos_up < -cos_h) & (scene.height > opts.ceiling_min_rise_m)),
+    ):
+        found = _horizontal_planes(scene, state.assigned, cand, cos_h, opts, rng)
+        if not found:
+            continue
+        found.sort(key=lambda x: sign * x[0])  # floor: lowest first; ceiling: highest first
+        _, plane, inl = found[0]
+        state.chosen[label] = inl
+        state.planes[label] = plane
+        state.add_region(inl, label, plane)
+        for _, _, other in found[1:]:
+            state.assigned |= other  # tables, sills: clutter
+
+
+def _horizontal_planes(scene: _WorkScene, assigned: B, cand: B, cos_h: float,
+                       opts: GeometricOptions, rng: np.random.Generator
+                       ) -> list[tuple[float, _Plane, B]]:
+    """Up to ``max_horizontal_planes`` planes through the candidate pixels ``cand`` (h, w), as
+    ``(height along up (m), plane, inliers (h, w))`` in the order found."""
+    remaining = cand.copy()
+    found: list[tuple[float, _Plane, B]] = []
+    for _ in range(opts.max_horizontal_planes):
+        if remaining.sum() < scene.min_plane:
+            break
+        plane = _ransac_horizontal(scene.pts[remaining], scene.up, cos_h, opts, rng)
+        if plane is None:
+            break
+        inl = _plane_inliers(scene.pts, scene.nrm, plane, scene.nok & ~assigned, opts)
+        if (inl & remaining).sum() < scene.min_plane:
+            break
+        # the plane's height along up: points p with n·p + offset = 0 → height ≈ -offset (n ≈ ±up)
+        level = float(np.median(scene.height[inl]))
+        found.append((level, plane, inl))
+        remaining &= ~inl
+    return found
+
+
+def _refined_up(planes: dict[Label, _Plane], up: F64, opts: GeometricOptions) -> F64:
+    """(3,) up, camera frame: the floor's (else the ceiling's) fitted normal, unless it is more
+    than ``max_up_correction_deg`` from the pose's ``up``."""
+    if Label.FLOOR in planes:
+        up_ref = planes[Label.FLOOR].normal * np.sign(planes[Label.FLOOR].normal @ up)
+    elif Label.CEILING in planes:
+        up_ref = -planes[Label.CEILING].normal * np.sign(planes[Label.CEILING].normal @ -up)
+    else:
+        up_ref = up
+    up_ref = up_ref / np.linalg.norm(up_ref)
+    if up_ref @ up < np.cos(np.deg2rad(opts.max_up_correction_deg)):
+        up_ref = up  # a fitted floor this far from the pose's up is more likely wrong than the pose
+    return up_ref
+
+
+def _top_needed(scene: _WorkScene, state: _Labelling, up_ref: F64, opts: GeometricOptions
+                ) -> float:
+    """Height (m along ``up_ref`` from the camera) that walls and columns must reach: near the
+    ceiling, or ``top_without_ceiling_m`` when no ceiling is seen."""
+    if Label.CEILING in state.chosen:
+        return float(np.median(scene.pts[state.chosen[Label.CEILING]] @ up_ref)) - opts.top_gap_m
+    return opts.top_without_ceiling_m
+
+
+def _walls_and_columns(scene: _WorkScene, state: _Labelling, up_ref: F64, top_needed: float,
+                       opts: GeometricOptions, rng: np.random.Generator) -> B:
+    """Vertical planes one at a time, their regions labelled wall, column or clutter; returns
+    the vertical-normal pixels (h, w) that no plane took."""
+    sin_v = np.sin(np.deg2rad(opts.vertical_angle_deg))
+    vert = scene.nok & ~state.assigned & (np.abs(scene.nrm @ up_ref) < sin_v)
+    remaining: B = vert.copy()
+    for _ in range(opts.max_vertical_planes):
+        if remaining.sum() < scene.min_plane:
+            break
+        plane = _ransac_vertical(scene.pts[remaining], scene.nrm[remaining], up_ref, opts, rng)
+        if plane is None:
+            break
+        inl = _plane_inliers(scene.pts, scene.nrm, plane, remaining, opts)
+        if inl.sum() < scene.min_plane:
+            break
+        remaining &= ~inl
+        # whether the plane reaches the ceiling is judged on all its inliers: noise may split a
+        # wall into an upper and a lower region, and the lower one is no crate
+        plane_reaches = _reaches_up(inl, scene.pts, up_ref, top_needed, opts)
+        _label_plane_regions(scene, state, inl, plane, up_ref,
+                             top_needed if not plane_reaches else -np.inf, opts)
+    return remaining
+
+
+def _label_plane_regions(scene: _WorkScene, state: _Labelling, inl: B, plane: _Plane,
+                         up_ref: F64, top_needed: float, opts: GeometricOptions) -> None:
+    """Label each large enough connected region of a vertical plane's inliers ``inl`` (h, w)."""
+    import cv2
+
+    n_comp, comp, stats, _ = cv2.connectedComponentsWithStats(inl.astype(np.uint8),
+                                                              connectivity=8)
+    for c in range(1, n_comp):
+        if stats[c, cv2.CC_STAT_AREA] < scene.min_region:
+            continue
+        region = comp == c
+        lab = _classify_vertical_region(region, scene.pts, plane, up_ref, top_needed, opts)
+        state.add_region(region, lab, plane)
+
+
+def _curved_columns(scene: _WorkScene, state: _Labelling, remaining: B, up_ref: F64,
+                    top_needed: float, opts: GeometricOptions) -> None:
+    """Columns among the left-over vertical-normal regions ``remaining`` (h, w): tall, narrow
+    and protruding (a round column's normals turn, so no plane takes it)."""
+    import cv2
+
+    n_comp, comp, stats, _ = cv2.connectedComponentsWithStats(remaining.astype(np.uint8),
+                                                              connectivity=8)
+    for c in range(1, n_comp):
+        if stats[c, cv2.CC_STAT_AREA] < scene.min_region:
+            continue
+        region = comp == c
+        if _is_curved_column(region, scene.pts, up_ref, top_needed, opts):
+            state.labels[region] = int(Label.COLUMN)
+            state.assigned |= region
+
+
+def _is_curved_column(region: B, pts: F64, up_ref: F64, top_needed: float,
+                      opts: GeometricOptions) -> bool:
+    """Is the region (h, w) of points ``pts`` (h, w, 3) tall, narrow, reaching up and standing
+    out of its surroundings (a crease between walls does not)?"""
+    p = pts[region]
+    hgt = p @ up_ref
+    horiz = p - np.outer(hgt, up_ref)
+    hc = horiz - horiz.mean(0)
+    # ≈ full width of a uniform spread
+    extent = 2.0 * np.sqrt(max(np.linalg.eigvalsh(hc.T @ hc / len(hc))[-1], 0.0)) * 1.73
+    tall = np.percentile(hgt, 98) - np.percentile(hgt, 2)
+    if not (extent < opts.column_max_width_m and tall > opts.column_min_height_m
+            and _reaches_up(region, pts, up_ref, top_needed, opts)):
+        return False
+    # one protruding side is enough here: a curved region is no wall end
+    return _protrudes(region, pts, _vertical_fit(p, up_ref), replace(opts, protrusion_sides=1))
+
+
+def _vertical_fit(p: F64, up_ref: F64) -> _Plane:
+    """The vertical plane (normal ⟂ ``up_ref``, facing the camera) best fitting points (n, 3)."""
+    e1 = np.cross(up_ref, np.array([0.0, 0.0, 1.0]))
+    e1 = (e1 / max(np.linalg.norm(e1), 1e-12) if np.linalg.norm(e1) > 1e-6
+          else np.array([1.0, 0.0, 0.0]))
+    e2 = np.cross(up_ref, e1)
+    xy = np.stack([p @ e1, p @ e2], 1)
+    c0 = xy.mean(0)
+    _, _, vt = np.linalg.svd(xy - c0, full_matrices=False)
+    n2 = np.array([-vt[0, 1], vt[0, 0]])
+    normal = n2[0] * e1 + n2[1] * e2
+    centroid = p.mean(0)
+    if normal @ centroid > 0:
+        normal = -normal
+    return _Plane(normal, float(-normal @ centroid))
+
+
+def _fill_creases(scene: _WorkScene, state: _Labelling, opts: GeometricOptions) -> None:
+    """Undecided pixels (no normal at depth edges, mixed normals along creases) take the label
+    of the nearby planar region (within ``crease_px``) on whose plane they lie, nearest first."""
+    import cv2
+
+    undecided = scene.valid & (state.labels == int(Label.CLUTTER)) & (state.region_id < 0)
+    if not (undecided.any() and state.regions):
+        return
+    r, c = np.nonzero(undecided)
+    p = scene.pts[r, c]
+    best = np.full(len(r), np.inf)
+    best_label = np.full(len(r), int(Label.CLUTTER), dtype=np.uint8)
+    kernel = np.ones((2 * opts.crease_px + 1,) * 2, np.uint8)
+    thr = 2.0 * _threshold(p[:, 2], opts)
+    for k, (lab, plane) in enumerate(state.regions):
+        near = cv2.dilate((state.region_id == k).astype(np.uint8), kernel)[r, c] > 0
+        dist = np.abs(p @ plane.normal + plane.offset)
+        take = near & (dist < thr) & (dist < best)
+        best[take] = dist[take]
+        best_label[take] = int(lab)
+    state.labels[r, c] = best_label
+
+
+def _upsample_labels(
+    labels: U8,
+    region_id: NDArray[np.int32],
+    regions: list[tuple[Label, _Plane]],
+    depth: NDArray[np.float32],
+    camera: Camera,
+    opts: GeometricOptions,
+) -> U8:
+    """Bring work-resolution labels to full resolution, plane-guided along borders.
+
+    Nearest-neighbour upsampling, then every full-resolution pixel in a border cell (a work
+    pixel whose 3×3 neighbourhood holds more than one region) takes, among the planar regions
+    of that neighbourhood, the one whose plane its own 3-D point lies nearest (if within the
+    plane threshold). Plane parameters are scale-free (camera-frame metres), so the work
+    resolution's planes apply to full-resolution points directly.
+    """
+    import cv2
+
+    size = (camera.width, camera.height)
+    up = cv2.resize(labels, size, interpolation=cv2.INTER_NEAREST)
+    up[depth <= 0] = int(Label.UNKNOWN)
+    if not regions:
+        return up
+    kernel = np.ones((3, 3), np.uint8)
+    rid = region_id + 1  # 0 = none
+    lo = cv2.erode(rid.astype(np.float32), kernel)
+    hi = cv2.dilate(rid.astype(np.float32), kernel)
+    border_lo = (lo != hi).astype(np.uint8)
+    border = cv2.resize(border_lo, size, interpolation=cv2.INTER_NEAREST) > 0
+    border &= depth > 0
+    r, c = np.nonzero(border)
+    if len(r) == 0:
+        return up
+    # the work pixel each border pixel's nearest-neighbour upsampling reads: resizing an image
+    # of work-pixel indices copies them with the same mapping as any other image
+    h_lo, w_lo = region_id.shape
+    src = cv2.resize(np.arange(h_lo * w_lo, dtype=np.int32).reshape(h_lo, w_lo), size,
+                     interpolation=cv2.INTER_NEAREST)[r, c]
+    z = depth[r, c].astype(np.float64)
+    p = np.stack([(c - camera.cx) / camera.fx * z, (r - camera.cy) / camera.fy * z, z], 1)
+    best = _threshold(z, opts) * 2.0
+    choice = np.full(len(r), -1, dtype=np.int64)
+    for k, (_, plane) in enumerate(regions):
+        near_lo = cv2.dilate((region_id == k).astype(np.uint8), kernel)
+        near = near_lo.ravel()[src] > 0
+        dist = np.abs(p @ plane.normal + plane.offset)
+        take = near & (dist < best)
+        best[take] = dist[take]
+        choice[take] = k
+    lut = np.array([int(lab) for lab, _ in regions], dtype=np.uint8)
+    sel = choice >= 0
+    up[r[sel], c[sel]] = lut[choice[sel]]
+    return up
+
+
+@dataclass(frozen=True)
+class GeometricSegmenter:
+    """Provider wrapper of :func:`segment_geometric` (needs ``frame.depth`` and
+    ``frame.world_from_cam``)."""
+
+    options: GeometricOptions = GeometricOptions()
+
+    def segment(self, frame: FrameInput) -> U8:
+        if frame.depth is None or frame.world_from_cam is None:
+            raise SegmentationInputError(
+                "the geometric segmenter needs dense depth and the initial pose", field="depth"
+            )
+        return segment_geometric(frame.depth, frame.camera, frame.world_from_cam,
+                                 self.options.for_noise(frame.range_noise_m))
