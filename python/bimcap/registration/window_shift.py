@@ -65,14 +65,14 @@ class WindowShiftOptions:
     step_m: float = 0.05
     fine_step_m: float = 0.01
     sigma_m: float = 0.03
-    resolution_m: float = 0.01
+    resolution_m: float = 0.02
     view_bins: int = 4
     plan_cut_height_m: float = 1.0
     camera_height_m: float = 1.5
     min_shift_m: float = 0.05
     min_gain: float = 0.05
     min_points: int = 200
-    max_points: int = 3000
+    max_points: int = 2000
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -160,6 +160,7 @@ def _best_shift(maps: PlanMaps, q_xy: F64, layer: NDArray[np.int64], opt: Window
     for shifts in (_grid(opt.xy_range_m, opt.step_m), None):
         if shifts is None:
             shifts = best + _grid(opt.step_m, opt.fine_step_m)
+            shifts = shifts[np.abs(shifts).max(1) <= opt.xy_range_m + 1e-9]
         scores = np.array([maps.fine_score_at(q_xy + s, layer).mean() for s in shifts])
         top = scores.max()
         cand = np.flatnonzero(scores >= top - 1e-12)
