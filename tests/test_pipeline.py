@@ -93,6 +93,8 @@ def test_refine_from_the_truth_stays_there(tiny_demo, tmp_path: Path) -> None:
     motion = outcome.to_dict()["motion_check"]
     assert motion["failed"] is False and motion["breaks"] == []
     assert motion["segments"] == [[0, len(gt)]]
+    # and no window of it fits the plan clearly better shifted (the window shift moves none)
+    assert outcome.to_dict()["repair"]["window_shift"] == {"rounds": []}
 
 
 @pytest.mark.slow

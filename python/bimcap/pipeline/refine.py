@@ -809,6 +809,9 @@ def _solve_prepared(prepared: Prepared, config: RefineConfig, max_plane_rounds: 
                                               plane_change_tolerance)
         run, poses, repair = _repair_run(solver, run, poses)
         run, poses, repair["odometry"] = _odometry_repair_run(solver, run, poses)
+        run, poses, repair["window_shift"] = _window_shift_run(solver, run, poses,
+                                                               max_plane_rounds,
+                                                               plane_change_tolerance)
         checks = _logged_plane_checks(run.problem, poses, plane_check_limit_m)
     result = run.result
     arrays = run.problem.arrays()
@@ -1087,6 +1090,39 @@ def _best_candidates(solver: _StageSolver, run: _StageRun, candidates: list[F64]
             if agree[i] > score[i]:
                 score[i], best[f] = agree[i], solved.poses[f]
     return best, table
+
+
+def _window_shift_run(solver: _StageSolver, run: _StageRun, poses: F64, max_plane_rounds: int,
+                      plane_change_tolerance: float, max_rounds: int = 2
+                      ) -> tuple[_StageRun, F64, dict[str, Any]]:
+    """Windows of frames the solve left off the plan by a rigid shift
+    (``registration.window_shift.window_shifts``: the planar translation of a window's wall and
+    column samples that fits the plan clearly better), moved by it and solved again
+    (:func:`_solve_moved`: kept only when the BIM agrees), then the planes chosen again; at
+    most ``max_rounds`` times (a window that held frames on both sides of the stretch is moved
+    only once its neighbours have pulled them). Returns the run and poses after it and its
+    record (``rounds``: each round's moved windows and verdict)."""
+    from bimcap.registration.window_shift import window_shifts
+
+    rounds: list[dict[str, Any]] = []
+    for _ in range(max_rounds):
+        shifts = window_shifts(run.problem.arrays(), poses)
+        if not shifts.moved:
+            break
+        _log.info(f"{len(shifts.moved)} frame(s) fit the plan clearly better shifted, window by "
+                  f"window, and were moved: "
+                  + ", ".join(f"{w.start}-{w.stop - 1} by ({w.shift_m[0] * 100:.0f}, "
+                              f"{w.shift_m[1] * 100:.0f}) cm" for w in shifts.windows if w.moved))
+        verdict, redo = _solve_moved(run.problem, run.options, poses, shifts.poses,
+                                     shifts.moved, "window shift")
+        rounds.append({**shifts.to_dict(), **verdict})
+        if redo is None:
+            break
+        solver.summaries.append(redo.summary)
+        run, poses = replace(run, result=redo), redo.poses
+        run, poses, _ = _rechoose_planes(solver, run, poses, max_plane_rounds,
+                                         plane_change_tolerance)
+    return run, poses, {"rounds": rounds}
 
 
 def _logged_plane_checks(problem: Any, poses: F64, limit_m: float) -> list[Any]:
