@@ -1,7 +1,12 @@
-"""SIFT keypoints and descriptors on undistorted images.
+"""SIFT (or ORB) keypoints and descriptors on undistorted images.
 
 The default backend is pycolmap 4.x (``pycolmap.FeatureExtractor.create`` on the CPU, the same
 SIFT as COLMAP); OpenCV's ``cv2.SIFT`` is a fallback for environments without pycolmap.
+``SiftBackend.ORB`` is OpenCV's ORB (FAST corners with Harris scores over an image pyramid,
+rotated BRIEF): binary 256-bit descriptors, matched by Hamming distance
+(:func:`bimcap.features.match_descriptors` tells them by their 32-byte width). Its keypoints are
+spread over a grid of cells, each keeping its strongest corners, because FAST's responses
+cluster on the most textured surfaces.
 
 Pixel convention: keypoints are returned in bimcap's convention, ``(u, v) = (column, row)`` with
 the origin at the **centre** of the top-left pixel. COLMAP puts the origin at the top-left
@@ -25,10 +30,15 @@ class FeatureError(BimcapError):
 
 
 class SiftBackend(str, Enum):
-    """Which SIFT implementation extracts the features."""
+    """Which implementation extracts the features: SIFT (pycolmap, OpenCV) or OpenCV's ORB."""
 
     PYCOLMAP = "pycolmap"
     OPENCV = "opencv"
+    ORB = "orb"
+
+
+#: Width in bytes of ORB's binary descriptors (256 bits).
+ORB_DESCRIPTOR_BYTES = 32
 
 
 @dataclass(frozen=True)
@@ -55,6 +65,14 @@ class SiftOptions:
     max_image_size: if the image's longer side exceeds this, extract on a copy resized to it
         (area interpolation) and map keypoints back to full-resolution pixels; None: never.
         ConSLAM's 2064×1544 images with 1032 cost about a quarter of the time.
+    orb_max_num_features: ORB's keypoint budget (``max_num_features`` is SIFT's): matching
+        binary descriptors costs the square of it, and at 516×386 a pair of frames with 2048
+        (about 1600 kept) costs as much as their extraction.
+    orb_grid_cols, orb_grid_rows: ORB only: the image is split into this many cells across and
+        down, each keeping at most ``orb_max_num_features / (cols · rows)`` of its strongest
+        corners.
+    orb_fast_threshold: ORB only: FAST's intensity threshold (grey levels).
+    orb_num_levels: ORB only: pyramid levels (scale factor 1.2 between levels).
     """
 
     backend: SiftBackend = SiftBackend.PYCOLMAP
@@ -66,6 +84,11 @@ class SiftOptions:
     max_num_orientations: int = 2
     num_threads: int = 1
     max_image_size: int | None = None
+    orb_max_num_features: int = 2048
+    orb_grid_cols: int = 8
+    orb_grid_rows: int = 6
+    orb_fast_threshold: int = 10
+    orb_num_levels: int = 8
 
     def __post_init__(self) -> None:
         if self.max_image_size is not None and self.max_image_size < 16:
@@ -76,6 +99,14 @@ class SiftOptions:
             raise FeatureError("peak_threshold and edge_threshold must be positive")
         if self.num_octaves <= 0 or self.max_num_orientations <= 0:
             raise FeatureError("num_octaves and max_num_orientations must be positive")
+        if self.orb_max_num_features <= 0:
+            raise FeatureError(
+                f"orb_max_num_features must be positive, got {self.orb_max_num_features}")
+        if self.orb_grid_cols <= 0 or self.orb_grid_rows <= 0 or self.orb_num_levels <= 0:
+            raise FeatureError("orb_grid_cols, orb_grid_rows and orb_num_levels must be positive")
+        if not 1 <= self.orb_fast_threshold <= 254:
+            raise FeatureError(
+                f"orb_fast_threshold must be in [1, 254], got {self.orb_fast_threshold}")
 
     def to_dict(self) -> dict[str, object]:
         d = asdict(self)
@@ -92,7 +123,8 @@ class Features:
     uv: (N, 2) float64 keypoint pixels, bimcap convention (origin at the first pixel centre).
     scale: (N,) float64 keypoint scale in pixels.
     orientation: (N,) float64 orientation in radians.
-    descriptors: (N, 128) uint8 SIFT descriptors (RootSIFT with pycolmap, L2 norm ≈ 512).
+    descriptors: (N, 128) uint8 SIFT descriptors (RootSIFT, L2 norm ≈ 512), or (N, 32) uint8
+        ORB descriptors (256 bits, packed).
     """
 
     uv: NDArray[np.float64]
@@ -122,7 +154,7 @@ def to_gray_u8(image: NDArray[np.generic]) -> NDArray[np.uint8]:
 
 
 def extract_sift(image: NDArray[np.generic], options: SiftOptions | None = None) -> Features:
-    """Extract SIFT features from one undistorted image.
+    """Extract SIFT (or ORB, :attr:`SiftBackend.ORB`) features from one undistorted image.
 
     Parameters
     ----------
@@ -145,6 +177,8 @@ def extract_sift(image: NDArray[np.generic], options: SiftOptions | None = None)
         gray = np.ascontiguousarray(cv2.resize(gray, size, interpolation=cv2.INTER_AREA))
     if opts.backend is SiftBackend.PYCOLMAP:
         feats = _extract_pycolmap(gray, opts)
+    elif opts.backend is SiftBackend.ORB:
+        feats = _extract_orb(gray, opts)
     else:
         feats = _extract_opencv(gray, opts)
     if factor != 1.0:
@@ -216,3 +250,53 @@ def _extract_opencv(gray: NDArray[np.uint8], opts: SiftOptions) -> Features:
     scale = np.array([k.size / 2.0 for k in kps], dtype=np.float64)
     ori = np.deg2rad(np.array([k.angle for k in kps], dtype=np.float64))
     return Features(uv, scale, ori, np.ascontiguousarray(d))
+
+
+def _extract_orb(gray: NDArray[np.uint8], opts: SiftOptions) -> Features:
+    """OpenCV ORB with the keypoint budget spread over a grid of cells.
+
+    FAST corners (Harris-scored, over ``orb_num_levels`` pyramid levels) are detected with a
+    budget of 4× ``orb_max_num_features``; each of the ``orb_grid_cols × orb_grid_rows`` cells keeps
+    its strongest ``orb_max_num_features / cells``, and the rotated-BRIEF descriptors are computed
+    for those alone. ``scale`` is half of OpenCV's keypoint size (the 31-pixel patch times the
+    level's scale), as for OpenCV's SIFT.
+    """
+    import cv2
+
+    orb = cv2.ORB_create(
+        nfeatures=4 * opts.orb_max_num_features,
+        scaleFactor=1.2,
+        nlevels=opts.orb_num_levels,
+        edgeThreshold=31,
+        firstLevel=0,
+        WTA_K=2,
+        scoreType=cv2.ORB_HARRIS_SCORE,
+        patchSize=31,
+        fastThreshold=opts.orb_fast_threshold,
+    )
+    kps = orb.detect(gray, None)
+    if len(kps) == 0:
+        return Features.empty()
+    h, w = gray.shape
+    pt = np.array([k.pt for k in kps], dtype=np.float64)
+    response = np.array([k.response for k in kps], dtype=np.float64)
+    col = np.clip((pt[:, 0] + 0.5) * opts.orb_grid_cols / w, 0, opts.orb_grid_cols - 1)
+    row = np.clip((pt[:, 1] + 0.5) * opts.orb_grid_rows / h, 0, opts.orb_grid_rows - 1)
+    cell = row.astype(np.int64) * opts.orb_grid_cols + col.astype(np.int64)
+    per_cell = max(1, opts.orb_max_num_features // (opts.orb_grid_cols * opts.orb_grid_rows))
+    # Strongest first within each cell (ties by detection order), then the rank in the cell.
+    order = np.lexsort((np.arange(len(kps)), -response, cell))
+    sorted_cell = cell[order]
+    first = np.searchsorted(sorted_cell, sorted_cell, side="left")
+    rank = np.arange(len(order)) - first
+    keep = np.sort(order[rank < per_cell])
+    kept, desc = orb.compute(gray, [kps[i] for i in keep])
+    if desc is None or len(kept) == 0:
+        return Features.empty()
+    # OpenCV multiplies a level's pixel by the level's scale s; its pyramid (cv2.resize) puts
+    # that pixel's centre at (u + 0.5) · s - 0.5 in the full image: add 0.5 · (s - 1).
+    level_scale = 1.2 ** np.array([k.octave for k in kept], dtype=np.float64)
+    uv = np.array([k.pt for k in kept], dtype=np.float64) + 0.5 * (level_scale[:, None] - 1.0)
+    scale = np.array([k.size / 2.0 for k in kept], dtype=np.float64)
+    ori = np.deg2rad(np.array([k.angle for k in kept], dtype=np.float64))
+    return Features(uv, scale, ori, np.ascontiguousarray(desc, dtype=np.uint8))
