@@ -14,6 +14,10 @@ process (the ratio) and a check that both give the same arrays bit for bit.
 
     PYTHONPATH=python python bench/bench_frontend.py --world /tmp/gen/gen-demo-s0/seq_60_standard
 
+Backends part (``--world SEQ_DIR --backends pycolmap,orb``): the features stages alone
+(extraction, matching, verification) of each ``[features] backend`` on the same frames in the
+same process, with keypoints and verified matches a pair.
+
 Features part: per frame undistortion + SIFT (pycolmap, and OpenCV as the fallback), per pair
 descriptor matching (numpy, and pycolmap's brute force with ``--pycolmap-matcher``) and geometric
 verification, on frames ray-cast from the test room (tests/_frontend_scene.py), with accuracy
@@ -349,6 +353,49 @@ def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool =
     return rows, total
 
 
+def bench_world_features(seq_dir: Path, frames: int, window: int | None,
+                         backends: list[str]) -> list[tuple[str, ...]]:
+    """Per feature backend (``[features] backend`` values, e.g. pycolmap, orb), on the same
+    undistorted frames in the same process: rows ``(backend, extraction ms/frame, keypoints,
+    matching ms/pair, verification ms/pair, verified matches/pair, pairs verified, features ms
+    a frame, frames/s per core of the features alone)``; "features ms a frame" is extraction plus
+    the frame's pairs (``window`` of them) matched and verified."""
+    from bimcap.dataset import read_sequence
+    from bimcap.features import extract_sift, match_descriptors, verify_matches
+    from bimcap.frontend.runner import _load_raw_image, get_undistorter
+    from bimcap.pipeline.config import RefineConfig
+    from bimcap.pipeline.refine import sift_options
+
+    seq = read_sequence(seq_dir)
+    n = min(frames, len(seq.frames))
+    config = RefineConfig(workers=1)
+    window = config.window if window is None else window
+    cam = seq.camera
+    und = get_undistorter(cam)
+    images = [und.image(_load_raw_image(seq, i, cam)) for i in range(n)]
+    pairs = [(a, b) for a in range(n) for b in range(a + 1, min(n, a + window + 1))]
+    pin = cam.pinhole()
+    rows = []
+    for backend in backends:
+        opts = sift_options(RefineConfig(features={"backend": backend}))
+        res = [_timed(extract_sift, im, opts) for im in images]
+        feats = [f for f, _ in res]
+        t_ext = float(np.mean([t for _, t in res]))
+        t_m, t_v, n_inl = [], [], []
+        for a, b in pairs:
+            m, t = _timed(match_descriptors, feats[a].descriptors, feats[b].descriptors)
+            t_m.append(t)
+            (inl, _), t = _timed(verify_matches, feats[a].uv, feats[b].uv, m, pin)
+            t_v.append(t)
+            n_inl.append(len(inl))
+        per_frame = t_ext + len(pairs) / n * (np.mean(t_m) + np.mean(t_v))
+        rows.append((backend, f"{1e3 * t_ext:.1f}", f"{np.mean([len(f) for f in feats]):.0f}",
+                     f"{1e3 * np.mean(t_m):.1f}", f"{1e3 * np.mean(t_v):.1f}",
+                     f"{np.mean(n_inl):.0f}", f"{np.count_nonzero(n_inl)}/{len(pairs)}",
+                     f"{1e3 * per_frame:.1f}", f"{1.0 / per_frame:.2f}"))
+    return rows
+
+
 def bench_prepare(seq_dir: Path, frames: int, work: Path) -> tuple[float, int]:
     """CPU seconds of ``bimcap.pipeline.refine.prepare`` (``RefineConfig(workers=1)``, the
     sequence's ground truth as the initial poses, ``../as_built.ifc`` if there is one else the
@@ -398,7 +445,23 @@ def main() -> None:
                          "sets them")
     ap.add_argument("--work", type=Path, default=Path("/tmp/bench_frontend"),
                     help="with --prepare: scratch directory (its run/ is replaced)")
+    ap.add_argument("--backends", default=None,
+                    help="with --world: comma list of [features] backends (pycolmap, opencv, "
+                         "orb): extraction, matching and verification of each on the same "
+                         "frames in the same process, instead of the stages")
     args = ap.parse_args()
+    if args.world is not None and args.backends:
+        frames = args.frames if args.frames != 6 else 20
+        window = args.window if args.window != 3 else None
+        print(f"# features per backend on {args.world}, first {frames} frames, window "
+              f"{window or 'of the config'}, 1 thread, process CPU time, load average "
+              f"{os.getloadavg()[0]:.1f}")
+        head = ("backend", "extract ms/frame", "keypoints", "match ms/pair", "verify ms/pair",
+                "verified/pair", "pairs verified", "features ms/frame", "frames/s/core")
+        print(" | ".join(head))
+        for row in bench_world_features(args.world, frames, window, args.backends.split(",")):
+            print(" | ".join(row))
+        return
     if args.world is not None and args.prepare:
         frames = args.frames if args.frames != 6 else 60
         cpu, n = bench_prepare(args.world, frames, args.work)
