@@ -72,7 +72,13 @@ class SiftOptions:
         down, each keeping at most ``orb_max_num_features / (cols · rows)`` of its strongest
         corners.
     orb_fast_threshold: ORB only: FAST's intensity threshold (grey levels).
-    orb_num_levels: ORB only: pyramid levels (scale factor 1.2 between levels).
+    orb_num_levels: ORB only: pyramid levels (scale factor 1.2 between levels). One by default:
+        the front end matches frames a few apart, and a coarser level's corners are whole pixels
+        of that level (on the test room 8 levels gave 0.44 cm median match error against 0.24 cm
+        with 1, and 380 against 500 verified matches a pair).
+    orb_subpixel: ORB only: move each full-resolution corner to the sub-pixel peak of the Harris
+        response (:func:`_harris_subpixel`); FAST's corners are whole pixels (test room: median
+        match error 0.24 → 0.11 cm; SIFT 0.08 cm).
     """
 
     backend: SiftBackend = SiftBackend.PYCOLMAP
@@ -88,7 +94,8 @@ class SiftOptions:
     orb_grid_cols: int = 8
     orb_grid_rows: int = 6
     orb_fast_threshold: int = 10
-    orb_num_levels: int = 8
+    orb_num_levels: int = 1
+    orb_subpixel: bool = True
 
     def __post_init__(self) -> None:
         if self.max_image_size is not None and self.max_image_size < 16:
@@ -295,8 +302,47 @@ def _extract_orb(gray: NDArray[np.uint8], opts: SiftOptions) -> Features:
         return Features.empty()
     # OpenCV multiplies a level's pixel by the level's scale s; its pyramid (cv2.resize) puts
     # that pixel's centre at (u + 0.5) · s - 0.5 in the full image: add 0.5 · (s - 1).
-    level_scale = 1.2 ** np.array([k.octave for k in kept], dtype=np.float64)
+    level = np.array([k.octave for k in kept], dtype=np.int64)
+    level_scale = 1.2 ** level.astype(np.float64)
     uv = np.array([k.pt for k in kept], dtype=np.float64) + 0.5 * (level_scale[:, None] - 1.0)
+    if opts.orb_subpixel:
+        uv[level == 0] = _harris_subpixel(gray, uv[level == 0])
     scale = np.array([k.size / 2.0 for k in kept], dtype=np.float64)
     ori = np.deg2rad(np.array([k.angle for k in kept], dtype=np.float64))
     return Features(uv, scale, ori, np.ascontiguousarray(desc, dtype=np.uint8))
+
+
+def _harris_subpixel(gray: NDArray[np.uint8], uv: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(N, 2) corners moved to the sub-pixel peak of the Harris response (block 5, Sobel 3).
+
+    Each corner moves to the largest response among its pixel and the 8 around it, then by a
+    parabola fitted through that pixel and its neighbours along u and along v (at most half a
+    pixel each way). Corners within 2 pixels of the border stay where they are.
+    """
+    import cv2
+
+    resp = cv2.cornerHarris(gray.astype(np.float32), 5, 3, 0.04)
+    h, w = resp.shape
+    u = np.rint(uv[:, 0]).astype(np.int64)
+    v = np.rint(uv[:, 1]).astype(np.int64)
+    inside = (u >= 2) & (u < w - 2) & (v >= 2) & (v < h - 2)
+    u, v = np.where(inside, u, 2), np.where(inside, v, 2)
+    best = np.full(len(u), -np.inf)
+    bu, bv = u.copy(), v.copy()
+    for dv in (-1, 0, 1):
+        for du in (-1, 0, 1):
+            r = resp[v + dv, u + du]
+            better = r > best
+            best[better], bu[better], bv[better] = r[better], u[better] + du, v[better] + dv
+
+    def offset(lo: NDArray[np.float32], mid: NDArray[np.float32],
+               hi: NDArray[np.float32]) -> NDArray[np.float64]:
+        curv = 2.0 * mid.astype(np.float64) - lo - hi
+        off = np.where(curv > 0, 0.5 * (hi - lo) / np.maximum(curv, 1e-30), 0.0)
+        return np.clip(off, -0.5, 0.5)
+
+    c = resp[bv, bu]
+    out = uv.copy()
+    out[inside, 0] = (bu + offset(resp[bv, bu - 1], c, resp[bv, bu + 1]))[inside]
+    out[inside, 1] = (bv + offset(resp[bv - 1, bu], c, resp[bv + 1, bu]))[inside]
+    return out
