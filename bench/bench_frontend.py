@@ -377,7 +377,13 @@ def bench_world_features(seq_dir: Path, frames: int, window: int | None,
     pin = cam.pinhole()
     rows = []
     for backend in backends:
-        opts = sift_options(RefineConfig(features={"backend": backend}))
+        # "orb:orb_max_num_features=1024": a backend with more [features] settings
+        name, *settings = backend.split(":")
+        table: dict[str, Any] = {"backend": name}
+        for item in settings:
+            key, _, value = item.partition("=")
+            table[key] = int(value) if value.lstrip("-").isdigit() else value
+        opts = sift_options(RefineConfig(features=table))
         res = [_timed(extract_sift, im, opts) for im in images]
         feats = [f for f, _ in res]
         t_ext = float(np.mean([t for _, t in res]))
@@ -447,7 +453,8 @@ def main() -> None:
                     help="with --prepare: scratch directory (its run/ is replaced)")
     ap.add_argument("--backends", default=None,
                     help="with --world: comma list of [features] backends (pycolmap, opencv, "
-                         "orb): extraction, matching and verification of each on the same "
+                         "orb; more settings after colons: orb:orb_max_num_features=1024): "
+                         "extraction, matching and verification of each on the same "
                          "frames in the same process, instead of the stages")
     args = ap.parse_args()
     if args.world is not None and args.backends:
