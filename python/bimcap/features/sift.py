@@ -72,13 +72,13 @@ class SiftOptions:
         down, each keeping at most ``orb_max_num_features / (cols · rows)`` of its strongest
         corners.
     orb_fast_threshold: ORB only: FAST's intensity threshold (grey levels).
-    orb_num_levels: ORB only: pyramid levels (scale factor 1.2 between levels). One by default:
-        the front end matches frames a few apart, and a coarser level's corners are whole pixels
-        of that level (on the test room 8 levels gave 0.44 cm median match error against 0.24 cm
-        with 1, and 380 against 500 verified matches a pair).
-    orb_subpixel: ORB only: move each full-resolution corner to the sub-pixel peak of the Harris
-        response (:func:`_harris_subpixel`); FAST's corners are whole pixels (test room: median
-        match error 0.24 → 0.11 cm; SIFT 0.08 cm).
+    orb_num_levels: ORB only: pyramid levels (scale factor 1.2 between levels).
+    orb_subpixel: ORB only: move each full-resolution (level 0) corner to the sub-pixel peak of
+        the Harris response (:func:`_harris_subpixel`); FAST's corners are whole pixels of their
+        level. On the test room with one level this halves the match error (median 0.24 →
+        0.11 cm; SIFT 0.08 cm), but on gen-demo-s0 one level loses matches and the refinement
+        came out worse (docs/speed.md), and with 8 levels most corners are on coarser levels:
+        off by default.
     """
 
     backend: SiftBackend = SiftBackend.PYCOLMAP
@@ -94,8 +94,8 @@ class SiftOptions:
     orb_grid_cols: int = 8
     orb_grid_rows: int = 6
     orb_fast_threshold: int = 10
-    orb_num_levels: int = 1
-    orb_subpixel: bool = True
+    orb_num_levels: int = 8
+    orb_subpixel: bool = False
 
     def __post_init__(self) -> None:
         if self.max_image_size is not None and self.max_image_size < 16:
