@@ -52,6 +52,33 @@ def test_orb_features_follow_a_known_shift() -> None:
     assert good.mean() > 0.95
 
 
+def test_hamming_matcher_equals_opencv_brute_force() -> None:
+    """OpenCV's ``BFMatcher(NORM_HAMMING)`` two nearest neighbours each way, with the same ratio,
+    distance and mutual tests, is the oracle (ties at the best fail the ratio test either way)."""
+    import cv2
+
+    big = _noise(2)
+    fa = extract_sift(np.ascontiguousarray(big[:200, :280]), ORB)
+    fb = extract_sift(np.ascontiguousarray(big[5:205, 9:289]), ORB)
+    opts = MatchOptions()
+
+    def knn(q: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        res = cv2.BFMatcher(cv2.NORM_HAMMING).knnMatch(q, t, k=2)
+        best = np.array([m[0].trainIdx for m in res])
+        ok = np.array([m[0].distance <= opts.max_hamming
+                       and m[0].distance < opts.max_ratio * m[1].distance for m in res])
+        return best, ok
+
+    best_ab, ok_ab = knn(fa.descriptors, fb.descriptors)
+    best_ba, ok_ba = knn(fb.descriptors, fa.descriptors)
+    ia = np.flatnonzero(ok_ab)
+    ia = ia[ok_ba[best_ab[ia]] & (best_ba[best_ab[ia]] == ia)]
+    expected = np.stack([ia, best_ab[ia]], axis=1)
+    got = match_descriptors(fa.descriptors, fb.descriptors, opts)
+    assert len(got) > 100
+    np.testing.assert_array_equal(got, expected)
+
+
 def test_orb_keypoints_spread_over_the_grid() -> None:
     """A budget of 2 a cell: no cell keeps more than 2, and every textured cell keeps some."""
     img = _noise(1, shape=(240, 320))
