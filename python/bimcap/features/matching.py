@@ -11,8 +11,8 @@ Binary descriptors (ORB's 32 bytes, :attr:`bimcap.features.SiftBackend.ORB`) are
 their width and matched by Hamming distance in the same way: with the bits as ±1 the product of
 two descriptors is ``256 − 2 · Hamming``, so one BLAS product gives both directions' two nearest
 neighbours (36 ms a pair at ~1,600 keypoints against 135 ms for OpenCV's
-``BFMatcher(NORM_HAMMING)`` asked both ways; a test checks both give the same matches); the ratio test is on distances in bits, ``max_hamming`` takes the place of
-``max_distance``.
+``BFMatcher(NORM_HAMMING)`` asked both ways; a test checks both give the same matches). The
+ratio test is on distances in bits; ``max_hamming`` takes the place of ``max_distance``.
 
 Geometric verification keeps the RANSAC inliers of COLMAP's two-view geometry
 (``pycolmap.estimate_calibrated_two_view_geometry``: essential / fundamental / homography model
