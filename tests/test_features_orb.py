@@ -121,6 +121,9 @@ def test_hamming_ratio_and_cross_check_by_hand() -> None:
 
 
 def test_sift_and_orb_descriptors_do_not_mix() -> None:
+    blank = extract_sift(np.full((120, 160), 90, np.uint8), ORB)
+    assert blank.descriptors.shape == (0, 32)  # an ORB frame without corners is still ORB
+    assert len(match_descriptors(blank.descriptors, np.zeros((5, 32), np.uint8))) == 0
     with pytest.raises(FeatureError, match="different kinds"):
         match_descriptors(np.zeros((5, 128), np.uint8), np.zeros((5, 32), np.uint8))
     with pytest.raises(FeatureError, match="uint8"):

@@ -143,8 +143,10 @@ class Features:
         return len(self.uv)
 
     @classmethod
-    def empty(cls) -> Features:
-        return cls(np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros((0, 128), np.uint8))
+    def empty(cls, descriptor_bytes: int = 128) -> Features:
+        """No keypoints; descriptors (0, 128) for SIFT, (0, 32) for ORB."""
+        return cls(np.zeros((0, 2)), np.zeros(0), np.zeros(0),
+                   np.zeros((0, descriptor_bytes), np.uint8))
 
 
 def to_gray_u8(image: NDArray[np.generic]) -> NDArray[np.uint8]:
@@ -283,7 +285,7 @@ def _extract_orb(gray: NDArray[np.uint8], opts: SiftOptions) -> Features:
     )
     kps = orb.detect(gray, None)
     if len(kps) == 0:
-        return Features.empty()
+        return Features.empty(ORB_DESCRIPTOR_BYTES)
     h, w = gray.shape
     pt = np.array([k.pt for k in kps], dtype=np.float64)
     response = np.array([k.response for k in kps], dtype=np.float64)
@@ -299,7 +301,7 @@ def _extract_orb(gray: NDArray[np.uint8], opts: SiftOptions) -> Features:
     keep = np.sort(order[rank < per_cell])
     kept, desc = orb.compute(gray, [kps[i] for i in keep])
     if desc is None or len(kept) == 0:
-        return Features.empty()
+        return Features.empty(ORB_DESCRIPTOR_BYTES)
     # OpenCV multiplies a level's pixel by the level's scale s; its pyramid (cv2.resize) puts
     # that pixel's centre at (u + 0.5) · s - 0.5 in the full image: add 0.5 · (s - 1).
     level = np.array([k.octave for k in kept], dtype=np.int64)
