@@ -43,7 +43,7 @@ ORB_DESCRIPTOR_BYTES = 32
 
 @dataclass(frozen=True)
 class SiftOptions:
-    """Settings of the SIFT extractor (COLMAP's defaults unless stated).
+    """Settings of the feature extractor: SIFT (COLMAP's defaults unless stated) or ORB.
 
     Attributes
     ----------
