@@ -48,8 +48,8 @@ class SiftOptions:
     Attributes
     ----------
     backend: which implementation to use.
-    max_num_features: keep at most this many keypoints (pycolmap: the largest scales; OpenCV:
-        the strongest responses).
+    max_num_features: keep at most this many SIFT keypoints (pycolmap: the largest scales;
+        OpenCV: the strongest responses); ORB's budget is ``orb_max_num_features``.
     peak_threshold: DoG peak threshold (COLMAP ``peak_threshold``; OpenCV ``contrastThreshold``
         is ``3 × peak_threshold`` for the same three scales per octave).
     edge_threshold: DoG edge threshold.
