@@ -272,7 +272,7 @@ def _extract_orb(gray: NDArray[np.uint8], opts: SiftOptions) -> Features:
     """
     import cv2
 
-    orb = cv2.ORB_create(
+    orb = cv2.ORB_create(  # type: ignore[attr-defined]
         nfeatures=4 * opts.orb_max_num_features,
         scaleFactor=1.2,
         nlevels=opts.orb_num_levels,
@@ -323,7 +323,8 @@ def _harris_subpixel(gray: NDArray[np.uint8], uv: NDArray[np.float64]) -> NDArra
     """
     import cv2
 
-    resp = cv2.cornerHarris(gray.astype(np.float32), 5, 3, 0.04)
+    resp: NDArray[np.float64] = np.asarray(cv2.cornerHarris(gray.astype(np.float32), 5, 3, 0.04),
+                                           dtype=np.float64)
     h, w = resp.shape
     u = np.rint(uv[:, 0]).astype(np.int64)
     v = np.rint(uv[:, 1]).astype(np.int64)
@@ -337,9 +338,9 @@ def _harris_subpixel(gray: NDArray[np.uint8], uv: NDArray[np.float64]) -> NDArra
             better = r > best
             best[better], bu[better], bv[better] = r[better], u[better] + du, v[better] + dv
 
-    def offset(lo: NDArray[np.float32], mid: NDArray[np.float32],
-               hi: NDArray[np.float32]) -> NDArray[np.float64]:
-        curv = 2.0 * mid.astype(np.float64) - lo - hi
+    def offset(lo: NDArray[np.float64], mid: NDArray[np.float64],
+               hi: NDArray[np.float64]) -> NDArray[np.float64]:
+        curv = 2.0 * mid - lo - hi
         off = np.where(curv > 0, 0.5 * (hi - lo) / np.maximum(curv, 1e-30), 0.0)
         return np.clip(off, -0.5, 0.5)
 
