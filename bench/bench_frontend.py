@@ -15,6 +15,10 @@ process (the ratio) and a check that both give the same arrays bit for bit.
 
     PYTHONPATH=python python bench/bench_frontend.py --world /tmp/gen/gen-demo-s0/seq_60_standard
 
+Backends part (``--world SEQ_DIR --backends pycolmap,orb``): the features stages alone
+(extraction, matching, verification) of each ``[features] backend`` on the same frames in the
+same process, with keypoints and verified matches a pair.
+
 Features part: per frame undistortion + SIFT (pycolmap, and OpenCV as the fallback), per pair
 descriptor matching (numpy, and pycolmap's brute force with ``--pycolmap-matcher``) and geometric
 verification, on frames ray-cast from the test room (tests/_frontend_scene.py), with accuracy
@@ -355,6 +359,76 @@ def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool =
     return rows, total
 
 
+def bench_world_features(seq_dir: Path, frames: int, window: int | None,
+                         backends: list[str]) -> list[tuple[str, ...]]:
+    """Per feature backend (``[features] backend`` values, e.g. pycolmap, orb), on the same
+    undistorted frames in the same process: rows ``(backend, extraction ms/frame, keypoints,
+    matching ms/pair, verification ms/pair, verified matches/pair, pairs verified, features ms
+    a frame, frames/s per core of the features alone, match error against the ground truth)``;
+    "features ms a frame" is extraction plus the frame's pairs (``window`` of them) matched and
+    verified; the match error (median / p95, cm) is the world distance between the two
+    back-projections of each verified match through the ground-truth depth and poses (empty
+    without ground-truth depth)."""
+    from bimcap.dataset import read_sequence
+    from bimcap.features import extract_sift, lookup_depth, match_descriptors, verify_matches
+    from bimcap.frontend.runner import _load_raw_image, get_undistorter
+    from bimcap.geometry.poses import transform_points
+    from bimcap.geometry.trajectory import read_tum
+    from bimcap.pipeline.config import RefineConfig
+    from bimcap.pipeline.refine import sift_options
+
+    seq = read_sequence(seq_dir)
+    n = min(frames, len(seq.frames))
+    config = RefineConfig(workers=1)
+    window = config.window if window is None else window
+    cam = seq.camera
+    und = get_undistorter(cam)
+    images = [und.image(_load_raw_image(seq, i, cam)) for i in range(n)]
+    pairs = [(a, b) for a in range(n) for b in range(a + 1, min(n, a + window + 1))]
+    pin = cam.pinhole()
+    gt_depth = ([und.nearest(seq.load_depth(i)) for i in range(n)] if seq.has_depth else None)
+    gt_poses = read_tum(seq.root / "poses" / "gt.tum").poses
+    rows = []
+    for backend in backends:
+        # "orb:orb_max_num_features=1024": a backend with more [features] settings
+        name, *settings = backend.split(":")
+        table: dict[str, Any] = {"backend": name}
+        for item in settings:
+            key, _, value = item.partition("=")
+            table[key] = (int(value) if value.lstrip("-").isdigit() else
+                          value == "true" if value in ("true", "false") else value)
+        opts = sift_options(RefineConfig(features=table))
+        res = [_timed(extract_sift, im, opts) for im in images]
+        feats = [f for f, _ in res]
+        t_ext = float(np.mean([t for _, t in res]))
+        t_m, t_v, n_inl, errs = [], [], [], [np.zeros(0)]
+        for a, b in pairs:
+            m, t = _timed(match_descriptors, feats[a].descriptors, feats[b].descriptors)
+            t_m.append(t)
+            (inl, _), t = _timed(verify_matches, feats[a].uv, feats[b].uv, m, pin)
+            t_v.append(t)
+            n_inl.append(len(inl))
+            if gt_depth is not None:
+                ends = []
+                for k, col in ((a, 0), (b, 1)):
+                    uv = feats[k].uv[inl[:, col]]
+                    ends.append((uv, lookup_depth(gt_depth[k], uv)))
+                ok = (ends[0][1] > 0) & (ends[1][1] > 0)
+                pa, pb = (transform_points(gt_poses[k], pin.backproject(uv[ok], d[ok],
+                                                                       distorted=False))
+                          for k, (uv, d) in zip((a, b), ends, strict=True))
+                errs.append(np.linalg.norm(pa - pb, axis=1))
+        err = np.concatenate(errs)
+        gt_err = (f"{100 * np.median(err):.2f} / {100 * np.percentile(err, 95):.2f}"
+                  if len(err) else "")
+        per_frame = t_ext + len(pairs) / n * (np.mean(t_m) + np.mean(t_v))
+        rows.append((backend, f"{1e3 * t_ext:.1f}", f"{np.mean([len(f) for f in feats]):.0f}",
+                     f"{1e3 * np.mean(t_m):.1f}", f"{1e3 * np.mean(t_v):.1f}",
+                     f"{np.mean(n_inl):.0f}", f"{np.count_nonzero(n_inl)}/{len(pairs)}",
+                     f"{1e3 * per_frame:.1f}", f"{1.0 / per_frame:.2f}", gt_err))
+    return rows
+
+
 def bench_prepare(seq_dir: Path, frames: int, work: Path) -> tuple[float, int]:
     """CPU seconds of ``bimcap.pipeline.refine.prepare`` (``RefineConfig(workers=1)``, the
     sequence's ground truth as the initial poses, ``../as_built.ifc`` if there is one else the
@@ -404,7 +478,25 @@ def main() -> None:
                          "sets them")
     ap.add_argument("--work", type=Path, default=Path("/tmp/bench_frontend"),
                     help="with --prepare: scratch directory (its run/ is replaced)")
+    ap.add_argument("--backends", default=None,
+                    help="with --world: comma list of [features] backends (pycolmap, opencv, "
+                         "orb; more settings after colons: orb:orb_max_num_features=1024): "
+                         "extraction, matching and verification of each on the same "
+                         "frames in the same process, instead of the stages")
     args = ap.parse_args()
+    if args.world is not None and args.backends:
+        frames = args.frames if args.frames != 6 else 20
+        window = args.window if args.window != 3 else None
+        print(f"# features per backend on {args.world}, first {frames} frames, window "
+              f"{window or 'of the config'}, 1 thread, process CPU time, load average "
+              f"{os.getloadavg()[0]:.1f}")
+        head = ("backend", "extract ms/frame", "keypoints", "match ms/pair", "verify ms/pair",
+                "verified/pair", "pairs verified", "features ms/frame", "frames/s/core",
+                "GT match error median / p95 cm")
+        print(" | ".join(head))
+        for row in bench_world_features(args.world, frames, window, args.backends.split(",")):
+            print(" | ".join(row))
+        return
     if args.world is not None and args.prepare:
         frames = args.frames if args.frames != 6 else 60
         cpu, n = bench_prepare(args.world, frames, args.work)

@@ -197,7 +197,7 @@ def run(args: argparse.Namespace) -> None:
                     seq = read_sequence(seq_dir)
                     gt = seq.trajectory("gt")
                     seed = int(world.rpartition("-s")[2]) if world.startswith("gen") else 1
-                    base = RefineConfig(workers=args.workers)
+                    base = RefineConfig(workers=args.workers, features=dict(args.features))
                     if setting == "hard" and seq.has_labels and _labels_are_noisy(seq):
                         base = replace(base, segmentation=LabelSource.GROUND_TRUTH)
                     runs: list[tuple[str, Any, Path]] = [("fixed", gt, reference)]
@@ -337,6 +337,19 @@ def summarise(paths: list[str]) -> None:
         print("(some runs gave NaN)")
 
 
+def _feature_setting(text: str) -> tuple[str, Any]:
+    """``KEY=VALUE`` of ``--features``: VALUE as an int or a float where it reads as one."""
+    key, sep, value = text.partition("=")
+    if not sep or not key:
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
+    for kind in (int, float):
+        try:
+            return key, kind(value)
+        except ValueError:
+            pass
+    return key, value
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--work", default="/tmp/bimcap_generalization", help="worlds and caches")
@@ -349,6 +362,10 @@ def main() -> None:
                     help="comma list of fixed, exp1, exp2, exp3, design (default: all)")
     ap.add_argument("--methods", default="bimcap,facap", help="comma list: bimcap, facap")
     ap.add_argument("--out", default="generalization.csv", help="CSV, appended to (resumable)")
+    ap.add_argument("--features", action="append", default=[], metavar="KEY=VALUE",
+                    type=_feature_setting,
+                    help="a [features] setting of the refine config (SiftOptions field), e.g. "
+                         "backend=orb; repeatable (default: the config's defaults, SIFT)")
     ap.add_argument("--summarise", nargs="+", metavar="CSV", help="only print the tables")
     args = ap.parse_args()
     if args.summarise:

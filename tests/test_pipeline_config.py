@@ -91,14 +91,19 @@ def test_registration_table_reaches_coarse_options() -> None:
         RefineConfig(registration=[1])  # type: ignore[arg-type]
 
 
-def test_features_table_reaches_the_sift_options() -> None:
+def test_features_table_reaches_the_sift_options(tmp_path: Path) -> None:
     from bimcap.features.sift import SiftBackend, SiftOptions
 
     assert sift_options(RefineConfig()) == SiftOptions()
     opts = sift_options(RefineConfig(features={"backend": "opencv", "max_image_size": 800,
                                                "peak_threshold": 0.01}))
     assert opts.backend is SiftBackend.OPENCV and opts.max_image_size == 800
-    for table, key in (({"backend": "orb"}, "features.backend"),
+    orb = sift_options(RefineConfig(features={"backend": "orb", "orb_max_num_features": 1024}))
+    assert orb.backend is SiftBackend.ORB and orb.orb_max_num_features == 1024
+    toml = tmp_path / "orb.toml"
+    toml.write_text('[features]\nbackend = "orb"\n', encoding="utf-8")
+    assert sift_options(RefineConfig.from_toml(toml)).backend is SiftBackend.ORB
+    for table, key in (({"backend": "surf"}, "features.backend"),
                        ({"max_features": 10}, "features.max_features"),
                        ({"first_octave": 0.5}, "features.first_octave"),
                        ({"max_image_size": "big"}, "features.max_image_size"),

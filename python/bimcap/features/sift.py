@@ -1,7 +1,12 @@
-"""SIFT keypoints and descriptors on undistorted images.
+"""SIFT (or ORB) keypoints and descriptors on undistorted images.
 
 The default backend is pycolmap 4.x (``pycolmap.FeatureExtractor.create`` on the CPU, the same
 SIFT as COLMAP); OpenCV's ``cv2.SIFT`` is a fallback for environments without pycolmap.
+``SiftBackend.ORB`` is OpenCV's ORB (FAST corners with Harris scores over an image pyramid,
+rotated BRIEF): binary 256-bit descriptors, matched by Hamming distance
+(:func:`bimcap.features.match_descriptors` tells them by their 32-byte width). Its keypoints are
+spread over a grid of cells, each keeping its strongest corners, because FAST's responses
+cluster on the most textured surfaces.
 
 Pixel convention: keypoints are returned in bimcap's convention, ``(u, v) = (column, row)`` with
 the origin at the **centre** of the top-left pixel. COLMAP puts the origin at the top-left
@@ -25,21 +30,26 @@ class FeatureError(BimcapError):
 
 
 class SiftBackend(str, Enum):
-    """Which SIFT implementation extracts the features."""
+    """Which implementation extracts the features: SIFT (pycolmap, OpenCV) or OpenCV's ORB."""
 
     PYCOLMAP = "pycolmap"
     OPENCV = "opencv"
+    ORB = "orb"
+
+
+#: Width in bytes of ORB's binary descriptors (256 bits).
+ORB_DESCRIPTOR_BYTES = 32
 
 
 @dataclass(frozen=True)
 class SiftOptions:
-    """Settings of the SIFT extractor (COLMAP's defaults unless stated).
+    """Settings of the feature extractor: SIFT (COLMAP's defaults unless stated) or ORB.
 
     Attributes
     ----------
     backend: which implementation to use.
-    max_num_features: keep at most this many keypoints (pycolmap: the largest scales; OpenCV:
-        the strongest responses).
+    max_num_features: keep at most this many SIFT keypoints (pycolmap: the largest scales;
+        OpenCV: the strongest responses); ORB's budget is ``orb_max_num_features``.
     peak_threshold: DoG peak threshold (COLMAP ``peak_threshold``; OpenCV ``contrastThreshold``
         is ``3 × peak_threshold`` for the same three scales per octave).
     edge_threshold: DoG edge threshold.
@@ -55,6 +65,20 @@ class SiftOptions:
     max_image_size: if the image's longer side exceeds this, extract on a copy resized to it
         (area interpolation) and map keypoints back to full-resolution pixels; None: never.
         ConSLAM's 2064×1544 images with 1032 cost about a quarter of the time.
+    orb_max_num_features: ORB's keypoint budget (``max_num_features`` is SIFT's): matching
+        binary descriptors costs the square of it, and at 516×386 a pair of frames with 2048
+        (about 1600 kept) costs as much as their extraction.
+    orb_grid_cols, orb_grid_rows: ORB only: the image is split into this many cells across and
+        down, each keeping at most ``orb_max_num_features / (cols · rows)`` of its strongest
+        corners.
+    orb_fast_threshold: ORB only: FAST's intensity threshold (grey levels).
+    orb_num_levels: ORB only: pyramid levels (scale factor 1.2 between levels).
+    orb_subpixel: ORB only: move each full-resolution (level 0) corner to the sub-pixel peak of
+        the Harris response (:func:`_harris_subpixel`); FAST's corners are whole pixels of their
+        level. On the test room with one level this halves the match error (median 0.24 →
+        0.11 cm; SIFT 0.08 cm), but on gen-demo-s0 one level loses matches and the refinement
+        came out worse (docs/speed.md), and with 8 levels most corners are on coarser levels:
+        off by default.
     """
 
     backend: SiftBackend = SiftBackend.PYCOLMAP
@@ -66,6 +90,12 @@ class SiftOptions:
     max_num_orientations: int = 2
     num_threads: int = 1
     max_image_size: int | None = None
+    orb_max_num_features: int = 2048
+    orb_grid_cols: int = 8
+    orb_grid_rows: int = 6
+    orb_fast_threshold: int = 10
+    orb_num_levels: int = 8
+    orb_subpixel: bool = False
 
     def __post_init__(self) -> None:
         if self.max_image_size is not None and self.max_image_size < 16:
@@ -76,6 +106,14 @@ class SiftOptions:
             raise FeatureError("peak_threshold and edge_threshold must be positive")
         if self.num_octaves <= 0 or self.max_num_orientations <= 0:
             raise FeatureError("num_octaves and max_num_orientations must be positive")
+        if self.orb_max_num_features <= 0:
+            raise FeatureError(
+                f"orb_max_num_features must be positive, got {self.orb_max_num_features}")
+        if self.orb_grid_cols <= 0 or self.orb_grid_rows <= 0 or self.orb_num_levels <= 0:
+            raise FeatureError("orb_grid_cols, orb_grid_rows and orb_num_levels must be positive")
+        if not 1 <= self.orb_fast_threshold <= 254:
+            raise FeatureError(
+                f"orb_fast_threshold must be in [1, 254], got {self.orb_fast_threshold}")
 
     def to_dict(self) -> dict[str, object]:
         d = asdict(self)
@@ -92,7 +130,8 @@ class Features:
     uv: (N, 2) float64 keypoint pixels, bimcap convention (origin at the first pixel centre).
     scale: (N,) float64 keypoint scale in pixels.
     orientation: (N,) float64 orientation in radians.
-    descriptors: (N, 128) uint8 SIFT descriptors (RootSIFT with pycolmap, L2 norm ≈ 512).
+    descriptors: (N, 128) uint8 SIFT descriptors (RootSIFT, L2 norm ≈ 512), or (N, 32) uint8
+        ORB descriptors (256 bits, packed).
     """
 
     uv: NDArray[np.float64]
@@ -104,8 +143,10 @@ class Features:
         return len(self.uv)
 
     @classmethod
-    def empty(cls) -> Features:
-        return cls(np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros((0, 128), np.uint8))
+    def empty(cls, descriptor_bytes: int = 128) -> Features:
+        """No keypoints; descriptors (0, 128) for SIFT, (0, 32) for ORB."""
+        return cls(np.zeros((0, 2)), np.zeros(0), np.zeros(0),
+                   np.zeros((0, descriptor_bytes), np.uint8))
 
 
 def to_gray_u8(image: NDArray[np.generic]) -> NDArray[np.uint8]:
@@ -122,7 +163,7 @@ def to_gray_u8(image: NDArray[np.generic]) -> NDArray[np.uint8]:
 
 
 def extract_sift(image: NDArray[np.generic], options: SiftOptions | None = None) -> Features:
-    """Extract SIFT features from one undistorted image.
+    """Extract SIFT (or ORB, :attr:`SiftBackend.ORB`) features from one undistorted image.
 
     Parameters
     ----------
@@ -145,6 +186,8 @@ def extract_sift(image: NDArray[np.generic], options: SiftOptions | None = None)
         gray = np.ascontiguousarray(cv2.resize(gray, size, interpolation=cv2.INTER_AREA))
     if opts.backend is SiftBackend.PYCOLMAP:
         feats = _extract_pycolmap(gray, opts)
+    elif opts.backend is SiftBackend.ORB:
+        feats = _extract_orb(gray, opts)
     else:
         feats = _extract_opencv(gray, opts)
     if factor != 1.0:
@@ -216,3 +259,93 @@ def _extract_opencv(gray: NDArray[np.uint8], opts: SiftOptions) -> Features:
     scale = np.array([k.size / 2.0 for k in kps], dtype=np.float64)
     ori = np.deg2rad(np.array([k.angle for k in kps], dtype=np.float64))
     return Features(uv, scale, ori, np.ascontiguousarray(d))
+
+
+def _extract_orb(gray: NDArray[np.uint8], opts: SiftOptions) -> Features:
+    """OpenCV ORB with the keypoint budget spread over a grid of cells.
+
+    FAST corners (Harris-scored, over ``orb_num_levels`` pyramid levels) are detected with a
+    budget of 4× ``orb_max_num_features``; each of the ``orb_grid_cols × orb_grid_rows`` cells keeps
+    its strongest ``orb_max_num_features / cells``, and the rotated-BRIEF descriptors are computed
+    for those alone. ``scale`` is half of OpenCV's keypoint size (the 31-pixel patch times the
+    level's scale), as for OpenCV's SIFT.
+    """
+    import cv2
+
+    orb = cv2.ORB_create(  # type: ignore[attr-defined]
+        nfeatures=4 * opts.orb_max_num_features,
+        scaleFactor=1.2,
+        nlevels=opts.orb_num_levels,
+        edgeThreshold=31,
+        firstLevel=0,
+        WTA_K=2,
+        scoreType=cv2.ORB_HARRIS_SCORE,
+        patchSize=31,
+        fastThreshold=opts.orb_fast_threshold,
+    )
+    kps = orb.detect(gray, None)
+    if len(kps) == 0:
+        return Features.empty(ORB_DESCRIPTOR_BYTES)
+    h, w = gray.shape
+    pt = np.array([k.pt for k in kps], dtype=np.float64)
+    response = np.array([k.response for k in kps], dtype=np.float64)
+    col = np.clip((pt[:, 0] + 0.5) * opts.orb_grid_cols / w, 0, opts.orb_grid_cols - 1)
+    row = np.clip((pt[:, 1] + 0.5) * opts.orb_grid_rows / h, 0, opts.orb_grid_rows - 1)
+    cell = row.astype(np.int64) * opts.orb_grid_cols + col.astype(np.int64)
+    per_cell = max(1, opts.orb_max_num_features // (opts.orb_grid_cols * opts.orb_grid_rows))
+    # Strongest first within each cell (ties by detection order), then the rank in the cell.
+    order = np.lexsort((np.arange(len(kps)), -response, cell))
+    sorted_cell = cell[order]
+    first = np.searchsorted(sorted_cell, sorted_cell, side="left")
+    rank = np.arange(len(order)) - first
+    keep = np.sort(order[rank < per_cell])
+    kept, desc = orb.compute(gray, [kps[i] for i in keep])
+    if desc is None or len(kept) == 0:
+        return Features.empty(ORB_DESCRIPTOR_BYTES)
+    # OpenCV multiplies a level's pixel by the level's scale s; its pyramid (cv2.resize) puts
+    # that pixel's centre at (u + 0.5) · s - 0.5 in the full image: add 0.5 · (s - 1).
+    level = np.array([k.octave for k in kept], dtype=np.int64)
+    level_scale = 1.2 ** level.astype(np.float64)
+    uv = np.array([k.pt for k in kept], dtype=np.float64) + 0.5 * (level_scale[:, None] - 1.0)
+    if opts.orb_subpixel:
+        uv[level == 0] = _harris_subpixel(gray, uv[level == 0])
+    scale = np.array([k.size / 2.0 for k in kept], dtype=np.float64)
+    ori = np.deg2rad(np.array([k.angle for k in kept], dtype=np.float64))
+    return Features(uv, scale, ori, np.ascontiguousarray(desc, dtype=np.uint8))
+
+
+def _harris_subpixel(gray: NDArray[np.uint8], uv: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(N, 2) corners moved to the sub-pixel peak of the Harris response (block 5, Sobel 3).
+
+    Each corner moves to the largest response among its pixel and the 8 around it, then by a
+    parabola fitted through that pixel and its neighbours along u and along v (at most half a
+    pixel each way). Corners within 2 pixels of the border stay where they are.
+    """
+    import cv2
+
+    resp: NDArray[np.float64] = np.asarray(cv2.cornerHarris(gray.astype(np.float32), 5, 3, 0.04),
+                                           dtype=np.float64)
+    h, w = resp.shape
+    u = np.rint(uv[:, 0]).astype(np.int64)
+    v = np.rint(uv[:, 1]).astype(np.int64)
+    inside = (u >= 2) & (u < w - 2) & (v >= 2) & (v < h - 2)
+    u, v = np.where(inside, u, 2), np.where(inside, v, 2)
+    best = np.full(len(u), -np.inf)
+    bu, bv = u.copy(), v.copy()
+    for dv in (-1, 0, 1):
+        for du in (-1, 0, 1):
+            r = resp[v + dv, u + du]
+            better = r > best
+            best[better], bu[better], bv[better] = r[better], u[better] + du, v[better] + dv
+
+    def offset(lo: NDArray[np.float64], mid: NDArray[np.float64],
+               hi: NDArray[np.float64]) -> NDArray[np.float64]:
+        curv = 2.0 * mid - lo - hi
+        off = np.where(curv > 0, 0.5 * (hi - lo) / np.maximum(curv, 1e-30), 0.0)
+        return np.clip(off, -0.5, 0.5)
+
+    c = resp[bv, bu]
+    out = uv.copy()
+    out[inside, 0] = (bu + offset(resp[bv, bu - 1], c, resp[bv, bu + 1]))[inside]
+    out[inside, 1] = (bv + offset(resp[bv - 1, bu], c, resp[bv + 1, bu]))[inside]
+    return out

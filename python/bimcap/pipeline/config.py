@@ -22,7 +22,7 @@ sigma = 0.03``), a ``[registration]`` table (``bimcap.registration.CoarseOptions
     [registration]
     xy_range_m = 2.0
     [features]
-    backend = "opencv"         # or "pycolmap"
+    backend = "opencv"         # or "pycolmap", "orb" (binary features, ~10x cheaper)
     [geometric]
     work_width = 258           # the geometric segmenter's working resolution (pixels across)
 
