@@ -47,7 +47,7 @@ import heapq
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field, replace
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -69,6 +69,7 @@ from bimcap.registration.plan_maps import PlanMaps
 
 F64 = NDArray[np.float64]
 I32 = NDArray[np.int32]
+_T = TypeVar("_T")
 
 
 @dataclass(frozen=True)
@@ -488,7 +489,8 @@ def twin_storeys(q_xy: F64, best: _Storey, storeys: list[_Storey], plan: FloorPl
         q = q[np.linspace(0, len(q) - 1, max_points).astype(np.int64)]
     if not len(q) or not len(best.rows):
         return []
-    d_best = point_segment_distance(q, plan.segments[best.rows])[0]
+    reach = near_m + tol_m  # beyond it a distance only needs to be known to exceed it
+    d_best = _distance_within(q, plan.segments[best.rows], reach)
     near = d_best <= near_m
     if not near.any():
         return []
@@ -496,9 +498,26 @@ def twin_storeys(q_xy: F64, best: _Storey, storeys: list[_Storey], plan: FloorPl
     for j, st in enumerate(storeys):
         if st is best or not len(st.rows):
             continue
-        d = point_segment_distance(q[near], plan.segments[st.rows])[0]
+        d = _distance_within(q[near], plan.segments[st.rows], reach)
         if float(np.mean(np.abs(d - d_best[near]) > tol_m)) <= max_share:
             out.append(j)
+    return out
+
+
+def _distance_within(p_xy: F64, segments: F64, reach_m: float, chunk: int = 256) -> F64:
+    """(M,) distance of each point (M, 2) to its nearest segment (S, 4), exactly (as
+    :func:`.icp.point_segment_distance`) where it is at most ``reach_m``; elsewhere some value
+    above ``reach_m`` (``inf`` when no segment's box comes within ``reach_m`` of the chunk of
+    points). Consecutive points (frame by frame) are taken ``chunk`` at a time against the
+    segments near their box only."""
+    out = np.full(len(p_xy), np.inf)
+    lo = np.minimum(segments[:, :2], segments[:, 2:])
+    hi = np.maximum(segments[:, :2], segments[:, 2:])
+    for k in range(0, len(p_xy), chunk):
+        q = p_xy[k:k + chunk]
+        near = ((lo <= q.max(0) + reach_m) & (hi >= q.min(0) - reach_m)).all(1)
+        if near.any():
+            out[k:k + chunk] = point_segment_distance(q, segments[near])[0]
     return out
 
 
@@ -1061,9 +1080,8 @@ def _distinct(a: _Found, b: _Found, opt: GlobalAlignOptions) -> bool:
     return moved > opt.distinct_m or dyaw > opt.distinct_deg or dz > opt.distinct_z_m
 
 
-def _by_key(items: list[_Found], bound: Callable[[_Found], float],
-            complete: Callable[[_Found], _Found], key: Callable[[_Found], float]
-            ) -> Iterator[_Found]:
+def _by_key(items: list[_T], bound: Callable[[_T], float], complete: Callable[[_T], _T],
+            key: Callable[[_T], float]) -> Iterator[_T]:
     """``items`` in the order of ``sorted(complete(f) for f in items, key=lambda f: -key(f))``
     (stable), yielded lazily: ``complete(f)`` (costly: the free space of a placement) is
     computed only for the items that come up, ``bound(f) >= key(complete(f))`` standing in for
