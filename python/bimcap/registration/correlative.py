@@ -118,6 +118,7 @@ def top_hypotheses(
     nms_yaw_rad: float,
     diverse_yaw_rad: float = np.deg2rad(10.0),
     min_score: float = 1e-6,
+    first_cells: int = 1 << 14,
 ) -> list[Hypothesis]:
     """Up to ``top_k`` local maxima of ``volume`` after greedy non-maximum suppression.
 
@@ -126,27 +127,74 @@ def top_hypotheses(
     ``diverse_yaw_rad`` apart), so that a scene that is ambiguous along one axis (a corridor)
     cannot fill the list with translated copies of one yaw and crowd out the yaw that a
     neighbouring window needs (a symmetric room's unflipped pose).
-    """
-    from scipy.ndimage import maximum_filter
 
-    peak = (volume >= maximum_filter(volume, size=(3, 3, 3), mode="nearest")) & (volume > min_score)
-    k, j, i = np.nonzero(peak)
-    s = volume[k, j, i]
-    order = np.argsort(-s, kind="stable")
-    yaw_all = yaws[k[order]]
-    t_all = np.c_[(i[order] - n) * res, (j[order] - n) * res]
-    s_all = s[order]
+    The local maxima are looked for among the ``first_cells`` best cells first, eight times
+    more whenever the selection runs out of them: the same peaks as a maximum filter of the
+    whole volume, in the same order.
+    """
+    # The selection reads the peaks best first and stops when its list is full: find the peaks
+    # among the ``m`` best cells only, and take more cells when the selection runs out of them
+    # (the peaks >= the m-th best value are exactly the head of the full sorted list; a
+    # maximum filter of the whole volume cost 0.4 s per search on a 50 x 36 m plan).
+    flat = volume.ravel()
+    m = min(flat.size, max(int(first_cells), 1))
+    while True:
+        tau = float(np.partition(flat, flat.size - m)[flat.size - m]) if m < flat.size else -np.inf
+        complete = tau <= min_score
+        idx = np.flatnonzero((flat >= tau) & (flat > min_score))
+        k, j, i = np.unravel_index(idx, volume.shape)
+        s = flat[idx]
+        peak = _local_max(volume, k, j, i, s)
+        k, j, i, s = k[peak], j[peak], i[peak], s[peak]
+        order = np.argsort(-s, kind="stable")
+        yaw_all = yaws[k[order]]
+        t_all = np.c_[(i[order] - n) * res, (j[order] - n) * res]
+        s_all = s[order]
+        chosen = _choose(yaw_all, t_all, top_k, nms_xy_m, nms_yaw_rad, diverse_yaw_rad, complete)
+        if chosen is not None:
+            break
+        m = min(flat.size, 8 * m)
+    chosen.sort(key=lambda o: -s_all[o])
+    return [Hypothesis(float(yaw_all[o]), t_all[o].copy(), float(s_all[o])) for o in chosen]
+
+
+def _local_max(volume: F32, k: NDArray[np.int64], j: NDArray[np.int64], i: NDArray[np.int64],
+               s: F32) -> NDArray[np.bool_]:
+    """(C,) whether each cell ``(k, j, i)`` of ``volume`` (value ``s``) is at least every
+    neighbour of its 3 x 3 x 3 neighbourhood, indices clipped at the borders (as
+    ``scipy.ndimage.maximum_filter(volume, 3, mode="nearest")``)."""
+    shape = volume.shape
+    out = np.ones(len(s), dtype=bool)
+    for dk in (-1, 0, 1):
+        k2 = np.clip(k + dk, 0, shape[0] - 1)
+        for dj in (-1, 0, 1):
+            j2 = np.clip(j + dj, 0, shape[1] - 1)
+            for di in (-1, 0, 1):
+                if dk or dj or di:
+                    out &= s >= volume[k2, j2, np.clip(i + di, 0, shape[2] - 1)]
+    return out
+
+
+def _choose(yaw_all: NDArray[np.float64], t_all: NDArray[np.float64], top_k: int,
+            nms_xy_m: float, nms_yaw_rad: float, diverse_yaw_rad: float, complete: bool
+            ) -> list[int] | None:
+    """The two passes of :func:`top_hypotheses` over peaks sorted best first (yaws (P,),
+    translations (P, 2)); None when a pass runs out of peaks and the list is not ``complete``
+    (more peaks, all worse, may follow)."""
 
     def wrap(a: NDArray[np.float64]) -> NDArray[np.float64]:
         return np.abs(np.arctan2(np.sin(a), np.cos(a)))
 
     chosen: list[int] = []
-    for o in range(len(order)):  # pass 1: one per yaw mode
-        if len(chosen) >= max(top_k // 2, 1):
+    need = max(top_k // 2, 1)
+    for o in range(len(yaw_all)):  # pass 1: one per yaw mode
+        if len(chosen) >= need:
             break
         if not chosen or wrap(yaw_all[chosen] - yaw_all[o]).min() >= diverse_yaw_rad:
             chosen.append(o)
-    for o in range(len(order)):  # pass 2: fill with the best remaining distinct peaks
+    if len(chosen) < need and not complete:
+        return None
+    for o in range(len(yaw_all)):  # pass 2: fill with the best remaining distinct peaks
         if len(chosen) >= top_k:
             break
         if o in chosen:
@@ -156,5 +204,7 @@ def top_hypotheses(
                 & (np.linalg.norm(t_all[c] - t_all[o], axis=1) < nms_xy_m))
         if not same.any():
             chosen.append(o)
-    chosen.sort(key=lambda o: -s_all[o])
-    return [Hypothesis(float(yaw_all[o]), t_all[o].copy(), float(s_all[o])) for o in chosen]
+    if len(chosen) < top_k and not complete:
+        return None
+    return chosen
+

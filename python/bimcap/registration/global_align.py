@@ -43,9 +43,11 @@ the options and results, radians inside.
 
 from __future__ import annotations
 
+import heapq
 import time
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field, replace
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -67,6 +69,7 @@ from bimcap.registration.plan_maps import PlanMaps
 
 F64 = NDArray[np.float64]
 I32 = NDArray[np.int32]
+_T = TypeVar("_T")
 
 
 @dataclass(frozen=True)
@@ -362,7 +365,7 @@ def free_space_fraction(cam_xy: NDArray[np.float64], segments: NDArray[np.float6
 
 
 def see_through_fraction(cam_xy: F64, p_xy: F64, segments: F64, margin_m: float = 0.3,
-                         chunk: int = 2048) -> tuple[float, NDArray[np.bool_]]:
+                         chunk: int = 256) -> tuple[float, NDArray[np.bool_]]:
     """Negative evidence of a placement: the share of points seen *through* a wall of the plan.
 
     A camera sees a wall point along a straight ray; when that ray crosses a plan segment the
@@ -392,10 +395,16 @@ def see_through_fraction(cam_xy: F64, p_xy: F64, segments: F64, margin_m: float 
     u = ray[use] / length[use, None]
     a_ray = cam[use] + margin_m * u
     d_ray = ray[use] - 2 * margin_m * u
-    a, e = seg[:, :2], seg[:, 2:] - seg[:, :2]
+    seg_lo = np.minimum(seg[:, :2], seg[:, 2:])
+    seg_hi = np.maximum(seg[:, :2], seg[:, 2:])
     hit = np.zeros(len(a_ray), dtype=bool)
     for k in range(0, len(a_ray), chunk):
         o, d = a_ray[k:k + chunk, None], d_ray[k:k + chunk, None]
+        # Only the segments whose box meets the box of this chunk's rays can be crossed (the
+        # points come frame by frame, so a chunk's rays are local); same test, fewer pairs.
+        ends = np.r_[a_ray[k:k + chunk], a_ray[k:k + chunk] + d_ray[k:k + chunk]]
+        near = ((seg_lo <= ends.max(0) + 1e-6) & (seg_hi >= ends.min(0) - 1e-6)).all(1)
+        a, e = seg[near, :2], seg[near, 2:] - seg[near, :2]
         den = d[..., 0] * e[None, :, 1] - d[..., 1] * e[None, :, 0]
         w = a[None] - o
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -480,7 +489,8 @@ def twin_storeys(q_xy: F64, best: _Storey, storeys: list[_Storey], plan: FloorPl
         q = q[np.linspace(0, len(q) - 1, max_points).astype(np.int64)]
     if not len(q) or not len(best.rows):
         return []
-    d_best = point_segment_distance(q, plan.segments[best.rows])[0]
+    reach = near_m + tol_m  # beyond it a distance only needs to be known to exceed it
+    d_best = _distance_within(q, plan.segments[best.rows], reach)
     near = d_best <= near_m
     if not near.any():
         return []
@@ -488,9 +498,26 @@ def twin_storeys(q_xy: F64, best: _Storey, storeys: list[_Storey], plan: FloorPl
     for j, st in enumerate(storeys):
         if st is best or not len(st.rows):
             continue
-        d = point_segment_distance(q[near], plan.segments[st.rows])[0]
+        d = _distance_within(q[near], plan.segments[st.rows], reach)
         if float(np.mean(np.abs(d - d_best[near]) > tol_m)) <= max_share:
             out.append(j)
+    return out
+
+
+def _distance_within(p_xy: F64, segments: F64, reach_m: float, chunk: int = 256) -> F64:
+    """(M,) distance of each point (M, 2) to its nearest segment (S, 4), exactly (as
+    :func:`.icp.point_segment_distance`) where it is at most ``reach_m``; elsewhere some value
+    above ``reach_m`` (``inf`` when no segment's box comes within ``reach_m`` of the chunk of
+    points). Consecutive points (frame by frame) are taken ``chunk`` at a time against the
+    segments near their box only."""
+    out = np.full(len(p_xy), np.inf)
+    lo = np.minimum(segments[:, :2], segments[:, 2:])
+    hi = np.maximum(segments[:, :2], segments[:, 2:])
+    for k in range(0, len(p_xy), chunk):
+        q = p_xy[k:k + chunk]
+        near = ((lo <= q.max(0) + reach_m) & (hi >= q.min(0) - reach_m)).all(1)
+        if near.any():
+            out[k:k + chunk] = point_segment_distance(q, segments[near])[0]
     return out
 
 
@@ -665,17 +692,19 @@ def _search_storey(scan: _Scan, storey: _Storey, sm: _StoreyMaps, opt: GlobalAli
         corr = fit.correction
         layer = maps.layer_of(p_cls, p_view @ rot2(corr.yaw).T)
         sc, dist = maps.fine_eval(corr.apply(p_xy), layer)
-        cams_w = corr.apply(cams_s)
-        free, _ = free_space_fraction(cams_w, seg, field_, opt.free_clearance_m,
-                                      opt.enclosed_rays, opt.enclosed_min_hits)
         fitted.append(_Found(corr, storey, 0.0, float(sc.mean()),
-                             float((dist < opt.inlier_m).mean()), free, peak.score, cams_w,
-                             constraint=fit.constraint))
+                             float((dist < opt.inlier_m).mean()), 1.0, peak.score,
+                             corr.apply(cams_s), constraint=fit.constraint))
     timings["icp"] += time.perf_counter() - t0
     # The per-frame fit of the best rigid fits (the slow, sharp score), one per distinct place.
     t0 = time.perf_counter()
-    fitted.sort(key=lambda f: -f.rigid_fit * f.free)
-    for f in fitted:
+
+    def with_free(f: _Found) -> _Found:
+        free, _ = free_space_fraction(f.cams_xy, seg, field_, opt.free_clearance_m,
+                                      opt.enclosed_rays, opt.enclosed_min_hits)
+        return replace(f, free=free)
+
+    for f in _by_key(fitted, lambda f: f.rigid_fit, with_free, lambda f: f.rigid_fit * f.free):
         if len(found) >= opt.rescore_top:
             break
         if all(_distinct(f, g, opt) for g in found):
@@ -845,8 +874,14 @@ def _plan_alias(best: _Found, scan: _Scan, sections: list[_Storey], plan: FloorP
             moved_q = corr.apply(ps)
             match = float(sm.maps.fine_score_at(moved_q, sm.maps.layer_of(
                 p_cls, p_view @ rot2(corr.yaw).T)).mean())
+            # The difference only grows term by term, and a candidate above
+            # ``alias_max_difference`` is never rescored: the costly terms only where needed.
+            if (1.0 - match) > opt.alias_max_difference:
+                continue
             free, _ = free_space_fraction(cams_w, sm.seg, sm.field_, opt.free_clearance_m,
                                           opt.enclosed_rays, opt.enclosed_min_hits)
+            if (1.0 - match) + (1.0 - free) > opt.alias_max_difference:
+                continue
             seen = see_through_fraction(cams_w[p_frame], moved_q, sm.seg,
                                         opt.see_through_margin_m)[0]
             diff = (1.0 - match) + (1.0 - free) + max(0.0, seen - seen_here)
@@ -1043,6 +1078,23 @@ def _distinct(a: _Found, b: _Found, opt: GlobalAlignOptions) -> bool:
           else abs(a.storey.floor_z - b.storey.floor_z))
     moved = float(np.linalg.norm(a.cams_xy - b.cams_xy, axis=1).mean())
     return moved > opt.distinct_m or dyaw > opt.distinct_deg or dz > opt.distinct_z_m
+
+
+def _by_key(items: list[_T], bound: Callable[[_T], float], complete: Callable[[_T], _T],
+            key: Callable[[_T], float]) -> Iterator[_T]:
+    """``items`` in the order of ``sorted(complete(f) for f in items, key=lambda f: -key(f))``
+    (stable), yielded lazily: ``complete(f)`` (costly: the free space of a placement) is
+    computed only for the items that come up, ``bound(f) >= key(complete(f))`` standing in for
+    the key until then. A consumer that stops after a few gets the same ones as the full sort."""
+    heap = [(-float(bound(f)), i, False, f) for i, f in enumerate(items)]
+    heapq.heapify(heap)
+    while heap:
+        _, i, exact, f = heapq.heappop(heap)
+        if exact:
+            yield f
+        else:
+            g = complete(f)
+            heapq.heappush(heap, (-float(key(g)), i, True, g))
 
 
 def _transform(f: _Found, gravity: F64, scan_floor_z: float | None) -> F64:
