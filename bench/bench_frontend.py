@@ -395,8 +395,7 @@ def bench_world_features(seq_dir: Path, frames: int, window: int | None,
         table: dict[str, Any] = {"backend": name}
         for item in settings:
             key, _, value = item.partition("=")
-            table[key] = (int(value) if value.lstrip("-").isdigit() else
-                          value == "true" if value in ("true", "false") else value)
+            table[key] = _setting_value(value)
         opts = sift_options(RefineConfig(features=table))
         res = [_timed(extract_sift, im, opts) for im in images]
         feats = [f for f, _ in res]
@@ -427,6 +426,18 @@ def bench_world_features(seq_dir: Path, frames: int, window: int | None,
                      f"{np.mean(n_inl):.0f}", f"{np.count_nonzero(n_inl)}/{len(pairs)}",
                      f"{1e3 * per_frame:.1f}", f"{1.0 / per_frame:.2f}", gt_err))
     return rows
+
+
+def _setting_value(text: str) -> Any:
+    """A ``[features]`` value from a ``--backends`` spec: int, float, bool or the string."""
+    if text in ("true", "false"):
+        return text == "true"
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
 
 
 def bench_prepare(seq_dir: Path, frames: int, work: Path) -> tuple[float, int]:
@@ -494,8 +505,12 @@ def main() -> None:
                 "verified/pair", "pairs verified", "features ms/frame", "frames/s/core",
                 "GT match error median / p95 cm")
         print(" | ".join(head))
-        for row in bench_world_features(args.world, frames, window, args.backends.split(",")):
-            print(" | ".join(row))
+        from bimcap.frontend.runner import one_thread
+
+        with one_thread():  # BLAS and OpenCV as the front end's jobs run them
+            for row in bench_world_features(args.world, frames, window,
+                                            args.backends.split(",")):
+                print(" | ".join(row), flush=True)
         return
     if args.world is not None and args.prepare:
         frames = args.frames if args.frames != 6 else 60
