@@ -247,12 +247,16 @@ BEFORE_DEFAULTS = {"window": 4, "geometric": {"work_width": 258}}
 
 
 def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool = True,
-                before_defaults: bool = False) -> tuple[list[tuple[str, ...]], float]:
+                before_defaults: bool = False, features: dict[str, Any] | None = None
+                ) -> tuple[list[tuple[str, ...]], float]:
     """Per-stage rows ``(stage, ms/frame, previous ms/frame, ratio, same result)`` and the total
     ms a frame, on the first ``frames`` frames of the sequence at ``seq_dir`` (``previous``:
     also time the previous code of the stages that have it; ``before_defaults``: instead, as
     "previous", the stages whose settings changed (segmentation, matching, verification) with
-    :data:`BEFORE_DEFAULTS`, on the same inputs in the same process; window None: the config's)."""
+    :data:`BEFORE_DEFAULTS`, on the same inputs in the same process; window None: the config's;
+    ``features``: a ``[features]`` table for the main column, and as "previous" the features
+    stages (extraction, keypoint depths, matching, verification) with the default one, on the
+    same images in the same process)."""
     from bimcap.dataset import read_sequence
     from bimcap.features import extract_sift, lookup_depth, match_descriptors, verify_matches
     from bimcap.frontend.runner import FrameContext, _load_raw_image, _scan_points, get_undistorter
@@ -279,6 +283,11 @@ def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool =
         old_config = replace(config, geometric=dict(BEFORE_DEFAULTS["geometric"]))
         old_label_p = make_providers(old_config, seq)[1]
     sift = sift_options(config)
+    old_sift = None
+    if features is not None:
+        previous = False
+        old_sift, sift = sift, sift_options(RefineConfig(workers=1, features=features))
+    old_feats = []
     sampling = SemanticSamplingOptions(source=SampleSource(config.samples))
     from bimcap.frontend.runner import FrontendConfig
 
@@ -311,6 +320,13 @@ def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool =
         f = st.run("SIFT", extract_sift, image, sift)
         feats.append(f)
         st.run("keypoint depths", lookup_depth, depth, f.uv)
+        if old_sift is not None:
+            f_old, t_old = _timed(extract_sift, image, old_sift)
+            old_feats.append(f_old)
+            _, t_depth = _timed(lookup_depth, depth, f_old.uv)
+            for stage, t in (("SIFT", t_old), ("keypoint depths", t_depth)):
+                st.prev[stage] = st.prev.get(stage, 0.0) + t
+                st.equal[stage] = False
         st.run("semantic sampling", sample_semantic_points, labels, depth, und.pinhole, i,
                sampling)
         if hasattr(ctx, "lidar"):
@@ -323,6 +339,13 @@ def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool =
         for a, b in pairs:
             m = st.run("matching", match_descriptors, feats[a].descriptors, feats[b].descriptors)
             st.run("verification", verify_matches, feats[a].uv, feats[b].uv, m, pin)
+            if old_sift is not None:
+                fa, fb = old_feats[a], old_feats[b]
+                m, tm = _timed(match_descriptors, fa.descriptors, fb.descriptors)
+                _, tv = _timed(verify_matches, fa.uv, fb.uv, m, pin)
+                for stage, t in (("matching", tm), ("verification", tv)):
+                    st.prev[stage] = st.prev.get(stage, 0.0) + t
+                    st.equal[stage] = False
     else:  # each pair timed once, counted in the windows that hold it
         old_window = int(BEFORE_DEFAULTS["window"])  # type: ignore[call-overload]
         for a in range(n):
@@ -346,7 +369,8 @@ def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool =
         ms = 1e3 * t / n
         if stage in st.prev:
             prev = 1e3 * st.prev[stage] / n
-            same = "yes" if st.equal[stage] else "settings" if before_defaults else "NO"
+            same = ("yes" if st.equal[stage] else "settings" if before_defaults or features
+                    else "NO")
             rows.append((stage, f"{ms:.1f}", f"{prev:.1f}", f"{prev / ms:.2f}×", same))
         else:
             rows.append((stage, f"{ms:.1f}", "", "", ""))
@@ -395,8 +419,7 @@ def bench_world_features(seq_dir: Path, frames: int, window: int | None,
         table: dict[str, Any] = {"backend": name}
         for item in settings:
             key, _, value = item.partition("=")
-            table[key] = (int(value) if value.lstrip("-").isdigit() else
-                          value == "true" if value in ("true", "false") else value)
+            table[key] = _setting_value(value)
         opts = sift_options(RefineConfig(features=table))
         res = [_timed(extract_sift, im, opts) for im in images]
         feats = [f for f, _ in res]
@@ -427,6 +450,18 @@ def bench_world_features(seq_dir: Path, frames: int, window: int | None,
                      f"{np.mean(n_inl):.0f}", f"{np.count_nonzero(n_inl)}/{len(pairs)}",
                      f"{1e3 * per_frame:.1f}", f"{1.0 / per_frame:.2f}", gt_err))
     return rows
+
+
+def _setting_value(text: str) -> Any:
+    """A ``[features]`` value from a ``--backends`` spec: int, float, bool or the string."""
+    if text in ("true", "false"):
+        return text == "true"
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
 
 
 def bench_prepare(seq_dir: Path, frames: int, work: Path) -> tuple[float, int]:
@@ -472,6 +507,10 @@ def main() -> None:
                     help="with --world: as 'previous', the stages with the default settings "
                          "(window 4, segmentation at 258 pixels across) beside --window N, "
                          "on the same inputs in the same process")
+    ap.add_argument("--features", action="append", default=[], metavar="KEY=VALUE",
+                    help="with --world (per stage): a [features] setting for the main column; "
+                         "'previous' is then the features stages with the default settings, "
+                         "on the same images in the same process")
     ap.add_argument("--prepare", action="store_true",
                     help="with --world: CPU time of the whole prepare() (front end, cache "
                          "writes, tracks) instead of the stages, BLAS threads as the library "
@@ -494,8 +533,12 @@ def main() -> None:
                 "verified/pair", "pairs verified", "features ms/frame", "frames/s/core",
                 "GT match error median / p95 cm")
         print(" | ".join(head))
-        for row in bench_world_features(args.world, frames, window, args.backends.split(",")):
-            print(" | ".join(row))
+        from bimcap.frontend.runner import one_thread
+
+        with one_thread():  # BLAS and OpenCV as the front end's jobs run them
+            for row in bench_world_features(args.world, frames, window,
+                                            args.backends.split(",")):
+                print(" | ".join(row), flush=True)
         return
     if args.world is not None and args.prepare:
         frames = args.frames if args.frames != 6 else 60
@@ -508,15 +551,19 @@ def main() -> None:
     if args.world is not None:
         frames = args.frames if args.frames != 6 else 20
         window = args.window if args.window != 3 else None
+        features = ({k: _setting_value(v) for k, _, v in (f.partition("=") for f in args.features)}
+                    if args.features else None)
         print(f"# front end per stage on {args.world}, first {frames} frames, window "
               f"{window or 'of the config'}, 1 thread, process CPU ms a frame, load average "
               f"{os.getloadavg()[0]:.1f}"
-              + (f"; 'previous' = the settings {BEFORE_DEFAULTS}" if args.before_defaults else ""))
+              + (f"; 'previous' = the settings {BEFORE_DEFAULTS}" if args.before_defaults else "")
+              + (f"; [features] {features}, 'previous' = the default [features]"
+                 if features else ""))
         from bimcap.frontend.runner import one_thread
 
         with one_thread():  # BLAS and OpenCV as the front end's jobs run them
             rows, _ = bench_world(args.world, frames, window, not args.no_previous,
-                                  args.before_defaults)
+                                  args.before_defaults, features)
         w = max(len(r[0]) for r in rows)
         print(f"{'stage':<{w}}  {'ms/frame':>9}  {'previous':>9}  {'ratio':>7}  same result")
         for stage, ms, prev, ratio, same in rows:

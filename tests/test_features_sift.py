@@ -194,3 +194,57 @@ def test_sequential_pairs() -> None:
     assert sequential_pairs(1, 3) == []
     with pytest.raises(FeatureError):
         sequential_pairs(4, 0)
+
+
+#: OpenCV's SIFT with its first octave at the native resolution (the image halved, then doubled).
+OPENCV_OCTAVE0 = SiftOptions(backend=SiftBackend.OPENCV, opencv_first_octave=0)
+
+
+def test_opencv_first_octave_is_validated() -> None:
+    from bimcap.pipeline.config import ConfigError, RefineConfig
+    from bimcap.pipeline.refine import sift_options
+
+    for bad in (1, -2):
+        with pytest.raises(FeatureError, match="opencv_first_octave must be -1 or 0"):
+            SiftOptions(opencv_first_octave=bad)
+    with pytest.raises(ConfigError, match="opencv_first_octave"):
+        sift_options(RefineConfig(features={"opencv_first_octave": 2}))
+    with pytest.raises(ConfigError, match=r"features\.opencv_first_octave"):
+        sift_options(RefineConfig(features={"opencv_first_octave": 0.5}))
+    assert sift_options(RefineConfig(features={"backend": "opencv", "opencv_first_octave": 0})
+                        ) == OPENCV_OCTAVE0
+
+
+def test_opencv_first_octave_0_shapes_and_dtypes(shifted_pair: tuple) -> None:
+    a, _, _ = shifted_pair
+    f = extract_sift(np.stack([a, a, a], axis=-1), OPENCV_OCTAVE0)
+    assert len(f) > 100
+    assert f.uv.shape == (len(f), 2) and f.uv.dtype == np.float64
+    assert f.scale.shape == f.orientation.shape == (len(f),)
+    assert f.scale.dtype == f.orientation.dtype == np.float64
+    assert f.descriptors.shape == (len(f), 128) and f.descriptors.dtype == np.uint8
+    norms = np.linalg.norm(f.descriptors.astype(np.float64), axis=1)
+    assert np.allclose(norms, 512.0, rtol=0.02)
+    # An image too small to halve still gives (0, ...) arrays of the right kinds.
+    empty = extract_sift(np.full((1, 1), 7, np.uint8), OPENCV_OCTAVE0)
+    assert empty.uv.shape == (0, 2) and empty.descriptors.shape == (0, 128)
+
+
+def test_opencv_first_octave_0_keypoints_at_full_resolution(shifted_pair: tuple) -> None:
+    """Blobs are found at their full-resolution pixels (the halved image's keypoints mapped
+    back), matches follow a known shift, and the smallest scale is that of a first octave at
+    the native resolution: about twice OpenCV's own (doubled) first octave."""
+    centres = [(100.0, 60.0), (200.5, 140.25)]
+    blobs = extract_sift(_blob_image(centres), OPENCV_OCTAVE0)
+    for c in centres:
+        d = np.linalg.norm(blobs.uv - np.array(c), axis=1)
+        assert d.min() < 0.3, (c, blobs.uv)
+    a, b, (du, dv) = shifted_pair
+    fa, fb = extract_sift(a, OPENCV_OCTAVE0), extract_sift(b, OPENCV_OCTAVE0)
+    m = match_descriptors(fa.descriptors, fb.descriptors)
+    assert len(m) > 100
+    disp = fa.uv[m[:, 0]] - fb.uv[m[:, 1]]
+    assert np.mean(np.linalg.norm(disp - [du, dv], axis=1) < 0.5) > 0.9
+    doubled = extract_sift(a, SiftOptions(backend=SiftBackend.OPENCV))
+    assert fa.scale.min() == pytest.approx(2.0 * doubled.scale.min(), rel=0.25)
+    assert len(fa) < len(doubled)
