@@ -443,19 +443,14 @@ class PlanarSmoothingOptions:
         the interpolation averages that noise, the returns' fit does not (hard setting, 8 cm of
         range noise: gen-demo-s11 Exp 2 2.49 cm with the returns' fit, 1.47 cm with the
         pixels'). At the standard 3 cm the returns' robust sigma stays under 3 cm.
-    reject_degenerate, max_incidence_deg, min_spread_ratio: with ``reject_degenerate`` (set by
-        :meth:`for_noise`), no plane is fitted that is seen more obliquely than
-        ``max_incidence_deg`` from the camera, nor to inliers whose second principal spread is
-        under ``min_spread_ratio`` times their thickness (:func:`fit_plane_ransac`); a region
-        whose next plane is degenerate gets no more planes. At 8 cm of range noise the 12 cm
-        RANSAC window let planes through the camera centre win on small wall regions (wrong
-        labels on a window: every pixel of a 75 px band at 1.4 m is within 12 cm of such a
-        plane) and a strip of wall behind a corner get a plane 27° off; the pixels moved onto
-        them became the wall samples and keypoint depths of gen-small-s3 hard frames 55 and
-        56 (2.6° and 1.8° off, docs/generalization.md "Hard tilt").
-    single_plane_assign: a region with one plane moves only its pixels within
-        ``assign_threshold_m`` of it (set by :meth:`for_noise`: a region whose second plane
-        was rejected keeps the other wall's depth rather than take the first wall's extension).
+    reject_oblique, max_incidence_deg: with ``reject_oblique`` (set by :meth:`for_noise`) no
+        plane is fitted that the camera sees more obliquely than ``max_incidence_deg``
+        (:func:`fit_plane_ransac`); a region whose next plane would be one gets no more planes.
+        At 8 cm of range noise the 12 cm RANSAC window let planes through the camera centre win
+        on small regions (wrong labels on a window: every pixel of a 75 px wide band at 1.4 m
+        lies within 12 cm of such a plane, whatever its depth), and their pixels were moved
+        onto them by up to ``max_change_rel``: on gen-small-s3 hard these became frame 55's
+        wall samples and turned it 2.6° (docs/generalization.md, "Hard tilt").
     """
 
     mode: PlanarSmoothing = PlanarSmoothing.PLANE_FIT
@@ -477,19 +472,16 @@ class PlanarSmoothingOptions:
     noise_adapt_above: float = 1.5
     noise_threshold_sigmas: float = 1.5
     noise_assign_sigmas: float = 3.0
-    reject_degenerate: bool = False
+    reject_oblique: bool = False
     max_incidence_deg: float = 80.0
-    min_spread_ratio: float = 2.5
-    single_plane_assign: bool = False
 
     def for_noise(self, range_noise_m: float | None) -> PlanarSmoothingOptions:
         """These options for depth with range noise σ = ``range_noise_m`` (metres; None or not
         finite: unknown, unchanged). Unchanged up to ``noise_adapt_above`` ×
         ``noise_reference_m``; above, the RANSAC inlier threshold is at least
         ``noise_threshold_sigmas`` · σ and the assignment threshold at least
-        ``noise_assign_sigmas`` · σ (8 cm noise: 3 → 12 cm and 8 → 24 cm), degenerate fits are
-        rejected (``reject_degenerate``) and a region with one plane moves only the pixels
-        within the assignment threshold (``single_plane_assign``).
+        ``noise_assign_sigmas`` · σ (8 cm noise: 3 → 12 cm and 8 → 24 cm), and planes seen
+        edge-on are not fitted (``reject_oblique``).
 
         With thresholds made for 3 cm noise, a region of 8 cm noise keeps a third of its pixels
         as inliers, and the pixels beyond ``assign_threshold_m`` (a third of them) become
@@ -507,8 +499,7 @@ class PlanarSmoothingOptions:
                                    self.noise_threshold_sigmas * float(range_noise_m)),
             assign_threshold_m=max(self.assign_threshold_m,
                                    self.noise_assign_sigmas * float(range_noise_m)),
-            reject_degenerate=True,
-            single_plane_assign=True,
+            reject_oblique=True,
         )
 
 
@@ -534,7 +525,7 @@ def _inlier_counts(points: F64, normals: F64, d: F64, threshold: float) -> NDArr
 
 def fit_plane_ransac(
     points: F64, threshold: float, iterations: int, rng: np.random.Generator,
-    min_cos_incidence: float | None = None, min_spread_ratio: float | None = None,
+    min_cos_incidence: float | None = None,
 ) -> tuple[F64, NDArray[np.bool_]] | None:
     """Robust plane ``n·p + d = 0`` through points (N, 3): 3-point RANSAC then least squares on
     the inliers. Returns ((4,) plane with unit n, inlier mask) or None (< 3 points).
@@ -545,12 +536,7 @@ def fit_plane_ransac(
     contains the rays holds every point of a band of the image whatever its depth: with a
     threshold of 12 cm (8 cm of range noise) that band is 35 px wide at 3 m, and such a plane
     wins over the true one on a narrow strip of wall; the fitted plane must be seen at that
-    angle too (else None).
-
-    ``min_spread_ratio``: the inliers' spread along their second principal axis must be at
-    least this many times their spread across the plane (else None): the normal of a strip of
-    points is not determined by them (a 0.2 m wide strip of a wall behind a corner at 8 cm of
-    range noise came out 27° off the wall)."""
+    angle too (else None)."""
     n = len(points)
     if n < 3:
         return None
@@ -577,9 +563,7 @@ def fit_plane_ransac(
         return None
     p = points[inl]
     centroid = p.mean(0)
-    _, sv, vt = np.linalg.svd(p - centroid, full_matrices=False)
-    if min_spread_ratio is not None and sv[1] < min_spread_ratio * sv[2]:
-        return None  # a strip: its normal is undetermined
+    _, _, vt = np.linalg.svd(p - centroid, full_matrices=False)
     nrm = vt[2]
     plane = np.concatenate([nrm, [-nrm @ centroid]])
     if min_cos_incidence is not None and abs(plane[3]) < min_cos_incidence * float(
@@ -625,8 +609,8 @@ def _region_planes(
     while len(planes) < opts.max_planes and len(left) >= need:
         pick = rng.choice(len(left), size=min(opts.sample_size, len(left)), replace=False)
         fit = fit_plane_ransac(left[pick], opts.ransac_threshold_m, opts.ransac_iterations, rng,
-                               *((float(np.cos(np.deg2rad(opts.max_incidence_deg))),
-                                  opts.min_spread_ratio) if opts.reject_degenerate else ()))
+                               float(np.cos(np.deg2rad(opts.max_incidence_deg)))
+                               if opts.reject_oblique else None)
         if fit is None:
             break
         plane = fit[0]
@@ -694,7 +678,7 @@ def _smooth_region(
     if not planes:
         return
     pl = np.stack(planes)  # (K, 4)
-    if len(pl) == 1 and not opts.single_plane_assign:  # every pixel on the one plane
+    if len(pl) == 1:  # every pixel on the one plane
         near: NDArray[np.bool_] | bool = True
         n0, n1, n2, offset = pl[0]
         denom = x * n0 + y * n1 + n2  # the ray (x, y, 1) · n, summed left to right
