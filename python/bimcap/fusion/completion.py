@@ -443,6 +443,14 @@ class PlanarSmoothingOptions:
         the interpolation averages that noise, the returns' fit does not (hard setting, 8 cm of
         range noise: gen-demo-s11 Exp 2 2.49 cm with the returns' fit, 1.47 cm with the
         pixels'). At the standard 3 cm the returns' robust sigma stays under 3 cm.
+    reject_oblique, max_incidence_deg: with ``reject_oblique`` (set by :meth:`for_noise`) no
+        plane is fitted that the camera sees more obliquely than ``max_incidence_deg``
+        (:func:`fit_plane_ransac`); a region whose next plane would be one gets no more planes.
+        At 8 cm of range noise the 12 cm RANSAC window let planes through the camera centre win
+        on small regions (wrong labels on a window: every pixel of a 75 px wide band at 1.4 m
+        lies within 12 cm of such a plane, whatever its depth), and their pixels were moved
+        onto them by up to ``max_change_rel``: on gen-small-s3 hard these became frame 55's
+        wall samples and turned it 2.6° (docs/generalization.md, "Hard tilt").
     """
 
     mode: PlanarSmoothing = PlanarSmoothing.PLANE_FIT
@@ -464,13 +472,16 @@ class PlanarSmoothingOptions:
     noise_adapt_above: float = 1.5
     noise_threshold_sigmas: float = 1.5
     noise_assign_sigmas: float = 3.0
+    reject_oblique: bool = False
+    max_incidence_deg: float = 80.0
 
     def for_noise(self, range_noise_m: float | None) -> PlanarSmoothingOptions:
         """These options for depth with range noise σ = ``range_noise_m`` (metres; None or not
         finite: unknown, unchanged). Unchanged up to ``noise_adapt_above`` ×
         ``noise_reference_m``; above, the RANSAC inlier threshold is at least
         ``noise_threshold_sigmas`` · σ and the assignment threshold at least
-        ``noise_assign_sigmas`` · σ (8 cm noise: 3 → 12 cm and 8 → 24 cm).
+        ``noise_assign_sigmas`` · σ (8 cm noise: 3 → 12 cm and 8 → 24 cm), and planes seen
+        edge-on are not fitted (``reject_oblique``).
 
         With thresholds made for 3 cm noise, a region of 8 cm noise keeps a third of its pixels
         as inliers, and the pixels beyond ``assign_threshold_m`` (a third of them) become
@@ -488,6 +499,7 @@ class PlanarSmoothingOptions:
                                    self.noise_threshold_sigmas * float(range_noise_m)),
             assign_threshold_m=max(self.assign_threshold_m,
                                    self.noise_assign_sigmas * float(range_noise_m)),
+            reject_oblique=True,
         )
 
 
@@ -512,10 +524,19 @@ def _inlier_counts(points: F64, normals: F64, d: F64, threshold: float) -> NDArr
 
 
 def fit_plane_ransac(
-    points: F64, threshold: float, iterations: int, rng: np.random.Generator
+    points: F64, threshold: float, iterations: int, rng: np.random.Generator,
+    min_cos_incidence: float | None = None,
 ) -> tuple[F64, NDArray[np.bool_]] | None:
     """Robust plane ``n·p + d = 0`` through points (N, 3): 3-point RANSAC then least squares on
-    the inliers. Returns ((4,) plane with unit n, inlier mask) or None (< 3 points)."""
+    the inliers. Returns ((4,) plane with unit n, inlier mask) or None (< 3 points).
+
+    ``min_cos_incidence``: with points in a camera frame (the centre at the origin), only
+    hypotheses seen from the centre at ``|n·a| / |a| >=`` this (the cosine of the angle between
+    the normal and the ray to the hypothesis' first point ``a``) compete. A plane that (nearly)
+    contains the rays holds every point of a band of the image whatever its depth: with a
+    threshold of 12 cm (8 cm of range noise) that band is 35 px wide at 3 m, and such a plane
+    wins over the true one on a narrow strip of wall; the fitted plane must be seen at that
+    angle too (else None)."""
     n = len(points)
     if n < 3:
         return None
@@ -528,6 +549,11 @@ def fit_plane_ransac(
         return None
     normals = normals[ok] / norm[ok, None]
     d = -(normals * a[ok]).sum(1)
+    if min_cos_incidence is not None:
+        seen = np.abs(d) >= min_cos_incidence * np.linalg.norm(a[ok], axis=1)
+        if not seen.any():
+            return None
+        normals, d = normals[seen], d[seen]
     best = int(np.argmax(_inlier_counts(points, normals, d, threshold)))
     # the best plane's column of the (N, I) table: a product with two columns is a
     # matrix-matrix one, whose entries are the table's bit for bit
@@ -540,6 +566,9 @@ def fit_plane_ransac(
     _, _, vt = np.linalg.svd(p - centroid, full_matrices=False)
     nrm = vt[2]
     plane = np.concatenate([nrm, [-nrm @ centroid]])
+    if min_cos_incidence is not None and abs(plane[3]) < min_cos_incidence * float(
+            np.linalg.norm(centroid)):
+        return None  # the least squares of a narrow strip of inliers turned edge-on
     inl = np.abs(points @ nrm + plane[3]) < threshold
     return plane, inl
 
@@ -579,7 +608,9 @@ def _region_planes(
     left = points
     while len(planes) < opts.max_planes and len(left) >= need:
         pick = rng.choice(len(left), size=min(opts.sample_size, len(left)), replace=False)
-        fit = fit_plane_ransac(left[pick], opts.ransac_threshold_m, opts.ransac_iterations, rng)
+        fit = fit_plane_ransac(left[pick], opts.ransac_threshold_m, opts.ransac_iterations, rng,
+                               float(np.cos(np.deg2rad(opts.max_incidence_deg)))
+                               if opts.reject_oblique else None)
         if fit is None:
             break
         plane = fit[0]
