@@ -7,6 +7,8 @@ modified):
   every root placement (``IfcLocalPlacement`` without ``PlacementRelTo``, i.e. the site's, and any
   other absolute one) composed with a yaw of :data:`GEOREF_YAW_DEG` about z and a shift of
   :data:`GEOREF_SHIFT_M` metres;
+* ``shifted``, ``turned``: the georeferenced variant's shift alone and its yaw alone (about the
+  origin), to tell float precision from a frame-dependent discretisation;
 * ``mm``, ``ft``: the length unit millimetres / feet, every length in the file converted
   (:func:`ifcopenshell.util.unit.convert_file_length_units`);
 * ``raised``: the building on a slope: root placements raised by :data:`RAISE_M` and every
@@ -39,16 +41,17 @@ GEOREF_YAW_DEG = 37.0
 #: The raised variant's height in metres.
 RAISE_M = 123.45
 
-VARIANTS = ("georef", "mm", "ft", "raised", "ifcwall", "nocovering")
+VARIANTS = ("georef", "shifted", "turned", "mm", "ft", "raised", "ifcwall", "nocovering")
 
 
 def world_from_model(variant: str) -> NDArray[np.float64]:
     """(4, 4) rigid transform, metres: a point of the original model (its world frame) to the
     same point in ``variant``'s world frame (identity for the variants that move nothing)."""
     m = np.eye(4)
-    if variant == "georef":
+    if variant in ("georef", "turned"):
         c, s = math.cos(math.radians(GEOREF_YAW_DEG)), math.sin(math.radians(GEOREF_YAW_DEG))
         m[:2, :2] = [[c, -s], [s, c]]
+    if variant in ("georef", "shifted"):
         m[:3, 3] = GEOREF_SHIFT_M
     elif variant == "raised":
         m[2, 3] = RAISE_M
@@ -87,7 +90,7 @@ def make_variant(src: Path, variant: str, out: Path) -> Path:
     if dst.is_file():
         return dst
     f = ifcopenshell.open(str(src))
-    if variant in ("georef", "raised"):
+    if variant in ("georef", "shifted", "turned", "raised"):
         if _move_roots(f, world_from_model(variant)) == 0:
             raise SystemExit(f"{src}: no root IfcLocalPlacement to move")
         if variant == "raised":
