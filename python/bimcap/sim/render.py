@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 
 from bimcap.errors import BimcapError, InputError
 from bimcap.geometry.camera import Camera
+from bimcap.geometry.local_frame import local_origin
 from bimcap.geometry.poses import quat_to_rotmat
 from bimcap.labels import Label
 from bimcap.sim.texture import GRIME_PERIOD_M, Material, TextureBank
@@ -84,7 +85,8 @@ class World:
     """A triangle soup with per-triangle semantics, ready for ray casting.
 
     Open3D casts rays in float32, whose steps are 0.5 m at 5·10⁶ m (a georeferenced model's
-    northing): the triangles are held relative to ``origin`` (:func:`local_origin`), and
+    northing): the triangles are held relative to ``origin``
+    (:func:`~bimcap.geometry.local_frame.local_origin`), and
     :meth:`cast` and :meth:`distance` take world coordinates in float64 and subtract it first.
 
     Attributes
@@ -219,22 +221,6 @@ class World:
         local = np.asarray(points, np.float64) - self.origin
         q = o3d.core.Tensor(np.ascontiguousarray(local, dtype=np.float32))
         return self.scene().compute_distance(q, nthreads=nthreads).numpy()
-
-
-#: :func:`local_origin` keeps a world whose vertices all lie within this of the origin (metres)
-#: at the origin; further out it rounds their centre to it.
-LOCAL_ORIGIN_STEP_M = 1000.0
-
-
-def local_origin(vertices: F64) -> F64:
-    """(3,) float64 metres: the zero :class:`World` holds ``vertices`` (V, 3) world metres
-    relative to: the origin when every vertex is within :data:`LOCAL_ORIGIN_STEP_M` of it (so
-    that such worlds render bit for bit as before), else the centre of their bounding box
-    rounded to a multiple of :data:`LOCAL_ORIGIN_STEP_M`."""
-    if len(vertices) == 0 or float(np.abs(vertices).max()) <= LOCAL_ORIGIN_STEP_M:
-        return np.zeros(3)
-    centre = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
-    return np.round(centre / LOCAL_ORIGIN_STEP_M) * LOCAL_ORIGIN_STEP_M
 
 
 @dataclass(frozen=True)
