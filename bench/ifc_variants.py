@@ -9,8 +9,8 @@ modified):
   :data:`GEOREF_SHIFT_M` metres;
 * ``shifted``, ``turned``: the georeferenced variant's shift alone and its yaw alone (about the
   origin), to tell float precision from a frame-dependent discretisation;
-* ``mm``, ``ft``: the length unit millimetres / feet, every length in the file converted
-  (:func:`ifcopenshell.util.unit.convert_file_length_units`);
+* ``m``, ``mm``, ``ft``: the length unit metres / millimetres / feet, every length in the file
+  converted (:func:`ifcopenshell.util.unit.convert_file_length_units`);
 * ``raised``: the building on a slope: root placements raised by :data:`RAISE_M` and every
   storey's ``Elevation`` with them;
 * ``ifcwall``: ``IfcWallStandardCase`` written as plain ``IfcWall``;
@@ -41,7 +41,7 @@ GEOREF_YAW_DEG = 37.0
 #: The raised variant's height in metres.
 RAISE_M = 123.45
 
-VARIANTS = ("georef", "shifted", "turned", "mm", "ft", "raised", "ifcwall", "nocovering")
+VARIANTS = ("georef", "shifted", "turned", "m", "mm", "ft", "raised", "ifcwall", "nocovering")
 
 
 def world_from_model(variant: str) -> NDArray[np.float64]:
@@ -97,8 +97,9 @@ def make_variant(src: Path, variant: str, out: Path) -> Path:
             per_unit = RAISE_M / float(uu.calculate_unit_scale(f))
             for st in f.by_type("IfcBuildingStorey"):
                 st.Elevation = float(st.Elevation or 0.0) + per_unit
-    elif variant in ("mm", "ft"):
-        f = uu.convert_file_length_units(f, "MILLIMETER" if variant == "mm" else "FOOT")
+    elif variant in ("m", "mm", "ft"):
+        target = {"m": "METER", "mm": "MILLIMETER", "ft": "FOOT"}[variant]
+        f = uu.convert_file_length_units(f, target)
     elif variant == "ifcwall":
         # IfcWallStandardCase adds no attribute to IfcWall (IFC2X3 and IFC4): rename the class
         text = src.read_text(encoding="utf-8", errors="surrogateescape")
