@@ -124,10 +124,17 @@ def test_voxel_accumulator_in_chunks_is_the_voxel_centroid() -> None:
     assert len(got) == len(expected) == 512 and acc.points_added == 5000
     order = np.lexsort(expected.T)
     np.testing.assert_allclose(got[np.lexsort(got.T)], expected[order], atol=1e-12)
-    with pytest.raises(RefinedMapError, match="km from the world origin"):
+    with pytest.raises(RefinedMapError, match="km from the first ones"):
         acc.add(np.array([[1e9, 0.0, 0.0]]))
     with pytest.raises(RefinedMapError, match="voxel_m"):
         VoxelAccumulator(0.0)
+    # a georeferenced map (northing 5.4e6 m, beyond the keys' ±31 km): the same voxels, moved
+    shift = np.array([512_345.5, 5_401_234.5, 212.5])  # whole 0.5 m voxels
+    far = VoxelAccumulator(0.5)
+    for part in np.array_split(p + shift, 7):
+        far.add(part)
+    got_far = far.centroids() - shift
+    np.testing.assert_allclose(got_far[np.lexsort(got_far.T)], expected[order], atol=1e-6)
 
 
 @pytest.fixture(scope="module")
