@@ -112,8 +112,10 @@ def world_runs(work: Path, world: str) -> tuple[Any, Path, dict[str, Any]]:
     return seq, reference, inits
 
 
-def make_world(work: Path, world: str, frames: int, setting: str) -> tuple[Path, Path, Path | None]:
-    """(sequence dir, reference IFC the world was rendered from, design IFC or None)."""
+def make_world(work: Path, world: str, frames: int, setting: str,
+               ifc_dir: Path | None = None) -> tuple[Path, Path, Path | None]:
+    """(sequence dir, reference IFC the world was rendered from, design IFC or None); a real
+    world ``ifc-<name>`` is ``<name>.ifc`` in ``ifc_dir`` (default: the shared real IFCs)."""
     from bimcap.sim.building import BuildingSpec, as_built, generate_building
     from bimcap.sim.simulator import simulate
 
@@ -132,9 +134,10 @@ def make_world(work: Path, world: str, frames: int, setting: str) -> tuple[Path,
         if not (seq / "manifest.json").is_file():
             simulate(design, seq, _sim_config(setting, frames), seed=seed, as_built_ifc=built)
         return seq, built, design
-    ifc = shared_ifc_dir() / f"{rest}.ifc"
+    ifc = (ifc_dir or shared_ifc_dir()) / f"{rest}.ifc"
     if not ifc.is_file():
-        raise SystemExit(f"{ifc}: not found (the real IFCs live in ../shared/data/ifc)")
+        raise SystemExit(f"{ifc}: not found (the real IFCs live in ../shared/data/ifc; "
+                         "--ifc-dir names another folder)")
     if not (seq / "manifest.json").is_file():
         simulate(ifc, seq, _sim_config(setting, frames), seed=1)
     return seq, ifc, None
@@ -193,7 +196,7 @@ def run(args: argparse.Namespace) -> None:
                                          f"{', '.join(SETTINGS)}")
                     t0 = time.perf_counter()
                     seq_dir, reference, design = make_world(work, world, frames,
-                                                            SETTINGS[setting])
+                                                            SETTINGS[setting], args.ifc_dir)
                     seq = read_sequence(seq_dir)
                     gt = seq.trajectory("gt")
                     seed = int(world.rpartition("-s")[2]) if world.startswith("gen") else 1
@@ -361,6 +364,9 @@ def main() -> None:
     ap.add_argument("--runs", default="",
                     help="comma list of fixed, exp1, exp2, exp3, design (default: all)")
     ap.add_argument("--methods", default="bimcap,facap", help="comma list: bimcap, facap")
+    ap.add_argument("--ifc-dir", type=Path, default=None,
+                    help="folder of the real IFCs ifc-<name> reads (default: ../shared/data/ifc); "
+                         "e.g. the variants bench/ifc_variants.py writes")
     ap.add_argument("--out", default="generalization.csv", help="CSV, appended to (resumable)")
     ap.add_argument("--features", action="append", default=[], metavar="KEY=VALUE",
                     type=_feature_setting,

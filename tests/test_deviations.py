@@ -124,10 +124,17 @@ def test_voxel_accumulator_in_chunks_is_the_voxel_centroid() -> None:
     assert len(got) == len(expected) == 512 and acc.points_added == 5000
     order = np.lexsort(expected.T)
     np.testing.assert_allclose(got[np.lexsort(got.T)], expected[order], atol=1e-12)
-    with pytest.raises(RefinedMapError, match="km from the world origin"):
+    with pytest.raises(RefinedMapError, match="km from the first ones"):
         acc.add(np.array([[1e9, 0.0, 0.0]]))
     with pytest.raises(RefinedMapError, match="voxel_m"):
         VoxelAccumulator(0.0)
+    # a georeferenced map (northing 5.4e6 m, beyond the keys' ±31 km): the same voxels, moved
+    shift = np.array([512_345.5, 5_401_234.5, 212.5])  # whole 0.5 m voxels
+    far = VoxelAccumulator(0.5)
+    for part in np.array_split(p + shift, 7):
+        far.add(part)
+    got_far = far.centroids() - shift
+    np.testing.assert_allclose(got_far[np.lexsort(got_far.T)], expected[order], atol=1e-6)
 
 
 @pytest.fixture(scope="module")
@@ -569,3 +576,25 @@ def test_refine_config_reads_and_writes_the_datum(tmp_path: Path) -> None:
     toml.write_text('datum = "class:IfcColumn"\n')
     with pytest.raises(ConfigError, match="datum: must be a list of selectors"):
         RefineConfig.from_toml(toml)
+
+
+def test_georeferenced_model_gives_the_same_deviations(world: dict[str, Path], scans: Any,
+                                                       report: Any) -> None:
+    """The design and the scans moved to a georeferenced position (northing 5.4·10⁶ m, where
+    float32 ray casting steps by 0.5 m): the same status, offset and coverage per element."""
+    from bimcap.deviations.analysis import analyse_deviations, load_design
+    from bimcap.deviations.refined_map import ScanSet
+
+    shift = np.array([512_345.6, 5_401_234.5, 212.3])
+    model = load_design(world["design"])
+    for e in model.elements:
+        e.vertices = e.vertices + shift
+    moved = ScanSet(scans.p_in_world + shift, scans.frame, scans.origins + shift)
+    far = analyse_deviations(model, moved, ifc_path=world["design"])
+    assert [e.name for e in far.elements] == [e.name for e in report.elements]
+    for a, b in zip(report.elements, far.elements, strict=True):
+        assert b.status == a.status, a.name
+        if a.offset_m is not None:
+            assert b.offset_m == pytest.approx(a.offset_m, abs=1e-3), a.name
+        assert b.coverage == pytest.approx(a.coverage, abs=0.02), a.name
+    assert len(far.clusters) == len(report.clusters)

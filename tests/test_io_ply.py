@@ -40,3 +40,18 @@ def test_errors_name_the_file_and_field(tmp_path: Path) -> None:
     bad.write_bytes(b"solid x\n")
     with pytest.raises(PlyError, match=r"bad\.ply: header: not a PLY file"):
         read_labelled_ply(bad)
+
+
+def test_far_from_origin_float32_cloud_keeps_millimetres(tmp_path: Path) -> None:
+    """A georeferenced cloud (northing 5.4·10⁶ m, where float32 steps by 0.5 m) asked for as
+    float32 is written as float64; a cloud near the origin stays float32."""
+    rng = np.random.default_rng(1)
+    local = rng.uniform(-20, 20, (100, 3))
+    far = local + np.array([512_345.6, 5_401_234.5, 212.3])
+    labels = rng.integers(0, 8, 100).astype(np.uint8)
+    write_labelled_ply(tmp_path / "far.ply", far, labels, Precision.FLOAT32, "far")
+    back, _ = read_labelled_ply(tmp_path / "far.ply")
+    assert np.abs(back - far).max() < 1e-6
+    assert b"property double x" in (tmp_path / "far.ply").read_bytes()[:400]
+    write_labelled_ply(tmp_path / "near.ply", local, labels, Precision.FLOAT32, "near")
+    assert b"property float x" in (tmp_path / "near.ply").read_bytes()[:400]

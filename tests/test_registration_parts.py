@@ -282,9 +282,12 @@ def test_track_translations_leaves_out_a_lone_alias_and_empty_frames() -> None:
     assert path.tolist() == [0, 0, 0, 0, -1, 0, -1, -1]
 
 
-def test_repair_replaces_a_frame_whose_matches_all_disagree() -> None:
+@pytest.mark.parametrize("far", [False, True], ids=["origin", "georeferenced"])
+def test_repair_replaces_a_frame_whose_matches_all_disagree(far: bool) -> None:
     """A frame turned 10° after the solve (its reprojection errors are all far out in a robust
-    loss's tail) is put back from its neighbours' depth by PnP; the others are left alone."""
+    loss's tail) is put back from its neighbours' depth by PnP; the others are left alone. The
+    same far from the origin (a georeferenced model's 5.4·10⁶ m northing: PnP on points that far
+    out is ill-conditioned unless they are centred first)."""
     from scipy.spatial.transform import Rotation
 
     from bimcap.optimize.synthetic import make_synthetic_problem
@@ -292,6 +295,8 @@ def test_repair_replaces_a_frame_whose_matches_all_disagree() -> None:
 
     syn = make_synthetic_problem(num_frames=12, seed=2)
     a = syn.problem.arrays()
+    if far:  # the matches are pixels and depths: moving the world moves only the poses
+        syn.gt_poses[:, :3] += np.array([512_345.6, 5_401_234.5, 212.3])
     poses = syn.gt_poses.copy()
     k = 6
     turn = Rotation.from_euler("z", 10.0, degrees=True)

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import io
 import json
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from os import PathLike
 from pathlib import Path
 from typing import Any
@@ -34,16 +34,19 @@ from numpy.typing import NDArray
 
 from bimcap.bim.errors import BimInputError
 from bimcap.bim.floorplan import FloorPlan, FloorPlanOptions, Vectorizer, build_floor_plan
-from bimcap.bim.ingest import BimModel, Storey
+from bimcap.bim.ingest import BimModel, Storey, read_spaces
 from bimcap.bim.planes import PlaneOptions, ReferencePlane, extract_planes, plane_under
 from bimcap.bim.semantic_cloud import sample_model, write_ply
+from bimcap.geometry.local_frame import local_origin
 from bimcap.io.atomic import atomic_write_bytes, atomic_write_json
 from bimcap.labels import Label
 
 FORMAT = "bimcap-bim-reference"
-VERSION = 4  # 2: planes are the visible surfaces only (bimcap.bim.planes); caches of 1 are rebuilt
+VERSION = 5  # 2: planes are the visible surfaces only (bimcap.bim.planes); caches of 1 are rebuilt
 # 3: planes no longer average faces up to 2 cm apart (PlaneOptions.height_tol_m 2 mm)
 # 4: they do again (2 cm: the 2 mm planes left a Duplex_A global alignment silently wrong)
+# 5: a model far from the origin is built in a local frame (georeferenced models lost the walls'
+#    footprints from their floor planes to shapely round-off)
 
 
 @dataclass(frozen=True)
@@ -282,8 +285,59 @@ def build_reference(model: BimModel, options: ReferenceOptions | None = None) ->
     Warns
     -----
     MissingFloorWarning / MissingCeilingWarning for storeys with walls but no floor / ceiling.
+
+    A model far from the origin in xy (a georeferenced one) is built in a local frame
+    (:func:`~bimcap.geometry.local_frame.local_origin`, z kept) and the result moved back: the
+    shapely and raster operations keep their precision, and the reference is the same as the
+    model's near the origin, moved.
     """
     opts = options or ReferenceOptions()
+    offset = local_origin(np.concatenate([e.vertices for e in model.elements])
+                          if model.elements else np.zeros((0, 3)))
+    offset[2] = 0.0
+    if offset.any():
+        ref = _build(_moved_model(model, -offset), opts)
+        _move_reference(ref, offset)
+    else:
+        ref = _build(model, opts)
+    ref.check_usable(model.path)
+    return ref
+
+
+def _moved_model(model: BimModel, offset: NDArray[np.float64]) -> BimModel:
+    """``model`` with every element (and IfcSpace, read now) moved by ``offset`` (3,) metres."""
+    spaces = read_spaces(model)
+    return replace(model, elements=[replace(e, vertices=e.vertices + offset)
+                                    for e in model.elements],
+                   spaces=[replace(e, vertices=e.vertices + offset) for e in spaces])
+
+
+def _move_reference(ref: BimReference, offset: NDArray[np.float64]) -> None:
+    """Move a reference built in a local frame by ``offset`` (3,) metres, in place."""
+    xy = offset[:2]
+    ref.planes = ref.planes.copy()
+    if len(ref.planes):
+        ref.planes[:, 3] -= ref.planes[:, :3] @ offset
+    for p in ref.plane_info:
+        p.plane = p.plane.copy()
+        p.plane[3] -= float(p.plane[:3] @ offset)
+        p.polygon = p.polygon + xy
+        p.holes = [h + xy for h in p.holes]
+    seg_shift = np.concatenate([xy, xy])
+    ref.segments = ref.segments + seg_shift
+    ref.segment_z = ref.segment_z + offset[2]
+    ref.points = ref.points + offset
+    fp = ref.floor_plan
+    if fp is not None:
+        fp.origin = fp.origin + xy
+        for st in fp.storeys:
+            st.segments = st.segments + seg_shift
+            st.exact = {k: v + seg_shift for k, v in st.exact.items()}
+            st.exact_band = {k: v + seg_shift for k, v in st.exact_band.items()}
+
+
+def _build(model: BimModel, opts: ReferenceOptions) -> BimReference:
+    """:func:`build_reference` in the model's own frame, unchecked."""
     plane_info = extract_planes(model, opts.planes)
     planes = (np.stack([p.plane for p in plane_info]) if plane_info
               else np.zeros((0, 4), dtype=np.float64))
@@ -305,7 +359,6 @@ def build_reference(model: BimModel, options: ReferenceOptions | None = None) ->
         counts=model.counts(),
         failed=list(model.failed),
     )
-    ref.check_usable(model.path)
     return ref
 
 

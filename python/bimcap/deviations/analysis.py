@@ -52,6 +52,7 @@ from numpy.typing import NDArray
 
 from bimcap.deviations.refined_map import ScanSet, voxel_downsample
 from bimcap.errors import BimcapError, InputError
+from bimcap.geometry.local_frame import local_origin
 from bimcap.labels import Label
 
 F64 = NDArray[np.float64]
@@ -380,19 +381,58 @@ def _surface_samples(el: _Element, spacing: float, rng: np.random.Generator) -> 
     return np.concatenate([pts, normals[keep][which]], axis=1)
 
 
-def _scene(model: Any, options: DeviationOptions) -> tuple[Any, dict[int, int]]:
-    """An Open3D raycasting scene of the model's elements; geometry id → element index."""
-    import open3d as o3d
+class LocalScene:
+    """An Open3D raycasting scene that takes and returns world metres in float64.
 
-    scene = o3d.t.geometry.RaycastingScene()
+    Open3D casts in float32, which steps by 0.5 m at a georeferenced model's northing: the
+    triangles are held relative to ``origin``
+    (:func:`~bimcap.geometry.local_frame.local_origin` of the model), which every query
+    subtracts first and every returned point gets back.
+    """
+
+    def __init__(self, origin: F64) -> None:
+        import open3d as o3d
+
+        self.origin = np.asarray(origin, dtype=np.float64).reshape(3)
+        self.scene = o3d.t.geometry.RaycastingScene()
+        self.INVALID_ID = int(self.scene.INVALID_ID)
+
+    def add_triangles(self, vertices: F64, faces: NDArray[np.integer]) -> int:
+        """Add a mesh, (V, 3) world metres and (F, 3) indices; its geometry id."""
+        local = np.asarray(vertices, np.float64) - self.origin
+        return int(self.scene.add_triangles(_tensor(local, np.float32),
+                                            _tensor(faces, np.uint32)))
+
+    def cast_rays(self, origins: F64, directions: F64) -> dict[str, NDArray[Any]]:
+        """Rays from (M, 3) world ``origins`` along (M, 3) ``directions``: Open3D's answer
+        (``t_hit``, ``geometry_ids``, ``primitive_normals``) as numpy arrays."""
+        rays = np.concatenate([np.asarray(origins, np.float64) - self.origin, directions], axis=1)
+        ans = self.scene.cast_rays(_tensor(rays, np.float32))
+        return {k: ans[k].numpy() for k in ("t_hit", "geometry_ids", "primitive_normals")}
+
+    def compute_occupancy(self, points: F64) -> NDArray[Any]:
+        """(M,) occupancy of (M, 3) world points (1 inside a closed mesh)."""
+        local = np.asarray(points, np.float64) - self.origin
+        return self.scene.compute_occupancy(_tensor(local, np.float32)).numpy()
+
+    def compute_closest_points(self, points: F64) -> dict[str, NDArray[Any]]:
+        """For (M, 3) world ``points``: ``points`` (M, 3) float64 world metres of the closest
+        surface point and its ``geometry_ids`` (M,)."""
+        local = np.asarray(points, np.float64) - self.origin
+        ans = self.scene.compute_closest_points(_tensor(local, np.float32))
+        return {"points": ans["points"].numpy().astype(np.float64) + self.origin,
+                "geometry_ids": ans["geometry_ids"].numpy()}
+
+
+def _scene(model: Any, options: DeviationOptions) -> tuple[LocalScene, dict[int, int]]:
+    """A raycasting scene of the model's elements; geometry id → element index."""
+    meshes = [(i, e) for i, e in enumerate(model.elements)
+              if len(e.faces) and not (options.ignore_doors and e.label == Label.DOOR)]
+    verts = [e.vertices for _, e in meshes]
+    scene = LocalScene(local_origin(np.concatenate(verts) if verts else np.zeros((0, 3))))
     ids: dict[int, int] = {}
-    for i, e in enumerate(model.elements):
-        if options.ignore_doors and e.label == Label.DOOR:
-            continue
-        if len(e.faces) == 0:
-            continue
-        gid = scene.add_triangles(_tensor(e.vertices, np.float32), _tensor(e.faces, np.uint32))
-        ids[int(gid)] = i
+    for i, e in meshes:
+        ids[scene.add_triangles(e.vertices, e.faces)] = i
     return scene, ids
 
 
@@ -519,7 +559,7 @@ def analyse_deviations(
                            scans.origins)
 
 
-def _cast(scene: Any, scans: ScanSet) -> dict[str, Any]:
+def _cast(scene: LocalScene, scans: ScanSet) -> dict[str, Any]:
     """Cast every return's ray into ``scene``: first-hit distance ``t``, geometry id ``gid``
     (-1 none), measured range ``r``, incidence cosine ``cos``, face normal ``m`` towards the
     sensor, hit point ``h`` (design) and the return ``p``."""
@@ -528,13 +568,12 @@ def _cast(scene: Any, scans: ScanSet) -> dict[str, Any]:
     d = scans.p_in_world - origins
     r = np.linalg.norm(d, axis=1)
     u = d / np.maximum(r, 1e-9)[:, None]
-    rays = _tensor(np.concatenate([origins, u], axis=1), np.float32)
-    ans = scene.cast_rays(rays)
-    t = ans["t_hit"].numpy().astype(np.float64)
-    gid = ans["geometry_ids"].numpy().astype(np.int64)
+    ans = scene.cast_rays(origins, u)
+    t = ans["t_hit"].astype(np.float64)
+    gid = ans["geometry_ids"].astype(np.int64)
     gid[~np.isfinite(t)] = -1
-    gid[gid == int(scene.INVALID_ID)] = -1
-    m = ans["primitive_normals"].numpy().astype(np.float64)
+    gid[gid == scene.INVALID_ID] = -1
+    m = ans["primitive_normals"].astype(np.float64)
     m /= np.maximum(np.linalg.norm(m, axis=1), 1e-12)[:, None]
     um = np.sum(u * m, axis=1)
     m[um > 0] *= -1.0  # towards the sensor
@@ -547,15 +586,15 @@ def _cast(scene: Any, scans: ScanSet) -> dict[str, Any]:
 class _Probe:
     """Whether points lie inside any element of a scene (the exposure test of samples)."""
 
-    def __init__(self, scene: Any) -> None:
+    def __init__(self, scene: LocalScene) -> None:
         self.scene = scene
 
     def inside(self, points: F64) -> NDArray[np.bool_]:
 
         if len(points) == 0:
             return np.zeros(0, dtype=bool)
-        occ = self.scene.compute_occupancy(_tensor(points, np.float32))
-        return np.asarray(occ.numpy(), dtype=np.float64) > 0.5
+        occ = self.scene.compute_occupancy(points)
+        return np.asarray(occ, dtype=np.float64) > 0.5
 
 
 def _judge(el: _Element, rows: I64, hits: dict[str, Any], e_front: F64, n_hit: int, n_pass: int,
@@ -626,16 +665,16 @@ def _coverage(el: _Element, hit_points: F64, opts: DeviationOptions, rng: np.ran
     return len(seen) / len(pts)
 
 
-def _clusters(scene: Any, gid_to_element: dict[int, int], lookup: I64, points: F64,
+def _clusters(scene: LocalScene, gid_to_element: dict[int, int], lookup: I64, points: F64,
               opts: DeviationOptions) -> tuple[list[Cluster], I32]:
     """Unexplained clusters among ``points`` and each point's analysed element (-1 none)."""
 
     point_element = np.full(len(points), -1, np.int32)
     if len(points) == 0:
         return [], point_element
-    ans = scene.compute_closest_points(_tensor(points, np.float32))
-    dist = np.linalg.norm(ans["points"].numpy().astype(np.float64) - points, axis=1)
-    closest = ans["geometry_ids"].numpy().astype(np.int64)
+    ans = scene.compute_closest_points(points)
+    dist = np.linalg.norm(ans["points"] - points, axis=1)
+    closest = ans["geometry_ids"].astype(np.int64)
     near = dist <= opts.pass_margin_m
     for g, m_idx in gid_to_element.items():
         sel = near & (closest == g)

@@ -44,8 +44,14 @@ from xml.etree import ElementTree as ET
 import numpy as np
 from numpy.typing import NDArray
 
-from bimcap.deviations.analysis import DeviationReport, ElementDeviation, ElementStatus
+from bimcap.deviations.analysis import (
+    DeviationReport,
+    ElementDeviation,
+    ElementStatus,
+    LocalScene,
+)
 from bimcap.errors import InputError
+from bimcap.geometry.local_frame import local_origin
 from bimcap.io.atomic import atomic_write_bytes
 from bimcap.labels import Label
 
@@ -203,7 +209,8 @@ def element_camera(el: Any, scene: Any | None = None, viewers: F64 | None = None
     Parameters
     ----------
     el: the element (its ``vertices`` (V, 3) metres, ``faces``, ``label``).
-    scene: an Open3D ``RaycastingScene`` of the model, to stop the camera before the next
+    scene: a :class:`~bimcap.deviations.analysis.LocalScene` of the model (:func:`model_scene`),
+        to stop the camera before the next
         element in front of the face; None: no such check.
     viewers: (M, 3) sensor centres of the walk (metres); the face turned towards the nearest
         one is preferred; None: the largest face first (a wall: either side).
@@ -254,14 +261,11 @@ def _free_distance(scene: Any, start: F64, n: F64) -> float:
     metres) along ``n``: the distance to the first element there, less :data:`CLEARANCE_M`, at
     least 5 cm; infinite when there is none. Faces within :data:`FLUSH_M` of ``start`` are passed
     through: a window or door standing in the element's opening, proud of its face by a sill."""
-    import open3d as o3d
-
     travelled = 0.0
     for _ in range(8):
         origin = start + travelled * n
-        ray = np.array([[*origin, *n]], dtype=np.float32)
-        ans = scene.cast_rays(o3d.core.Tensor.from_numpy(ray))
-        t = float(ans["t_hit"].numpy()[0])
+        ans = scene.cast_rays(origin.reshape(1, 3), np.asarray(n, np.float64).reshape(1, 3))
+        t = float(ans["t_hit"][0])
         if not np.isfinite(t):
             return np.inf
         if travelled + t > FLUSH_M:
@@ -270,17 +274,15 @@ def _free_distance(scene: Any, start: F64, n: F64) -> float:
     return 0.05
 
 
-def model_scene(model: Any) -> Any:
-    """An Open3D ``RaycastingScene`` of every element of ``model`` (doors and windows included:
-    a viewer shows them), for :func:`element_camera`."""
-    import open3d as o3d
-
-    scene = o3d.t.geometry.RaycastingScene()
-    for e in model.elements:
-        if len(e.faces):
-            v = np.ascontiguousarray(e.vertices, dtype=np.float32)
-            f = np.ascontiguousarray(e.faces, dtype=np.uint32)
-            scene.add_triangles(o3d.core.Tensor.from_numpy(v), o3d.core.Tensor.from_numpy(f))
+def model_scene(model: Any) -> LocalScene:
+    """A raycasting scene of every element of ``model`` (doors and windows included: a viewer
+    shows them), for :func:`element_camera`; float64 world metres in and out
+    (:class:`~bimcap.deviations.analysis.LocalScene`)."""
+    meshes = [e for e in model.elements if len(e.faces)]
+    verts = [e.vertices for e in meshes]
+    scene = LocalScene(local_origin(np.concatenate(verts) if verts else np.zeros((0, 3))))
+    for e in meshes:
+        scene.add_triangles(e.vertices, e.faces)
     return scene
 
 

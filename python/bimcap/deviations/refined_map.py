@@ -24,6 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from bimcap.errors import InputError
+from bimcap.geometry.local_frame import local_origin
 from bimcap.geometry.poses import compose, transform_points
 from bimcap.io.ply import Precision, write_labelled_ply
 from bimcap.labels import Label
@@ -175,8 +176,10 @@ class VoxelAccumulator:
     the points may arrive in chunks (a few scans at a time) and two maps of the same scene share
     their voxels. Memory grows with the voxels, not with the points.
 
-    Voxel indices must lie within ±2²⁰ on each axis (±31 km at 3 cm); points beyond raise
-    :class:`RefinedMapError`.
+    Voxel indices are counted from a whole voxel near the first chunk
+    (:func:`~bimcap.geometry.local_frame.local_origin`: the origin, or the nearest kilometre of a
+    georeferenced model's coordinates) and must lie within ±2²⁰ of it on each axis (±31 km at
+    3 cm); points beyond raise :class:`RefinedMapError`. Sums are kept relative to it too.
     """
 
     _BITS = 21
@@ -189,18 +192,27 @@ class VoxelAccumulator:
         self._keys = np.zeros(0, np.int64)
         self._sums = np.zeros((0, 3))
         self._counts = np.zeros(0, np.int64)
+        self._origin_cell: NDArray[np.float64] | None = None  # whole voxels, set by the 1st add
         self.points_added = 0
+
+    @property
+    def _origin_m(self) -> F64:
+        return np.zeros(3) if self._origin_cell is None else self._origin_cell * self.voxel_m
 
     def add(self, points: F64) -> None:
         """Add (P, 3) points (world metres); non-finite rows raise."""
         p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         if len(p) == 0:
             return
-        cell = np.floor(p / self.voxel_m)
+        if self._origin_cell is None:
+            self._origin_cell = np.round(local_origin(p[np.isfinite(p).all(axis=1)])
+                                         / self.voxel_m)
+        cell = np.floor(p / self.voxel_m) - self._origin_cell
         if not np.all(np.abs(cell) < self._HALF):
             raise RefinedMapError(
-                f"points lie more than {self._HALF * self.voxel_m / 1000:.0f} km from the world "
-                "origin (or are not finite)", field="p_in_world")
+                f"points lie more than {self._HALF * self.voxel_m / 1000:.0f} km from the "
+                "first ones (or are not finite)", field="p_in_world")
+        p = p - self._origin_m
         k = cell.astype(np.int64) + self._HALF
         key = (k[:, 0] << (2 * self._BITS)) | (k[:, 1] << self._BITS) | k[:, 2]
         keys, inverse = np.unique(np.concatenate([self._keys, key]), return_inverse=True)
@@ -216,7 +228,9 @@ class VoxelAccumulator:
 
     def centroids(self) -> F64:
         """(V, 3) centroid of each voxel, in the order of the voxels' packed keys."""
-        return self._sums / self._counts[:, None] if len(self._keys) else np.zeros((0, 3))
+        if not len(self._keys):
+            return np.zeros((0, 3))
+        return self._sums / self._counts[:, None] + self._origin_m
 
 
 def _in_z_range(p: F64, z_range: tuple[float, float] | None) -> F64:

@@ -4,7 +4,9 @@ The format is binary little-endian: ``x y z`` as ``float`` (float32) or ``double
 then ``red green blue label`` as ``uchar``: label ids of :class:`bimcap.labels.Label`, colours
 of :data:`bimcap.labels.LABEL_COLORS`. The BIM's semantic cloud is written as float32 (sampled
 surfaces, millimetre precision is plenty); the front end's semantic map as float64 (it is
-compared point by point across poses). The reader takes either.
+compared point by point across poses). The reader takes either. float32 keeps millimetres only
+near the origin: a cloud asked for as float32 with a coordinate beyond :data:`FLOAT32_MAX_M`
+(a georeferenced model's eastings and northings) is written as float64.
 """
 
 from __future__ import annotations
@@ -24,6 +26,9 @@ F64 = NDArray[np.float64]
 U8 = NDArray[np.uint8]
 
 _END = b"end_header\n"
+
+#: Largest coordinate (metres) written as float32, whose step there is 1 mm; beyond it float64.
+FLOAT32_MAX_M = 8192.0
 
 
 class Precision(str, Enum):
@@ -45,7 +50,9 @@ def _record(precision: Precision) -> np.dtype[np.void]:
 
 def write_labelled_ply(path: str | PathLike[str], points: F64, labels: NDArray[np.integer],
                        precision: Precision, comment: str) -> None:
-    """Write (P, 3) ``points`` (metres) with their (P,) ``labels`` (ids in 0..7) atomically.
+    """Write (P, 3) ``points`` (metres) with their (P,) ``labels`` (ids in 0..7) atomically,
+    with coordinates of ``precision`` (float64 instead of float32 when a coordinate is beyond
+    :data:`FLOAT32_MAX_M`, where float32 loses millimetres).
 
     Raises :class:`PlyError` (naming the file) on mismatched sizes or label ids out of range.
     """
@@ -56,6 +63,8 @@ def write_labelled_ply(path: str | PathLike[str], points: F64, labels: NDArray[n
     if len(lab) and (lab.min() < 0 or lab.max() >= len(LABEL_COLORS)):
         raise PlyError(f"label ids must be in 0..{len(LABEL_COLORS) - 1}", path, "label")
     lab8 = lab.astype(np.uint8)
+    if precision is Precision.FLOAT32 and len(p) and float(np.abs(p).max()) > FLOAT32_MAX_M:
+        precision = Precision.FLOAT64
     rec = np.empty(len(p), dtype=_record(precision))
     rec["x"], rec["y"], rec["z"] = p[:, 0], p[:, 1], p[:, 2]
     rgb = LABEL_COLORS[lab8]

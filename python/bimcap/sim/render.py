@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 
 from bimcap.errors import BimcapError, InputError
 from bimcap.geometry.camera import Camera
+from bimcap.geometry.local_frame import local_origin
 from bimcap.geometry.poses import quat_to_rotmat
 from bimcap.labels import Label
 from bimcap.sim.texture import GRIME_PERIOD_M, Material, TextureBank
@@ -83,15 +84,21 @@ class MeshPart:
 class World:
     """A triangle soup with per-triangle semantics, ready for ray casting.
 
+    Open3D casts rays in float32, whose steps are 0.5 m at 5·10⁶ m (a georeferenced model's
+    northing): the triangles are held relative to ``origin``
+    (:func:`~bimcap.geometry.local_frame.local_origin`), and
+    :meth:`cast` and :meth:`distance` take world coordinates in float64 and subtract it first.
+
     Attributes
     ----------
-    vertices: (V, 3) float32 world metres.
+    vertices: (V, 3) float32 metres relative to ``origin`` (world = ``vertices + origin``).
     faces: (F, 3) int32.
     tri_label: (F,) uint8 :class:`Label` ids.
     tri_material: (F,) uint8 :class:`Material` ids.
     tri_element: (F,) int32 index into ``names``.
     names: element names / GUIDs.
     element_offset: (E, 2) float64 texture offsets (metres) per element.
+    origin: (3,) float64 world metres of the vertices' zero (zero for a model near the origin).
     """
 
     vertices: NDArray[np.float32]
@@ -101,6 +108,7 @@ class World:
     tri_element: NDArray[np.int32]
     names: list[str]
     element_offset: F64
+    origin: F64 = field(default_factory=lambda: np.zeros(3))
     _scene: Any = field(default=None, repr=False, compare=False)
 
     @classmethod
@@ -148,14 +156,17 @@ class World:
             raise SimError("the world has no triangles")
         rng = np.random.default_rng([seed, 31337])
         offsets = rng.uniform(0.0, 4096.0, size=(len(names), 2))
+        all_verts = np.concatenate(verts)
+        origin = local_origin(all_verts)
         return cls(
-            np.concatenate(verts).astype(np.float32),
+            (all_verts - origin).astype(np.float32),
             np.concatenate(faces),
             np.concatenate(labels),
             np.concatenate(mats),
             np.concatenate(elems),
             names,
             offsets,
+            origin,
         )
 
     def __getstate__(self) -> dict[str, Any]:
@@ -166,6 +177,10 @@ class World:
     @property
     def n_triangles(self) -> int:
         return len(self.faces)
+
+    def world_vertices(self) -> F64:
+        """(V, 3) float64 world metres."""
+        return self.vertices.astype(np.float64) + self.origin
 
     def scene(self) -> o3d.t.geometry.RaycastingScene:
         """The (cached) Open3D raycasting scene; geometry id 0, primitive id = triangle index."""
@@ -190,7 +205,7 @@ class World:
         import open3d as o3d
 
         rays = np.empty((len(origins), 6), dtype=np.float32)
-        rays[:, :3] = origins
+        rays[:, :3] = np.asarray(origins, np.float64) - self.origin
         rays[:, 3:] = directions
         res = self.scene().cast_rays(o3d.core.Tensor(rays), nthreads=nthreads)
         return {
@@ -203,7 +218,8 @@ class World:
         """(M,) unsigned distance in metres from each point (M, 3) to the nearest triangle."""
         import open3d as o3d
 
-        q = o3d.core.Tensor(np.ascontiguousarray(points, dtype=np.float32))
+        local = np.asarray(points, np.float64) - self.origin
+        q = o3d.core.Tensor(np.ascontiguousarray(local, dtype=np.float32))
         return self.scene().compute_distance(q, nthreads=nthreads).numpy()
 
 
@@ -320,9 +336,9 @@ class Renderer:
         t0 = time.perf_counter()
         pose = np.asarray(world_from_cam, np.float64)
         r_wc = quat_to_rotmat(pose[3:7]).astype(np.float32)
-        origin = pose[:3].astype(np.float32)
+        origin = (pose[:3] - self.world.origin).astype(np.float32)  # in the world's local frame
         dirs_w = rotate_rows(self.rays_in_cam, r_wc)  # (P, 3) float32
-        hit = self.world.cast(np.broadcast_to(origin, dirs_w.shape), dirs_w, nthreads)
+        hit = self.world.cast(np.broadcast_to(pose[:3], dirs_w.shape), dirs_w, nthreads)
         t1 = time.perf_counter()
         depth = hit["t_hit"]
         valid = np.isfinite(depth)
@@ -339,7 +355,7 @@ class Renderer:
         if not all_valid:
             labels[~valid] = Label.UNKNOWN
         p_w = dirs_w * z[:, None]
-        p_w += origin
+        p_w += origin  # hit points relative to world.origin (textures follow them)
         # surface coordinates: drop the dominant axis (z → (x, y), x → (y, z), y → (x, z))
         axis = self._tri_axis[prim]
         st = self._tri_offset[prim]

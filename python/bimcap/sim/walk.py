@@ -277,7 +277,7 @@ def detect_floor_height(world: World, min_share: float = 0.2) -> float:
 
     Floor triangles (label FLOOR, facing up) are binned by height in 5 cm bins weighted by area.
     """
-    tri = world.vertices[world.faces].astype(np.float64)
+    tri = world.world_vertices()[world.faces]
     up = world.tri_label == Label.FLOOR
     if not up.any():
         raise SimError("the world has no floor triangles: pass z_floor explicitly")

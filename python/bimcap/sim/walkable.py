@@ -166,7 +166,7 @@ def door_footprints(parts: Sequence[object], depth_margin_m: float = 0.3) -> lis
 def levels_from_floors(world: World, min_area_m2: float = 4.0) -> list[Level]:
     """Levels at the heights of the world's up-facing floor triangles (5 cm bins holding at
     least ``min_area_m2``), for worlds without storeys."""
-    tri = world.vertices[world.faces].astype(np.float64)
+    tri = world.world_vertices()[world.faces]
     sel = world.tri_label == Label.FLOOR
     n = np.cross(tri[sel, 1] - tri[sel, 0], tri[sel, 2] - tri[sel, 0])
     norm = np.linalg.norm(n, axis=1)
@@ -201,7 +201,7 @@ class _Grid:
     """The cell centres over the world's xy extent."""
 
     def __init__(self, world: World, resolution: float) -> None:
-        v = world.vertices
+        v = world.world_vertices()
         self.origin = v[:, :2].min(axis=0).astype(np.float64) - 0.5
         hi = v[:, :2].max(axis=0).astype(np.float64) + 0.5
         w, h = (np.ceil((hi - self.origin) / resolution).astype(int) + 1)
