@@ -694,7 +694,7 @@ def test_the_block_repair_brings_a_block_back_and_the_bim_accepts_it() -> None:
 
     solved = gt.copy()
     solved[:6, :2] += np.array([0.1, 1.3])
-    run, poses, record = _block_repair_run(solver, stage(solved), solved, 2, 0.005)
+    _, poses, record = _block_repair_run(solver, stage(solved), solved, 2, 0.005)
     assert record["check"]["failed"] and record["moved"] == list(range(6))
     assert record["accepted"]
     assert np.linalg.norm(poses[:, :3] - gt[:, :3], axis=1).max() < 0.02
