@@ -1105,19 +1105,17 @@ def _block_repair_run(solver: _StageSolver, run: _StageRun, poses: F64, max_plan
     corridor, out of the window shift's range, with 152 matches to frame 14 at 225 px. Returns
     the run and poses after it and its record (``check``: the motion check before, ``moves``,
     and the verdict)."""
-    from bimcap.registration.odometry import block_moves, motion_check
+    from bimcap.registration.odometry import block_moves
 
     a = run.problem.arrays()
     mf, cams = a.get("match_frames"), a.get("cameras")
     if mf is None or not len(mf) or cams is None or not len(cams):
         return run, poses, {"moves": []}
-    intrinsics = np.asarray(cams)[0]
-    check = motion_check(poses, solver.prepared.init.poses, mf, a["match_uv"], a["match_depth"],
-                         intrinsics)
-    if not check.failed:
+    blocks = block_moves(poses, solver.prepared.init.poses, mf, a["match_uv"], a["match_depth"],
+                         np.asarray(cams)[0])
+    if not blocks.check.failed:
         return run, poses, {"moves": []}
-    blocks = block_moves(poses, check, mf, a["match_uv"], a["match_depth"], intrinsics)
-    record: dict[str, Any] = {"check": check.to_dict(), **blocks.to_dict()}
+    record: dict[str, Any] = blocks.to_dict()
     if not blocks.moves:
         return run, poses, record
     _log.info("block(s) of frames broken off the rest were moved back onto them by the matches "

@@ -607,10 +607,11 @@ class BlockMove:
 
 @dataclass
 class BlockRepair:
-    """What :func:`block_moves` did: ``poses`` (N, 7) with the moved blocks moved, and the
-    moves (:class:`BlockMove`)."""
+    """What :func:`block_moves` did: ``poses`` (N, 7) with the moved blocks moved, ``check``
+    the motion check before, and the moves (:class:`BlockMove`, in the order made)."""
 
     poses: F64
+    check: MotionCheck
     moves: list[BlockMove] = field(default_factory=list)
 
     @property
@@ -619,75 +620,123 @@ class BlockRepair:
         return sorted(f for m in self.moves for f in range(m.start, m.stop))
 
     def to_dict(self) -> dict[str, Any]:
-        return {"moves": [m.to_dict() for m in self.moves], "moved": self.moved}
+        return {"check": self.check.to_dict(), "moves": [m.to_dict() for m in self.moves],
+                "moved": self.moved}
 
 
-def block_moves(poses: F64, check: MotionCheck, match_frames: I32, match_uv: F64,
-                match_depth: F64, intrinsics: F64, min_inliers: int = 20,
+def block_moves(poses: F64, input_poses: F64, match_frames: I32, match_uv: F64,
+                match_depth: F64, intrinsics: F64, min_inliers: int = 20, max_moves: int = 4,
                 options: RepairOptions | None = None) -> BlockRepair:
-    """Blocks of frames that :func:`motion_check` found broken off the others, moved rigidly
+    """Blocks of frames that :func:`motion_check` finds broken off the others, moved rigidly
     back onto them by the matches across the break.
 
     A block placed in a look-alike of its true place (gen-small-s19 Exp 1: frames 0-13 solved
-    1.3 m off along the corridor, the BIM agreeing everywhere there) is held there by its own
+    1.3 m along the corridor, the BIM agreeing everywhere there) is held there by its own
     matches and the BIM, while the robust G term gives up the matches that link it to the rest
     (152 matches at 225 px). Frame by frame nothing is wrong (each frame agrees with its
-    neighbours), so :func:`repair_inconsistent_frames` and the odometry repair leave it. Here
-    the segments of ``check`` joined by supported breaks form groups; the largest group stays,
-    and outward from it each group is moved by one rigid correction: the frame of the group
-    with the most matches with the frames placed so far is re-placed from their points by PnP
-    (:func:`_pnp`, RANSAC, at least ``min_inliers`` inliers), and the whole group follows it
-    (``world_from_cam ← C · world_from_cam`` with ``C`` that frame's new pose times its old one's
-    inverse). A group that cannot be placed so (too few matches across, PnP failed) stays, and
-    so do the groups beyond it. The caller solves again and lets the BIM judge.
+    neighbours), so :func:`repair_inconsistent_frames` and the odometry repair leave it.
+
+    The segments of the motion check joined by supported breaks form groups. The smallest
+    group (never the largest) is moved by one rigid correction: its frame with the most matches
+    with the frames outside it is re-placed from their points by PnP (:func:`_pnp`, RANSAC, at
+    least ``min_inliers`` inliers), and the whole group follows it (``world_from_cam ← C ·
+    world_from_cam``, ``C`` that frame's new pose times its old one's inverse). Then the check
+    runs again on the moved poses, up to ``max_moves`` moves, each group at most once: a break
+    that was only the other side of a moved block is gone then (gen-small-s52 Exp 1: frames
+    24-30 sat 2.3 m off between two placed stretches, and frame 23's matches with 25-27 are a
+    repeated texture's look-alikes, wrong at the true poses). A group that cannot be placed so
+    (too few matches across, PnP failed) stays. The caller solves again and lets the BIM judge.
 
     Parameters
     ----------
-    poses: (N, 7) the solved ``world_from_cam``, TUM order. check: their :func:`motion_check`.
+    poses, input_poses: (N, 7) the solved and the input ``world_from_cam``, TUM order.
     match_frames, match_uv, match_depth, intrinsics: the matches (:func:`reprojection_errors`).
-    min_inliers: PnP inliers a group's correction needs. options: the PnP's
-        :class:`RepairOptions`.
+    min_inliers: PnP inliers a group's correction needs. max_moves: at most this many moves.
+    options: the PnP's :class:`RepairOptions`.
+
+    Returns
+    -------
+    :class:`BlockRepair` (``check``: the motion check of ``poses``).
     """
     import cv2
 
     out = np.array(poses, np.float64, copy=True)
-    result = BlockRepair(out)
-    if not check.failed or match_frames is None or not len(match_frames):
+    mf = None if match_frames is None else np.asarray(match_frames)
+    check = motion_check(out, input_poses, mf, match_uv, match_depth, intrinsics)
+    result = BlockRepair(out, check)
+    if not check.failed or mf is None or not len(mf):
         return result
     opt = options or RepairOptions()
     k = np.asarray(intrinsics, np.float64)
-    groups: list[list[int]] = [list(check.segments[0])]
-    for brk, seg in zip(check.breaks, check.segments[1:], strict=True):
-        if brk.supported:
-            groups[-1][1] = seg[1]
-        else:
-            groups.append(list(seg))
-    if len(groups) < 2:
-        return result
-    src, dst, uv_src, depth, uv_dst = _directed(np.asarray(match_frames), np.asarray(match_uv),
-                                                np.asarray(match_depth))
+    muv, mdepth = np.asarray(match_uv, np.float64), np.asarray(match_depth, np.float64)
+    directed = _directed(mf, muv, mdepth)
     cv2.setRNGSeed(opt.seed)
-    anchor = max(range(len(groups)), key=lambda i: groups[i][1] - groups[i][0])
-    placed = np.zeros(len(out), dtype=bool)
-    placed[groups[anchor][0]:groups[anchor][1]] = True
-    for order in (range(anchor + 1, len(groups)), range(anchor - 1, -1, -1)):
-        for i in order:
-            start, stop = groups[i]
-            from_placed = placed[src] & (dst >= start) & (dst < stop)
-            counts = np.bincount(dst[from_placed] - start, minlength=stop - start)
-            f = start + int(np.argmax(counts))
-            sel = from_placed & (dst == f)
-            new, n_inl = (None, 0) if sel.sum() < min_inliers else _pnp(
-                out, f, src[sel], uv_src[sel], depth[sel], uv_dst[sel], k, opt)
-            if new is None or n_inl < min_inliers:
+    tried: set[tuple[int, int]] = set()
+    for _ in range(max_moves):
+        if not check.failed:
+            break
+        groups: list[list[int]] = [list(check.segments[0])]
+        for brk, seg in zip(check.breaks, check.segments[1:], strict=True):
+            if brk.supported:
+                groups[-1][1] = seg[1]
+            else:
+                groups.append(list(seg))
+        anchor = max(groups, key=lambda g: g[1] - g[0])
+        candidates = sorted((g for g in groups if g is not anchor), key=lambda g: g[1] - g[0])
+        move = None
+        for start, stop in candidates:
+            if (start, stop) in tried:
+                continue
+            tried.add((start, stop))
+            move = _block_correction(out, start, stop, mf, muv, mdepth, k, directed,
+                                     min_inliers, opt)
+            if move is not None:
                 break
-            correction = pose_to_matrix(new) @ np.linalg.inv(pose_to_matrix(out[f]))
-            angle = float(np.degrees(np.arccos(np.clip((np.trace(correction[:3, :3]) - 1.0) / 2.0,
-                                                       -1.0, 1.0))))
-            distance = float(np.linalg.norm(new[:3] - out[f, :3]))
-            out[start:stop] = matrix_to_pose(correction[None] @ pose_to_matrix(out[start:stop]))
-            placed[start:stop] = True
-            result.moves.append(BlockMove(start, stop, f, int(sel.sum()), n_inl, distance, angle))
-    result.moves.sort(key=lambda m: m.start)
+        if move is None:
+            break
+        block, corrected = move
+        out = corrected
+        result.moves.append(block)
+        check = motion_check(out, input_poses, mf, muv, mdepth, k)
     result.poses = out
     return result
+
+
+def _block_correction(poses: F64, start: int, stop: int, match_frames: I32, match_uv: F64,
+                      match_depth: F64, k: F64, directed: tuple[Any, ...], min_inliers: int,
+                      opt: RepairOptions, max_tries: int = 3) -> tuple[BlockMove, F64] | None:
+    """The rigid correction of frames ``[start, stop)`` onto the frames outside them
+    (:func:`block_moves`): up to ``max_tries`` of the block's frames with the most matches from
+    outside (at least ``min_inliers``) are each re-placed by PnP, the whole block follows each,
+    and the correction under which the most of the block's matches with the outside reproject
+    within ``opt.ransac_px`` (both directions) is kept: a frame whose matches across are a
+    repeated texture's look-alikes moves the block where the texture repeats, which the rest of
+    its matches across deny. Returns the move and the poses (N, 7) after it, or None."""
+    src, dst, uv_src, depth, uv_dst = directed
+    inside_dst = (dst >= start) & (dst < stop)
+    outside = ((src < start) | (src >= stop)) & inside_dst
+    counts = np.bincount(dst[outside] - start, minlength=stop - start)
+    inside = (match_frames >= start) & (match_frames < stop)
+    across = inside[:, 0] != inside[:, 1]
+    best: tuple[int, BlockMove, F64] | None = None
+    for f in (start + np.argsort(-counts, kind="stable")[:max_tries]).tolist():
+        sel = outside & (dst == f)
+        if sel.sum() < min_inliers:
+            break
+        new, n_inl = _pnp(poses, f, src[sel], uv_src[sel], depth[sel], uv_dst[sel], k, opt)
+        if new is None or n_inl < min_inliers:
+            continue
+        correction = pose_to_matrix(new) @ np.linalg.inv(pose_to_matrix(poses[f]))
+        moved = np.array(poses, copy=True)
+        moved[start:stop] = matrix_to_pose(correction[None] @ pose_to_matrix(poses[start:stop]))
+        _, _, err = reprojection_errors(moved, match_frames[across], match_uv[across],
+                                        match_depth[across], k)
+        agree = int((err < opt.ransac_px).sum())
+        if best is not None and agree <= best[0]:
+            continue
+        angle = float(np.degrees(np.arccos(np.clip((np.trace(correction[:3, :3]) - 1.0) / 2.0,
+                                                   -1.0, 1.0))))
+        block = BlockMove(start, stop, int(f), int(sel.sum()), n_inl,
+                          float(np.linalg.norm(new[:3] - poses[f, :3])), angle)
+        best = (agree, block, moved)
+    return None if best is None else (best[1], best[2])
