@@ -1102,10 +1102,12 @@ def _block_repair_run(solver: _StageSolver, run: _StageRun, poses: F64, max_plan
     (``registration.odometry.block_moves``), their planes chosen again
     (:meth:`_StageSolver.moved`), solved again (:func:`_solve_moved`: kept only when the BIM
     agrees) and the planes chosen again. gen-small-s19 Exp 1: frames 0-13 sat 1.3 m along the
-    corridor, out of the window shift's range, with 152 matches to frame 14 at 225 px. Returns
+    corridor, out of the window shift's range, with 152 matches to frame 14 at 225 px;
+    gen-twostorey-s90 Exp 1: frames 57-59 on the storey above, no match across (moved by the
+    input's relative motion). Returns
     the run and poses after it and its record (``check``: the motion check before, ``moves``,
     and the verdict)."""
-    from bimcap.registration.odometry import block_moves
+    from bimcap.registration.odometry import BlockMoveSource, block_moves
 
     a = run.problem.arrays()
     mf, cams = a.get("match_frames"), a.get("cameras")
@@ -1118,11 +1120,12 @@ def _block_repair_run(solver: _StageSolver, run: _StageRun, poses: F64, max_plan
     record: dict[str, Any] = blocks.to_dict()
     if not blocks.moves:
         return run, poses, record
-    _log.info("block(s) of frames broken off the rest were moved back onto them by the matches "
-              "across the break: " + ", ".join(
-                  f"{m.start}-{m.stop - 1} by {m.distance_m:.2f} m / {m.angle_deg:.1f}° "
-                  f"({m.inliers}/{m.matches} PnP inliers at frame {m.frame})"
-                  for m in blocks.moves))
+    _log.info("block(s) of frames broken off the rest were moved back onto them: " + ", ".join(
+        f"{m.start}-{m.stop - 1} by {m.distance_m:.2f} m / {m.angle_deg:.1f}° ("
+        + (f"{m.inliers}/{m.matches} PnP inliers at frame {m.frame})"
+           if m.source is BlockMoveSource.MATCHES else
+           f"no match across: frame {m.frame} to the input's motion from its neighbour)")
+        for m in blocks.moves))
     moved = solver.moved(run, blocks.poses, blocks.moved)
     verdict, redo = _solve_moved(run.problem, run.options, poses, blocks.poses, blocks.moved,
                                  "block repair", moved_problem=moved.problem)
