@@ -1104,9 +1104,8 @@ def _block_repair_run(solver: _StageSolver, run: _StageRun, poses: F64, max_plan
     agrees) and the planes chosen again. gen-small-s19 Exp 1: frames 0-13 sat 1.3 m along the
     corridor, out of the window shift's range, with 152 matches to frame 14 at 225 px;
     gen-twostorey-s90 Exp 1: frames 57-59 on the storey above, no match across (moved by the
-    input's relative motion). Returns
-    the run and poses after it and its record (``check``: the motion check before, ``moves``,
-    and the verdict)."""
+    input's relative motion). Returns the run and poses after it and its record (``check``: the
+    motion check before, ``moves``, and the verdict)."""
     from bimcap.registration.odometry import BlockMoveSource, block_moves
 
     a = run.problem.arrays()

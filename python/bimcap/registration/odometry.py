@@ -659,7 +659,9 @@ def block_moves(poses: F64, input_poses: F64, match_frames: I32, match_uv: F64,
     that was only the other side of a moved block is gone then (gen-small-s52 Exp 1: frames
     24-30 sat 2.3 m off between two placed stretches, and frame 23's matches with 25-27 are a
     repeated texture's look-alikes, wrong at the true poses). A group that cannot be placed so
-    (too few matches across, PnP failed) stays. The caller solves again and lets the BIM judge.
+    (too few matches across, PnP failed) is moved by the input's relative motion from its
+    neighbour across the break instead (:func:`_block_prediction`, rotations kept). The caller
+    solves again and lets the BIM judge.
 
     Parameters
     ----------
