@@ -735,3 +735,28 @@ def test_the_block_repair_brings_a_block_back_and_the_bim_accepts_it() -> None:
     assert np.linalg.norm(poses[:, :3] - gt[:, :3], axis=1).max() < 0.02
     _, same, record = _block_repair_run(solver, stage(gt), gt, 2, 0.005)
     assert record == {"moves": []} and same is gt
+
+
+def test_a_block_turned_away_with_no_match_across_takes_the_inputs_rotation() -> None:
+    """gen-small-s3 hard Exp 1: frames 56-59 were solved turned 72° from where the input's
+    motion puts them, no match across. A translation cannot take that back: past 45° the block
+    takes the prediction's rotation as well (one rigid correction)."""
+    from scipy.spatial.transform import Rotation
+
+    from bimcap.registration.odometry import BlockMoveSource, block_moves
+
+    n = 30
+    truth = _walk(n)
+    solved = truth.copy()
+    turn = Rotation.from_euler("z", 70.0, degrees=True)
+    pivot = truth[24, :3]
+    solved[24:, :3] = turn.apply(truth[24:, :3] - pivot) + pivot + np.array([0.4, 0.2, 0.0])
+    solved[24:, 3:] = (turn * Rotation.from_quat(truth[24:, 3:])).as_quat()
+    k = np.array([500.0, 500.0, 320.0, 240.0])
+    matches = _matches(truth, [(f, f + 1) for f in range(n - 1) if f != 23], k)
+    rep = block_moves(solved, truth, *matches, k)
+    assert [(m.start, m.stop, m.frame) for m in rep.moves] == [(24, n, 24)]
+    assert rep.moves[0].source is BlockMoveSource.MOTION
+    assert rep.moves[0].angle_deg == pytest.approx(70.0, abs=0.01)
+    np.testing.assert_allclose(rep.poses[:, :3], truth[:, :3], atol=1e-6)
+    assert np.allclose(np.abs(np.sum(rep.poses[:, 3:] * truth[:, 3:], axis=1)), 1.0, atol=1e-9)

@@ -760,8 +760,8 @@ def _block_correction(poses: F64, start: int, stop: int, match_frames: I32, matc
     return None if best is None else (best[1], best[2])
 
 
-def _block_prediction(poses: F64, input_poses: F64, start: int,
-                      stop: int) -> tuple[BlockMove, F64] | None:
+def _block_prediction(poses: F64, input_poses: F64, start: int, stop: int,
+                      turn_deg: float = 45.0) -> tuple[BlockMove, F64] | None:
     """Frames ``[start, stop)`` that no usable match links to the rest, moved by one
     translation: their end frame next to the break (the first, or the last when the block
     starts the walk) to where the input's relative motion from its neighbour across the break
@@ -781,9 +781,15 @@ def _block_prediction(poses: F64, input_poses: F64, start: int,
     m_pose = pose_to_matrix(poses)
     m_in = pose_to_matrix(input_poses)
     predicted = m_pose[g] @ np.linalg.inv(m_in[g]) @ m_in[f]
-    shift = predicted[:3, 3] - poses[f, :3]
+    correction = predicted @ np.linalg.inv(m_pose[f])
+    angle = float(np.degrees(np.arccos(np.clip((np.trace(correction[:3, :3]) - 1.0) / 2.0,
+                                               -1.0, 1.0))))
     moved = np.array(poses, copy=True)
-    moved[start:stop, :3] += shift
-    block = BlockMove(start, stop, f, 0, 0, float(np.linalg.norm(shift)), 0.0,
-                      BlockMoveSource.MOTION)
+    if angle > turn_deg:  # turned away from its place: the prediction's rotation too
+        moved[start:stop] = matrix_to_pose(correction[None] @ m_pose[start:stop])
+    else:
+        moved[start:stop, :3] += predicted[:3, 3] - poses[f, :3]
+        angle = 0.0
+    block = BlockMove(start, stop, f, 0, 0, float(np.linalg.norm(predicted[:3, 3] - poses[f, :3])),
+                      angle, BlockMoveSource.MOTION)
     return block, moved
