@@ -95,6 +95,7 @@ def test_refine_from_the_truth_stays_there(tiny_demo, tmp_path: Path) -> None:
     assert motion["segments"] == [[0, len(gt)]]
     # and no window of it fits the plan clearly better shifted (the window shift moves none)
     assert outcome.to_dict()["repair"]["window_shift"] == {"rounds": []}
+    assert outcome.to_dict()["repair"]["block"] == {"moves": []}  # nor the block repair
 
 
 @pytest.mark.slow

@@ -809,6 +809,8 @@ def _solve_prepared(prepared: Prepared, config: RefineConfig, max_plane_rounds: 
                                               plane_change_tolerance)
         run, poses, repair = _repair_run(solver, run, poses)
         run, poses, repair["odometry"] = _odometry_repair_run(solver, run, poses)
+        run, poses, repair["block"] = _block_repair_run(solver, run, poses, max_plane_rounds,
+                                                        plane_change_tolerance)
         run, poses, repair["window_shift"] = _window_shift_run(solver, run, poses,
                                                                max_plane_rounds,
                                                                plane_change_tolerance)
@@ -1090,6 +1092,49 @@ def _best_candidates(solver: _StageSolver, run: _StageRun, candidates: list[F64]
             if agree[i] > score[i]:
                 score[i], best[f] = agree[i], solved.poses[f]
     return best, table
+
+
+def _block_repair_run(solver: _StageSolver, run: _StageRun, poses: F64, max_plane_rounds: int,
+                      plane_change_tolerance: float) -> tuple[_StageRun, F64, dict[str, Any]]:
+    """Blocks of frames the solve placed apart from the rest (the motion check fails: the
+    trajectory breaks from the input's relative motion where no match supports it), moved
+    rigidly back onto the others by the matches across the break
+    (``registration.odometry.block_moves``), their planes chosen again
+    (:meth:`_StageSolver.moved`), solved again (:func:`_solve_moved`: kept only when the BIM
+    agrees) and the planes chosen again. gen-small-s19 Exp 1: frames 0-13 sat 1.3 m along the
+    corridor, out of the window shift's range, with 152 matches to frame 14 at 225 px;
+    gen-twostorey-s90 Exp 1: frames 57-59 on the storey above, no match across (moved by the
+    input's relative motion). Returns the run and poses after it and its record (``check``: the
+    motion check before, ``moves``, and the verdict)."""
+    from bimcap.registration.odometry import BlockMoveSource, block_moves
+
+    a = run.problem.arrays()
+    mf, cams = a.get("match_frames"), a.get("cameras")
+    if mf is None or not len(mf) or cams is None or not len(cams):
+        return run, poses, {"moves": []}
+    blocks = block_moves(poses, solver.prepared.init.poses, mf, a["match_uv"], a["match_depth"],
+                         np.asarray(cams)[0])
+    if not blocks.check.failed:
+        return run, poses, {"moves": []}
+    record: dict[str, Any] = blocks.to_dict()
+    if not blocks.moves:
+        return run, poses, record
+    _log.info("block(s) of frames broken off the rest were moved back onto them: " + ", ".join(
+        f"{m.start}-{m.stop - 1} by {m.distance_m:.2f} m / {m.angle_deg:.1f}° ("
+        + (f"{m.inliers}/{m.matches} PnP inliers at frame {m.frame})"
+           if m.source is BlockMoveSource.MATCHES else
+           f"no match across: frame {m.frame} to the input's motion from its neighbour)")
+        for m in blocks.moves))
+    moved = solver.moved(run, blocks.poses, blocks.moved)
+    verdict, redo = _solve_moved(run.problem, run.options, poses, blocks.poses, blocks.moved,
+                                 "block repair", moved_problem=moved.problem)
+    record.update(verdict)
+    if redo is None:
+        return run, poses, record
+    solver.summaries.append(redo.summary)
+    run, poses = replace(moved, result=redo), redo.poses
+    run, poses, _ = _rechoose_planes(solver, run, poses, max_plane_rounds, plane_change_tolerance)
+    return run, poses, record
 
 
 def _window_shift_run(solver: _StageSolver, run: _StageRun, poses: F64, max_plane_rounds: int,
