@@ -1,7 +1,9 @@
 """The global alignment's pruned steps give what the exhaustive ones give (issue 15, speed):
 the peak search among the best cells only against a maximum filter of the whole volume, the lazy
 free-space order against a full sort, and the culled ray / distance tests against every
-segment."""
+segment. The steps rewritten for speed give the bits of the code they replace (kept here as
+the oracles): the occupancy subsample, the free-space rays, the parity rays and face pairs of
+the plan maps, and the correlation volume."""
 
 from __future__ import annotations
 
@@ -9,6 +11,7 @@ import numpy as np
 import pytest
 from scipy.ndimage import maximum_filter
 
+from bimcap.registration._coarse_steps import _subsample
 from bimcap.registration.correlative import Hypothesis, score_volume, top_hypotheses
 from bimcap.registration.global_align import (
     GlobalAlignOptions,
@@ -18,9 +21,11 @@ from bimcap.registration.global_align import (
     _scan,
     _storey_maps,
     _storeys,
+    free_space_fraction,
     see_through_fraction,
 )
-from bimcap.registration.icp import point_segment_distance
+from bimcap.registration.icp import point_segment_distance, rot2
+from bimcap.registration.plan_maps import _crossings_many, _paired_face_normals
 from bimcap.registration.synthetic import demo_scene, demo_tour, poses_along, scan_sequence
 
 pytest.importorskip("cv2")
@@ -172,3 +177,181 @@ def test_culled_ray_and_distance_tests_equal_the_full_ones() -> None:
     part = _distance_within(pts, seg, 0.17)
     np.testing.assert_array_equal(part[full <= 0.17], full[full <= 0.17])
     assert (part[full > 0.17] > 0.17).all() and (full <= 0.17).sum() > 20
+
+
+# ------------------------------------------------------------------------------------------------
+# Rewritten for speed, same bits: the code before the rewrite is the oracle.
+
+
+def _subsample_before(p_xy: np.ndarray, p_class: np.ndarray, cell: float | None, cap: int,
+                      rng: np.random.Generator) -> np.ndarray:
+    keep = np.arange(len(p_xy))
+    if len(p_xy) and cell is not None:
+        key = np.c_[np.floor(p_xy / cell).astype(np.int64), p_class.astype(np.int64)]
+        _, keep = np.unique(key, axis=0, return_index=True)
+        keep = np.sort(keep)
+    if len(keep) > cap:
+        keep = np.sort(rng.choice(keep, cap, replace=False))
+    return keep
+
+
+@pytest.mark.parametrize("cap", [10 ** 9, 300])
+def test_subsample_keeps_the_same_points(cap: int) -> None:
+    rng = np.random.default_rng(3)
+    p = rng.normal(0, 5, (5000, 2)) - 40.0  # negative cells; many points per cell
+    cls = rng.choice([1, 4], len(p)).astype(np.int32)
+    got = _subsample(p, cls, 0.1, cap, np.random.default_rng(7))
+    want = _subsample_before(p, cls, 0.1, cap, np.random.default_rng(7))
+    np.testing.assert_array_equal(got, want)
+    assert 300 <= len(got) < len(p)
+    one = _subsample(p, np.full(len(p), 1, np.int32), 0.1, cap, np.random.default_rng(7))
+    np.testing.assert_array_equal(one, _subsample_before(
+        p, np.full(len(p), 1, np.int32), 0.1, cap, np.random.default_rng(7)))
+
+
+def _segments_with_degenerates(rng: np.random.Generator, n: int = 200) -> np.ndarray:
+    seg = rng.uniform(0, 20, (n, 4))
+    seg[::5, 2] = seg[::5, 0]  # vertical, horizontal, zero length: den 0 for some rays
+    seg[1::5, 3] = seg[1::5, 1]
+    seg[2::5, 2:] = seg[2::5, :2]
+    return seg
+
+
+def test_free_space_rays_give_the_same_flags() -> None:
+    rng = np.random.default_rng(4)
+    seg = _segments_with_degenerates(rng)
+    cam = rng.uniform(-5, 25, (80, 2))
+    for n_rays, hits_min in ((16, 10), (8, 7), (4, 2)):
+        frac, free = free_space_fraction(cam, seg, clearance_m=0.15, n_rays=n_rays,
+                                         min_hits=hits_min)
+        # Before: every ray direction against every segment, the masked division included.
+        from bimcap.registration.distance_field import DistanceField
+        clear = DistanceField.from_segments(seg, 0.1).lookup(cam) >= 0.15
+        a, e = seg[:, :2], seg[:, 2:] - seg[:, :2]
+        hits = np.zeros(len(cam), dtype=np.int64)
+        for k in range(n_rays):
+            ang = 2 * np.pi * (k + 0.5) / n_rays
+            d = np.array([np.cos(ang), np.sin(ang)])
+            den = d[0] * e[:, 1] - d[1] * e[:, 0]
+            w = a[None] - cam[:, None]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                s = (w[..., 0] * e[None, :, 1] - w[..., 1] * e[None, :, 0]) / den[None]
+                u = (w[..., 0] * d[1] - w[..., 1] * d[0]) / den[None]
+            hit = ((np.abs(den)[None] > 1e-12) & (s > 0) & (s < 60.0) & (u >= 0) & (u <= 1))
+            hits += hit.any(1)
+        want = clear & (hits >= hits_min)
+        np.testing.assert_array_equal(free, want)
+        assert frac == float(want.mean()) and 0 < want.sum() < len(cam)
+
+
+def test_parity_rays_count_the_same_crossings() -> None:
+    rng = np.random.default_rng(5)
+    seg = _segments_with_degenerates(rng)
+    p = rng.uniform(0, 20, (300, 2))
+    dirs = (np.array([0.8944, 0.4472]), np.array([-0.3162, 0.9487]), np.array([1.0, 0.0]))
+    got = _crossings_many(p, dirs, seg)
+    for d, g in zip(dirs, got, strict=True):
+        a, e = seg[:, :2], seg[:, 2:] - seg[:, :2]
+        den = d[0] * e[:, 1] - d[1] * e[:, 0]
+        w = a[None] - p[:, None]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = (w[..., 0] * e[None, :, 1] - w[..., 1] * e[None, :, 0]) / den[None]
+            u = (w[..., 0] * d[1] - w[..., 1] * d[0]) / den[None]
+        want = ((np.abs(den)[None] > 1e-12) & (s > 0) & (u >= 0) & (u < 1)).sum(1)
+        np.testing.assert_array_equal(g, want)
+        assert want.max() > 2
+
+
+def _paired_before(s: np.ndarray, min_gap_m: float, max_gap_m: float, max_angle_deg: float,
+                   chunk: int) -> np.ndarray:
+    a, b = s[:, :2], s[:, 2:]
+    length = np.linalg.norm(b - a, axis=1)
+    u = (b - a) / np.maximum(length, 1e-12)[:, None]
+    n = np.c_[-u[:, 1], u[:, 0]]
+    mid = 0.5 * (a + b)
+    cos_max = np.cos(np.radians(max_angle_deg))
+    out = np.zeros((len(s), 2))
+    for k in range(0, len(s), chunk):
+        r = slice(k, min(k + chunk, len(s)))
+        a0, u0, n0 = a[r, None, :], u[r, None, :], n[r, None, :]
+        off = ((mid[None] - a0) * n0).sum(-1)
+        ta, tb = ((a[None] - a0) * u0).sum(-1), ((b[None] - a0) * u0).sum(-1)
+        overlap = (np.minimum(np.maximum(ta, tb), length[r, None])
+                   - np.maximum(np.minimum(ta, tb), 0.0))
+        partner = ((np.abs(u[r] @ u.T) >= cos_max) & (np.abs(off) >= min_gap_m)
+                   & (np.abs(off) <= max_gap_m) & (overlap > 0.05) & (length[r, None] > 1e-9))
+        partner[np.arange(r.stop - r.start), np.arange(r.start, r.stop)] = False
+        plus, minus = (partner & (off > 0)).any(1), (partner & (off < 0)).any(1)
+        out[r][plus & ~minus] = -n[r][plus & ~minus]
+        out[r][minus & ~plus] = n[r][minus & ~plus]
+    return out
+
+
+@pytest.mark.parametrize("chunk", [7, 512])
+def test_face_pairs_give_the_same_normals(chunk: int) -> None:
+    rng = np.random.default_rng(6)
+    walls = []
+    for _ in range(120):  # walls of two faces 0.1-0.3 m apart, some turned by a few degrees
+        a = rng.uniform(0, 30, 2)
+        ang = rng.choice([0.0, np.pi / 2]) + rng.normal(0, 0.03)
+        d = np.array([np.cos(ang), np.sin(ang)]) * rng.uniform(0.5, 5)
+        nrm = np.array([-d[1], d[0]]) / np.linalg.norm(d) * rng.uniform(0.1, 0.3)
+        walls += [np.r_[a, a + d], np.r_[a + nrm + 0.1 * d, a + nrm + 1.2 * d]]
+    seg = np.array([*walls, np.r_[1.0, 1.0, 1.0, 1.0]])  # and a zero-length one
+    got = _paired_face_normals(seg, 0.02, 0.6, 3.0, chunk)
+    want = _paired_before(seg, 0.02, 0.6, 3.0, chunk)
+    np.testing.assert_array_equal(got, want)
+    assert 0.3 < (np.abs(got).sum(1) > 0).mean() < 1.0
+
+
+def _score_volume_before(p_xy, p_class, view_xy, maps, pivot, yaws, xy_range_m):
+    import cv2
+
+    res, origin = maps.coarse[0].resolution_m, maps.coarse[0].origin_xy
+    n = round(xy_range_m / res)
+    vol = np.zeros((len(yaws), 2 * n + 1, 2 * n + 1), dtype=np.float32)
+    for k, yaw in enumerate(yaws):
+        r = rot2(float(yaw))
+        q = (p_xy - pivot) @ r.T + pivot
+        layer = maps.layer_of(p_class, view_xy @ r.T)
+        uv = np.round((q - origin) / res).astype(np.int64)
+        total = np.zeros((2 * n + 1, 2 * n + 1), dtype=np.float32)
+        count = 0.0
+        for lay in np.unique(layer):
+            luv = uv[layer == lay]
+            u0, v0 = luv.min(0)
+            u1, v1 = luv.max(0)
+            templ = np.zeros((v1 - v0 + 1, u1 - u0 + 1), dtype=np.float32)
+            templ[luv[:, 1] - v0, luv[:, 0] - u0] = 1.0
+            count += float(templ.sum())
+            if len(maps.rows[lay]) == 0:
+                continue
+            img = np.zeros((v1 - v0 + 2 * n + 1, u1 - u0 + 2 * n + 1), dtype=np.float32)
+            src = maps.coarse_score[lay]
+            h, w = src.shape
+            r0, c0 = v0 - n, u0 - n
+            rr0, rr1 = max(r0, 0), min(v1 + n + 1, h)
+            cc0, cc1 = max(c0, 0), min(u1 + n + 1, w)
+            img[rr0 - r0:rr1 - r0, cc0 - c0:cc1 - c0] = src[rr0:rr1, cc0:cc1]
+            total += 1.0 * cv2.matchTemplate(img, templ, cv2.TM_CCORR)
+        if count > 0:
+            vol[k] = total / count
+    return vol
+
+
+@pytest.mark.parametrize("xy_range_m", [1.0, 12.0])
+def test_score_volume_has_the_bits_of_the_copying_loop(xy_range_m: float) -> None:
+    """Crops inside the map are views now (``1.0``: inside; ``12.0``: past its edges)."""
+    scene = demo_scene(seed=0)
+    gt = poses_along(demo_tour(seed=0), 0.25)[224:254]
+    samples = scan_sequence(gt, scene, seed=1, clutter_fraction=0.05)
+    plan = scene.floor_plan()
+    opt = GlobalAlignOptions()
+    sm = _storey_maps(_storeys(plan, opt.plan_cut_height_m)[0], plan, opt)
+    scan = _scan(gt, samples)
+    yaws = np.deg2rad(np.arange(-180.0, 180.0, 15.0))
+    pivot = scan.cams[:, :2].mean(0)
+    got, _, _ = score_volume(scan.xy, scan.cls, scan.view, sm.maps, pivot, yaws, xy_range_m)
+    want = _score_volume_before(scan.xy, scan.cls, scan.view, sm.maps, pivot, yaws, xy_range_m)
+    np.testing.assert_array_equal(got.view(np.uint32), want.view(np.uint32))
+    assert got.max() > 0.3

@@ -128,8 +128,15 @@ def _subsample(p_xy: F64, p_class: I32, cell: float | None, cap: int,
     most ``cap`` points drawn uniformly at random (keeps the noise distribution)."""
     keep = np.arange(len(p_xy))
     if len(p_xy) and cell is not None:
-        key = np.c_[np.floor(p_xy / cell).astype(np.int64), p_class.astype(np.int64)]
-        _, keep = np.unique(key, axis=0, return_index=True)
+        # The first point of each (cell, class), in input order: the cells and the class packed
+        # into one int64 key (a 1-D unique, not the row-wise one; the same first occurrences).
+        ij = np.floor(p_xy / cell).astype(np.int64)
+        ij -= ij.min(0)
+        cls_ = p_class.astype(np.int64)
+        cls_ -= cls_.min()
+        span = ij.max(0) + 1
+        key = (ij[:, 0] * span[1] + ij[:, 1]) * (int(cls_.max()) + 1) + cls_
+        _, keep = np.unique(key, return_index=True)
         keep = np.sort(keep)
     if len(keep) > cap:
         keep = np.sort(rng.choice(keep, cap, replace=False))

@@ -39,8 +39,10 @@ class Hypothesis:
 
 
 def _crop(img: F32, r0: int, r1: int, c0: int, c1: int) -> F32:
-    """``img[r0:r1, c0:c1]`` with zeros outside the image."""
+    """``img[r0:r1, c0:c1]`` with zeros outside the image (a view when it lies inside)."""
     h, w = img.shape
+    if r0 >= 0 and c0 >= 0 and r1 <= h and c1 <= w:
+        return img[r0:r1, c0:c1]
     out = np.zeros((r1 - r0, c1 - c0), dtype=np.float32)
     rr0, rr1, cc0, cc1 = max(r0, 0), min(r1, h), max(c0, 0), min(c1, w)
     if rr0 < rr1 and cc0 < cc1:
@@ -82,14 +84,16 @@ def score_volume(
     vol = np.zeros((len(yaws), 2 * n + 1, 2 * n + 1), dtype=np.float32)
     if len(p_xy) == 0:
         return vol, res, n
+    rel = p_xy - pivot  # the same arithmetic as ``(p_xy - pivot) @ r.T + pivot`` per yaw
+    total = np.empty((2 * n + 1, 2 * n + 1), dtype=np.float32)
     for k, yaw in enumerate(yaws):
         r = rot2(float(yaw))
-        q = (p_xy - pivot) @ r.T + pivot
+        q = rel @ r.T + pivot
         layer = maps.layer_of(p_class, view_xy @ r.T)
         uv = np.round((q - origin) / res).astype(np.int64)
-        total = np.zeros((2 * n + 1, 2 * n + 1), dtype=np.float32)
+        total.fill(0.0)
         count = 0.0
-        for lay in np.unique(layer):
+        for lay in np.flatnonzero(np.bincount(layer)):  # the layers present, ascending
             weight = column_weight if lay >= maps.n_bins else 1.0
             if weight == 0:
                 continue
@@ -102,7 +106,8 @@ def score_volume(
             if len(maps.rows[lay]) == 0:
                 continue  # nothing of this class is visible this way: the points score 0
             img = _crop(maps.coarse_score[lay], v0 - n, v1 + n + 1, u0 - n, u1 + n + 1)
-            total += weight * cv2.matchTemplate(img, templ, cv2.TM_CCORR)
+            corr = cv2.matchTemplate(img, templ, cv2.TM_CCORR)
+            total += corr if weight == 1.0 else weight * corr
         if count > 0:
             vol[k] = total / count
     return vol, res, n

@@ -350,15 +350,22 @@ def free_space_fraction(cam_xy: NDArray[np.float64], segments: NDArray[np.float6
     clear = field_.lookup(cam) >= clearance_m
     a, e = seg[:, :2], seg[:, 2:] - seg[:, :2]
     hits = np.zeros(len(cam), dtype=np.int64)
+    # What does not depend on the ray's direction, once (the same arithmetic per ray).
+    w = a[None] - cam[:, None]
+    w0, w1 = w[..., 0], w[..., 1]
+    s_num = w0 * e[None, :, 1] - w1 * e[None, :, 0]
     for k in range(n_rays):
         ang = 2 * np.pi * (k + 0.5) / n_rays
         d = np.array([np.cos(ang), np.sin(ang)])
         den = d[0] * e[:, 1] - d[1] * e[:, 0]
-        w = a[None] - cam[:, None]
+        ok = np.abs(den) > 1e-12
+        if not ok.any():
+            continue
+        den_ok = den[ok][None]
         with np.errstate(divide="ignore", invalid="ignore"):
-            s = (w[..., 0] * e[None, :, 1] - w[..., 1] * e[None, :, 0]) / den[None]
-            u = (w[..., 0] * d[1] - w[..., 1] * d[0]) / den[None]
-        hit = (np.abs(den)[None] > 1e-12) & (s > 0) & (s < max_range_m) & (u >= 0) & (u <= 1)
+            s = s_num[:, ok] / den_ok
+            u = (w0[:, ok] * d[1] - w1[:, ok] * d[0]) / den_ok
+        hit = (s > 0) & (s < max_range_m) & (u >= 0) & (u <= 1)
         hits += hit.any(1)
     free = clear & (hits >= min_hits)
     return float(free.mean()), free
@@ -988,8 +995,9 @@ def _free_volume(cams_xy: F64, free_map: NDArray[np.float32], origin: F64, res: 
     from bimcap.registration.correlative import _crop
 
     out = np.zeros((len(yaws), 2 * n + 1, 2 * n + 1), dtype=np.float32)
+    rel = cams_xy - pivot
     for k, yaw in enumerate(yaws):
-        c = (cams_xy - pivot) @ rot2(float(yaw)).T + pivot
+        c = rel @ rot2(float(yaw)).T + pivot
         uv = np.round((c - origin) / res).astype(np.int64)
         u0, v0 = uv.min(0)
         u1, v1 = uv.max(0)

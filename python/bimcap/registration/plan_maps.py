@@ -34,14 +34,28 @@ CLASSES = (int(Label.WALL), int(Label.COLUMN))
 
 def _crossings(p: F64, d: NDArray[np.float64], segments: F64) -> NDArray[np.int64]:
     """Number of segments each ray ``p + s d`` (s > 0) crosses; (M,) for (M, 2) points."""
+    return _crossings_many(p, [d], segments)[0]
+
+
+def _crossings_many(p: F64, dirs: list[NDArray[np.float64]] | tuple[NDArray[np.float64], ...],
+                    segments: F64) -> list[NDArray[np.int64]]:
+    """:func:`_crossings` of the points (M, 2) for each direction of ``dirs`` (the same
+    arithmetic; what does not depend on the direction computed once)."""
     a, e = segments[:, :2], segments[:, 2:] - segments[:, :2]
-    den = d[0] * e[:, 1] - d[1] * e[:, 0]
     w = a[None] - p[:, None]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = (w[..., 0] * e[None, :, 1] - w[..., 1] * e[None, :, 0]) / den[None]
-        u = (w[..., 0] * d[1] - w[..., 1] * d[0]) / den[None]
-    hit = (np.abs(den)[None] > 1e-12) & (s > 0) & (u >= 0) & (u < 1)
-    return np.asarray(hit.sum(1), dtype=np.int64)
+    w0, w1 = w[..., 0], w[..., 1]
+    s_num = w0 * e[None, :, 1] - w1 * e[None, :, 0]
+    out = []
+    for d in dirs:
+        den = d[0] * e[:, 1] - d[1] * e[:, 0]
+        ok = np.abs(den) > 1e-12
+        den_ok = den[ok][None]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = s_num[:, ok] / den_ok
+            u = (w0[:, ok] * d[1] - w1[:, ok] * d[0]) / den_ok
+        hit = (s > 0) & (u >= 0) & (u < 1)
+        out.append(np.asarray(hit.sum(1), dtype=np.int64))
+    return out
 
 
 def _inside_clearance(p: F64, own: NDArray[np.int64], segments: F64, chunk: int = 512) -> F64:
@@ -105,7 +119,7 @@ def free_normals(segments: NDArray[np.float64], segment_class: NDArray[np.int32]
         inside = []
         for sign in (1.0, -1.0):
             p = mid + sign * eps_m * n
-            odd = [(_crossings(p, d, s) % 2 == 1) for d in dirs]
+            odd = [(c % 2 == 1) for c in _crossings_many(p, dirs, s)]
             inside.append(np.where(odd[0] == odd[1], odd[0].astype(np.int8), -1))
         plus, minus = inside
         good = shared & (length > 1e-9) & (plus >= 0) & (minus >= 0) & (plus != minus)
@@ -146,16 +160,21 @@ def _paired_face_normals(s: F64, min_gap_m: float, max_gap_m: float,
     out = np.zeros((len(s), 2))
     for k in range(0, len(s), chunk):
         r = slice(k, min(k + chunk, len(s)))
-        a0, u0, n0 = a[r, None, :], u[r, None, :], n[r, None, :]
-        off = ((mid[None] - a0) * n0).sum(-1)  # (c, S): which side of face i face j lies on
+        # Only the parallel pairs (i, j) can be partners: the other tests on those alone (the
+        # same arithmetic per pair).
+        i, j = np.nonzero((np.abs(u[r] @ u.T) >= cos_max) & (length[r, None] > 1e-9))
+        ia = i + r.start
+        a0, u0, n0 = a[ia], u[ia], n[ia]
+        off = ((mid[j] - a0) * n0).sum(-1)  # which side of face i face j lies on
         # Overlap of face j's extent with face i's, along face i.
-        ta, tb = ((a[None] - a0) * u0).sum(-1), ((b[None] - a0) * u0).sum(-1)
-        overlap = (np.minimum(np.maximum(ta, tb), length[r, None])
+        ta, tb = ((a[j] - a0) * u0).sum(-1), ((b[j] - a0) * u0).sum(-1)
+        overlap = (np.minimum(np.maximum(ta, tb), length[ia])
                    - np.maximum(np.minimum(ta, tb), 0.0))
-        partner = ((np.abs(u[r] @ u.T) >= cos_max) & (np.abs(off) >= min_gap_m)
-                   & (np.abs(off) <= max_gap_m) & (overlap > 0.05) & (length[r, None] > 1e-9))
-        partner[np.arange(r.stop - r.start), np.arange(r.start, r.stop)] = False
-        plus, minus = (partner & (off > 0)).any(1), (partner & (off < 0)).any(1)
+        pair = ((np.abs(off) >= min_gap_m) & (np.abs(off) <= max_gap_m) & (overlap > 0.05)
+                & (ia != j))
+        c = r.stop - r.start
+        plus = np.bincount(i[pair & (off > 0)], minlength=c) > 0
+        minus = np.bincount(i[pair & (off < 0)], minlength=c) > 0
         out[r][plus & ~minus] = -n[r][plus & ~minus]
         out[r][minus & ~plus] = n[r][minus & ~plus]
     return out
