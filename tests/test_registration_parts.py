@@ -690,6 +690,55 @@ def test_the_block_repair_brings_a_block_back_and_the_bim_accepts_it() -> None:
     """The refine step: a block of frames solved 1.3 m off (the motion check fails) is moved back
     by the matches across its break, solved again and kept (the BIM agrees better); a solve
     without a break is left as it is."""
+    from bimcap.pipeline.refine import _block_repair_run
+
+    solver, stage, gt, _ = _block_repair_setup()
+    solved = gt.copy()
+    solved[:6, :2] += np.array([0.1, 1.3])
+    _, poses, record = _block_repair_run(solver, stage(solved), solved, 2, 0.005)
+    assert record["check"]["failed"] and record["moved"] == list(range(6))
+    assert record["accepted"] and "by_motion" not in record
+    assert np.linalg.norm(poses[:, :3] - gt[:, :3], axis=1).max() < 0.02
+    _, same, record = _block_repair_run(solver, stage(gt), gt, 2, 0.005)
+    assert record == {"moves": []} and same is gt
+
+
+def test_a_block_whose_matches_across_are_look_alikes_moves_by_the_inputs_motion() -> None:
+    """gen-demo-s41 hard Exp 2: frames 17-18 were solved 1.3 m off, and the 39 matches across
+    their break are look-alikes whose PnP turned the block 49° away; the BIM refused that move.
+    The input's relative motion is the other witness: the block is tried again by it, and kept.
+    Here a block 0.7 m off whose only matches across are look-alikes of a place 2 m away and
+    turned 40°."""
+    from scipy.spatial.transform import Rotation
+
+    from bimcap.pipeline.refine import _block_repair_run
+
+    def look_alikes(arrays: dict, gt: np.ndarray, k: np.ndarray) -> dict:
+        mf = arrays["match_frames"]
+        across = (mf[:, 0] < 6) != (mf[:, 1] < 6)
+        alias = gt.copy()
+        turn = Rotation.from_euler("z", 40.0, degrees=True)
+        alias[:6, :3] = turn.apply(gt[:6, :3] - gt[5, :3]) + gt[5, :3] + np.array([-2.0, 1.0, 0])
+        alias[:6, 3:] = (turn * Rotation.from_quat(gt[:6, 3:])).as_quat()
+        look_f, look_uv, look_d = _matches(alias, [(6, 5), (7, 5), (6, 4)], k, seed=3)
+        return {**arrays, "match_frames": np.vstack([mf[~across], look_f]),
+                "match_uv": np.vstack([arrays["match_uv"][~across], look_uv]),
+                "match_depth": np.vstack([arrays["match_depth"][~across], look_d])}
+
+    solver, stage, gt, _ = _block_repair_setup(look_alikes)
+    solved = gt.copy()
+    solved[:6, :2] += np.array([0.0, 0.7])
+    _, poses, record = _block_repair_run(solver, stage(solved), solved, 2, 0.005)
+    assert record["check"]["failed"]
+    assert record["moves"][0]["source"] == "matches" and not record["accepted"]
+    assert record["by_motion"]["accepted"]
+    assert all(m["source"] == "motion" for m in record["by_motion"]["moves"])
+    assert np.linalg.norm(poses[:, :3] - gt[:, :3], axis=1).max() < 0.02
+
+
+def _block_repair_setup(edit=None):  # type: ignore[no-untyped-def]
+    """A 16-frame synthetic room as the block repair's stage solver: (solver, stage(poses),
+    gt (16, 7), arrays). ``edit(arrays, gt, intrinsics)`` may replace the front end's arrays."""
     from types import SimpleNamespace
 
     from bimcap.geometry import Trajectory
@@ -697,7 +746,6 @@ def test_the_block_repair_brings_a_block_back_and_the_bim_accepts_it() -> None:
     from bimcap.pipeline.config import RefineConfig
     from bimcap.pipeline.refine import (
         Prepared,
-        _block_repair_run,
         _StageRun,
         _StageSolver,
         build_problem,
@@ -718,7 +766,10 @@ def test_the_block_repair_brings_a_block_back_and_the_bim_accepts_it() -> None:
                                 "wall_p_in_cam")}
     for t in ("floor", "ceiling", "column"):
         arrays[f"{t}_frame"], arrays[f"{t}_p_in_cam"] = np.zeros(0, np.int32), np.zeros((0, 3))
-    camera = SimpleNamespace(pinhole=lambda: SimpleNamespace(intrinsics=np.array(cfg.intrinsics)))
+    intrinsics = np.array(cfg.intrinsics, np.float64)
+    if edit is not None:
+        arrays = edit(arrays, gt, intrinsics)
+    camera = SimpleNamespace(pinhole=lambda: SimpleNamespace(intrinsics=intrinsics))
     prepared = Prepared(sequence=SimpleNamespace(camera=camera), reference=reference,
                         frontend=SimpleNamespace(to_problem_arrays=lambda: dict(arrays)),
                         init=Trajectory(np.arange(len(gt), dtype=np.float64), gt.copy()))
@@ -732,14 +783,7 @@ def test_the_block_repair_brings_a_block_back_and_the_bim_accepts_it() -> None:
                          chosen=chosen, problem=problem, stats=stats,
                          result=SimpleNamespace(poses=poses))
 
-    solved = gt.copy()
-    solved[:6, :2] += np.array([0.1, 1.3])
-    _, poses, record = _block_repair_run(solver, stage(solved), solved, 2, 0.005)
-    assert record["check"]["failed"] and record["moved"] == list(range(6))
-    assert record["accepted"]
-    assert np.linalg.norm(poses[:, :3] - gt[:, :3], axis=1).max() < 0.02
-    _, same, record = _block_repair_run(solver, stage(gt), gt, 2, 0.005)
-    assert record == {"moves": []} and same is gt
+    return solver, stage, gt, arrays
 
 
 def test_a_block_turned_away_with_no_match_across_takes_the_inputs_rotation() -> None:

@@ -1119,22 +1119,46 @@ def _block_repair_run(solver: _StageSolver, run: _StageRun, poses: F64, max_plan
     record: dict[str, Any] = blocks.to_dict()
     if not blocks.moves:
         return run, poses, record
+    run, poses, done, verdict = _block_try(solver, run, poses, blocks, max_plane_rounds,
+                                           plane_change_tolerance)
+    record.update(verdict)
+    if done or all(m.source is BlockMoveSource.MOTION for m in blocks.moves):
+        return run, poses, record
+    # the matches across a break can be look-alikes (a repeated texture) that move the block
+    # away; the input's relative motion is the other witness (gen-demo-s41 hard Exp 2)
+    motion = block_moves(poses, solver.prepared.init.poses, mf, a["match_uv"], a["match_depth"],
+                         np.asarray(cams)[0], use_matches=False)
+    if not motion.moves:
+        return run, poses, record
+    run, poses, _, verdict = _block_try(solver, run, poses, motion, max_plane_rounds,
+                                        plane_change_tolerance)
+    record["by_motion"] = {**motion.to_dict(), **verdict}
+    return run, poses, record
+
+
+def _block_try(solver: _StageSolver, run: _StageRun, poses: F64, blocks: Any,
+               max_plane_rounds: int, plane_change_tolerance: float
+               ) -> tuple[_StageRun, F64, bool, dict[str, Any]]:
+    """One try of :func:`_block_repair_run`: ``blocks`` (a ``BlockRepair``) moved, their planes
+    chosen again, solved again and judged by the BIM. Returns the run and poses after it
+    (unchanged when refused), whether it was kept, and the verdict."""
+    from bimcap.registration.odometry import BlockMoveSource
+
     _log.info("block(s) of frames broken off the rest were moved back onto them: " + ", ".join(
         f"{m.start}-{m.stop - 1} by {m.distance_m:.2f} m / {m.angle_deg:.1f}° ("
         + (f"{m.inliers}/{m.matches} PnP inliers at frame {m.frame})"
            if m.source is BlockMoveSource.MATCHES else
-           f"no match across: frame {m.frame} to the input's motion from its neighbour)")
+           f"frame {m.frame} to the input's motion from its neighbour)")
         for m in blocks.moves))
     moved = solver.moved(run, blocks.poses, blocks.moved)
     verdict, redo = _solve_moved(run.problem, run.options, poses, blocks.poses, blocks.moved,
                                  "block repair", moved_problem=moved.problem)
-    record.update(verdict)
     if redo is None:
-        return run, poses, record
+        return run, poses, False, verdict
     solver.summaries.append(redo.summary)
     run, poses = replace(moved, result=redo), redo.poses
     run, poses, _ = _rechoose_planes(solver, run, poses, max_plane_rounds, plane_change_tolerance)
-    return run, poses, record
+    return run, poses, True, verdict
 
 
 def _window_shift_run(solver: _StageSolver, run: _StageRun, poses: F64, max_plane_rounds: int,

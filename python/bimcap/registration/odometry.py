@@ -644,7 +644,7 @@ class BlockRepair:
 
 def block_moves(poses: F64, input_poses: F64, match_frames: I32, match_uv: F64,
                 match_depth: F64, intrinsics: F64, min_inliers: int = 20, max_moves: int = 4,
-                options: RepairOptions | None = None) -> BlockRepair:
+                options: RepairOptions | None = None, use_matches: bool = True) -> BlockRepair:
     """Blocks of frames that :func:`motion_check` finds broken off the others, moved rigidly
     back onto them by the matches across the break.
 
@@ -673,6 +673,10 @@ def block_moves(poses: F64, input_poses: F64, match_frames: I32, match_uv: F64,
     match_frames, match_uv, match_depth, intrinsics: the matches (:func:`reprojection_errors`).
     min_inliers: PnP inliers a group's correction needs. max_moves: at most this many moves.
     options: the PnP's :class:`RepairOptions`.
+    use_matches: False: every group moves by the input's relative motion
+        (:func:`_block_prediction`), for the caller's second try when the matches' move was
+        refused (gen-demo-s41 hard Exp 2: the 39 matches across the break of frames 17-18 are
+        look-alikes whose PnP turns the block 49° away; the input's motion puts it back).
 
     Returns
     -------
@@ -708,8 +712,10 @@ def block_moves(poses: F64, input_poses: F64, match_frames: I32, match_uv: F64,
             if (start, stop) in tried:
                 continue
             tried.add((start, stop))
-            move = _block_correction(out, start, stop, mf, muv, mdepth, k, directed,
-                                     min_inliers, opt)
+            move = None
+            if use_matches:
+                move = _block_correction(out, start, stop, mf, muv, mdepth, k, directed,
+                                         min_inliers, opt)
             if move is None:
                 move = _block_prediction(out, np.asarray(input_poses, np.float64), start, stop)
             if move is not None:
