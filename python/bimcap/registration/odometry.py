@@ -561,7 +561,10 @@ def motion_check(poses: F64, input_poses: F64, match_frames: I32 | None = None,
     mad = 1.4826 * np.median(np.abs(gaps - med), axis=0)
     max_m = float(max(floor_m, med[0] + k * mad[0]))
     max_deg = float(max(floor_deg, med[1] + k * mad[1]))
-    at = np.flatnonzero((gaps[:, 0] > max_m) | (gaps[:, 1] > max_deg))
+    # each gap as a fraction of its limit's reach above the median: a break on either
+    # alone, or on both together (a step far out in metres and degrees at once)
+    reach = np.maximum(np.array([max_m, max_deg]) - med, 1e-12)
+    at = np.flatnonzero(np.hypot(*((gaps - med) / reach).T) > 1.0)
     src = dst = err = None
     if match_frames is not None and len(match_frames) and intrinsics is not None:
         src, dst, err = reprojection_errors(np.asarray(poses, np.float64),
