@@ -553,6 +553,20 @@ def _matches(poses: np.ndarray, pairs: list[tuple[int, int]], k: np.ndarray,
     return np.vstack(frames).astype(np.int32), np.vstack(uv), np.vstack(depth)
 
 
+def _turned_block(poses: np.ndarray, start: int, yaw_deg: float,
+                  offset_m: list[float]) -> np.ndarray:
+    """``poses`` (N, 7) with frames ``start:`` turned by ``yaw_deg`` about frame ``start``'s
+    position and then moved by ``offset_m`` (3,): a block solved turned away from its place."""
+    from scipy.spatial.transform import Rotation
+
+    out = poses.copy()
+    turn = Rotation.from_euler("z", yaw_deg, degrees=True)
+    pivot = poses[start, :3]
+    out[start:, :3] = turn.apply(poses[start:, :3] - pivot) + pivot + np.asarray(offset_m)
+    out[start:, 3:] = (turn * Rotation.from_quat(poses[start:, 3:])).as_quat()
+    return out
+
+
 def test_motion_check_flags_a_block_placed_elsewhere() -> None:
     """Duplex_A 250 frames, Exp 2: frames 120-179 were solved 1.55 m off as a block (a
     look-alike room), every solve converged and every frame counted as observed. Inside the
@@ -790,17 +804,12 @@ def test_a_block_turned_away_with_no_match_across_takes_the_inputs_rotation() ->
     """gen-small-s3 hard Exp 1: frames 56-59 were solved turned 72° from where the input's
     motion puts them, no match across. A translation cannot take that back: past 45° the block
     takes the prediction's rotation as well (each frame its own prediction)."""
-    from scipy.spatial.transform import Rotation
 
     from bimcap.registration.odometry import BlockMoveSource, block_moves
 
     n = 30
     truth = _walk(n)
-    solved = truth.copy()
-    turn = Rotation.from_euler("z", 70.0, degrees=True)
-    pivot = truth[24, :3]
-    solved[24:, :3] = turn.apply(truth[24:, :3] - pivot) + pivot + np.array([0.4, 0.2, 0.0])
-    solved[24:, 3:] = (turn * Rotation.from_quat(truth[24:, 3:])).as_quat()
+    solved = _turned_block(truth, 24, 70.0, [0.4, 0.2, 0.0])
     k = np.array([500.0, 500.0, 320.0, 240.0])
     matches = _matches(truth, [(f, f + 1) for f in range(n - 1) if f != 23], k)
     rep = block_moves(solved, truth, *matches, k)
@@ -828,11 +837,7 @@ def test_motion_check_a_step_far_out_in_metres_and_degrees_together_is_a_break()
     inp[:, :2] += rng.normal(0.0, 0.12, (n, 2))
     noise = Rotation.from_rotvec(np.c_[np.zeros((n, 2)), rng.normal(0.0, np.radians(6.0), n)])
     inp[:, 3:] = (noise * Rotation.from_quat(truth[:, 3:])).as_quat()
-    solved = truth.copy()
-    turn = Rotation.from_euler("z", 30.0, degrees=True)
-    pivot = truth[30, :3]
-    solved[30:, :3] = turn.apply(truth[30:, :3] - pivot) + pivot + np.array([0.0, 0.8, 0.0])
-    solved[30:, 3:] = (turn * Rotation.from_quat(truth[30:, 3:])).as_quat()
+    solved = _turned_block(truth, 30, 30.0, [0.0, 0.8, 0.0])
     k = np.array([500.0, 500.0, 320.0, 240.0])
     matches = _matches(truth, [(f, f + 1) for f in range(n - 1) if f != 29], k)
     check = motion_check(solved, inp, *matches, k)
