@@ -14,7 +14,9 @@ modified):
 * ``raised``: the building on a slope: root placements raised by :data:`RAISE_M` and every
   storey's ``Elevation`` with them;
 * ``ifcwall``: ``IfcWallStandardCase`` written as plain ``IfcWall``;
-* ``nocovering``: every ``IfcCovering`` removed.
+* ``nocovering``: every ``IfcCovering`` removed;
+* ``proxy``: every wall and column written as ``IfcBuildingElementProxy`` (as generic exports
+  do), keeping its name, geometry and openings.
 
 :func:`world_from_model` gives the rigid transform a variant applies to the original's world
 coordinates (metres), so that a result in a variant's frame can be compared with the original.
@@ -41,7 +43,8 @@ GEOREF_YAW_DEG = 37.0
 #: The raised variant's height in metres.
 RAISE_M = 123.45
 
-VARIANTS = ("georef", "shifted", "turned", "m", "mm", "ft", "raised", "ifcwall", "nocovering")
+VARIANTS = ("georef", "shifted", "turned", "m", "mm", "ft", "raised", "ifcwall", "nocovering",
+            "proxy")
 
 
 def world_from_model(variant: str) -> NDArray[np.float64]:
@@ -104,6 +107,13 @@ def make_variant(src: Path, variant: str, out: Path) -> Path:
         # IfcWallStandardCase adds no attribute to IfcWall (IFC2X3 and IFC4): rename the class
         text = src.read_text(encoding="utf-8", errors="surrogateescape")
         f = ifcopenshell.file.from_string(text.replace("IFCWALLSTANDARDCASE(", "IFCWALL("))
+    elif variant == "proxy":
+        # by GlobalId: a reassignment replaces the instance (and in IFC2X3 may replace others)
+        for guid in [e.GlobalId for e in (*f.by_type("IfcWall"), *f.by_type("IfcColumn"))]:
+            el = f.by_guid(guid)
+            if not el.is_a("IfcBuildingElementProxy"):
+                ifcopenshell.api.run("root.reassign_class", f, product=el,
+                                     ifc_class="IfcBuildingElementProxy")
     elif variant == "nocovering":
         for c in list(f.by_type("IfcCovering")):
             ifcopenshell.api.run("root.remove_product", f, product=c)

@@ -17,6 +17,7 @@ from bimcap.bim.errors import (
     BimWarning,
     DamagedModelWarning,
     MissingFloorWarning,
+    ProxyElementWarning,
     StoreyHeightWarning,
 )
 
@@ -33,6 +34,7 @@ __all__ = [
     "BimWarning",
     "DamagedModelWarning",
     "MissingFloorWarning",
+    "ProxyElementWarning",
     "ReferenceOptions",
     "Storey",
     "StoreyHeightWarning",

@@ -43,3 +43,8 @@ class StoreyHeightWarning(BimWarning):
     """A storey's ``Elevation`` disagrees with the height its own elements stand at (a
     georeferenced model moved up, a wrong attribute), or the model has no ``IfcBuildingStorey``:
     the storey heights were taken from the geometry instead."""
+
+
+class ProxyElementWarning(BimWarning):
+    """The model writes walls or columns as ``IfcBuildingElementProxy``; those whose names and
+    shapes say so were taken as walls / columns (the message gives the counts)."""

@@ -17,8 +17,18 @@ IfcSlab FLOOR / BASESLAB / LANDING / unset   FLOOR
 IfcCovering CEILING                          CEILING
 IfcCovering FLOORING                         FLOOR
 IfcDoor / IfcWindow                          DOOR / WINDOW
+IfcBuildingElementProxy named as a wall      WALL (when its shape is a wall's, see below)
+IfcBuildingElementProxy named as a column    COLUMN (when its shape is a column's)
 anything else (stairs, beams, roofs, ...)    UNKNOWN ("other")
 =========================================  ================
+
+Some exports write every element as ``IfcBuildingElementProxy`` (SketchUp, Revit or ArchiCAD
+with a generic mapping). Such a proxy is a wall when its ``Name``, ``ObjectType`` or type's name
+says so (:data:`PROXY_WALL_WORDS`: "Basic Wall:…", "Wand-Ext-…", "mur", "muro" …; not a
+"wall cabinet", :data:`PROXY_NOT_WALL_WORDS`) and its mesh is a wall's
+(:func:`proxy_shape_agrees`: at least 0.2 m tall, at most 1 m thick, at least twice as long as
+thick), likewise a column (:data:`PROXY_COLUMN_WORDS`; at least 1 m tall, at most 1.5 m
+across). What was taken is a :class:`ProxyElementWarning` and a line of :attr:`BimModel.notes`.
 
 Walls come tessellated with their openings already cut; doors and windows are their own elements.
 Elements that fail to tessellate are listed in :attr:`BimModel.failed` by GUID and skipped.
@@ -57,7 +67,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from bimcap.bim.errors import BimInputError, DamagedModelWarning, StoreyHeightWarning
+from bimcap.bim.errors import (
+    BimInputError,
+    DamagedModelWarning,
+    ProxyElementWarning,
+    StoreyHeightWarning,
+)
 from bimcap.labels import Label
 
 #: IFC classes never tessellated as elements (voids, and spaces which are read separately).
@@ -75,6 +90,18 @@ DEFAULT_MAX_LOST_FRACTION = 0.02
 
 _WALL_CLASSES = ("IfcWall", "IfcCurtainWall")  # IfcWall covers StandardCase/ElementedCase
 _FLOOR_SLAB_TYPES = {"FLOOR", "BASESLAB", "LANDING", "NOTDEFINED", "USERDEFINED", None}
+_PROXY_CLASS = "IfcBuildingElementProxy"
+#: Words that name a wall in a proxy's Name / ObjectType / type name (English, German compounds
+#: "Außenwand", French, Spanish, Italian, Dutch), case-insensitive.
+PROXY_WALL_WORDS = re.compile(r"wall|wand\b|wand[-_ :]|mauer|\bmurs?\b|\bmuros?\b|\bparet[ei]\b"
+                              r"|\bmuur\b", re.IGNORECASE)
+#: Words that make a proxy named as a wall something else: a fixture or furniture on a wall.
+PROXY_NOT_WALL_WORDS = re.compile(r"cabinet|cupboard|shelf|shelv|schrank|regal|lamp|light|"
+                                  r"socket|outlet|switch|paper|tapete|bracket|clock|mount|"
+                                  r"armoire|placard|sink|basin|heater|radiator", re.IGNORECASE)
+#: Words that name a column (a pillar, a post) in a proxy's names, case-insensitive.
+PROXY_COLUMN_WORDS = re.compile(r"column|st(ü|ue)tze|\bpillar|\bpilar|\bpilier|\bpoteau"
+                                r"|\bcolonn[ae]|\bkolom", re.IGNORECASE)
 
 
 @dataclass(frozen=True)
@@ -317,6 +344,8 @@ def classify(element: Any, parent: Any | None = None) -> Label:
         return Label.DOOR
     if element.is_a("IfcWindow"):
         return Label.WINDOW
+    if element.is_a(_PROXY_CLASS):
+        return _proxy_label(element)
     ptype = ue.get_predefined_type(element)
     if element.is_a("IfcSlab"):
         return Label.FLOOR if ptype in _FLOOR_SLAB_TYPES else Label.UNKNOWN
@@ -326,6 +355,69 @@ def classify(element: Any, parent: Any | None = None) -> Label:
         if ptype == "FLOORING":
             return Label.FLOOR
     return Label.UNKNOWN
+
+
+def _proxy_names(element: Any) -> str:
+    """A proxy's Name, ObjectType and its type object's Name, joined (for the word lists)."""
+    import ifcopenshell.util.element as ue
+
+    names = [getattr(element, "Name", None), getattr(element, "ObjectType", None)]
+    try:
+        typ = ue.get_type(element)
+    except Exception:  # a damaged type relation: the element's own names decide
+        typ = None
+    if typ is not None:
+        names.append(getattr(typ, "Name", None))
+    return " | ".join(str(n) for n in names if n)
+
+
+def _proxy_label(element: Any) -> Label:
+    """WALL / COLUMN for an IfcBuildingElementProxy its names call so, else UNKNOWN (the shape
+    is checked after tessellation, :func:`proxy_shape_agrees`)."""
+    names = _proxy_names(element)
+    if PROXY_WALL_WORDS.search(names) and not PROXY_NOT_WALL_WORDS.search(names):
+        return Label.WALL
+    if PROXY_COLUMN_WORDS.search(names):
+        return Label.COLUMN
+    return Label.UNKNOWN
+
+
+def proxy_shape_agrees(label: Label, vertices: NDArray[np.float64],
+                       faces: NDArray[np.int32]) -> bool:
+    """Whether a mesh has the shape of a ``label`` (WALL or COLUMN) element.
+
+    The mesh is read as the box of the same volume and side area: with ``V`` its volume and
+    ``S`` the area of its vertical faces, a wall ``L`` long, ``T`` thick and ``H`` tall has
+    ``S = 2 (L + T) H`` and ``V = L T H``, so ``T`` and ``L`` follow from ``V / H`` and
+    ``S / 2H`` (an L-shaped wall or one with openings reads as its unfolded length). A wall:
+    ``H ≥ 0.2 m`` (parapets and knee walls are walls), ``T ≤ 1 m``, ``L ≥ 2 T``; a column:
+    ``H ≥ 1 m``, ``L ≤ 1.5 m``.
+
+    vertices: (V, 3) metres; faces: (F, 3) vertex indices.
+    """
+    if len(faces) == 0:
+        return False
+    height = float(np.ptp(vertices[:, 2]))
+    if height < (1.0 if label == Label.COLUMN else 0.2):
+        return False
+    tri = vertices[faces]
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    area = 0.5 * np.linalg.norm(cross, axis=1)
+    vertical = np.abs(cross[:, 2]) < 0.1 * np.linalg.norm(cross, axis=1)
+    side_area = float(area[vertical].sum())
+    centred = tri - vertices.mean(axis=0)
+    volume = abs(float(np.einsum("ij,ij->i", centred[:, 0],
+                                 np.cross(centred[:, 1], centred[:, 2])).sum())) / 6.0
+    half_perimeter = side_area / (2.0 * height)  # L + T
+    footprint = volume / height  # L T
+    disc = half_perimeter**2 - 4.0 * footprint
+    if disc < 0.0:  # a square section (L = T): the roots meet
+        disc = 0.0
+    length = 0.5 * (half_perimeter + disc**0.5)
+    thickness = 0.5 * (half_perimeter - disc**0.5)
+    if label == Label.COLUMN:
+        return length <= 1.5
+    return thickness <= 1.0 and length >= 2.0 * thickness
 
 
 def _storey_of(
@@ -735,7 +827,8 @@ def _walls_and_damage(
     """The model's walls and what the file lost; refuses a model without walls or one that
     lost too much, before the expensive tessellation."""
     try:
-        walls = ifc.by_type("IfcWall") + ifc.by_type("IfcCurtainWall")
+        walls = [*ifc.by_type("IfcWall"), *ifc.by_type("IfcCurtainWall")]
+        walls += [e for e in ifc.by_type(_PROXY_CLASS) if _proxy_label(e) == Label.WALL]
     except RuntimeError as exc:
         raise BimInputError(f"unsupported IFC schema: {exc}", path, "FILE_SCHEMA") from exc
     # Damage, before the expensive tessellation: what the text has and IfcOpenShell did not read.
@@ -745,7 +838,8 @@ def _walls_and_damage(
             raise BimInputError(f"the model has no walls left: damaged IFC file: "
                                 f"{damage.describe()}", path, "IfcWall")
         raise BimInputError(
-            "the model has no walls: a BIM reference needs IfcWall / IfcCurtainWall elements",
+            "the model has no walls: a BIM reference needs IfcWall / IfcCurtainWall elements "
+            "(or IfcBuildingElementProxy elements named as walls)",
             path,
             "IfcWall",
         )
@@ -778,11 +872,15 @@ def _bim_elements(
     for eid, verts, faces in shapes:
         ent = ifc.by_id(eid)
         parent = ue.get_aggregate(ent)
+        label = classify(ent, parent)
+        if (label in (Label.WALL, Label.COLUMN) and ent.is_a(_PROXY_CLASS)
+                and not proxy_shape_agrees(label, verts, faces)):
+            label = Label.UNKNOWN
         elements.append(
             BimElement(
                 guid=ent.GlobalId,
                 ifc_class=ent.is_a(),
-                label=classify(ent, parent),
+                label=label,
                 storey=_storey_of(ent, cache, storey_names),
                 vertices=verts,
                 faces=faces,
@@ -791,6 +889,28 @@ def _bim_elements(
             )
         )
     return elements
+
+
+def _proxy_note(ifc: Any, elements: list[BimElement], path: Path) -> str:
+    """The line saying which IfcBuildingElementProxy elements were taken as walls / columns
+    ("" when none was named so); refuses a model whose only walls were proxies not shaped as
+    walls."""
+    named = {e.id(): _proxy_label(e) for e in ifc.by_type(_PROXY_CLASS)}
+    named = {k: v for k, v in named.items() if v != Label.UNKNOWN}
+    if not named:
+        return ""
+    proxies = [e for e in elements if e.ifc_class == _PROXY_CLASS]
+    walls = sum(e.label == Label.WALL for e in proxies)
+    columns = sum(e.label == Label.COLUMN for e in proxies)
+    if not any(e.label == Label.WALL for e in elements):
+        raise BimInputError(
+            f"the model has no walls: its {len(named)} IfcBuildingElementProxy elements named "
+            "as walls or columns are not shaped as walls (≥ 0.2 m tall, ≤ 1 m thick)", path,
+            "IfcWall")
+    left = len(named) - walls - columns
+    return (f"{path.name}: {walls} IfcBuildingElementProxy elements taken as walls and "
+            f"{columns} as columns by their names; {left} named so but not shaped so left as "
+            "'other'")
 
 
 def _failed_products(
@@ -871,6 +991,7 @@ def load_model(
         damage.examples += [f"{g} {why}" for g, why in failed[:2]]
     check_damage(damage, p, max_lost_fraction)
     check_units(elements, ifc, unit_scale, p)
+    proxy_note = _proxy_note(ifc, elements, p)
 
     if records:
         storeys, notes = reconcile_storeys(records, elements, p)
@@ -878,6 +999,9 @@ def load_model(
         storeys, notes = levels_from_geometry(elements, p)
     for note in notes:
         warnings.warn(note, StoreyHeightWarning, stacklevel=2)
+    if proxy_note:
+        warnings.warn(proxy_note, ProxyElementWarning, stacklevel=2)
+        notes.append(proxy_note)
 
     spaces: list[BimElement] = []
     if load_spaces:
