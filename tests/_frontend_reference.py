@@ -651,6 +651,60 @@ def top2_columns_reference(sim: NDArray[np.float32]
     return best, s1, s2
 
 
+def top2_columns_opencv_reference(
+    sim: NDArray[np.float32],
+) -> tuple[NDArray[np.int64], NDArray[np.float32], NDArray[np.float32]]:
+    """``bimcap.features.matching._top2_columns`` as of c52a7fb (issue 14's first matching
+    speed-up), verbatim. Per column: what :func:`_top2` gives on ``sim.T``, without copying the
+    transpose.
+
+    The column-wise arg-max is OpenCV's (``reduceArgMax``: the first row of the largest value,
+    as ``np.argmax``, which copies the transpose and costs 3× as much on a 1200 × 1100 block).
+    """
+    import cv2
+
+    best = cv2.reduceArgMax(np.ascontiguousarray(sim), 0).ravel().astype(np.int64)
+    cols = np.arange(sim.shape[1])
+    s1 = sim[best, cols].copy()
+    sim[best, cols] = -np.inf
+    s2 = sim.max(axis=0)
+    sim[best, cols] = s1
+    return best, s1, s2
+
+
+def match_numpy_reference(a: U8, b: U8, opts: Any) -> NDArray[np.int32]:
+    """``bimcap.features.matching._match_numpy`` as of c52a7fb, verbatim (a column-wise arg-max
+    and top 2 of every block, merged across blocks)."""
+    from bimcap.features.matching import ORB_DESCRIPTOR_BYTES, _as_float, _passes, _top2
+
+    binary = a.shape[1] == ORB_DESCRIPTOR_BYTES
+    fa, fb = _as_float(a), _as_float(b)
+    chunk = 2048
+    best_ab = np.empty(len(a), np.int64)
+    ok_ab = np.empty(len(a), bool)
+    # Column-wise top 2 merged across row chunks for the b → a direction.
+    col_s1 = np.full(len(b), -np.inf, np.float32)
+    col_s2 = np.full(len(b), -np.inf, np.float32)
+    col_best = np.zeros(len(b), np.int64)
+    for start in range(0, len(a), chunk):
+        sim = fa[start : start + chunk] @ fb.T
+        best, s1, s2 = _top2(sim)
+        best_ab[start : start + len(sim)] = best
+        ok_ab[start : start + len(sim)] = _passes(s1, s2, opts, binary)
+        cb, c1, c2 = top2_columns_opencv_reference(sim)
+        new_best = c1 > col_s1
+        col_s2 = np.where(new_best, np.maximum(col_s1, c2), np.maximum(col_s2, c1))
+        col_best = np.where(new_best, cb + start, col_best)
+        col_s1 = np.where(new_best, c1, col_s1)
+    ia = np.flatnonzero(ok_ab)
+    ib = best_ab[ia]
+    if opts.cross_check:
+        ok_ba = _passes(col_s1, col_s2, opts, binary)
+        keep = ok_ba[ib] & (col_best[ib] == ia)
+        ia, ib = ia[keep], ib[keep]
+    return np.stack([ia, ib], axis=1).astype(np.int32)
+
+
 @contextmanager
 def swapped(module: Any, **functions: Callable[..., Any]) -> Iterator[None]:
     """Replace ``module``'s attributes by ``functions`` for the duration of the block."""
@@ -698,7 +752,7 @@ def old_segmentation() -> AbstractContextManager[None]:
 def old_matching() -> AbstractContextManager[None]:
     from bimcap.features import matching
 
-    return swapped(matching, _top2_columns=top2_columns_reference)
+    return swapped(matching, _match_numpy=match_numpy_reference)
 
 
 #: Stage name (as ``bench_frontend.py --world`` prints it) → a context in which the stage's
