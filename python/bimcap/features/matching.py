@@ -70,6 +70,11 @@ class MatchOptions:
     max_error_px: RANSAC inlier threshold in pixels.
     min_num_inliers: a pair with fewer verified matches yields no matches at all.
     seed: RANSAC seed (deterministic results).
+    ransac_min_trials: the fewest RANSAC hypotheses of each model (COLMAP's ``min_num_trials``);
+        None: pycolmap's (100 for ``TWO_VIEW``, 1000 for ``FUNDAMENTAL``). With the nearly
+        all-inlier pairs of a walk the confidence test stops RANSAC long before, so this is
+        its cost: 30 halves ``TWO_VIEW``'s time a pair (docs/speed.md, with the accuracy). Left
+        out of :meth:`to_dict` when None, so that the front end's cache keys stay the same.
     """
 
     backend: MatcherBackend = MatcherBackend.NUMPY
@@ -81,6 +86,7 @@ class MatchOptions:
     max_error_px: float = 2.0
     min_num_inliers: int = 15
     seed: int = 0
+    ransac_min_trials: int | None = None
 
     def __post_init__(self) -> None:
         if not 0.0 < self.max_ratio <= 1.0:
@@ -93,11 +99,15 @@ class MatchOptions:
             raise FeatureError(f"max_error_px must be positive, got {self.max_error_px}")
         if self.min_num_inliers < 0:
             raise FeatureError("min_num_inliers must be >= 0")
+        if self.ransac_min_trials is not None and self.ransac_min_trials < 1:
+            raise FeatureError(f"ransac_min_trials must be >= 1, got {self.ransac_min_trials}")
 
     def to_dict(self) -> dict[str, object]:
         d = asdict(self)
         d["backend"] = self.backend.value
         d["verification"] = self.verification.value
+        if self.ransac_min_trials is None:
+            del d["ransac_min_trials"]
         return d
 
 
@@ -298,6 +308,8 @@ def verify_matches(
         ro = pycolmap.RANSACOptions()
         ro.max_error = opts.max_error_px
         ro.random_seed = opts.seed
+        if opts.ransac_min_trials is not None:
+            ro.min_num_trials = opts.ransac_min_trials
         res = pycolmap.estimate_fundamental_matrix(pa, pb, ro)
         if res is None:
             return empty, "degenerate"
@@ -314,6 +326,8 @@ def verify_matches(
         to = pycolmap.TwoViewGeometryOptions()
         to.ransac.max_error = opts.max_error_px
         to.ransac.random_seed = opts.seed
+        if opts.ransac_min_trials is not None:
+            to.ransac.min_num_trials = opts.ransac_min_trials
         to.min_num_inliers = opts.min_num_inliers
         # A rig that stands still gives matches at the same pixels; they are valid constraints,
         # not a watermark, so COLMAP's watermark detection is switched off.
