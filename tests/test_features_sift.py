@@ -174,12 +174,14 @@ def test_verification_removes_outliers(ver: Verification, trials: int | None) ->
 
 def test_ransac_min_trials_option() -> None:
     """None (pycolmap's count) stays out of the options' dict, which keys the front end's cache;
-    a count is in it, and one below 1 is refused."""
+    a count is in it, and one outside [1, 10000] is refused."""
     assert "ransac_min_trials" not in MatchOptions().to_dict()
     assert MatchOptions(ransac_min_trials=30).to_dict()["ransac_min_trials"] == 30
     assert MatchOptions(ransac_min_trials=30).to_dict() != MatchOptions().to_dict()
-    with pytest.raises(FeatureError, match="ransac_min_trials"):
-        MatchOptions(ransac_min_trials=0)
+    for bad in (0, 10001):  # pycolmap refuses more than its max_num_trials (10000)
+        with pytest.raises(FeatureError, match="ransac_min_trials"):
+            MatchOptions(ransac_min_trials=bad)
+    MatchOptions(ransac_min_trials=10000)
 
 
 def test_verified_matches_of_a_shifted_image(shifted_pair: tuple) -> None:

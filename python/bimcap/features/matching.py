@@ -99,8 +99,10 @@ class MatchOptions:
             raise FeatureError(f"max_error_px must be positive, got {self.max_error_px}")
         if self.min_num_inliers < 0:
             raise FeatureError("min_num_inliers must be >= 0")
-        if self.ransac_min_trials is not None and self.ransac_min_trials < 1:
-            raise FeatureError(f"ransac_min_trials must be >= 1, got {self.ransac_min_trials}")
+        if self.ransac_min_trials is not None and not 1 <= self.ransac_min_trials <= 10000:
+            # pycolmap refuses more than its max_num_trials (10000 for the two-view geometry)
+            raise FeatureError("ransac_min_trials must be in [1, 10000], got "
+                               f"{self.ransac_min_trials}")
 
     def to_dict(self) -> dict[str, object]:
         d = asdict(self)
