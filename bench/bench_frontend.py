@@ -247,7 +247,8 @@ BEFORE_DEFAULTS = {"window": 4, "geometric": {"work_width": 258}}
 
 
 def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool = True,
-                before_defaults: bool = False, features: dict[str, Any] | None = None
+                before_defaults: bool = False, features: dict[str, Any] | None = None,
+                matching: dict[str, Any] | None = None
                 ) -> tuple[list[tuple[str, ...]], float]:
     """Per-stage rows ``(stage, ms/frame, previous ms/frame, ratio, same result)`` and the total
     ms a frame, on the first ``frames`` frames of the sequence at ``seq_dir`` (``previous``:
@@ -256,7 +257,9 @@ def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool =
     :data:`BEFORE_DEFAULTS`, on the same inputs in the same process; window None: the config's;
     ``features``: a ``[features]`` table for the main column, and as "previous" the features
     stages (extraction, keypoint depths, matching, verification) with the default one, on the
-    same images in the same process)."""
+    same images in the same process; ``matching``: a ``[matching]`` table for the main column's
+    matching and verification, and as "previous" those two stages with the default one, on the
+    same keypoints in the same process)."""
     from bimcap.dataset import read_sequence
     from bimcap.features import extract_sift, lookup_depth, match_descriptors, verify_matches
     from bimcap.frontend.runner import FrameContext, _load_raw_image, _scan_points, get_undistorter
@@ -268,7 +271,7 @@ def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool =
     from bimcap.fusion import project_lidar
     from bimcap.geometry.trajectory import read_tum
     from bimcap.pipeline.config import RefineConfig
-    from bimcap.pipeline.refine import make_providers, sift_options
+    from bimcap.pipeline.refine import make_providers, match_options, sift_options
 
     seq = read_sequence(seq_dir)
     n = min(frames, len(seq.frames))
@@ -288,6 +291,11 @@ def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool =
         previous = False
         old_sift, sift = sift, sift_options(RefineConfig(workers=1, features=features))
     old_feats = []
+    match_opts = old_match = None
+    if matching is not None:
+        previous = False
+        old_match = match_options(RefineConfig(workers=1))
+        match_opts = match_options(RefineConfig(workers=1, matching=matching))
     sampling = SemanticSamplingOptions(source=SampleSource(config.samples))
     from bimcap.frontend.runner import FrontendConfig
 
@@ -337,8 +345,16 @@ def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool =
     pairs = [(a, b) for a in range(n) for b in range(a + 1, min(n, a + window + 1))]
     if old_label_p is None:
         for a, b in pairs:
-            m = st.run("matching", match_descriptors, feats[a].descriptors, feats[b].descriptors)
-            st.run("verification", verify_matches, feats[a].uv, feats[b].uv, m, pin)
+            m = st.run("matching", match_descriptors, feats[a].descriptors, feats[b].descriptors,
+                       match_opts)
+            st.run("verification", verify_matches, feats[a].uv, feats[b].uv, m, pin, match_opts)
+            if old_match is not None:
+                m, tm = _timed(match_descriptors, feats[a].descriptors, feats[b].descriptors,
+                               old_match)
+                _, tv = _timed(verify_matches, feats[a].uv, feats[b].uv, m, pin, old_match)
+                for stage, t in (("matching", tm), ("verification", tv)):
+                    st.prev[stage] = st.prev.get(stage, 0.0) + t
+                    st.equal[stage] = False
             if old_sift is not None:
                 fa, fb = old_feats[a], old_feats[b]
                 m, tm = _timed(match_descriptors, fa.descriptors, fb.descriptors)
@@ -369,8 +385,8 @@ def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool =
         ms = 1e3 * t / n
         if stage in st.prev:
             prev = 1e3 * st.prev[stage] / n
-            same = ("yes" if st.equal[stage] else "settings" if before_defaults or features
-                    else "NO")
+            same = ("yes" if st.equal[stage] else "settings"
+                    if before_defaults or features or matching else "NO")
             rows.append((stage, f"{ms:.1f}", f"{prev:.1f}", f"{prev / ms:.2f}×", same))
         else:
             rows.append((stage, f"{ms:.1f}", "", "", ""))
@@ -511,6 +527,11 @@ def main() -> None:
                     help="with --world (per stage): a [features] setting for the main column; "
                          "'previous' is then the features stages with the default settings, "
                          "on the same images in the same process")
+    ap.add_argument("--matching", action="append", default=[], metavar="KEY=VALUE",
+                    help="with --world (per stage): a [matching] setting for the main column "
+                         "(e.g. ransac_min_trials=30); 'previous' is then matching and "
+                         "verification with the default settings, on the same keypoints in the "
+                         "same process")
     ap.add_argument("--prepare", action="store_true",
                     help="with --world: CPU time of the whole prepare() (front end, cache "
                          "writes, tracks) instead of the stages, BLAS threads as the library "
@@ -553,17 +574,21 @@ def main() -> None:
         window = args.window if args.window != 3 else None
         features = ({k: _setting_value(v) for k, _, v in (f.partition("=") for f in args.features)}
                     if args.features else None)
+        matching = ({k: _setting_value(v) for k, _, v in (f.partition("=") for f in args.matching)}
+                    if args.matching else None)
         print(f"# front end per stage on {args.world}, first {frames} frames, window "
               f"{window or 'of the config'}, 1 thread, process CPU ms a frame, load average "
               f"{os.getloadavg()[0]:.1f}"
               + (f"; 'previous' = the settings {BEFORE_DEFAULTS}" if args.before_defaults else "")
               + (f"; [features] {features}, 'previous' = the default [features]"
-                 if features else ""))
+                 if features else "")
+              + (f"; [matching] {matching}, 'previous' = the default [matching]"
+                 if matching else ""))
         from bimcap.frontend.runner import one_thread
 
         with one_thread():  # BLAS and OpenCV as the front end's jobs run them
             rows, _ = bench_world(args.world, frames, window, not args.no_previous,
-                                  args.before_defaults, features)
+                                  args.before_defaults, features, matching)
         w = max(len(r[0]) for r in rows)
         print(f"{'stage':<{w}}  {'ms/frame':>9}  {'previous':>9}  {'ratio':>7}  same result")
         for stage, ms, prev, ratio, same in rows:

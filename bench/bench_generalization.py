@@ -200,7 +200,8 @@ def run(args: argparse.Namespace) -> None:
                     seq = read_sequence(seq_dir)
                     gt = seq.trajectory("gt")
                     seed = int(world.rpartition("-s")[2]) if world.startswith("gen") else 1
-                    base = RefineConfig(workers=args.workers, features=dict(args.features))
+                    base = RefineConfig(workers=args.workers, features=dict(args.features),
+                                        matching=dict(args.matching))
                     if setting == "hard" and seq.has_labels and _labels_are_noisy(seq):
                         base = replace(base, segmentation=LabelSource.GROUND_TRUTH)
                     runs: list[tuple[str, Any, Path]] = [("fixed", gt, reference)]
@@ -372,6 +373,10 @@ def main() -> None:
                     type=_feature_setting,
                     help="a [features] setting of the refine config (SiftOptions field), e.g. "
                          "backend=orb; repeatable (default: the config's defaults, SIFT)")
+    ap.add_argument("--matching", action="append", default=[], metavar="KEY=VALUE",
+                    type=_feature_setting,
+                    help="a [matching] setting of the refine config (MatchOptions field), e.g. "
+                         "ransac_min_trials=30; repeatable (default: the config's defaults)")
     ap.add_argument("--summarise", nargs="+", metavar="CSV", help="only print the tables")
     args = ap.parse_args()
     if args.summarise:

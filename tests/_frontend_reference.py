@@ -8,6 +8,7 @@ context in which that stage runs the old code, swapped into its module).
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Iterator
 from contextlib import AbstractContextManager, contextmanager
 from typing import Any
@@ -638,6 +639,82 @@ def upsample_labels_reference(
     return up
 
 
+# ------------------------------------------------------------- fusion.completion at c52a7fb
+@functools.lru_cache(maxsize=4)
+def pixel_grid_c52a7fb(h: int, w: int) -> tuple[F64, F64]:
+    """``bimcap.fusion.completion._pixel_grid`` as of c52a7fb: (H·W,) float64 row and column of
+    every pixel in row-major order (read-only; cached per image size)."""
+    rows = np.repeat(np.arange(h, dtype=np.float64), w)
+    cols = np.tile(np.arange(w, dtype=np.float64), h)
+    rows.flags.writeable = False
+    cols.flags.writeable = False
+    return rows, cols
+
+
+def complete_linear_c52a7fb(sparse: SparseDepth | ArrayLike,
+                            options: LinearOptions | None = None) -> F32:
+    """``bimcap.fusion.completion.complete_linear`` as of c52a7fb, verbatim but for the names (a
+    gather of each covered pixel's row, column and coefficients)."""
+    import cv2
+    from scipy.spatial import Delaunay, QhullError
+
+    opts = options or LinearOptions()
+    depth, uv, z = _sparse_arrays(sparse)
+    _require_points(z, 3)
+    h, w = depth.shape
+    try:
+        tri = Delaunay(uv)
+    except QhullError as exc:
+        raise FusionInputError(
+            f"cannot triangulate the sparse returns: {exc}", field="sparse_depth"
+        ) from None
+    simp = tri.simplices
+    pa, pb, pc = uv[simp[:, 0]], uv[simp[:, 1]], uv[simp[:, 2]]
+    edge = np.maximum.reduce(
+        [
+            np.linalg.norm(pa - pb, axis=1),
+            np.linalg.norm(pb - pc, axis=1),
+            np.linalg.norm(pc - pa, axis=1),
+        ]
+    )
+    zt = z[simp]
+    ratio = zt.max(1) / zt.min(1)
+    e1, e2 = pb - pa, pc - pa
+    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]  # twice the signed area, px²
+    good = (edge <= opts.max_edge_px) & (ratio <= opts.max_depth_ratio) & (np.abs(det) > 2.0)
+    # rasterise triangle ids (cv2 fill in a loop over kept triangles is far faster than
+    # Delaunay.find_simplex on every pixel); id 0 = none
+    tri_id = np.zeros((h, w), dtype=np.int32)
+    good_idx = np.flatnonzero(good)
+    # 4 fractional bits
+    corners = np.rint(np.stack([pa, pb, pc], 1)[good_idx] * 16).astype(np.int32)
+    fill, line8 = cv2.fillConvexPoly, cv2.LINE_8
+    for tid, poly in zip((good_idx + 1).tolist(), list(corners), strict=True):
+        fill(tri_id, poly, tid, line8, 4)
+    flat = np.flatnonzero(tri_id)
+    k = tri_id.ravel()[flat] - 1
+    grid_rows, grid_cols = pixel_grid_c52a7fb(h, w)
+    rows, cols = grid_rows[flat], grid_cols[flat]  # np.divmod(flat, w), as float64
+    # per triangle, the affine function f(u, v) = a u + b v + c through its three corners, with
+    # f = 1/z (exact for a plane seen through a pinhole) or f = z; one gather per pixel. Pixel
+    # centres up to half a pixel outside their rasterised triangle are extrapolated (exact for
+    # a plane); slivers (area < 1 px²) were dropped above, so this stays well conditioned.
+    gi = good_idx
+    mat = np.ones((len(gi), 3, 3))
+    mat[:, :, :2] = np.stack([pa[gi], pb[gi], pc[gi]], 1)
+    vals = 1.0 / zt[gi] if opts.inverse_depth else zt[gi]
+    coef_good = np.linalg.solve(mat, vals[:, :, None])[:, :, 0]
+    coef = np.zeros((3, len(simp)))
+    coef[:, gi] = coef_good.T
+    f = coef[0][k] * cols + coef[1][k] * rows + coef[2][k]
+    out = np.zeros(h * w, dtype=np.float32)
+    if opts.inverse_depth:
+        out[flat] = np.where(f > 0, 1.0 / np.maximum(f, 1e-12), 0.0)
+    else:
+        out[flat] = np.maximum(f, 0.0)
+    return out.reshape(h, w)
+
+
 # ------------------------------------------------------------- features.matching
 def top2_columns_reference(sim: NDArray[np.float32]
                            ) -> tuple[NDArray[np.int64], NDArray[np.float32], NDArray[np.float32]]:
@@ -649,6 +726,60 @@ def top2_columns_reference(sim: NDArray[np.float32]
     s2 = sim.max(axis=0)
     sim[best, cols] = s1
     return best, s1, s2
+
+
+def top2_columns_opencv_reference(
+    sim: NDArray[np.float32],
+) -> tuple[NDArray[np.int64], NDArray[np.float32], NDArray[np.float32]]:
+    """``bimcap.features.matching._top2_columns`` as of c52a7fb (issue 14's first matching
+    speed-up), verbatim. Per column: what :func:`_top2` gives on ``sim.T``, without copying the
+    transpose.
+
+    The column-wise arg-max is OpenCV's (``reduceArgMax``: the first row of the largest value,
+    as ``np.argmax``, which copies the transpose and costs 3× as much on a 1200 × 1100 block).
+    """
+    import cv2
+
+    best = cv2.reduceArgMax(np.ascontiguousarray(sim), 0).ravel().astype(np.int64)
+    cols = np.arange(sim.shape[1])
+    s1 = sim[best, cols].copy()
+    sim[best, cols] = -np.inf
+    s2 = sim.max(axis=0)
+    sim[best, cols] = s1
+    return best, s1, s2
+
+
+def match_numpy_reference(a: U8, b: U8, opts: Any) -> NDArray[np.int32]:
+    """``bimcap.features.matching._match_numpy`` as of c52a7fb, verbatim (a column-wise arg-max
+    and top 2 of every block, merged across blocks)."""
+    from bimcap.features.matching import ORB_DESCRIPTOR_BYTES, _as_float, _passes, _top2
+
+    binary = a.shape[1] == ORB_DESCRIPTOR_BYTES
+    fa, fb = _as_float(a), _as_float(b)
+    chunk = 2048
+    best_ab = np.empty(len(a), np.int64)
+    ok_ab = np.empty(len(a), bool)
+    # Column-wise top 2 merged across row chunks for the b → a direction.
+    col_s1 = np.full(len(b), -np.inf, np.float32)
+    col_s2 = np.full(len(b), -np.inf, np.float32)
+    col_best = np.zeros(len(b), np.int64)
+    for start in range(0, len(a), chunk):
+        sim = fa[start : start + chunk] @ fb.T
+        best, s1, s2 = _top2(sim)
+        best_ab[start : start + len(sim)] = best
+        ok_ab[start : start + len(sim)] = _passes(s1, s2, opts, binary)
+        cb, c1, c2 = top2_columns_opencv_reference(sim)
+        new_best = c1 > col_s1
+        col_s2 = np.where(new_best, np.maximum(col_s1, c2), np.maximum(col_s2, c1))
+        col_best = np.where(new_best, cb + start, col_best)
+        col_s1 = np.where(new_best, c1, col_s1)
+    ia = np.flatnonzero(ok_ab)
+    ib = best_ab[ia]
+    if opts.cross_check:
+        ok_ba = _passes(col_s1, col_s2, opts, binary)
+        keep = ok_ba[ib] & (col_best[ib] == ia)
+        ia, ib = ia[keep], ib[keep]
+    return np.stack([ia, ib], axis=1).astype(np.int32)
 
 
 @contextmanager
@@ -673,7 +804,7 @@ def old_semantic_sampling() -> AbstractContextManager[None]:
 def old_completion() -> AbstractContextManager[None]:
     from bimcap.fusion import completion
 
-    return swapped(completion, complete_linear=complete_linear_a219de7)
+    return swapped(completion, complete_linear=complete_linear_c52a7fb)
 
 
 @contextmanager
@@ -698,7 +829,7 @@ def old_segmentation() -> AbstractContextManager[None]:
 def old_matching() -> AbstractContextManager[None]:
     from bimcap.features import matching
 
-    return swapped(matching, _top2_columns=top2_columns_reference)
+    return swapped(matching, _match_numpy=match_numpy_reference)
 
 
 #: Stage name (as ``bench_frontend.py --world`` prints it) → a context in which the stage's

@@ -147,9 +147,11 @@ def _two_view_points(n: int, seed: int) -> tuple[Camera, np.ndarray, np.ndarray]
     return cam, uv_a[ok], uv_b[ok]
 
 
+@pytest.mark.parametrize("trials", [None, 30, 1])
 @pytest.mark.parametrize("ver", [Verification.TWO_VIEW, Verification.FUNDAMENTAL])
-def test_verification_removes_outliers(ver: Verification) -> None:
-    """Exact correspondences with parallax plus 20 % random pairs: the random pairs go."""
+def test_verification_removes_outliers(ver: Verification, trials: int | None) -> None:
+    """Exact correspondences with parallax plus 20 % random pairs: the random pairs go, also
+    with fewer RANSAC trials at the least (the confidence test still runs enough of them)."""
     cam, uv_a, uv_b = _two_view_points(400, seed=1)
     rng = np.random.default_rng(2)
     uv_b = uv_b + rng.normal(scale=0.3, size=uv_b.shape)
@@ -158,7 +160,8 @@ def test_verification_removes_outliers(ver: Verification) -> None:
     bad = np.stack([rng.integers(0, n, n // 5), rng.integers(0, n, n // 5)], axis=1)
     bad = bad[bad[:, 0] != bad[:, 1]]
     matches = np.concatenate([good, bad]).astype(np.int32)
-    inl, model = verify_matches(uv_a, uv_b, matches, cam, MatchOptions(verification=ver))
+    inl, model = verify_matches(uv_a, uv_b, matches, cam,
+                                MatchOptions(verification=ver, ransac_min_trials=trials))
     is_good = inl[:, 0] == inl[:, 1]
     assert model in ("CALIBRATED", "FUNDAMENTAL")
     assert is_good.sum() > 0.97 * n
@@ -167,6 +170,18 @@ def test_verification_removes_outliers(ver: Verification) -> None:
     inl, model = verify_matches(uv_a, uv_b, matches, cam,
                                 MatchOptions(verification=Verification.NONE))
     assert len(inl) == len(matches) and model == "none"
+
+
+def test_ransac_min_trials_option() -> None:
+    """None (pycolmap's count) stays out of the options' dict, which keys the front end's cache;
+    a count is in it, and one outside [1, 10000] is refused."""
+    assert "ransac_min_trials" not in MatchOptions().to_dict()
+    assert MatchOptions(ransac_min_trials=30).to_dict()["ransac_min_trials"] == 30
+    assert MatchOptions(ransac_min_trials=30).to_dict() != MatchOptions().to_dict()
+    for bad in (0, 10001):  # pycolmap refuses more than its max_num_trials (10000)
+        with pytest.raises(FeatureError, match="ransac_min_trials"):
+            MatchOptions(ransac_min_trials=bad)
+    MatchOptions(ransac_min_trials=10000)
 
 
 def test_verified_matches_of_a_shifted_image(shifted_pair: tuple) -> None:

@@ -29,6 +29,9 @@ from bimcap.fusion.completion import (
 from bimcap.geometry.camera import Camera
 from bimcap.segmentation.geometric import GeometricOptions, segment_geometric
 
+#: Generated worlds (bench_generalization.py); the tests on their frames skip without them.
+_WORLDS = Path("/tmp/gen")
+
 
 @dataclass
 class _Frame:
@@ -101,9 +104,37 @@ def test_linear_completion_same_as_before(chain: list[_Frame]) -> None:
             new = complete_linear(f.sparse, opts)
             assert np.array_equal(new, ref.complete_linear_reference(f.sparse, opts))
             assert new.tobytes() == ref.complete_linear_a219de7(f.sparse, opts).tobytes()
+            assert new.tobytes() == ref.complete_linear_c52a7fb(f.sparse, opts).tobytes()
         # a dense map given as an (H, W) array takes the other input path
         assert np.array_equal(complete_linear(f.sparse.depth),
                               ref.complete_linear_reference(f.sparse.depth))
+
+
+@pytest.mark.parametrize("world", ["gen-demo-s0", "ifc-SampleHouse4"])
+def test_linear_completion_real_frames_same_as_before(world: str) -> None:
+    """The LiDAR of a generated world's first 6 frames, projected as the front end projects it:
+    the completion (inverse depth and depth) of the c52a7fb code bit for bit; skipped without
+    the world."""
+    seq_dir = _WORLDS / world / "seq_60_standard"
+    if not seq_dir.is_dir():
+        pytest.skip(f"{seq_dir} not generated")
+    from bimcap.dataset import read_sequence
+    from bimcap.frontend.providers import LidarDepthProvider
+
+    seq = read_sequence(seq_dir)
+    projection = LidarDepthProvider().projection
+    for i in range(6):
+        sparse = project_lidar(seq.load_lidar(i), seq.cam_from_lidar, seq.camera, projection,
+                               distort=False)
+        maps = []
+        for inverse in (True, False):
+            opts = LinearOptions(inverse_depth=inverse)
+            maps.append(complete_linear(sparse, opts))
+            assert (maps[-1] > 0).mean() > 0.5
+            assert maps[-1].tobytes() == ref.complete_linear_c52a7fb(sparse, opts).tobytes()
+        # 1/z and z interpolated differ by a few per cent inside a triangle, by a bit on a
+        # plane seen square on: the comparison of bytes tells them apart
+        assert maps[0].tobytes() != maps[1].tobytes()
 
 
 def test_planar_smoothing_same_as_before(chain: list[_Frame]) -> None:
@@ -291,7 +322,6 @@ def test_plane_ransac_same_as_before(chain: list[_Frame]) -> None:
 def test_matching_same_as_before() -> None:
     """Descriptor matches of the box-room images (every pair, both directions), and a tie."""
     from bimcap.features import extract_sift, match_descriptors
-    from bimcap.features.matching import _top2_columns
 
     feats = [extract_sift(f.image) for f in frames(3) + frames(2, 516, 386, 7)]
     n = 0
@@ -305,10 +335,89 @@ def test_matching_same_as_before() -> None:
     assert n > 1000
     sim = np.random.default_rng(0).random((40, 30)).astype(np.float32)
     sim[[3, 7], 5] = 2.0  # a tie: the first row is the arg-max
-    new, old = _top2_columns(sim.copy()), ref.top2_columns_reference(sim.copy())
+    new, old = ref.top2_columns_opencv_reference(sim.copy()), ref.top2_columns_reference(sim.copy())
     assert new[0][5] == 3
     for x, y in zip(new, old, strict=True):
         assert np.array_equal(x, y) and x.dtype == y.dtype
+
+
+def _noisy_copies(rng: np.random.Generator, n_a: int, n_b: int, width: int,
+                  high: int) -> tuple[np.ndarray, np.ndarray]:
+    """``a`` (n_a, width) random uint8 rows (below ``high``, scaled to RootSIFT's norm of 512
+    for 128 wide ones); ``b`` (n_b, width): some of them
+    permuted with a little noise, some exact (ties between rows of a and of b), the rest new."""
+    def rows(n: int) -> np.ndarray:  # SIFT-like: rows of norm ~512, as RootSIFT's
+        r = rng.integers(0, high, (n, width)).astype(np.float64)
+        if width == 128:
+            r *= 512.0 / np.linalg.norm(r, axis=1, keepdims=True)
+        return np.clip(np.rint(r), 0, 255).astype(np.uint8)
+
+    a = rows(n_a)
+    a[5] = a[4]  # two equal rows of a: a tie in b's direction
+    b = rows(n_b)
+    k = min(n_a, n_b) * 2 // 3
+    pick = rng.permutation(n_a)[:k]
+    noise = rng.integers(-2, 3, (k, width))
+    b[:k] = np.clip(a[pick].astype(int) + noise, 0, 255).astype(np.uint8)
+    b[k] = a[4]
+    b[k + 1] = b[k + 2] = a[7]  # two equal rows of b: a tie in a's direction
+    return a, b
+
+
+@pytest.mark.parametrize(("n_a", "n_b"), [(300, 250), (2047, 900), (2049, 800), (4500, 2600)])
+def test_matching_blocks_and_ties_same_as_before(n_a: int, n_b: int) -> None:
+    """Matches of one block of rows and of several (the candidate columns multiplied again),
+    with equal rows on both sides, SIFT-like and binary (ORB) descriptors, with and without the
+    cross check: the c52a7fb code's exactly; and the check is not vacuous (the ties and the
+    cross check change the matches)."""
+    from bimcap.features import MatchOptions, match_descriptors
+    from bimcap.features.sift import ORB_DESCRIPTOR_BYTES
+
+    rng = np.random.default_rng(n_a + n_b)
+    for width, high in ((128, 40), (ORB_DESCRIPTOR_BYTES, 256)):
+        a, b = _noisy_copies(rng, n_a, n_b, width, high)
+        for opts in (MatchOptions(), MatchOptions(cross_check=False),
+                     MatchOptions(max_ratio=0.95, max_distance=1.0, max_hamming=120)):
+            for x, y in ((a, b), (b, a)):
+                new = match_descriptors(x, y, opts)
+                with ref.old_matching():
+                    old = match_descriptors(x, y, opts)
+                assert np.array_equal(new, old) and new.dtype == old.dtype
+                assert len(new) > min(len(x), len(y)) // 3
+        both = match_descriptors(a, b)
+        assert 4 not in both[:, 0] and 5 not in both[:, 0]  # the tie in b's direction
+        assert 7 not in both[:, 0]  # the tie in a's direction
+        assert len(match_descriptors(a, b, MatchOptions(cross_check=False))) > len(both)
+
+
+
+@pytest.mark.parametrize("world", ["gen-demo-s0", "ifc-SampleHouse4"])
+def test_matching_real_frames_same_as_before(world: str) -> None:
+    """Every pair of a generated world's first 8 frames, window 4 (its SIFT as the front end
+    extracts it): the same matches as the c52a7fb code; skipped without the world."""
+    seq_dir = _WORLDS / world / "seq_60_standard"
+    if not seq_dir.is_dir():
+        pytest.skip(f"{seq_dir} not generated")
+    from bimcap.dataset import read_sequence
+    from bimcap.features import extract_sift, match_descriptors
+    from bimcap.frontend.runner import _load_raw_image, get_undistorter
+    from bimcap.pipeline.config import RefineConfig
+    from bimcap.pipeline.refine import sift_options
+
+    seq = read_sequence(seq_dir)
+    und = get_undistorter(seq.camera)
+    opts = sift_options(RefineConfig())
+    desc = [extract_sift(und.image(_load_raw_image(seq, i, seq.camera)), opts).descriptors
+            for i in range(8)]
+    n = 0
+    for i in range(8):
+        for j in range(i + 1, min(8, i + 5)):
+            new = match_descriptors(desc[i], desc[j])
+            with ref.old_matching():
+                old = match_descriptors(desc[i], desc[j])
+            assert np.array_equal(new, old)
+            n += len(new)
+    assert n > 2000
 
 
 def test_scan_range_noise_same_as_before() -> None:

@@ -23,6 +23,7 @@ from bimcap.pipeline.refine import (
     coarse_options,
     geometric_options,
     make_providers,
+    match_options,
     sift_options,
     solver_options,
     validate_settings,
@@ -113,6 +114,26 @@ def test_features_table_reaches_the_sift_options(tmp_path: Path) -> None:
         assert info.value.field == key, table
 
 
+def test_matching_table_reaches_the_front_end(tmp_path: Path) -> None:
+    from bimcap.features import MatchOptions, Verification
+
+    assert match_options(RefineConfig()) == MatchOptions()
+    toml = tmp_path / "run.toml"
+    toml.write_text('[matching]\nransac_min_trials = 30\nverification = "fundamental"\n')
+    opts = match_options(RefineConfig.from_toml(toml))
+    assert opts.ransac_min_trials == 30 and opts.verification is Verification.FUNDAMENTAL
+    assert opts.max_ratio == MatchOptions().max_ratio
+    for table, key in (({"ransac_min_trials": 0}, "matching"),
+                       ({"ransac_min_trials": 2.5}, "matching.ransac_min_trials"),
+                       ({"min_trials": 30}, "matching.min_trials"),
+                       ({"verification": "affine"}, "matching.verification")):
+        with pytest.raises(ConfigError) as info:
+            validate_settings(RefineConfig(matching=table))
+        assert info.value.field == key, table
+    with pytest.raises(ConfigError, match="matching"):
+        RefineConfig(matching=[1])  # type: ignore[arg-type]
+
+
 def test_geometric_table_reaches_the_segmenter(tmp_path: Path) -> None:
     from bimcap.segmentation.geometric import GeometricOptions
 
@@ -157,7 +178,8 @@ def test_print_config_reads_back_to_the_same_run(tmp_path: Path, flags: tuple[st
     given = tmp_path / "given.toml"
     given.write_text("[solver]\nassociation_gate = 0.3\n[solver.wall]\nsigma = 0.02\n"
                      "[registration]\nxy_range_m = 1.5\nview_bins = 2\n"
-                     "[features]\nbackend = \"opencv\"\n[geometric]\nwork_width = 200\n")
+                     "[features]\nbackend = \"opencv\"\n[matching]\nransac_min_trials = 30\n"
+                     "[geometric]\nwork_width = 200\n")
     text = _print_config("--config", str(given), *flags)
     assert "[solver.wall]" in text and "[registration]" in text
     printed = tmp_path / "printed.toml"
@@ -168,6 +190,8 @@ def test_print_config_reads_back_to_the_same_run(tmp_path: Path, flags: tuple[st
     assert asdict(coarse_options(again)) == asdict(coarse_options(original))
     assert sift_options(again) == sift_options(original) and sift_options(again).backend.value == \
         "opencv"
+    assert match_options(again) == match_options(original)
+    assert match_options(again).ransac_min_trials == 30
     assert geometric_options(again) == geometric_options(original)
     assert geometric_options(again).work_width == 200
     assert coarse_options(again).xy_range_m == 1.5 and solver_options(again).wall.sigma == 0.02

@@ -70,6 +70,11 @@ class MatchOptions:
     max_error_px: RANSAC inlier threshold in pixels.
     min_num_inliers: a pair with fewer verified matches yields no matches at all.
     seed: RANSAC seed (deterministic results).
+    ransac_min_trials: the fewest RANSAC hypotheses of each model (COLMAP's ``min_num_trials``);
+        None: pycolmap's (100 for ``TWO_VIEW``, 1000 for ``FUNDAMENTAL``). With the nearly
+        all-inlier pairs of a walk the confidence test stops RANSAC long before, so this is
+        its cost: 30 halves ``TWO_VIEW``'s time a pair (docs/speed.md, with the accuracy). Left
+        out of :meth:`to_dict` when None, so that the front end's cache keys stay the same.
     """
 
     backend: MatcherBackend = MatcherBackend.NUMPY
@@ -81,6 +86,7 @@ class MatchOptions:
     max_error_px: float = 2.0
     min_num_inliers: int = 15
     seed: int = 0
+    ransac_min_trials: int | None = None
 
     def __post_init__(self) -> None:
         if not 0.0 < self.max_ratio <= 1.0:
@@ -93,11 +99,17 @@ class MatchOptions:
             raise FeatureError(f"max_error_px must be positive, got {self.max_error_px}")
         if self.min_num_inliers < 0:
             raise FeatureError("min_num_inliers must be >= 0")
+        if self.ransac_min_trials is not None and not 1 <= self.ransac_min_trials <= 10000:
+            # pycolmap refuses more than its max_num_trials (10000 for the two-view geometry)
+            raise FeatureError("ransac_min_trials must be in [1, 10000], got "
+                               f"{self.ransac_min_trials}")
 
     def to_dict(self) -> dict[str, object]:
         d = asdict(self)
         d["backend"] = self.backend.value
         d["verification"] = self.verification.value
+        if self.ransac_min_trials is None:
+            del d["ransac_min_trials"]
         return d
 
 
@@ -164,25 +176,6 @@ def _top2(
     return best, s1, s2
 
 
-def _top2_columns(
-    sim: NDArray[np.float32],
-) -> tuple[NDArray[np.int64], NDArray[np.float32], NDArray[np.float32]]:
-    """Per column: what :func:`_top2` gives on ``sim.T``, without copying the transpose.
-
-    The column-wise arg-max is OpenCV's (``reduceArgMax``: the first row of the largest value,
-    as ``np.argmax``, which copies the transpose and costs 3× as much on a 1200 × 1100 block).
-    """
-    import cv2
-
-    best = cv2.reduceArgMax(np.ascontiguousarray(sim), 0).ravel().astype(np.int64)
-    cols = np.arange(sim.shape[1])
-    s1 = sim[best, cols].copy()
-    sim[best, cols] = -np.inf
-    s2 = sim.max(axis=0)
-    sim[best, cols] = s1
-    return best, s1, s2
-
-
 def _passes(s1: NDArray[np.float32], s2: NDArray[np.float32], opts: MatchOptions,
             binary: bool = False) -> NDArray[np.bool_]:
     """COLMAP's criteria on similarities (dot / 512²): angle test and ratio test; ``binary``:
@@ -204,30 +197,51 @@ def _as_float(desc: NDArray[np.uint8]) -> NDArray[np.float32]:
 
 
 def _match_numpy(a: NDArray[np.uint8], b: NDArray[np.uint8], opts: MatchOptions) -> I32:
+    """Mutual nearest neighbours with the ratio test in both directions, from one product.
+
+    Every similarity is exact in float32 (uint8 products summed: an integer below 2²⁴, times
+    2⁻¹⁸ for SIFT; a sum of ±1 for ORB), so it is the same whatever the order of the sums: a
+    block of rows, its transpose or a subset of columns give the same numbers bit for bit. The
+    b → a direction then needs no column-wise arg-max: row i's best column j is also j's best
+    row exactly when ``sim[i, j]`` equals the column's maximum, and where two rows reach it the
+    column's second best equals its best, which fails the ratio test (as before, when the first
+    of the two rows was the arg-max). The column's second best is its maximum once the one
+    candidate row is set to −∞.
+    """
     binary = a.shape[1] == ORB_DESCRIPTOR_BYTES
     fa, fb = _as_float(a), _as_float(b)
     chunk = 2048
     best_ab = np.empty(len(a), np.int64)
+    s1_ab = np.empty(len(a), np.float32)
     ok_ab = np.empty(len(a), bool)
-    # Column-wise top 2 merged across row chunks for the b → a direction.
     col_s1 = np.full(len(b), -np.inf, np.float32)
-    col_s2 = np.full(len(b), -np.inf, np.float32)
-    col_best = np.zeros(len(b), np.int64)
+    sim = np.zeros((0, len(b)), np.float32)
     for start in range(0, len(a), chunk):
         sim = fa[start : start + chunk] @ fb.T
         best, s1, s2 = _top2(sim)
         best_ab[start : start + len(sim)] = best
+        s1_ab[start : start + len(sim)] = s1
         ok_ab[start : start + len(sim)] = _passes(s1, s2, opts, binary)
-        cb, c1, c2 = _top2_columns(sim)
-        new_best = c1 > col_s1
-        col_s2 = np.where(new_best, np.maximum(col_s1, c2), np.maximum(col_s2, c1))
-        col_best = np.where(new_best, cb + start, col_best)
-        col_s1 = np.where(new_best, c1, col_s1)
+        np.maximum(col_s1, sim.max(axis=0), out=col_s1)
     ia = np.flatnonzero(ok_ab)
     ib = best_ab[ia]
     if opts.cross_check:
-        ok_ba = _passes(col_s1, col_s2, opts, binary)
-        keep = ok_ba[ib] & (col_best[ib] == ia)
+        # the rows that are their column's best, then those alone in their column
+        top = s1_ab[ia] == col_s1[ib]
+        ia, ib = ia[top], ib[top]
+        _, inverse, counts = np.unique(ib, return_inverse=True, return_counts=True)
+        alone = counts[inverse] == 1
+        ia, ib = ia[alone], ib[alone]
+        if len(a) <= chunk:  # the one block of rows is still there
+            sim[ia, ib] = -np.inf
+            col_s2 = sim.max(axis=0)[ib]
+        else:  # the candidate columns again, as rows (the same numbers)
+            col_s2 = np.empty(len(ib), np.float32)
+            for start in range(0, len(ib), chunk):
+                part = fb[ib[start : start + chunk]] @ fa.T
+                part[np.arange(len(part)), ia[start : start + chunk]] = -np.inf
+                col_s2[start : start + len(part)] = part.max(axis=1)
+        keep = _passes(col_s1[ib], col_s2, opts, binary)
         ia, ib = ia[keep], ib[keep]
     return np.stack([ia, ib], axis=1).astype(np.int32)
 
@@ -296,6 +310,8 @@ def verify_matches(
         ro = pycolmap.RANSACOptions()
         ro.max_error = opts.max_error_px
         ro.random_seed = opts.seed
+        if opts.ransac_min_trials is not None:
+            ro.min_num_trials = opts.ransac_min_trials
         res = pycolmap.estimate_fundamental_matrix(pa, pb, ro)
         if res is None:
             return empty, "degenerate"
@@ -312,6 +328,8 @@ def verify_matches(
         to = pycolmap.TwoViewGeometryOptions()
         to.ransac.max_error = opts.max_error_px
         to.ransac.random_seed = opts.seed
+        if opts.ransac_min_trials is not None:
+            to.ransac.min_num_trials = opts.ransac_min_trials
         to.min_num_inliers = opts.min_num_inliers
         # A rig that stands still gives matches at the same pixels; they are valid constraints,
         # not a watermark, so COLMAP's watermark detection is switched off.

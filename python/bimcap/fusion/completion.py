@@ -26,8 +26,10 @@ All depth maps are float32 metres, 0 = unknown, in undistorted pinhole pixels.
 from __future__ import annotations
 
 import functools
+from collections import deque
 from dataclasses import dataclass, field, replace
 from enum import Enum
+from itertools import repeat
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -175,14 +177,14 @@ def fill_nearest(sparse: SparseDepth | ArrayLike) -> F32:
 
 # ----------------------------------------------------------------------------- linear
 @functools.lru_cache(maxsize=4)
-def _pixel_grid(h: int, w: int) -> tuple[F64, F64]:
-    """(H·W,) float64 row and column of every pixel in row-major order (read-only; cached per
-    image size)."""
-    rows = np.repeat(np.arange(h, dtype=np.float64), w)
-    cols = np.tile(np.arange(w, dtype=np.float64), h)
-    rows.flags.writeable = False
+def _pixel_axes(h: int, w: int) -> tuple[F64, F64]:
+    """(1, W) float64 column and (H, 1) float64 row of the pixels (read-only; cached per image
+    size): broadcast together, every pixel's (u, v)."""
+    cols = np.arange(w, dtype=np.float64)[None, :]
+    rows = np.arange(h, dtype=np.float64)[:, None]
     cols.flags.writeable = False
-    return rows, cols
+    rows.flags.writeable = False
+    return cols, rows
 
 
 def complete_linear(sparse: SparseDepth | ArrayLike, options: LinearOptions | None = None) -> F32:
@@ -221,31 +223,32 @@ def complete_linear(sparse: SparseDepth | ArrayLike, options: LinearOptions | No
     good_idx = np.flatnonzero(good)
     # 4 fractional bits
     corners = np.rint(np.stack([pa, pb, pc], 1)[good_idx] * 16).astype(np.int32)
-    fill, line8 = cv2.fillConvexPoly, cv2.LINE_8
-    for tid, poly in zip((good_idx + 1).tolist(), list(corners), strict=True):
-        fill(tri_id, poly, tid, line8, 4)
-    flat = np.flatnonzero(tri_id)
-    k = tri_id.ravel()[flat] - 1
-    grid_rows, grid_cols = _pixel_grid(h, w)
-    rows, cols = grid_rows[flat], grid_cols[flat]  # np.divmod(flat, w), as float64
+    # one call a triangle, in order (a later triangle overwrites the edge pixels it shares),
+    # driven by map: the loop's own cost is a tenth of the calls'
+    deque(map(cv2.fillConvexPoly, repeat(tri_id), list(corners), (good_idx + 1).tolist(),
+              repeat(cv2.LINE_8), repeat(4)), maxlen=0)
     # per triangle, the affine function f(u, v) = a u + b v + c through its three corners, with
-    # f = 1/z (exact for a plane seen through a pinhole) or f = z; one gather per pixel. Pixel
-    # centres up to half a pixel outside their rasterised triangle are extrapolated (exact for
-    # a plane); slivers (area < 1 px²) were dropped above, so this stays well conditioned.
+    # f = 1/z (exact for a plane seen through a pinhole) or f = z; one gather per pixel by its
+    # triangle id (column 0: no triangle, f = 0 and the pixel stays 0). Pixel centres up to
+    # half a pixel outside their rasterised triangle are extrapolated (exact for a plane);
+    # slivers (area < 1 px²) were dropped above, so this stays well conditioned.
     gi = good_idx
     mat = np.ones((len(gi), 3, 3))
     mat[:, :, :2] = np.stack([pa[gi], pb[gi], pc[gi]], 1)
     vals = 1.0 / zt[gi] if opts.inverse_depth else zt[gi]
     coef_good = np.linalg.solve(mat, vals[:, :, None])[:, :, 0]
-    coef = np.zeros((3, len(simp)))
-    coef[:, gi] = coef_good.T
-    f = coef[0][k] * cols + coef[1][k] * rows + coef[2][k]
-    out = np.zeros(h * w, dtype=np.float32)
+    coef = np.zeros((3, len(simp) + 1))
+    coef[:, gi + 1] = coef_good.T
+    cols, rows = _pixel_axes(h, w)
+    f = coef[0][tri_id]
+    f *= cols
+    f += coef[1][tri_id] * rows
+    f += coef[2][tri_id]
     if opts.inverse_depth:
-        out[flat] = np.where(f > 0, 1.0 / np.maximum(f, 1e-12), 0.0)
+        out = np.where(f > 0, 1.0 / np.maximum(f, 1e-12), 0.0)
     else:
-        out[flat] = np.maximum(f, 0.0)
-    return out.reshape(h, w)
+        out = np.maximum(f, 0.0)
+    return out.astype(np.float32)
 
 
 # ----------------------------------------------------------------------------- classical

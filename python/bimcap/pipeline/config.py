@@ -6,7 +6,8 @@ prints every setting of a run, solver and registration options included, as a TO
 ``--config`` reads back. The TOML file holds the same keys as the dataclass, with a ``[solver]``
 table (``bimcap.optimize.SolverOptions`` fields, terms as tables, e.g. ``[solver.wall]
 sigma = 0.03``), a ``[registration]`` table (``bimcap.registration.CoarseOptions`` fields) and a
-``[features]`` table (``bimcap.features.SiftOptions`` fields)::
+``[features]`` table (``bimcap.features.SiftOptions`` fields), a ``[matching]`` table
+(``bimcap.features.MatchOptions`` fields)::
 
     method = "bimcap"          # or "facap"
     terms = "G+F+W+Co+Ce"
@@ -23,6 +24,8 @@ sigma = 0.03``), a ``[registration]`` table (``bimcap.registration.CoarseOptions
     xy_range_m = 2.0
     [features]
     backend = "opencv"         # or "pycolmap", "orb" (binary features, ~10x cheaper)
+    [matching]
+    ransac_min_trials = 30     # half the verification's time (docs/speed.md)
     [geometric]
     work_width = 258           # the geometric segmenter's working resolution (pixels across)
 
@@ -172,6 +175,8 @@ class RefineConfig:
         applied after the preset, ``loss`` and ``geometric_mode``.
     registration: overrides of ``bimcap.registration.CoarseOptions`` fields (the coarse stage).
     features: overrides of ``bimcap.features.SiftOptions`` fields (the front end's keypoints).
+    matching: overrides of ``bimcap.features.MatchOptions`` fields (each pair's descriptor
+        matching and geometric verification, e.g. ``ransac_min_trials``).
     geometric: overrides of ``bimcap.segmentation.geometric.GeometricOptions`` fields (the
         geometric segmenter of ``segmentation = "geometric"``, e.g. its ``work_width``).
     colmap: the COLMAP model of the refined reconstruction in ``colmap/`` (:class:`ColmapExport`):
@@ -236,6 +241,7 @@ class RefineConfig:
     solver: dict[str, Any] = field(default_factory=dict)
     registration: dict[str, Any] = field(default_factory=dict)
     features: dict[str, Any] = field(default_factory=dict)
+    matching: dict[str, Any] = field(default_factory=dict)
     geometric: dict[str, Any] = field(default_factory=dict)
     colmap: ColmapExport = ColmapExport.IMAGES
     rerun: bool = False
@@ -326,6 +332,8 @@ class RefineConfig:
                               field="registration")
         if not isinstance(self.features, dict):
             raise ConfigError("features must be a table of SiftOptions fields", field="features")
+        if not isinstance(self.matching, dict):
+            raise ConfigError("matching must be a table of MatchOptions fields", field="matching")
         if not isinstance(self.geometric, dict):
             raise ConfigError("geometric must be a table of GeometricOptions fields",
                               field="geometric")

@@ -262,6 +262,7 @@ def _prepare(sequence: str | PathLike[str] | Any, ifc: str | PathLike[str] | Non
     fe = run_frontend(
         fe_seq,
         FrontendConfig(window=config.window, sift=sift_options(config),
+                       match=match_options(config),
                        filters=MatchFilterOptions(max_initial_distance_m=config.max_match_distance),
                        sampling=SemanticSamplingOptions(source=SampleSource(config.samples)),
                        # FACaP keeps the peers' front end: every verified pair.
@@ -1306,7 +1307,7 @@ def effective_settings(config: RefineConfig) -> dict[str, Any]:
         else:
             solver[key] = typed
     out = {k: v for k, v in config.to_dict().items()
-           if k not in ("solver", "registration", "features", "geometric")
+           if k not in ("solver", "registration", "features", "matching", "geometric")
            and not k.startswith("effective_")}
     out.update(terms=config.effective_terms, weighting=config.effective_weighting,
                coarse=config.effective_coarse, lidar_scan=config.effective_lidar_scan,
@@ -1316,6 +1317,7 @@ def effective_settings(config: RefineConfig) -> dict[str, Any]:
     out["solver"] = solver
     out["registration"] = asdict(coarse_options(config))
     out["features"] = sift_options(config).to_dict()
+    out["matching"] = match_options(config).to_dict()
     out["geometric"] = asdict(geometric_options(config))
     return out
 
@@ -1338,6 +1340,16 @@ def sift_options(config: RefineConfig) -> Any:
     from bimcap.pipeline.config import options_from_table
 
     return options_from_table(SiftOptions, config.features, "features", FeatureError)
+
+
+def match_options(config: RefineConfig) -> Any:
+    """``bimcap.features.MatchOptions`` with the config's ``[matching]`` table applied (errors
+    name ``matching.<key>``)."""
+    from bimcap.features.matching import MatchOptions
+    from bimcap.features.sift import FeatureError
+    from bimcap.pipeline.config import options_from_table
+
+    return options_from_table(MatchOptions, config.matching, "matching", FeatureError)
 
 
 def geometric_options(config: RefineConfig) -> Any:
@@ -1560,6 +1572,7 @@ def validate_settings(config: RefineConfig) -> Any:
     base = solver_options(config)
     coarse_options(config)
     sift_options(config)
+    match_options(config)
     geometric_options(config)
     solver_stages = [stage_options(base, stage, config) for stage in schedule_for(config).stages
                      if stage.kind is not StageKind.COARSE]
