@@ -49,6 +49,8 @@ class DepthLookupOptions:
         returns (each at its own pixel) is more than this many standard errors
         (range noise / √``support_returns``) from 0: the depth map there left the returns (a
         plane fitted across a corner). None: no such test.
+    min_noise_m: the range noise the test assumes at least, metres (a noise-free scan still
+        differs from a depth map by its pixel grid).
     """
 
     max_relative_spread: float = 0.05
@@ -57,6 +59,7 @@ class DepthLookupOptions:
     max_depth_m: float = 100.0
     support_returns: int = 16
     max_support_z: float | None = 3.0
+    min_noise_m: float = 0.01
 
     def __post_init__(self) -> None:
         if self.support_returns < 1:
@@ -137,8 +140,8 @@ def unsupported_depths(
     depth: (H, W) z-depth in metres the keypoints' depths come from, 0 = unknown.
     measured: (H, W) z-depth of the sensor's returns at their pixels, metres, 0 elsewhere.
     uv: (N, 2) keypoint pixels (origin at the first pixel centre).
-    noise_m: the returns' range noise σ, metres (> 0).
-    options: ``support_returns`` (k) and ``max_support_z``; None: defaults.
+    noise_m: the returns' range noise σ, metres (at least ``min_noise_m`` is assumed).
+    options: ``support_returns`` (k), ``max_support_z``, ``min_noise_m``; None: defaults.
 
     Returns
     -------
@@ -155,7 +158,7 @@ def unsupported_depths(
         raise FeatureError(f"depth {d.shape} and measured {m.shape} must be the same (H, W)")
     out = np.zeros(len(q), dtype=bool)
     k = opts.support_returns
-    if opts.max_support_z is None or not noise_m > 0 or len(q) == 0:
+    if opts.max_support_z is None or len(q) == 0:
         return out
     v, u = np.nonzero((m > 0) & (d > 0))
     if len(u) < k:
@@ -163,7 +166,8 @@ def unsupported_depths(
     diff = m[v, u] - d[v, u]
     _, idx = cKDTree(np.stack([u, v], axis=1).astype(np.float64)).query(q, k=k)
     bias = diff[np.asarray(idx).reshape(len(q), k)].mean(axis=1)
-    return np.asarray(np.abs(bias) > opts.max_support_z * noise_m / np.sqrt(k))
+    sigma = max(noise_m, opts.min_noise_m)
+    return np.asarray(np.abs(bias) > opts.max_support_z * sigma / np.sqrt(k))
 
 
 # --------------------------------------------------------------------------- tracks
