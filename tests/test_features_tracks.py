@@ -18,6 +18,7 @@ from bimcap.features import (
     frame_gap_ok,
     lookup_depth,
     triangulate_tracks,
+    unsupported_depths,
 )
 from bimcap.geometry.camera import Camera
 from bimcap.geometry.poses import invert, transform_points
@@ -53,6 +54,54 @@ def test_depth_edges_and_holes() -> None:
     # nearest of (31.5 → 32) is the far side, (31.2 → 31) the near side; the hole's nearest is
     # the hole itself (10, 10) → still 0.
     assert near.tolist() == [5.0, 2.0, 0.0, 2.0, 0.0, 0.0]
+
+
+def _wall_returns(seed: int, noise_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """A wall 3–3.4 m away seen by a 200 × 150 image: (truth (H, W) z-depth, measured (H, W):
+    1500 returns at random pixels with ``noise_m`` of range noise, 0 elsewhere)."""
+    rng = np.random.default_rng(seed)
+    _, u = np.mgrid[0:150, 0:200]
+    truth = 3.0 + 0.002 * u
+    measured = np.zeros_like(truth)
+    at = rng.choice(truth.size, 1500, replace=False)
+    measured.flat[at] = truth.flat[at] + rng.normal(0.0, noise_m, at.size)
+    return truth, measured
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_a_depth_map_that_left_its_returns_gives_its_keypoints_no_depth(seed: int) -> None:
+    """gen-small-s3 hard frame 56 (docs/generalization.md): a plane fitted across a corner put a
+    strip of wall 5–10 cm off under 8 cm returns; each pixel looked plausible (the 2 × 2 check
+    passes it) and G's matches there pulled the frame 1.7° off. The returns around such a
+    keypoint disagree with the map on average: its depth goes; on a map that follows the
+    returns (the right plane, an interpolating completion) hardly any does."""
+    from bimcap.fusion import complete_depth
+
+    truth, measured = _wall_returns(seed, 0.08)
+    off = truth.copy()
+    off[:, :60] += 0.08 + 0.08 * np.arange(60) / 59  # 8–16 cm off, a ramp (a turned plane)
+    gv, gu = np.mgrid[4:146:6, 4:196:6]
+    uv = np.stack([gu.ravel(), gv.ravel()], 1).astype(np.float64) + 0.3
+    inside, outside = uv[:, 0] < 60 - 12, uv[:, 0] > 60 + 12
+    # the 2 × 2 look-up keeps every depth of the patch that is off
+    assert (lookup_depth(off.astype(np.float32), uv)[inside] > 0).all()
+    flagged = unsupported_depths(off, measured, uv, 0.08)
+    assert flagged[inside].mean() > 0.9
+    assert flagged[outside].mean() < 0.02
+    assert unsupported_depths(truth, measured, uv, 0.08).mean() < 0.02
+    completed = complete_depth(measured.astype(np.float32))  # passes through its returns
+    assert not unsupported_depths(completed, measured, uv, 0.08).any()
+    assert not unsupported_depths(off, measured, uv, 0.08,
+                                  DepthLookupOptions(max_support_z=None)).any()
+
+
+def test_unsupported_depths_rejects_bad_input() -> None:
+    with pytest.raises(FeatureError, match="same"):
+        unsupported_depths(np.ones((4, 5)), np.ones((5, 4)), np.zeros((1, 2)), 0.08)
+    with pytest.raises(FeatureError, match="support_returns"):
+        DepthLookupOptions(support_returns=0)
+    with pytest.raises(FeatureError, match="max_support_z"):
+        DepthLookupOptions(max_support_z=0.0)
 
 
 def test_small_relative_spread_is_interpolated() -> None:

@@ -126,3 +126,41 @@ def test_a_scan_that_misses_the_image_gives_no_depth(seq: SceneSequence, keep: i
     assert int((sparse.depth > 0).sum()) <= keep  # the scan misses the image
     depth = LidarDepthProvider()(ctx)
     assert depth.shape == (TEST_CAMERA.height, TEST_CAMERA.width) and not depth.any()
+
+
+@dataclasses.dataclass(frozen=True)
+class _PushedOff:
+    """A depth refiner that puts the left third of every frame 10 cm further (a plane fitted
+    off the wall there)."""
+
+    def __call__(self, ctx: object, labels: np.ndarray) -> np.ndarray:
+        depth = np.array(ctx.depth, np.float32)  # type: ignore[attr-defined]
+        third = depth.shape[1] // 3
+        depth[:, :third] = np.where(depth[:, :third] > 0, depth[:, :third] + 0.10, 0.0)
+        return depth
+
+
+def test_keypoints_where_the_refined_depth_left_the_returns_get_no_depth(
+        seq: SceneSequence) -> None:
+    """The front end drops a keypoint's depth where the depth map left the LiDAR returns around
+    it (``DepthLookupOptions.max_support_z``): G then keeps the match's other direction
+    (gen-small-s3 hard frame 56, docs/generalization.md). Elsewhere the depths stay."""
+    from bimcap.features import DepthLookupOptions
+
+    cfg = dataclasses.replace(
+        CONFIG,
+        filters=MatchFilterOptions(max_initial_distance_m=None, require_depth=RequireDepth.NONE),
+    )
+    off = dataclasses.replace(cfg, depth_lookup=DepthLookupOptions(max_support_z=None))
+    runs = [run_frontend(seq, c, seq.gt, LidarDepthProvider(), GroundTruthLabelProvider(),
+                         workers=1, progress=False, depth_refiner=_PushedOff())
+            for c in (cfg, off)]
+    assert np.array_equal(runs[0].match_uv, runs[1].match_uv)
+    third = TEST_CAMERA.width / 3
+    for side in (0, 1):
+        u = runs[0].match_uv[:, 2 * side]
+        pushed, kept = u < third - 30, u > third + 30
+        now, before = runs[0].match_depth[:, side], runs[1].match_depth[:, side]
+        assert pushed.sum() > 20 and (before[pushed] > 0).mean() > 0.8
+        assert (now[pushed] == 0).mean() > 0.95
+        assert (now[kept] == before[kept]).mean() > 0.95

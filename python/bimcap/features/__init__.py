@@ -30,6 +30,7 @@ from bimcap.features.tracks import (
     frame_gap_ok,
     lookup_depth,
     triangulate_tracks,
+    unsupported_depths,
 )
 
 __all__ = [
@@ -57,5 +58,6 @@ __all__ = [
     "match_pair",
     "sequential_pairs",
     "triangulate_tracks",
+    "unsupported_depths",
     "verify_matches",
 ]

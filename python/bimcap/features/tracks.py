@@ -43,12 +43,29 @@ class DepthLookupOptions:
         4 neighbouring pixels, all valid.
     edge_policy: otherwise, the nearest pixel's depth or none.
     min_depth_m, max_depth_m: depths outside this range count as invalid.
+    support_returns: how many of the sensor's returns nearest a keypoint (in the image) test its
+        depth (:func:`unsupported_depths`).
+    max_support_z: a keypoint's depth is dropped when the mean of ``return − depth`` over those
+        returns (each at its own pixel) is more than this many standard errors
+        (range noise / √``support_returns``) from 0: the depth map there left the returns (a
+        plane fitted across a corner). None: no such test.
+    min_noise_m: the range noise the test assumes at least, metres (a noise-free scan still
+        differs from a depth map by its pixel grid).
     """
 
     max_relative_spread: float = 0.05
     edge_policy: DepthEdgePolicy = DepthEdgePolicy.INVALID
     min_depth_m: float = 0.1
     max_depth_m: float = 100.0
+    support_returns: int = 16
+    max_support_z: float | None = 3.0
+    min_noise_m: float = 0.01
+
+    def __post_init__(self) -> None:
+        if self.support_returns < 1:
+            raise FeatureError(f"support_returns must be >= 1, got {self.support_returns}")
+        if self.max_support_z is not None and not self.max_support_z > 0:
+            raise FeatureError(f"max_support_z must be > 0 or None, got {self.max_support_z}")
 
     def to_dict(self) -> dict[str, object]:
         d = asdict(self)
@@ -101,6 +118,56 @@ def lookup_depth(
         vn = np.clip(np.rint(q[rest, 1]).astype(np.int64), 0, h - 1)
         out[rest] = valid_d[vn, un]
     return out
+
+
+def unsupported_depths(
+    depth: NDArray[np.floating], measured: NDArray[np.floating], uv: F64, noise_m: float,
+    options: DepthLookupOptions | None = None,
+) -> NDArray[np.bool_]:
+    """Keypoints whose depth the sensor's own returns around them contradict.
+
+    A depth map made from the returns (completed, then smoothed onto planes) can leave them: a
+    plane fitted across a corner or to a strip of wall turned 30° puts a whole patch 5–10 cm
+    off while each pixel still looks plausible. At every return ``r`` the map's error is seen
+    directly as ``measured[r] − depth[r]`` (range noise σ). Over the ``k`` returns nearest a
+    keypoint the mean of these differences is ~N(0, σ/√k) where the map follows the returns,
+    and the keypoint's depth is not to be trusted where it is further than ``max_support_z``
+    standard errors from 0. An interpolating completion passes through its returns (no
+    keypoint dropped there); so does any map at a return it did not change.
+
+    Parameters
+    ----------
+    depth: (H, W) z-depth in metres the keypoints' depths come from, 0 = unknown.
+    measured: (H, W) z-depth of the sensor's returns at their pixels, metres, 0 elsewhere.
+    uv: (N, 2) keypoint pixels (origin at the first pixel centre).
+    noise_m: the returns' range noise σ, metres (at least ``min_noise_m`` is assumed).
+    options: ``support_returns`` (k), ``max_support_z``, ``min_noise_m``; None: defaults.
+
+    Returns
+    -------
+    (N,) bool, True where the depth is contradicted (all False when ``max_support_z`` is None,
+    or fewer than k returns have a depth in the map).
+    """
+    from scipy.spatial import cKDTree
+
+    opts = options or DepthLookupOptions()
+    q = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    d = np.asarray(depth, dtype=np.float64)
+    m = np.asarray(measured, dtype=np.float64)
+    if d.shape != m.shape or d.ndim != 2:
+        raise FeatureError(f"depth {d.shape} and measured {m.shape} must be the same (H, W)")
+    out = np.zeros(len(q), dtype=bool)
+    k = opts.support_returns
+    if opts.max_support_z is None or len(q) == 0:
+        return out
+    v, u = np.nonzero((m > 0) & (d > 0))
+    if len(u) < k:
+        return out
+    diff = m[v, u] - d[v, u]
+    _, idx = cKDTree(np.stack([u, v], axis=1).astype(np.float64)).query(q, k=k)
+    bias = diff[np.asarray(idx).reshape(len(q), k)].mean(axis=1)
+    sigma = max(noise_m, opts.min_noise_m)
+    return np.asarray(np.abs(bias) > opts.max_support_z * sigma / np.sqrt(k))
 
 
 # --------------------------------------------------------------------------- tracks

@@ -58,6 +58,7 @@ from bimcap.features.tracks import (
     consistent_track_observations,
     lookup_depth,
     triangulate_tracks,
+    unsupported_depths,
 )
 from bimcap.frontend.cache import ResultCache, frame_cache_key, stable_hash
 from bimcap.frontend.errors import FrontendError as FrontendError
@@ -752,6 +753,13 @@ def _compute_frame(job: _FrameJob, shared: _RunShared | None) -> dict[str, NDArr
         feats = {k: job.features[k] for k in FEATURE_ARRAYS}
         sift_time = 0.0
     kp_depth = lookup_depth(depth, np.asarray(feats["uv"]), cfg.depth_lookup)
+    measured = ctx.measured_depth
+    noise = ctx.range_noise_m() if measured is not None else None
+    if measured is not None and noise is not None:
+        # a depth the returns around the keypoint contradict (a plane fitted off the wall) is
+        # none: G keeps the match's other direction
+        kp_depth[unsupported_depths(depth, measured, np.asarray(feats["uv"]), noise,
+                                    cfg.depth_lookup)] = 0.0
     # The BIM terms' samples come from the completed depth, or from the returns themselves
     # (SampleSource.RETURNS) when the provider has them: no interpolation across edges.
     sample_depth = depth
