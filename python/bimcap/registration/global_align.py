@@ -326,18 +326,21 @@ class GlobalAlignResult:
 
 def free_space_fraction(cam_xy: NDArray[np.float64], segments: NDArray[np.float64],
                         field_: DistanceField | None = None, clearance_m: float = 0.15,
-                        n_rays: int = 8, min_hits: int = 7, max_range_m: float = 60.0
+                        n_rays: int = 8, min_hits: int = 7, max_range_m: float = 60.0,
+                        shell: NDArray[np.float64] | None = None
                         ) -> tuple[float, NDArray[np.bool_]]:
     """Fraction of camera positions in free space, and the per-camera flags.
 
     A position is free when at least ``min_hits`` of ``n_rays`` horizontal rays from it hit a
-    segment within ``max_range_m`` (it is inside the building, not beside it) and it is at
-    least ``clearance_m`` from every segment (not inside a wall).
+    segment of the shell within ``max_range_m`` (it is inside the building, not beside it) and
+    it is at least ``clearance_m`` from every segment of the section (not inside a wall).
 
     Parameters
     ----------
     cam_xy: (N, 2) metres; segments: (S, 4) the storey's plan section.
     field_: a distance field of ``segments`` (built here when None).
+    shell: (S', 4) the segments that enclose the storey (``_Storey``: under a pitched roof,
+        also the storey below's walls); None: ``segments``.
     """
     cam = np.asarray(cam_xy, dtype=np.float64).reshape(-1, 2)
     seg = np.asarray(segments, dtype=np.float64).reshape(-1, 4)
@@ -348,6 +351,8 @@ def free_space_fraction(cam_xy: NDArray[np.float64], segments: NDArray[np.float6
     if field_ is None:
         field_ = DistanceField.from_segments(seg, 0.1)
     clear = field_.lookup(cam) >= clearance_m
+    if shell is not None:
+        seg = np.asarray(shell, dtype=np.float64).reshape(-1, 4)
     a, e = seg[:, :2], seg[:, 2:] - seg[:, :2]
     hits = np.zeros(len(cam), dtype=np.int64)
     # What does not depend on the ray's direction, once (the same arithmetic per ray).
@@ -429,11 +434,24 @@ def see_through_fraction(cam_xy: F64, p_xy: F64, segments: F64, margin_m: float 
 
 @dataclass(frozen=True)
 class _Storey:
-    """One storey's plan section: its floor z (None: unknown), ceiling z, segment rows."""
+    """One storey's plan section: its floor z (None: unknown), ceiling z, segment rows, and
+    the rows of the shell that encloses it (``shell``; None: its own section).
+
+    The shell is what the horizontal rays of the "inside the building" test may hit
+    (:func:`free_space_fraction`, :func:`_free_map`). A storey with no ceiling above it (under
+    a pitched roof: an attic) is enclosed by the roof, which the plan does not hold and which
+    rests on the walls of the storey below; its own section can hold as little as the two gable
+    walls (AC20-FZK-Haus), so its shell is its section and the section of the storey below."""
 
     floor_z: float | None
     ceiling_z: float | None
     rows: NDArray[np.int64]
+    shell: NDArray[np.int64] | None = None
+
+    @property
+    def shell_rows(self) -> NDArray[np.int64]:
+        """(S',) the segment rows of the storey's shell."""
+        return self.rows if self.shell is None else self.shell
 
 
 def _storeys(plan: FloorPlan, cut_m: float) -> list[_Storey]:
@@ -459,7 +477,19 @@ def _storeys(plan: FloorPlan, cut_m: float) -> list[_Storey]:
         bottom = float(np.median(plan.segment_z[mask, 0]))
         fz = min(heights, key=lambda h: abs(h - bottom))
         out.append(_Storey(fz, _ceiling_above(plan, fz), np.flatnonzero(mask)))
-    return sorted(out, key=lambda s: -np.inf if s.floor_z is None else s.floor_z)
+    out.sort(key=lambda s: -np.inf if s.floor_z is None else s.floor_z)
+    return _with_shells(out)
+
+
+def _with_shells(out: list[_Storey]) -> list[_Storey]:
+    """``out`` (sorted by floor) with the shell of each storey that has no ceiling above it
+    and a storey below: its own rows and those of the storey below (see ``_Storey``)."""
+    shelled = out[:1]
+    for below, st in zip(out[:-1], out[1:], strict=True):
+        if st.floor_z is not None and st.ceiling_z is None and below.floor_z is not None:
+            st = replace(st, shell=np.union1d(st.rows, below.rows))
+        shelled.append(st)
+    return shelled
 
 
 def _section_key(plan: FloorPlan, storey: _Storey) -> bytes:
@@ -472,7 +502,8 @@ def _section_key(plan: FloorPlan, storey: _Storey) -> bytes:
     rows = rows[np.lexsort(rows.T[::-1])]
     height = (-1 if storey.floor_z is None or storey.ceiling_z is None
               else round(100.0 * (storey.ceiling_z - storey.floor_z)))
-    return rows.tobytes() + np.int64(height).tobytes()
+    shell = b"" if storey.shell is None else b"shell" + np.sort(storey.shell).tobytes()
+    return rows.tobytes() + np.int64(height).tobytes() + shell
 
 
 def _ceiling_above(plan: FloorPlan, z: float | None) -> float | None:
@@ -621,8 +652,9 @@ class _Found:
 @dataclass(frozen=True)
 class _StoreyMaps:
     """One storey's search maps: its plan section (S, 4) and classes (S,), box bounds, centre
-    (2,) and half-width (m), the layered score maps, a 0.1 m distance field and the coarse
-    raster of where a camera may stand (:func:`_free_map`)."""
+    (2,) and half-width (m), the layered score maps, a 0.1 m distance field, the coarse
+    raster of where a camera may stand (:func:`_free_map`) and the segments of the storey's
+    shell (S', 4; None: its section; ``_Storey``)."""
 
     seg: F64
     seg_cls: I32
@@ -632,19 +664,22 @@ class _StoreyMaps:
     maps: PlanMaps
     field_: DistanceField
     free_map: NDArray[np.float32]
+    shell: F64 | None = None
 
 
 def _storey_maps(storey: _Storey, plan: FloorPlan, opt: GlobalAlignOptions) -> _StoreyMaps:
     seg = plan.segments[storey.rows]
     seg_cls = plan.segment_class[storey.rows]
-    box_xy = seg.reshape(-1, 2)
+    shell = None if storey.shell is None else plan.segments[storey.shell]
+    # The box of the shell: a walk under a roof may reach beyond the gable walls' box.
+    box_xy = (seg if shell is None else shell).reshape(-1, 2)
     lo, hi = box_xy.min(0), box_xy.max(0)
     bounds = (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
     maps = PlanMaps.build(seg, seg_cls, bounds, 3.0, opt.view_bins, opt.resolution_m,
                           opt.sigma_m, opt.fine_resolution_m, opt.fine_sigma_m, 3.0)
     return _StoreyMaps(seg, seg_cls, bounds, 0.5 * (lo + hi), float(np.max(0.5 * (hi - lo))) + 1.0,
                        maps, DistanceField.from_segments(seg, 0.1, bounds, 3.0),
-                       _free_map(seg, bounds, opt))
+                       _free_map(seg, bounds, opt, shell), shell)
 
 
 def _keep(scan: _Scan, storey: _Storey, opt: GlobalAlignOptions) -> NDArray[np.bool_]:
@@ -708,7 +743,8 @@ def _search_storey(scan: _Scan, storey: _Storey, sm: _StoreyMaps, opt: GlobalAli
 
     def with_free(f: _Found) -> _Found:
         free, _ = free_space_fraction(f.cams_xy, seg, field_, opt.free_clearance_m,
-                                      opt.enclosed_rays, opt.enclosed_min_hits)
+                                      opt.enclosed_rays, opt.enclosed_min_hits,
+                                      shell=sm.shell)
         return replace(f, free=free)
 
     for f in _by_key(fitted, lambda f: f.rigid_fit, with_free, lambda f: f.rigid_fit * f.free):
@@ -746,7 +782,7 @@ def _score_at(init: Correction2D, storey: _Storey, sm: _StoreyMaps, p_xy: F64, p
     sc, dist = maps.fine_eval(corr.apply(p_xy), layer)
     cams_w = corr.apply(cams_xy)
     free, _ = free_space_fraction(cams_w, sm.seg, sm.field_, opt.free_clearance_m,
-                                  opt.enclosed_rays, opt.enclosed_min_hits)
+                                  opt.enclosed_rays, opt.enclosed_min_hits, shell=sm.shell)
     frame_fit, _, _, turn, moved = _frame_fit(corr, p_xy, p_cls, p_view, p_frame, cams_xy, maps,
                                               opt)
     seen = _see_through(corr, turn, moved, p_xy, p_cls, p_view, p_frame, cams_xy, sm.seg, maps,
@@ -886,7 +922,8 @@ def _plan_alias(best: _Found, scan: _Scan, sections: list[_Storey], plan: FloorP
             if (1.0 - match) > opt.alias_max_difference:
                 continue
             free, _ = free_space_fraction(cams_w, sm.seg, sm.field_, opt.free_clearance_m,
-                                          opt.enclosed_rays, opt.enclosed_min_hits)
+                                          opt.enclosed_rays, opt.enclosed_min_hits,
+                                          shell=sm.shell)
             if (1.0 - match) + (1.0 - free) > opt.alias_max_difference:
                 continue
             seen = see_through_fraction(cams_w[p_frame], moved_q, sm.seg,
@@ -955,16 +992,19 @@ def _alias_ambiguous(alias: PlanAlias, opt: GlobalAlignOptions) -> bool:
 
 
 def _free_map(segments: F64, bounds: tuple[float, float, float, float],
-              opt: GlobalAlignOptions) -> NDArray[np.float32]:
+              opt: GlobalAlignOptions, shell: F64 | None = None) -> NDArray[np.float32]:
     """(H, W) 1 where a camera may stand, on the coarse grid of the storey's maps (same bounds,
     margin 3 m, ``resolution_m``): inside the building (at least ``enclosed_min_hits`` of
-    ``enclosed_rays`` straight lines from the pixel meet a wall pixel, the raster twin of
-    :func:`free_space_fraction`'s rays, so that windows and doors, gaps in a plan section, do
-    not let the outside in) and at least ``free_clearance_m`` from every wall."""
+    ``enclosed_rays`` straight lines from the pixel meet a wall pixel of the shell (S', 4;
+    None: ``segments``), the raster twin of :func:`free_space_fraction`'s rays, so that windows
+    and doors, gaps in a plan section, do not let the outside in) and at least
+    ``free_clearance_m`` from every wall of ``segments`` (S, 4)."""
     import cv2
 
     dist = DistanceField.from_segments(segments, opt.resolution_m, bounds, 3.0).distance_m
-    wall = (dist <= opt.resolution_m).astype(np.uint8)
+    around = (dist if shell is None
+              else DistanceField.from_segments(shell, opt.resolution_m, bounds, 3.0).distance_m)
+    wall = (around <= opt.resolution_m).astype(np.uint8)
     h, w = wall.shape
     size = int(np.ceil(np.hypot(h, w))) + 2
     pad = np.zeros((size, size), np.uint8)
@@ -1277,6 +1317,8 @@ def initial_free_fraction(world_from_cam: ArrayLike, plan: FloorPlan,
             continue
         _, ok = free_space_fraction(poses[on, :2], plan.segments[storey.rows],
                                     clearance_m=opt.free_clearance_m, n_rays=opt.enclosed_rays,
-                                    min_hits=opt.enclosed_min_hits)
+                                    min_hits=opt.enclosed_min_hits,
+                                    shell=None if storey.shell is None
+                                    else plan.segments[storey.shell])
         free[np.flatnonzero(on)[ok]] = True
     return float(free.mean()) if len(free) else 0.0
