@@ -679,10 +679,10 @@ def _frame_levels(poses: F64, samples: SemanticSamples, max_tilt_deg: float,
     frame the identity).
 
     A drifted trajectory's frames are tilted each by its own error (Exp 2: pitch noise of
-    6.24 deg per frame, up to 15 deg); projected onto the plan, a wall point 1 m above or
-    below the camera then moves by up to 0.26 m, enough to put it behind a wall of the right
-    placement (AC20-FZK-Haus seed 3: 22 % of its points seen through walls at 7 cm from the
-    truth). The floor each frame sees gives its own up."""
+    6.24 deg per frame; up to 15 deg in AC20-FZK-Haus seed 3's walk); projected onto the plan,
+    a wall point 1 m above or below the camera then moves by up to 0.26 m. The floor each frame
+    sees gives its own up (the poses are not changed: only the points the search and the
+    scores read)."""
     levels = np.tile(np.eye(3), (len(poses), 1, 1))
     if max_tilt_deg <= 0:
         return levels
