@@ -23,6 +23,7 @@ from bimcap.registration.global_align import (
     GlobalAlignmentError,
     GlobalAlignOptions,
     PlanAlias,
+    SeeThroughMargin,
     _alias_ambiguous,
     global_align,
     initial_free_fraction,
@@ -188,6 +189,84 @@ def test_see_through_fraction_counts_rays_that_cross_a_wall() -> None:
     assert see_through_fraction(cams, pts, np.zeros((0, 4)))[0] == 0.0
 
 
+def test_a_see_through_margin_from_the_wall_ignores_grazing_rays() -> None:
+    """A ray that grazes a wall at a shallow angle crosses it far from both its ends for a point
+    a few centimetres behind the wall's face (drift; AC20-FZK-Haus seed 3 counted 22 % of its
+    points at the right placement and was refused): with the margin measured from the wall
+    (``SeeThroughMargin.WALL``, the default) it does not count, a point well behind the wall
+    still does."""
+    wall = np.array([[-1.0, 1.0, 10.0, 1.0]])
+    cams = np.array([[0.0, 0.5], [0.0, 0.5], [0.0, 0.0], [0.0, 0.0]])
+    # Grazing, 5 cm behind the face; grazing, 0.5 m behind; head-on 0.5 m behind; head-on
+    # 5 cm behind.
+    pts = np.array([[4.0, 1.05], [6.0, 1.5], [0.0, 1.5], [0.0, 1.05]])
+    _, along = see_through_fraction(cams, pts, wall, margin_m=0.3)
+    assert along.tolist() == [True, True, True, False]
+    _, behind = see_through_fraction(cams, pts, wall, margin_m=0.3,
+                                     margin_from=SeeThroughMargin.WALL)
+    assert behind.tolist() == [False, True, True, False]
+    # the camera within the margin of the wall: not counted either
+    _, near_cam = see_through_fraction(np.array([[0.0, 0.8]]), np.array([[0.0, 3.0]]), wall,
+                                       margin_m=0.3, margin_from="wall")
+    assert not near_cam.any()
+    assert GlobalAlignOptions().see_through_margin_from is SeeThroughMargin.WALL
+    assert GlobalAlignOptions(see_through_margin_from="ray_ends").to_dict()[
+        "see_through_margin_from"] == "ray_ends"
+    with pytest.raises(RegistrationInputError, match="see_through_margin_from"):
+        GlobalAlignOptions(see_through_margin_from="sideways")
+
+
+def _attic_plan(demo: Scene) -> tuple[FloorPlan, Scene]:
+    """The demo building (floor 0, ceiling 2.8) under a pitched roof: an attic at 3.1 m whose
+    plan section holds only its two gable walls (each with a window, at different places), and
+    no ceiling above it (as AC20-FZK-Haus)."""
+    lo = demo.segments.reshape(-1, 2).min(0)
+    hi = demo.segments.reshape(-1, 2).max(0)
+    t = 0.3
+    gables = solids([(lo[0], lo[1], lo[0] + t, lo[1] + 3.0),
+                     (lo[0], lo[1] + 4.2, lo[0] + t, hi[1]),
+                     (hi[0] - t, lo[1], hi[0], lo[1] + 1.5),
+                     (hi[0] - t, lo[1] + 2.7, hi[0], hi[1])])
+    attic = Scene(gables.segments, gables.segment_class, 3.1, 5.6)
+    seg_z = np.r_[np.tile([0.0, 2.9], (len(demo.segments), 1)),
+                  np.tile([3.1, 6.0], (len(attic.segments), 1))]
+    plan = FloorPlan(np.r_[demo.segments, attic.segments],
+                     np.r_[demo.segment_class, attic.segment_class], seg_z,
+                     np.array([0.0, 3.1]), np.array([2.8]))
+    return plan, attic
+
+
+def test_an_attic_under_a_pitched_roof_is_enclosed_by_the_storey_below(demo: Scene) -> None:
+    """An attic whose plan section is only its two gable walls: horizontal rays from its middle
+    hit nothing of its own section, so no camera there was in free space and every attic walk
+    was refused (AC20-FZK-Haus: 13 of its 20 bench runs). Under a pitched roof (no ceiling
+    above) the storey below's walls, which carry the roof, enclose it too (its shell)."""
+    from bimcap.registration.global_align import _storeys
+
+    plan, attic = _attic_plan(demo)
+    ground, top = _storeys(plan, 1.0)
+    assert ground.shell is None and top.ceiling_z is None
+    assert set(top.shell_rows) == set(ground.rows) | set(top.rows)
+    lo = demo.segments.reshape(-1, 2).min(0)
+    hi = demo.segments.reshape(-1, 2).max(0)
+    mid = 0.5 * (lo + hi)
+    cams = np.c_[np.linspace(lo[0] + 2.0, hi[0] - 2.0, 20), np.full(20, mid[1] + 0.2),
+                 np.full(20, 4.6), np.zeros((20, 3)), np.ones(20)]
+    assert initial_free_fraction(cams, plan) == 1.0
+    gt = poses_along(np.array([[lo[0] + 3.0, mid[1] - 1.0], [hi[0] - 3.0, mid[1] - 1.0],
+                               [hi[0] - 3.0, mid[1] + 1.0], [lo[0] + 3.0, mid[1] + 1.0],
+                               [lo[0] + 3.0, mid[1] - 1.0]]), 0.25, height=4.6)[:60]
+    samples, slam = _slam_case(gt, attic, seed=1)
+    # Two gables with a window each are nearly each other's 180 deg image: flagged or not, the
+    # best placement must be the attic's right one (before: refused, the best on the ground
+    # floor fitting badly).
+    res = global_align(slam.trajectory.poses, samples, plan,
+                       GlobalAlignOptions(accept_ambiguous=True))
+    assert res.hypotheses[0].floor_z == pytest.approx(3.1)
+    moved, yaw = _placement_error(res.world_from_slam, slam)
+    assert moved < 1.0 and yaw < 10.0, (moved, yaw)
+
+
 def test_rooms_of_different_widths_are_told_apart_by_what_is_seen_through_walls() -> None:
     """A walk in the wider of two rooms that are each other's 180 deg image up to 0.24 m of
     width: the positive score alone (each frame may shift 0.2 m) rates the narrower room's
@@ -208,7 +287,7 @@ def test_rooms_of_different_widths_are_told_apart_by_what_is_seen_through_walls(
     res = global_align(slam.trajectory.poses, samples, scene.floor_plan())
     moved, yaw = _placement_error(res.world_from_slam, slam)
     assert moved < 0.5 and yaw < 3.0, (moved, yaw)
-    assert not res.ambiguous and res.ratio < 0.85
+    assert not res.ambiguous and res.ratio < 0.9  # 0.856 (margin from the wall; was < 0.85)
     right, alias = res.hypotheses[0], res.hypotheses[1]
     assert _placement_error(alias.world_from_slam, slam)[1] > 170.0
     assert alias.see_through > right.see_through + 0.03
@@ -398,6 +477,25 @@ def test_real_models_are_never_silently_wrong(ifc_dir, monkeypatch, model: str,
     for seed in seeds:
         row = bench.run_registration(world, seed, 60)
         assert row["outcome"] != "placed" or row["right"], row
+
+
+@pytest.mark.slow
+@pytest.mark.needs_shared
+@pytest.mark.filterwarnings("ignore")  # the real models warn (an attic without a ceiling plane)
+def test_fzk_runs_once_refused_are_answered(ifc_dir, monkeypatch) -> None:
+    """``bench/bench_global.py`` on AC20-FZK-Haus ended 14 of 20 runs in errors. Seed 3 (ground
+    floor) was placed right but refused: 22 % of its points counted as seen through walls, rays
+    grazing the walls of 4 m rooms with drifted points a few centimetres behind the face (the
+    margin is now measured from the wall). Seed 2 walks the attic, whose plan section is its
+    two gable walls: no camera was in free space (the roof, resting on the ground floor's walls,
+    now encloses it), so the best placement was on the ground floor and fitted 0.55. The attic's
+    two gables repeat each other turned by 180 deg: flagged, with the right best."""
+    bench = _bench_global(monkeypatch)
+    world = bench._ifc_world("ifc-AC20-FZK-Haus", ifc_dir)
+    row = bench.run_registration(world, 3, 60)
+    assert row["outcome"] == "placed" and row["right"], row
+    row = bench.run_registration(world, 2, 60)
+    assert row["outcome"] == "ambiguous" and row["right"] and row["right_storey"], row
 
 
 @pytest.mark.slow

@@ -44,9 +44,11 @@ the options and results, radians inside.
 from __future__ import annotations
 
 import heapq
+import itertools
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field, replace
+from enum import Enum
 from typing import Any, TypeVar
 
 import numpy as np
@@ -72,6 +74,23 @@ I32 = NDArray[np.int32]
 _T = TypeVar("_T")
 
 
+class SeeThroughMargin(str, Enum):
+    """Where the margin of :func:`see_through_fraction` is measured.
+
+    ``RAY_ENDS``: the first and last ``margin_m`` of every ray are left out (along the ray).
+    ``WALL``: a crossing counts only when the camera and the point are both at least
+    ``margin_m`` from the crossed segment (the point lies that far behind the wall): a ray
+    that grazes a wall at a shallow angle crosses it far from its ends for a point drifted a
+    few centimetres behind the wall's face, which says nothing about the placement (a drifted
+    walk along the 4 m rooms of AC20-FZK-Haus: 22 % of its points counted at the right
+    placement), while an alias room of another width or a wall where the building has a door
+    puts them a room's difference behind it.
+    """
+
+    RAY_ENDS = "ray_ends"
+    WALL = "wall"
+
+
 @dataclass(frozen=True)
 class GlobalAlignOptions:
     """Settings of :func:`global_align` (lengths in metres, angles in degrees).
@@ -95,13 +114,17 @@ class GlobalAlignOptions:
         (:func:`_frame_fit`): each frame may turn and shift this much on its own.
     level_from_floor, gravity_min_tilt_deg: estimate gravity from the floor points; apply it
         only when the SLAM frame is tilted by more than this.
+    frame_level_max_deg: each frame's wall and column points are turned about its camera so
+        that the floor it sees is level (a drifted trajectory's per-frame tilt; the poses
+        themselves are not changed), when that floor is tilted by at most this much (0: off).
     free_clearance_m: a camera closer than this to a wall is not in free space.
     enclosed_rays, enclosed_min_hits: a camera is inside the building when at least
         ``enclosed_min_hits`` of ``enclosed_rays`` horizontal rays hit the plan.
-    see_through_margin_m, see_through_power: negative evidence (:func:`see_through_fraction`):
-        the share ``x`` of wall/column points whose ray from their camera passes through a
-        plan wall (the ray's first and last ``see_through_margin_m`` left out: drift and noise
-        at the camera and at the hit) multiplies the ranking score by ``(1 - x) **
+    see_through_margin_m, see_through_margin_from, see_through_power: negative evidence
+        (:func:`see_through_fraction`): the share ``x`` of wall/column points whose ray from
+        their camera passes through a plan wall (with a margin of ``see_through_margin_m`` for
+        drift and noise at the camera and at the hit, measured as ``see_through_margin_from``
+        says: :class:`SeeThroughMargin`) multiplies the ranking score by ``(1 - x) **
         see_through_power`` (0: not used).
     distinct_m, distinct_deg, distinct_z_m: two hypotheses are distinct when their camera
         positions differ by more than ``distinct_m`` on average, or their yaws by more than
@@ -145,6 +168,7 @@ class GlobalAlignOptions:
     plan_cut_height_m: float = 1.0
     level_from_floor: bool = True
     gravity_min_tilt_deg: float = 2.0
+    frame_level_max_deg: float = 30.0
     free_clearance_m: float = 0.15
     enclosed_rays: int = 16
     enclosed_min_hits: int = 10
@@ -153,6 +177,7 @@ class GlobalAlignOptions:
     frame_yaw_step_deg: float = 2.0
     frame_shift_m: float = 0.2
     see_through_margin_m: float = 0.3
+    see_through_margin_from: SeeThroughMargin = SeeThroughMargin.WALL
     see_through_power: float = 3.0
     distinct_m: float = 1.0
     distinct_deg: float = 10.0
@@ -173,6 +198,13 @@ class GlobalAlignOptions:
     seed: int = 0
 
     def __post_init__(self) -> None:
+        try:
+            object.__setattr__(self, "see_through_margin_from",
+                               SeeThroughMargin(self.see_through_margin_from))
+        except ValueError:
+            raise RegistrationInputError(
+                f"must be one of {[m.value for m in SeeThroughMargin]}, got "
+                f"{self.see_through_margin_from!r}", None, "see_through_margin_from") from None
         positive = ("resolution_m", "sigma_m", "yaw_step_deg", "icp_radius_start_m",
                     "icp_radius_end_m", "icp_huber_m", "fine_resolution_m", "fine_sigma_m",
                     "inlier_m", "frame_yaw_step_deg", "distinct_m", "distinct_deg", "distinct_z_m",
@@ -195,13 +227,14 @@ class GlobalAlignOptions:
         if not 0 <= self.enclosed_min_hits <= self.enclosed_rays:
             raise RegistrationInputError("must be in [0, enclosed_rays]", None,
                                          "enclosed_min_hits")
-        for name in ("wall_band_m", "gravity_min_tilt_deg", "free_clearance_m", "frame_yaw_deg",
+        for name in ("wall_band_m", "gravity_min_tilt_deg", "frame_level_max_deg",
+                     "free_clearance_m", "frame_yaw_deg",
                      "frame_shift_m", "see_through_margin_m", "see_through_power"):
             if getattr(self, name) < 0:
                 raise RegistrationInputError("must be >= 0", None, name)
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        return {**asdict(self), "see_through_margin_from": self.see_through_margin_from.value}
 
 
 @dataclass(frozen=True)
@@ -326,18 +359,21 @@ class GlobalAlignResult:
 
 def free_space_fraction(cam_xy: NDArray[np.float64], segments: NDArray[np.float64],
                         field_: DistanceField | None = None, clearance_m: float = 0.15,
-                        n_rays: int = 8, min_hits: int = 7, max_range_m: float = 60.0
+                        n_rays: int = 8, min_hits: int = 7, max_range_m: float = 60.0,
+                        shell: NDArray[np.float64] | None = None
                         ) -> tuple[float, NDArray[np.bool_]]:
     """Fraction of camera positions in free space, and the per-camera flags.
 
     A position is free when at least ``min_hits`` of ``n_rays`` horizontal rays from it hit a
-    segment within ``max_range_m`` (it is inside the building, not beside it) and it is at
-    least ``clearance_m`` from every segment (not inside a wall).
+    segment of the shell within ``max_range_m`` (it is inside the building, not beside it) and
+    it is at least ``clearance_m`` from every segment of the section (not inside a wall).
 
     Parameters
     ----------
     cam_xy: (N, 2) metres; segments: (S, 4) the storey's plan section.
     field_: a distance field of ``segments`` (built here when None).
+    shell: (S', 4) the segments that enclose the storey (``_Storey``: under a pitched roof,
+        also the storey below's walls); None: ``segments``.
     """
     cam = np.asarray(cam_xy, dtype=np.float64).reshape(-1, 2)
     seg = np.asarray(segments, dtype=np.float64).reshape(-1, 4)
@@ -348,6 +384,8 @@ def free_space_fraction(cam_xy: NDArray[np.float64], segments: NDArray[np.float6
     if field_ is None:
         field_ = DistanceField.from_segments(seg, 0.1)
     clear = field_.lookup(cam) >= clearance_m
+    if shell is not None:
+        seg = np.asarray(shell, dtype=np.float64).reshape(-1, 4)
     a, e = seg[:, :2], seg[:, 2:] - seg[:, :2]
     hits = np.zeros(len(cam), dtype=np.int64)
     # What does not depend on the ray's direction, once (the same arithmetic per ray).
@@ -372,14 +410,18 @@ def free_space_fraction(cam_xy: NDArray[np.float64], segments: NDArray[np.float6
 
 
 def see_through_fraction(cam_xy: F64, p_xy: F64, segments: F64, margin_m: float = 0.3,
-                         chunk: int = 256) -> tuple[float, NDArray[np.bool_]]:
+                         chunk: int = 256,
+                         margin_from: SeeThroughMargin = SeeThroughMargin.RAY_ENDS
+                         ) -> tuple[float, NDArray[np.bool_]]:
     """Negative evidence of a placement: the share of points seen *through* a wall of the plan.
 
     A camera sees a wall point along a straight ray; when that ray crosses a plan segment the
     placement puts a wall where the sensor saw free space (an alias room of another width, a
-    wall where the true building has a door). The first and last ``margin_m`` of every ray are
-    left out (the drift of the camera, noise and clutter at the hit); rays shorter than
-    ``2 margin_m`` never count.
+    wall where the true building has a door). ``margin_from`` ``RAY_ENDS``: the first and last
+    ``margin_m`` of every ray are left out (the drift of the camera, noise and clutter at the
+    hit); ``WALL``: a crossing counts only when the camera and the point are both at least
+    ``margin_m`` from the crossed segment (:class:`SeeThroughMargin`). Either way rays shorter
+    than ``2 margin_m`` never count.
 
     Parameters
     ----------
@@ -399,9 +441,13 @@ def see_through_fraction(cam_xy: F64, p_xy: F64, segments: F64, margin_m: float 
     ray = pts - cam
     length = np.linalg.norm(ray, axis=1)
     use = length > 2 * margin_m
-    u = ray[use] / length[use, None]
-    a_ray = cam[use] + margin_m * u
-    d_ray = ray[use] - 2 * margin_m * u
+    from_wall = SeeThroughMargin(margin_from) == SeeThroughMargin.WALL
+    if from_wall:  # whole rays; the margin is tested at the crossed segment
+        a_ray, d_ray = cam[use], ray[use]
+    else:
+        u = ray[use] / length[use, None]
+        a_ray = cam[use] + margin_m * u
+        d_ray = ray[use] - 2 * margin_m * u
     seg_lo = np.minimum(seg[:, :2], seg[:, 2:])
     seg_hi = np.maximum(seg[:, :2], seg[:, 2:])
     hit = np.zeros(len(a_ray), dtype=bool)
@@ -417,10 +463,21 @@ def see_through_fraction(cam_xy: F64, p_xy: F64, segments: F64, margin_m: float 
         with np.errstate(divide="ignore", invalid="ignore"):
             s = (w[..., 0] * e[None, :, 1] - w[..., 1] * e[None, :, 0]) / den
             t = (w[..., 0] * d[..., 1] - w[..., 1] * d[..., 0]) / den
-        hit[k:k + chunk] = ((np.abs(den) > 1e-12) & (s >= 0) & (s <= 1) & (t >= 0)
-                            & (t <= 1)).any(1)
+        cross = (np.abs(den) > 1e-12) & (s >= 0) & (s <= 1) & (t >= 0) & (t <= 1)
+        if from_wall and cross.any():
+            cross &= _pair_distance(o[:, 0], a, e) >= margin_m
+            cross &= _pair_distance(o[:, 0] + d[:, 0], a, e) >= margin_m
+        hit[k:k + chunk] = cross.any(1)
     crossed[np.flatnonzero(use)] = hit
     return float(crossed.mean()), crossed
+
+
+def _pair_distance(p: F64, a: F64, e: F64) -> F64:
+    """(M, S) distance of each point ``p`` (M, 2) to each segment ``a + [0, 1] e`` (S, 2)."""
+    w = p[:, None] - a[None]
+    ee = np.maximum((e * e).sum(1), 1e-18)
+    t = np.clip((w * e[None]).sum(2) / ee, 0.0, 1.0)
+    return np.linalg.norm(w - t[..., None] * e[None], axis=2)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -429,11 +486,24 @@ def see_through_fraction(cam_xy: F64, p_xy: F64, segments: F64, margin_m: float 
 
 @dataclass(frozen=True)
 class _Storey:
-    """One storey's plan section: its floor z (None: unknown), ceiling z, segment rows."""
+    """One storey's plan section: its floor z (None: unknown), ceiling z, segment rows, and
+    the rows of the shell that encloses it (``shell``; None: its own section).
+
+    The shell is what the horizontal rays of the "inside the building" test may hit
+    (:func:`free_space_fraction`, :func:`_free_map`). A storey with no ceiling above it (under
+    a pitched roof: an attic) is enclosed by the roof, which the plan does not hold and which
+    rests on the walls of the storey below; its own section can hold as little as the two gable
+    walls (AC20-FZK-Haus), so its shell is its section and the section of the storey below."""
 
     floor_z: float | None
     ceiling_z: float | None
     rows: NDArray[np.int64]
+    shell: NDArray[np.int64] | None = None
+
+    @property
+    def shell_rows(self) -> NDArray[np.int64]:
+        """(S',) the segment rows of the storey's shell."""
+        return self.rows if self.shell is None else self.shell
 
 
 def _storeys(plan: FloorPlan, cut_m: float) -> list[_Storey]:
@@ -459,7 +529,19 @@ def _storeys(plan: FloorPlan, cut_m: float) -> list[_Storey]:
         bottom = float(np.median(plan.segment_z[mask, 0]))
         fz = min(heights, key=lambda h: abs(h - bottom))
         out.append(_Storey(fz, _ceiling_above(plan, fz), np.flatnonzero(mask)))
-    return sorted(out, key=lambda s: -np.inf if s.floor_z is None else s.floor_z)
+    out.sort(key=lambda s: -np.inf if s.floor_z is None else s.floor_z)
+    return _with_shells(out)
+
+
+def _with_shells(out: list[_Storey]) -> list[_Storey]:
+    """``out`` (sorted by floor) with the shell of each storey that has no ceiling above it
+    and a storey below: its own rows and those of the storey below (see ``_Storey``)."""
+    shelled = out[:1]
+    for below, st in itertools.pairwise(out):
+        if st.floor_z is not None and st.ceiling_z is None and below.floor_z is not None:
+            st = replace(st, shell=np.union1d(st.rows, below.rows))
+        shelled.append(st)
+    return shelled
 
 
 def _section_key(plan: FloorPlan, storey: _Storey) -> bytes:
@@ -472,7 +554,8 @@ def _section_key(plan: FloorPlan, storey: _Storey) -> bytes:
     rows = rows[np.lexsort(rows.T[::-1])]
     height = (-1 if storey.floor_z is None or storey.ceiling_z is None
               else round(100.0 * (storey.ceiling_z - storey.floor_z)))
-    return rows.tobytes() + np.int64(height).tobytes()
+    shell = b"" if storey.shell is None else b"shell" + np.sort(storey.shell).tobytes()
+    return rows.tobytes() + np.int64(height).tobytes() + shell
 
 
 def _ceiling_above(plan: FloorPlan, z: float | None) -> float | None:
@@ -528,26 +611,32 @@ def _distance_within(p_xy: F64, segments: F64, reach_m: float, chunk: int = 256)
     return out
 
 
-def _gravity(poses: F64, samples: SemanticSamples, min_points: int = 30) -> F64:
-    """(3, 3) the rotation that turns the median per-frame floor normal (SLAM frame) onto +z."""
+def _floor_normals(poses: F64, samples: SemanticSamples, min_points: int = 30
+                   ) -> tuple[F64, NDArray[np.bool_]]:
+    """(N, 3) each frame's floor normal in the frame of ``poses`` (pointing up: z >= 0), the
+    plane fitted to its floor points; and (N,) whether the frame has at least ``min_points``
+    of them (elsewhere the normal is +z)."""
+    n_frames = len(poses)
+    normals = np.tile([0.0, 0.0, 1.0], (n_frames, 1))
+    has = np.zeros(n_frames, dtype=bool)
     fr, p = samples.floor_frame, samples.floor_p_in_cam
     if len(fr) < min_points:
-        return np.eye(3)
+        return normals, has
     pts = transform_points(poses[fr], p)
-    normals = []
     order = np.argsort(fr, kind="stable")
-    bounds = np.searchsorted(fr[order], np.arange(len(poses) + 1))
-    for i in range(len(poses)):
+    bounds = np.searchsorted(fr[order], np.arange(n_frames + 1))
+    for i in range(n_frames):
         q = pts[order[bounds[i]:bounds[i + 1]]]
         if len(q) < min_points:
             continue
         c = q - q.mean(0)
         n = np.linalg.svd(c, full_matrices=False)[2][-1]
-        normals.append(n if n[2] >= 0 else -n)
-    if not normals:
-        return np.eye(3)
-    up = np.median(np.array(normals), axis=0)
-    up /= np.linalg.norm(up)
+        normals[i], has[i] = (n if n[2] >= 0 else -n), True
+    return normals, has
+
+
+def _up_rotation(up: F64) -> F64:
+    """(3, 3) the smallest rotation that turns the unit vector ``up`` (3,) onto +z."""
     axis = np.cross(up, [0.0, 0.0, 1.0])
     s = np.linalg.norm(axis)
     if s < 1e-12:
@@ -555,6 +644,16 @@ def _gravity(poses: F64, samples: SemanticSamples, min_points: int = 30) -> F64:
     angle = np.arctan2(s, up[2])
     rot: F64 = Rotation.from_rotvec(axis / s * angle).as_matrix()
     return rot
+
+
+def _gravity(poses: F64, samples: SemanticSamples, min_points: int = 30) -> F64:
+    """(3, 3) the rotation that turns the median per-frame floor normal (SLAM frame) onto +z."""
+    normals, has = _floor_normals(poses, samples, min_points)
+    if not has.any():
+        return np.eye(3)
+    up = np.median(normals[has], axis=0)
+    up /= np.linalg.norm(up)
+    return _up_rotation(up)
 
 
 @dataclass(frozen=True)
@@ -572,13 +671,41 @@ class _Scan:
     floor_z: float | None
 
 
-def _scan(poses: F64, samples: SemanticSamples) -> _Scan:
+def _frame_levels(poses: F64, samples: SemanticSamples, max_tilt_deg: float,
+                  min_points: int = 30) -> F64:
+    """(N, 3, 3) per frame, the rotation about its camera that turns its own floor normal
+    (``poses``' frame, levelled) onto +z; the identity for a frame with fewer than
+    ``min_points`` floor points or a floor tilted by more than ``max_tilt_deg`` (0: every
+    frame the identity).
+
+    A drifted trajectory's frames are tilted each by its own error (Exp 2: pitch noise of
+    6.24 deg per frame; up to 15 deg in AC20-FZK-Haus seed 3's walk); projected onto the plan,
+    a wall point 1 m above or below the camera then moves by up to 0.26 m. The floor each frame
+    sees gives its own up (the poses are not changed: only the points the search and the
+    scores read)."""
+    levels = np.tile(np.eye(3), (len(poses), 1, 1))
+    if max_tilt_deg <= 0:
+        return levels
+    normals, has = _floor_normals(poses, samples, min_points)
+    for i in np.flatnonzero(has & (normals[:, 2] >= np.cos(np.deg2rad(max_tilt_deg)))):
+        levels[i] = _up_rotation(normals[i] / np.linalg.norm(normals[i]))
+    return levels
+
+
+def _scan(poses: F64, samples: SemanticSamples, max_tilt_deg: float = 0.0) -> _Scan:
+    """The wall/column points of ``samples`` under ``poses`` (N, 7, levelled frame), each
+    frame's points turned about its camera by :func:`_frame_levels` (``max_tilt_deg`` 0: not
+    turned)."""
+    levels = _frame_levels(poses, samples, max_tilt_deg)
     xy, view, cls, zs, frames = [], [], [], [], []
     for c, lab in (("wall", Label.WALL), ("column", Label.COLUMN)):
         fr = getattr(samples, f"{c}_frame")
         if not len(fr):
             continue
         q = transform_points(poses[fr], getattr(samples, f"{c}_p_in_cam"))
+        if max_tilt_deg > 0:
+            cam = poses[fr, :3]
+            q = np.einsum("mij,mj->mi", levels[fr], q - cam) + cam
         xy.append(q[:, :2])
         view.append(q[:, :2] - poses[fr, :2])
         cls.append(np.full(len(q), int(lab), np.int32))
@@ -621,8 +748,9 @@ class _Found:
 @dataclass(frozen=True)
 class _StoreyMaps:
     """One storey's search maps: its plan section (S, 4) and classes (S,), box bounds, centre
-    (2,) and half-width (m), the layered score maps, a 0.1 m distance field and the coarse
-    raster of where a camera may stand (:func:`_free_map`)."""
+    (2,) and half-width (m), the layered score maps, a 0.1 m distance field, the coarse
+    raster of where a camera may stand (:func:`_free_map`) and the segments of the storey's
+    shell (S', 4; None: its section; ``_Storey``)."""
 
     seg: F64
     seg_cls: I32
@@ -632,19 +760,22 @@ class _StoreyMaps:
     maps: PlanMaps
     field_: DistanceField
     free_map: NDArray[np.float32]
+    shell: F64 | None = None
 
 
 def _storey_maps(storey: _Storey, plan: FloorPlan, opt: GlobalAlignOptions) -> _StoreyMaps:
     seg = plan.segments[storey.rows]
     seg_cls = plan.segment_class[storey.rows]
-    box_xy = seg.reshape(-1, 2)
+    shell = None if storey.shell is None else plan.segments[storey.shell]
+    # The box of the shell: a walk under a roof may reach beyond the gable walls' box.
+    box_xy = (seg if shell is None else shell).reshape(-1, 2)
     lo, hi = box_xy.min(0), box_xy.max(0)
     bounds = (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
     maps = PlanMaps.build(seg, seg_cls, bounds, 3.0, opt.view_bins, opt.resolution_m,
                           opt.sigma_m, opt.fine_resolution_m, opt.fine_sigma_m, 3.0)
     return _StoreyMaps(seg, seg_cls, bounds, 0.5 * (lo + hi), float(np.max(0.5 * (hi - lo))) + 1.0,
                        maps, DistanceField.from_segments(seg, 0.1, bounds, 3.0),
-                       _free_map(seg, bounds, opt))
+                       _free_map(seg, bounds, opt, shell), shell)
 
 
 def _keep(scan: _Scan, storey: _Storey, opt: GlobalAlignOptions) -> NDArray[np.bool_]:
@@ -708,7 +839,8 @@ def _search_storey(scan: _Scan, storey: _Storey, sm: _StoreyMaps, opt: GlobalAli
 
     def with_free(f: _Found) -> _Found:
         free, _ = free_space_fraction(f.cams_xy, seg, field_, opt.free_clearance_m,
-                                      opt.enclosed_rays, opt.enclosed_min_hits)
+                                      opt.enclosed_rays, opt.enclosed_min_hits,
+                                      shell=sm.shell)
         return replace(f, free=free)
 
     for f in _by_key(fitted, lambda f: f.rigid_fit, with_free, lambda f: f.rigid_fit * f.free):
@@ -746,7 +878,7 @@ def _score_at(init: Correction2D, storey: _Storey, sm: _StoreyMaps, p_xy: F64, p
     sc, dist = maps.fine_eval(corr.apply(p_xy), layer)
     cams_w = corr.apply(cams_xy)
     free, _ = free_space_fraction(cams_w, sm.seg, sm.field_, opt.free_clearance_m,
-                                  opt.enclosed_rays, opt.enclosed_min_hits)
+                                  opt.enclosed_rays, opt.enclosed_min_hits, shell=sm.shell)
     frame_fit, _, _, turn, moved = _frame_fit(corr, p_xy, p_cls, p_view, p_frame, cams_xy, maps,
                                               opt)
     seen = _see_through(corr, turn, moved, p_xy, p_cls, p_view, p_frame, cams_xy, sm.seg, maps,
@@ -840,7 +972,8 @@ def _plan_alias(best: _Found, scan: _Scan, sections: list[_Storey], plan: FloorP
     p_view = p_xy - cams[p_frame]
     # The ideal scan's own rays graze wall ends at the best placement too: only more counts.
     seen_here = see_through_fraction(cams[p_frame], p_xy, sm_best.seg,
-                                     opt.see_through_margin_m)[0]
+                                     opt.see_through_margin_m,
+                                     margin_from=opt.see_through_margin_from)[0]
     cands: list[tuple[float, Correction2D, _Storey, PlanAlias]] = []
     yaws = np.arange(-np.pi, np.pi, np.deg2rad(opt.yaw_step_deg))
     done: set[bytes] = set()
@@ -886,11 +1019,13 @@ def _plan_alias(best: _Found, scan: _Scan, sections: list[_Storey], plan: FloorP
             if (1.0 - match) > opt.alias_max_difference:
                 continue
             free, _ = free_space_fraction(cams_w, sm.seg, sm.field_, opt.free_clearance_m,
-                                          opt.enclosed_rays, opt.enclosed_min_hits)
+                                          opt.enclosed_rays, opt.enclosed_min_hits,
+                                          shell=sm.shell)
             if (1.0 - match) + (1.0 - free) > opt.alias_max_difference:
                 continue
             seen = see_through_fraction(cams_w[p_frame], moved_q, sm.seg,
-                                        opt.see_through_margin_m)[0]
+                                        opt.see_through_margin_m,
+                                        margin_from=opt.see_through_margin_from)[0]
             diff = (1.0 - match) + (1.0 - free) + max(0.0, seen - seen_here)
             # ``corr`` takes the shifted points into the world: fold the shift in (as
             # :func:`_search_storey` does), then apply it after ``best``.
@@ -955,16 +1090,19 @@ def _alias_ambiguous(alias: PlanAlias, opt: GlobalAlignOptions) -> bool:
 
 
 def _free_map(segments: F64, bounds: tuple[float, float, float, float],
-              opt: GlobalAlignOptions) -> NDArray[np.float32]:
+              opt: GlobalAlignOptions, shell: F64 | None = None) -> NDArray[np.float32]:
     """(H, W) 1 where a camera may stand, on the coarse grid of the storey's maps (same bounds,
     margin 3 m, ``resolution_m``): inside the building (at least ``enclosed_min_hits`` of
-    ``enclosed_rays`` straight lines from the pixel meet a wall pixel, the raster twin of
-    :func:`free_space_fraction`'s rays, so that windows and doors, gaps in a plan section, do
-    not let the outside in) and at least ``free_clearance_m`` from every wall."""
+    ``enclosed_rays`` straight lines from the pixel meet a wall pixel of the shell (S', 4;
+    None: ``segments``), the raster twin of :func:`free_space_fraction`'s rays, so that windows
+    and doors, gaps in a plan section, do not let the outside in) and at least
+    ``free_clearance_m`` from every wall of ``segments`` (S, 4)."""
     import cv2
 
     dist = DistanceField.from_segments(segments, opt.resolution_m, bounds, 3.0).distance_m
-    wall = (dist <= opt.resolution_m).astype(np.uint8)
+    around = (dist if shell is None
+              else DistanceField.from_segments(shell, opt.resolution_m, bounds, 3.0).distance_m)
+    wall = (around <= opt.resolution_m).astype(np.uint8)
     h, w = wall.shape
     size = int(np.ceil(np.hypot(h, w))) + 2
     pad = np.zeros((size, size), np.uint8)
@@ -1077,7 +1215,8 @@ def _see_through(corr: Correction2D, turn: float, shift: F64, p_xy: F64, p_cls: 
     polished = Correction2D(corr.yaw + turn, t, corr.pivot)
     _, q_turned, cam, _, _ = _frame_fit(polished, p_xy, p_cls, p_view, p_frame, cams_xy, maps,
                                         replace(opt, frame_shift_m=0.0))
-    return see_through_fraction(cam, q_turned, segments, opt.see_through_margin_m)[0]
+    return see_through_fraction(cam, q_turned, segments, opt.see_through_margin_m,
+                                margin_from=opt.see_through_margin_from)[0]
 
 
 def _distinct(a: _Found, b: _Found, opt: GlobalAlignOptions) -> bool:
@@ -1165,7 +1304,7 @@ def global_align(
     g4[:3, :3] = gravity
     levelled = matrix_to_pose(g4 @ pose_to_matrix(poses))
     timings["gravity"] = time.perf_counter() - t0
-    scan = _scan(levelled, samples)
+    scan = _scan(levelled, samples, opt.frame_level_max_deg)
     # 2.-4. every storey.
     found: list[_Found] = []
     storeys = []
@@ -1277,6 +1416,8 @@ def initial_free_fraction(world_from_cam: ArrayLike, plan: FloorPlan,
             continue
         _, ok = free_space_fraction(poses[on, :2], plan.segments[storey.rows],
                                     clearance_m=opt.free_clearance_m, n_rays=opt.enclosed_rays,
-                                    min_hits=opt.enclosed_min_hits)
+                                    min_hits=opt.enclosed_min_hits,
+                                    shell=None if storey.shell is None
+                                    else plan.segments[storey.shell])
         free[np.flatnonzero(on)[ok]] = True
     return float(free.mean()) if len(free) else 0.0
