@@ -12,7 +12,8 @@ about their face at the truth), so samples this far from the rest of their face 
 frame are told apart from it without knowing the pose: per frame and associated segment, each
 sample's signed distance to the segment is compared with the median of that group (a pose
 error of the frame moves the whole group together), and samples more than ``sigmas`` robust
-spreads (and at least ``min_gate_m``) away are dropped.
+spreads (and at least ``min_gate_m``) away are dropped, unless fewer than
+``min_core_fraction`` of the group lie within that gate (no one face to tell them from).
 """
 
 from __future__ import annotations
@@ -38,15 +39,25 @@ class FaceTrimOptions:
     sigmas: the gate in robust spreads (1.4826 × median absolute deviation of every candidate's
         distance from its group's median).
     min_gate_m: the gate's floor (metres): a face's samples never spread less than this.
+    min_face_samples: a group with fewer samples within the gate of its face at the given
+        pose is kept whole.
+    max_face_spread: a group whose samples within the gate of the face spread more than this
+        many times the robust spread is kept whole: it is not one thin face (a curtain wall's
+        mullions and glazing, 1–8 cm in front of its segment: SampleHouse4).
     """
 
     sigmas: float = 5.0
     min_gate_m: float = 0.01
+    min_face_samples: int = 3
+    max_face_spread: float = 2.0
 
     def __post_init__(self) -> None:
-        if not (self.sigmas > 0 and self.min_gate_m >= 0):
-            raise InputError(f"FaceTrimOptions: sigmas must be > 0 and min_gate_m >= 0, got "
-                             f"{self.sigmas!r}, {self.min_gate_m!r}")
+        if not (self.sigmas > 0 and self.min_gate_m >= 0 and self.min_face_samples >= 1
+                and self.max_face_spread > 0):
+            raise InputError(f"FaceTrimOptions: sigmas, min_face_samples and max_face_spread "
+                             f"must be > 0 and min_gate_m >= 0, got {self.sigmas!r}, "
+                             f"{self.min_face_samples!r}, {self.max_face_spread!r}, "
+                             f"{self.min_gate_m!r}")
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready fields."""
@@ -144,5 +155,12 @@ def off_face_samples(frame: NDArray[np.integer], p_in_cam: F64, segment_of: NDAr
         dev[part] = r[part] - np.median(r[part])
     spread = 1.4826 * float(np.median(np.abs(dev)))
     gate = max(opts.min_gate_m, opts.sigmas * spread)
-    keep[idx[np.abs(dev) > gate]] = False
+    for part in np.split(order, bounds):
+        near = part[np.abs(r[part]) <= gate]  # the face where the pose puts it
+        if len(near) < opts.min_face_samples:
+            continue
+        centre = float(np.median(r[near]))
+        if 1.4826 * float(np.median(np.abs(r[near] - centre))) > opts.max_face_spread * spread:
+            continue  # not one thin face: a curtain wall's mullions and glazing
+        keep[idx[part[np.abs(r[part] - centre) > gate]]] = False
     return FaceTrim(keep=keep, gate_m=gate, spread_m=spread)
