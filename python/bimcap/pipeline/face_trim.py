@@ -40,7 +40,8 @@ class FaceTrimOptions:
         distance from its group's median).
     min_gate_m: the gate's floor (metres): a face's samples never spread less than this.
     min_face_samples: a group with fewer samples within the gate of its face at the given
-        pose is kept whole.
+        pose is centred on its median instead (a frame still off, or samples that are not of
+        this face at all: Office_A's 13 cm door jambs take samples 10–20 cm behind them).
     max_face_spread: a group whose samples within the gate of the face spread more than this
         many times the robust spread is kept whole: it is not one thin face (a curtain wall's
         mullions and glazing, 1–8 cm in front of its segment: SampleHouse4).
@@ -157,10 +158,11 @@ def off_face_samples(frame: NDArray[np.integer], p_in_cam: F64, segment_of: NDAr
     gate = max(opts.min_gate_m, opts.sigmas * spread)
     for part in np.split(order, bounds):
         near = part[np.abs(r[part]) <= gate]  # the face where the pose puts it
-        if len(near) < opts.min_face_samples:
-            continue
-        centre = float(np.median(r[near]))
-        if 1.4826 * float(np.median(np.abs(r[near] - centre))) > opts.max_face_spread * spread:
-            continue  # not one thin face: a curtain wall's mullions and glazing
+        if len(near) >= opts.min_face_samples:
+            centre = float(np.median(r[near]))
+            if 1.4826 * float(np.median(np.abs(r[near] - centre))) > opts.max_face_spread * spread:
+                continue  # not one thin face: a curtain wall's mullions and glazing
+        else:  # no face where the pose puts it: the group's median (a frame still off)
+            centre = float(np.median(r[part]))
         keep[idx[part[np.abs(r[part] - centre) > gate]]] = False
     return FaceTrim(keep=keep, gate_m=gate, spread_m=spread)
