@@ -1,19 +1,24 @@
-"""Camera-pixel wall samples that are not on their wall face: door and window frames, counter
+"""Camera-pixel wall samples that are not on their wall face: window frames, counter
 backsplashes, cabinet fronts and stair stringers a few centimetres in front of it.
 
 The geometric segmenter labels every vertical plane a wall, and a window frame 3 cm in front of
 the wall's face is an inlier of the wall's own plane. Such samples lie on one side of the face
-(in front of it), 1–10 cm off: the solver's Cauchy loss at the 2 cm noise scale gives them
-their full pull, so where one side of a room has a kitchen counter or windows and the other not,
-the walls pull every frame the same way (Duplex_A's fixed point: −0.22 cm in y, half of its
-y pull from such pixel samples; docs/generalization.md, "What still pulled Duplex_A's fixed
-point"). The pixels' samples are precise (planes fitted to the returns: 0.2 cm robust spread
-about their face at the truth), so samples this far from the rest of their face in the same
-frame are told apart from it without knowing the pose: per frame and associated segment, each
-sample's signed distance to the segment is compared with the median of that group (a pose
-error of the frame moves the whole group together), and samples more than ``sigmas`` robust
-spreads (and at least ``min_gate_m``) away are dropped, unless fewer than
-``min_core_fraction`` of the group lie within that gate (no one face to tell them from).
+(in front of it), 1–30 cm off: the solver's Cauchy loss at the 2 cm noise scale gives those
+within a few centimetres their full pull, so where one side of a room has a kitchen counter or
+windows and the other not, the walls pull every frame the same way (Duplex_A's fixed point:
+−0.22 cm in y, half of its y pull from such pixel samples; docs/generalization.md, "What still
+pulled Duplex_A's fixed point"). The pixels' samples are precise (planes fitted to the returns:
+0.2 cm robust spread about their face at the truth), so they are told apart from their face
+per frame and associated segment (a group):
+
+1. the gate is ``sigmas`` robust spreads of every candidate's distance from its group's
+   median, at least ``min_gate_m`` (1.2 cm on the standard setting);
+2. the face is where the pose puts it: the median of the group's samples within the gate of
+   the segment; with fewer than ``min_face_samples`` there (a frame still off, or samples that
+   belong to no face of this segment), the group's median;
+3. a face whose samples within the gate spread more than ``max_face_spread`` robust spreads is
+   not one thin face (a curtain wall's mullions and glazing): the group is kept whole;
+4. otherwise the group's samples further than the gate from the face are dropped.
 """
 
 from __future__ import annotations
