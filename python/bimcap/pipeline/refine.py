@@ -689,9 +689,11 @@ def _trim_off_face(prepared: Prepared, run: _StageRun) -> NDArray[np.bool_]:
     pixels = np.bincount(np.asarray(prepared.pixel_frontend.wall_frame, np.int64), minlength=n)
     start = np.searchsorted(frame, np.arange(n))
     rank = np.arange(len(frame)) - start[frame]
+    normals = np.asarray(arrays.get("segment_normal", np.zeros((0, 2))), np.float64)
+    if len(normals) != len(arrays["segments"]):  # none given: every face seen from both sides
+        normals = np.zeros((len(arrays["segments"]), 2))
     trim = off_face_samples(frame, arrays["wall_p_in_cam"], run.result.wall_segment,
-                            run.result.poses, arrays["segments"],
-                            arrays.get("segment_normal", np.zeros((len(arrays["segments"]), 2))),
+                            run.result.poses, arrays["segments"], normals,
                             rank < pixels[frame])
     _log.info(f"{trim.dropped} of the camera's wall samples off their face by more than "
               f"{trim.gate_m * 100:.1f} cm (robust spread {trim.spread_m * 100:.2f} cm): "
