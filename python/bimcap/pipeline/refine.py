@@ -988,6 +988,7 @@ class _StageSolver:
             arrays = problem.arrays()
             problem = problem.replace(wall_frame=arrays["wall_frame"][self.wall_keep],
                                       wall_p_in_cam=arrays["wall_p_in_cam"][self.wall_keep])
+            stats = replace(stats, wall=int(self.wall_keep.sum()))
         if self.held:
             fixed = np.asarray(problem.pose_fixed, np.int32).copy()
             fixed[sorted(self.held)] = 1
