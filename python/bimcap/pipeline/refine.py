@@ -676,6 +676,33 @@ def stage_options(base: Any, stage: Any, config: RefineConfig) -> Any | None:
     return opts
 
 
+def _trim_off_face(prepared: Prepared, run: _StageRun) -> NDArray[np.bool_]:
+    """The front end's wall samples to keep at the scan's noise scale: the camera pixels'
+    samples off their face's in the same frame (:mod:`bimcap.pipeline.face_trim`: frames and
+    fittings in front of the wall) are dropped, at ``run``'s refined poses and association; the
+    scan's samples are all kept."""
+    from bimcap.pipeline.face_trim import off_face_samples
+
+    arrays = run.problem.arrays()
+    frame = np.asarray(arrays["wall_frame"])
+    n = len(run.result.poses)
+    # with_scan_samples keeps each frame's pixel samples first, then its scan's
+    pixels = np.bincount(np.asarray(prepared.pixel_frontend.wall_frame, np.int64), minlength=n)
+    start = np.searchsorted(frame, np.arange(n))
+    rank = np.arange(len(frame)) - start[frame]
+    normals = np.asarray(arrays.get("segment_normal", np.zeros((0, 2))), np.float64)
+    if len(normals) != len(arrays["segments"]):  # none given: every face seen from both sides
+        normals = np.zeros((len(arrays["segments"]), 2))
+    trim = off_face_samples(frame, arrays["wall_p_in_cam"], run.result.wall_segment,
+                            run.result.poses, arrays["segments"], normals,
+                            rank < pixels[frame])
+    _log.info(f"{trim.dropped} of the camera's wall samples off their face by more than "
+              f"{trim.gate_m * 100:.1f} cm (robust spread {trim.spread_m * 100:.2f} cm): "
+              f"dropped at the scan's noise scale")
+    keep: NDArray[np.bool_] = trim.keep
+    return keep
+
+
 def scan_stage_options(opts: Any, config: RefineConfig) -> Any:
     """The options of the last solve with the LiDAR scan's samples: ``opts`` with the BIM terms'
     noise scale set to ``config.scan_sigma_m`` (unchanged when None)."""
@@ -796,6 +823,7 @@ def _solve_prepared(prepared: Prepared, config: RefineConfig, max_plane_rounds: 
         tight = scan_stage_options(run.options, config)
         if tight is not run.options:
             _log.info(f"and once more at the scan's noise scale ({config.scan_sigma_m:g} m)")
+            solver.wall_keep = _trim_off_face(prepared, run)
             solver.held = _unanchored(run, poses)
             if solver.held:
                 _log.info(f"holding frame(s) {sorted(solver.held)[:10]} where they are: "
@@ -907,6 +935,9 @@ class _StageSolver:
     max_dist: the solve-time filter on matches (m, :func:`filter_matches_by_distance`), or None.
     normals: (S, 2) free-side normals of the segments (visible-face association), or None.
     summaries: every solve's summary, in order.
+    held: frames held fixed in every problem built.
+    wall_keep: (W,) the front end's wall samples kept in every problem built (None: all;
+        :func:`_trim_off_face`).
     """
 
     prepared: Prepared
@@ -915,6 +946,7 @@ class _StageSolver:
     normals: F64 | None
     summaries: list[Any] = field(default_factory=list)
     held: frozenset[int] = frozenset()
+    wall_keep: NDArray[np.bool_] | None = None
 
     def run(self, stage: Any, opts: Any, poses: F64, chosen: Any) -> _StageRun:
         """Build the problem at ``poses`` with the planes ``chosen`` and solve ``stage``."""
@@ -953,6 +985,11 @@ class _StageSolver:
         fixed."""
         problem, stats = build_problem(self.prepared, poses, self.max_dist, self.normals,
                                        planes_chosen=chosen)
+        if self.wall_keep is not None:
+            arrays = problem.arrays()
+            problem = problem.replace(wall_frame=arrays["wall_frame"][self.wall_keep],
+                                      wall_p_in_cam=arrays["wall_p_in_cam"][self.wall_keep])
+            stats = replace(stats, wall=int(self.wall_keep.sum()))
         if self.held:
             fixed = np.asarray(problem.pose_fixed, np.int32).copy()
             fixed[sorted(self.held)] = 1
