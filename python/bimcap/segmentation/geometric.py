@@ -46,7 +46,10 @@ measured on its own scan by :func:`scan_range_noise`) and exceeds ``noise_adapt_
 ``noise_reference_m``, :meth:`GeometricOptions.for_noise` widens the normal baseline and its
 smoothing with k = σ / ``noise_reference_m`` and raises the plane threshold to
 ``noise_threshold_sigmas`` · σ: with 8 cm noise and 2-pixel central differences the normals of a
-wall seen from 2 m point anywhere, and RANSAC then fits "floors" and "ceilings" on walls. Below
+wall seen from 2 m point anywhere, and RANSAC then fits "floors" and "ceilings" on walls. It also
+asks the central differences to span ``normal_baseline_sigmas`` · σ in metres at the frame's
+median depth (:func:`_metric_baseline`): a pixel step is short in metres on a wall 1 m away
+through a long lens, where the 4-pixel step spans 2 cm and the whole wall became clutter. Below
 the limit the options are used as given (same labels as without a noise estimate).
 """
 
@@ -104,9 +107,9 @@ class GeometricOptions:
     noise_reference_m: float = 0.03
     noise_adapt_above: float = 1.5
     noise_threshold_sigmas: float = 1.5
-    min_normal_baseline_m: float = 0.0
-    normal_baseline_sigmas: float = 1.0
-    max_normal_step_px: int = 24
+    min_normal_baseline_m: float = 0.0  # 0: the pixel step as given (set by for_noise)
+    normal_baseline_sigmas: float = 1.0  # for_noise: min_normal_baseline_m = this · σ
+    max_normal_step_px: int = 24  # the widened step's cap (working pixels)
 
     def __post_init__(self) -> None:
         if self.work_width < 32:
@@ -116,6 +119,11 @@ class GeometricOptions:
             raise SegmentationInputError(
                 "noise_reference_m and noise_threshold_sigmas must be > 0, noise_adapt_above "
                 ">= 1", field="noise_reference_m")
+        if not (self.min_normal_baseline_m >= 0 and self.normal_baseline_sigmas >= 0
+                and self.max_normal_step_px >= 1):
+            raise SegmentationInputError(
+                "min_normal_baseline_m and normal_baseline_sigmas must be >= 0, "
+                "max_normal_step_px >= 1", field="min_normal_baseline_m")
 
     def for_noise(self, range_noise_m: float | None) -> GeometricOptions:
         """These options for depth with range noise σ = ``range_noise_m`` (metres; None or not
@@ -144,12 +152,13 @@ class GeometricOptions:
         )
 
 
-def _metric_baseline(opts: GeometricOptions, depth: NDArray[np.float32], cam: Camera
+def _metric_baseline(opts: GeometricOptions, depth: NDArray[Any], cam: Camera
                      ) -> GeometricOptions:
-    """``opts`` with the normal step (and its box) widened so that the central differences
-    (2 · step pixels) span at least ``min_normal_baseline_m`` at the median depth of ``depth``
-    (h, w; metres, 0 = none) seen by ``cam`` (the working camera), at most
-    ``max_normal_step_px``; unchanged when ``min_normal_baseline_m`` is 0 or already met.
+    """``opts`` with the normal step widened so that the central differences (2 · step
+    pixels) span at least ``min_normal_baseline_m`` at the median depth of ``depth`` (h, w;
+    metres, 0 = none) seen by ``cam`` (the working camera), at most ``max_normal_step_px``, and
+    its box grown by half the step's factor (odd); unchanged when ``min_normal_baseline_m`` is 0
+    or already met.
 
     At 8 cm of range noise a wall 1 m away seen through a long lens (working fx 441 px) has a
     4-pixel step's differences span 2 cm: its normals point anywhere, no vertical plane gets
