@@ -46,7 +46,10 @@ measured on its own scan by :func:`scan_range_noise`) and exceeds ``noise_adapt_
 ``noise_reference_m``, :meth:`GeometricOptions.for_noise` widens the normal baseline and its
 smoothing with k = σ / ``noise_reference_m`` and raises the plane threshold to
 ``noise_threshold_sigmas`` · σ: with 8 cm noise and 2-pixel central differences the normals of a
-wall seen from 2 m point anywhere, and RANSAC then fits "floors" and "ceilings" on walls. Below
+wall seen from 2 m point anywhere, and RANSAC then fits "floors" and "ceilings" on walls. It also
+asks the central differences to span ``normal_baseline_sigmas`` · σ in metres at the frame's
+median depth (:func:`_metric_baseline`): a pixel step is short in metres on a wall 1 m away
+through a long lens, where the 4-pixel step spans 2 cm and the whole wall became clutter. Below
 the limit the options are used as given (same labels as without a noise estimate).
 """
 
@@ -104,6 +107,9 @@ class GeometricOptions:
     noise_reference_m: float = 0.03
     noise_adapt_above: float = 1.5
     noise_threshold_sigmas: float = 1.5
+    min_normal_baseline_m: float = 0.0  # 0: the pixel step as given (set by for_noise)
+    normal_baseline_sigmas: float = 1.0  # for_noise: min_normal_baseline_m = this · σ
+    max_normal_step_px: int = 24  # the widened step's cap (working pixels)
 
     def __post_init__(self) -> None:
         if self.work_width < 32:
@@ -113,6 +119,11 @@ class GeometricOptions:
             raise SegmentationInputError(
                 "noise_reference_m and noise_threshold_sigmas must be > 0, noise_adapt_above "
                 ">= 1", field="noise_reference_m")
+        if not (self.min_normal_baseline_m >= 0 and self.normal_baseline_sigmas >= 0
+                and self.max_normal_step_px >= 1):
+            raise SegmentationInputError(
+                "min_normal_baseline_m and normal_baseline_sigmas must be >= 0, "
+                "max_normal_step_px >= 1", field="min_normal_baseline_m")
 
     def for_noise(self, range_noise_m: float | None) -> GeometricOptions:
         """These options for depth with range noise σ = ``range_noise_m`` (metres; None or not
@@ -120,7 +131,11 @@ class GeometricOptions:
         ``noise_reference_m``; above, with k = σ / ``noise_reference_m`` (at most 4): the normal
         baseline ``normal_step_px`` × 0.75 k, its box ``normal_smooth_px`` × 0.8 k (odd), and the
         plane threshold at least ``noise_threshold_sigmas`` · σ (none of them below the given
-        value). 8 cm noise: step 2 → 4 px, box 5 → 11 px, threshold 4 → 12 cm."""
+        value). 8 cm noise: step 2 → 4 px, box 5 → 11 px, threshold 4 → 12 cm. It also sets
+        ``min_normal_baseline_m`` to ``normal_baseline_sigmas`` · σ: the normals' central
+        differences must span at least that much at the frame's median depth
+        (:func:`_metric_baseline`; a pixel step is metres only at a given depth and focal
+        length)."""
         k = noise_factor(range_noise_m, self.noise_reference_m, self.noise_adapt_above)
         if k is None or range_noise_m is None:
             return self
@@ -132,7 +147,35 @@ class GeometricOptions:
             normal_smooth_px=max(self.normal_smooth_px, smooth | 1),
             plane_threshold_m=max(self.plane_threshold_m,
                                   self.noise_threshold_sigmas * range_noise_m),
+            min_normal_baseline_m=max(self.min_normal_baseline_m,
+                                      self.normal_baseline_sigmas * range_noise_m),
         )
+
+
+def _metric_baseline(opts: GeometricOptions, depth: NDArray[Any], cam: Camera
+                     ) -> GeometricOptions:
+    """``opts`` with the normal step widened so that the central differences (2 · step
+    pixels) span at least ``min_normal_baseline_m`` at the median depth of ``depth`` (h, w;
+    metres, 0 = none) seen by ``cam`` (the working camera), at most ``max_normal_step_px``, and
+    its box grown by half the step's factor (odd); unchanged when ``min_normal_baseline_m`` is 0
+    or already met.
+
+    At 8 cm of range noise a wall 1 m away seen through a long lens (working fx 441 px) has a
+    4-pixel step's differences span 2 cm: its normals point anywhere, no vertical plane gets
+    enough agreeing inliers and the whole view is labelled clutter (or a "floor" band)."""
+    if opts.min_normal_baseline_m <= 0.0:
+        return opts
+    z = depth[depth > 0]
+    if len(z) == 0:
+        return opts
+    z_med = float(np.median(z))
+    step = int(np.ceil(opts.min_normal_baseline_m * cam.fx / (2.0 * z_med)))
+    step = min(step, opts.max_normal_step_px)
+    if step <= opts.normal_step_px:
+        return opts
+    box = max(opts.normal_smooth_px, round(opts.normal_smooth_px * step / opts.normal_step_px
+                                           * 0.5) | 1)
+    return replace(opts, normal_step_px=step, normal_smooth_px=box)
 
 
 def scan_range_noise(p_in_sensor: NDArray[np.floating], ring_bin_deg: float = 0.5,
@@ -602,6 +645,7 @@ def segment_geometric(
     cam = camera.pinhole().scaled(scale) if scale < 1.0 else camera.pinhole()
     d = (cv2.resize(d_full, (cam.width, cam.height), interpolation=cv2.INTER_NEAREST)
          if scale < 1.0 else d_full)
+    opts = _metric_baseline(opts, d, cam)
     scene = _work_scene(d, cam, pose, opts)
     state = _Labelling.start(scene.valid)
     if not scene.valid.any():
