@@ -109,7 +109,9 @@ class GlobalAlignOptions:
     wall_band_m: wall/column points within this height of the floor or ceiling are ignored.
     plan_cut_height_m: a storey's plan section holds the segments whose ``segment_z`` range
         holds ``floor + plan_cut_height_m`` (as in the coarse stage).
-    rescore_top: the best distinct rigid fits of each storey that get the per-frame fit.
+    rescore_top: the best distinct rigid fits of each storey that get the per-frame fit (8: with
+        the support-weighted template the demo walk of `test_gravity_from_the_floor_levels_a_
+        tilted_slam_frame` has four wrong places of a higher rigid fit than the right one).
     frame_yaw_deg, frame_yaw_step_deg, frame_shift_m: the per-frame slack of the ranking fit
         (:func:`_frame_fit`): each frame may turn and shift this much on its own.
     level_from_floor, gravity_min_tilt_deg: estimate gravity from the floor points; apply it
@@ -176,7 +178,7 @@ class GlobalAlignOptions:
     free_clearance_m: float = 0.15
     enclosed_rays: int = 16
     enclosed_min_hits: int = 10
-    rescore_top: int = 4
+    rescore_top: int = 8
     frame_yaw_deg: float = 12.0
     frame_yaw_step_deg: float = 2.0
     frame_shift_m: float = 0.2
