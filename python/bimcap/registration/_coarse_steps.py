@@ -121,6 +121,26 @@ def _weighted_mean(values: F64, p_class: I32, column_weight: float) -> float:
     return float((values * w).sum() / max(w.sum(), 1e-12))
 
 
+def _cell_keys(p_xy: F64, p_class: I32, cell: float) -> NDArray[np.int64]:
+    """(M,) one int64 key per (grid cell of ``cell`` metres, class) of each point (M, 2)."""
+    ij = np.floor(p_xy / cell).astype(np.int64)
+    ij -= ij.min(0)
+    cls_ = p_class.astype(np.int64)
+    cls_ -= cls_.min()
+    span = ij.max(0) + 1
+    return (ij[:, 0] * span[1] + ij[:, 1]) * (int(cls_.max()) + 1) + cls_
+
+
+def cell_support(p_xy: F64, p_class: I32, cell: float) -> NDArray[np.int64]:
+    """(M,) how many of the points (M, 2) share each point's (grid cell of ``cell`` metres,
+    class): a surface seen by many rays fills its cells, a stray return sits alone."""
+    if len(p_xy) == 0:
+        return np.zeros(0, np.int64)
+    _, inverse, counts = np.unique(_cell_keys(p_xy, p_class, cell), return_inverse=True,
+                                   return_counts=True)
+    return counts[inverse.ravel()]
+
+
 def _subsample(p_xy: F64, p_class: I32, cell: float | None, cap: int,
                rng: np.random.Generator) -> NDArray[np.int64]:
     """Indices of a thinned point set: with ``cell``, one point per (cell, class) grid cell (for
@@ -128,15 +148,9 @@ def _subsample(p_xy: F64, p_class: I32, cell: float | None, cap: int,
     most ``cap`` points drawn uniformly at random (keeps the noise distribution)."""
     keep = np.arange(len(p_xy))
     if len(p_xy) and cell is not None:
-        # The first point of each (cell, class), in input order: the cells and the class packed
-        # into one int64 key (a 1-D unique, not the row-wise one; the same first occurrences).
-        ij = np.floor(p_xy / cell).astype(np.int64)
-        ij -= ij.min(0)
-        cls_ = p_class.astype(np.int64)
-        cls_ -= cls_.min()
-        span = ij.max(0) + 1
-        key = (ij[:, 0] * span[1] + ij[:, 1]) * (int(cls_.max()) + 1) + cls_
-        _, keep = np.unique(key, return_index=True)
+        # The first point of each (cell, class), in input order (a 1-D unique of the packed
+        # keys, not the row-wise one; the same first occurrences).
+        _, keep = np.unique(_cell_keys(p_xy, p_class, cell), return_index=True)
         keep = np.sort(keep)
     if len(keep) > cap:
         keep = np.sort(rng.choice(keep, cap, replace=False))

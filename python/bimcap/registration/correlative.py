@@ -59,6 +59,7 @@ def score_volume(
     yaws: NDArray[np.float64],
     xy_range_m: float,
     column_weight: float = 1.0,
+    p_weight: NDArray[np.float64] | None = None,
 ) -> tuple[F32, float, int]:
     """Score of every (yaw, ty, tx) on the coarse grid of ``maps``.
 
@@ -70,6 +71,8 @@ def score_volume(
         after the yaw) into binary occupancy templates.
     pivot: (2,) the rotation centre; yaws: (Y,) radians; xy_range_m: half-width of the
         translation grid.
+    p_weight: (M,) each point's weight in (0, 1] (None: 1); a template cell takes the largest
+        weight of its points (with weights of 1, the binary template).
 
     Returns
     -------
@@ -101,7 +104,11 @@ def score_volume(
             u0, v0 = luv.min(0)
             u1, v1 = luv.max(0)
             templ = np.zeros((v1 - v0 + 1, u1 - u0 + 1), dtype=np.float32)
-            templ[luv[:, 1] - v0, luv[:, 0] - u0] = 1.0
+            if p_weight is None:
+                templ[luv[:, 1] - v0, luv[:, 0] - u0] = 1.0
+            else:
+                np.maximum.at(templ, (luv[:, 1] - v0, luv[:, 0] - u0),
+                              p_weight[layer == lay].astype(np.float32))
             count += weight * float(templ.sum())
             if len(maps.rows[lay]) == 0:
                 continue  # nothing of this class is visible this way: the points score 0
