@@ -311,10 +311,12 @@ def pixel_surface_area_a219de7(depth: NDArray[np.floating], camera: Camera,
     return np.where(z > 0, z * z * cos_alpha / (camera.fx * camera.fy) / cos, 0.0)
 
 
-def complete_linear_a219de7(sparse: SparseDepth | ArrayLike,
-                            options: LinearOptions | None = None) -> F32:
-    """LINEAR: Delaunay barycentric interpolation (module docstring). Pixels outside the hull or in
-    masked triangles stay 0."""
+def _complete_linear_reference(sparse: SparseDepth | ArrayLike, options: LinearOptions | None,
+                               float_grid: bool) -> F32:
+    """``complete_linear`` as of a219de7 (``float_grid`` False: each covered pixel's row and
+    column by ``np.divmod``) or c52a7fb (True: gathered from the cached float64 pixel grid);
+    otherwise verbatim. LINEAR: Delaunay barycentric interpolation; pixels outside the hull or
+    in masked triangles stay 0."""
     import cv2
     from scipy.spatial import Delaunay, QhullError
 
@@ -353,7 +355,11 @@ def complete_linear_a219de7(sparse: SparseDepth | ArrayLike,
         fill(tri_id, poly, tid, line8, 4)
     flat = np.flatnonzero(tri_id)
     k = tri_id.ravel()[flat] - 1
-    rows, cols = np.divmod(flat, w)
+    if float_grid:
+        grid_rows, grid_cols = pixel_grid_c52a7fb(h, w)
+        rows, cols = grid_rows[flat], grid_cols[flat]
+    else:
+        rows, cols = np.divmod(flat, w)
     # per triangle, the affine function f(u, v) = a u + b v + c through its three corners, with
     # f = 1/z (exact for a plane seen through a pinhole) or f = z; one gather per pixel. Pixel
     # centres up to half a pixel outside their rasterised triangle are extrapolated (exact for
@@ -372,6 +378,12 @@ def complete_linear_a219de7(sparse: SparseDepth | ArrayLike,
     else:
         out[flat] = np.maximum(f, 0.0)
     return out.reshape(h, w)
+
+
+def complete_linear_a219de7(sparse: SparseDepth | ArrayLike,
+                            options: LinearOptions | None = None) -> F32:
+    """``bimcap.fusion.completion.complete_linear`` as of a219de7."""
+    return _complete_linear_reference(sparse, options, float_grid=False)
 
 
 # ------------------------------------------------------------- planar smoothing at a219de7
@@ -653,66 +665,9 @@ def pixel_grid_c52a7fb(h: int, w: int) -> tuple[F64, F64]:
 
 def complete_linear_c52a7fb(sparse: SparseDepth | ArrayLike,
                             options: LinearOptions | None = None) -> F32:
-    """``bimcap.fusion.completion.complete_linear`` as of c52a7fb, verbatim but for the names (a
-    gather of each covered pixel's row, column and coefficients)."""
-    import cv2
-    from scipy.spatial import Delaunay, QhullError
-
-    opts = options or LinearOptions()
-    depth, uv, z = _sparse_arrays(sparse)
-    _require_points(z, 3)
-    h, w = depth.shape
-    try:
-        tri = Delaunay(uv)
-    except QhullError as exc:
-        raise FusionInputError(
-            f"cannot triangulate the sparse returns: {exc}", field="sparse_depth"
-        ) from None
-    simp = tri.simplices
-    pa, pb, pc = uv[simp[:, 0]], uv[simp[:, 1]], uv[simp[:, 2]]
-    edge = np.maximum.reduce(
-        [
-            np.linalg.norm(pa - pb, axis=1),
-            np.linalg.norm(pb - pc, axis=1),
-            np.linalg.norm(pc - pa, axis=1),
-        ]
-    )
-    zt = z[simp]
-    ratio = zt.max(1) / zt.min(1)
-    e1, e2 = pb - pa, pc - pa
-    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]  # twice the signed area, px²
-    good = (edge <= opts.max_edge_px) & (ratio <= opts.max_depth_ratio) & (np.abs(det) > 2.0)
-    # rasterise triangle ids (cv2 fill in a loop over kept triangles is far faster than
-    # Delaunay.find_simplex on every pixel); id 0 = none
-    tri_id = np.zeros((h, w), dtype=np.int32)
-    good_idx = np.flatnonzero(good)
-    # 4 fractional bits
-    corners = np.rint(np.stack([pa, pb, pc], 1)[good_idx] * 16).astype(np.int32)
-    fill, line8 = cv2.fillConvexPoly, cv2.LINE_8
-    for tid, poly in zip((good_idx + 1).tolist(), list(corners), strict=True):
-        fill(tri_id, poly, tid, line8, 4)
-    flat = np.flatnonzero(tri_id)
-    k = tri_id.ravel()[flat] - 1
-    grid_rows, grid_cols = pixel_grid_c52a7fb(h, w)
-    rows, cols = grid_rows[flat], grid_cols[flat]  # np.divmod(flat, w), as float64
-    # per triangle, the affine function f(u, v) = a u + b v + c through its three corners, with
-    # f = 1/z (exact for a plane seen through a pinhole) or f = z; one gather per pixel. Pixel
-    # centres up to half a pixel outside their rasterised triangle are extrapolated (exact for
-    # a plane); slivers (area < 1 px²) were dropped above, so this stays well conditioned.
-    gi = good_idx
-    mat = np.ones((len(gi), 3, 3))
-    mat[:, :, :2] = np.stack([pa[gi], pb[gi], pc[gi]], 1)
-    vals = 1.0 / zt[gi] if opts.inverse_depth else zt[gi]
-    coef_good = np.linalg.solve(mat, vals[:, :, None])[:, :, 0]
-    coef = np.zeros((3, len(simp)))
-    coef[:, gi] = coef_good.T
-    f = coef[0][k] * cols + coef[1][k] * rows + coef[2][k]
-    out = np.zeros(h * w, dtype=np.float32)
-    if opts.inverse_depth:
-        out[flat] = np.where(f > 0, 1.0 / np.maximum(f, 1e-12), 0.0)
-    else:
-        out[flat] = np.maximum(f, 0.0)
-    return out.reshape(h, w)
+    """``bimcap.fusion.completion.complete_linear`` as of c52a7fb (a gather of each covered
+    pixel's row and column from the cached pixel grid)."""
+    return _complete_linear_reference(sparse, options, float_grid=True)
 
 
 # ------------------------------------------------------------- features.matching
