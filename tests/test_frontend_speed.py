@@ -630,7 +630,10 @@ def test_raster_rejects_bad_arrays() -> None:
         ({"ids": np.ones(2, np.int64)}, "ids", "dtype int32"),
         ({"shift": 0}, "shift", "[1, 16]"),
         ({"shift": 17}, "shift", "[1, 16]"),
-        ({"height": -1}, "height", ">= 0"),
+        ({"height": -1}, "height", "[0, 16384]"),
+        ({"width": 20000}, "width", "[0, 16384]"),
+        ({"corners": np.array([[[0, 0], [16, 0], [0, 16]], [[0, 0], [16, 0], [0, 16385 * 16]]],
+                              np.int32)}, "corners", "triangle 1 has a coordinate 262160"),
     ]
     for override, field, text in bad_fill:
         args = {"corners": c, "ids": k, "height": 4, "width": 5} | override

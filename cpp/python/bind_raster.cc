@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <string>
 #include <type_traits>
+#include <utility>
 #include <vector>
 
 #include "bimcap/raster/convex_fill.h"
@@ -60,9 +61,11 @@ py::array Checked(const py::handle& obj, const char* name, std::vector<py::ssize
 
 py::array_t<int32_t> FillTriangleIds(const py::handle& corners_obj, const py::handle& ids_obj,
                                      py::ssize_t height, py::ssize_t width, int shift) {
-  if (height < 0 || width < 0) {
-    throw RasterError("height", "image size must be >= 0, got " + std::to_string(height) + " x " +
-                                    std::to_string(width));
+  for (const auto& [name, side] : {std::pair{"height", height}, std::pair{"width", width}}) {
+    if (side < 0 || side > raster::kMaxCoordinatePx) {
+      throw RasterError(name, "must be in [0, " + std::to_string(raster::kMaxCoordinatePx) +
+                                  "] px, got " + std::to_string(side));
+    }
   }
   const py::array corners = Checked<int32_t>(corners_obj, "corners", {-1, 3, 2});
   const py::array ids = Checked<int32_t>(ids_obj, "ids", {corners.shape(0)});
@@ -121,7 +124,8 @@ void BindRaster(py::module_& m) {
         "ids[t] in order (a later one overwrites shared pixels): the pixels of "
         "cv2.fillConvexPoly(image, corners[t], ids[t], cv2.LINE_8, shift) called for t = 0, 1, "
         "... on a zero image. corners: (T, 3, 2) int32 x, y in 1/2**shift px (C-contiguous); "
-        "ids: (T,) int32; shift in [1, 16]. Raises InputError naming the bad argument.");
+        "ids: (T,) int32; shift in [1, 16]; sides and coordinates up to 16384 px. Raises "
+        "InputError naming the bad argument (nothing is drawn then).");
   m.def("evaluate_piecewise_affine", &EvaluatePiecewiseAffine, py::arg("tri_id"), py::arg("coef"),
         py::arg("inverse_depth"),
         "(H, W) float32 depth from the (H, W) int32 triangle-id image and the (3, N) float64 "

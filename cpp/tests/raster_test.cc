@@ -112,6 +112,24 @@ TEST(ConvexFill, RejectsAShiftOpenCvDrawsOtherwise) {
   }
 }
 
+TEST(ConvexFill, RejectsCoordinatesBeyondTheFixedPointRange) {
+  // Within ±2^14 px the 16.16 products of the clipping fit in int64; beyond, nothing is drawn.
+  std::vector<int32_t> pixels(4 * 4, 0);
+  const int32_t tris[] = {0, 0, 32, 0, 0, 32, 0, 0, 32, 0, 0, (16384 + 1) * 16};
+  const int32_t ids[] = {1, 2};
+  try {
+    FillTriangleIds({pixels.data(), 4, 4}, tris, ids, 2, 4);
+    FAIL() << "no exception";
+  } catch (const RasterError& e) {
+    EXPECT_EQ(e.field(), "corners");
+    EXPECT_NE(std::string(e.what()).find("triangle 1"), std::string::npos);
+  }
+  for (int32_t p : pixels) EXPECT_EQ(p, 0);  // checked before the first was drawn
+  const int32_t edge[] = {-16384 * 16, 0, 16384 * 16, 0, 0, 16384 * 16};
+  EXPECT_NO_THROW(FillTriangleIds({pixels.data(), 4, 4}, edge, ids, 1, 4));
+  EXPECT_THROW(FillTriangleIds({pixels.data(), 16385, 1}, edge, ids, 0, 4), RasterError);
+}
+
 TEST(PiecewiseAffine, ValuesInNumpysOrder) {
   // 2 × 3 ids: column 0 of the table is "no triangle"; f = c0 u + c1 v + c2.
   const int32_t ids[] = {0, 1, 1, 2, 2, 0};

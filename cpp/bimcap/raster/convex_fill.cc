@@ -108,11 +108,31 @@ void DrawSegment(const ImageRef<int32_t>& image, int64_t x1, int64_t y1, int64_t
   }
 }
 
-void CheckShift(int shift) {
+void CheckShiftAndImage(int shift, const ImageRef<int32_t>& image) {
   // OpenCV draws the outline of integer vertices (shift 0) with its LineIterator instead of
   // Line2; that path is not reproduced.
   if (shift < 1 || shift > kMaxShift) {
     throw RasterError("shift", "must be in [1, 16], got " + std::to_string(shift));
+  }
+  if (image.rows < 0 || image.cols < 0 || image.rows > kMaxCoordinatePx ||
+      image.cols > kMaxCoordinatePx) {
+    throw RasterError("image", "sides must be in [0, " + std::to_string(kMaxCoordinatePx) +
+                                   "] px, got " + std::to_string(image.rows) + " x " +
+                                   std::to_string(image.cols));
+  }
+}
+
+// Throws RasterError ("corners") naming `what` (built only then) unless every coordinate of
+// the `count` vertices lies within ±kMaxCoordinatePx px.
+template <typename What>
+void CheckVertices(const int32_t* vertices, int count, int shift, const What& what) {
+  const int64_t limit = kMaxCoordinatePx << shift;
+  for (int i = 0; i < 2 * count; ++i) {
+    if (vertices[i] < -limit || vertices[i] > limit) {
+      throw RasterError("corners", what() + " has a coordinate " + std::to_string(vertices[i]) +
+                                       " / 2^" + std::to_string(shift) + " px beyond ±" +
+                                       std::to_string(kMaxCoordinatePx) + " px");
+    }
   }
 }
 
@@ -128,8 +148,9 @@ struct Edge {
 
 void FillConvexPolygon(const ImageRef<int32_t>& image, const int32_t* vertices, int count,
                        int32_t value, int shift) {
-  CheckShift(shift);
+  CheckShiftAndImage(shift, image);
   if (count <= 0) return;
+  CheckVertices(vertices, count, shift, [] { return std::string("the polygon"); });
   const int up = kXyShift - shift;
   const int64_t delta = (int64_t{1} << shift) >> 1;
   auto vx = [&](int i) { return static_cast<int64_t>(vertices[2 * i]); };
@@ -213,7 +234,10 @@ void FillConvexPolygon(const ImageRef<int32_t>& image, const int32_t* vertices, 
 
 void FillTriangleIds(const ImageRef<int32_t>& image, const int32_t* corners, const int32_t* ids,
                      int64_t count, int shift) {
-  CheckShift(shift);
+  CheckShiftAndImage(shift, image);
+  for (int64_t t = 0; t < count; ++t) {
+    CheckVertices(corners + 6 * t, 3, shift, [t] { return "triangle " + std::to_string(t); });
+  }
   for (int64_t t = 0; t < count; ++t) FillConvexPolygon(image, corners + 6 * t, 3, ids[t], shift);
 }
 

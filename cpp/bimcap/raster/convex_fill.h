@@ -35,6 +35,11 @@ namespace bimcap::raster {
 // (shift 0 makes OpenCV draw the outline with another line algorithm, not reproduced here).
 constexpr int kMaxShift = 16;
 
+// The largest |coordinate| of a vertex and the largest image side, in px: in 16.16 fixed point
+// the products of the outline's clipping then stay inside int64 (OpenCV's own code overflows
+// beyond about 2^15 px).
+constexpr int64_t kMaxCoordinatePx = int64_t{1} << 14;
+
 // A bad argument of a raster function (shape, shift, index); `field()` names it.
 class RasterError : public InputError {
  public:
@@ -44,14 +49,16 @@ class RasterError : public InputError {
 // cv::fillConvexPoly(image, vertices, value, LINE_8, shift) for a convex polygon of `count`
 // vertices given as x0, y0, x1, y1, … (in 1/2^shift px, the same int32 points cv2 takes).
 // Polygons with fewer than 3 vertices draw their outline only, as OpenCV does; `count` = 0 draws
-// nothing. Throws RasterError for a shift outside [1, 16].
+// nothing. Throws RasterError (and draws nothing) for a shift outside [1, 16], an image side or
+// a vertex coordinate beyond kMaxCoordinatePx px.
 void FillConvexPolygon(const ImageRef<int32_t>& image, const int32_t* vertices, int count,
                        int32_t value, int shift);
 
 // The triangle-id image: for t = 0 … T − 1 in order, triangle t (corners[6t … 6t + 5] = x0, y0,
 // x1, y1, x2, y2 in 1/2^shift px) is filled with ids[t] by FillConvexPolygon; `image` is not
 // cleared first. The result equals T calls of cv2.fillConvexPoly(image, corners[t], ids[t],
-// cv2.LINE_8, shift).
+// cv2.LINE_8, shift). Every triangle is checked before any is drawn (RasterError "corners"
+// naming the first bad one, or "shift" / "image").
 void FillTriangleIds(const ImageRef<int32_t>& image, const int32_t* corners, const int32_t* ids,
                      int64_t count, int shift);
 
