@@ -532,16 +532,18 @@ def test_triangle_ids_same_as_opencv(h: int, w: int) -> None:
 def _pixel_centre_ids(corners: np.ndarray, ids: np.ndarray, h: int, w: int) -> np.ndarray:
     """A plausible other rule: a pixel takes a triangle's id when its centre lies inside or on
     the triangle (barycentric test), later triangles overwriting."""
-    vv, uu = np.mgrid[0:h, 0:w]
     out = np.zeros((h, w), np.int32)
     for c, k in zip(corners / 16.0, ids, strict=True):
+        lo = np.clip(np.ceil(c.min(0)).astype(int), 0, [w, h])
+        hi = np.clip(np.floor(c.max(0)).astype(int) + 1, 0, [w, h])
+        vv, uu = np.mgrid[lo[1]:hi[1], lo[0]:hi[0]]
         (x0, y0), (x1, y1), (x2, y2) = c
         d = [(x1 - x0) * (vv - y0) - (y1 - y0) * (uu - x0),
              (x2 - x1) * (vv - y1) - (y2 - y1) * (uu - x1),
              (x0 - x2) * (vv - y2) - (y0 - y2) * (uu - x2)]
         inside = ((d[0] >= 0) & (d[1] >= 0) & (d[2] >= 0)) | ((d[0] <= 0) & (d[1] <= 0)
                                                              & (d[2] <= 0))
-        out[inside] = k
+        out[lo[1]:hi[1], lo[0]:hi[0]][inside] = k
     return out
 
 
