@@ -9,8 +9,10 @@ context in which that stage runs the old code, swapped into its module).
 from __future__ import annotations
 
 import functools
+from collections import deque
 from collections.abc import Callable, Iterator
 from contextlib import AbstractContextManager, contextmanager
+from itertools import repeat
 from typing import Any
 
 import numpy as np
@@ -670,6 +672,161 @@ def complete_linear_c52a7fb(sparse: SparseDepth | ArrayLike,
     return _complete_linear_reference(sparse, options, float_grid=True)
 
 
+# ------------------------------------------------------------- semantic_map at ec113ba
+#: Rows of :func:`pixel_surface_area_ec113ba` computed at once: its ~40 temporaries then stay in the
+#: cache (1.5× cheaper than whole (H, W) float64 images at 516 × 386 on the 2-core box).
+_AREA_ROWS_EC113BA = 32
+
+
+def _gradient_into_ec113ba(c: F64, axis: int, out: F64) -> F64:
+    """``np.gradient(c, axis=axis)`` of a 2-D array (unit spacing, first-order ends: the same
+    subtractions and halvings) written into ``out``."""
+    if axis == 1:
+        c, out = c.T, out.T
+    np.subtract(c[2:], c[:-2], out=out[1:-1])
+    out[1:-1] /= 2.0
+    np.subtract(c[1], c[0], out=out[0])
+    np.subtract(c[-1], c[-2], out=out[-1])
+    return out.T if axis == 1 else out
+
+
+def pixel_surface_area_ec113ba(depth: NDArray[np.floating], camera: Camera,
+                               min_cos: float = 0.1) -> F64:
+    """``bimcap.frontend.semantic_map.pixel_surface_area`` as of ec113ba (numpy, in blocks of
+    rows), verbatim: the surface area in m² that each pixel of an undistorted depth map covers.
+
+    The pixel's solid angle is ``cos³α / (fx·fy)`` and its range ``z / cos α``, so it covers
+    ``z²·cos α / (fx·fy·cos θ)``: α is the angle between the ray and the optical axis, θ between the
+    ray and the surface normal from the depth map's gradient (``cos θ`` clamped at ``min_cos``).
+
+    Parameters
+    ----------
+    depth: (H, W) z-depth in metres (0 = none), H and W at least 2.
+
+    Returns
+    -------
+    (H, W) float64, 0 where depth is 0.
+    """
+    z = np.asarray(depth, dtype=np.float64)
+    if z.ndim != 2 or min(z.shape) < 2:
+        raise ValueError(f"depth must be (H, W) with H, W >= 2, got {z.shape}")
+    h, w = z.shape
+    # Component by component, the same arithmetic as np.gradient / np.cross / np.linalg.norm on
+    # the stacked (H, W, 3) points (bit for bit: tests/test_frontend_speed.py), in blocks of
+    # rows, each with one row more on either side for the central differences along v.
+    ray_x = (np.arange(w, dtype=np.float64) - camera.cx) / camera.fx
+    ray_y = ((np.arange(h, dtype=np.float64) - camera.cy) / camera.fy)[:, None]
+    out = np.empty((h, w))
+    for a in range(0, h, _AREA_ROWS_EC113BA):
+        b = min(h, a + _AREA_ROWS_EC113BA)
+        lo, hi = max(0, a - 1), min(h, b + 1)
+        zb = z[lo:hi]
+        x = ray_x * zb
+        y = ray_y[lo:hi] * zb
+        xu, yu, zu = (_gradient_into_ec113ba(c, 1, np.empty_like(zb)) for c in (x, y, zb))
+        xv, yv, zv = (_gradient_into_ec113ba(c, 0, np.empty_like(zb)) for c in (x, y, zb))
+        own = slice(a - lo, b - lo)  # the block's rows (the others' v-gradients are one-sided)
+        x, y, zb = x[own], y[own], zb[own]
+        xu, yu, zu, xv, yv, zv = (g[own] for g in (xu, yu, zu, xv, yv, zv))
+        n0 = yu * zv - zu * yv
+        n1 = zu * xv - xu * zv
+        n2 = xu * yv - yu * xv
+        nn = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+        pn = np.sqrt(x * x + y * y + zb * zb)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            cos = np.abs(n0 * x + n1 * y + n2 * zb) / (nn * pn)
+        cos = np.where(np.isfinite(cos), cos, 1.0)
+        cos = np.clip(cos, min_cos, 1.0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            cos_alpha = np.where(pn > 0, zb / pn, 1.0)
+        out[a:b] = np.where(zb > 0, zb * zb * cos_alpha / (camera.fx * camera.fy) / cos, 0.0)
+    return out
+
+
+# ------------------------------------------------------------- fusion.completion at ec113ba
+@functools.lru_cache(maxsize=4)
+def pixel_axes_ec113ba(h: int, w: int) -> tuple[F64, F64]:
+    """``bimcap.fusion.completion._pixel_axes`` as of ec113ba: (1, W) float64 columns and
+    (H, 1) float64 rows (read-only; cached per image size)."""
+    cols = np.arange(w, dtype=np.float64)[None, :]
+    rows = np.arange(h, dtype=np.float64)[:, None]
+    cols.flags.writeable = False
+    rows.flags.writeable = False
+    return cols, rows
+
+
+def triangle_ids_opencv(corners: NDArray[np.int32], ids: NDArray[np.int32], h: int, w: int,
+                        shift: int = 4) -> NDArray[np.int32]:
+    """The (h, w) triangle-id image of ec113ba's ``complete_linear``: one
+    ``cv2.fillConvexPoly(tri_id, corners[t], ids[t], LINE_8, shift)`` a triangle, in order, on a
+    zero image (driven by ``map``)."""
+    import cv2
+
+    tri_id = np.zeros((h, w), dtype=np.int32)
+    deque(map(cv2.fillConvexPoly, repeat(tri_id), list(corners), np.asarray(ids).tolist(),
+              repeat(cv2.LINE_8), repeat(shift)), maxlen=0)
+    return tri_id
+
+
+def piecewise_affine_numpy(tri_id: NDArray[np.int32], coef: F64, inverse_depth: bool) -> F32:
+    """The per-pixel half of ec113ba's ``complete_linear``: ``coef`` (3, N) gathered by
+    ``tri_id`` (H, W), ``f = c0 u + c1 v + c2``, then 1/f or f as float32; verbatim."""
+    h, w = tri_id.shape
+    cols, rows = pixel_axes_ec113ba(h, w)
+    f = coef[0][tri_id]
+    f *= cols
+    f += coef[1][tri_id] * rows
+    f += coef[2][tri_id]
+    if inverse_depth:  # noqa: SIM108 (verbatim)
+        out = np.where(f > 0, 1.0 / np.maximum(f, 1e-12), 0.0)
+    else:
+        out = np.maximum(f, 0.0)
+    return out.astype(np.float32)
+
+
+def complete_linear_ec113ba(sparse: SparseDepth | ArrayLike,
+                            options: LinearOptions | None = None) -> F32:
+    """``bimcap.fusion.completion.complete_linear`` as of ec113ba (one ``cv2.fillConvexPoly``
+    call a kept triangle, numpy's per-pixel gathers); verbatim but for the two helpers above."""
+    from scipy.spatial import Delaunay, QhullError
+
+    opts = options or LinearOptions()
+    depth, uv, z = _sparse_arrays(sparse)
+    _require_points(z, 3)
+    h, w = depth.shape
+    try:
+        tri = Delaunay(uv)
+    except QhullError as exc:
+        raise FusionInputError(
+            f"cannot triangulate the sparse returns: {exc}", field="sparse_depth"
+        ) from None
+    simp = tri.simplices
+    pa, pb, pc = uv[simp[:, 0]], uv[simp[:, 1]], uv[simp[:, 2]]
+    edge = np.maximum.reduce(
+        [
+            np.linalg.norm(pa - pb, axis=1),
+            np.linalg.norm(pb - pc, axis=1),
+            np.linalg.norm(pc - pa, axis=1),
+        ]
+    )
+    zt = z[simp]
+    ratio = zt.max(1) / zt.min(1)
+    e1, e2 = pb - pa, pc - pa
+    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]  # twice the signed area, px²
+    good = (edge <= opts.max_edge_px) & (ratio <= opts.max_depth_ratio) & (np.abs(det) > 2.0)
+    good_idx = np.flatnonzero(good)
+    corners = np.rint(np.stack([pa, pb, pc], 1)[good_idx] * 16).astype(np.int32)
+    tri_id = triangle_ids_opencv(corners, good_idx + 1, h, w)
+    gi = good_idx
+    mat = np.ones((len(gi), 3, 3))
+    mat[:, :, :2] = np.stack([pa[gi], pb[gi], pc[gi]], 1)
+    vals = 1.0 / zt[gi] if opts.inverse_depth else zt[gi]
+    coef_good = np.linalg.solve(mat, vals[:, :, None])[:, :, 0]
+    coef = np.zeros((3, len(simp) + 1))
+    coef[:, gi + 1] = coef_good.T
+    return piecewise_affine_numpy(tri_id, coef, opts.inverse_depth)
+
+
 # ------------------------------------------------------------- features.matching
 def top2_columns_reference(sim: NDArray[np.float32]
                            ) -> tuple[NDArray[np.int64], NDArray[np.float32], NDArray[np.float32]]:
@@ -753,13 +910,13 @@ def swapped(module: Any, **functions: Callable[..., Any]) -> Iterator[None]:
 def old_semantic_sampling() -> AbstractContextManager[None]:
     from bimcap.frontend import semantic_map
 
-    return swapped(semantic_map, pixel_surface_area=pixel_surface_area_a219de7)
+    return swapped(semantic_map, pixel_surface_area=pixel_surface_area_ec113ba)
 
 
 def old_completion() -> AbstractContextManager[None]:
     from bimcap.fusion import completion
 
-    return swapped(completion, complete_linear=complete_linear_c52a7fb)
+    return swapped(completion, complete_linear=complete_linear_ec113ba)
 
 
 @contextmanager

@@ -39,6 +39,7 @@ py::array_t<T> CopyToNumpy(const T* data, std::vector<py::ssize_t> shape) {
 
 void BindCostFunctions(py::module_& m);
 void BindProblemFile(py::module_& m);
+void BindRaster(py::module_& m);
 void BindSolver(py::module_& m);
 
 }  // namespace bimcap::python

@@ -144,5 +144,6 @@ PYBIND11_MODULE(_core, m) {
   m.attr("PROBLEM_FILE_VERSION") = bimcap::kProblemFileVersion;
   bimcap::python::BindCostFunctions(m);
   bimcap::python::BindProblemFile(m);
+  bimcap::python::BindRaster(m);
   bimcap::python::BindSolver(m);
 }

@@ -46,3 +46,17 @@ def evaluate_landmark(
     uv: NDArray[np.float64],
     intrinsics: NDArray[np.float64],
 ) -> tuple[NDArray[np.float64], tuple[NDArray[np.float64], NDArray[np.float64]]]: ...
+def fill_triangle_ids(
+    corners: NDArray[np.int32], ids: NDArray[np.int32], height: int, width: int, shift: int = 4
+) -> NDArray[np.int32]:
+    """(height, width) ids of cv2.fillConvexPoly(image, corners[t], ids[t], LINE_8, shift) drawn
+    for t = 0, 1, ... on a zero image; corners (T, 3, 2) int32, ids (T,) int32."""
+
+def evaluate_piecewise_affine(
+    tri_id: NDArray[np.int32], coef: NDArray[np.float64], inverse_depth: bool
+) -> NDArray[np.float32]:
+    """(H, W) float32 depth of f = c0[id] u + c1[id] v + c2[id] (numpy's rounding), 1/f or f."""
+def pixel_surface_area(
+    depth: NDArray[np.float64], fx: float, fy: float, cx: float, cy: float, min_cos: float
+) -> NDArray[np.float64]:
+    """(H, W) m² each pixel of an undistorted (H, W) z-depth map covers (numpy's rounding)."""

@@ -296,29 +296,16 @@ def check_label_orientation(labels: NDArray[np.integer], depth: NDArray[np.float
     return out, stats
 
 
-#: Rows of :func:`pixel_surface_area` computed at once: its ~40 temporaries then stay in the
-#: cache (1.5× cheaper than whole (H, W) float64 images at 516 × 386 on the 2-core box).
-_AREA_ROWS = 32
-
-
-def _gradient_into(c: F64, axis: int, out: F64) -> F64:
-    """``np.gradient(c, axis=axis)`` of a 2-D array (unit spacing, first-order ends: the same
-    subtractions and halvings) written into ``out``."""
-    if axis == 1:
-        c, out = c.T, out.T
-    np.subtract(c[2:], c[:-2], out=out[1:-1])
-    out[1:-1] /= 2.0
-    np.subtract(c[1], c[0], out=out[0])
-    np.subtract(c[-1], c[-2], out=out[-1])
-    return out.T if axis == 1 else out
-
-
 def pixel_surface_area(depth: NDArray[np.floating], camera: Camera, min_cos: float = 0.1) -> F64:
     """Surface area in m² that each pixel of an undistorted depth map covers.
 
     The pixel's solid angle is ``cos³α / (fx·fy)`` and its range ``z / cos α``, so it covers
     ``z²·cos α / (fx·fy·cos θ)``: α is the angle between the ray and the optical axis, θ between the
     ray and the surface normal from the depth map's gradient (``cos θ`` clamped at ``min_cos``).
+
+    Computed in ``bimcap._core`` (cpp/bimcap/raster/surface_area.h) with the arithmetic of
+    ``np.gradient`` / ``np.cross`` / ``np.linalg.norm`` on the (H, W, 3) points, operation by
+    operation (bit for bit: tests/test_frontend_speed.py).
 
     Parameters
     ----------
@@ -328,40 +315,14 @@ def pixel_surface_area(depth: NDArray[np.floating], camera: Camera, min_cos: flo
     -------
     (H, W) float64, 0 where depth is 0.
     """
-    z = np.asarray(depth, dtype=np.float64)
+    from bimcap import _core
+
+    z = np.ascontiguousarray(depth, dtype=np.float64)
     if z.ndim != 2 or min(z.shape) < 2:
         raise SemanticMapError(f"depth must be (H, W) with H, W >= 2, got {z.shape}")
-    h, w = z.shape
-    # Component by component, the same arithmetic as np.gradient / np.cross / np.linalg.norm on
-    # the stacked (H, W, 3) points (bit for bit: tests/test_frontend_speed.py), in blocks of
-    # rows, each with one row more on either side for the central differences along v.
-    ray_x = (np.arange(w, dtype=np.float64) - camera.cx) / camera.fx
-    ray_y = ((np.arange(h, dtype=np.float64) - camera.cy) / camera.fy)[:, None]
-    out = np.empty((h, w))
-    for a in range(0, h, _AREA_ROWS):
-        b = min(h, a + _AREA_ROWS)
-        lo, hi = max(0, a - 1), min(h, b + 1)
-        zb = z[lo:hi]
-        x = ray_x * zb
-        y = ray_y[lo:hi] * zb
-        xu, yu, zu = (_gradient_into(c, 1, np.empty_like(zb)) for c in (x, y, zb))
-        xv, yv, zv = (_gradient_into(c, 0, np.empty_like(zb)) for c in (x, y, zb))
-        own = slice(a - lo, b - lo)  # the block's rows (the others' v-gradients are one-sided)
-        x, y, zb = x[own], y[own], zb[own]
-        xu, yu, zu, xv, yv, zv = (g[own] for g in (xu, yu, zu, xv, yv, zv))
-        n0 = yu * zv - zu * yv
-        n1 = zu * xv - xu * zv
-        n2 = xu * yv - yu * xv
-        nn = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
-        pn = np.sqrt(x * x + y * y + zb * zb)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            cos = np.abs(n0 * x + n1 * y + n2 * zb) / (nn * pn)
-        cos = np.where(np.isfinite(cos), cos, 1.0)
-        cos = np.clip(cos, min_cos, 1.0)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            cos_alpha = np.where(pn > 0, zb / pn, 1.0)
-        out[a:b] = np.where(zb > 0, zb * zb * cos_alpha / (camera.fx * camera.fy) / cos, 0.0)
-    return out
+    area: F64 = _core.pixel_surface_area(z, float(camera.fx), float(camera.fy), float(camera.cx),
+                                         float(camera.cy), float(min_cos))
+    return area
 
 
 def sample_semantic_points(

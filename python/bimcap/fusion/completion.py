@@ -25,11 +25,8 @@ All depth maps are float32 metres, 0 = unknown, in undistorted pinhole pixels.
 
 from __future__ import annotations
 
-import functools
-from collections import deque
 from dataclasses import dataclass, field, replace
 from enum import Enum
-from itertools import repeat
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -176,22 +173,12 @@ def fill_nearest(sparse: SparseDepth | ArrayLike) -> F32:
 
 
 # ----------------------------------------------------------------------------- linear
-@functools.lru_cache(maxsize=4)
-def _pixel_axes(h: int, w: int) -> tuple[F64, F64]:
-    """(1, W) float64 column and (H, 1) float64 row of the pixels (read-only; cached per image
-    size): broadcast together, every pixel's (u, v)."""
-    cols = np.arange(w, dtype=np.float64)[None, :]
-    rows = np.arange(h, dtype=np.float64)[:, None]
-    cols.flags.writeable = False
-    rows.flags.writeable = False
-    return cols, rows
-
-
 def complete_linear(sparse: SparseDepth | ArrayLike, options: LinearOptions | None = None) -> F32:
     """LINEAR: Delaunay barycentric interpolation (module docstring). Pixels outside the hull or in
     masked triangles stay 0."""
-    import cv2
     from scipy.spatial import Delaunay, QhullError
+
+    from bimcap import _core
 
     opts = options or LinearOptions()
     depth, uv, z = _sparse_arrays(sparse)
@@ -217,21 +204,19 @@ def complete_linear(sparse: SparseDepth | ArrayLike, options: LinearOptions | No
     e1, e2 = pb - pa, pc - pa
     det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]  # twice the signed area, px²
     good = (edge <= opts.max_edge_px) & (ratio <= opts.max_depth_ratio) & (np.abs(det) > 2.0)
-    # rasterise triangle ids (cv2 fill in a loop over kept triangles is far faster than
-    # Delaunay.find_simplex on every pixel); id 0 = none
-    tri_id = np.zeros((h, w), dtype=np.int32)
+    # rasterise the kept triangles' ids (id 0 = none) with the pixels of cv2.fillConvexPoly
+    # (LINE_8, corners with 4 fractional bits), one triangle after the other, so that a later
+    # triangle overwrites the edge pixels it shares: bimcap._core reproduces OpenCV's integer
+    # algorithm (cpp/bimcap/raster/convex_fill.h), one call for all triangles
     good_idx = np.flatnonzero(good)
-    # 4 fractional bits
     corners = np.rint(np.stack([pa, pb, pc], 1)[good_idx] * 16).astype(np.int32)
-    # one call a triangle, in order (a later triangle overwrites the edge pixels it shares),
-    # driven by map: the loop's own cost is a tenth of the calls'
-    deque(map(cv2.fillConvexPoly, repeat(tri_id), list(corners), (good_idx + 1).tolist(),
-              repeat(cv2.LINE_8), repeat(4)), maxlen=0)
+    tri_id = _core.fill_triangle_ids(corners, (good_idx + 1).astype(np.int32), h, w, shift=4)
     # per triangle, the affine function f(u, v) = a u + b v + c through its three corners, with
-    # f = 1/z (exact for a plane seen through a pinhole) or f = z; one gather per pixel by its
-    # triangle id (column 0: no triangle, f = 0 and the pixel stays 0). Pixel centres up to
-    # half a pixel outside their rasterised triangle are extrapolated (exact for a plane);
-    # slivers (area < 1 px²) were dropped above, so this stays well conditioned.
+    # f = 1/z (exact for a plane seen through a pinhole) or f = z, evaluated at every pixel by
+    # its triangle id (column 0: no triangle, f = 0 and the pixel stays 0) in compiled code
+    # with numpy's operations and rounding (cpp/bimcap/raster/piecewise_affine.h). Pixel
+    # centres up to half a pixel outside their rasterised triangle are extrapolated (exact for
+    # a plane); slivers (area < 1 px²) were dropped above, so this stays well conditioned.
     gi = good_idx
     mat = np.ones((len(gi), 3, 3))
     mat[:, :, :2] = np.stack([pa[gi], pb[gi], pc[gi]], 1)
@@ -239,16 +224,8 @@ def complete_linear(sparse: SparseDepth | ArrayLike, options: LinearOptions | No
     coef_good = np.linalg.solve(mat, vals[:, :, None])[:, :, 0]
     coef = np.zeros((3, len(simp) + 1))
     coef[:, gi + 1] = coef_good.T
-    cols, rows = _pixel_axes(h, w)
-    f = coef[0][tri_id]
-    f *= cols
-    f += coef[1][tri_id] * rows
-    f += coef[2][tri_id]
-    if opts.inverse_depth:
-        out = np.where(f > 0, 1.0 / np.maximum(f, 1e-12), 0.0)
-    else:
-        out = np.maximum(f, 0.0)
-    return out.astype(np.float32)
+    out: F32 = _core.evaluate_piecewise_affine(tri_id, coef, opts.inverse_depth)
+    return out
 
 
 # ----------------------------------------------------------------------------- classical

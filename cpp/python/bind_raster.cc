@@ -1,0 +1,143 @@
+// Per-pixel front-end stages in compiled code (bimcap/raster/): the linear depth completion's
+// triangle-id image (cv2.fillConvexPoly's pixels) and piecewise affine depth over it
+// (bimcap.fusion.completion), and semantic sampling's pixel surface area
+// (bimcap.frontend.semantic_map).
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+
+#include <algorithm>
+#include <string>
+#include <type_traits>
+#include <utility>
+#include <vector>
+
+#include "bimcap/raster/convex_fill.h"
+#include "bimcap/raster/piecewise_affine.h"
+#include "bimcap/raster/surface_area.h"
+#include "python/arrays.h"
+
+namespace bimcap::python {
+namespace {
+
+using raster::RasterError;
+
+std::string ShapeText(const py::array& a) {
+  std::string s = "(";
+  for (py::ssize_t i = 0; i < a.ndim(); ++i) {
+    s += (i ? ", " : "") + std::to_string(a.shape(i));
+  }
+  return s + (a.ndim() == 1 ? ",)" : ")");
+}
+
+// `obj` as a C-contiguous numpy array of dtype T with `ndim` dimensions; `shape` entries >= 0
+// are required sizes (-1: any). Never copies: a wrong dtype, shape or layout is an error.
+template <typename T>
+py::array Checked(const py::handle& obj, const char* name, std::vector<py::ssize_t> shape) {
+  const char* dtype_name = std::is_same_v<T, double> ? "float64" : "int32";
+  if (!py::isinstance<py::array>(obj)) {
+    throw RasterError(name, std::string("expected a numpy array of ") + dtype_name + ", got " +
+                                py::cast<std::string>(py::str(py::type::of(obj))));
+  }
+  py::array a = py::reinterpret_borrow<py::array>(obj);
+  if (!a.dtype().equal(py::dtype::of<T>())) {
+    throw RasterError(name, std::string("expected dtype ") + dtype_name + ", got " +
+                                py::cast<std::string>(py::str(a.dtype())));
+  }
+  bool ok = a.ndim() == static_cast<py::ssize_t>(shape.size());
+  for (size_t i = 0; ok && i < shape.size(); ++i) ok = shape[i] < 0 || a.shape(i) == shape[i];
+  if (!ok) {
+    std::string want = "(";
+    for (size_t i = 0; i < shape.size(); ++i) {
+      want += (i ? ", " : "") + (shape[i] < 0 ? std::string("n") : std::to_string(shape[i]));
+    }
+    throw RasterError(name, "expected shape " + want + (shape.size() == 1 ? ",)" : ")") + ", got " +
+                                ShapeText(a));
+  }
+  if (!(a.flags() & py::array::c_style)) {
+    throw RasterError(name, "array must be C-contiguous (use numpy.ascontiguousarray)");
+  }
+  return a;
+}
+
+py::array_t<int32_t> FillTriangleIds(const py::handle& corners_obj, const py::handle& ids_obj,
+                                     py::ssize_t height, py::ssize_t width, int shift) {
+  for (const auto& [name, side] : {std::pair{"height", height}, std::pair{"width", width}}) {
+    if (side < 0 || side > raster::kMaxCoordinatePx) {
+      throw RasterError(name, "must be in [0, " + std::to_string(raster::kMaxCoordinatePx) +
+                                  "] px, got " + std::to_string(side));
+    }
+  }
+  const py::array corners = Checked<int32_t>(corners_obj, "corners", {-1, 3, 2});
+  const py::array ids = Checked<int32_t>(ids_obj, "ids", {corners.shape(0)});
+  py::array_t<int32_t> image({height, width});
+  raster::ImageRef<int32_t> view{image.mutable_data(), height, width};
+  std::fill(view.data, view.data + height * width, 0);
+  const auto* c = static_cast<const int32_t*>(corners.data());
+  const auto* k = static_cast<const int32_t*>(ids.data());
+  const int64_t count = corners.shape(0);
+  {
+    py::gil_scoped_release release;
+    raster::FillTriangleIds(view, c, k, count, shift);
+  }
+  return image;
+}
+
+py::array_t<float> EvaluatePiecewiseAffine(const py::handle& ids_obj, const py::handle& coef_obj,
+                                           bool inverse_depth) {
+  const py::array ids = Checked<int32_t>(ids_obj, "tri_id", {-1, -1});
+  const py::array coef = Checked<double>(coef_obj, "coef", {3, -1});
+  const py::ssize_t rows = ids.shape(0), cols = ids.shape(1);
+  py::array_t<float> out({rows, cols});
+  const raster::ImageRef<const int32_t> in{static_cast<const int32_t*>(ids.data()), rows, cols};
+  const raster::ImageRef<float> view{out.mutable_data(), rows, cols};
+  const auto* table = static_cast<const double*>(coef.data());
+  const int64_t count = coef.shape(1);
+  {
+    py::gil_scoped_release release;
+    raster::EvaluatePiecewiseAffine(
+        in, table, count,
+        inverse_depth ? raster::AffineValue::kInverseDepth : raster::AffineValue::kDepth, view);
+  }
+  return out;
+}
+
+py::array_t<double> PixelSurfaceArea(const py::handle& depth_obj, double fx, double fy, double cx,
+                                     double cy, double min_cos) {
+  const py::array depth = Checked<double>(depth_obj, "depth", {-1, -1});
+  const py::ssize_t rows = depth.shape(0), cols = depth.shape(1);
+  py::array_t<double> area({rows, cols});
+  const raster::ImageRef<const double> in{static_cast<const double*>(depth.data()), rows, cols};
+  const raster::ImageRef<double> out{area.mutable_data(), rows, cols};
+  {
+    py::gil_scoped_release release;
+    raster::PixelSurfaceArea(in, {fx, fy, cx, cy}, min_cos, out);
+  }
+  return area;
+}
+
+}  // namespace
+
+void BindRaster(py::module_& m) {
+  m.def("fill_triangle_ids", &FillTriangleIds, py::arg("corners"), py::arg("ids"),
+        py::arg("height"), py::arg("width"), py::arg("shift") = 4,
+        "(height, width) int32 image, 0 where no triangle is drawn, triangle t filled with "
+        "ids[t] in order (a later one overwrites shared pixels): the pixels of "
+        "cv2.fillConvexPoly(image, corners[t], ids[t], cv2.LINE_8, shift) called for t = 0, 1, "
+        "... on a zero image. corners: (T, 3, 2) int32 x, y in 1/2**shift px (C-contiguous); "
+        "ids: (T,) int32; shift in [1, 16]; sides and coordinates up to 16384 px. Raises "
+        "InputError naming the bad argument (nothing is drawn then).");
+  m.def("evaluate_piecewise_affine", &EvaluatePiecewiseAffine, py::arg("tri_id"), py::arg("coef"),
+        py::arg("inverse_depth"),
+        "(H, W) float32 depth from the (H, W) int32 triangle-id image and the (3, N) float64 "
+        "table of affine functions f = ((c0 u) + (c1 v)) + c2 (column 0: no triangle): "
+        "1 / max(f, 1e-12) where f > 0 else 0 (inverse_depth), or max(f, 0); numpy's "
+        "arithmetic bit for bit. Raises InputError for an id outside [0, N) or a wrong "
+        "dtype / shape / layout.");
+  m.def("pixel_surface_area", &PixelSurfaceArea, py::arg("depth"), py::arg("fx"), py::arg("fy"),
+        py::arg("cx"), py::arg("cy"), py::arg("min_cos"),
+        "(H, W) float64 surface area in m² each pixel of the (H, W) float64 z-depth map (m, "
+        "0 = none, H, W >= 2, C-contiguous) covers: z² cos α / (fx fy) / clip(cos θ, min_cos, "
+        "1), numpy's arithmetic of bimcap.frontend.semantic_map.pixel_surface_area bit for bit.");
+}
+
+}  // namespace bimcap::python
