@@ -60,3 +60,17 @@ def pixel_surface_area(
     depth: NDArray[np.float64], fx: float, fy: float, cx: float, cy: float, min_cos: float
 ) -> NDArray[np.float64]:
     """(H, W) m² each pixel of an undistorted (H, W) z-depth map covers (numpy's rounding)."""
+def move_onto_planes(
+    out: NDArray[np.float32],
+    flat: NDArray[np.int64],
+    ray_x: NDArray[np.float64],
+    ray_y: NDArray[np.float64],
+    depth: NDArray[np.float64],
+    planes: NDArray[np.float64],
+    products: NDArray[np.float64] | None,
+    assign_threshold_m: float,
+    max_change_rel: float,
+) -> int:
+    """Moves one region's pixels ``out[flat]`` (raveled float32 depth, in place) onto the nearest
+    of its (K, 4) planes along their rays (numpy's rounding); ``products`` (n, K) p · n_k, None
+    for one plane. Returns how many pixels moved."""
