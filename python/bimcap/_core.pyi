@@ -74,3 +74,16 @@ def move_onto_planes(
     """Moves one region's pixels ``out[flat]`` (raveled float32 depth, in place) onto the nearest
     of its (K, 4) planes along their rays (numpy's rounding); ``products`` (n, K) p · n_k, None
     for one plane. Returns how many pixels moved."""
+def points_and_cross(
+    depth: NDArray[np.float32], fx: float, fy: float, cx: float, cy: float, step: int,
+    float32: bool,
+) -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_], NDArray[Any]]:
+    """(points (H, W, 3), valid (H, W), ok (H, W), cross (H, W, 3) float32 or float64) of an
+    (H, W) float32 z-depth map: the segmenter's central-difference cross products (numpy's
+    rounding)."""
+
+def orient_normals(
+    normals: NDArray[np.float64], points: NDArray[np.float64], ok: NDArray[np.bool_]
+) -> None:
+    """Normalises ``normals`` (H, W, 3) in place and turns them toward the camera; clears ``ok``
+    where the norm is <= 1e-12 and the normals where ``ok`` is false (numpy's rounding)."""
