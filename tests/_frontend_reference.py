@@ -625,6 +625,17 @@ def move_onto_planes_fe4da1c(out: F32, flat: NDArray[np.int64], x: F64, y: F64, 
     out[flat[ok]] = z_plane[ok].astype(np.float32)
 
 
+def component_pixels_fe4da1c(comp: NDArray[np.int32], n_comp: int
+                            ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Every component's pixels of :func:`smooth_planar_regions_fe4da1c`, verbatim (one stable
+    sort): ``(flat[order], starts)``; component c's are ``flat[order][starts[c]:starts[c+1]]``."""
+    flat = np.flatnonzero(comp)
+    ids = comp.ravel()[flat]
+    order = np.argsort(ids, kind="stable")
+    starts = np.searchsorted(ids[order], np.arange(n_comp + 1))
+    return flat[order], starts
+
+
 def smooth_planar_regions_fe4da1c(
     depth: ArrayLike,
     labels: ArrayLike,

@@ -353,6 +353,44 @@ def test_move_onto_planes_same_as_numpy() -> None:
         assert out.tobytes() == expected.tobytes() and out[i] > 0
 
 
+def test_component_pixels_same_as_numpy() -> None:
+    """``_core.component_pixels`` against fe4da1c's stable sort and ``searchsorted``: the same
+    int64 arrays on OpenCV's components of random masks (4- and 8-connected), on label images
+    with unused and empty labels, all background and one pixel; bad labels raise."""
+    import cv2
+
+    from bimcap import _core
+
+    rng = np.random.default_rng(8)
+    images = []
+    for density in (0.3, 0.6, 0.9):
+        mask = (rng.random((97, 131)) < density).astype(np.uint8)
+        for connectivity in (4, 8):
+            n_comp, comp = cv2.connectedComponents(mask, connectivity=connectivity)
+            images.append((comp, n_comp))
+    images.append((rng.integers(0, 5, (40, 60)).astype(np.int32), 9))  # labels 5..8 unused
+    images.append((np.zeros((3, 4), np.int32), 1))
+    images.append((np.array([[0, 0], [0, 1]], np.int32), 2))
+    images.append((np.zeros((0, 4), np.int32), 1))
+    for comp, n_comp in images:
+        pixels, starts = _core.component_pixels(comp, n_comp)
+        old_pixels, old_starts = ref.component_pixels_fe4da1c(comp, n_comp)
+        assert pixels.dtype == old_pixels.dtype and starts.dtype == old_starts.dtype
+        assert pixels.tobytes() == old_pixels.tobytes()
+        assert starts.tobytes() == old_starts.tobytes()
+    assert images[0][1] > 100
+    for labels, count, field, text in [
+        (np.array([[0, 3]], np.int32), 3, "labels", "label 3 at 1 is outside [0, 3)"),
+        (np.array([[-1, 0]], np.int32), 3, "labels", "label -1 at 0"),
+        (np.zeros((2, 2), np.int64), 3, "labels", "dtype int32"),
+        (np.zeros(4, np.int32), 3, "labels", "shape (n, n)"),
+        (np.zeros((2, 2), np.int32), 0, "count", ">= 1"),
+    ]:
+        with pytest.raises(_core.InputError, match=field) as err:
+            _core.component_pixels(labels, count)
+        assert err.value.field == field and text in str(err.value)
+
+
 def test_move_onto_planes_rejects_bad_arrays() -> None:
     """Wrong dtypes, shapes, layouts, indices and plane tables raise ``_core.InputError``
     naming the argument, and nothing is written."""

@@ -1,6 +1,7 @@
 // Per-pixel front-end stages in compiled code (bimcap/raster/): the linear depth completion's
 // triangle-id image (cv2.fillConvexPoly's pixels) and piecewise affine depth over it
-// (bimcap.fusion.completion), the planar smoothing's move of depth onto planes (ibid.), the
+// (bimcap.fusion.completion), the planar smoothing's regions and move of depth onto planes
+// (ibid.), the
 // geometric segmenter's points and normals (bimcap.segmentation.geometric), and semantic
 // sampling's pixel surface area (bimcap.frontend.semantic_map).
 #include <pybind11/numpy.h>
@@ -12,6 +13,7 @@
 #include <utility>
 #include <vector>
 
+#include "bimcap/raster/component_pixels.h"
 #include "bimcap/raster/convex_fill.h"
 #include "bimcap/raster/depth_normals.h"
 #include "bimcap/raster/piecewise_affine.h"
@@ -199,6 +201,27 @@ void OrientNormals(const py::handle& normals_obj, const py::handle& points_obj,
   raster::OrientNormals(rows * cols, p, n, mask);
 }
 
+py::tuple ComponentPixels(const py::handle& labels_obj, int64_t count) {
+  const py::array labels = Checked<int32_t>(labels_obj, "labels", {-1, -1});
+  if (count < 1) throw RasterError("count", "must be >= 1, got " + std::to_string(count));
+  const auto* data = static_cast<const int32_t*>(labels.data());
+  const int64_t size = labels.shape(0) * labels.shape(1);
+  py::array_t<int64_t> starts(count + 1);
+  int64_t* s = starts.mutable_data();
+  int64_t total = 0;
+  {
+    py::gil_scoped_release release;
+    total = raster::ComponentStarts(data, size, count, s);
+  }
+  py::array_t<int64_t> pixels(total);
+  int64_t* p = pixels.mutable_data();
+  {
+    py::gil_scoped_release release;
+    raster::ComponentPixels(data, size, count, s, p);
+  }
+  return py::make_tuple(pixels, starts);
+}
+
 }  // namespace
 
 void BindRaster(py::module_& m) {
@@ -217,6 +240,12 @@ void BindRaster(py::module_& m) {
         "1 / max(f, 1e-12) where f > 0 else 0 (inverse_depth), or max(f, 0); numpy's "
         "arithmetic bit for bit. Raises InputError for an id outside [0, N) or a wrong "
         "dtype / shape / layout.");
+  m.def("component_pixels", &ComponentPixels, py::arg("labels"), py::arg("count"),
+        "(pixels (M,) int64, starts (count + 1,) int64): the raveled indices of the nonzero "
+        "pixels of the (H, W) int32 label image `labels` (labels in [0, count), C-contiguous), "
+        "grouped by label and row-major inside each; label c's are pixels[starts[c]:starts[c + "
+        "1]] (what numpy's stable argsort and searchsorted give). Raises InputError for a label "
+        "outside [0, count).");
   m.def("move_onto_planes", &MoveOntoPlanes, py::arg("out"), py::arg("flat"), py::arg("ray_x"),
         py::arg("ray_y"), py::arg("depth"), py::arg("planes"), py::arg("products"),
         py::arg("assign_threshold_m"), py::arg("max_change_rel"),

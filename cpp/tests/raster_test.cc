@@ -10,6 +10,7 @@
 #include <utility>
 #include <vector>
 
+#include "bimcap/raster/component_pixels.h"
 #include "bimcap/raster/convex_fill.h"
 #include "bimcap/raster/depth_normals.h"
 #include "bimcap/raster/piecewise_affine.h"
@@ -314,6 +315,28 @@ TEST(DepthNormals, DepthJumpsAndMissingNeighboursHaveNoNormal) {
   EXPECT_THROW(DepthCross<float>({depth.data(), 3, 5}, {1.0, 1.0, 2.0, 1.0}, 0,
                                  {points.data(), valid, ok, cross.data()}),
                RasterError);
+}
+
+TEST(ComponentPixels, GroupedByLabelRowMajorInside) {
+  // 3 × 4 labels; label 3 unused; the background (0) left out.
+  const int32_t labels[] = {0, 2, 2, 1,  //
+                            1, 0, 2, 1,  //
+                            4, 4, 0, 1};
+  int64_t starts[6];
+  ASSERT_EQ(ComponentStarts(labels, 12, 5, starts), 9);
+  const std::vector<int64_t> expected_starts = {0, 0, 4, 7, 7, 9};
+  EXPECT_EQ(std::vector<int64_t>(starts, starts + 6), expected_starts);
+  std::vector<int64_t> pixels(9);
+  ComponentPixels(labels, 12, 5, starts, pixels.data());
+  const std::vector<int64_t> expected = {3, 4, 7, 11, 1, 2, 6, 8, 9};
+  EXPECT_EQ(pixels, expected);
+  const int32_t bad[] = {0, 5};
+  try {
+    ComponentStarts(bad, 2, 5, starts);
+    FAIL() << "no exception";
+  } catch (const RasterError& e) {
+    EXPECT_EQ(e.field(), "labels");
+  }
 }
 
 }  // namespace

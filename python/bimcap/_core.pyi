@@ -87,3 +87,9 @@ def orient_normals(
 ) -> None:
     """Normalises ``normals`` (H, W, 3) in place and turns them toward the camera; clears ``ok``
     where the norm is <= 1e-12 and the normals where ``ok`` is false (numpy's rounding)."""
+
+def component_pixels(
+    labels: NDArray[np.int32], count: int
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """(pixels (M,), starts (count + 1,)): the nonzero pixels of an (H, W) label image grouped by
+    label, row-major inside each (label c: ``pixels[starts[c]:starts[c + 1]]``)."""

@@ -703,6 +703,8 @@ def smooth_planar_regions(
     """
     import cv2
 
+    from bimcap import _core
+
     opts = options or PlanarSmoothingOptions()
     d = np.asarray(depth, dtype=np.float32)
     lab = np.asarray(labels)
@@ -736,17 +738,14 @@ def smooth_planar_regions(
         if not big:
             continue
         # every big component's pixels in row-major order (what np.nonzero(comp == c) gives),
-        # from one stable sort instead of one pass over the image per component
-        flat = np.flatnonzero(comp)
-        ids = comp.ravel()[flat]
-        order = np.argsort(ids, kind="stable")
-        starts = np.searchsorted(ids[order], np.arange(n_comp + 1))
+        # grouped by component in one pass (a counting sort in bimcap._core)
+        pixels, starts = _core.component_pixels(comp, n_comp)
         if rays is None:  # every pixel's ray (x, y, 1), as Camera.rays computes it
             h, w = d.shape
             rays = (np.broadcast_to((np.arange(w, dtype=np.float64) - camera.cx) / camera.fx,
                                     (h, w)).ravel(),
                     np.repeat((np.arange(h, dtype=np.float64) - camera.cy) / camera.fy, w))
         for c in big:
-            _smooth_region(out_flat, d_flat, flat[order[starts[c]:starts[c + 1]]], *rays,
-                           opts, rng, meas_flat)
+            _smooth_region(out_flat, d_flat, pixels[starts[c]:starts[c + 1]], *rays, opts, rng,
+                           meas_flat)
     return out
