@@ -314,6 +314,11 @@ def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool =
                       *(() if hasattr(ctx, "lidar") else (i,)))
         st.run("LiDAR projection", project_lidar, scan, seq.cam_from_lidar, cam,
                depth_p.projection, distort=False)
+        if hasattr(ctx, "range_noise_m"):
+            # measured once a frame for every stage that asks (FrameContext.range_noise_m): timed
+            # on its own, not in whichever stage asks first (the segmentation, whose new and
+            # previous code then compare the same work)
+            st.run("scan range noise", ctx.range_noise_m)
         depth = st.run("depth provider", depth_p, ctx)
         depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0).astype(np.float32)
         ctx.depth = depth

@@ -25,6 +25,7 @@ from bimcap.fusion.completion import (
     PlanarSmoothingOptions,
     PlaneFitPoints,
     SparseDepth,
+    _points,
     _region_planes,
     _require_points,
     _sparse_arrays,
@@ -517,6 +518,264 @@ def smooth_planar_regions_a219de7(
     return out
 
 
+# ------------------------------------------------------------- planar smoothing at fe4da1c
+# ``bimcap.fusion.completion._smooth_region`` / ``smooth_planar_regions`` as of fe4da1c (numpy's
+# ray-plane intersections and distance minima), before they moved to ``bimcap._core``
+# (``move_onto_planes``); verbatim but for the names.
+def smooth_region_fe4da1c(
+    out: F32,
+    depth: F32,
+    flat: NDArray[np.int64],
+    ray_x: F64,
+    ray_y: F64,
+    opts: PlanarSmoothingOptions,
+    rng: np.random.Generator,
+    measured: F32 | None = None,
+) -> None:
+    """Move the depth of one connected region's pixels onto the nearest of its planes, in place;
+    the planes are fitted to the region's returns (``measured``, 0 = none) when it has
+    ``opts.min_region_returns`` of them and ``opts.fit_to`` asks for it, else to its pixels.
+
+    ``out``, ``depth``, ``measured``: (H·W,) raveled maps; ``flat``: (N,) the region's pixels
+    (raveled indices, row-major order); ``ray_x``, ``ray_y``: (H·W,) the pinhole rays' x and y
+    (z = 1) of every pixel (``Camera.rays``).
+    """
+    x, y = ray_x[flat], ray_y[flat]
+    cur = depth[flat].astype(np.float64)
+    pts = None
+    planes: list[F64] = []
+    if measured is not None and opts.fit_to is PlaneFitPoints.RETURNS:
+        z_ret = measured[flat].astype(np.float64)
+        has = z_ret > 0
+        if has.sum() >= opts.min_region_returns:
+            p_ret = _points(x[has], y[has], z_ret[has])
+            planes = _region_planes(p_ret, opts, rng, opts.min_region_returns,
+                                    opts.returns_refit_iterations)
+            if planes:
+                pl = np.stack(planes)
+                d_ret = np.abs(p_ret @ pl[:, :3].T + pl[:, 3]).min(1)
+                if 1.4826 * float(np.median(d_ret)) > opts.returns_max_sigma_m:
+                    planes = []  # the returns too noisy for their fit: the pixels'
+    if not planes:
+        pts = _points(x, y, cur)
+        planes = _region_planes(pts, opts, rng)
+    if not planes:
+        return
+    pl = np.stack(planes)  # (K, 4)
+    if len(pl) == 1:  # every pixel on the one plane
+        near: NDArray[np.bool_] | bool = True
+        n0, n1, n2, offset = pl[0]
+        denom = x * n0 + y * n1 + n2  # the ray (x, y, 1) · n, summed left to right
+    else:
+        if pts is None:
+            pts = _points(x, y, cur)
+        dist = pts @ pl[:, :3].T  # (N, K) |n·p + d|, in place
+        dist += pl[:, 3]
+        np.abs(dist, out=dist)
+        best = np.argmin(dist, axis=1)
+        nearest = dist[:, 0].copy()  # the minimum column by column: min(axis=1)'s values
+        for k in range(1, len(pl)):
+            np.minimum(nearest, dist[:, k], out=nearest)
+        near = nearest <= opts.assign_threshold_m
+        denom = x * pl[best, 0] + y * pl[best, 1] + pl[best, 2]
+        offset = pl[best, 3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z_plane = -offset / denom
+    ok = (
+        np.isfinite(z_plane)
+        & (z_plane > 0)
+        & (np.abs(z_plane - cur) <= opts.max_change_rel * cur)
+    )
+    if near is not True:
+        ok &= near
+    out[flat[ok]] = z_plane[ok].astype(np.float32)
+
+
+def move_onto_planes_fe4da1c(out: F32, flat: NDArray[np.int64], x: F64, y: F64, cur: F64,
+                             pl: F64, products: F64 | None, assign_threshold_m: float,
+                             max_change_rel: float) -> None:
+    """The per-pixel half of :func:`smooth_region_fe4da1c` (from its ``pl = np.stack(planes)``
+    on), verbatim but for its inputs: the region's rays ``x``, ``y`` and depths ``cur`` (N,),
+    its planes ``pl`` (K, 4) and, for K > 1, the product ``pts @ pl[:, :3].T`` (N, K) given."""
+    if len(pl) == 1:  # every pixel on the one plane
+        near: NDArray[np.bool_] | bool = True
+        n0, n1, n2, offset = pl[0]
+        denom = x * n0 + y * n1 + n2  # the ray (x, y, 1) · n, summed left to right
+    else:
+        assert products is not None
+        dist = products.copy()  # (N, K) |n·p + d|, in place
+        dist += pl[:, 3]
+        np.abs(dist, out=dist)
+        best = np.argmin(dist, axis=1)
+        nearest = dist[:, 0].copy()  # the minimum column by column: min(axis=1)'s values
+        for k in range(1, len(pl)):
+            np.minimum(nearest, dist[:, k], out=nearest)
+        near = nearest <= assign_threshold_m
+        denom = x * pl[best, 0] + y * pl[best, 1] + pl[best, 2]
+        offset = pl[best, 3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z_plane = -offset / denom
+    ok = (
+        np.isfinite(z_plane)
+        & (z_plane > 0)
+        & (np.abs(z_plane - cur) <= max_change_rel * cur)
+    )
+    if near is not True:
+        ok &= near
+    out[flat[ok]] = z_plane[ok].astype(np.float32)
+
+
+def component_pixels_fe4da1c(comp: NDArray[np.int32], n_comp: int
+                            ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Every component's pixels of :func:`smooth_planar_regions_fe4da1c`, verbatim (one stable
+    sort): ``(flat[order], starts)``; component c's are ``flat[order][starts[c]:starts[c+1]]``."""
+    flat = np.flatnonzero(comp)
+    ids = comp.ravel()[flat]
+    order = np.argsort(ids, kind="stable")
+    starts = np.searchsorted(ids[order], np.arange(n_comp + 1))
+    return flat[order], starts
+
+
+def smooth_planar_regions_fe4da1c(
+    depth: ArrayLike,
+    labels: ArrayLike,
+    camera: Camera,
+    options: PlanarSmoothingOptions | None = None,
+    seed: int = 0,
+    measured: ArrayLike | None = None,
+) -> F32:
+    """Smooth dense depth inside planar regions (floor, ceiling, walls).
+
+    Parameters
+    ----------
+    depth: (H, W) float32 metres (0 = unknown), undistorted pinhole pixels of ``camera``.
+    labels: (H, W) uint8 label ids.
+    camera: the pinhole camera of ``depth`` (its distortion is ignored).
+    options: :class:`PlanarSmoothingOptions`; ``PLANE_FIT`` fits, per connected region of each
+        class, up to ``max_planes`` RANSAC planes to the back-projected pixels and moves each
+        pixel that lies within ``assign_threshold_m`` of its nearest plane onto it (its depth
+        becomes the plane's along the pixel ray); ``BLUR`` is the paper's blur (normalised
+        Gaussian, so that nothing outside the region or unknown leaks in).
+    seed: RANSAC seed.
+    measured: (H, W) float32 depth of the sensor's own returns at their pixels (0 = none; the
+        sparse map ``depth`` was completed from); with ``options.fit_to`` RETURNS the planes are
+        fitted to them (:class:`PlanarSmoothingOptions`). None: to the pixels.
+
+    Returns
+    -------
+    (H, W) float32 smoothed depth (a new array).
+    """
+    import cv2
+
+    opts = options or PlanarSmoothingOptions()
+    d = np.asarray(depth, dtype=np.float32)
+    lab = np.asarray(labels)
+    if d.shape != lab.shape or d.shape != (camera.height, camera.width):
+        raise FusionInputError(
+            f"depth {d.shape}, labels {lab.shape} and camera {camera.height}x{camera.width} differ",
+            field="labels",
+        )
+    meas = None if measured is None else np.asarray(measured, dtype=np.float32)
+    if meas is not None and meas.shape != d.shape:
+        raise FusionInputError(f"measured depth {meas.shape} and depth {d.shape} differ",
+                               field="measured")
+    out = d.copy()
+    out_flat, d_flat = out.ravel(), d.ravel()
+    meas_flat = None if meas is None else meas.ravel()
+    rays: tuple[F64, F64] | None = None  # (H·W,) x and y of the pixels' rays, once needed
+    rng = np.random.default_rng(seed)
+    for label in opts.labels:
+        mask = ((lab == int(label)) & (d > 0)).astype(np.uint8)
+        if mask.sum() < opts.min_region_px:
+            continue
+        if opts.mode is PlanarSmoothing.BLUR:
+            m = mask.astype(np.float32)
+            num = cv2.GaussianBlur(d * m, (0, 0), opts.blur_sigma_px)
+            den = cv2.GaussianBlur(m, (0, 0), opts.blur_sigma_px)
+            sel = mask > 0
+            out[sel] = num[sel] / np.maximum(den[sel], 1e-6)
+            continue
+        n_comp, comp, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=4)
+        big = [c for c in range(1, n_comp) if stats[c, cv2.CC_STAT_AREA] >= opts.min_region_px]
+        if not big:
+            continue
+        # every big component's pixels in row-major order (what np.nonzero(comp == c) gives),
+        # from one stable sort instead of one pass over the image per component
+        flat = np.flatnonzero(comp)
+        ids = comp.ravel()[flat]
+        order = np.argsort(ids, kind="stable")
+        starts = np.searchsorted(ids[order], np.arange(n_comp + 1))
+        if rays is None:  # every pixel's ray (x, y, 1), as Camera.rays computes it
+            h, w = d.shape
+            rays = (np.broadcast_to((np.arange(w, dtype=np.float64) - camera.cx) / camera.fx,
+                                    (h, w)).ravel(),
+                    np.repeat((np.arange(h, dtype=np.float64) - camera.cy) / camera.fy, w))
+        for c in big:
+            smooth_region_fe4da1c(out_flat, d_flat, flat[order[starts[c]:starts[c + 1]]], *rays,
+                           opts, rng, meas_flat)
+    return out
+
+
+# ------------------------------------------------------------- segmentation.geometric at fe4da1c
+# ``_points_and_normals`` as of fe4da1c (numpy, component by component), before its per-pixel
+# arithmetic moved to ``bimcap._core`` (``points_and_cross``, ``orient_normals``); verbatim but
+# for the name.
+def points_and_normals_fe4da1c(depth: NDArray[np.float32], cam: Camera,
+                              opts: GeometricOptions) -> tuple[F64, B, F64, B]:
+    """Points (h, w, 3), valid (h, w), unit normals facing the camera (h, w, 3; 0 where no
+    normal) and where there is a normal (h, w), of the depth ``depth`` (h, w) seen by ``cam``.
+
+    The normal is the cross product of the central differences along u and v
+    (``normal_step_px``), box-blurred (``normal_smooth_px``), normalised and turned toward the
+    camera; computed component by component on the pixels that can have one (``np.cross``,
+    ``np.linalg.norm`` and the sum over the last axis do the same products and left-to-right
+    sums on stacked (h, w, 3) arrays).
+    """
+    import cv2
+
+    h, w = depth.shape
+    u = (np.arange(w) - cam.cx) / cam.fx
+    v = (np.arange(h) - cam.cy) / cam.fy
+    z = depth.astype(np.float64)
+    pts = np.empty((h, w, 3))
+    pts[..., 0] = u[None, :] * z
+    pts[..., 1] = v[:, None] * z
+    pts[..., 2] = z
+    valid = z > 0
+    s = opts.normal_step_px
+    ok = np.zeros((h, w), dtype=bool)
+    zc = z[s:-s, s:-s]
+    jump = 0.05 * zc + 0.05  # metres: neighbours farther apart in depth are across an edge
+    ok_in = (
+        valid[s:-s, s:-s]
+        & (z[s:-s, 2 * s :] > 0) & (z[s:-s, : -2 * s] > 0)
+        & (z[2 * s :, s:-s] > 0) & (z[: -2 * s, s:-s] > 0)
+        & (np.abs(z[s:-s, 2 * s :] - z[s:-s, : -2 * s]) < 2 * jump)
+        & (np.abs(z[2 * s :, s:-s] - z[: -2 * s, s:-s]) < 2 * jump)
+    )
+    ok[s:-s, s:-s] = ok_in
+    # central differences du (along u) and dv (along v) where both exist: the interior
+    du = [pts[s:-s, 2 * s :, i] - pts[s:-s, : -2 * s, i] for i in range(3)]
+    dv = [pts[2 * s :, s:-s, i] - pts[: -2 * s, s:-s, i] for i in range(3)]
+    cross = (du[1] * dv[2] - du[2] * dv[1],
+             du[2] * dv[0] - du[0] * dv[2],
+             du[0] * dv[1] - du[1] * dv[0])
+    k = opts.normal_smooth_px
+    n = np.zeros((h, w, 3), dtype=np.float32 if k > 1 else np.float64)
+    for i in range(3):
+        n[s:-s, s:-s, i] = np.where(ok_in, cross[i], 0.0)
+    if k > 1:
+        n = cv2.blur(n, (k, k)).astype(np.float64)
+    n0, n1, n2 = n[..., 0], n[..., 1], n[..., 2]
+    norm = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+    ok &= norm > 1e-12
+    n /= np.maximum(norm, 1e-12)[..., None]
+    flip = (n0 * pts[..., 0] + n1 * pts[..., 1] + n2 * pts[..., 2]) > 0  # face the camera
+    np.negative(n, out=n, where=flip[..., None])
+    n[~ok] = 0.0
+    return pts, valid, n, ok
+
+
 # ------------------------------------------------------------- segmentation.geometric
 def ransac_vertical_reference(pts: F64, nrm: F64, up: F64, opts: GeometricOptions,
                      rng: np.random.Generator) -> _Plane | None:
@@ -924,18 +1183,18 @@ def old_planar_smoothing() -> Iterator[None]:
     from bimcap import fusion
     from bimcap.fusion import completion
 
-    with swapped(completion, smooth_planar_regions=smooth_planar_regions_a219de7), \
-            swapped(fusion, smooth_planar_regions=smooth_planar_regions_a219de7):
+    with swapped(completion, smooth_planar_regions=smooth_planar_regions_fe4da1c), \
+            swapped(fusion, smooth_planar_regions=smooth_planar_regions_fe4da1c):
         yield
 
 
 def old_segmentation() -> AbstractContextManager[None]:
-    """``segment_geometric`` as of a219de7 (``_geometric_reference``), whose vertical RANSAC,
-    protrusion walk and upsampling were checked against the ``*_reference`` functions above."""
-    import _geometric_reference
+    """``segment_geometric`` as of fe4da1c: its points and normals in numpy
+    (:func:`points_and_normals_fe4da1c`). (``_geometric_reference`` is the whole module as of
+    a219de7, before the vectorised stages.)"""
     from bimcap.segmentation import geometric
 
-    return swapped(geometric, segment_geometric=_geometric_reference.segment_geometric)
+    return swapped(geometric, _points_and_normals=points_and_normals_fe4da1c)
 
 
 def old_matching() -> AbstractContextManager[None]:

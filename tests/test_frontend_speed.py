@@ -189,6 +189,253 @@ def test_planar_smoothing_same_as_before(chain: list[_Frame]) -> None:
             assert not np.array_equal(new, f.smoothed)  # the returns' fit moved other pixels
 
 
+def test_planar_smoothing_same_as_fe4da1c(chain: list[_Frame], monkeypatch: pytest.MonkeyPatch
+                                          ) -> None:
+    """The depth moved onto the planes in compiled code (``_core.move_onto_planes``): the
+    fe4da1c numpy code's float32 map bit for bit, fitted to the pixels and to the returns, at
+    3 cm and 8 cm noise (with the edge-on plane rule), with one to four planes a region (every
+    plane count occurs)."""
+    from bimcap import _core
+
+    counts: list[int] = []
+    move = _core.move_onto_planes
+
+    def counted(*args: object) -> int:
+        counts.append(len(args[5]))  # type: ignore[arg-type]
+        return move(*args)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(_core, "move_onto_planes", counted)
+    options = [PlanarSmoothingOptions(), PlanarSmoothingOptions(min_region_px=50),
+               PlanarSmoothingOptions(min_region_px=50, max_planes=4, assign_threshold_m=0.02,
+                                      ransac_threshold_m=0.01),
+               PlanarSmoothingOptions(max_change_rel=0.001),
+               PlanarSmoothingOptions().for_noise(0.08)]
+    for f in chain:
+        measured = np.asarray(f.sparse.depth, np.float32)
+        for o in options:
+            for meas in (None, measured):
+                new = smooth_planar_regions(f.dense, f.labels, f.camera, o, measured=meas)
+                old = ref.smooth_planar_regions_fe4da1c(f.dense, f.labels, f.camera, o,
+                                                        measured=meas)
+                assert new.tobytes() == old.tobytes()
+    assert set(counts) >= {1, 2, 3}, sorted(set(counts))
+
+
+@pytest.mark.parametrize("world", ["gen-demo-s0", "ifc-SampleHouse4"])
+def test_planar_smoothing_real_frames_same_as_fe4da1c(world: str) -> None:
+    """The front end's planar smoothing (``refine``'s providers: linear completion, geometric
+    labels, planes fitted to the returns at the scan's own noise) of a generated world's first
+    6 frames: the fe4da1c code's map bit for bit; skipped without the world."""
+    seq_dir = _WORLDS / world / "seq_60_standard"
+    if not seq_dir.is_dir():
+        pytest.skip(f"{seq_dir} not generated")
+    from bimcap.dataset import read_sequence
+    from bimcap.frontend.runner import FrameContext, _load_raw_image, get_undistorter
+    from bimcap.geometry.trajectory import read_tum
+    from bimcap.pipeline.config import RefineConfig
+    from bimcap.pipeline.refine import make_providers
+
+    seq = read_sequence(seq_dir)
+    depth_p, label_p, refiner = make_providers(RefineConfig(workers=1), seq)
+    poses = read_tum(seq.root / "poses" / "gt.tum").poses
+    und = get_undistorter(seq.camera)
+    moved = 0
+    for i in range(6):
+        image = und.image(_load_raw_image(seq, i, seq.camera))
+        ctx = FrameContext(seq, i, seq.camera, und.pinhole, image, und, poses[i])
+        depth = depth_p(ctx)
+        ctx.depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0).astype(np.float32)
+        labels = label_p(ctx)
+        new = refiner(ctx, labels)
+        with ref.old_planar_smoothing():
+            old = refiner(ctx, labels)
+        assert new.tobytes() == old.tobytes()
+        moved += int((new != ctx.depth).sum())
+    assert moved > 10_000
+
+
+def _fused_denominator_ties(rng: np.random.Generator, n: int
+                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``n`` rays ``x``, ``y`` (N,) and planes (N, 4) whose depth ``−d / (x n0 + y n1 + n2)``
+    is, with each product rounded, a float32 tie (1 + odd · 2⁻²⁴ …) exactly, and with either
+    product fused into its sum (a fused multiply-add), a double that rounds to the other
+    float32: a compiled version with contraction gives other depths on these."""
+    from fractions import Fraction
+
+    xs, ys, planes = [], [], []
+    while len(xs) < n:
+        x, y = rng.uniform(-0.6, 0.6, 2)
+        n0, n1 = rng.uniform(-1.0, 1.0, 2)
+        s = x * n0 + y * n1  # numpy's rounding: each product, then the sum (n2 = 0)
+        if abs(s) < 0.1:
+            continue
+        f32 = np.float32(rng.uniform(1.0, 8.0))
+        tie = float(f32) + float(np.spacing(f32)) / 2  # half-way to the next float32
+        d = -tie * s
+        if -d / s != tie:
+            continue
+        fused = [float(Fraction(x) * Fraction(n0) + Fraction(y * n1)),
+                 float(Fraction(y) * Fraction(n1) + Fraction(x * n0))]
+        if all(np.float32(-d / f) != np.float32(tie) for f in fused):
+            xs.append(x)
+            ys.append(y)
+            planes.append((n0, n1, 0.0, d))
+    return np.array(xs), np.array(ys), np.array(planes)
+
+
+def test_move_onto_planes_same_as_numpy() -> None:
+    """``_core.move_onto_planes`` against the fe4da1c numpy (``ref.move_onto_planes_fe4da1c``)
+    on random regions with one to four planes and on the edge cases: equal distances (the first
+    plane wins), NaN products, zero denominators (±inf, NaN depths), −0 offsets, depths at the
+    change limit, planes beyond float32's range, and float32 ties where a fused multiply-add
+    would round the other way."""
+    from bimcap import _core
+
+    rng = np.random.default_rng(11)
+    size, n = 20_000, 6000
+    for k in (1, 2, 3, 4):
+        flat = rng.permutation(size)[:n].astype(np.int64)
+        x, y = rng.uniform(-0.6, 0.6, n), rng.uniform(-0.45, 0.45, n)
+        normals = rng.normal(size=(k, 3)) * [0.3, 0.3, 1.0]  # seen from the front
+        normals[:, 2] = np.abs(normals[:, 2])
+        normals /= np.linalg.norm(normals, axis=1)[:, None]
+        pl = np.concatenate([normals, -rng.uniform(1.0, 5.0, (k, 1))], 1)
+        if k > 1:
+            pl[1] = pl[0]  # equal distances: np.argmin's first plane
+        if k == 3:
+            pl[2] = [1.0, 0.0, 0.0, -0.0]  # through the camera: zero denominators at x = 0
+            x[50:60] = 0.0
+        # depths near the first plane's (±20 %), and none
+        z0 = -pl[0, 3] / (x * pl[0, 0] + y * pl[0, 1] + pl[0, 2])
+        cur = z0 * rng.uniform(0.8, 1.2, n)
+        cur[:50] = 0.0
+        pts = np.stack([x * cur, y * cur, cur], 1)
+        products = pts @ pl[:, :3].T if k > 1 else None
+        if products is not None:
+            products[60:70, 1] = np.nan
+            products[70:80, :] = np.nan
+        for rel, thr in ((0.15, 0.08), (0.5, 0.3), (0.0, 0.0), (np.inf, np.inf)):
+            out = rng.uniform(0, 9, size).astype(np.float32)
+            expected = out.copy()
+            with np.errstate(invalid="ignore"):  # inf · 0 at rel = inf: NaN, not moved
+                ref.move_onto_planes_fe4da1c(expected, flat, x, y, cur, pl, products, thr, rel)
+            moved = _core.move_onto_planes(out, flat, x, y, cur, pl, products, thr, rel)
+            assert out.tobytes() == expected.tobytes()
+            if rel > 0:
+                assert moved > 100
+    # zero denominators, −0 and the float32 range, one plane (1, 0, 0, d) or (0, 0, 1, d)
+    x = np.array([0.0, -0.0, 0.0, 0.0, 0.0, 0.0])
+    cur = np.array([1.0, 1.0, 3.0e38, 3.0e38, 3.0e38, 3.3e38])
+    flat = np.arange(6, dtype=np.int64)
+    big = float(np.finfo(np.float32).max)
+    for pl in ([[1.0, 0.0, 0.0, -1.0]], [[1.0, 0.0, 0.0, 0.0]], [[-1.0, 0.0, 0.0, -0.0]],
+               [[0.0, 0.0, 1.0, -big]], [[0.0, 0.0, 1.0, -(big + 2.0**102)]],
+               [[0.0, 0.0, 1.0, -(big + 2.0**103)]], [[0.0, 0.0, 1.0, -3.5e38]]):
+        plane = np.array(pl)
+        out = np.zeros(6, np.float32)
+        expected = out.copy()
+        with np.errstate(over="ignore"):
+            ref.move_onto_planes_fe4da1c(expected, flat, x, x, cur, plane, None, 0.08, 1.0)
+        _core.move_onto_planes(out, flat, x, x, cur, plane, None, 0.08, 1.0)
+        assert out.tobytes() == expected.tobytes()
+    assert np.isinf(expected[2:]).sum() == 4  # (the last plane: beyond float32's largest)
+    # float32 ties: a contracted product would round them the other way
+    x, y, planes = _fused_denominator_ties(rng, 20)
+    flat = np.arange(len(x), dtype=np.int64)
+    cur = np.full(len(x), 5.0)  # the tie depths (1 … 8 m) all within 100 %
+    for i in range(len(x)):
+        out = np.zeros(len(x), np.float32)
+        expected = out.copy()
+        ref.move_onto_planes_fe4da1c(expected, flat[i:i + 1], x[i:i + 1], y[i:i + 1],
+                                     cur[i:i + 1], planes[i:i + 1], None, 0.08, 1.0)
+        _core.move_onto_planes(out, flat[i:i + 1], x[i:i + 1], y[i:i + 1], cur[i:i + 1],
+                               planes[i:i + 1], None, 0.08, 1.0)
+        assert out.tobytes() == expected.tobytes() and out[i] > 0
+
+
+def test_component_pixels_same_as_numpy() -> None:
+    """``_core.component_pixels`` against fe4da1c's stable sort and ``searchsorted``: the same
+    int64 arrays on OpenCV's components of random masks (4- and 8-connected), on label images
+    with unused and empty labels, all background and one pixel; bad labels raise."""
+    import cv2
+
+    from bimcap import _core
+
+    rng = np.random.default_rng(8)
+    images = []
+    for density in (0.3, 0.6, 0.9):
+        mask = (rng.random((97, 131)) < density).astype(np.uint8)
+        for connectivity in (4, 8):
+            n_comp, comp = cv2.connectedComponents(mask, connectivity=connectivity)
+            images.append((comp, n_comp))
+    images.append((rng.integers(0, 5, (40, 60)).astype(np.int32), 9))  # labels 5..8 unused
+    images.append((np.zeros((3, 4), np.int32), 1))
+    images.append((np.array([[0, 0], [0, 1]], np.int32), 2))
+    images.append((np.zeros((0, 4), np.int32), 1))
+    for comp, n_comp in images:
+        pixels, starts = _core.component_pixels(comp, n_comp)
+        old_pixels, old_starts = ref.component_pixels_fe4da1c(comp, n_comp)
+        assert pixels.dtype == old_pixels.dtype and starts.dtype == old_starts.dtype
+        assert pixels.tobytes() == old_pixels.tobytes()
+        assert starts.tobytes() == old_starts.tobytes()
+    assert images[0][1] > 100
+    for labels, count, field, text in [
+        (np.array([[0, 3]], np.int32), 3, "labels", "label 3 at 1 is outside [0, 3)"),
+        (np.array([[-1, 0]], np.int32), 3, "labels", "label -1 at 0"),
+        (np.zeros((2, 2), np.int64), 3, "labels", "dtype int32"),
+        (np.zeros(4, np.int32), 3, "labels", "shape (n, n)"),
+        (np.zeros((2, 2), np.int32), 0, "count", ">= 1"),
+    ]:
+        with pytest.raises(_core.InputError, match=field) as err:
+            _core.component_pixels(labels, count)
+        assert err.value.field == field and text in str(err.value)
+
+
+def test_move_onto_planes_rejects_bad_arrays() -> None:
+    """Wrong dtypes, shapes, layouts, indices and plane tables raise ``_core.InputError``
+    naming the argument, and nothing is written."""
+    from bimcap import _core
+
+    n = 4
+    good = {"out": np.zeros(10, np.float32), "flat": np.arange(n, dtype=np.int64),
+            "ray_x": np.zeros(n), "ray_y": np.zeros(n), "depth": np.ones(n),
+            "planes": np.array([[0.0, 0.0, 1.0, -1.0], [0.0, 0.0, 1.0, -2.0]]),
+            "products": np.ones((n, 2)), "assign_threshold_m": 0.08, "max_change_rel": 1.0}
+    bad = [
+        ({"out": np.zeros(10)}, "out", "dtype float32"),
+        ({"out": np.zeros((2, 5), np.float32)}, "out", "shape (n,)"),
+        ({"out": np.zeros(20, np.float32)[::2]}, "out", "C-contiguous"),
+        ({"flat": np.arange(n, dtype=np.int32)}, "flat", "dtype int64"),
+        ({"flat": np.array([0, 1, 10, 2])}, "flat", "index 10 at 2 is outside"),
+        ({"flat": np.array([0, -1, 1, 2])}, "flat", "index -1 at 1"),
+        ({"ray_x": np.zeros(n + 1)}, "ray_x", "shape (4,)"),
+        ({"ray_y": [0.0] * n}, "ray_y", "numpy array"),
+        ({"depth": np.ones(n, np.float32)}, "depth", "dtype float64"),
+        ({"planes": np.zeros((2, 3))}, "planes", "shape (n, 4)"),
+        ({"planes": np.zeros((0, 4))}, "planes", "at least one plane"),
+        ({"products": None}, "products", "K > 1"),
+        ({"products": np.ones((n, 3))}, "products", "shape (4, 2)"),
+        ({"products": np.ones((2, n)).T}, "products", "C-contiguous"),
+    ]
+    for override, field, text in bad:
+        args = good | override
+        out = args["out"]
+        before = np.array(out, copy=True)
+        with pytest.raises(_core.InputError, match=field) as err:
+            _core.move_onto_planes(**args)
+        assert err.value.field == field and text in str(err.value)
+        assert np.array_equal(np.asarray(out), before)
+    read_only = np.zeros(10, np.float32)
+    read_only.flags.writeable = False
+    with pytest.raises(_core.InputError, match="out") as err:
+        _core.move_onto_planes(**(good | {"out": read_only}))
+    assert "read-only" in str(err.value)
+    assert _core.move_onto_planes(**good) == n  # z = 1 / 1, 2 / 1 within 100 %: all moved
+    assert _core.move_onto_planes(**(good | {"flat": np.zeros(0, np.int64), "ray_x": np.zeros(0),
+                                             "ray_y": np.zeros(0), "depth": np.zeros(0),
+                                             "products": np.zeros((0, 2))})) == 0
+
+
 def test_segmentation_same_as_before(chain: list[_Frame], monkeypatch: pytest.MonkeyPatch
                                      ) -> None:
     """The labels (the code as of a219de7, ``_geometric_reference``), and every protrusion
@@ -242,6 +489,95 @@ def test_normals_same_as_before(chain: list[_Frame]) -> None:
                                 strict=True):
                 assert new.dtype == old.dtype and new.shape == old.shape
                 assert new.tobytes() == old.tobytes()
+
+
+def _work_depths(world: str, count: int) -> list[tuple[np.ndarray, Camera]]:
+    """The segmenter's working-resolution depth (258 px across, nearest-neighbour) and camera
+    of a generated world's first ``count`` frames (the front end's linear completion of their
+    LiDAR); [] without the world."""
+    import cv2
+
+    seq_dir = _WORLDS / world / "seq_60_standard"
+    if not seq_dir.is_dir():
+        return []
+    from bimcap.dataset import read_sequence
+    from bimcap.frontend.providers import LidarDepthProvider
+
+    seq = read_sequence(seq_dir)
+    projection = LidarDepthProvider().projection
+    cam = seq.camera.pinhole()
+    work = cam.scaled(258 / cam.width)
+    out = []
+    for i in range(count):
+        sparse = project_lidar(seq.load_lidar(i), seq.cam_from_lidar, seq.camera, projection,
+                               distort=False)
+        dense = np.asarray(complete_linear(sparse), np.float32)
+        out.append((cv2.resize(dense, (work.width, work.height),
+                               interpolation=cv2.INTER_NEAREST), work))
+    return out
+
+
+def test_normals_same_as_fe4da1c(chain: list[_Frame]) -> None:
+    """Points, normals and their masks from ``_core.points_and_cross`` / ``orient_normals`` (and
+    OpenCV's blur between them): the fe4da1c numpy code's bytes (signed zeros included), with
+    and without the blur, at steps 1 to 24, on the box-room frames, 3 frames each of two
+    generated worlds at the working resolution (when generated), and images too small for an
+    interior."""
+    from bimcap.segmentation.geometric import _points_and_normals
+
+    inputs = [(f.dense, f.camera) for f in chain]
+    for world in ("gen-demo-s0", "ifc-SampleHouse4"):
+        inputs += _work_depths(world, 3)
+    rng = np.random.default_rng(5)
+    cam = Camera(5, 3, 4.0, 4.0, 2.0, 1.0)
+    for h, w in ((3, 5), (5, 3), (1, 1), (7, 9)):
+        depth = rng.uniform(0.5, 3.0, (h, w)).astype(np.float32)
+        depth[rng.random((h, w)) < 0.2] = 0.0
+        inputs.append((depth, Camera(w, h, 4.0, 4.0, w / 2, h / 2)))
+    inputs.append((np.full((3, 5), 2.0, np.float32), cam))
+    checked = 0
+    for depth, camera in inputs:
+        for step, box in ((2, 5), (3, 1), (4, 11), (1, 1), (24, 3)):
+            opts = GeometricOptions(normal_step_px=step, normal_smooth_px=box)
+            new = _points_and_normals(depth, camera, opts)
+            old = ref.points_and_normals_fe4da1c(depth, camera, opts)
+            for a, b in zip(new, old, strict=True):
+                assert a.dtype == b.dtype and a.shape == b.shape
+                assert a.tobytes() == b.tobytes()
+            checked += int(new[3].sum())
+    assert checked > 100_000
+    assert len(inputs) >= len(chain) + 5
+
+
+def test_normals_reject_bad_arrays() -> None:
+    """Wrong dtypes, shapes, layouts and steps raise ``_core.InputError`` naming the argument."""
+    from bimcap import _core
+
+    depth = np.ones((4, 6), np.float32)
+    for override, field, text in [
+        ({"depth": depth.astype(np.float64)}, "depth", "dtype float32"),
+        ({"depth": depth[:, ::2]}, "depth", "C-contiguous"),
+        ({"depth": depth.ravel()}, "depth", "shape (n, n)"),
+        ({"step": 0}, "step", ">= 1"),
+    ]:
+        args = {"depth": depth, "fx": 1.0, "fy": 1.0, "cx": 0.0, "cy": 0.0, "step": 1,
+                "float32": True} | override
+        with pytest.raises(_core.InputError, match=field) as err:
+            _core.points_and_cross(**args)
+        assert err.value.field == field and text in str(err.value)
+    pts, _, ok, cross = _core.points_and_cross(depth, 1.0, 1.0, 0.0, 0.0, 1, False)
+    read_only = ok.copy()
+    read_only.flags.writeable = False
+    for override, field, text in [
+        ({"normals": cross.astype(np.float32)}, "normals", "dtype float64"),
+        ({"points": pts[:, :5]}, "points", "shape (4, 6, 3)"),
+        ({"ok": ok.astype(np.uint8)}, "ok", "dtype bool"),
+        ({"ok": read_only}, "ok", "read-only"),
+    ]:
+        args = {"normals": cross, "points": pts, "ok": ok} | override
+        with pytest.raises(_core.InputError, match=field) as err:
+            _core.orient_normals(**args)
+        assert err.value.field == field and text in str(err.value)
 
 
 def test_vertical_ransac_same_as_before(chain: list[_Frame]) -> None:

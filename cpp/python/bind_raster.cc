@@ -1,7 +1,9 @@
 // Per-pixel front-end stages in compiled code (bimcap/raster/): the linear depth completion's
 // triangle-id image (cv2.fillConvexPoly's pixels) and piecewise affine depth over it
-// (bimcap.fusion.completion), and semantic sampling's pixel surface area
-// (bimcap.frontend.semantic_map).
+// (bimcap.fusion.completion), the planar smoothing's regions and move of depth onto planes
+// (ibid.), the
+// geometric segmenter's points and normals (bimcap.segmentation.geometric), and semantic
+// sampling's pixel surface area (bimcap.frontend.semantic_map).
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
 
@@ -11,8 +13,11 @@
 #include <utility>
 #include <vector>
 
+#include "bimcap/raster/component_pixels.h"
 #include "bimcap/raster/convex_fill.h"
+#include "bimcap/raster/depth_normals.h"
 #include "bimcap/raster/piecewise_affine.h"
+#include "bimcap/raster/plane_depth.h"
 #include "bimcap/raster/surface_area.h"
 #include "python/arrays.h"
 
@@ -33,7 +38,11 @@ std::string ShapeText(const py::array& a) {
 // are required sizes (-1: any). Never copies: a wrong dtype, shape or layout is an error.
 template <typename T>
 py::array Checked(const py::handle& obj, const char* name, std::vector<py::ssize_t> shape) {
-  const char* dtype_name = std::is_same_v<T, double> ? "float64" : "int32";
+  const char* dtype_name = std::is_same_v<T, bool>      ? "bool"
+                           : std::is_same_v<T, double>  ? "float64"
+                           : std::is_same_v<T, float>   ? "float32"
+                           : std::is_same_v<T, int64_t> ? "int64"
+                                                        : "int32";
   if (!py::isinstance<py::array>(obj)) {
     throw RasterError(name, std::string("expected a numpy array of ") + dtype_name + ", got " +
                                 py::cast<std::string>(py::str(py::type::of(obj))));
@@ -115,6 +124,104 @@ py::array_t<double> PixelSurfaceArea(const py::handle& depth_obj, double fx, dou
   return area;
 }
 
+py::ssize_t MoveOntoPlanes(const py::handle& out_obj, const py::handle& flat_obj,
+                           const py::handle& x_obj, const py::handle& y_obj,
+                           const py::handle& depth_obj, const py::handle& planes_obj,
+                           const py::handle& products_obj, double assign_threshold_m,
+                           double max_change_rel) {
+  py::array out = Checked<float>(out_obj, "out", {-1});
+  if (!out.writeable()) throw RasterError("out", "array is read-only");
+  const py::array flat = Checked<int64_t>(flat_obj, "flat", {-1});
+  const py::ssize_t n = flat.shape(0);
+  const py::array x = Checked<double>(x_obj, "ray_x", {n});
+  const py::array y = Checked<double>(y_obj, "ray_y", {n});
+  const py::array depth = Checked<double>(depth_obj, "depth", {n});
+  const py::array planes = Checked<double>(planes_obj, "planes", {-1, 4});
+  const py::ssize_t k = planes.shape(0);
+  if (k < 1) throw RasterError("planes", "needs at least one plane, got (0, 4)");
+  const double* table = nullptr;
+  py::array products;
+  if (k > 1) {
+    if (products_obj.is_none()) {
+      throw RasterError("products", "the (n, K) table p · n_k is needed with K > 1 planes");
+    }
+    products = Checked<double>(products_obj, "products", {n, k});
+    table = static_cast<const double*>(products.data());
+  }
+  const raster::RegionPixels region{
+      static_cast<const double*>(x.data()), static_cast<const double*>(y.data()),
+      static_cast<const double*>(depth.data()), static_cast<const int64_t*>(flat.data()), n};
+  const auto* plane_table = static_cast<const double*>(planes.data());
+  auto* image = static_cast<float*>(out.mutable_data());
+  const int64_t size = out.shape(0);
+  py::gil_scoped_release release;
+  return raster::MoveOntoPlanes(region, plane_table, k, table, {assign_threshold_m, max_change_rel},
+                                image, size);
+}
+
+template <typename Cross>
+py::tuple PointsAndCrossOf(const py::array& depth, const raster::Pinhole& camera, int64_t step) {
+  const py::ssize_t rows = depth.shape(0), cols = depth.shape(1);
+  py::array_t<double> points({rows, cols, py::ssize_t{3}});
+  py::array_t<bool> valid({rows, cols});
+  py::array_t<bool> ok({rows, cols});
+  py::array_t<Cross> cross({rows, cols, py::ssize_t{3}});
+  const raster::ImageRef<const float> in{static_cast<const float*>(depth.data()), rows, cols};
+  const raster::DepthCrossOut<Cross> out{points.mutable_data(), valid.mutable_data(),
+                                         ok.mutable_data(), cross.mutable_data()};
+  {
+    py::gil_scoped_release release;
+    raster::DepthCross(in, camera, step, out);
+  }
+  return py::make_tuple(points, valid, ok, cross);
+}
+
+py::tuple PointsAndCross(const py::handle& depth_obj, double fx, double fy, double cx, double cy,
+                         int64_t step, bool float32) {
+  const py::array depth = Checked<float>(depth_obj, "depth", {-1, -1});
+  if (step < 1) throw RasterError("step", "must be >= 1 px, got " + std::to_string(step));
+  const raster::Pinhole camera{fx, fy, cx, cy};
+  return float32 ? PointsAndCrossOf<float>(depth, camera, step)
+                 : PointsAndCrossOf<double>(depth, camera, step);
+}
+
+void OrientNormals(const py::handle& normals_obj, const py::handle& points_obj,
+                   const py::handle& ok_obj) {
+  py::array normals = Checked<double>(normals_obj, "normals", {-1, -1, 3});
+  const py::ssize_t rows = normals.shape(0), cols = normals.shape(1);
+  const py::array points = Checked<double>(points_obj, "points", {rows, cols, 3});
+  py::array ok = Checked<bool>(ok_obj, "ok", {rows, cols});
+  for (const auto& [name, a] : {std::pair{"normals", &normals}, std::pair{"ok", &ok}}) {
+    if (!a->writeable()) throw RasterError(name, "array is read-only");
+  }
+  auto* n = static_cast<double*>(normals.mutable_data());
+  const auto* p = static_cast<const double*>(points.data());
+  auto* mask = static_cast<bool*>(ok.mutable_data());
+  py::gil_scoped_release release;
+  raster::OrientNormals(rows * cols, p, n, mask);
+}
+
+py::tuple ComponentPixels(const py::handle& labels_obj, int64_t count) {
+  const py::array labels = Checked<int32_t>(labels_obj, "labels", {-1, -1});
+  if (count < 1) throw RasterError("count", "must be >= 1, got " + std::to_string(count));
+  const auto* data = static_cast<const int32_t*>(labels.data());
+  const int64_t size = labels.shape(0) * labels.shape(1);
+  py::array_t<int64_t> starts(count + 1);
+  int64_t* s = starts.mutable_data();
+  int64_t total = 0;
+  {
+    py::gil_scoped_release release;
+    total = raster::ComponentStarts(data, size, count, s);
+  }
+  py::array_t<int64_t> pixels(total);
+  int64_t* p = pixels.mutable_data();
+  {
+    py::gil_scoped_release release;
+    raster::ComponentPixels(data, size, count, s, p);
+  }
+  return py::make_tuple(pixels, starts);
+}
+
 }  // namespace
 
 void BindRaster(py::module_& m) {
@@ -133,6 +240,33 @@ void BindRaster(py::module_& m) {
         "1 / max(f, 1e-12) where f > 0 else 0 (inverse_depth), or max(f, 0); numpy's "
         "arithmetic bit for bit. Raises InputError for an id outside [0, N) or a wrong "
         "dtype / shape / layout.");
+  m.def("component_pixels", &ComponentPixels, py::arg("labels"), py::arg("count"),
+        "(pixels (M,) int64, starts (count + 1,) int64): the raveled indices of the nonzero "
+        "pixels of the (H, W) int32 label image `labels` (labels in [0, count), C-contiguous), "
+        "grouped by label and row-major inside each; label c's are pixels[starts[c]:starts[c + "
+        "1]] (what numpy's stable argsort and searchsorted give). Raises InputError for a label "
+        "outside [0, count).");
+  m.def("move_onto_planes", &MoveOntoPlanes, py::arg("out"), py::arg("flat"), py::arg("ray_x"),
+        py::arg("ray_y"), py::arg("depth"), py::arg("planes"), py::arg("products"),
+        py::arg("assign_threshold_m"), py::arg("max_change_rel"),
+        "Moves one region's pixels of the raveled float32 depth map `out` onto the nearest of "
+        "its planes along their rays, in place (bimcap.fusion.completion._smooth_region's "
+        "arithmetic bit for bit); returns how many moved. flat: (n,) int64 indices into out; "
+        "ray_x, ray_y: (n,) float64 rays (x, y, 1); depth: (n,) float64 current depths (m); "
+        "planes: (K, 4) float64 n0 n1 n2 d; products: (n, K) float64 p · n_k (None when K = 1). "
+        "Raises InputError naming the bad argument (nothing is written then).");
+  m.def("points_and_cross", &PointsAndCross, py::arg("depth"), py::arg("fx"), py::arg("fy"),
+        py::arg("cx"), py::arg("cy"), py::arg("step"), py::arg("float32"),
+        "(points (H, W, 3) float64, valid (H, W) bool, ok (H, W) bool, cross (H, W, 3)) of the "
+        "(H, W) float32 z-depth map (m, 0 = none): the back-projected pixels, where there is "
+        "depth, where the central differences at +-step px exist without a depth jump, and "
+        "their cross product there (0 elsewhere; float32 when `float32`, for a blur, else "
+        "float64); bimcap.segmentation.geometric._points_and_normals's arithmetic bit for bit.");
+  m.def("orient_normals", &OrientNormals, py::arg("normals"), py::arg("points"), py::arg("ok"),
+        "Normalises the (H, W, 3) float64 cross products `normals` in place, turns them toward "
+        "the camera (against `points` (H, W, 3) float64), clears `ok` (H, W) bool where the "
+        "norm is <= 1e-12 and sets the normals to 0 where `ok` is false; numpy's arithmetic "
+        "bit for bit.");
   m.def("pixel_surface_area", &PixelSurfaceArea, py::arg("depth"), py::arg("fx"), py::arg("fy"),
         py::arg("cx"), py::arg("cy"), py::arg("min_cos"),
         "(H, W) float64 surface area in m² each pixel of the (H, W) float64 z-depth map (m, "

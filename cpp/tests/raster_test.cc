@@ -1,15 +1,20 @@
 // The completion's raster (bimcap/raster/): the expected images were drawn by OpenCV 5.0's
 // cv2.fillConvexPoly(image, corners, id, cv2.LINE_8, 4) (tests/test_frontend_speed.py compares
-// the two on random and real triangles); the affine values are computed by hand.
+// the two on random and real triangles); the affine values and plane depths are computed by
+// hand (the same file compares them with numpy).
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <cstdint>
 #include <string>
+#include <utility>
 #include <vector>
 
+#include "bimcap/raster/component_pixels.h"
 #include "bimcap/raster/convex_fill.h"
+#include "bimcap/raster/depth_normals.h"
 #include "bimcap/raster/piecewise_affine.h"
+#include "bimcap/raster/plane_depth.h"
 
 namespace bimcap::raster {
 namespace {
@@ -176,6 +181,162 @@ TEST(PiecewiseAffine, RejectsIdsOutsideTheTable) {
                RasterError);
   EXPECT_THROW(EvaluatePiecewiseAffine({ids, 1, 2}, coef, 2, AffineValue::kDepth, {out, 2, 1}),
                RasterError);
+}
+
+TEST(PlaneDepth, OnePlaneMovesEveryPixelWithinTheChangeLimit) {
+  // The plane z = 2 (n = (0, 0, 1), d = −2) tilted: n = (0.6, 0, 0.8), d = −1.6, so that along
+  // the ray (x, y, 1) z = 1.6 / (0.6 x + 0.8).
+  const double x[] = {0.0, 0.5, -0.5, 0.25};
+  const double y[] = {0.0, 0.0, 1.0, -1.0};
+  const double depth[] = {2.1, 1.5, 2.0, 1.0};
+  const int64_t flat[] = {4, 0, 2, 1};
+  const double plane[] = {0.6, 0.0, 0.8, -1.6};
+  float out[5] = {9, 9, 9, 9, 9};
+  const int64_t moved =
+      MoveOntoPlanes({x, y, depth, flat, 4}, plane, 1, nullptr, {0.08, 0.15}, out, 5);
+  EXPECT_EQ(moved, 2);
+  EXPECT_EQ(out[4], static_cast<float>(-(-1.6) / (0.0 * 0.6 + 0.0 * 0.0 + 0.8)));  // 2: 5 % off
+  EXPECT_EQ(out[0], static_cast<float>(1.6 / (0.5 * 0.6 + 0.0 + 0.8)));  // 1.4545…: 3 % off
+  EXPECT_EQ(out[2], 9.0f);  // 1.6 / 0.5 = 3.2: 60 % off
+  EXPECT_EQ(out[1], 9.0f);  // 1.6 / 0.95 = 1.68: 68 % off
+  EXPECT_EQ(out[3], 9.0f);  // not in the region
+}
+
+TEST(PlaneDepth, NearestPlaneFirstOnTiesAndWithinTheAssignThreshold) {
+  // Two planes z = 1 and z = 1 (equal distances: the first wins) and z = 3; products t = p · n.
+  const double x[] = {0.0, 0.0, 0.0};
+  const double y[] = {0.0, 0.0, 0.0};
+  const double depth[] = {1.05, 2.95, 2.0};
+  const int64_t flat[] = {0, 1, 2};
+  const double planes[] = {0, 0, 1, -1.0,   //
+                           0, 0, 1, -1.0,   //
+                           0, 0, 1, -3.0};  // (p · n = z for every plane)
+  const double products[] = {1.05, 1.05, 1.05, 2.95, 2.95, 2.95, 2.0, 2.0, 2.0};
+  float out[3] = {0, 0, 0};
+  EXPECT_EQ(MoveOntoPlanes({x, y, depth, flat, 3}, planes, 3, products, {0.08, 0.5}, out, 3), 2);
+  EXPECT_EQ(out[0], 1.0f);  // 0.05 from the first plane
+  EXPECT_EQ(out[1], 3.0f);  // 0.05 from the third
+  EXPECT_EQ(out[2], 0.0f);  // 1.0 from both z = 1 and z = 3: beyond the threshold
+}
+
+TEST(PlaneDepth, NanDistancesAndZeroDenominatorsMoveNothing) {
+  const double x[] = {0.0, 0.0, 0.0};
+  const double y[] = {0.0, 0.0, 0.0};
+  const double depth[] = {1.0, 1.0, 1.0};
+  const int64_t flat[] = {0, 1, 2};
+  const double planes[] = {0, 0, 1, -1.0, 0, 0, 1, -1.0};
+  const double products[] = {NAN, 1.0, 1.0, NAN, 1.0, 1.0};
+  float out[3] = {7, 7, 7};
+  // a NaN distance: np.minimum's NaN fails the threshold (and np.argmin picks it)
+  EXPECT_EQ(MoveOntoPlanes({x, y, depth, flat, 3}, planes, 2, products, {0.08, 0.5}, out, 3), 1);
+  EXPECT_EQ(out[0], 7.0f);
+  EXPECT_EQ(out[1], 7.0f);
+  EXPECT_EQ(out[2], 1.0f);
+  // n = (1, 0, 0) and x = 0: 1 / 0 = inf, and 0 / 0 = NaN, neither finite
+  const double vertical[] = {1, 0, 0, -1.0};
+  const double through[] = {1, 0, 0, 0.0};
+  EXPECT_EQ(MoveOntoPlanes({x, y, depth, flat, 3}, vertical, 1, nullptr, {0.08, 1e300}, out, 3), 0);
+  EXPECT_EQ(MoveOntoPlanes({x, y, depth, flat, 3}, through, 1, nullptr, {0.08, 1e300}, out, 3), 0);
+}
+
+TEST(PlaneDepth, DepthsBeyondFloat32RoundAsNumpy) {
+  const double zero[] = {0.0};
+  const double depth[] = {3.0e38};
+  const int64_t flat[] = {0};
+  const double max = 3.4028234663852886e38;  // FLT_MAX
+  float out[1];
+  for (const auto& [z, expected] : {std::pair{max, max}, std::pair{max + 0x1p102, max},
+                                    std::pair{max + 0x1p103, static_cast<double>(INFINITY)}}) {
+    const double plane[] = {0, 0, 1, -z};
+    out[0] = 0;
+    MoveOntoPlanes({zero, zero, depth, flat, 1}, plane, 1, nullptr, {0.08, 1.0}, out, 1);
+    EXPECT_EQ(out[0], static_cast<float>(expected)) << z;
+  }
+}
+
+TEST(PlaneDepth, RejectsIndicesOutsideTheImageBeforeWriting) {
+  const double x[] = {0.0, 0.0};
+  const double depth[] = {1.0, 1.0};
+  const int64_t flat[] = {0, 2};
+  const double plane[] = {0, 0, 1, -1.0};
+  float out[2] = {5, 5};
+  try {
+    MoveOntoPlanes({x, x, depth, flat, 2}, plane, 1, nullptr, {0.08, 1.0}, out, 2);
+    FAIL() << "no exception";
+  } catch (const RasterError& e) {
+    EXPECT_EQ(e.field(), "flat");
+    EXPECT_NE(std::string(e.what()).find("index 2 at 1"), std::string::npos);
+  }
+  EXPECT_EQ(out[0], 5.0f);  // nothing written
+  EXPECT_THROW(MoveOntoPlanes({x, x, depth, flat, 1}, plane, 0, nullptr, {0.08, 1.0}, out, 2),
+               RasterError);
+  EXPECT_THROW(MoveOntoPlanes({x, x, depth, flat, 1}, plane, 2, nullptr, {0.08, 1.0}, out, 2),
+               RasterError);
+}
+
+TEST(DepthNormals, FlatWallFacingTheCameraWithSignedZeros) {
+  // z = 2 everywhere on a 4 × 5 image, fx = fy = 1, cx = cy = 0: p = (2u, 2v, 2); step 1:
+  // d_u = (4, 0, 0), d_v = (0, 4, 0), cross = (0·0 − 0·4, 0·0 − 4·0, 4·4 − 0·0) = (0, 0, 16),
+  // normalised (0, 0, 1), facing away (n · p = 2 > 0): negated, (−0, −0, −1), as np.negative.
+  std::vector<float> depth(20, 2.0f);
+  std::vector<double> points(60), cross(60);
+  bool valid[20], ok[20];
+  DepthCross<double>({depth.data(), 4, 5}, {1.0, 1.0, 0.0, 0.0}, 1,
+                     {points.data(), valid, ok, cross.data()});
+  EXPECT_EQ(points[3 * 7], 4.0);  // (u 2, v 1): x = 2 · 2
+  EXPECT_EQ(points[3 * 7 + 1], 2.0);
+  EXPECT_TRUE(valid[0] && valid[19]);
+  // the interior: u 1..3, v 1..2
+  EXPECT_FALSE(ok[0] || ok[5] || ok[9] || ok[14]);
+  EXPECT_TRUE(ok[6] && ok[7] && ok[8] && ok[11] && ok[12] && ok[13]);
+  EXPECT_EQ(cross[3 * 7 + 2], 16.0);
+  OrientNormals(20, points.data(), cross.data(), ok);
+  EXPECT_EQ(cross[3 * 7 + 2], -1.0);
+  EXPECT_EQ(cross[3 * 7], 0.0);
+  EXPECT_TRUE(std::signbit(cross[3 * 7]));   // −0, as numpy's negation of +0
+  EXPECT_FALSE(std::signbit(cross[3 * 0]));  // no normal: +0
+}
+
+TEST(DepthNormals, DepthJumpsAndMissingNeighboursHaveNoNormal) {
+  // 3 × 5, step 1: the interior is row 1, columns 1..3.
+  std::vector<float> depth(15, 1.0f);
+  depth[1 * 5 + 4] = 2.0f;  // right neighbour of (3, 1): |2 − 1| = 1 >= 2 (0.05 + 0.05)
+  depth[0 * 5 + 1] = 0.0f;  // upper neighbour of (1, 1) has no depth
+  std::vector<double> points(45);
+  std::vector<float> cross(45, 7.0f);
+  bool valid[15], ok[15];
+  DepthCross<float>({depth.data(), 3, 5}, {1.0, 1.0, 2.0, 1.0}, 1,
+                    {points.data(), valid, ok, cross.data()});
+  EXPECT_FALSE(valid[1]);
+  EXPECT_FALSE(ok[6]);
+  EXPECT_TRUE(ok[7]);
+  EXPECT_FALSE(ok[8]);
+  EXPECT_EQ(cross[3 * 8], 0.0f);  // cleared, not left at 7
+  EXPECT_THROW(DepthCross<float>({depth.data(), 3, 5}, {1.0, 1.0, 2.0, 1.0}, 0,
+                                 {points.data(), valid, ok, cross.data()}),
+               RasterError);
+}
+
+TEST(ComponentPixels, GroupedByLabelRowMajorInside) {
+  // 3 × 4 labels; label 3 unused; the background (0) left out.
+  const int32_t labels[] = {0, 2, 2, 1,  //
+                            1, 0, 2, 1,  //
+                            4, 4, 0, 1};
+  int64_t starts[6];
+  ASSERT_EQ(ComponentStarts(labels, 12, 5, starts), 9);
+  const std::vector<int64_t> expected_starts = {0, 0, 4, 7, 7, 9};
+  EXPECT_EQ(std::vector<int64_t>(starts, starts + 6), expected_starts);
+  std::vector<int64_t> pixels(9);
+  ComponentPixels(labels, 12, 5, starts, pixels.data());
+  const std::vector<int64_t> expected = {3, 4, 7, 11, 1, 2, 6, 8, 9};
+  EXPECT_EQ(pixels, expected);
+  const int32_t bad[] = {0, 5};
+  try {
+    ComponentStarts(bad, 2, 5, starts);
+    FAIL() << "no exception";
+  } catch (const RasterError& e) {
+    EXPECT_EQ(e.field(), "labels");
+  }
 }
 
 }  // namespace

@@ -60,3 +60,36 @@ def pixel_surface_area(
     depth: NDArray[np.float64], fx: float, fy: float, cx: float, cy: float, min_cos: float
 ) -> NDArray[np.float64]:
     """(H, W) m² each pixel of an undistorted (H, W) z-depth map covers (numpy's rounding)."""
+def move_onto_planes(
+    out: NDArray[np.float32],
+    flat: NDArray[np.int64],
+    ray_x: NDArray[np.float64],
+    ray_y: NDArray[np.float64],
+    depth: NDArray[np.float64],
+    planes: NDArray[np.float64],
+    products: NDArray[np.float64] | None,
+    assign_threshold_m: float,
+    max_change_rel: float,
+) -> int:
+    """Moves one region's pixels ``out[flat]`` (raveled float32 depth, in place) onto the nearest
+    of its (K, 4) planes along their rays (numpy's rounding); ``products`` (n, K) p · n_k, None
+    for one plane. Returns how many pixels moved."""
+def points_and_cross(
+    depth: NDArray[np.float32], fx: float, fy: float, cx: float, cy: float, step: int,
+    float32: bool,
+) -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_], NDArray[Any]]:
+    """(points (H, W, 3), valid (H, W), ok (H, W), cross (H, W, 3) float32 or float64) of an
+    (H, W) float32 z-depth map: the segmenter's central-difference cross products (numpy's
+    rounding)."""
+
+def orient_normals(
+    normals: NDArray[np.float64], points: NDArray[np.float64], ok: NDArray[np.bool_]
+) -> None:
+    """Normalises ``normals`` (H, W, 3) in place and turns them toward the camera; clears ``ok``
+    where the norm is <= 1e-12 and the normals where ``ok`` is false (numpy's rounding)."""
+
+def component_pixels(
+    labels: NDArray[np.int32], count: int
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """(pixels (M,), starts (count + 1,)): the nonzero pixels of an (H, W) label image grouped by
+    label, row-major inside each (label c: ``pixels[starts[c]:starts[c + 1]]``)."""

@@ -636,6 +636,8 @@ def _smooth_region(
     (raveled indices, row-major order); ``ray_x``, ``ray_y``: (H·W,) the pinhole rays' x and y
     (z = 1) of every pixel (``Camera.rays``).
     """
+    from bimcap import _core
+
     x, y = ray_x[flat], ray_y[flat]
     cur = depth[flat].astype(np.float64)
     pts = None
@@ -658,33 +660,16 @@ def _smooth_region(
     if not planes:
         return
     pl = np.stack(planes)  # (K, 4)
-    if len(pl) == 1:  # every pixel on the one plane
-        near: NDArray[np.bool_] | bool = True
-        n0, n1, n2, offset = pl[0]
-        denom = x * n0 + y * n1 + n2  # the ray (x, y, 1) · n, summed left to right
-    else:
+    products = None
+    if len(pl) > 1:
         if pts is None:
             pts = _points(x, y, cur)
-        dist = pts @ pl[:, :3].T  # (N, K) |n·p + d|, in place
-        dist += pl[:, 3]
-        np.abs(dist, out=dist)
-        best = np.argmin(dist, axis=1)
-        nearest = dist[:, 0].copy()  # the minimum column by column: min(axis=1)'s values
-        for k in range(1, len(pl)):
-            np.minimum(nearest, dist[:, k], out=nearest)
-        near = nearest <= opts.assign_threshold_m
-        denom = x * pl[best, 0] + y * pl[best, 1] + pl[best, 2]
-        offset = pl[best, 3]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        z_plane = -offset / denom
-    ok = (
-        np.isfinite(z_plane)
-        & (z_plane > 0)
-        & (np.abs(z_plane - cur) <= opts.max_change_rel * cur)
-    )
-    if near is not True:
-        ok &= near
-    out[flat[ok]] = z_plane[ok].astype(np.float32)
+        products = pts @ pl[:, :3].T  # (N, K) n·p: BLAS's product, left to numpy
+    # each pixel onto its nearest plane along its ray, where that changes its depth by at most
+    # max_change_rel (with K > 1 planes: where the nearest is within assign_threshold_m); numpy's
+    # arithmetic in compiled code (cpp/bimcap/raster/plane_depth.h)
+    _core.move_onto_planes(out, flat, x, y, cur, pl, products, opts.assign_threshold_m,
+                           opts.max_change_rel)
 
 
 def smooth_planar_regions(
@@ -717,6 +702,8 @@ def smooth_planar_regions(
     (H, W) float32 smoothed depth (a new array).
     """
     import cv2
+
+    from bimcap import _core
 
     opts = options or PlanarSmoothingOptions()
     d = np.asarray(depth, dtype=np.float32)
@@ -751,17 +738,14 @@ def smooth_planar_regions(
         if not big:
             continue
         # every big component's pixels in row-major order (what np.nonzero(comp == c) gives),
-        # from one stable sort instead of one pass over the image per component
-        flat = np.flatnonzero(comp)
-        ids = comp.ravel()[flat]
-        order = np.argsort(ids, kind="stable")
-        starts = np.searchsorted(ids[order], np.arange(n_comp + 1))
+        # grouped by component in one pass (a counting sort in bimcap._core)
+        pixels, starts = _core.component_pixels(comp, n_comp)
         if rays is None:  # every pixel's ray (x, y, 1), as Camera.rays computes it
             h, w = d.shape
             rays = (np.broadcast_to((np.arange(w, dtype=np.float64) - camera.cx) / camera.fx,
                                     (h, w)).ravel(),
                     np.repeat((np.arange(h, dtype=np.float64) - camera.cy) / camera.fy, w))
         for c in big:
-            _smooth_region(out_flat, d_flat, flat[order[starts[c]:starts[c + 1]]], *rays,
-                           opts, rng, meas_flat)
+            _smooth_region(out_flat, d_flat, pixels[starts[c]:starts[c + 1]], *rays, opts, rng,
+                           meas_flat)
     return out

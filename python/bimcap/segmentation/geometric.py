@@ -234,53 +234,22 @@ def _points_and_normals(depth: NDArray[np.float32], cam: Camera, opts: Geometric
     normal) and where there is a normal (h, w), of the depth ``depth`` (h, w) seen by ``cam``.
 
     The normal is the cross product of the central differences along u and v
-    (``normal_step_px``), box-blurred (``normal_smooth_px``), normalised and turned toward the
-    camera; computed component by component on the pixels that can have one (``np.cross``,
-    ``np.linalg.norm`` and the sum over the last axis do the same products and left-to-right
-    sums on stacked (h, w, 3) arrays).
+    (``normal_step_px``), box-blurred (``normal_smooth_px``, OpenCV's ``blur`` in float32),
+    normalised and turned toward the camera; the per-pixel arithmetic before and after the blur
+    runs in ``bimcap._core`` (``points_and_cross``, ``orient_normals``: numpy's component by
+    component products and left-to-right sums bit for bit, cpp/bimcap/raster/depth_normals.h).
     """
     import cv2
 
-    h, w = depth.shape
-    u = (np.arange(w) - cam.cx) / cam.fx
-    v = (np.arange(h) - cam.cy) / cam.fy
-    z = depth.astype(np.float64)
-    pts = np.empty((h, w, 3))
-    pts[..., 0] = u[None, :] * z
-    pts[..., 1] = v[:, None] * z
-    pts[..., 2] = z
-    valid = z > 0
-    s = opts.normal_step_px
-    ok = np.zeros((h, w), dtype=bool)
-    zc = z[s:-s, s:-s]
-    jump = 0.05 * zc + 0.05  # metres: neighbours farther apart in depth are across an edge
-    ok_in = (
-        valid[s:-s, s:-s]
-        & (z[s:-s, 2 * s :] > 0) & (z[s:-s, : -2 * s] > 0)
-        & (z[2 * s :, s:-s] > 0) & (z[: -2 * s, s:-s] > 0)
-        & (np.abs(z[s:-s, 2 * s :] - z[s:-s, : -2 * s]) < 2 * jump)
-        & (np.abs(z[2 * s :, s:-s] - z[: -2 * s, s:-s]) < 2 * jump)
-    )
-    ok[s:-s, s:-s] = ok_in
-    # central differences du (along u) and dv (along v) where both exist: the interior
-    du = [pts[s:-s, 2 * s :, i] - pts[s:-s, : -2 * s, i] for i in range(3)]
-    dv = [pts[2 * s :, s:-s, i] - pts[: -2 * s, s:-s, i] for i in range(3)]
-    cross = (du[1] * dv[2] - du[2] * dv[1],
-             du[2] * dv[0] - du[0] * dv[2],
-             du[0] * dv[1] - du[1] * dv[0])
+    from bimcap import _core
+
     k = opts.normal_smooth_px
-    n = np.zeros((h, w, 3), dtype=np.float32 if k > 1 else np.float64)
-    for i in range(3):
-        n[s:-s, s:-s, i] = np.where(ok_in, cross[i], 0.0)
+    pts, valid, ok, n = _core.points_and_cross(np.ascontiguousarray(depth, dtype=np.float32),
+                                               cam.fx, cam.fy, cam.cx, cam.cy,
+                                               opts.normal_step_px, k > 1)
     if k > 1:
         n = cv2.blur(n, (k, k)).astype(np.float64)
-    n0, n1, n2 = n[..., 0], n[..., 1], n[..., 2]
-    norm = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
-    ok &= norm > 1e-12
-    n /= np.maximum(norm, 1e-12)[..., None]
-    flip = (n0 * pts[..., 0] + n1 * pts[..., 1] + n2 * pts[..., 2]) > 0  # face the camera
-    np.negative(n, out=n, where=flip[..., None])
-    n[~ok] = 0.0
+    _core.orient_normals(n, pts, ok)
     return pts, valid, n, ok
 
 

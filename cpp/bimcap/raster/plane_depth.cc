@@ -1,0 +1,55 @@
+#include "bimcap/raster/plane_depth.h"
+
+#include <cmath>
+#include <string>
+
+#include "bimcap/raster/image.h"
+
+namespace bimcap::raster {
+int64_t MoveOntoPlanes(const RegionPixels& region, const double* planes, int64_t plane_count,
+                       const double* products, const PlaneMove& move, float* out,
+                       int64_t out_size) {
+  if (plane_count < 1) throw RasterError("planes", "needs at least one plane");
+  if (plane_count > 1 && products == nullptr) {
+    throw RasterError("products", "needed with more than one plane");
+  }
+  for (int64_t i = 0; i < region.count; ++i) {
+    if (region.flat[i] < 0 || region.flat[i] >= out_size) {
+      throw RasterError("flat", "index " + std::to_string(region.flat[i]) + " at " +
+                                    std::to_string(i) + " is outside the image's " +
+                                    std::to_string(out_size) + " pixels");
+    }
+  }
+  int64_t moved = 0;
+  for (int64_t i = 0; i < region.count; ++i) {
+    int64_t best = 0;
+    bool near = true;
+    if (plane_count > 1) {
+      const double* t = products + i * plane_count;
+      // np.argmin (the first minimum; the first NaN if any) and np.minimum taken column by
+      // column (NaN-propagating) of |t_k + d_k|
+      double least = std::fabs(t[0] + planes[3]);
+      double nearest = least;
+      for (int64_t k = 1; k < plane_count; ++k) {
+        const double dist = std::fabs(t[k] + planes[4 * k + 3]);
+        if (!std::isnan(least) && (dist < least || std::isnan(dist))) {
+          least = dist;
+          best = k;
+        }
+        nearest = (std::isnan(nearest) || std::isnan(dist)) ? NAN : std::fmin(nearest, dist);
+      }
+      near = nearest <= move.assign_threshold_m;
+    }
+    const double* plane = planes + 4 * best;
+    const double denom = region.ray_x[i] * plane[0] + region.ray_y[i] * plane[1] + plane[2];
+    const double z = -plane[3] / denom;
+    const double cur = region.depth[i];
+    if (near && std::isfinite(z) && z > 0 && std::fabs(z - cur) <= move.max_change_rel * cur) {
+      out[region.flat[i]] = RoundToFloat32(z);
+      ++moved;
+    }
+  }
+  return moved;
+}
+
+}  // namespace bimcap::raster
