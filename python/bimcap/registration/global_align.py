@@ -21,8 +21,10 @@ bundle adjustment can take over:
    slack) times the fraction of its camera positions that lie in free space (inside the
    building, not in a wall), times ``(1 - x) ** see_through_power`` where ``x`` is the share of
    points whose ray from the camera passes through a plan wall (negative evidence: an alias
-   room of another width, a wall where the building has a door). The hypotheses are
-   ranked; two are *distinct* when their camera positions differ by more than
+   room of another width, a wall where the building has a door), times ``a **
+   range_power`` where ``a`` is the share of points whose range agrees with the plan's along
+   their ray (:func:`range_agreement`: neither through a wall nor short of one). The
+   hypotheses are ranked; two are *distinct* when their camera positions differ by more than
    ``distinct_m`` on average, their yaws by more than ``distinct_deg`` or their floors by more
    than ``distinct_z_m``.
 5. **ambiguity**: when the second-best distinct hypothesis scores at least ``ambiguity_ratio``
