@@ -820,8 +820,12 @@ class _Found:
 
     @property
     def score(self) -> float:
-        return float(self.fit * self.free * (1.0 - self.see_through) ** self.see_through_power
-                     * self.agreement ** self.agreement_power)
+        return self.score_without_range * float(self.agreement ** self.agreement_power)
+
+    @property
+    def score_without_range(self) -> float:
+        """The score without its range agreement factor."""
+        return float(self.fit * self.free * (1.0 - self.see_through) ** self.see_through_power)
 
 
 @dataclass(frozen=True)
@@ -1014,7 +1018,10 @@ class PlanAlias:
         search: per-frame fit × free share × (1 - see-through) ** power).
     score_ratio: ``score`` / the best placement's score (the lower of its search score and its
         :func:`_score_at` score on the same points); at or above ``ambiguity_ratio`` the result
-        is ambiguous.
+        is ambiguous. The larger of this ratio with and without the range agreement factor
+        (``range_power``): where the plan repeats what the scan saw, the sharper term may add
+        a flag, never lift one (Duplex_A seed 16: 0.91 without it, 0.79 with it, the best
+        placement the wrong unit).
     fit_score, scan_free_fraction, scan_see_through: the real scan's per-frame fit, share of
         cameras in free space and share of points seen through walls at this placement (what
         the best placement must reach to be accepted; :func:`_alias_ambiguous`).
@@ -1144,14 +1151,19 @@ def _plan_alias(best: _Found, scan: _Scan, sections: list[_Storey], plan: FloorP
     # The best placement scored the same way, on the same points (the search drew its own);
     # either of its two scores may be the lower one, and the lower decides (when in doubt,
     # flag: with the rescored one alone a Duplex_A run stayed silently wrong).
-    best_score = min(best.score, _score_at(best.corr, best.storey, sm_best, all_xy, all_cls,
-                                           all_view, all_frame, scan.cams[:, :2], opt).score)
+    rescored = _score_at(best.corr, best.storey, sm_best, all_xy, all_cls, all_view, all_frame,
+                         scan.cams[:, :2], opt)
+    best_score = min(best.score, rescored.score)
+    best_plain = min(best.score_without_range, rescored.score_without_range)
     for diff, corr, storey, alias in cands[:opt.alias_rescore]:
         if diff > opt.alias_max_difference:
             break
         f = _score_at(corr, storey, storey_maps[_section_key(plan, storey)], all_xy, all_cls,
                       all_view, all_frame, scan.cams[:, :2], opt)
-        ratio = f.score / best_score if best_score > 0 else 0.0
+        # With and without the range agreement: in an alias the plan nearly repeats, and the
+        # sharper term may only add a flag (see ``PlanAlias.score_ratio``).
+        ratio = max(f.score / best_score if best_score > 0 else 0.0,
+                    f.score_without_range / best_plain if best_plain > 0 else 0.0)
         here = replace(alias, score=f.score, score_ratio=ratio, fit_score=f.fit,
                        scan_free_fraction=f.free, scan_see_through=f.see_through)
         if out is None or ((_alias_ambiguous(here, opt), ratio)
