@@ -360,7 +360,7 @@ def test_rooms_of_different_widths_are_told_apart_by_what_is_seen_through_walls(
     samples, slam = _slam_case(gt, scene, seed=0)
     with pytest.raises(AmbiguousAlignmentError) as info:
         global_align(slam.trajectory.poses, samples, scene.floor_plan(),
-                     GlobalAlignOptions(see_through_power=0.0))
+                     GlobalAlignOptions(see_through_power=0.0, range_power=0.0))
     old = info.value.result
     assert old is not None and old.ratio >= 0.9
     assert _placement_error(old.hypotheses[0].world_from_slam, slam)[1] < 5.0
@@ -373,7 +373,9 @@ def test_rooms_of_different_widths_are_told_apart_by_what_is_seen_through_walls(
     assert _placement_error(alias.world_from_slam, slam)[1] > 170.0
     assert alias.see_through > right.see_through + 0.03
     assert right.score == pytest.approx(
-        right.fit_score * right.free_fraction * (1 - right.see_through) ** 3)
+        right.fit_score * right.free_fraction * (1 - right.see_through) ** 3
+        * right.range_agreement ** 3)
+    assert alias.range_agreement < right.range_agreement
 
 
 def test_the_right_storey_is_picked(demo: Scene) -> None:
