@@ -200,7 +200,7 @@ def run_registration(world: World, seed: int, frames: int) -> dict[str, Any]:
         nan = float("nan")
         return {**row, "right": False, "cam_err_m": nan, "yaw_err_deg": nan, "ratio": nan,
                 "right_storey": False, "score": nan, "fit": nan, "free": nan,
-                "see_through": nan, "constraint": nan, "alias_ratio": nan,
+                "see_through": nan, "agreement": nan, "constraint": nan, "alias_ratio": nan,
                 "alias_difference": nan, "alias_fit": nan, "twins": 0}
     est = compose(res.world_from_slam, slam.trajectory.poses)
     true = compose(invert(slam.slam_from_world), slam.trajectory.poses)
@@ -214,7 +214,7 @@ def run_registration(world: World, seed: int, frames: int) -> dict[str, Any]:
             "ratio": res.ratio, "right_storey": floor is not None
             and abs(floor - scene.floor_z) < 0.3, "score": best.score, "fit": best.fit_score,
             "free": best.free_fraction, "see_through": best.see_through,
-            "constraint": best.constraint,
+            "agreement": best.range_agreement, "constraint": best.constraint,
             "alias_ratio": float("nan") if res.alias is None else res.alias.score_ratio,
             "alias_difference": float("nan") if res.alias is None else res.alias.difference,
             "alias_fit": float("nan") if res.alias is None else res.alias.fit_score,

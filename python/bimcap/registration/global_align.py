@@ -21,8 +21,10 @@ bundle adjustment can take over:
    slack) times the fraction of its camera positions that lie in free space (inside the
    building, not in a wall), times ``(1 - x) ** see_through_power`` where ``x`` is the share of
    points whose ray from the camera passes through a plan wall (negative evidence: an alias
-   room of another width, a wall where the building has a door). The hypotheses are
-   ranked; two are *distinct* when their camera positions differ by more than
+   room of another width, a wall where the building has a door), times ``a **
+   range_power`` where ``a`` is the share of points whose range agrees with the plan's along
+   their ray (:func:`range_agreement`: neither through a wall nor short of one). The
+   hypotheses are ranked; two are *distinct* when their camera positions differ by more than
    ``distinct_m`` on average, their yaws by more than ``distinct_deg`` or their floors by more
    than ``distinct_z_m``.
 5. **ambiguity**: when the second-best distinct hypothesis scores at least ``ambiguity_ratio``
@@ -128,6 +130,13 @@ class GlobalAlignOptions:
         drift and noise at the camera and at the hit, measured as ``see_through_margin_from``
         says: :class:`SeeThroughMargin`) multiplies the ranking score by ``(1 - x) **
         see_through_power`` (0: not used).
+    range_tol_m, range_power: the range agreement of a placement (:func:`range_agreement`):
+        the share ``a`` of wall/column points whose range from their camera agrees with the
+        plan's, the first plan wall their ray crosses lying within ``range_tol_m`` of the point
+        (neither seen through a wall nor short of one), multiplies the ranking score by
+        ``a ** range_power`` (0: not used). It reads the free space along every ray, which the
+        fit (the distance to the nearest wall, each frame free to shift) does not: an alias
+        room of another width or depth leaves the scan's points short of its walls.
     template_support: a cell of the correlative search's occupancy template (half a
         ``resolution_m``, per class) counts fully when it holds at least this many of the
         scan's points, in proportion to them below (1: every occupied cell fully, a binary
@@ -185,6 +194,8 @@ class GlobalAlignOptions:
     see_through_margin_m: float = 0.3
     see_through_margin_from: SeeThroughMargin = SeeThroughMargin.WALL
     see_through_power: float = 3.0
+    range_tol_m: float = 0.3
+    range_power: float = 3.0
     distinct_m: float = 1.0
     distinct_deg: float = 10.0
     distinct_z_m: float = 0.5
@@ -215,7 +226,7 @@ class GlobalAlignOptions:
         positive = ("resolution_m", "sigma_m", "yaw_step_deg", "icp_radius_start_m",
                     "icp_radius_end_m", "icp_huber_m", "fine_resolution_m", "fine_sigma_m",
                     "inlier_m", "frame_yaw_step_deg", "distinct_m", "distinct_deg", "distinct_z_m",
-                    "alias_tol_m")
+                    "alias_tol_m", "range_tol_m")
         for name, value in asdict(self).items():
             if isinstance(value, float) and not np.isfinite(value):
                 raise RegistrationInputError(f"must be finite, got {value}", None, name)
@@ -236,7 +247,7 @@ class GlobalAlignOptions:
                                          "enclosed_min_hits")
         for name in ("wall_band_m", "gravity_min_tilt_deg", "frame_level_max_deg",
                      "free_clearance_m", "frame_yaw_deg",
-                     "frame_shift_m", "see_through_margin_m", "see_through_power"):
+                     "frame_shift_m", "see_through_margin_m", "see_through_power", "range_power"):
             if getattr(self, name) < 0:
                 raise RegistrationInputError("must be >= 0", None, name)
 
@@ -254,8 +265,8 @@ class AlignHypothesis:
     floor_z: the storey floor (world z, metres) the trajectory is put on (None: plan without
         floors; z unchanged).
     yaw_deg: the yaw of ``world_from_slam`` (degrees, (-180, 180]).
-    score: ``fit_score × free_fraction × (1 - see_through) ** see_through_power``, the ranking
-        score (0-1).
+    score: ``fit_score × free_fraction × (1 - see_through) ** see_through_power ×
+        range_agreement ** range_power``, the ranking score (0-1).
     fit_score: mean over frames of each frame's best fine score with a little per-frame slack
         (0-1, :func:`_frame_fit`).
     rigid_fit: mean fine score of all wall/column points, the trajectory taken as rigid.
@@ -264,6 +275,8 @@ class AlignHypothesis:
     coarse_score: the correlative peak's score (0-1) before ICP.
     see_through: fraction of the wall/column points seen through a plan wall (0-1, negative
         evidence, :func:`see_through_fraction`).
+    range_agreement: fraction of the wall/column points whose range agrees with the plan's
+        (0-1, :func:`range_agreement`).
     constraint: how well the ICP inliers' wall directions hold the placement (0: free along
         one direction, 0.5: equally in every direction; :class:`.icp.IcpResult`).
     """
@@ -279,6 +292,7 @@ class AlignHypothesis:
     coarse_score: float
     see_through: float = 0.0
     constraint: float = 0.0
+    range_agreement: float = 1.0
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -354,8 +368,9 @@ class GlobalAlignResult:
             t = h.world_from_slam[:3]
             floor = "-" if h.floor_z is None else f"{h.floor_z:.2f} m"
             lines.append(f"  #{k}: score {h.score:.3f} (fit {h.fit_score:.3f}, free "
-                         f"{h.free_fraction:.2f}, seen through walls {h.see_through:.2f}), yaw "
-                         f"{h.yaw_deg:.1f} deg, t ({t[0]:.2f}, {t[1]:.2f}, {t[2]:.2f}) m, floor "
+                         f"{h.free_fraction:.2f}, seen through walls {h.see_through:.2f}, range "
+                         f"agreement {h.range_agreement:.2f}), yaw {h.yaw_deg:.1f} deg, t "
+                         f"({t[0]:.2f}, {t[1]:.2f}, {t[2]:.2f}) m, floor "
                          f"{floor}")
         return "\n".join(lines)
 
@@ -477,6 +492,59 @@ def see_through_fraction(cam_xy: F64, p_xy: F64, segments: F64, margin_m: float 
         hit[k:k + chunk] = cross.any(1)
     crossed[np.flatnonzero(use)] = hit
     return float(crossed.mean()), crossed
+
+
+def range_agreement(cam_xy: F64, p_xy: F64, segments: F64, tol_m: float = 0.3,
+                    chunk: int = 256) -> tuple[float, NDArray[np.bool_]]:
+    """The share of points whose range agrees with the plan: the ray from the camera through
+    the point, extended ``tol_m`` beyond it, first crosses a plan segment within ``tol_m`` of
+    the point (a beam model's test, in the plan).
+
+    A point whose ray crosses a wall more than ``tol_m`` before it was seen through a wall
+    (:func:`see_through_fraction`, without its margin); one whose ray meets no wall until
+    ``tol_m`` beyond it lies in what the plan calls free space (clutter, furniture, or an alias
+    room wider or deeper than the one the sensor saw). The nearest-wall fit misses the second
+    kind whenever another wall is near, and its per-frame slack absorbs a few decimetres of
+    width; along the ray, the plan's range is what it is.
+
+    Parameters
+    ----------
+    cam_xy: (M, 2) the camera of each point, metres (world); p_xy: (M, 2) the points.
+    segments: (S, 4) the storey's plan section.
+    tol_m: the largest difference of range that agrees (metres, > 0).
+
+    Returns
+    -------
+    The fraction (0-1) and the per-point flags (M,).
+    """
+    cam = np.asarray(cam_xy, dtype=np.float64).reshape(-1, 2)
+    pts = np.asarray(p_xy, dtype=np.float64).reshape(-1, 2)
+    seg = np.asarray(segments, dtype=np.float64).reshape(-1, 4)
+    agree = np.zeros(len(pts), dtype=bool)
+    if len(pts) == 0 or len(seg) == 0:
+        return 0.0, agree
+    ray = pts - cam
+    length = np.linalg.norm(ray, axis=1)
+    use = np.flatnonzero(length > 1e-9)
+    reach = length[use] + tol_m
+    o_all = cam[use]
+    d_all = ray[use] * (reach / length[use])[:, None]  # the ray up to tol_m beyond the point
+    seg_lo = np.minimum(seg[:, :2], seg[:, 2:])
+    seg_hi = np.maximum(seg[:, :2], seg[:, 2:])
+    for k in range(0, len(use), chunk):
+        o, d = o_all[k:k + chunk, None], d_all[k:k + chunk, None]
+        ends = np.r_[o_all[k:k + chunk], o_all[k:k + chunk] + d_all[k:k + chunk]]
+        near = ((seg_lo <= ends.max(0) + 1e-6) & (seg_hi >= ends.min(0) - 1e-6)).all(1)
+        a, e = seg[near, :2], seg[near, 2:] - seg[near, :2]
+        den = d[..., 0] * e[None, :, 1] - d[..., 1] * e[None, :, 0]
+        w = a[None] - o
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = (w[..., 0] * e[None, :, 1] - w[..., 1] * e[None, :, 0]) / den  # along the ray
+            t = (w[..., 0] * d[..., 1] - w[..., 1] * d[..., 0]) / den  # along the segment
+        cross = (np.abs(den) > 1e-12) & (s >= 0) & (s <= 1) & (t >= 0) & (t <= 1)
+        first = np.where(cross, s, np.inf).min(1, initial=np.inf) * reach[k:k + chunk]
+        agree[use[k:k + chunk]] = np.isfinite(first) & (first >= length[use[k:k + chunk]] - tol_m)
+    return float(agree.mean()), agree
 
 
 def _pair_distance(p: F64, a: F64, e: F64) -> F64:
@@ -733,7 +801,8 @@ def _scan(poses: F64, samples: SemanticSamples, max_tilt_deg: float = 0.0) -> _S
 @dataclass(frozen=True)
 class _Found:
     """A hypothesis in the levelled SLAM frame: 2-D correction, storey, per-frame fit (the
-    ranking fit), rigid fit, inlier ratio, free fraction, correlative score, cameras (N, 2)."""
+    ranking fit), rigid fit, inlier ratio, free fraction, correlative score, cameras (N, 2),
+    the share seen through walls and the range agreement, with their powers in the score."""
 
     corr: Correction2D
     storey: _Storey
@@ -746,9 +815,16 @@ class _Found:
     see_through: float = 0.0
     see_through_power: float = 0.0
     constraint: float = 0.0
+    agreement: float = 1.0
+    agreement_power: float = 0.0
 
     @property
     def score(self) -> float:
+        return self.score_without_range * float(self.agreement ** self.agreement_power)
+
+    @property
+    def score_without_range(self) -> float:
+        """The score without its range agreement factor."""
         return float(self.fit * self.free * (1.0 - self.see_through) ** self.see_through_power)
 
 
@@ -874,10 +950,11 @@ def _search_storey(scan: _Scan, storey: _Storey, sm: _StoreyMaps, opt: GlobalAli
         if all(_distinct(f, g, opt) for g in found):
             frame_fit, _, _, turn, moved = _frame_fit(f.corr, p_xy, p_cls, p_view, p_frame,
                                                       cams_s, maps, opt)
-            seen = _see_through(f.corr, turn, moved, p_xy, p_cls, p_view, p_frame, cams_s, seg,
-                                maps, opt)
+            seen, agree = _see_through(f.corr, turn, moved, p_xy, p_cls, p_view, p_frame, cams_s,
+                                       seg, maps, opt)
             found.append(replace(f, fit=frame_fit, see_through=seen,
-                                 see_through_power=opt.see_through_power))
+                                 see_through_power=opt.see_through_power, agreement=agree,
+                                 agreement_power=opt.range_power))
     timings["rescore"] += time.perf_counter() - t0
     # Fold the shift into the correction: R (p + s - c) + c + t = R (p - (c - s)) + (c - s)
     # + (t + s).
@@ -889,7 +966,7 @@ def _score_at(init: Correction2D, storey: _Storey, sm: _StoreyMaps, p_xy: F64, p
               p_view: F64, p_frame: I32, cams_xy: F64, opt: GlobalAlignOptions) -> _Found:
     """The real scan's ranking score at a placement near ``init``: ICP (as a peak of the
     search), then the per-frame fit, free share and see-through share (``p_*`` (M, ...) the
-    points and ``cams_xy`` (N, 2) the cameras, levelled SLAM frame)."""
+    points and ``cams_xy`` (N, 2) the cameras, levelled SLAM frame; ``init``'s frame)."""
     maps = sm.maps
 
     def associate(q: F64, q_class: I32, v: F64) -> tuple[F64, F64]:
@@ -906,10 +983,11 @@ def _score_at(init: Correction2D, storey: _Storey, sm: _StoreyMaps, p_xy: F64, p
                                   opt.enclosed_rays, opt.enclosed_min_hits, shell=sm.shell)
     frame_fit, _, _, turn, moved = _frame_fit(corr, p_xy, p_cls, p_view, p_frame, cams_xy, maps,
                                               opt)
-    seen = _see_through(corr, turn, moved, p_xy, p_cls, p_view, p_frame, cams_xy, sm.seg, maps,
-                        opt)
+    seen, agree = _see_through(corr, turn, moved, p_xy, p_cls, p_view, p_frame, cams_xy, sm.seg,
+                               maps, opt)
     return _Found(corr, storey, frame_fit, float(sc.mean()), float((dist < opt.inlier_m).mean()),
-                  free, 0.0, cams_w, seen, opt.see_through_power, fit.constraint)
+                  free, 0.0, cams_w, seen, opt.see_through_power, fit.constraint, agree,
+                  opt.range_power)
 
 
 def _compose(a: Correction2D, b: Correction2D) -> Correction2D:
@@ -940,7 +1018,10 @@ class PlanAlias:
         search: per-frame fit × free share × (1 - see-through) ** power).
     score_ratio: ``score`` / the best placement's score (the lower of its search score and its
         :func:`_score_at` score on the same points); at or above ``ambiguity_ratio`` the result
-        is ambiguous.
+        is ambiguous. The larger of this ratio with and without the range agreement factor
+        (``range_power``): where the plan repeats what the scan saw, the sharper term may add
+        a flag, never lift one (Duplex_A seed 16: 0.91 without it, 0.79 with it, the best
+        placement the wrong unit).
     fit_score, scan_free_fraction, scan_see_through: the real scan's per-frame fit, share of
         cameras in free space and share of points seen through walls at this placement (what
         the best placement must reach to be accepted; :func:`_alias_ambiguous`).
@@ -1070,14 +1151,19 @@ def _plan_alias(best: _Found, scan: _Scan, sections: list[_Storey], plan: FloorP
     # The best placement scored the same way, on the same points (the search drew its own);
     # either of its two scores may be the lower one, and the lower decides (when in doubt,
     # flag: with the rescored one alone a Duplex_A run stayed silently wrong).
-    best_score = min(best.score, _score_at(best.corr, best.storey, sm_best, all_xy, all_cls,
-                                           all_view, all_frame, scan.cams[:, :2], opt).score)
+    rescored = _score_at(best.corr, best.storey, sm_best, all_xy, all_cls, all_view, all_frame,
+                         scan.cams[:, :2], opt)
+    best_score = min(best.score, rescored.score)
+    best_plain = min(best.score_without_range, rescored.score_without_range)
     for diff, corr, storey, alias in cands[:opt.alias_rescore]:
         if diff > opt.alias_max_difference:
             break
         f = _score_at(corr, storey, storey_maps[_section_key(plan, storey)], all_xy, all_cls,
                       all_view, all_frame, scan.cams[:, :2], opt)
-        ratio = f.score / best_score if best_score > 0 else 0.0
+        # With and without the range agreement: in an alias the plan nearly repeats, and the
+        # sharper term may only add a flag (see ``PlanAlias.score_ratio``).
+        ratio = max(f.score / best_score if best_score > 0 else 0.0,
+                    f.score_without_range / best_plain if best_plain > 0 else 0.0)
         here = replace(alias, score=f.score, score_ratio=ratio, fit_score=f.fit,
                        scan_free_fraction=f.free, scan_see_through=f.see_through)
         if out is None or ((_alias_ambiguous(here, opt), ratio)
@@ -1228,8 +1314,9 @@ def _frame_fit(corr: Correction2D, p_xy: F64, p_cls: I32, p_view: F64, p_frame: 
 
 def _see_through(corr: Correction2D, turn: float, shift: F64, p_xy: F64, p_cls: I32,
                  p_view: F64, p_frame: I32, cams_xy: F64, segments: F64, maps: PlanMaps,
-                 opt: GlobalAlignOptions) -> float:
-    """The share of points seen through a wall (:func:`see_through_fraction`) for the
+                 opt: GlobalAlignOptions) -> tuple[float, float]:
+    """The share of points seen through a wall (:func:`see_through_fraction`) and the range
+    agreement (:func:`range_agreement`, 1 when ``range_power`` is 0: not computed) for the
     placement ``corr`` polished by the mean turn (about the cameras' centroid) and shift of its
     frames' best per-frame fits, each frame then turned by its own best turn: the negative
     evidence must not punish the rigid placement's residual error or the per-frame yaw noise
@@ -1240,8 +1327,11 @@ def _see_through(corr: Correction2D, turn: float, shift: F64, p_xy: F64, p_cls: 
     polished = Correction2D(corr.yaw + turn, t, corr.pivot)
     _, q_turned, cam, _, _ = _frame_fit(polished, p_xy, p_cls, p_view, p_frame, cams_xy, maps,
                                         replace(opt, frame_shift_m=0.0))
-    return see_through_fraction(cam, q_turned, segments, opt.see_through_margin_m,
+    seen = see_through_fraction(cam, q_turned, segments, opt.see_through_margin_m,
                                 margin_from=opt.see_through_margin_from)[0]
+    agree = (range_agreement(cam, q_turned, segments, opt.range_tol_m)[0]
+             if opt.range_power > 0 else 1.0)
+    return seen, agree
 
 
 def _distinct(a: _Found, b: _Found, opt: GlobalAlignOptions) -> bool:
@@ -1363,7 +1453,7 @@ def global_align(
         yaw = float(np.rad2deg(np.arctan2(m[1, 0], m[0, 0])))
         hyps.append(AlignHypothesis(matrix_to_pose(m), f.storey.floor_z, yaw, f.score, f.fit,
                                     f.rigid_fit, f.inliers, f.free, f.coarse, f.see_through,
-                                    f.constraint))
+                                    f.constraint, f.agreement))
     timings["total"] = time.perf_counter() - t_start
     if not ranked:
         raise GlobalAlignmentError(
