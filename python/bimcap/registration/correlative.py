@@ -76,7 +76,7 @@ def score_volume(
         weight of its points (with weights of 1, the binary template).
     y_range_m: half-height of the translation grid along y (None: ``xy_range_m``, a square
         grid); a grid as long as the plan's box in each direction, not the square of its
-        longer side (Office_A's 50 x 36 m: 27 % fewer translations).
+        longer side (Office_A's 50 x 36 m box: 263 x 195 translations instead of 263 x 263).
 
     Returns
     -------

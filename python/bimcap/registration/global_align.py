@@ -784,7 +784,7 @@ def _storey_maps(storey: _Storey, plan: FloorPlan, opt: GlobalAlignOptions) -> _
     maps = PlanMaps.build(seg, seg_cls, bounds, 3.0, opt.view_bins, opt.resolution_m,
                           opt.sigma_m, opt.fine_resolution_m, opt.fine_sigma_m, 3.0)
     # The search's translations cover the box and 1 m around it along each axis (not the
-    # square of the longer side: Office_A's 50 x 36 m box, 27 % fewer translations).
+    # square of the longer side: Office_A's 50 x 36 m box: 26 % fewer translations).
     half = 0.5 * (hi - lo) + 1.0
     return _StoreyMaps(seg, seg_cls, bounds, 0.5 * (lo + hi), float(half[0]), maps,
                        DistanceField.from_segments(seg, 0.1, bounds, 3.0),
