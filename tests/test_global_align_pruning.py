@@ -355,3 +355,55 @@ def test_score_volume_has_the_bits_of_the_copying_loop(xy_range_m: float) -> Non
     want = _score_volume_before(scan.xy, scan.cls, scan.view, sm.maps, pivot, yaws, xy_range_m)
     np.testing.assert_array_equal(got.view(np.uint32), want.view(np.uint32))
     assert got.max() > 0.3
+
+
+def test_a_search_grid_as_long_as_the_box_is_the_square_grids_middle_rows() -> None:
+    """The global search's translations cover the storey's box and 1 m around it along each
+    axis, not the square of its longer side (``score_volume(..., y_range_m=)``,
+    ``_free_volume(..., m)``): the rectangular volume holds the square one's middle rows (the
+    same correlation of a smaller crop: equal to float rounding), and ``_storey_maps`` gives
+    each axis its own half-width."""
+    scene = demo_scene(seed=0)
+    gt = poses_along(demo_tour(seed=0), 0.25)[224:254]
+    samples = scan_sequence(gt, scene, seed=1, clutter_fraction=0.05)
+    plan = scene.floor_plan()
+    opt = GlobalAlignOptions()
+    sm = _storey_maps(_storeys(plan, opt.plan_cut_height_m)[0], plan, opt)
+    lo_x, lo_y, hi_x, hi_y = sm.bounds
+    assert sm.half == pytest.approx(0.5 * (hi_x - lo_x) + 1.0)
+    assert sm.half_y == pytest.approx(0.5 * (hi_y - lo_y) + 1.0)
+    assert sm.half_y < sm.half  # the demo plan is longer than it is deep
+    scan = _scan(gt, samples)
+    yaws = np.deg2rad(np.arange(-180.0, 180.0, 15.0))
+    pivot = scan.cams[:, :2].mean(0)
+    square, res, n = score_volume(scan.xy, scan.cls, scan.view, sm.maps, pivot, yaws, 6.0)
+    rect, res_r, n_r = score_volume(scan.xy, scan.cls, scan.view, sm.maps, pivot, yaws, 6.0,
+                                    y_range_m=2.0)
+    m = round(2.0 / res)
+    assert (res_r, n_r) == (res, n) and rect.shape == (len(yaws), 2 * m + 1, 2 * n + 1)
+    np.testing.assert_allclose(rect, square[:, n - m:n + m + 1], rtol=0, atol=1e-6)
+    free_sq = _free_volume(scan.cams[:, :2], sm.free_map, sm.maps.coarse[0].origin_xy, res,
+                           pivot, yaws, n)
+    free_r = _free_volume(scan.cams[:, :2], sm.free_map, sm.maps.coarse[0].origin_xy, res,
+                          pivot, yaws, n, m)
+    np.testing.assert_allclose(free_r, free_sq[:, n - m:n + m + 1], rtol=0, atol=1e-6)
+    assert rect.max() > 0.3 and free_r.max() > 0.5
+
+
+@pytest.mark.parametrize("top_k", [1, 10, 30])
+def test_peaks_of_a_rectangular_volume_are_placed_by_its_own_rows(demo_volume, top_k: int
+                                                                    ) -> None:
+    """``top_hypotheses`` reads the y half-width of a rectangular volume from its shape: its
+    peaks are those of the square volume with the rows outside it zeroed (at its edge a cell's
+    missing neighbour counts as itself, as a zero neighbour does for a score >= 0)."""
+    vol, yaws, res, n = demo_volume
+    m = n // 2
+    rect = np.ascontiguousarray(vol[:, n - m:n + m + 1])
+    zeroed = np.zeros_like(vol)
+    zeroed[:, n - m:n + m + 1] = rect
+    want = top_hypotheses(zeroed, yaws, res, n, top_k, 1.0, np.deg2rad(10.0))
+    got = top_hypotheses(rect, yaws, res, n, top_k, 1.0, np.deg2rad(10.0))
+    assert len(got) == len(want) == top_k
+    for a, b in zip(got, want, strict=True):
+        assert (a.yaw, a.score) == (b.yaw, b.score)
+        np.testing.assert_array_equal(a.t, b.t)

@@ -60,6 +60,7 @@ def score_volume(
     xy_range_m: float,
     column_weight: float = 1.0,
     p_weight: NDArray[np.float64] | None = None,
+    y_range_m: float | None = None,
 ) -> tuple[F32, float, int]:
     """Score of every (yaw, ty, tx) on the coarse grid of ``maps``.
 
@@ -70,25 +71,30 @@ def score_volume(
     maps: the plan's layered maps; points are rasterised per layer (class × ray direction
         after the yaw) into binary occupancy templates.
     pivot: (2,) the rotation centre; yaws: (Y,) radians; xy_range_m: half-width of the
-        translation grid.
+        translation grid (along x, and along y too unless ``y_range_m`` is given).
     p_weight: (M,) each point's weight in (0, 1] (None: 1); a template cell takes the largest
         weight of its points (with weights of 1, the binary template).
+    y_range_m: half-height of the translation grid along y (None: ``xy_range_m``, a square
+        grid); a grid as long as the plan's box in each direction, not the square of its
+        longer side (Office_A's 50 x 36 m box: 263 x 195 translations instead of 263 x 263).
 
     Returns
     -------
-    ``(volume (Y, 2n+1, 2n+1), res, n)``: ``volume[k, j, i]`` is the weighted mean score per
-    occupied cell of ``yaw = yaws[k]``, ``t = ((i - n) res, (j - n) res)``.
+    ``(volume (Y, 2m+1, 2n+1), res, n)``: ``volume[k, j, i]`` is the weighted mean score per
+    occupied cell of ``yaw = yaws[k]``, ``t = ((i - n) res, (j - m) res)``, with ``m =
+    round(y_range_m / res)`` (``n`` when ``y_range_m`` is None; ``(volume.shape[1] - 1) // 2``).
     """
     import cv2
 
     res = maps.coarse[0].resolution_m
     origin = maps.coarse[0].origin_xy
     n = round(xy_range_m / res)
-    vol = np.zeros((len(yaws), 2 * n + 1, 2 * n + 1), dtype=np.float32)
+    m = n if y_range_m is None else round(y_range_m / res)
+    vol = np.zeros((len(yaws), 2 * m + 1, 2 * n + 1), dtype=np.float32)
     if len(p_xy) == 0:
         return vol, res, n
     rel = p_xy - pivot  # the same arithmetic as ``(p_xy - pivot) @ r.T + pivot`` per yaw
-    total = np.empty((2 * n + 1, 2 * n + 1), dtype=np.float32)
+    total = np.empty((2 * m + 1, 2 * n + 1), dtype=np.float32)
     for k, yaw in enumerate(yaws):
         r = rot2(float(yaw))
         q = rel @ r.T + pivot
@@ -112,7 +118,7 @@ def score_volume(
             count += weight * float(templ.sum())
             if len(maps.rows[lay]) == 0:
                 continue  # nothing of this class is visible this way: the points score 0
-            img = _crop(maps.coarse_score[lay], v0 - n, v1 + n + 1, u0 - n, u1 + n + 1)
+            img = _crop(maps.coarse_score[lay], v0 - m, v1 + m + 1, u0 - n, u1 + n + 1)
             corr = cv2.matchTemplate(img, templ, cv2.TM_CCORR)
             total += corr if weight == 1.0 else weight * corr
         if count > 0:
@@ -143,12 +149,16 @@ def top_hypotheses(
     The local maxima are looked for among the ``first_cells`` best cells first, eight times
     more whenever the selection runs out of them: the same peaks as a maximum filter of the
     whole volume, in the same order.
+
+    ``volume`` (Y, 2m+1, 2n+1) as :func:`score_volume` returns it: ``n`` is the half-width of
+    its x axis; that of its y axis is read from its shape (``m = n`` for a square grid).
     """
     # The selection reads the peaks best first and stops when its list is full: find the peaks
     # among the ``m`` best cells only, and take more cells when the selection runs out of them
     # (the peaks >= the m-th best value are exactly the head of the full sorted list; a
     # maximum filter of the whole volume cost 0.4 s per search on a 50 x 36 m plan).
     flat = volume.ravel()
+    m_y = (volume.shape[1] - 1) // 2
     m = min(flat.size, max(int(first_cells), 1))
     while True:
         tau = float(np.partition(flat, flat.size - m)[flat.size - m]) if m < flat.size else -np.inf
@@ -160,7 +170,7 @@ def top_hypotheses(
         k, j, i, s = k[peak], j[peak], i[peak], s[peak]
         order = np.argsort(-s, kind="stable")
         yaw_all = yaws[k[order]]
-        t_all = np.c_[(i[order] - n) * res, (j[order] - n) * res]
+        t_all = np.c_[(i[order] - n) * res, (j[order] - m_y) * res]
         s_all = s[order]
         chosen = _choose(yaw_all, t_all, top_k, nms_xy_m, nms_yaw_rad, diverse_yaw_rad, complete)
         if chosen is not None:
