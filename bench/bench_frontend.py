@@ -248,7 +248,9 @@ BEFORE_DEFAULTS = {"window": 4, "geometric": {"work_width": 258}}
 
 def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool = True,
                 before_defaults: bool = False, features: dict[str, Any] | None = None,
-                matching: dict[str, Any] | None = None
+                matching: dict[str, Any] | None = None,
+                old_features: dict[str, Any] | None = None,
+                old_matching: dict[str, Any] | None = None,
                 ) -> tuple[list[tuple[str, ...]], float]:
     """Per-stage rows ``(stage, ms/frame, previous ms/frame, ratio, same result)`` and the total
     ms a frame, on the first ``frames`` frames of the sequence at ``seq_dir`` (``previous``:
@@ -259,7 +261,10 @@ def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool =
     stages (extraction, keypoint depths, matching, verification) with the default one, on the
     same images in the same process; ``matching``: a ``[matching]`` table for the main column's
     matching and verification, and as "previous" those two stages with the default one, on the
-    same keypoints in the same process)."""
+    same keypoints in the same process; ``old_features`` / ``old_matching``: the tables of the
+    "previous" column instead of the defaults, e.g. the defaults before a change; with both
+    a features and a matching table, "previous" is the features stages with the previous
+    tables of both)."""
     from bimcap.dataset import read_sequence
     from bimcap.features import extract_sift, lookup_depth, match_descriptors, verify_matches
     from bimcap.frontend.runner import FrameContext, _load_raw_image, _scan_points, get_undistorter
@@ -287,15 +292,16 @@ def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool =
         old_label_p = make_providers(old_config, seq)[1]
     sift = sift_options(config)
     old_sift = None
-    if features is not None:
+    if features is not None or old_features is not None:
         previous = False
-        old_sift, sift = sift, sift_options(RefineConfig(workers=1, features=features))
+        old_sift = sift_options(RefineConfig(workers=1, features=old_features or {}))
+        sift = sift_options(RefineConfig(workers=1, features=features or {}))
     old_feats = []
     match_opts = old_match = None
-    if matching is not None:
+    if matching is not None or old_matching is not None:
         previous = False
-        old_match = match_options(RefineConfig(workers=1))
-        match_opts = match_options(RefineConfig(workers=1, matching=matching))
+        old_match = match_options(RefineConfig(workers=1, matching=old_matching or {}))
+        match_opts = match_options(RefineConfig(workers=1, matching=matching or {}))
     sampling = SemanticSamplingOptions(source=SampleSource(config.samples))
     from bimcap.frontend.runner import FrontendConfig
 
@@ -353,7 +359,7 @@ def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool =
             m = st.run("matching", match_descriptors, feats[a].descriptors, feats[b].descriptors,
                        match_opts)
             st.run("verification", verify_matches, feats[a].uv, feats[b].uv, m, pin, match_opts)
-            if old_match is not None:
+            if old_match is not None and old_sift is None:
                 m, tm = _timed(match_descriptors, feats[a].descriptors, feats[b].descriptors,
                                old_match)
                 _, tv = _timed(verify_matches, feats[a].uv, feats[b].uv, m, pin, old_match)
@@ -362,8 +368,9 @@ def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool =
                     st.equal[stage] = False
             if old_sift is not None:
                 fa, fb = old_feats[a], old_feats[b]
-                m, tm = _timed(match_descriptors, fa.descriptors, fb.descriptors)
-                _, tv = _timed(verify_matches, fa.uv, fb.uv, m, pin)
+                prev_match = old_match if old_match is not None else match_opts
+                m, tm = _timed(match_descriptors, fa.descriptors, fb.descriptors, prev_match)
+                _, tv = _timed(verify_matches, fa.uv, fb.uv, m, pin, prev_match)
                 for stage, t in (("matching", tm), ("verification", tv)):
                     st.prev[stage] = st.prev.get(stage, 0.0) + t
                     st.equal[stage] = False
@@ -391,7 +398,8 @@ def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool =
         if stage in st.prev:
             prev = 1e3 * st.prev[stage] / n
             same = ("yes" if st.equal[stage] else "settings"
-                    if before_defaults or features or matching else "NO")
+                    if before_defaults or old_sift is not None or old_match is not None
+                    else "NO")
             rows.append((stage, f"{ms:.1f}", f"{prev:.1f}", f"{prev / ms:.2f}×", same))
         else:
             rows.append((stage, f"{ms:.1f}", "", "", ""))
@@ -485,12 +493,16 @@ def _setting_value(text: str) -> Any:
     return text
 
 
-def bench_prepare(seq_dir: Path, frames: int, work: Path) -> tuple[float, int]:
+def bench_prepare(seq_dir: Path, frames: int, work: Path,
+                  tables: list[tuple[dict[str, Any], dict[str, Any]]] | None = None,
+                  repeat: int = 1) -> tuple[list[float], int]:
     """CPU seconds of ``bimcap.pipeline.refine.prepare`` (``RefineConfig(workers=1)``, the
     sequence's ground truth as the initial poses, ``../as_built.ifc`` if there is one else the
     manifest's IFC, the BIM reference loaded before the timing) on
     the first ``frames`` frames, with a fresh ``work`` directory; and the frames run. BLAS and
-    OpenCV keep the threads the library gives them."""
+    OpenCV keep the threads the library gives them. ``tables``: ``([features], [matching])``
+    tables, one time each (default: one run with the defaults), the least of ``repeat`` runs
+    taken in turn (A B A B), so that a change of load touches all of them alike."""
     import shutil
     from dataclasses import replace
 
@@ -506,11 +518,16 @@ def bench_prepare(seq_dir: Path, frames: int, work: Path) -> tuple[float, int]:
     init = replace(gt, timestamps=gt.timestamps[:n], poses=gt.poses[:n])
     as_built = seq_dir.parent / "as_built.ifc"  # generated worlds: the reference IFC
     ifc = as_built if as_built.is_file() else seq.ifc_path
-    prepare(seq, ifc, init, RefineConfig(workers=1), work / "warm", quiet=True)  # BIM cache
-    shutil.rmtree(work / "run", ignore_errors=True)
-    t0 = time.process_time()
-    prepare(seq, ifc, init, RefineConfig(workers=1), work / "run", quiet=True)
-    return time.process_time() - t0, n
+    configs = [RefineConfig(workers=1, features=f, matching=m) for f, m in (tables or [({}, {})])]
+    prepare(seq, ifc, init, configs[0], work / "warm", quiet=True)  # BIM cache
+    best = [np.inf] * len(configs)
+    for _ in range(repeat):
+        for k, config in enumerate(configs):
+            shutil.rmtree(work / "run", ignore_errors=True)
+            t0 = time.process_time()
+            prepare(seq, ifc, init, config, work / "run", quiet=True)
+            best[k] = min(best[k], time.process_time() - t0)
+    return best, n
 
 
 def main() -> None:
@@ -537,6 +554,15 @@ def main() -> None:
                          "(e.g. ransac_min_trials=30); 'previous' is then matching and "
                          "verification with the default settings, on the same keypoints in the "
                          "same process")
+    ap.add_argument("--previous-features", action="append", default=[], metavar="KEY=VALUE",
+                    help="with --world: a [features] setting of the 'previous' column (default: "
+                         "the defaults), e.g. the defaults before a change; with --prepare, "
+                         "prepare() is also timed with these settings")
+    ap.add_argument("--previous-matching", action="append", default=[], metavar="KEY=VALUE",
+                    help="with --world: a [matching] setting of the 'previous' column (default: "
+                         "the defaults); with --prepare as --previous-features")
+    ap.add_argument("--repeat", type=int, default=1,
+                    help="with --prepare: the least CPU time of this many runs of each setting")
     ap.add_argument("--prepare", action="store_true",
                     help="with --world: CPU time of the whole prepare() (front end, cache "
                          "writes, tracks) instead of the stages, BLAS threads as the library "
@@ -566,34 +592,42 @@ def main() -> None:
                                             args.backends.split(",")):
                 print(" | ".join(row), flush=True)
         return
+    features, matching, old_features, old_matching = (
+        None if not items else
+        {k: _setting_value(v) for k, _, v in (f.partition("=") for f in items)}
+        for items in (args.features, args.matching, args.previous_features,
+                      args.previous_matching))
     if args.world is not None and args.prepare:
         frames = args.frames if args.frames != 6 else 60
-        cpu, n = bench_prepare(args.world, frames, args.work)
-        print(f"# prepare() on {args.world}, {n} frames, workers 1, process CPU time, load "
-              f"average {os.getloadavg()[0]:.1f}")
-        print(f"{1e3 * cpu / n:.0f} ms a frame, {n / cpu:.2f} frames/s per core "
-              f"(goal {GOAL_FPS:.0f}; {cpu:.1f} CPU s)")
+        tables = [(features or {}, matching or {})]
+        if any(t is not None for t in (features, matching, old_features, old_matching)):
+            tables.append((old_features or {}, old_matching or {}))
+        cpus, n = bench_prepare(args.world, frames, args.work, tables, args.repeat)
+        print(f"# prepare() on {args.world}, {n} frames, workers 1, process CPU time (least "
+              f"of {args.repeat}), load average {os.getloadavg()[0]:.1f}")
+        for (f, m), cpu in zip(tables, cpus, strict=True):
+            print(f"[features] {f} [matching] {m}: {1e3 * cpu / n:.0f} ms a frame, "
+                  f"{n / cpu:.2f} frames/s per core (goal {GOAL_FPS:.0f}; {cpu:.1f} CPU s)")
+        if len(cpus) == 2:
+            print(f"previous / this: {cpus[1] / cpus[0]:.2f}×")
         return
     if args.world is not None:
         frames = args.frames if args.frames != 6 else 20
         window = args.window if args.window != 3 else None
-        features = ({k: _setting_value(v) for k, _, v in (f.partition("=") for f in args.features)}
-                    if args.features else None)
-        matching = ({k: _setting_value(v) for k, _, v in (f.partition("=") for f in args.matching)}
-                    if args.matching else None)
         print(f"# front end per stage on {args.world}, first {frames} frames, window "
               f"{window or 'of the config'}, 1 thread, process CPU ms a frame, load average "
               f"{os.getloadavg()[0]:.1f}"
               + (f"; 'previous' = the settings {BEFORE_DEFAULTS}" if args.before_defaults else "")
-              + (f"; [features] {features}, 'previous' = the default [features]"
-                 if features else "")
-              + (f"; [matching] {matching}, 'previous' = the default [matching]"
-                 if matching else ""))
+              + (f"; [features] {features or {}}, 'previous' = [features] {old_features or {}}"
+                 if features or old_features else "")
+              + (f"; [matching] {matching or {}}, 'previous' = [matching] {old_matching or {}}"
+                 if matching or old_matching else ""))
         from bimcap.frontend.runner import one_thread
 
         with one_thread():  # BLAS and OpenCV as the front end's jobs run them
             rows, _ = bench_world(args.world, frames, window, not args.no_previous,
-                                  args.before_defaults, features, matching)
+                                  args.before_defaults, features, matching, old_features,
+                                  old_matching)
         w = max(len(r[0]) for r in rows)
         print(f"{'stage':<{w}}  {'ms/frame':>9}  {'previous':>9}  {'ratio':>7}  same result")
         for stage, ms, prev, ratio, same in rows:

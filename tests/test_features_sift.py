@@ -174,14 +174,37 @@ def test_verification_removes_outliers(ver: Verification, trials: int | None) ->
 
 def test_ransac_min_trials_option() -> None:
     """None (pycolmap's count) stays out of the options' dict, which keys the front end's cache;
-    a count is in it, and one outside [1, 10000] is refused."""
-    assert "ransac_min_trials" not in MatchOptions().to_dict()
+    a count is in it (the default, 10, too), and one outside [1, 10000] is refused."""
+    assert "ransac_min_trials" not in MatchOptions(ransac_min_trials=None).to_dict()
+    assert MatchOptions().ransac_min_trials == 10
+    assert MatchOptions().to_dict()["ransac_min_trials"] == 10
     assert MatchOptions(ransac_min_trials=30).to_dict()["ransac_min_trials"] == 30
     assert MatchOptions(ransac_min_trials=30).to_dict() != MatchOptions().to_dict()
     for bad in (0, 10001):  # pycolmap refuses more than its max_num_trials (10000)
         with pytest.raises(FeatureError, match="ransac_min_trials"):
             MatchOptions(ransac_min_trials=bad)
     MatchOptions(ransac_min_trials=10000)
+
+
+def test_previous_verification_default_stays_reachable(shifted_pair: tuple) -> None:
+    """``[matching] ransac_min_trials = 100`` (the default before 2026-11-27) verifies exactly as
+    pycolmap's own count (None), which it is for the two-view geometry; the new default gives
+    other cache keys, so pairs verified with 100 trials are never read back as 10's."""
+    from bimcap.frontend.cache import frame_cache_key
+    from bimcap.pipeline.config import RefineConfig
+    from bimcap.pipeline.refine import match_options
+
+    a, b, _ = shifted_pair
+    cam = Camera(280, 200, 250.0, 250.0, 139.5, 99.5)
+    fa, fb = extract_sift(a), extract_sift(b)
+    m = match_descriptors(fa.descriptors, fb.descriptors)
+    old = match_options(RefineConfig(matching={"ransac_min_trials": 100}))
+    hundred = verify_matches(fa.uv, fb.uv, m, cam, old)
+    own = verify_matches(fa.uv, fb.uv, m, cam, MatchOptions(ransac_min_trials=None))
+    assert np.array_equal(hundred[0], own[0]) and hundred[1] == own[1]
+    keys = {frame_cache_key([], {"match": o.to_dict()})
+            for o in (MatchOptions(), old, MatchOptions(ransac_min_trials=None))}
+    assert len(keys) == 3
 
 
 def test_verified_matches_of_a_shifted_image(shifted_pair: tuple) -> None:

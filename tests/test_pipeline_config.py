@@ -168,6 +168,19 @@ def _print_config(*flags: str) -> str:
     return out.getvalue()
 
 
+def test_print_config_shows_the_matching_default(tmp_path: Path) -> None:
+    """The default of 2026-11-27 (10 RANSAC trials) is printed, and the previous one (100,
+    pycolmap's own) reads back from a TOML file."""
+    text = _print_config()
+    matching = text.partition("[matching]")[2].partition("\n[")[0]
+    assert "ransac_min_trials = 10" in matching.splitlines()
+    old = tmp_path / "old.toml"
+    old.write_text("[matching]\nransac_min_trials = 100\n")
+    printed = _print_config("--config", str(old))
+    assert "ransac_min_trials = 100" in printed.splitlines()
+    assert match_options(RefineConfig.from_toml(old)).ransac_min_trials == 100
+
+
 @pytest.mark.parametrize("flags", [
     (),
     ("--method", "facap"),

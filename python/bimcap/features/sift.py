@@ -72,8 +72,10 @@ class SiftOptions:
         516×386, with ``peak_threshold = 0.004``, extraction is ~3× cheaper than pycolmap's
         first octave 0 (64 vs 189 ms a frame, one thread; the front end 2.1 → 2.9 frames/s per
         core) at the same match error on the ground truth; BIMCaP's accuracy on 8 runs was
-        within 0.0105 cm / 0.0016° of pycolmap's, better on 5 (docs/speed.md, "SIFT cost"):
-        an option, not the default.
+        within 0.0105 cm / 0.0016° of pycolmap's, better on 5 (docs/speed.md, "SIFT cost"),
+        but on the ten worlds × four runs it lost the matches around one frame of
+        AC20-FZK-Haus Exp. 1 (26.7 cm against pycolmap's 11.9 cm; docs/speed.md, "New
+        defaults"): an option, not the default.
     orb_max_num_features: ORB's keypoint budget (``max_num_features`` is SIFT's): matching
         binary descriptors costs the square of it, and at 516×386 a pair of frames with 2048
         (about 1600 kept) costs as much as their extraction.
