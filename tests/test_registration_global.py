@@ -575,13 +575,16 @@ def test_fzk_runs_once_refused_are_answered(ifc_dir, monkeypatch) -> None:
     margin is now measured from the wall). Seed 2 walks the attic, whose plan section is its
     two gable walls: no camera was in free space (the roof, resting on the ground floor's walls,
     now encloses it), so the best placement was on the ground floor and fitted 0.55. The attic's
-    two gables repeat each other turned by 180 deg: flagged, with the right best."""
+    two gables repeat each other turned by 180 deg: flagged on the attic. Which of the two
+    images comes first is not something the scan can decide (the right one did on the walk
+    simulated when this test was written; the walk simulated by today's code puts the other
+    gable first, 6.6 m off): the test asks for the flag and the storey, not the order."""
     bench = _bench_global(monkeypatch)
     world = bench._ifc_world("ifc-AC20-FZK-Haus", ifc_dir)
     row = bench.run_registration(world, 3, 60)
     assert row["outcome"] == "placed" and row["right"], row
     row = bench.run_registration(world, 2, 60)
-    assert row["outcome"] == "ambiguous" and row["right"] and row["right_storey"], row
+    assert row["outcome"] == "ambiguous" and row["right_storey"], row
 
 
 @pytest.mark.slow
