@@ -7,6 +7,8 @@ the plan maps, and the correlation volume."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 from scipy.ndimage import maximum_filter
@@ -65,19 +67,25 @@ def _exhaustive(volume: np.ndarray, yaws: np.ndarray, res: float, n: int, top_k:
     return [Hypothesis(float(yaw_all[o]), t_all[o], float(s_all[o])) for o in chosen]
 
 
+def _demo_walk(first: int, stop: int) -> tuple[Any, Any]:
+    """Frames ``first:stop`` of the demo plan's walk (0.25 m apart) ray-cast with 5 % clutter:
+    its scan (``_scan``) and the maps of the plan's only storey (``_storey_maps``), default
+    options."""
+    scene = demo_scene(seed=0)
+    gt = poses_along(demo_tour(seed=0), 0.25)[first:stop]
+    samples = scan_sequence(gt, scene, seed=1, clutter_fraction=0.05)
+    plan = scene.floor_plan()
+    opt = GlobalAlignOptions()
+    sm = _storey_maps(_storeys(plan, opt.plan_cut_height_m)[0], plan, opt)
+    return _scan(gt, samples), sm
+
+
 @pytest.fixture(scope="module")
 def demo_volume() -> tuple[np.ndarray, np.ndarray, float, int]:
     """The global search's volume (score x free share) of a 60-frame walk on the demo plan, in
     the BIM frame (the walk's true placement is the translation 0, yaw 0)."""
-    scene = demo_scene(seed=0)
-    gt = poses_along(demo_tour(seed=0), 0.25)[224:284]
-    samples = scan_sequence(gt, scene, seed=1, clutter_fraction=0.05)
-    plan = scene.floor_plan()
-    opt = GlobalAlignOptions()
-    storey = _storeys(plan, opt.plan_cut_height_m)[0]
-    sm = _storey_maps(storey, plan, opt)
-    scan = _scan(gt, samples)
-    yaws = np.arange(-np.pi, np.pi, np.deg2rad(opt.yaw_step_deg))
+    scan, sm = _demo_walk(224, 284)
+    yaws = np.arange(-np.pi, np.pi, np.deg2rad(GlobalAlignOptions().yaw_step_deg))
     pivot = scan.cams[:, :2].mean(0)
     vol, res, n = score_volume(scan.xy, scan.cls, scan.view, sm.maps, pivot, yaws, 4.0)
     vol *= _free_volume(scan.cams[:, :2], sm.free_map, sm.maps.coarse[0].origin_xy, res,
@@ -342,13 +350,7 @@ def _score_volume_before(p_xy, p_class, view_xy, maps, pivot, yaws, xy_range_m):
 @pytest.mark.parametrize("xy_range_m", [1.0, 12.0])
 def test_score_volume_has_the_bits_of_the_copying_loop(xy_range_m: float) -> None:
     """Crops inside the map are views now (``1.0``: inside; ``12.0``: past its edges)."""
-    scene = demo_scene(seed=0)
-    gt = poses_along(demo_tour(seed=0), 0.25)[224:254]
-    samples = scan_sequence(gt, scene, seed=1, clutter_fraction=0.05)
-    plan = scene.floor_plan()
-    opt = GlobalAlignOptions()
-    sm = _storey_maps(_storeys(plan, opt.plan_cut_height_m)[0], plan, opt)
-    scan = _scan(gt, samples)
+    scan, sm = _demo_walk(224, 254)
     yaws = np.deg2rad(np.arange(-180.0, 180.0, 15.0))
     pivot = scan.cams[:, :2].mean(0)
     got, _, _ = score_volume(scan.xy, scan.cls, scan.view, sm.maps, pivot, yaws, xy_range_m)
@@ -363,17 +365,11 @@ def test_a_search_grid_as_long_as_the_box_is_the_square_grids_middle_rows() -> N
     ``_free_volume(..., m)``): the rectangular volume holds the square one's middle rows (the
     same correlation of a smaller crop: equal to float rounding), and ``_storey_maps`` gives
     each axis its own half-width."""
-    scene = demo_scene(seed=0)
-    gt = poses_along(demo_tour(seed=0), 0.25)[224:254]
-    samples = scan_sequence(gt, scene, seed=1, clutter_fraction=0.05)
-    plan = scene.floor_plan()
-    opt = GlobalAlignOptions()
-    sm = _storey_maps(_storeys(plan, opt.plan_cut_height_m)[0], plan, opt)
+    scan, sm = _demo_walk(224, 254)
     lo_x, lo_y, hi_x, hi_y = sm.bounds
     assert sm.half == pytest.approx(0.5 * (hi_x - lo_x) + 1.0)
     assert sm.half_y == pytest.approx(0.5 * (hi_y - lo_y) + 1.0)
     assert sm.half_y < sm.half  # the demo plan is longer than it is deep
-    scan = _scan(gt, samples)
     yaws = np.deg2rad(np.arange(-180.0, 180.0, 15.0))
     pivot = scan.cams[:, :2].mean(0)
     square, res, n = score_volume(scan.xy, scan.cls, scan.view, sm.maps, pivot, yaws, 6.0)
