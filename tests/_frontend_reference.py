@@ -219,6 +219,36 @@ def smooth_region_reference(
     out[rows[ok], cols[ok]] = z_plane[ok].astype(np.float32)
 
 
+def _smoothing_inputs(depth: ArrayLike, labels: ArrayLike, camera: Camera,
+                      measured: ArrayLike | None) -> tuple[F32, NDArray[Any], F32 | None]:
+    """The checks and conversions the frozen ``smooth_planar_regions`` of a219de7 and fe4da1c
+    open with, verbatim: (depth float32, labels, measured float32 or None)."""
+    d = np.asarray(depth, dtype=np.float32)
+    lab = np.asarray(labels)
+    if d.shape != lab.shape or d.shape != (camera.height, camera.width):
+        raise FusionInputError(
+            f"depth {d.shape}, labels {lab.shape} and camera {camera.height}x{camera.width} differ",
+            field="labels",
+        )
+    meas = None if measured is None else np.asarray(measured, dtype=np.float32)
+    if meas is not None and meas.shape != d.shape:
+        raise FusionInputError(f"measured depth {meas.shape} and depth {d.shape} differ",
+                               field="measured")
+    return d, lab, meas
+
+
+def _blur_region(out: F32, d: F32, mask: NDArray[np.uint8], sigma_px: float) -> None:
+    """``PlanarSmoothing.BLUR`` of one class's mask into ``out``, as every frozen smoothing
+    does it (a normalised Gaussian: nothing outside the mask leaks in)."""
+    import cv2
+
+    m = mask.astype(np.float32)
+    num = cv2.GaussianBlur(d * m, (0, 0), sigma_px)
+    den = cv2.GaussianBlur(m, (0, 0), sigma_px)
+    sel = mask > 0
+    out[sel] = num[sel] / np.maximum(den[sel], 1e-6)
+
+
 def smooth_planar_regions_reference(
     depth: ArrayLike,
     labels: ArrayLike,
@@ -261,11 +291,7 @@ def smooth_planar_regions_reference(
         if mask.sum() < opts.min_region_px:
             continue
         if opts.mode is PlanarSmoothing.BLUR:
-            m = mask.astype(np.float32)
-            num = cv2.GaussianBlur(d * m, (0, 0), opts.blur_sigma_px)
-            den = cv2.GaussianBlur(m, (0, 0), opts.blur_sigma_px)
-            sel = mask > 0
-            out[sel] = num[sel] / np.maximum(den[sel], 1e-6)
+            _blur_region(out, d, mask, opts.blur_sigma_px)
             continue
         n_comp, comp = cv2.connectedComponents(mask, connectivity=4)
         for c in range(1, n_comp):
@@ -478,17 +504,7 @@ def smooth_planar_regions_a219de7(
     import cv2
 
     opts = options or PlanarSmoothingOptions()
-    d = np.asarray(depth, dtype=np.float32)
-    lab = np.asarray(labels)
-    if d.shape != lab.shape or d.shape != (camera.height, camera.width):
-        raise FusionInputError(
-            f"depth {d.shape}, labels {lab.shape} and camera {camera.height}x{camera.width} differ",
-            field="labels",
-        )
-    meas = None if measured is None else np.asarray(measured, dtype=np.float32)
-    if meas is not None and meas.shape != d.shape:
-        raise FusionInputError(f"measured depth {meas.shape} and depth {d.shape} differ",
-                               field="measured")
+    d, lab, meas = _smoothing_inputs(depth, labels, camera, measured)
     out = d.copy()
     rng = np.random.default_rng(seed)
     for label in opts.labels:
@@ -496,11 +512,7 @@ def smooth_planar_regions_a219de7(
         if mask.sum() < opts.min_region_px:
             continue
         if opts.mode is PlanarSmoothing.BLUR:
-            m = mask.astype(np.float32)
-            num = cv2.GaussianBlur(d * m, (0, 0), opts.blur_sigma_px)
-            den = cv2.GaussianBlur(m, (0, 0), opts.blur_sigma_px)
-            sel = mask > 0
-            out[sel] = num[sel] / np.maximum(den[sel], 1e-6)
+            _blur_region(out, d, mask, opts.blur_sigma_px)
             continue
         n_comp, comp, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=4)
         big = [c for c in range(1, n_comp) if stats[c, cv2.CC_STAT_AREA] >= opts.min_region_px]
@@ -668,17 +680,7 @@ def smooth_planar_regions_fe4da1c(
     import cv2
 
     opts = options or PlanarSmoothingOptions()
-    d = np.asarray(depth, dtype=np.float32)
-    lab = np.asarray(labels)
-    if d.shape != lab.shape or d.shape != (camera.height, camera.width):
-        raise FusionInputError(
-            f"depth {d.shape}, labels {lab.shape} and camera {camera.height}x{camera.width} differ",
-            field="labels",
-        )
-    meas = None if measured is None else np.asarray(measured, dtype=np.float32)
-    if meas is not None and meas.shape != d.shape:
-        raise FusionInputError(f"measured depth {meas.shape} and depth {d.shape} differ",
-                               field="measured")
+    d, lab, meas = _smoothing_inputs(depth, labels, camera, measured)
     out = d.copy()
     out_flat, d_flat = out.ravel(), d.ravel()
     meas_flat = None if meas is None else meas.ravel()
@@ -689,30 +691,21 @@ def smooth_planar_regions_fe4da1c(
         if mask.sum() < opts.min_region_px:
             continue
         if opts.mode is PlanarSmoothing.BLUR:
-            m = mask.astype(np.float32)
-            num = cv2.GaussianBlur(d * m, (0, 0), opts.blur_sigma_px)
-            den = cv2.GaussianBlur(m, (0, 0), opts.blur_sigma_px)
-            sel = mask > 0
-            out[sel] = num[sel] / np.maximum(den[sel], 1e-6)
+            _blur_region(out, d, mask, opts.blur_sigma_px)
             continue
         n_comp, comp, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=4)
         big = [c for c in range(1, n_comp) if stats[c, cv2.CC_STAT_AREA] >= opts.min_region_px]
         if not big:
             continue
-        # every big component's pixels in row-major order (what np.nonzero(comp == c) gives),
-        # from one stable sort instead of one pass over the image per component
-        flat = np.flatnonzero(comp)
-        ids = comp.ravel()[flat]
-        order = np.argsort(ids, kind="stable")
-        starts = np.searchsorted(ids[order], np.arange(n_comp + 1))
+        pixels, starts = component_pixels_fe4da1c(comp, n_comp)
         if rays is None:  # every pixel's ray (x, y, 1), as Camera.rays computes it
             h, w = d.shape
             rays = (np.broadcast_to((np.arange(w, dtype=np.float64) - camera.cx) / camera.fx,
                                     (h, w)).ravel(),
                     np.repeat((np.arange(h, dtype=np.float64) - camera.cy) / camera.fy, w))
         for c in big:
-            smooth_region_fe4da1c(out_flat, d_flat, flat[order[starts[c]:starts[c + 1]]], *rays,
-                           opts, rng, meas_flat)
+            smooth_region_fe4da1c(out_flat, d_flat, pixels[starts[c]:starts[c + 1]], *rays,
+                                  opts, rng, meas_flat)
     return out
 
 
