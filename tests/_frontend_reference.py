@@ -656,27 +656,9 @@ def smooth_planar_regions_fe4da1c(
     seed: int = 0,
     measured: ArrayLike | None = None,
 ) -> F32:
-    """Smooth dense depth inside planar regions (floor, ceiling, walls).
-
-    Parameters
-    ----------
-    depth: (H, W) float32 metres (0 = unknown), undistorted pinhole pixels of ``camera``.
-    labels: (H, W) uint8 label ids.
-    camera: the pinhole camera of ``depth`` (its distortion is ignored).
-    options: :class:`PlanarSmoothingOptions`; ``PLANE_FIT`` fits, per connected region of each
-        class, up to ``max_planes`` RANSAC planes to the back-projected pixels and moves each
-        pixel that lies within ``assign_threshold_m`` of its nearest plane onto it (its depth
-        becomes the plane's along the pixel ray); ``BLUR`` is the paper's blur (normalised
-        Gaussian, so that nothing outside the region or unknown leaks in).
-    seed: RANSAC seed.
-    measured: (H, W) float32 depth of the sensor's own returns at their pixels (0 = none; the
-        sparse map ``depth`` was completed from); with ``options.fit_to`` RETURNS the planes are
-        fitted to them (:class:`PlanarSmoothingOptions`). None: to the pixels.
-
-    Returns
-    -------
-    (H, W) float32 smoothed depth (a new array).
-    """
+    """``smooth_planar_regions`` as of fe4da1c: the same contract as
+    :func:`smooth_planar_regions_a219de7` (same arrays), its pixels' rays from two whole-image
+    lookups and each region moved by :func:`smooth_region_fe4da1c`."""
     import cv2
 
     opts = options or PlanarSmoothingOptions()
