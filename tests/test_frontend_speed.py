@@ -1149,3 +1149,25 @@ def test_depth_jump_offset() -> None:
     assert not ok_seg[1, 2] and ok_chk[1, 2]  # 2 (0.1 + 0.1) = 0.4 > 0.35
     assert ok_seg[1, 1] and ok_chk[1, 1]  # no jump around u = 1
 
+
+def test_one_thread_makes_its_controller_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``one_thread`` limits BLAS to one thread through one ``ThreadpoolController`` a process
+    (made again only after an import), and restores the libraries' threads after the block."""
+    import sys
+
+    from threadpoolctl import threadpool_info
+
+    from bimcap.frontend import runner
+
+    with runner.one_thread():
+        first = runner._THREADPOOLS
+        assert all(lib["num_threads"] == 1 for lib in threadpool_info())
+    with runner.one_thread():
+        assert runner._THREADPOOLS is first
+    monkeypatch.setitem(sys.modules, "_an_imported_module", sys)
+    with runner.one_thread():
+        assert runner._THREADPOOLS is not first and runner._THREADPOOLS is not None
+    before = {lib["filepath"]: lib["num_threads"] for lib in threadpool_info()}
+    with runner.one_thread():
+        pass
+    assert {lib["filepath"]: lib["num_threads"] for lib in threadpool_info()} == before
