@@ -211,7 +211,10 @@ def scan_range_noise(p_in_sensor: NDArray[np.floating], ring_bin_deg: float = 0.
     ring = np.round(elevation / ring_bin_deg).astype(np.int64)
     # np.lexsort((azimuth, ring)): stable sorts by azimuth, then by ring
     order = np.argsort(azimuth, kind="stable")
-    order = order[np.argsort(ring[order], kind="stable")]
+    # |ring| <= 90° / ring_bin_deg: as int16 where that fits, whose stable sort is a radix sort
+    # (the same order, ~2× faster than int64's merge sort)
+    ring_key = ring[order].astype(np.int16) if 90.0 / ring_bin_deg < 32000 else ring[order]
+    order = order[np.argsort(ring_key, kind="stable")]
     r, azimuth, ring = r[order], azimuth[order], ring[order]
     step_a, step_b = azimuth[1:-1] - azimuth[:-2], azimuth[2:] - azimuth[1:-1]
     ok = ((ring[1:-1] == ring[:-2]) & (ring[1:-1] == ring[2:]) & (step_a < max_step_deg)
