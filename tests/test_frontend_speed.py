@@ -1031,6 +1031,13 @@ def test_plane_scores_same_as_02ca12e(n: int, hypotheses: int) -> None:
         old = ref.plane_scores_02ca12e(pts, hn, d, thr, sub_n, c)
         assert new.dtype == np.int64 and np.array_equal(new, old)
     assert n < 500 or old.sum() > 0
+    # the smoothing's RANSAC counts (the same compiled pass, one scalar threshold) at a tie
+    from bimcap.fusion.completion import _inlier_counts
+
+    at = float(np.abs(pts[0] @ hn[0] + d[0]))
+    for threshold in (at, 0.5):
+        assert np.array_equal(_inlier_counts(pts, hn, d, threshold),
+                              (np.abs(pts @ hn.T + d) < threshold).sum(0))
 
 
 def test_plane_scores_reject_bad_arrays() -> None:
