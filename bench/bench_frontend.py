@@ -6,12 +6,12 @@ other work, wall time also counts the time other processes held the core.
 
 World part (``--world SEQ_DIR``): every stage of the front end as ``bimcap refine`` runs it
 (``make_providers`` of ``RefineConfig()``: LiDAR projection, linear completion, geometric
-segmentation, planar smoothing; SIFT, keypoint depths, semantic sampling, scan surface points; per
-pair matching and verification over ``--window`` frames), frame by frame on the sequence's first
-``--frames`` frames, with ms a frame per stage, frames/s per core next to the goal (10 at
-516×386), and, for each stage with a previous implementation kept in
-``tests/_frontend_reference.py``, that implementation's time on the same inputs in the same
-process (the ratio) and a check that both give the same arrays bit for bit.
+segmentation, planar smoothing; SIFT, keypoint depths, the label orientation check, semantic
+sampling, scan surface points; per pair matching and verification over ``--window`` frames),
+frame by frame on the sequence's first ``--frames`` frames, with ms a frame per stage, frames/s
+per core next to the goal (10 at 516×386), and, for each stage with a previous implementation
+kept in ``tests/_frontend_reference.py``, that implementation's time on the same inputs in the
+same process (the ratio) and a check that both give the same arrays bit for bit.
 
     PYTHONPATH=python python bench/bench_frontend.py --world /tmp/gen/gen-demo-s0/seq_60_standard
 
@@ -271,6 +271,7 @@ def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool =
     from bimcap.frontend.semantic_map import (
         SampleSource,
         SemanticSamplingOptions,
+        check_label_orientation,
         sample_semantic_points,
     )
     from bimcap.fusion import project_lidar
@@ -346,7 +347,10 @@ def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool =
             for stage, t in (("SIFT", t_old), ("keypoint depths", t_depth)):
                 st.prev[stage] = st.prev.get(stage, 0.0) + t
                 st.equal[stage] = False
-        st.run("semantic sampling", sample_semantic_points, labels, depth, und.pinhole, i,
+        # as the front end's frame job: the labels the depth contradicts dropped, then sampled
+        checked, _ = st.run("label orientation check", check_label_orientation, labels, depth,
+                            und.pinhole, poses[i], sampling)
+        st.run("semantic sampling", sample_semantic_points, checked, depth, und.pinhole, i,
                sampling)
         if hasattr(ctx, "lidar"):
             st.run("scan surface points", _scan_points, ctx, scan_opts)

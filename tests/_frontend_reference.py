@@ -1128,6 +1128,101 @@ def match_numpy_reference(a: U8, b: U8, opts: Any) -> NDArray[np.int32]:
     return np.stack([ia, ib], axis=1).astype(np.int32)
 
 
+# ------------------------------------------------------------- semantic_map at 02ca12e
+# The label orientation check's coarse normals and region plane fits as of 02ca12e (numpy),
+# before the normals' per-pixel arithmetic moved to ``bimcap._core`` and the fits' normal
+# equations summed each entry once; verbatim but for the names.
+def coarse_normals_02ca12e(depth: NDArray[np.floating], camera: Camera, step: int = 4,
+                           box: int = 11) -> tuple[F64, NDArray[np.bool_]]:
+    """Unit normals (h, w, 3) of a depth map (camera frame) from central differences ``step``
+    pixels apart, box-smoothed over ``box`` pixels (coarse: robust to a few cm of range noise),
+    and where they are defined (no depth jump, all neighbours with depth)."""
+    import cv2
+
+    z = np.asarray(depth, dtype=np.float64)
+    h, w = z.shape
+    u = (np.arange(w) - camera.cx) / camera.fx
+    v = (np.arange(h) - camera.cy) / camera.fy
+    pts = np.stack([u[None, :] * z, v[:, None] * z, z], axis=-1)
+    s = step
+    du = np.zeros_like(pts)
+    dv = np.zeros_like(pts)
+    du[:, s:-s] = pts[:, 2 * s:] - pts[:, :-2 * s]
+    dv[s:-s] = pts[2 * s:] - pts[:-2 * s]
+    ok = np.zeros((h, w), dtype=bool)
+    zc = z[s:-s, s:-s]
+    jump = 2.0 * (0.05 * zc + 0.1)
+    ok[s:-s, s:-s] = ((zc > 0) & (z[s:-s, 2 * s:] > 0) & (z[s:-s, :-2 * s] > 0)
+                      & (z[2 * s:, s:-s] > 0) & (z[:-2 * s, s:-s] > 0)
+                      & (np.abs(z[s:-s, 2 * s:] - z[s:-s, :-2 * s]) < jump)
+                      & (np.abs(z[2 * s:, s:-s] - z[:-2 * s, s:-s]) < jump))
+    n = np.cross(du, dv)
+    n[~ok] = 0.0
+    n = cv2.blur(n.astype(np.float32), (box, box)).astype(np.float64)
+    norm = np.linalg.norm(n, axis=2)
+    ok &= norm > 1e-12
+    return n / np.maximum(norm, 1e-12)[..., None], ok
+
+
+def region_plane_normals_02ca12e(comp: NDArray[np.int32], n_comp: int, valid: NDArray[np.bool_],
+                                 depth: NDArray[np.floating], camera: Camera, up: F64,
+                                 min_pixels: int = 20) -> list[tuple[int, float]]:
+    """Per connected region (ids 1..n_comp-1 of ``comp``) with at least ``min_pixels`` pixels of
+    depth: ``(id, |n·up|)`` of the least-squares plane through its points."""
+    ids = comp[valid]
+    if len(ids) == 0:
+        return []
+    v, u = np.nonzero(valid)
+    x = (u - camera.cx) / camera.fx
+    y = (v - camera.cy) / camera.fy
+    w = 1.0 / depth[valid].astype(np.float64)
+    # per region sums of the normal equations of w ≈ a x + b y + c
+    cols = np.stack([x, y, np.ones_like(x)], axis=1)
+    count = np.bincount(ids, minlength=n_comp)
+    ata = np.zeros((n_comp, 3, 3))
+    atb = np.zeros((n_comp, 3))
+    for r in range(3):
+        atb[:, r] = np.bincount(ids, cols[:, r] * w, minlength=n_comp)
+        for c in range(3):
+            ata[:, r, c] = np.bincount(ids, cols[:, r] * cols[:, c], minlength=n_comp)
+    out = []
+    for c in range(1, n_comp):
+        if count[c] < min_pixels or abs(np.linalg.det(ata[c])) < 1e-18:
+            continue
+        n = np.linalg.solve(ata[c], atb[c])
+        norm = np.linalg.norm(n)
+        if norm > 0:
+            out.append((c, float(abs(n @ up) / norm)))
+    return out
+
+
+# ------------------------------------------------------------- segmentation.geometric at 02ca12e
+def plane_scores_02ca12e(sub: F64, hn: F64, d: F64, thr: F64, sub_n: F64 | None = None,
+                         cos_n: float = 0.0) -> NDArray[np.int64]:
+    """``_plane_scores`` as of 02ca12e: the blocks' elementwise tests and counts in numpy."""
+    from bimcap.segmentation.geometric import _row_blocks
+
+    if len(hn) < 2:
+        ok_whole = np.abs(sub @ hn.T + d) < thr
+        if sub_n is not None:
+            ok_whole &= np.abs(sub_n @ hn.T) > cos_n
+        whole: NDArray[np.int64] = ok_whole.sum(0)
+        return whole
+    score = np.zeros(len(hn), np.int64)
+    for a, b in _row_blocks(len(sub)):
+        dist = sub[a:b] @ hn.T
+        dist += d
+        np.abs(dist, out=dist)
+        ok = dist < thr[a:b]
+        if sub_n is not None:
+            agree = sub_n[a:b] @ hn.T
+            np.abs(agree, out=agree)
+            ok &= agree > cos_n
+        # the block's counts (at most _SCORE_ROWS + 1 < 2¹⁶): a byte-wise sum, not count_nonzero
+        score += np.add.reduce(ok.view(np.uint8), axis=0, dtype=np.uint16)
+    return score
+
+
 @contextmanager
 def swapped(module: Any, **functions: Callable[..., Any]) -> Iterator[None]:
     """Replace ``module``'s attributes by ``functions`` for the duration of the block."""
@@ -1164,12 +1259,23 @@ def old_planar_smoothing() -> Iterator[None]:
 
 
 def old_segmentation() -> AbstractContextManager[None]:
-    """``segment_geometric`` as of fe4da1c: its points and normals in numpy
-    (:func:`points_and_normals_fe4da1c`). (``_geometric_reference`` is the whole module as of
-    a219de7, before the vectorised stages.)"""
+    """``segment_geometric`` as of fe4da1c / 02ca12e: its points and normals
+    (:func:`points_and_normals_fe4da1c`) and its RANSAC score counts
+    (:func:`plane_scores_02ca12e`) in numpy. (``_geometric_reference`` is the whole module as
+    of a219de7, before the vectorised stages.)"""
     from bimcap.segmentation import geometric
 
-    return swapped(geometric, _points_and_normals=points_and_normals_fe4da1c)
+    return swapped(geometric, _points_and_normals=points_and_normals_fe4da1c,
+                   _plane_scores=plane_scores_02ca12e)
+
+
+def old_label_orientation() -> AbstractContextManager[None]:
+    """``check_label_orientation`` as of 02ca12e: its coarse normals and region plane fits in
+    numpy (:func:`coarse_normals_02ca12e`, :func:`region_plane_normals_02ca12e`)."""
+    from bimcap.frontend import semantic_map
+
+    return swapped(semantic_map, _coarse_normals=coarse_normals_02ca12e,
+                   _region_plane_normals=region_plane_normals_02ca12e)
 
 
 def old_matching() -> AbstractContextManager[None]:
@@ -1185,5 +1291,6 @@ REFERENCES: dict[str, Callable[[], AbstractContextManager[None]]] = {
     "depth provider": old_completion,
     "geometric segmentation": old_segmentation,
     "planar smoothing": old_planar_smoothing,
+    "label orientation check": old_label_orientation,
     "matching": old_matching,
 }

@@ -998,3 +998,183 @@ def test_raster_rejects_bad_arrays() -> None:
     assert _core.fill_triangle_ids(np.zeros((0, 3, 2), np.int32), np.zeros(0, np.int32),
                                    0, 3).shape == (0, 3)
     assert _core.evaluate_piecewise_affine(np.zeros((0, 3), np.int32), coef, False).shape == (0, 3)
+
+
+# ------------------------------------------------------------- fe-exact (2026-11-27, 02ca12e →)
+@pytest.mark.parametrize("n", [1, 2, 3, 511, 512, 513, 514, 1025, 3000])
+@pytest.mark.parametrize("hypotheses", [1, 2, 7, 150])
+def test_plane_scores_same_as_02ca12e(n: int, hypotheses: int) -> None:
+    """The RANSAC scores with their tests and counts in ``_core.add_plane_scores``: 02ca12e's
+    numpy counts, with points at exactly the threshold (``<`` is strict), NaN points and normals,
+    zero thresholds and a normal agreement exactly at ``cos_n``, for every block remainder."""
+    from bimcap.segmentation.geometric import _plane_scores
+
+    rng = np.random.default_rng(7 * n + hypotheses)
+    pts = rng.normal(size=(n, 3)) * 3.0
+    nrm = rng.normal(size=(n, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    hn = rng.normal(size=(hypotheses, 3))
+    hn /= np.linalg.norm(hn, axis=1, keepdims=True)
+    d = rng.normal(size=hypotheses)
+    d[0] = -0.0
+    thr = (0.5 + 0.01 * np.abs(pts[:, 2]))[:, None]
+    # ties: a third of the points exactly at the threshold of hypothesis 0 (the same product as
+    # the table's: a one-hypothesis column is the whole table's column, see _plane_scores)
+    tie = np.arange(0, n, 3)
+    thr[tie, 0] = np.abs((pts @ hn.T + d)[tie, 0])
+    thr[1::7] = 0.0
+    pts[2::11] = np.nan
+    nrm[5::13] = np.nan
+    cos_n = float(np.abs(nrm[0] @ hn[0]))  # point 0 agrees with hypothesis 0 exactly at cos_n
+    for sub_n, c in ((None, 0.0), (nrm, 0.5), (nrm, cos_n)):
+        new = _plane_scores(pts, hn, d, thr, sub_n, c)
+        old = ref.plane_scores_02ca12e(pts, hn, d, thr, sub_n, c)
+        assert new.dtype == np.int64 and np.array_equal(new, old)
+    assert n < 500 or old.sum() > 0
+    # the smoothing's RANSAC counts (the same compiled pass, one scalar threshold) at a tie
+    from bimcap.fusion.completion import _inlier_counts
+
+    at = float(np.abs(pts[0] @ hn[0] + d[0]))
+    for threshold in (at, 0.5):
+        assert np.array_equal(_inlier_counts(pts, hn, d, threshold),
+                              (np.abs(pts @ hn.T + d) < threshold).sum(0))
+
+
+def test_plane_scores_reject_bad_arrays() -> None:
+    """Wrong dtypes, shapes, layouts and a read-only score raise ``_core.InputError`` naming the
+    argument, and leave the scores as they were."""
+    from bimcap import _core
+
+    t = np.zeros((5, 3))
+    good = {"score": np.zeros(3, np.int64), "products": t, "agree": t, "offsets": np.zeros(3),
+            "thresholds": np.ones(5), "cos_n": 0.5}
+    read_only = np.zeros(3, np.int64)
+    read_only.flags.writeable = False
+    for override, field, text in [
+        ({"score": np.zeros(3, np.int32)}, "score", "dtype int64"),
+        ({"score": read_only}, "score", "read-only"),
+        ({"products": t.astype(np.float32)}, "products", "dtype float64"),
+        ({"products": t[:, :2]}, "products", "shape (n, 3)"),
+        ({"products": np.zeros((5, 6))[:, ::2]}, "products", "C-contiguous"),
+        ({"agree": t[:4]}, "agree", "shape (5, 3)"),
+        ({"offsets": np.zeros(4)}, "offsets", "shape (3,)"),
+        ({"thresholds": np.ones((5, 1))}, "thresholds", "shape (5,)"),
+    ]:
+        args = good | override
+        with pytest.raises(_core.InputError, match=field) as err:
+            _core.add_plane_scores(**args)
+        assert err.value.field == field and text in str(err.value)
+        assert not args["score"].any()
+    _core.add_plane_scores(**good)  # |0 + 0| < 1, but |0| > 0.5 is false
+    assert np.array_equal(good["score"], [0, 0, 0])
+    _core.add_plane_scores(**(good | {"agree": None}))
+    assert np.array_equal(good["score"], [5, 5, 5])
+
+
+def _orientation_inputs(world: str, count: int
+                        ) -> list[tuple[np.ndarray, np.ndarray, Camera, np.ndarray]]:
+    """``(labels, depth, pinhole camera, world_from_cam)`` of a generated world's first
+    ``count`` frames as the front end hands them to the label orientation check (``refine``'s
+    providers: linear completion, geometric labels, planar smoothing); [] without the world."""
+    seq_dir = _WORLDS / world / "seq_60_standard"
+    if not seq_dir.is_dir():
+        return []
+    from bimcap.dataset import read_sequence
+    from bimcap.frontend.runner import FrameContext, _load_raw_image, get_undistorter
+    from bimcap.geometry.trajectory import read_tum
+    from bimcap.pipeline.config import RefineConfig
+    from bimcap.pipeline.refine import make_providers
+
+    seq = read_sequence(seq_dir)
+    depth_p, label_p, refiner = make_providers(RefineConfig(workers=1), seq)
+    poses = read_tum(seq.root / "poses" / "gt.tum").poses
+    und = get_undistorter(seq.camera)
+    out = []
+    for i in range(count):
+        image = und.image(_load_raw_image(seq, i, seq.camera))
+        ctx = FrameContext(seq, i, seq.camera, und.pinhole, image, und, poses[i])
+        depth = depth_p(ctx)
+        ctx.depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0).astype(np.float32)
+        labels = label_p(ctx)
+        depth = refiner(ctx, labels)
+        depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0).astype(np.float32)
+        out.append((labels, depth, und.pinhole, poses[i]))
+    return out
+
+
+def test_label_orientation_same_as_02ca12e(chain: list[_Frame]) -> None:
+    """The label orientation check (coarse normals through ``_core``, each normal-equation sum
+    once): 02ca12e's labels and counts bit for bit on the box-room frames, with the check's
+    working width and tolerances varied, and on 6 frames each of two generated worlds (skipped
+    without them); regions and pixels are dropped on the way."""
+    from bimcap.frontend.semantic_map import SemanticSamplingOptions, check_label_orientation
+
+    inputs = [(f.labels, f.smoothed, f.camera, f.world_from_cam) for f in chain]
+    for world in ("gen-demo-s0", "ifc-SampleHouse4"):
+        inputs += _orientation_inputs(world, 6)
+    option_sets = [SemanticSamplingOptions(), SemanticSamplingOptions(orientation_work_width=516),
+                   SemanticSamplingOptions(orientation_work_width=97, orientation_check_deg=10.0,
+                                           orientation_strict_deg=20.0)]
+    dropped = 0
+    for labels, depth, camera, pose in inputs:
+        for opts in option_sets:
+            new, new_stats = check_label_orientation(labels, depth, camera, pose, opts)
+            with ref.old_label_orientation():
+                old, old_stats = check_label_orientation(labels, depth, camera, pose, opts)
+            assert new.dtype == old.dtype and new.tobytes() == old.tobytes()
+            assert new_stats == old_stats
+            dropped += new_stats["dropped_pixels"]
+    assert dropped > 0
+
+
+def test_coarse_normals_same_as_02ca12e(chain: list[_Frame]) -> None:
+    """The check's coarse normals: where defined, the same mask and ``|n · up|`` (all the check
+    reads) as 02ca12e's numpy, for every up; now 0 where undefined and facing the camera."""
+    from bimcap.frontend.semantic_map import _coarse_normals
+
+    rng = np.random.default_rng(11)
+    for f in chain:
+        for step, box in ((4, 11), (2, 5), (1, 1)):
+            n_new, ok_new = _coarse_normals(f.dense, f.camera, step, box)
+            n_old, ok_old = ref.coarse_normals_02ca12e(f.dense, f.camera, step, box)
+            assert np.array_equal(ok_new, ok_old) and ok_new.any()
+            for up in [np.array([0.0, -1.0, 0.0]), *rng.normal(size=(3, 3))]:
+                assert np.abs(n_new @ up)[ok_new].tobytes() == np.abs(n_old @ up)[ok_old].tobytes()
+            assert not n_new[~ok_new].any()
+
+
+def test_depth_jump_offset() -> None:
+    """``points_and_cross``'s depth jump test: |Δz| < 2 (0.05 z + jump_offset_m), the segmenter's
+    0.05 by default, the orientation check's 0.1."""
+    from bimcap import _core
+
+    depth = np.full((3, 5), 2.0, np.float32)
+    depth[:, 3] = 2.0 + 0.35  # |z(u+1) − z(u−1)| at u = 2: 0.35; 2 (0.1 + 0.05) = 0.3 < 0.35
+    _, _, ok_seg, _ = _core.points_and_cross(depth, 1.0, 1.0, 0.0, 0.0, 1, False)
+    _, _, ok_chk, _ = _core.points_and_cross(depth, 1.0, 1.0, 0.0, 0.0, 1, False,
+                                             jump_offset_m=0.1)
+    assert not ok_seg[1, 2] and ok_chk[1, 2]  # 2 (0.1 + 0.1) = 0.4 > 0.35
+    assert ok_seg[1, 1] and ok_chk[1, 1]  # no jump around u = 1
+
+
+def test_one_thread_makes_its_controller_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``one_thread`` limits BLAS to one thread through one ``ThreadpoolController`` a process
+    (made again only after an import), and restores the libraries' threads after the block."""
+    import sys
+
+    from threadpoolctl import threadpool_info
+
+    from bimcap.frontend import runner
+
+    with runner.one_thread():
+        first = runner._THREADPOOLS
+        assert all(lib["num_threads"] == 1 for lib in threadpool_info())
+    with runner.one_thread():
+        assert runner._THREADPOOLS is first
+    monkeypatch.setitem(sys.modules, "_an_imported_module", sys)
+    with runner.one_thread():
+        assert runner._THREADPOOLS is not first and runner._THREADPOOLS is not None
+    before = {lib["filepath"]: lib["num_threads"] for lib in threadpool_info()}
+    with runner.one_thread():
+        pass
+    assert {lib["filepath"]: lib["num_threads"] for lib in threadpool_info()} == before

@@ -1,9 +1,9 @@
 // Per-pixel front-end stages in compiled code (bimcap/raster/): the linear depth completion's
 // triangle-id image (cv2.fillConvexPoly's pixels) and piecewise affine depth over it
 // (bimcap.fusion.completion), the planar smoothing's regions and move of depth onto planes
-// (ibid.), the
-// geometric segmenter's points and normals (bimcap.segmentation.geometric), and semantic
-// sampling's pixel surface area (bimcap.frontend.semantic_map).
+// (ibid.), the geometric segmenter's points and normals and its RANSAC score tables' counts
+// (bimcap.segmentation.geometric), and semantic sampling's pixel surface area
+// (bimcap.frontend.semantic_map).
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
 
@@ -18,6 +18,7 @@
 #include "bimcap/raster/depth_normals.h"
 #include "bimcap/raster/piecewise_affine.h"
 #include "bimcap/raster/plane_depth.h"
+#include "bimcap/raster/plane_scores.h"
 #include "bimcap/raster/surface_area.h"
 #include "python/arrays.h"
 
@@ -160,7 +161,8 @@ py::ssize_t MoveOntoPlanes(const py::handle& out_obj, const py::handle& flat_obj
 }
 
 template <typename Cross>
-py::tuple PointsAndCrossOf(const py::array& depth, const raster::Pinhole& camera, int64_t step) {
+py::tuple PointsAndCrossOf(const py::array& depth, const raster::Pinhole& camera, int64_t step,
+                           double jump_offset_m) {
   const py::ssize_t rows = depth.shape(0), cols = depth.shape(1);
   py::array_t<double> points({rows, cols, py::ssize_t{3}});
   py::array_t<bool> valid({rows, cols});
@@ -171,18 +173,18 @@ py::tuple PointsAndCrossOf(const py::array& depth, const raster::Pinhole& camera
                                          ok.mutable_data(), cross.mutable_data()};
   {
     py::gil_scoped_release release;
-    raster::DepthCross(in, camera, step, out);
+    raster::DepthCross(in, camera, step, out, jump_offset_m);
   }
   return py::make_tuple(points, valid, ok, cross);
 }
 
 py::tuple PointsAndCross(const py::handle& depth_obj, double fx, double fy, double cx, double cy,
-                         int64_t step, bool float32) {
+                         int64_t step, bool float32, double jump_offset_m) {
   const py::array depth = Checked<float>(depth_obj, "depth", {-1, -1});
   if (step < 1) throw RasterError("step", "must be >= 1 px, got " + std::to_string(step));
   const raster::Pinhole camera{fx, fy, cx, cy};
-  return float32 ? PointsAndCrossOf<float>(depth, camera, step)
-                 : PointsAndCrossOf<double>(depth, camera, step);
+  return float32 ? PointsAndCrossOf<float>(depth, camera, step, jump_offset_m)
+                 : PointsAndCrossOf<double>(depth, camera, step, jump_offset_m);
 }
 
 void OrientNormals(const py::handle& normals_obj, const py::handle& points_obj,
@@ -222,6 +224,30 @@ py::tuple ComponentPixels(const py::handle& labels_obj, int64_t count) {
   return py::make_tuple(pixels, starts);
 }
 
+void AddPlaneScores(const py::handle& score_obj, const py::handle& products_obj,
+                    const py::handle& agree_obj, const py::handle& offsets_obj,
+                    const py::handle& thresholds_obj, double cos_n) {
+  py::array score = Checked<int64_t>(score_obj, "score", {-1});
+  if (!score.writeable()) throw RasterError("score", "array is read-only");
+  const py::ssize_t cols = score.shape(0);
+  const py::array products = Checked<double>(products_obj, "products", {-1, cols});
+  const py::ssize_t rows = products.shape(0);
+  py::array agree;
+  const double* agree_data = nullptr;
+  if (!agree_obj.is_none()) {
+    agree = Checked<double>(agree_obj, "agree", {rows, cols});
+    agree_data = static_cast<const double*>(agree.data());
+  }
+  const py::array offsets = Checked<double>(offsets_obj, "offsets", {cols});
+  const py::array thresholds = Checked<double>(thresholds_obj, "thresholds", {rows});
+  const auto* t = static_cast<const double*>(products.data());
+  const auto* d = static_cast<const double*>(offsets.data());
+  const auto* thr = static_cast<const double*>(thresholds.data());
+  auto* out = static_cast<int64_t*>(score.mutable_data());
+  py::gil_scoped_release release;
+  raster::AddPlaneScores(t, agree_data, d, thr, rows, cols, cos_n, out);
+}
+
 }  // namespace
 
 void BindRaster(py::module_& m) {
@@ -257,9 +283,11 @@ void BindRaster(py::module_& m) {
         "Raises InputError naming the bad argument (nothing is written then).");
   m.def("points_and_cross", &PointsAndCross, py::arg("depth"), py::arg("fx"), py::arg("fy"),
         py::arg("cx"), py::arg("cy"), py::arg("step"), py::arg("float32"),
+        py::arg("jump_offset_m") = 0.05,
         "(points (H, W, 3) float64, valid (H, W) bool, ok (H, W) bool, cross (H, W, 3)) of the "
         "(H, W) float32 z-depth map (m, 0 = none): the back-projected pixels, where there is "
-        "depth, where the central differences at +-step px exist without a depth jump, and "
+        "depth, where the central differences at +-step px exist without a depth jump (|dz| "
+        "< 2 (0.05 z + jump_offset_m)), and "
         "their cross product there (0 elsewhere; float32 when `float32`, for a blur, else "
         "float64); bimcap.segmentation.geometric._points_and_normals's arithmetic bit for bit.");
   m.def("orient_normals", &OrientNormals, py::arg("normals"), py::arg("points"), py::arg("ok"),
@@ -267,6 +295,14 @@ void BindRaster(py::module_& m) {
         "the camera (against `points` (H, W, 3) float64), clears `ok` (H, W) bool where the "
         "norm is <= 1e-12 and sets the normals to 0 where `ok` is false; numpy's arithmetic "
         "bit for bit.");
+  m.def("add_plane_scores", &AddPlaneScores, py::arg("score"), py::arg("products"),
+        py::arg("agree"), py::arg("offsets"), py::arg("thresholds"), py::arg("cos_n"),
+        "Adds to score (I,) int64, in place, the number of rows i of a block where "
+        "|products[i, j] + offsets[j]| < thresholds[i] and (agree not None) |agree[i, j]| > "
+        "cos_n: the RANSAC score tables of bimcap.segmentation.geometric._plane_scores past "
+        "their BLAS products (numpy's arithmetic bit for bit). products, agree: (N, I) float64; "
+        "offsets: (I,) float64; thresholds: (N,) float64; all C-contiguous. Raises InputError "
+        "naming the bad argument (nothing is written then).");
   m.def("pixel_surface_area", &PixelSurfaceArea, py::arg("depth"), py::arg("fx"), py::arg("fy"),
         py::arg("cx"), py::arg("cy"), py::arg("min_cos"),
         "(H, W) float64 surface area in m² each pixel of the (H, W) float64 z-depth map (m, "

@@ -15,6 +15,7 @@
 #include "bimcap/raster/depth_normals.h"
 #include "bimcap/raster/piecewise_affine.h"
 #include "bimcap/raster/plane_depth.h"
+#include "bimcap/raster/plane_scores.h"
 
 namespace bimcap::raster {
 namespace {
@@ -315,6 +316,39 @@ TEST(DepthNormals, DepthJumpsAndMissingNeighboursHaveNoNormal) {
   EXPECT_THROW(DepthCross<float>({depth.data(), 3, 5}, {1.0, 1.0, 2.0, 1.0}, 0,
                                  {points.data(), valid, ok, cross.data()}),
                RasterError);
+}
+
+TEST(DepthNormals, JumpOffsetWidensTheJumpTest) {
+  // 3 × 5, step 1; at (2, 1) the neighbours' depths differ by 0.35 m: a jump for the segmenter's
+  // 2 (0.05 · 2 + 0.05) = 0.3, none for the orientation check's 2 (0.05 · 2 + 0.1) = 0.4.
+  std::vector<float> depth(15, 2.0f);
+  for (int v = 0; v < 3; ++v) depth[v * 5 + 3] = 2.35f;
+  std::vector<double> points(45), cross(45);
+  bool valid[15], ok[15];
+  DepthCross<double>({depth.data(), 3, 5}, {1.0, 1.0, 0.0, 0.0}, 1,
+                     {points.data(), valid, ok, cross.data()});
+  EXPECT_TRUE(ok[6]);
+  EXPECT_FALSE(ok[7]);
+  DepthCross<double>({depth.data(), 3, 5}, {1.0, 1.0, 0.0, 0.0}, 1,
+                     {points.data(), valid, ok, cross.data()}, 0.1);
+  EXPECT_TRUE(ok[6]);
+  EXPECT_TRUE(ok[7]);
+}
+
+TEST(PlaneScores, StrictTestsAndAddedCounts) {
+  // 3 points × 2 hypotheses: |t + d| < thr strictly (point 1 sits exactly at the threshold of
+  // hypothesis 0), |a| > cos_n strictly, a NaN fails both.
+  const double products[] = {0.1, 0.0, 0.5, 2.0, std::nan(""), 0.2};
+  const double agree[] = {0.9, 0.9, 0.9, 0.5, 0.9, 0.9};
+  const double offsets[] = {0.0, -0.1};
+  const double thresholds[] = {0.2, 0.5, 0.3};
+  int64_t score[] = {10, 20};
+  AddPlaneScores(products, nullptr, offsets, thresholds, 3, 2, 0.0, score);
+  EXPECT_EQ(score[0], 11);  // 0.1 < 0.2; 0.5 < 0.5 no; NaN no
+  EXPECT_EQ(score[1], 22);  // 0.1 < 0.2; 1.9 < 0.5 no; 0.1 < 0.3
+  AddPlaneScores(products, agree, offsets, thresholds, 3, 2, 0.5, score);
+  EXPECT_EQ(score[0], 12);
+  EXPECT_EQ(score[1], 24);  // row 1's agreement is 0.5, not > 0.5 (and its distance fails)
 }
 
 TEST(ComponentPixels, GroupedByLabelRowMajorInside) {

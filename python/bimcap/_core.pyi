@@ -60,6 +60,17 @@ def pixel_surface_area(
     depth: NDArray[np.float64], fx: float, fy: float, cx: float, cy: float, min_cos: float
 ) -> NDArray[np.float64]:
     """(H, W) m² each pixel of an undistorted (H, W) z-depth map covers (numpy's rounding)."""
+def add_plane_scores(
+    score: NDArray[np.int64],
+    products: NDArray[np.float64],
+    agree: NDArray[np.float64] | None,
+    offsets: NDArray[np.float64],
+    thresholds: NDArray[np.float64],
+    cos_n: float,
+) -> None:
+    """Adds to ``score`` (I,) the rows i of a block where ``|products[i, j] + offsets[j]| <
+    thresholds[i]`` and (``agree`` not None) ``|agree[i, j]| > cos_n`` (numpy's rounding): the
+    segmenter's RANSAC score tables past their (N, I) BLAS products."""
 def move_onto_planes(
     out: NDArray[np.float32],
     flat: NDArray[np.int64],
@@ -76,11 +87,12 @@ def move_onto_planes(
     for one plane. Returns how many pixels moved."""
 def points_and_cross(
     depth: NDArray[np.float32], fx: float, fy: float, cx: float, cy: float, step: int,
-    float32: bool,
+    float32: bool, jump_offset_m: float = 0.05,
 ) -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_], NDArray[Any]]:
     """(points (H, W, 3), valid (H, W), ok (H, W), cross (H, W, 3) float32 or float64) of an
-    (H, W) float32 z-depth map: the segmenter's central-difference cross products (numpy's
-    rounding)."""
+    (H, W) float32 z-depth map: the segmenter's (and, ``jump_offset_m`` 0.1, the label
+    orientation check's) central-difference cross products (numpy's rounding); a depth jump is
+    ``|Δz| >= 2 (0.05 z + jump_offset_m)``."""
 
 def orient_normals(
     normals: NDArray[np.float64], points: NDArray[np.float64], ok: NDArray[np.bool_]

@@ -22,7 +22,7 @@ Cross AsCross(double x) {
 
 template <typename Cross>
 void DepthCross(const ImageRef<const float>& depth, const Pinhole& camera, int64_t step,
-                const DepthCrossOut<Cross>& out) {
+                const DepthCrossOut<Cross>& out, double jump_offset_m) {
   if (step < 1) throw RasterError("step", "must be >= 1 px, got " + std::to_string(step));
   const int64_t h = depth.rows, w = depth.cols, s = step;
   std::vector<double> ray_x(w), ray_y(h);
@@ -47,7 +47,8 @@ void DepthCross(const ImageRef<const float>& depth, const Pinhole& camera, int64
       const double z = out.points[3 * i + 2];
       const double zl = out.points[3 * left + 2], zr = out.points[3 * right + 2];
       const double zu = out.points[3 * up + 2], zd = out.points[3 * down + 2];
-      const double jump = 0.05 * z + 0.05;  // metres: farther apart in depth is across an edge
+      // metres: farther apart in depth is across an edge
+      const double jump = 0.05 * z + jump_offset_m;
       const bool ok = z > 0 && zr > 0 && zl > 0 && zd > 0 && zu > 0 &&
                       std::fabs(zr - zl) < 2 * jump && std::fabs(zd - zu) < 2 * jump;
       out.ok[i] = ok;
@@ -66,9 +67,9 @@ void DepthCross(const ImageRef<const float>& depth, const Pinhole& camera, int64
 }
 
 template void DepthCross<float>(const ImageRef<const float>&, const Pinhole&, int64_t,
-                                const DepthCrossOut<float>&);
+                                const DepthCrossOut<float>&, double);
 template void DepthCross<double>(const ImageRef<const float>&, const Pinhole&, int64_t,
-                                 const DepthCrossOut<double>&);
+                                 const DepthCrossOut<double>&, double);
 
 void OrientNormals(int64_t pixels, const double* points, double* normals, bool* ok) {
   for (int64_t i = 0; i < pixels; ++i) {

@@ -4,7 +4,9 @@
 //   z = float64(depth),  p(u, v) = (x_u z, y_v z, z),  x_u = (u − cx) / fx,  y_v = (v − cy) / fy
 //   valid = z > 0
 //   interior (s <= u < w − s, s <= v < h − s, s = step): ok where the pixel and its four
-//   neighbours at ±s have depth and |z(u+s) − z(u−s)| < 2 (0.05 z + 0.05), likewise along v
+//   neighbours at ±s have depth and |z(u+s) − z(u−s)| < 2 (0.05 z + j), likewise along v
+//   (j = jump_offset_m: the segmenter's 0.05, the label orientation check's coarse normals' 0.1,
+//   bimcap.frontend.semantic_map._coarse_normals)
 //   d_u = p(u+s, v) − p(u−s, v),  d_v = p(u, v+s) − p(u, v−s)   (component by component)
 //   cross = (d_u1 d_v2 − d_u2 d_v1,  d_u2 d_v0 − d_u0 d_v2,  d_u0 d_v1 − d_u1 d_v0) where ok,
 //   else 0 (0 outside the interior); rounded to float32 when the caller blurs it (box > 1).
@@ -40,7 +42,7 @@ struct DepthCrossOut {
 // RasterError ("step") for step < 1.
 template <typename Cross>
 void DepthCross(const ImageRef<const float>& depth, const Pinhole& camera, int64_t step,
-                const DepthCrossOut<Cross>& out);
+                const DepthCrossOut<Cross>& out, double jump_offset_m = 0.05);
 
 // Normalises and orients the (rows, cols, 3) cross products `normals` in place against the
 // points `points` (rows, cols, 3), and clears `ok` (rows, cols) where the norm is <= 1e-12.

@@ -233,8 +233,7 @@ def _match_numpy(a: NDArray[np.uint8], b: NDArray[np.uint8], opts: MatchOptions)
         # the rows that are their column's best, then those alone in their column
         top = s1_ab[ia] == col_s1[ib]
         ia, ib = ia[top], ib[top]
-        _, inverse, counts = np.unique(ib, return_inverse=True, return_counts=True)
-        alone = counts[inverse] == 1
+        alone = np.bincount(ib, minlength=len(b))[ib] == 1
         ia, ib = ia[alone], ib[alone]
         if len(a) <= chunk:  # the one block of rows is still there
             sim[ia, ib] = -np.inf

@@ -32,6 +32,7 @@ import json
 import logging
 import multiprocessing
 import os
+import sys
 import time
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
@@ -690,15 +691,33 @@ def one_thread() -> Iterator[None]:
     (``tests/test_frontend_speed.py`` compares a whole front end both ways).
     """
     import cv2
-    from threadpoolctl import threadpool_limits
 
     before = cv2.getNumThreads()
     cv2.setNumThreads(1)
     try:
-        with threadpool_limits(limits=1):
+        with _threadpools().limit(limits=1):
             yield
     finally:
         cv2.setNumThreads(before)
+
+
+#: This process's ``threadpoolctl.ThreadpoolController`` and ``len(sys.modules)`` when it was made.
+_THREADPOOLS: tuple[int, Any] | None = None
+
+
+def _threadpools() -> Any:
+    """The ``threadpoolctl.ThreadpoolController`` of this process's loaded libraries, made again
+    only when modules were imported since the last one (a new native library comes with its
+    module). Making one scans every loaded shared library (~1.2 ms; ``threadpool_limits`` made
+    one on each call, 4–5 a frame); limiting through it is ~0.02 ms. It reads and restores the
+    libraries' thread counts on each use, as ``threadpool_limits`` does."""
+    global _THREADPOOLS
+    from threadpoolctl import ThreadpoolController
+
+    loaded = len(sys.modules)
+    if _THREADPOOLS is None or _THREADPOOLS[0] != loaded:
+        _THREADPOOLS = (loaded, ThreadpoolController())
+    return _THREADPOOLS[1]
 
 
 def compute_frame(job: _FrameJob, *, shared: _RunShared | None = None

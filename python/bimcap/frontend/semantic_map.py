@@ -163,32 +163,26 @@ def _coarse_normals(depth: NDArray[np.floating], camera: Camera, step: int = 4, 
                     ) -> tuple[F64, NDArray[np.bool_]]:
     """Unit normals (h, w, 3) of a depth map (camera frame) from central differences ``step``
     pixels apart, box-smoothed over ``box`` pixels (coarse: robust to a few cm of range noise),
-    and where they are defined (no depth jump, all neighbours with depth)."""
+    turned toward the camera (0 where undefined), and where they are defined (no depth jump,
+    all neighbours with depth).
+
+    The segmenter's normals (``bimcap.segmentation.geometric._points_and_normals``) with a
+    jump threshold of 2 (0.05 z + 0.1) m: the per-pixel arithmetic in ``bimcap._core``
+    (``points_and_cross``, ``orient_normals``), the blur OpenCV's in float32. Numpy's
+    arithmetic bit for bit; the numpy code before (tests/_frontend_reference.py:
+    ``coarse_normals_02ca12e``) left the normals' sign and the undefined pixels' blurred
+    values, which the check never reads (it takes ``|n · up|`` where defined).
+    """
     import cv2
 
-    z = np.asarray(depth, dtype=np.float64)
-    h, w = z.shape
-    u = (np.arange(w) - camera.cx) / camera.fx
-    v = (np.arange(h) - camera.cy) / camera.fy
-    pts = np.stack([u[None, :] * z, v[:, None] * z, z], axis=-1)
-    s = step
-    du = np.zeros_like(pts)
-    dv = np.zeros_like(pts)
-    du[:, s:-s] = pts[:, 2 * s:] - pts[:, :-2 * s]
-    dv[s:-s] = pts[2 * s:] - pts[:-2 * s]
-    ok = np.zeros((h, w), dtype=bool)
-    zc = z[s:-s, s:-s]
-    jump = 2.0 * (0.05 * zc + 0.1)
-    ok[s:-s, s:-s] = ((zc > 0) & (z[s:-s, 2 * s:] > 0) & (z[s:-s, :-2 * s] > 0)
-                      & (z[2 * s:, s:-s] > 0) & (z[:-2 * s, s:-s] > 0)
-                      & (np.abs(z[s:-s, 2 * s:] - z[s:-s, :-2 * s]) < jump)
-                      & (np.abs(z[2 * s:, s:-s] - z[:-2 * s, s:-s]) < jump))
-    n = np.cross(du, dv)
-    n[~ok] = 0.0
-    n = cv2.blur(n.astype(np.float32), (box, box)).astype(np.float64)
-    norm = np.linalg.norm(n, axis=2)
-    ok &= norm > 1e-12
-    return n / np.maximum(norm, 1e-12)[..., None], ok
+    from bimcap import _core
+
+    pts, _, ok, n = _core.points_and_cross(np.ascontiguousarray(depth, dtype=np.float32),
+                                           camera.fx, camera.fy, camera.cx, camera.cy, step,
+                                           True, jump_offset_m=0.1)
+    n = cv2.blur(n, (box, box)).astype(np.float64)
+    _core.orient_normals(n, pts, ok)
+    return n, ok
 
 
 def _region_plane_normals(comp: NDArray[np.int32], n_comp: int, valid: NDArray[np.bool_],
@@ -206,15 +200,20 @@ def _region_plane_normals(comp: NDArray[np.int32], n_comp: int, valid: NDArray[n
     x = (u - camera.cx) / camera.fx
     y = (v - camera.cy) / camera.fy
     w = 1.0 / depth[valid].astype(np.float64)
-    # per region sums of the normal equations of w ≈ a x + b y + c
-    cols = np.stack([x, y, np.ones_like(x)], axis=1)
+    # per region sums of the normal equations of w ≈ a x + b y + c, columns (x, y, 1): each sum
+    # once (the products commute and 1·v = v exactly, so the symmetric entries, the constant
+    # column's and the count are the same numbers as each product summed on its own)
     count = np.bincount(ids, minlength=n_comp)
     ata = np.zeros((n_comp, 3, 3))
     atb = np.zeros((n_comp, 3))
-    for r in range(3):
-        atb[:, r] = np.bincount(ids, cols[:, r] * w, minlength=n_comp)
-        for c in range(3):
-            ata[:, r, c] = np.bincount(ids, cols[:, r] * cols[:, c], minlength=n_comp)
+    cols = (x, y)
+    for r in range(2):
+        atb[:, r] = np.bincount(ids, cols[r] * w, minlength=n_comp)
+        ata[:, r, 2] = ata[:, 2, r] = np.bincount(ids, cols[r], minlength=n_comp)
+        for c in range(r, 2):
+            ata[:, r, c] = ata[:, c, r] = np.bincount(ids, cols[r] * cols[c], minlength=n_comp)
+    atb[:, 2] = np.bincount(ids, w, minlength=n_comp)
+    ata[:, 2, 2] = count
     out = []
     for c in range(1, n_comp):
         if count[c] < min_pixels or abs(np.linalg.det(ata[c])) < 1e-18:

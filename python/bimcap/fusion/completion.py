@@ -485,9 +485,13 @@ class PlanarSmoothingOptions:
 
 def _inlier_counts(points: F64, normals: F64, d: F64, threshold: float) -> NDArray[np.int64]:
     """(I,) how many of ``points`` (N, 3) lie within ``threshold`` of each plane ``normals``
-    (I, 3), ``d`` (I,): ``(|points·normalsᵀ + d| < threshold).sum(0)`` bit for bit, in blocks
-    of 512 rows that stay in the cache (a one-row block would go to BLAS's matrix-vector
-    routine, so the last block takes the remainder; one plane is computed whole)."""
+    (I, 3), ``d`` (I,) (all float64): ``(|points·normalsᵀ + d| < threshold).sum(0)`` bit for
+    bit, in blocks of 512 rows that stay in the cache (a one-row block would go to BLAS's
+    matrix-vector routine, so the last block takes the remainder; one plane is computed whole):
+    each block's product in numpy (BLAS), the additions, comparisons and counts past it in one
+    pass of compiled code (``_core.add_plane_scores``, numpy's arithmetic)."""
+    from bimcap import _core
+
     if len(normals) < 2:
         whole: NDArray[np.int64] = (np.abs(points @ normals.T + d) < threshold).sum(0)
         return whole
@@ -495,11 +499,11 @@ def _inlier_counts(points: F64, normals: F64, d: F64, threshold: float) -> NDArr
     if len(starts) > 1 and len(points) - starts[-1] < 2:
         starts.pop()
     counts = np.zeros(len(normals), np.int64)
+    offsets = np.ascontiguousarray(d, dtype=np.float64)
+    thresholds = np.full(len(points), float(threshold))
     for a, b in zip(starts, [*starts[1:], len(points)], strict=True):
-        dist = points[a:b] @ normals.T
-        dist += d
-        np.abs(dist, out=dist)
-        counts += np.count_nonzero(dist < threshold, axis=0)
+        _core.add_plane_scores(counts, points[a:b] @ normals.T, None, offsets, thresholds[a:b],
+                               0.0)
     return counts
 
 
