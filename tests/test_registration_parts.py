@@ -436,14 +436,16 @@ def test_odometry_limits_follow_the_trajectory_and_flag_a_frame_the_drift_left_b
     assert max_m == pytest.approx(0.9) and 15.0 < max_deg <= 45.0
 
 
-def _storey_above_run(lift: float, k: int, input_yaw_deg: float) -> tuple[Any, Any, np.ndarray,
-                                                                          np.ndarray]:
+def _storey_above_run(lift: float, k: int, input_yaw_deg: float,
+                      input_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                      input_noise_m: float = 0.0) -> tuple[Any, Any, np.ndarray, np.ndarray]:
     """A tiny two-storey world (the synthetic room and the same room ``lift`` metres above it:
     same walls, its own floor and ceiling) and a solved stage in which frame ``k``, which no
     match links to another frame, sits on the storey above (every sample of it fits there). The
     input's pose of ``k`` is turned by ``input_yaw_deg`` (the paper's drift draws each frame's
-    rotation offset independently). Returns the stage solver, the stage run, the solved poses
-    and the truth."""
+    rotation offset independently) and its position moved by ``input_offset_m``; every input
+    position gets Gaussian noise of ``input_noise_m`` (a fixed seed). Returns the stage solver,
+    the stage run, the solved poses and the truth."""
     from types import SimpleNamespace
 
     from scipy.spatial.transform import Rotation
@@ -485,6 +487,8 @@ def _storey_above_run(lift: float, k: int, input_yaw_deg: float) -> tuple[Any, A
     inp = syn.problem.poses.copy()  # the input: the truth with a small drift
     inp[k, 3:] = (Rotation.from_euler("z", input_yaw_deg, degrees=True)
                   * Rotation.from_quat(inp[k, 3:])).as_quat()
+    inp[k, :3] += np.asarray(input_offset_m)
+    inp[:, :3] += np.random.default_rng(1).normal(0.0, input_noise_m, (len(inp), 3))
     camera = SimpleNamespace(pinhole=lambda: SimpleNamespace(intrinsics=np.array(cfg.intrinsics)))
     prepared = Prepared(sequence=SimpleNamespace(camera=camera), reference=reference,
                         frontend=SimpleNamespace(to_problem_arrays=lambda: dict(arrays)),
@@ -522,6 +526,60 @@ def test_the_odometry_repair_gives_a_moved_frame_the_planes_where_it_lands(
     assert (a["floor_plane"][a["floor_frame"] == k] == 0).all()  # the lower storey's floor
     if input_yaw_deg:  # the candidates: each neighbour's prediction, turned as input or as solved
         assert len(record["candidate_agreement"]) == 4
+
+
+def test_the_odometry_repair_solves_a_frame_the_scan_solve_holds() -> None:
+    """AC20-FZK-Haus Exp 1 (the worlds simulated on 2026-11-27): frame 30, which no match links
+    and the BIM does not observe in every direction, is held by the scan's noise-scale solve
+    where it was, 92 cm off. The odometry repair flagged it, but solved its candidates with the
+    hold still on: each was scored where it started, 12-25 cm from the truth (0.08-0.58 of its
+    samples within 5 cm, against 0.82 where it was) and the repair was rejected. Here the input's
+    pose of the frame is 15 cm off, so its neighbours' prediction is; the moved frame is solved
+    free, lands on the truth, and is held again where the repair put it."""
+    from bimcap.pipeline.refine import _odometry_repair_run
+
+    k = 4
+    solver, run, solved, gt = _storey_above_run(lift=2.9, k=k, input_yaw_deg=0.0,
+                                                input_offset_m=(0.15, 0.0, 0.0))
+    solver.held = frozenset({k})
+    run, poses, record = _odometry_repair_run(solver, run, solved)
+    assert record["outliers"] == [k] and record["accepted"]
+    assert np.linalg.norm(poses[k, :3] - gt[k, :3]) < 0.03
+    assert solver.held == frozenset({k}) and run.problem.pose_fixed[k] == 1
+
+
+@pytest.mark.parametrize(("shift", "moved"), [((0.4, 0.0, 0.0), True), ((0.0, 0.5, 0.0), False)],
+                         ids=["off-the-walls", "along-the-walls"])
+def test_the_odometry_repair_moves_a_suspect_end_frame_only_where_the_bim_agrees_better(
+        shift: tuple[float, float, float], moved: bool) -> None:
+    """Office_A Exp 1 (the worlds simulated on 2026-11-27): the last frame ended 81 cm off,
+    0.63 m from its neighbour's prediction, within the outlier limit (0.65 m) that the input's
+    per-frame rotation noise sets; the BIM agreed with it there far less than at the truth (0.85
+    against 0.98). A frame past the looser suspects' limit is tried from its neighbour's
+    prediction and moved when the BIM agrees clearly better there (off the walls it sees); one
+    the BIM agrees with as well where it is (moved along them) is left alone."""
+    from dataclasses import replace
+    from types import SimpleNamespace
+
+    from bimcap.pipeline.refine import _odometry_repair_run, build_problem, choose_sample_planes
+
+    k = 11  # the last frame
+    solver, run, _, gt = _storey_above_run(lift=2.9, k=k, input_yaw_deg=0.0, input_noise_m=0.06)
+    solved = gt.copy()
+    solved[k, :3] += shift
+    chosen = choose_sample_planes(solver.prepared, solved)
+    problem, stats = build_problem(solver.prepared, solved, planes_chosen=chosen)
+    run = replace(run, chosen=chosen, problem=problem, stats=stats,
+                  result=SimpleNamespace(poses=solved))
+    run, poses, record = _odometry_repair_run(solver, run, solved)
+    if moved:
+        # x, which its walls observe, back on the truth; along them the noisy input's motion
+        assert abs(poses[k, 0] - gt[k, 0]) < 0.01
+        assert np.linalg.norm(poses[k, :3] - gt[k, :3]) < 0.2
+        assert record["moved"] == [k] and record["accepted"]
+    else:
+        assert record["moved"] == [] and poses is solved
+    assert record["outliers"] == [] and record["suspects"] == [k]
 
 
 def _walk(n: int) -> np.ndarray:
