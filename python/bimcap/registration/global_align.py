@@ -34,7 +34,9 @@ bundle adjustment can take over:
    plan repeats what the best placement saw somewhere else and the real scan placed there
    scores at least ``ambiguity_ratio`` of the best, or fits there acceptably where the plan
    repeats almost exactly (:func:`_plan_alias`, :func:`_alias_ambiguous`: a point-symmetric
-   duplex, where drift can rank the wrong unit first), the result is ambiguous:
+   duplex, where drift can rank the wrong unit first; there only the real ranges along the rays
+   where the two plans differ can lift the flag, :func:`alias_range_vote`), the result is
+   ambiguous:
    :func:`global_align` raises :class:`AmbiguousAlignmentError` (with the ranked hypotheses)
    unless ``accept_ambiguous`` is set. A best hypothesis that fits badly raises
    :class:`GlobalAlignmentError`. Never a confident wrong answer.
