@@ -175,8 +175,9 @@ class GlobalAlignOptions:
         at least ``alias_vote_min_share`` (0-1); otherwise the near-exact rule stands. Aliases
         the plan tells apart (ideal difference above ``alias_exact_difference``) keep the
         ratio rule. (docs/global_align.md, "The discriminating-ray vote": the five near-exact
-        flags of the generated worlds had 132-370 votes, 78-93 % for the best at the lower
-        bound; every Duplex_A and AC20-FZK-Haus run at most 108 votes and 56 %.)
+        flags of the generated worlds had 132-370 votes from 27-33 frames, 78-93 % for the best
+        at the lower bound; every Duplex_A and AC20-FZK-Haus run at most 108 votes, and at most
+        56 % at the bound with more than 20 votes.)
     accept_ambiguous: take the best hypothesis even when the result is ambiguous (flagged in
         the result, never hidden).
     report_top: hypotheses kept in the result.
