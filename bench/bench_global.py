@@ -201,7 +201,8 @@ def run_registration(world: World, seed: int, frames: int) -> dict[str, Any]:
         return {**row, "right": False, "cam_err_m": nan, "yaw_err_deg": nan, "ratio": nan,
                 "right_storey": False, "score": nan, "fit": nan, "free": nan,
                 "see_through": nan, "agreement": nan, "constraint": nan, "alias_ratio": nan,
-                "alias_difference": nan, "alias_fit": nan, "twins": 0}
+                "alias_difference": nan, "alias_fit": nan, "twins": 0, "vote_rays": nan,
+                "vote_best": nan, "vote_alias": nan, "vote_frames": nan, "vote_low": nan}
     est = compose(res.world_from_slam, slam.trajectory.poses)
     true = compose(invert(slam.slam_from_world), slam.trajectory.poses)
     cam_err = float(np.linalg.norm(est[:, :3] - true[:, :3], axis=1).mean())
@@ -218,7 +219,17 @@ def run_registration(world: World, seed: int, frames: int) -> dict[str, Any]:
             "alias_ratio": float("nan") if res.alias is None else res.alias.score_ratio,
             "alias_difference": float("nan") if res.alias is None else res.alias.difference,
             "alias_fit": float("nan") if res.alias is None else res.alias.fit_score,
-            "twins": len(res.twin_floors)}
+            "twins": len(res.twin_floors), **_vote_columns(res)}
+
+
+def _vote_columns(res: Any) -> dict[str, float]:
+    """The discriminating-ray vote at the result's alias (NaN: none cast)."""
+    vote = None if res.alias is None else res.alias.vote
+    if vote is None:
+        return dict.fromkeys(("vote_rays", "vote_best", "vote_alias", "vote_frames",
+                              "vote_low"), float("nan"))
+    return {"vote_rays": vote.rays, "vote_best": vote.for_best, "vote_alias": vote.for_alias,
+            "vote_frames": vote.frames, "vote_low": vote.share_low}
 
 
 def summarise(rows: list[dict[str, Any]]) -> str:

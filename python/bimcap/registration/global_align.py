@@ -34,7 +34,9 @@ bundle adjustment can take over:
    plan repeats what the best placement saw somewhere else and the real scan placed there
    scores at least ``ambiguity_ratio`` of the best, or fits there acceptably where the plan
    repeats almost exactly (:func:`_plan_alias`, :func:`_alias_ambiguous`: a point-symmetric
-   duplex, where drift can rank the wrong unit first), the result is ambiguous:
+   duplex, where drift can rank the wrong unit first; there only the real ranges along the rays
+   where the two plans differ can lift the flag, :func:`alias_range_vote`), the result is
+   ambiguous:
    :func:`global_align` raises :class:`AmbiguousAlignmentError` (with the ranked hypotheses)
    unless ``accept_ambiguous`` is set. A best hypothesis that fits badly raises
    :class:`GlobalAlignmentError`. Never a confident wrong answer.
@@ -159,6 +161,23 @@ class GlobalAlignOptions:
         ``min_free_fraction``, ``max_see_through``): the plan gives a perfect scan next to
         nothing to tell the two apart, so the real scan's gap is drift and noise
         (:func:`_alias_ambiguous`).
+    alias_vote, alias_vote_differ_m, alias_vote_tol_m, alias_vote_min_votes,
+        alias_vote_min_frames, alias_vote_min_share: the discriminating-ray vote at a
+        near-exact alias (:func:`alias_range_vote`): the real scan's rays, as the best
+        placement puts them, and their rigid image at the alias (where the plan repeats what
+        the best placement saw); the rays whose first plan walls from the two lie more than
+        ``alias_vote_differ_m`` (m) apart are the only ones that can tell the two apart, and
+        each votes for the placement whose plan range its measured range meets within
+        ``alias_vote_tol_m`` (m). With ``alias_vote`` on, a near-exact alias does not make the
+        result ambiguous, whatever the ratio of the real scores (drift's, there), when at
+        least ``alias_vote_min_votes`` rays from at least ``alias_vote_min_frames`` frames
+        voted and the lower 95 % Wilson bound of the best placement's share of the votes is
+        at least ``alias_vote_min_share`` (0-1); otherwise the near-exact rule stands. Aliases
+        the plan tells apart (ideal difference above ``alias_exact_difference``) keep the
+        ratio rule. (docs/global_align.md, "The discriminating-ray vote": the five near-exact
+        flags of the generated worlds had 132-370 votes from 27-33 frames, 78-93 % for the best
+        at the lower bound; every Duplex_A and AC20-FZK-Haus run at most 108 votes, and at most
+        56 % at the bound with more than 20 votes.)
     accept_ambiguous: take the best hypothesis even when the result is ambiguous (flagged in
         the result, never hidden).
     report_top: hypotheses kept in the result.
@@ -211,6 +230,12 @@ class GlobalAlignOptions:
     alias_rescore: int = 3
     alias_max_difference: float = 0.2
     alias_exact_difference: float = 0.1
+    alias_vote: bool = True
+    alias_vote_differ_m: float = 0.3
+    alias_vote_tol_m: float = 0.3
+    alias_vote_min_votes: int = 100
+    alias_vote_min_frames: int = 10
+    alias_vote_min_share: float = 0.7
     accept_ambiguous: bool = False
     report_top: int = 5
     seed: int = 0
@@ -226,7 +251,7 @@ class GlobalAlignOptions:
         positive = ("resolution_m", "sigma_m", "yaw_step_deg", "icp_radius_start_m",
                     "icp_radius_end_m", "icp_huber_m", "fine_resolution_m", "fine_sigma_m",
                     "inlier_m", "frame_yaw_step_deg", "distinct_m", "distinct_deg", "distinct_z_m",
-                    "alias_tol_m", "range_tol_m")
+                    "alias_tol_m", "range_tol_m", "alias_vote_differ_m", "alias_vote_tol_m")
         for name, value in asdict(self).items():
             if isinstance(value, float) and not np.isfinite(value):
                 raise RegistrationInputError(f"must be finite, got {value}", None, name)
@@ -239,7 +264,7 @@ class GlobalAlignOptions:
                 raise RegistrationInputError(f"must be >= 1, got {getattr(self, name)}", None,
                                              name)
         for name in ("ambiguity_ratio", "min_score", "min_free_fraction", "max_see_through",
-                     "alias_max_difference", "alias_exact_difference"):
+                     "alias_max_difference", "alias_exact_difference", "alias_vote_min_share"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise RegistrationInputError("must be in [0, 1]", None, name)
         if not 0 <= self.enclosed_min_hits <= self.enclosed_rays:
@@ -247,7 +272,8 @@ class GlobalAlignOptions:
                                          "enclosed_min_hits")
         for name in ("wall_band_m", "gravity_min_tilt_deg", "frame_level_max_deg",
                      "free_clearance_m", "frame_yaw_deg",
-                     "frame_shift_m", "see_through_margin_m", "see_through_power", "range_power"):
+                     "frame_shift_m", "see_through_margin_m", "see_through_power", "range_power",
+                     "alias_vote_min_votes", "alias_vote_min_frames"):
             if getattr(self, name) < 0:
                 raise RegistrationInputError("must be >= 0", None, name)
 
@@ -1032,6 +1058,8 @@ class PlanAlias:
     fit_score, scan_free_fraction, scan_see_through: the real scan's per-frame fit, share of
         cameras in free space and share of points seen through walls at this placement (what
         the best placement must reach to be accepted; :func:`_alias_ambiguous`).
+    vote: the discriminating-ray vote between the best placement and this alias
+        (:func:`alias_range_vote`; None: not cast, the alias is not near-exact).
     """
 
     floor_z: float | None
@@ -1046,6 +1074,7 @@ class PlanAlias:
     fit_score: float = 0.0
     scan_free_fraction: float = 0.0
     scan_see_through: float = 0.0
+    vote: RangeVote | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -1087,7 +1116,7 @@ def _plan_alias(best: _Found, scan: _Scan, sections: list[_Storey], plan: FloorP
     seen_here = see_through_fraction(cams[p_frame], p_xy, sm_best.seg,
                                      opt.see_through_margin_m,
                                      margin_from=opt.see_through_margin_from)[0]
-    cands: list[tuple[float, Correction2D, _Storey, PlanAlias]] = []
+    cands: list[tuple[float, Correction2D, _Storey, Correction2D, PlanAlias]] = []
     yaws = np.arange(-np.pi, np.pi, np.deg2rad(opt.yaw_step_deg))
     done: set[bytes] = set()
     for storey in sections:
@@ -1143,7 +1172,7 @@ def _plan_alias(best: _Found, scan: _Scan, sections: list[_Storey], plan: FloorP
             # ``corr`` takes the shifted points into the world: fold the shift in (as
             # :func:`_search_storey` does), then apply it after ``best``.
             in_world = Correction2D(corr.yaw, corr.t + shift, corr.pivot - shift)
-            cands.append((diff, _compose(in_world, best.corr), storey,
+            cands.append((diff, _compose(in_world, best.corr), storey, in_world,
                           PlanAlias(storey.floor_z, yaw, moved, match, free, seen, diff)))
     # The real scan where the plan repeats best: the search may have missed the place, or
     # drift may have ranked it below the alias.
@@ -1162,7 +1191,8 @@ def _plan_alias(best: _Found, scan: _Scan, sections: list[_Storey], plan: FloorP
                          scan.cams[:, :2], opt)
     best_score = min(best.score, rescored.score)
     best_plain = min(best.score_without_range, rescored.score_without_range)
-    for diff, corr, storey, alias in cands[:opt.alias_rescore]:
+    best_rays: tuple[F64, F64] | None = None
+    for diff, corr, storey, image, alias in cands[:opt.alias_rescore]:
         if diff > opt.alias_max_difference:
             break
         f = _score_at(corr, storey, storey_maps[_section_key(plan, storey)], all_xy, all_cls,
@@ -1173,6 +1203,16 @@ def _plan_alias(best: _Found, scan: _Scan, sections: list[_Storey], plan: FloorP
                     f.score_without_range / best_plain if best_plain > 0 else 0.0)
         here = replace(alias, score=f.score, score_ratio=ratio, fit_score=f.fit,
                        scan_free_fraction=f.free, scan_see_through=f.see_through)
+        if diff <= opt.alias_exact_difference and opt.alias_vote:
+            # Where no ratio can tell: the rays where the plan differs vote.
+            if best_rays is None:
+                best_rays = _polished_points(rescored.corr, all_xy, all_cls, all_view,
+                                             all_frame, scan.cams[:, :2], sm_best.maps, opt)
+            q_b, c_b = best_rays
+            here = replace(here, vote=alias_range_vote(
+                c_b, q_b, image.apply(c_b), image.apply(q_b), all_frame, sm_best.seg,
+                storey_maps[_section_key(plan, storey)].seg, opt.alias_vote_differ_m,
+                opt.alias_vote_tol_m))
         if out is None or ((_alias_ambiguous(here, opt), ratio)
                            > (_alias_ambiguous(out, opt), out.score_ratio)):
             out = here
@@ -1198,13 +1238,174 @@ def _alias_ambiguous(alias: PlanAlias, opt: GlobalAlignOptions) -> bool:
     ratio threshold alone). The smallest ideal
     difference of an alias behind a right, unflagged placement on the generated worlds was
     0.107 (the 180 deg image of a corridor of jittered room widths); the limit, 0.1, sits
-    nearer that side: a miss there costs a flag, a miss on the other a wrong placement."""
+    nearer that side: a miss there costs a flag, a miss on the other a wrong placement.
+
+    What does tell, at a near-exact alias: the rays where the plan differs (``alias_vote``,
+    :attr:`PlanAlias.vote`, :func:`alias_range_vote`). When enough of them, from enough frames,
+    back the best placement (:meth:`RangeVote.decides`), the alias makes the result ambiguous
+    neither by the near-exact rule nor by its ratio (both drift's there); an exact repeat has
+    next to no such rays, so its flag stays."""
+    near_exact = alias.difference <= opt.alias_exact_difference
+    if (near_exact and opt.alias_vote and alias.vote is not None
+            and alias.vote.decides(opt)):
+        return False  # the rays where the plan differs back the best placement
     if alias.score_ratio >= opt.ambiguity_ratio:
         return True
-    return (alias.difference <= opt.alias_exact_difference
+    return (near_exact
             and alias.fit_score >= opt.min_score
             and alias.scan_free_fraction >= opt.min_free_fraction
             and alias.scan_see_through <= opt.max_see_through)
+
+
+def plan_ranges(cam_xy: F64, p_xy: F64, segments: F64, beyond_m: float,
+                chunk: int = 256) -> F64:
+    """The plan's range along each ray: the distance from the camera, along the ray through
+    its point, to the first plan segment the ray crosses, looked for up to ``beyond_m`` past
+    the point.
+
+    Parameters
+    ----------
+    cam_xy: (M, 2) the camera of each point, metres (world); p_xy: (M, 2) the points.
+    segments: (S, 4) the storey's plan section.
+    beyond_m: how far past the point the ray goes (metres, >= 0).
+
+    Returns
+    -------
+    (M,) ranges in metres; ``inf`` where the ray meets no segment (or has no length).
+    """
+    cam = np.asarray(cam_xy, dtype=np.float64).reshape(-1, 2)
+    pts = np.asarray(p_xy, dtype=np.float64).reshape(-1, 2)
+    seg = np.asarray(segments, dtype=np.float64).reshape(-1, 4)
+    out = np.full(len(pts), np.inf)
+    if len(pts) == 0 or len(seg) == 0:
+        return out
+    ray = pts - cam
+    length = np.linalg.norm(ray, axis=1)
+    use = np.flatnonzero(length > 1e-9)
+    reach = length[use] + beyond_m
+    o_all = cam[use]
+    d_all = ray[use] * (reach / length[use])[:, None]
+    seg_lo = np.minimum(seg[:, :2], seg[:, 2:])
+    seg_hi = np.maximum(seg[:, :2], seg[:, 2:])
+    for k in range(0, len(use), chunk):
+        o, d = o_all[k:k + chunk, None], d_all[k:k + chunk, None]
+        ends = np.r_[o_all[k:k + chunk], o_all[k:k + chunk] + d_all[k:k + chunk]]
+        near = ((seg_lo <= ends.max(0) + 1e-6) & (seg_hi >= ends.min(0) - 1e-6)).all(1)
+        a, e = seg[near, :2], seg[near, 2:] - seg[near, :2]
+        den = d[..., 0] * e[None, :, 1] - d[..., 1] * e[None, :, 0]
+        w = a[None] - o
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = (w[..., 0] * e[None, :, 1] - w[..., 1] * e[None, :, 0]) / den  # along the ray
+            t = (w[..., 0] * d[..., 1] - w[..., 1] * d[..., 0]) / den  # along the segment
+        cross = (np.abs(den) > 1e-12) & (s >= 0) & (s <= 1) & (t >= 0) & (t <= 1)
+        out[use[k:k + chunk]] = (np.where(cross, s, np.inf).min(1, initial=np.inf)
+                                 * reach[k:k + chunk])
+    return out
+
+
+@dataclass(frozen=True)
+class RangeVote:
+    """The discriminating-ray vote between a best placement and its alias
+    (:func:`alias_range_vote`).
+
+    Attributes
+    ----------
+    points: real wall/column points that took part (M).
+    rays: discriminating rays: the plan ranges from the two placements differ by more than
+        ``differ_m``.
+    for_best, for_alias: discriminating rays whose measured range meets the best placement's
+        (the alias's) plan range within ``tol_m``, and not the other's.
+    frames: frames with at least one vote; frames_for_best: those where the best placement has
+        more votes than the alias.
+    share_low: the lower 95 % Wilson bound of ``for_best / (for_best + for_alias)`` (0 without
+        votes).
+    """
+
+    points: int
+    rays: int
+    for_best: int
+    for_alias: int
+    frames: int
+    frames_for_best: int
+    share_low: float
+
+    def decides(self, opt: GlobalAlignOptions) -> bool:
+        """Whether the vote tells the best placement from the alias (``alias_vote_min_votes``,
+        ``alias_vote_min_frames``, ``alias_vote_min_share``)."""
+        return (self.for_best + self.for_alias >= opt.alias_vote_min_votes
+                and self.frames >= opt.alias_vote_min_frames
+                and self.share_low >= opt.alias_vote_min_share)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def _wilson_low(k: int, n: int, z: float = 1.96) -> float:
+    """Lower Wilson score bound of the share ``k / n`` (0 when ``n`` is 0)."""
+    if n <= 0:
+        return 0.0
+    p = k / n
+    centre = p + z * z / (2 * n)
+    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
+    return float((centre - half) / (1 + z * z / n))
+
+
+def alias_range_vote(cam_best: F64, q_best: F64, cam_alias: F64, q_alias: F64, frame: I32,
+                     seg_best: F64, seg_alias: F64, differ_m: float = 0.3,
+                     tol_m: float = 0.3) -> RangeVote:
+    """Which of two placements the real ranges back, on the rays where the plan differs.
+
+    The same real points (M) placed by the best placement (``cam_best``, ``q_best``: camera and
+    point, world, (M, 2)) and by its alias (``cam_alias``, ``q_alias``), each in its storey's
+    plan section (``seg_*``, (S, 4)). Each ray's plan range (:func:`plan_ranges`) is cast from
+    both; where the two differ by more than ``differ_m`` (metres; one of them may meet no wall
+    at all) the ray can tell the placements apart, and it votes for the one whose plan range
+    its measured range (the camera-to-point distance, the same under both rigid placements)
+    meets within ``tol_m`` (metres), when it meets only that one. Elsewhere the plan repeats
+    itself and the ray says nothing. At an exact repeat (a point-symmetric duplex) few rays
+    differ and their votes are drift's; where the plan differs in a wall the sensor saw (a
+    room of another width, a door moved) the rays that met that wall vote, frame after frame.
+
+    Returns
+    -------
+    RangeVote (``frame`` (M,) the frame of each point).
+    """
+    frame = np.asarray(frame, dtype=np.int64)
+    measured = np.linalg.norm(np.asarray(q_best) - np.asarray(cam_best), axis=1)
+    beyond = differ_m + tol_m
+    r_best = plan_ranges(cam_best, q_best, seg_best, beyond)
+    r_alias = plan_ranges(cam_alias, q_alias, seg_alias, beyond)
+    both = np.isfinite(r_best) & np.isfinite(r_alias)
+    gap = np.abs(np.where(both, r_best, 0.0) - np.where(both, r_alias, 0.0))
+    differ = np.where(both, gap > differ_m, np.isfinite(r_best) | np.isfinite(r_alias))
+    ok_best = np.abs(r_best - measured) <= tol_m
+    ok_alias = np.abs(r_alias - measured) <= tol_m
+    vote_best = differ & ok_best & ~ok_alias
+    vote_alias = differ & ok_alias & ~ok_best
+    n_best = int(vote_best.sum())
+    n_alias = int(vote_alias.sum())
+    voted = vote_best | vote_alias
+    frames = np.unique(frame[voted])
+    per_best = np.bincount(frame[vote_best], minlength=int(frame.max(initial=0)) + 1)
+    per_alias = np.bincount(frame[vote_alias], minlength=int(frame.max(initial=0)) + 1)
+    return RangeVote(len(frame), int(differ.sum()), n_best, n_alias, len(frames),
+                     int((per_best[frames] > per_alias[frames]).sum()),
+                     _wilson_low(n_best, n_best + n_alias))
+
+
+def _polished_points(corr: Correction2D, p_xy: F64, p_cls: I32, p_view: F64, p_frame: I32,
+                     cams_xy: F64, maps: PlanMaps, opt: GlobalAlignOptions) -> tuple[F64, F64]:
+    """Each point (M, 2) and its camera (M, 2), world, under ``corr`` polished as for the
+    see-through share (:func:`_see_through`: the mean of the frames' best turns and shifts,
+    then each frame turned by its own best turn)."""
+    _, _, _, turn, shift = _frame_fit(corr, p_xy, p_cls, p_view, p_frame, cams_xy, maps, opt)
+    centre = corr.apply(cams_xy).mean(0)
+    r = rot2(turn)
+    t = r @ (corr.pivot + corr.t - centre) + centre + shift - corr.pivot
+    polished = Correction2D(corr.yaw + turn, t, corr.pivot)
+    _, q_turned, cam, _, _ = _frame_fit(polished, p_xy, p_cls, p_view, p_frame, cams_xy, maps,
+                                        replace(opt, frame_shift_m=0.0))
+    return q_turned, cam
 
 
 def _free_map(segments: F64, bounds: tuple[float, float, float, float],
@@ -1510,6 +1711,10 @@ def global_align(
                       f"tells them apart, and the scan fits there too: fit "
                       f"{alias.fit_score:.2f}, free {alias.scan_free_fraction:.0%}" if exact
                       else f"threshold {opt.ambiguity_ratio:.0%}")
+                   + ("" if alias.vote is None else
+                      f"; the rays where the plan differs voted {alias.vote.for_best} for the "
+                      f"best, {alias.vote.for_alias} for the alias, from {alias.vote.frames} "
+                      f"frames: too few or too even to decide")
                    + "; a point-symmetric or repeated layout)")
         else:
             why = (f"the second-best placement scores {ratio:.0%} of the best (threshold "
