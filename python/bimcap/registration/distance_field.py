@@ -139,8 +139,11 @@ class DistanceField:
         it cannot pull the alignment; a missing as-built wall only removes points.
         """
         d = self.distance_m.astype(np.float64)
-        s = np.exp(-0.5 * (d / sigma_m) ** 2)
-        s[d > truncate * sigma_m] = 0.0
+        # The exponential only where it is kept (a fine map is mostly far from every wall):
+        # the same values, elementwise, as computing it everywhere and zeroing the rest.
+        near = ~(d > truncate * sigma_m)
+        s = np.zeros(d.shape)
+        s[near] = np.exp(-0.5 * (d[near] / sigma_m) ** 2)
         return s.astype(np.float32)
 
 

@@ -1299,13 +1299,10 @@ def _frame_fit(corr: Correction2D, p_xy: F64, p_cls: I32, p_view: F64, p_frame: 
     s = opt.frame_shift_m
     shifts = [np.zeros(2)] + ([np.array([dx, dy]) for dx in (-s, 0.0, s) for dy in (-s, 0.0, s)
                                if dx or dy] if s > 0 else [])
-    for d in deltas:
-        r = rot2(float(d))
-        qd = (q - cam) @ r.T + cam
-        layer = maps.layer_of(p_cls, view @ r.T)
-        for sh in shifts:
-            sc = maps.fine_score_at(qd + sh, layer)
-            mean = np.bincount(p_frame, weights=sc, minlength=n) / np.maximum(count, 1.0)
+    means = _frame_means(q, cam, view, p_cls, p_frame, n, deltas, shifts, maps)
+    for a, d in enumerate(deltas):
+        for b, sh in enumerate(shifts):
+            mean = means[a, b] / np.maximum(count, 1.0)
             better = mean > best
             best[better], best_turn[better], best_shift[better] = mean[better], d, sh
             if not sh.any():
@@ -1319,6 +1316,38 @@ def _frame_fit(corr: Correction2D, p_xy: F64, p_cls: I32, p_view: F64, p_frame: 
         return 0.0, q_turned, cam, 0.0, np.zeros(2)
     return (float(np.maximum(best[has], 0.0).mean()), q_turned, cam,
             float(best_turn[has].mean()), best_shift[has].mean(0))
+
+
+def _frame_means(q: F64, cam: F64, view: F64, p_cls: I32, p_frame: I32, n: int, deltas: F64,
+                 shifts: list[F64], maps: PlanMaps, chunk: int = 1 << 18) -> F64:
+    """(D, K, n) each frame's summed fine score when every point (M, 2) ``q`` turns by
+    ``deltas[a]`` (D,) about its frame's camera ``cam`` (M, 2) and then shifts by
+    ``shifts[b]`` (K of (2,)); ``view`` (M, 2) the rays, ``p_frame`` (M,) the frames.
+
+    The turns and shifts of :func:`_frame_fit` looked up in one pass over the (D K M) moved
+    points, in chunks of whole turns of at most ``chunk`` points: the same arithmetic point by
+    point (:meth:`PlanMaps.fine_score_at` is elementwise) and the same order of each frame's
+    sum (``np.bincount`` adds in input order), so the same bits as one look-up and one
+    ``bincount`` per turn and shift."""
+    m, k = len(q), len(shifts)
+    out = np.empty((len(deltas), k, n))
+    sh = np.asarray(shifts, dtype=np.float64).reshape(k, 1, 2)
+    key = (np.arange(k)[:, None] * n + p_frame[None, :]).ravel()
+    per = max(1, chunk // max(1, k * m))
+    rel = q - cam
+    for a0 in range(0, len(deltas), per):
+        ds = deltas[a0:a0 + per]
+        moved, layers = [], []
+        for d in ds:
+            r = rot2(float(d))
+            qd = rel @ r.T + cam
+            moved.append((qd[None] + sh).reshape(-1, 2))
+            layers.append(np.tile(maps.layer_of(p_cls, view @ r.T), k))
+        sc = maps.fine_score_at(np.concatenate(moved), np.concatenate(layers))
+        for j in range(len(ds)):
+            out[a0 + j] = np.bincount(key, weights=sc[j * k * m:(j + 1) * k * m],
+                                      minlength=k * n).reshape(k, n)
+    return out
 
 
 def _see_through(corr: Correction2D, turn: float, shift: F64, p_xy: F64, p_cls: I32,

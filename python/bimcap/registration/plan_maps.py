@@ -38,23 +38,52 @@ def _crossings(p: F64, d: NDArray[np.float64], segments: F64) -> NDArray[np.int6
 
 
 def _crossings_many(p: F64, dirs: list[NDArray[np.float64]] | tuple[NDArray[np.float64], ...],
-                    segments: F64) -> list[NDArray[np.int64]]:
+                    segments: F64, chunk: int = 64) -> list[NDArray[np.int64]]:
     """:func:`_crossings` of the points (M, 2) for each direction of ``dirs`` (the same
-    arithmetic; what does not depend on the direction computed once)."""
+    arithmetic, pair by pair, as testing every point against every segment).
+
+    Per direction the points are sorted across the ray and taken ``chunk`` at a time: a
+    segment is tested against a chunk only if it can be hit by one of its rays: it reaches the
+    chunk's band across the rays and lies, at least in part, ahead of the chunk's rearmost
+    point, with a margin of 1e-6 m both ways (the tests' rounding is orders of magnitude below:
+    at most about 1e-11 m on a 100 m plan). Segments within 0.06 deg of parallel to the
+    direction (``|d x e| < 1e-3 |e|``), where the division's rounding grows, are always
+    tested. A segment left out is one no ray of the chunk crosses, so the counts are those of
+    the full test."""
+    p = np.asarray(p, dtype=np.float64).reshape(-1, 2)
     a, e = segments[:, :2], segments[:, 2:] - segments[:, :2]
-    w = a[None] - p[:, None]
-    w0, w1 = w[..., 0], w[..., 1]
-    s_num = w0 * e[None, :, 1] - w1 * e[None, :, 0]
+    b = segments[:, 2:]
+    length = np.hypot(e[:, 0], e[:, 1])
+    tol = 1e-6
     out = []
     for d in dirs:
         den = d[0] * e[:, 1] - d[1] * e[:, 0]
         ok = np.abs(den) > 1e-12
-        den_ok = den[ok][None]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s = s_num[:, ok] / den_ok
-            u = (w0[:, ok] * d[1] - w1[:, ok] * d[0]) / den_ok
-        hit = (s > 0) & (u >= 0) & (u < 1)
-        out.append(np.asarray(hit.sum(1), dtype=np.int64))
+        always = ok & (np.abs(den) < 1e-3 * length)
+        perp = np.array([-d[1], d[0]])
+        p_across, p_along = p @ perp, p @ d
+        s_across = np.c_[a @ perp, b @ perp]
+        s_lo, s_hi = s_across.min(1), s_across.max(1)
+        s_ahead = np.maximum(a @ d, b @ d)
+        order = np.argsort(p_across, kind="stable")
+        count = np.zeros(len(p), dtype=np.int64)
+        for k in range(0, len(p), chunk):
+            rows = order[k:k + chunk]
+            lo, hi = p_across[rows].min(), p_across[rows].max()
+            cand = np.flatnonzero(always | (ok & (s_hi >= lo - tol) & (s_lo <= hi + tol)
+                                            & (s_ahead > p_along[rows].min() - tol)))
+            if len(cand) == 0:
+                continue
+            w = a[cand][None] - p[rows][:, None]
+            w0, w1 = w[..., 0], w[..., 1]
+            ec = e[cand]
+            den_ok = den[cand][None]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                s_ = (w0 * ec[None, :, 1] - w1 * ec[None, :, 0]) / den_ok
+                u = (w0 * d[1] - w1 * d[0]) / den_ok
+            hit = (s_ > 0) & (u >= 0) & (u < 1)
+            count[rows] = hit.sum(1)
+        out.append(count)
     return out
 
 
