@@ -504,3 +504,24 @@ def test_score_map_has_the_bits_of_the_full_exponential() -> None:
         got = field_.score_map(sigma, 3.0)
         assert got.tobytes() == want.astype(np.float32).tobytes()
         assert 0 < (got > 0).mean() < 1
+
+
+def test_stacked_fine_maps_have_the_bits_of_the_per_layer_fields() -> None:
+    """The stacked look-ups (one flat index per corner, int32 nearest rows) against each
+    layer's own :class:`DistanceField` (the loops used when the layers' grids differ)."""
+    from bimcap.registration.plan_maps import _Stack
+
+    scan, sm = _demo_walk(224, 284)
+    maps = sm.maps
+    assert isinstance(maps._stack(), _Stack)
+    rng = np.random.default_rng(9)
+    lo, hi = np.array(sm.bounds[:2]) - 4.0, np.array(sm.bounds[2:]) + 4.0  # some outside
+    q = np.r_[scan.xy, rng.uniform(lo, hi, (3000, 2))]
+    layer = maps.layer_of(np.r_[scan.cls, np.full(3000, scan.cls[0])],
+                          rng.normal(size=(len(q), 2)))
+    got = (maps.fine_score_at(q, layer), *maps.fine_eval(q, layer), *maps.nearest(q, layer))
+    maps.__dict__["_stacked"] = None  # the per-layer loops
+    want = (maps.fine_score_at(q, layer), *maps.fine_eval(q, layer), *maps.nearest(q, layer))
+    for g, w in zip(got, want, strict=True):
+        assert g.tobytes() == w.tobytes()
+    assert (want[0] > 0).mean() > 0.3 and np.isfinite(want[3]).mean() > 0.9
