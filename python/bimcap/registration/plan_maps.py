@@ -331,7 +331,7 @@ class PlanMaps:
                 for f in self.fine):
             # Filled in place (no per-layer temporaries, no copy by ``np.stack``); the rows
             # as int32 (a segment index), half the memory of the int64 gather.
-            shape = (len(self.fine),) + f0.distance_m.shape
+            shape = (len(self.fine), *f0.distance_m.shape)
             nearest = np.empty(shape, np.int32)
             distance = np.empty(shape, np.float32)
             score = np.empty(shape, np.float32)
