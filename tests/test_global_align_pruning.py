@@ -525,3 +525,53 @@ def test_stacked_fine_maps_have_the_bits_of_the_per_layer_fields() -> None:
     for g, w in zip(got, want, strict=True):
         assert g.tobytes() == w.tobytes()
     assert (want[0] > 0).mean() > 0.3 and np.isfinite(want[3]).mean() > 0.9
+
+
+@pytest.mark.parametrize("radius_end_m", [0.12, 0.05])
+def test_icp_in_lock_step_has_the_bits_of_one_run_per_init(radius_end_m: float) -> None:
+    from bimcap.registration.icp import Correction2D, icp_2d, icp_2d_many
+
+    scan, sm = _demo_walk(224, 284)
+    maps = sm.maps
+    keep = np.linspace(0, len(scan.xy) - 1, 1500).astype(np.int64)
+    xy, cls, view = scan.xy[keep], scan.cls[keep], scan.view[keep]
+
+    def associate(q: np.ndarray, q_class: np.ndarray, v: np.ndarray) -> Any:
+        return maps.nearest(q, maps.layer_of(q_class, v))
+
+    rng = np.random.default_rng(10)
+    pivot = scan.cams[:, :2].mean(0)
+    # Near the truth (converge early), a little off (run every radius), far off (too few
+    # pairs: stop at once).
+    inits = ([Correction2D(rng.normal(0, 0.03), rng.normal(0, 0.2, 2), pivot) for _ in range(6)]
+             + [Correction2D(rng.uniform(-3, 3), rng.uniform(-8, 8, 2), pivot) for _ in range(6)]
+             + [Correction2D(0.0, np.array([500.0, 0.0]), pivot)])
+    got = icp_2d_many(xy, cls, associate, inits, view, 0.8, radius_end_m, 15, 0.05, 0.15)
+    want = [icp_2d(xy, cls, associate, f, view, 0.8, radius_end_m, 15, 0.05, 0.15)
+            for f in inits]
+    assert len({w.iterations for w in want}) >= 2  # runs that stop at different iterations
+    for g, w in zip(got, want, strict=True):
+        assert g.correction.yaw == w.correction.yaw
+        assert g.correction.t.tobytes() == w.correction.t.tobytes()
+        assert g.iterations == w.iterations and g.inlier_ratio == w.inlier_ratio
+        assert np.array_equal([g.rms_m, g.constraint], [w.rms_m, w.constraint], equal_nan=True)
+    assert icp_2d_many(xy, cls, associate, [], view) == []
+
+
+def test_distance_to_segments_has_the_bits_of_the_row_wise_code() -> None:
+    from bimcap.registration.distance_field import distance_to_segments
+
+    rng = np.random.default_rng(11)
+    seg = _segments_with_degenerates(rng)
+    idx = rng.integers(0, len(seg), 5000)
+    p = rng.uniform(-5, 25, (5000, 2))
+    p[::7] = seg[idx[::7], :2]  # on a segment's end
+    p[1::7] = 0.5 * (seg[idx[1::7], :2] + seg[idx[1::7], 2:])  # on its middle
+    a, b = seg[idx, :2], seg[idx, 2:]
+    ab = b - a
+    u = np.clip(((p - a) * ab).sum(1) / np.maximum((ab ** 2).sum(1), 1e-18), 0.0, 1.0)
+    c = a + u[:, None] * ab
+    dist, closest = distance_to_segments(p, seg, idx)
+    assert dist.tobytes() == np.linalg.norm(p - c, axis=1).tobytes()
+    assert closest.tobytes() == c.tobytes()
+    assert (dist == 0).sum() > 100 and dist.max() > 1

@@ -362,6 +362,8 @@ class PlanMaps:
                     + np.clip(uv[:, 0], 0, w - 1))
             idx = np.take(st.nearest.reshape(-1), flat)
             ok = idx >= 0
+            if ok.all():  # the usual case: no mask to gather through
+                return distance_to_segments(q, self.segments, idx)
             dist[ok], closest[ok] = distance_to_segments(q[ok], self.segments, idx[ok])
             return dist, closest
         for lay in np.unique(layer):
