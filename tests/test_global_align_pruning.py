@@ -575,3 +575,26 @@ def test_distance_to_segments_has_the_bits_of_the_row_wise_code() -> None:
     assert dist.tobytes() == np.linalg.norm(p - c, axis=1).tobytes()
     assert closest.tobytes() == c.tobytes()
     assert (dist == 0).sum() > 100 and dist.max() > 1
+
+
+@pytest.mark.parametrize("chunk", [1, 8, 10 ** 6])
+@pytest.mark.parametrize("max_range_m", [60.0, 3.0])
+def test_culled_free_space_rays_hit_what_every_pair_hits(chunk: int, max_range_m: float) -> None:
+    from bimcap.registration.global_align import _ray_hits
+
+    rng = np.random.default_rng(12)
+    seg = _segments_with_degenerates(rng)
+    # Cameras anywhere, on segments' ends (rays that start on a segment) and middles.
+    cam = np.r_[rng.uniform(-5, 25, (150, 2)), seg[:40, :2], 0.5 * (seg[:40, :2] + seg[:40, 2:])]
+    a, e = seg[:, :2], seg[:, 2:] - seg[:, :2]
+    for ang in np.r_[2 * np.pi * (np.arange(16) + 0.5) / 16, 0.0, np.pi / 2]:
+        d = np.array([np.cos(ang), np.sin(ang)])
+        den = d[0] * e[:, 1] - d[1] * e[:, 0]
+        w = a[None] - cam[:, None]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = (w[..., 0] * e[None, :, 1] - w[..., 1] * e[None, :, 0]) / den[None]
+            u = (w[..., 0] * d[1] - w[..., 1] * d[0]) / den[None]
+        want = ((np.abs(den)[None] > 1e-12) & (s > 0) & (s < max_range_m) & (u >= 0)
+                & (u <= 1)).any(1)
+        np.testing.assert_array_equal(_ray_hits(cam, d, seg, max_range_m, chunk), want)
+        assert 0 < want.sum() < len(cam)
