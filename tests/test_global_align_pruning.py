@@ -408,76 +408,6 @@ def test_peaks_of_a_rectangular_volume_are_placed_by_its_own_rows(demo_volume, t
         np.testing.assert_array_equal(a.t, b.t)
 
 
-def _frame_fit_before(corr: Any, p_xy: np.ndarray, p_cls: np.ndarray, p_view: np.ndarray,
-                      p_frame: np.ndarray, cams_xy: np.ndarray, maps: Any,
-                      opt: GlobalAlignOptions) -> tuple[Any, ...]:
-    """``_frame_fit`` before the turns and shifts were looked up in one pass (the oracle)."""
-    n = len(cams_xy)
-    q = corr.apply(p_xy)
-    cam = corr.apply(cams_xy)[p_frame]
-    view = p_view @ rot2(corr.yaw).T
-    count = np.bincount(p_frame, minlength=n).astype(np.float64)
-    best = np.full(n, -1.0)
-    best_still = np.full(n, -1.0)
-    turn = np.zeros(n)
-    best_turn, best_shift = np.zeros(n), np.zeros((n, 2))
-    step = opt.frame_yaw_step_deg
-    deltas = np.deg2rad(np.arange(-opt.frame_yaw_deg, opt.frame_yaw_deg + 0.5 * step, step))
-    deltas = deltas[np.argsort(np.abs(deltas), kind="stable")]
-    s = opt.frame_shift_m
-    shifts = [np.zeros(2)] + ([np.array([dx, dy]) for dx in (-s, 0.0, s) for dy in (-s, 0.0, s)
-                               if dx or dy] if s > 0 else [])
-    for d in deltas:
-        r = rot2(float(d))
-        qd = (q - cam) @ r.T + cam
-        layer = maps.layer_of(p_cls, view @ r.T)
-        for sh in shifts:
-            sc = maps.fine_score_at(qd + sh, layer)
-            mean = np.bincount(p_frame, weights=sc, minlength=n) / np.maximum(count, 1.0)
-            better = mean > best
-            best[better], best_turn[better], best_shift[better] = mean[better], d, sh
-            if not sh.any():
-                better = mean > best_still
-                best_still[better], turn[better] = mean[better], d
-    has = count > 0
-    c, s_ = np.cos(turn)[p_frame], np.sin(turn)[p_frame]
-    rel = q - cam
-    q_turned = cam + np.c_[c * rel[:, 0] - s_ * rel[:, 1], s_ * rel[:, 0] + c * rel[:, 1]]
-    if not has.any():
-        return 0.0, q_turned, cam, 0.0, np.zeros(2)
-    return (float(np.maximum(best[has], 0.0).mean()), q_turned, cam,
-            float(best_turn[has].mean()), best_shift[has].mean(0))
-
-
-@pytest.mark.parametrize("shift_m", [0.0, 0.2])
-@pytest.mark.parametrize("chunk", [1, 5000, 1 << 18])
-def test_frame_fit_in_one_pass_has_the_bits_of_the_loop(shift_m: float, chunk: int,
-                                                         monkeypatch: pytest.MonkeyPatch) -> None:
-    import importlib
-
-    from bimcap.registration.icp import Correction2D
-
-    ga = importlib.import_module("bimcap.registration.global_align")  # the module, not the function
-
-    scan, sm = _demo_walk(224, 284)
-    opt = GlobalAlignOptions(frame_shift_m=shift_m)
-    keep = np.arange(0, len(scan.xy), 3)
-    p_xy, p_cls, p_view, p_frame = (scan.xy[keep], scan.cls[keep], scan.view[keep],
-                                    scan.frame[keep])
-    means = ga._frame_means
-    monkeypatch.setattr(ga, "_frame_means", lambda *a, **k: means(*a, **k, chunk=chunk))
-    pivot = scan.cams[:, :2].mean(0)
-    for yaw, t in ((0.0, (0.0, 0.0)), (0.05, (0.12, -0.07)), (np.pi / 2, (1.0, 2.0))):
-        corr = Correction2D(yaw, np.array(t), pivot)
-        got = ga._frame_fit(corr, p_xy, p_cls, p_view, p_frame, scan.cams[:, :2], sm.maps, opt)
-        want = _frame_fit_before(corr, p_xy, p_cls, p_view, p_frame, scan.cams[:, :2], sm.maps,
-                                 opt)
-        assert got[0] == want[0] and got[3] == want[3]
-        for g, w in zip(got[1:3] + got[4:], want[1:3] + want[4:], strict=True):
-            assert g.tobytes() == w.tobytes()
-        assert 0.0 < want[0] <= 1.0
-
-
 def test_mth_largest_is_the_full_partitions() -> None:
     from bimcap.registration.correlative import _mth_largest
 
@@ -576,25 +506,3 @@ def test_distance_to_segments_has_the_bits_of_the_row_wise_code() -> None:
     assert closest.tobytes() == c.tobytes()
     assert (dist == 0).sum() > 100 and dist.max() > 1
 
-
-@pytest.mark.parametrize("chunk", [1, 8, 10 ** 6])
-@pytest.mark.parametrize("max_range_m", [60.0, 3.0])
-def test_culled_free_space_rays_hit_what_every_pair_hits(chunk: int, max_range_m: float) -> None:
-    from bimcap.registration.global_align import _ray_hits
-
-    rng = np.random.default_rng(12)
-    seg = _segments_with_degenerates(rng)
-    # Cameras anywhere, on segments' ends (rays that start on a segment) and middles.
-    cam = np.r_[rng.uniform(-5, 25, (150, 2)), seg[:40, :2], 0.5 * (seg[:40, :2] + seg[:40, 2:])]
-    a, e = seg[:, :2], seg[:, 2:] - seg[:, :2]
-    for ang in np.r_[2 * np.pi * (np.arange(16) + 0.5) / 16, 0.0, np.pi / 2]:
-        d = np.array([np.cos(ang), np.sin(ang)])
-        den = d[0] * e[:, 1] - d[1] * e[:, 0]
-        w = a[None] - cam[:, None]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s = (w[..., 0] * e[None, :, 1] - w[..., 1] * e[None, :, 0]) / den[None]
-            u = (w[..., 0] * d[1] - w[..., 1] * d[0]) / den[None]
-        want = ((np.abs(den)[None] > 1e-12) & (s > 0) & (s < max_range_m) & (u >= 0)
-                & (u <= 1)).any(1)
-        np.testing.assert_array_equal(_ray_hits(cam, d, seg, max_range_m, chunk), want)
-        assert 0 < want.sum() < len(cam)

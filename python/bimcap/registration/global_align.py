@@ -414,56 +414,27 @@ def free_space_fraction(cam_xy: NDArray[np.float64], segments: NDArray[np.float6
     clear = field_.lookup(cam) >= clearance_m
     if shell is not None:
         seg = np.asarray(shell, dtype=np.float64).reshape(-1, 4)
+    a, e = seg[:, :2], seg[:, 2:] - seg[:, :2]
     hits = np.zeros(len(cam), dtype=np.int64)
+    # What does not depend on the ray's direction, once (the same arithmetic per ray).
+    w = a[None] - cam[:, None]
+    w0, w1 = w[..., 0], w[..., 1]
+    s_num = w0 * e[None, :, 1] - w1 * e[None, :, 0]
     for k in range(n_rays):
         ang = 2 * np.pi * (k + 0.5) / n_rays
-        hits += _ray_hits(cam, np.array([np.cos(ang), np.sin(ang)]), seg, max_range_m)
+        d = np.array([np.cos(ang), np.sin(ang)])
+        den = d[0] * e[:, 1] - d[1] * e[:, 0]
+        ok = np.abs(den) > 1e-12
+        if not ok.any():
+            continue
+        den_ok = den[ok][None]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = s_num[:, ok] / den_ok
+            u = (w0[:, ok] * d[1] - w1[:, ok] * d[0]) / den_ok
+        hit = (s > 0) & (s < max_range_m) & (u >= 0) & (u <= 1)
+        hits += hit.any(1)
     free = clear & (hits >= min_hits)
     return float(free.mean()), free
-
-
-def _ray_hits(cam: F64, d: F64, seg: F64, max_range_m: float, chunk: int = 8
-              ) -> NDArray[np.bool_]:
-    """(N,) whether the ray ``cam + s d`` (0 < s < ``max_range_m``; ``d`` (2,) a unit vector)
-    from each camera (N, 2) meets a segment of ``seg`` (S, 4), ends included: the test of
-    every camera against every segment, pair by pair the same arithmetic, on the segments
-    that can be met only. The cameras are sorted across the ray and taken ``chunk`` at a
-    time; a segment is tested against a chunk only if it reaches the chunk's band across the
-    rays and its span along them meets ``(min along, max along + max_range_m)`` of the chunk,
-    with 1e-6 m of margin (the test's rounding is about 1e-11 m on a 100 m plan); segments
-    within 0.06 deg of parallel to the ray (``|d x e| < 1e-3 |e|``) are always tested."""
-    a, b = seg[:, :2], seg[:, 2:]
-    e = b - a
-    den = d[0] * e[:, 1] - d[1] * e[:, 0]
-    ok = np.abs(den) > 1e-12
-    out = np.zeros(len(cam), dtype=bool)
-    if not ok.any():
-        return out
-    tol = 1e-6
-    always = ok & (np.abs(den) < 1e-3 * np.hypot(e[:, 0], e[:, 1]))
-    perp = np.array([-d[1], d[0]])
-    c_across, c_along = cam @ perp, cam @ d
-    s_across, s_along = np.c_[a @ perp, b @ perp], np.c_[a @ d, b @ d]
-    s_lo, s_hi = s_across.min(1), s_across.max(1)
-    t_lo, t_hi = s_along.min(1), s_along.max(1)
-    order = np.argsort(c_across, kind="stable")
-    for k in range(0, len(cam), chunk):
-        rows = order[k:k + chunk]
-        lo, hi = c_across[rows].min(), c_across[rows].max()
-        near = (ok & (s_hi >= lo - tol) & (s_lo <= hi + tol)
-                & (t_hi > c_along[rows].min() - tol)
-                & (t_lo < c_along[rows].max() + max_range_m + tol))
-        cand = np.flatnonzero(always | near)
-        if len(cand) == 0:
-            continue
-        w = a[cand][None] - cam[rows][:, None]
-        w0, w1 = w[..., 0], w[..., 1]
-        ec, den_ok = e[cand], den[cand][None]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s = (w0 * ec[None, :, 1] - w1 * ec[None, :, 0]) / den_ok
-            u = (w0 * d[1] - w1 * d[0]) / den_ok
-        out[rows] = ((s > 0) & (s < max_range_m) & (u >= 0) & (u <= 1)).any(1)
-    return out
 
 
 def see_through_fraction(cam_xy: F64, p_xy: F64, segments: F64, margin_m: float = 0.3,
@@ -1338,10 +1309,13 @@ def _frame_fit(corr: Correction2D, p_xy: F64, p_cls: I32, p_view: F64, p_frame: 
     s = opt.frame_shift_m
     shifts = [np.zeros(2)] + ([np.array([dx, dy]) for dx in (-s, 0.0, s) for dy in (-s, 0.0, s)
                                if dx or dy] if s > 0 else [])
-    means = _frame_means(q, cam, view, p_cls, p_frame, n, deltas, shifts, maps)
-    for a, d in enumerate(deltas):
-        for b, sh in enumerate(shifts):
-            mean = means[a, b] / np.maximum(count, 1.0)
+    for d in deltas:
+        r = rot2(float(d))
+        qd = (q - cam) @ r.T + cam
+        layer = maps.layer_of(p_cls, view @ r.T)
+        for sh in shifts:
+            sc = maps.fine_score_at(qd + sh, layer)
+            mean = np.bincount(p_frame, weights=sc, minlength=n) / np.maximum(count, 1.0)
             better = mean > best
             best[better], best_turn[better], best_shift[better] = mean[better], d, sh
             if not sh.any():
@@ -1355,38 +1329,6 @@ def _frame_fit(corr: Correction2D, p_xy: F64, p_cls: I32, p_view: F64, p_frame: 
         return 0.0, q_turned, cam, 0.0, np.zeros(2)
     return (float(np.maximum(best[has], 0.0).mean()), q_turned, cam,
             float(best_turn[has].mean()), best_shift[has].mean(0))
-
-
-def _frame_means(q: F64, cam: F64, view: F64, p_cls: I32, p_frame: I32, n: int, deltas: F64,
-                 shifts: list[F64], maps: PlanMaps, chunk: int = 1 << 18) -> F64:
-    """(D, K, n) each frame's summed fine score when every point (M, 2) ``q`` turns by
-    ``deltas[a]`` (D,) about its frame's camera ``cam`` (M, 2) and then shifts by
-    ``shifts[b]`` (K of (2,)); ``view`` (M, 2) the rays, ``p_frame`` (M,) the frames.
-
-    The turns and shifts of :func:`_frame_fit` looked up in one pass over the (D K M) moved
-    points, in chunks of whole turns of at most ``chunk`` points: the same arithmetic point by
-    point (:meth:`PlanMaps.fine_score_at` is elementwise) and the same order of each frame's
-    sum (``np.bincount`` adds in input order), so the same bits as one look-up and one
-    ``bincount`` per turn and shift."""
-    m, k = len(q), len(shifts)
-    out = np.empty((len(deltas), k, n))
-    sh = np.asarray(shifts, dtype=np.float64).reshape(k, 1, 2)
-    key = (np.arange(k)[:, None] * n + p_frame[None, :]).ravel()
-    per = max(1, chunk // max(1, k * m))
-    rel = q - cam
-    for a0 in range(0, len(deltas), per):
-        ds = deltas[a0:a0 + per]
-        moved, layers = [], []
-        for d in ds:
-            r = rot2(float(d))
-            qd = rel @ r.T + cam
-            moved.append((qd[None] + sh).reshape(-1, 2))
-            layers.append(np.tile(maps.layer_of(p_cls, view @ r.T), k))
-        sc = maps.fine_score_at(np.concatenate(moved), np.concatenate(layers))
-        for j in range(len(ds)):
-            out[a0 + j] = np.bincount(key, weights=sc[j * k * m:(j + 1) * k * m],
-                                      minlength=k * n).reshape(k, n)
-    return out
 
 
 def _see_through(corr: Correction2D, turn: float, shift: F64, p_xy: F64, p_cls: I32,
