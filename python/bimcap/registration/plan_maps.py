@@ -432,9 +432,9 @@ def _lookup_stack(st: _Stack, images: F32, q_xy: NDArray[np.float64],
     flat = images.reshape(-1)
     at = (lay * h + v0) * w + u0
     gu, gv = 1 - fu, 1 - fv
-    val = ((np.take(flat, at) * gu + np.take(flat, at + 1) * fu) * gv
-           + (np.take(flat, at + w) * gu + np.take(flat, at + w + 1) * fu) * fv
-           ).astype(np.float64)
+    val: F64 = ((np.take(flat, at) * gu + np.take(flat, at + 1) * fu) * gv
+                + (np.take(flat, at + w) * gu + np.take(flat, at + w + 1) * fu) * fv
+                ).astype(np.float64)
     if distance:
         val = val + np.hypot(uv[:, 0] - u, uv[:, 1] - v) * st.resolution_m
     return val
