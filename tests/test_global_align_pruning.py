@@ -252,12 +252,15 @@ def test_free_space_rays_give_the_same_flags() -> None:
         assert frac == float(want.mean()) and 0 < want.sum() < len(cam)
 
 
-def test_parity_rays_count_the_same_crossings() -> None:
+@pytest.mark.parametrize("chunk", [1, 7, 64, 10 ** 6])
+def test_parity_rays_count_the_same_crossings(chunk: int) -> None:
     rng = np.random.default_rng(5)
     seg = _segments_with_degenerates(rng)
-    p = rng.uniform(0, 20, (300, 2))
+    # Points anywhere, and on the segments' own ends and middles (rays that start on a
+    # segment or graze its end: the culling's margins must keep those).
+    p = np.r_[rng.uniform(0, 20, (300, 2)), seg[:, :2], 0.5 * (seg[:, :2] + seg[:, 2:])]
     dirs = (np.array([0.8944, 0.4472]), np.array([-0.3162, 0.9487]), np.array([1.0, 0.0]))
-    got = _crossings_many(p, dirs, seg)
+    got = _crossings_many(p, dirs, seg, chunk=chunk)
     for d, g in zip(dirs, got, strict=True):
         a, e = seg[:, :2], seg[:, 2:] - seg[:, :2]
         den = d[0] * e[:, 1] - d[1] * e[:, 0]
@@ -403,3 +406,103 @@ def test_peaks_of_a_rectangular_volume_are_placed_by_its_own_rows(demo_volume, t
     for a, b in zip(got, want, strict=True):
         assert (a.yaw, a.score) == (b.yaw, b.score)
         np.testing.assert_array_equal(a.t, b.t)
+
+
+def test_mth_largest_is_the_full_partitions() -> None:
+    from bimcap.registration.correlative import _mth_largest
+
+    rng = np.random.default_rng(8)
+    for trial in range(200):
+        a = rng.random(int(rng.integers(1, 4000))).astype(np.float32)
+        if trial % 3 == 0:
+            a = np.round(a * 4).astype(np.float32)  # many ties
+        for m in {1, 2, int(rng.integers(1, a.size + 1)), a.size}:
+            for every in (0, 1, 2, 7, 50):
+                want = float(np.partition(a, a.size - m)[a.size - m])
+                assert _mth_largest(a, m, every) == want
+
+
+def test_score_map_has_the_bits_of_the_full_exponential() -> None:
+    from bimcap.registration.distance_field import DistanceField
+
+    seg = demo_scene(seed=0).floor_plan().segments
+    for res, sigma in ((0.2, 0.3), (0.05, 0.1)):
+        field_ = DistanceField.from_segments(seg, res, None, 3.0)
+        d = field_.distance_m.astype(np.float64)
+        want = np.exp(-0.5 * (d / sigma) ** 2)
+        want[d > 3.0 * sigma] = 0.0
+        got = field_.score_map(sigma, 3.0)
+        assert got.tobytes() == want.astype(np.float32).tobytes()
+        assert 0 < (got > 0).mean() < 1
+
+
+def test_stacked_fine_maps_have_the_bits_of_the_per_layer_fields() -> None:
+    """The stacked look-ups (one flat index per corner, int32 nearest rows) against each
+    layer's own :class:`DistanceField` (the loops used when the layers' grids differ)."""
+    from bimcap.registration.plan_maps import _Stack
+
+    scan, sm = _demo_walk(224, 284)
+    maps = sm.maps
+    assert isinstance(maps._stack(), _Stack)
+    rng = np.random.default_rng(9)
+    lo, hi = np.array(sm.bounds[:2]) - 4.0, np.array(sm.bounds[2:]) + 4.0  # some outside
+    q = np.r_[scan.xy, rng.uniform(lo, hi, (3000, 2))]
+    layer = maps.layer_of(np.r_[scan.cls, np.full(3000, scan.cls[0])],
+                          rng.normal(size=(len(q), 2)))
+    got = (maps.fine_score_at(q, layer), *maps.fine_eval(q, layer), *maps.nearest(q, layer))
+    maps.__dict__["_stacked"] = None  # the per-layer loops
+    want = (maps.fine_score_at(q, layer), *maps.fine_eval(q, layer), *maps.nearest(q, layer))
+    for g, w in zip(got, want, strict=True):
+        assert g.tobytes() == w.tobytes()
+    assert (want[0] > 0).mean() > 0.3 and np.isfinite(want[3]).mean() > 0.9
+
+
+@pytest.mark.parametrize("radius_end_m", [0.12, 0.05])
+def test_icp_in_lock_step_has_the_bits_of_one_run_per_init(radius_end_m: float) -> None:
+    from bimcap.registration.icp import Correction2D, icp_2d, icp_2d_many
+
+    scan, sm = _demo_walk(224, 284)
+    maps = sm.maps
+    keep = np.linspace(0, len(scan.xy) - 1, 1500).astype(np.int64)
+    xy, cls, view = scan.xy[keep], scan.cls[keep], scan.view[keep]
+
+    def associate(q: np.ndarray, q_class: np.ndarray, v: np.ndarray) -> Any:
+        return maps.nearest(q, maps.layer_of(q_class, v))
+
+    rng = np.random.default_rng(10)
+    pivot = scan.cams[:, :2].mean(0)
+    # Near the truth (converge early), a little off (run every radius), far off (too few
+    # pairs: stop at once).
+    inits = ([Correction2D(rng.normal(0, 0.03), rng.normal(0, 0.2, 2), pivot) for _ in range(6)]
+             + [Correction2D(rng.uniform(-3, 3), rng.uniform(-8, 8, 2), pivot) for _ in range(6)]
+             + [Correction2D(0.0, np.array([500.0, 0.0]), pivot)])
+    got = icp_2d_many(xy, cls, associate, inits, view, 0.8, radius_end_m, 15, 0.05, 0.15)
+    want = [icp_2d(xy, cls, associate, f, view, 0.8, radius_end_m, 15, 0.05, 0.15)
+            for f in inits]
+    assert len({w.iterations for w in want}) >= 2  # runs that stop at different iterations
+    for g, w in zip(got, want, strict=True):
+        assert g.correction.yaw == w.correction.yaw
+        assert g.correction.t.tobytes() == w.correction.t.tobytes()
+        assert g.iterations == w.iterations and g.inlier_ratio == w.inlier_ratio
+        assert np.array_equal([g.rms_m, g.constraint], [w.rms_m, w.constraint], equal_nan=True)
+    assert icp_2d_many(xy, cls, associate, [], view) == []
+
+
+def test_distance_to_segments_has_the_bits_of_the_row_wise_code() -> None:
+    from bimcap.registration.distance_field import distance_to_segments
+
+    rng = np.random.default_rng(11)
+    seg = _segments_with_degenerates(rng)
+    idx = rng.integers(0, len(seg), 5000)
+    p = rng.uniform(-5, 25, (5000, 2))
+    p[::7] = seg[idx[::7], :2]  # on a segment's end
+    p[1::7] = 0.5 * (seg[idx[1::7], :2] + seg[idx[1::7], 2:])  # on its middle
+    a, b = seg[idx, :2], seg[idx, 2:]
+    ab = b - a
+    u = np.clip(((p - a) * ab).sum(1) / np.maximum((ab ** 2).sum(1), 1e-18), 0.0, 1.0)
+    c = a + u[:, None] * ab
+    dist, closest = distance_to_segments(p, seg, idx)
+    assert dist.tobytes() == np.linalg.norm(p - c, axis=1).tobytes()
+    assert closest.tobytes() == c.tobytes()
+    assert (dist == 0).sum() > 100 and dist.max() > 1
+

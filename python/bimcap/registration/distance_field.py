@@ -139,8 +139,11 @@ class DistanceField:
         it cannot pull the alignment; a missing as-built wall only removes points.
         """
         d = self.distance_m.astype(np.float64)
-        s = np.exp(-0.5 * (d / sigma_m) ** 2)
-        s[d > truncate * sigma_m] = 0.0
+        # The exponential only where it is kept (a fine map is mostly far from every wall):
+        # the same values, elementwise, as computing it everywhere and zeroing the rest.
+        near = ~(d > truncate * sigma_m)
+        s = np.zeros(d.shape)
+        s[near] = np.exp(-0.5 * (d[near] / sigma_m) ** 2)
         return s.astype(np.float32)
 
 
@@ -156,8 +159,18 @@ def distance_to_segments(p_xy: NDArray[np.float64], segments: NDArray[np.float64
     -------
     (dist (M,), closest (M, 2)).
     """
-    a, b = segments[index, :2], segments[index, 2:]
-    ab = b - a
-    u = np.clip(((p_xy - a) * ab).sum(1) / np.maximum((ab ** 2).sum(1), 1e-18), 0.0, 1.0)
-    c = a + u[:, None] * ab
-    return np.linalg.norm(p_xy - c, axis=1), c
+    # Coordinate by coordinate: the same products and two-term sums as the row-wise
+    # ``((p - a) * ab).sum(1)``, ``(ab ** 2).sum(1)`` and ``np.linalg.norm(p - c, axis=1)``
+    # (a sum of two is their one addition), with one gather of the segments' rows.
+    s = np.take(np.asarray(segments, dtype=np.float64).reshape(-1, 4), index, axis=0)
+    p = np.asarray(p_xy, dtype=np.float64).reshape(-1, 2)
+    ax, ay = s[:, 0], s[:, 1]
+    abx, aby = s[:, 2] - ax, s[:, 3] - ay
+    px, py = p[:, 0], p[:, 1]
+    u = np.clip(((px - ax) * abx + (py - ay) * aby)
+                / np.maximum(abx * abx + aby * aby, 1e-18), 0.0, 1.0)
+    c = np.empty((len(s), 2))
+    c[:, 0] = ax + u * abx
+    c[:, 1] = ay + u * aby
+    dx, dy = px - c[:, 0], py - c[:, 1]
+    return np.sqrt(dx * dx + dy * dy), c

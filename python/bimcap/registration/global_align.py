@@ -70,7 +70,13 @@ from bimcap.registration.errors import (
     GlobalAlignmentError,
     RegistrationInputError,
 )
-from bimcap.registration.icp import Correction2D, icp_2d, point_segment_distance, rot2
+from bimcap.registration.icp import (
+    Correction2D,
+    icp_2d,
+    icp_2d_many,
+    point_segment_distance,
+    rot2,
+)
 from bimcap.registration.plan_maps import PlanMaps
 
 F64 = NDArray[np.float64]
@@ -957,10 +963,13 @@ def _search_storey(scan: _Scan, storey: _Storey, sm: _StoreyMaps, opt: GlobalAli
     # ICP on an even share of the sample (every k-th point: all frames keep their share).
     k = max(1, -(-len(p_xy) // opt.icp_points))
     i_xy, i_cls, i_view = p_xy[::k], p_cls[::k], p_view[::k]
-    for peak in peaks:
-        fit = icp_2d(i_xy, i_cls, associate, Correction2D(peak.yaw, peak.t, centre), i_view,
-                     opt.icp_radius_start_m, opt.icp_radius_end_m, opt.icp_iterations,
-                     opt.icp_huber_m, opt.inlier_m)
+    # The peaks' ICP runs in lock-step (one association call per iteration for all of them;
+    # each run the bits of ``icp_2d`` from its peak).
+    fits = icp_2d_many(i_xy, i_cls, associate,
+                       [Correction2D(peak.yaw, peak.t, centre) for peak in peaks], i_view,
+                       opt.icp_radius_start_m, opt.icp_radius_end_m, opt.icp_iterations,
+                       opt.icp_huber_m, opt.inlier_m)
+    for peak, fit in zip(peaks, fits, strict=True):
         corr = fit.correction
         layer = maps.layer_of(p_cls, p_view @ rot2(corr.yaw).T)
         sc, dist = maps.fine_eval(corr.apply(p_xy), layer)
@@ -1139,10 +1148,11 @@ def _plan_alias(best: _Found, scan: _Scan, sections: list[_Storey], plan: FloorP
                       ) -> tuple[F64, F64]:
             return sm.maps.nearest(q_, sm.maps.layer_of(q_class, v))
 
-        for peak in peaks:
-            fit = icp_2d(ps, p_cls, associate, Correction2D(peak.yaw, peak.t, sm.centre), p_view,
-                         opt.icp_radius_start_m, 0.5 * opt.alias_tol_m, opt.icp_iterations,
-                         opt.icp_huber_m, opt.alias_tol_m)
+        fits = icp_2d_many(ps, p_cls, associate,
+                           [Correction2D(peak.yaw, peak.t, sm.centre) for peak in peaks], p_view,
+                           opt.icp_radius_start_m, 0.5 * opt.alias_tol_m, opt.icp_iterations,
+                           opt.icp_huber_m, opt.alias_tol_m)
+        for fit in fits:
             corr = fit.correction
             cams_w = corr.apply(cs)
             # The alias must be elsewhere: another storey, or moved / turned in this one (``corr``

@@ -207,3 +207,93 @@ def icp_2d(
     yaw = float(np.arctan2(np.sin(yaw), np.cos(yaw)))
     return IcpResult(Correction2D(yaw, t, np.asarray(pivot, dtype=np.float64)),
                      float(ok.mean()) if len(ok) else 0.0, rms, it, constraint)
+
+
+def icp_2d_many(
+    p_xy: NDArray[np.float64],
+    p_class: NDArray[np.int32],
+    associate: Associator,
+    inits: list[Correction2D],
+    view_xy: NDArray[np.float64] | None = None,
+    radius_start_m: float = 0.3,
+    radius_end_m: float = 0.08,
+    iterations: int = 10,
+    huber_m: float = 0.03,
+    inlier_m: float = 0.1,
+) -> list[IcpResult]:
+    """:func:`icp_2d` of the same points from each of ``inits`` (K corrections), the K runs
+    in lock-step: each iteration associates the points of every run still going in one call
+    of ``associate`` (the per-call overhead once, not K times), the rest per run as
+    :func:`icp_2d` does it. ``associate`` must treat each point on its own (the raster
+    associators do: a point's nearest segment does not depend on the other points), so each
+    result has the bits of ``icp_2d`` from that init.
+
+    Returns
+    -------
+    K IcpResults, in the order of ``inits``.
+    """
+    p = np.asarray(p_xy, dtype=np.float64).reshape(-1, 2)
+    m_pts = len(p)
+    view = np.zeros_like(p) if view_xy is None else np.asarray(view_xy, dtype=np.float64)
+    radii = np.geomspace(radius_start_m, radius_end_m, max(iterations, 1))
+    k_runs = len(inits)
+    yaw = [float(f.yaw) for f in inits]
+    t = [np.asarray(f.t, dtype=np.float64).copy() for f in inits]
+    pivot = [f.pivot for f in inits]
+    its = [0] * k_runs
+    going = list(range(k_runs))
+    cls_all = np.tile(np.asarray(p_class), max(k_runs, 1))
+    damping = np.diag([1e-6, 1e-9, 1e-9])
+
+    def associate_all(runs: list[int]) -> tuple[list[F64], list[F64], list[F64]]:
+        qs = [apply_correction(p, yaw[r], t[r], pivot[r]) for r in runs]
+        vs = [view @ rot2(yaw[r]).T for r in runs]
+        dist, closest = associate(np.concatenate(qs), cls_all[:len(runs) * m_pts],
+                                  np.concatenate(vs))
+        return (qs, [dist[j * m_pts:(j + 1) * m_pts] for j in range(len(runs))],
+                [closest[j * m_pts:(j + 1) * m_pts] for j in range(len(runs))])
+
+    for it, radius in enumerate(radii, start=1):
+        if not going:
+            break
+        for r in going:
+            its[r] = it
+        qs, dists, closests = associate_all(going)
+        still = []
+        for j, r in enumerate(going):
+            q, dist, closest = qs[j], dists[j], closests[j]
+            use = dist < radius
+            if use.sum() < 3:
+                continue
+            qu, cu, du = q[use], closest[use], dist[use]
+            n = (qu - cu) / np.maximum(du, 1e-9)[:, None]
+            m = qu.mean(0)
+            v = qu - m
+            jac = np.column_stack((n[:, 1] * v[:, 0] - n[:, 0] * v[:, 1], n))
+            w = np.where(du <= huber_m, 1.0, huber_m / np.maximum(du, 1e-12))
+            h = (jac * w[:, None]).T @ jac + damping
+            g = (jac * w[:, None]).T @ du
+            delta = -np.linalg.solve(h, g)
+            dyaw, dt = float(delta[0]), delta[1:]
+            t[r] = rot2(dyaw) @ (pivot[r] + t[r] - m) + m + dt - pivot[r]
+            yaw[r] = yaw[r] + dyaw
+            if abs(dyaw) < 1e-6 and np.linalg.norm(dt) < 1e-5 and radius <= radius_end_m * 1.01:
+                continue
+            still.append(r)
+        going = still
+    out: list[IcpResult] = []
+    if k_runs == 0:
+        return out
+    qs, dists, closests = associate_all(list(range(k_runs)))
+    for r in range(k_runs):
+        q, dist, closest = qs[r], dists[r], closests[r]
+        ok = dist < inlier_m
+        rms = float(np.sqrt(np.mean(dist[ok] ** 2))) if ok.any() else float("nan")
+        constraint = 0.0
+        if ok.sum() >= 3:
+            n = (q[ok] - closest[ok]) / np.maximum(dist[ok], 1e-12)[:, None]
+            constraint = float(np.linalg.eigvalsh(n.T @ n / len(n))[0])
+        y = float(np.arctan2(np.sin(yaw[r]), np.cos(yaw[r])))
+        out.append(IcpResult(Correction2D(y, t[r], np.asarray(pivot[r], dtype=np.float64)),
+                             float(ok.mean()) if len(ok) else 0.0, rms, its[r], constraint))
+    return out
