@@ -37,6 +37,8 @@ F64 = NDArray[np.float64]
 #: The faces of one wall: plan segments parallel to the most-crossed one (within 5°) and at
 #: most this far from it (metres; walls are 0.1-0.4 m thick).
 MAX_WALL_THICKNESS_M = 0.6
+#: ... and its pieces on the far side of a door: collinear segments within this gap (metres).
+MAX_DOOR_GAP_M = 1.5
 #: The wall must be crossed by at least this share of the seen-through points.
 MIN_WALL_SHARE = 0.6
 #: Seen-through points counted per segment to find the most-crossed one (every k-th of them).
@@ -89,11 +91,12 @@ def section_rows(plan: FloorPlan, floor_z: float | None, cut_m: float = 1.0
     return np.flatnonzero((plan.segment_z[:, 0] <= zc) & (zc <= plan.segment_z[:, 1]))
 
 
-def _wall_faces(seg: F64, k: int, max_thickness_m: float = MAX_WALL_THICKNESS_M
-                ) -> NDArray[np.int64]:
+def _wall_faces(seg: F64, k: int, max_thickness_m: float = MAX_WALL_THICKNESS_M,
+                max_gap_m: float = MAX_DOOR_GAP_M) -> NDArray[np.int64]:
     """Indices into ``seg`` (S, 4) of the faces of the wall of segment ``k``: ``k`` and the
     segments parallel to it (within 5°), at most ``max_thickness_m`` from its line and
-    overlapping it along its length."""
+    overlapping it, or the ``max_gap_m`` beyond either of its ends, along its length (the
+    pieces of one wall on both sides of a door)."""
     a, b = seg[k, :2], seg[k, 2:]
     length = float(np.linalg.norm(b - a))
     if length < 1e-9:
@@ -106,9 +109,9 @@ def _wall_faces(seg: F64, k: int, max_thickness_m: float = MAX_WALL_THICKNESS_M
         parallel = np.abs(d @ u) >= np.cos(np.deg2rad(5.0)) * lens
     off = np.abs(np.c_[(seg[:, :2] - a) @ n, (seg[:, 2:] - a) @ n]).max(1)
     s0, s1 = (seg[:, :2] - a) @ u, (seg[:, 2:] - a) @ u
-    overlap = np.minimum(np.maximum(s0, s1), length) - np.maximum(np.minimum(s0, s1), 0.0)
-    faces = parallel & (lens > 1e-9) & (off <= max_thickness_m) & (overlap > 0.5 * min(
-        length, 1.0))
+    overlap = (np.minimum(np.maximum(s0, s1), length + max_gap_m)
+               - np.maximum(np.minimum(s0, s1), -max_gap_m))
+    faces = parallel & (lens > 1e-9) & (off <= max_thickness_m) & (overlap > 0.1)
     faces[k] = True
     return np.flatnonzero(faces)
 
