@@ -359,7 +359,8 @@ def run_pipeline(seeds: list[int], work: Path, frames: int, mode: str = "auto"
               f"{row['slam_ate_cm']:.2f} cm / {row['slam_ate_deg']:.3f} deg, aligned start "
               f"{row['aligned_ate_cm']:.2f} cm / {row['aligned_ate_deg']:.3f} deg, within "
               f"{row['within']}, global {row['global_seconds']:.1f} s"
-              + (f"; error: {error[:200]}" if error else ""), file=sys.stderr, flush=True)
+              + (f"; error: {row['error'][:200]}" if row["error"] else ""), file=sys.stderr,
+              flush=True)
     return rows
 
 

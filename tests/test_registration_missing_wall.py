@@ -16,7 +16,7 @@ from bimcap.registration.missing_wall import (
     align_without_missing_wall,
     dominant_seen_through_wall,
 )
-from bimcap.registration.synthetic import Scene, merge, poses_along, scan_sequence, solids
+from bimcap.registration.synthetic import merge, poses_along, scan_sequence, solids
 from bimcap.sim.drift import DriftParams, apply_drift, to_slam_frame
 
 pytest.importorskip("cv2")

@@ -185,8 +185,7 @@ def align_without_missing_wall(slam_from_cam: F64, samples: SemanticSamples, pla
     Only when ``refusal`` (what :func:`global_align` raised for ``slam_from_cam``, ``samples``
     and ``plan`` with ``options``) says that the best placement fits badly for its see-through
     alone (fit and free space enough), and one wall (:func:`dominant_seen_through_wall`) holds
-    at least :data:`MIN_WALL_SHARE` of the seen-through points and leaves at most
-    ``max_see_through`` without it. Returns the new result and the wall, or None (then the
+    at least :data:`MIN_WALL_SHARE` of the seen-through points. Returns the new result and the wall, or None (then the
     refusal stands) when any of that fails, when the alignment without the wall refuses too
     (fits badly or ambiguous), or when its best placement is not the refused one."""
     opt = GlobalAlignOptions() if options is None else options
@@ -199,8 +198,10 @@ def align_without_missing_wall(slam_from_cam: F64, samples: SemanticSamples, pla
         return None
     placed = np.asarray(res.poses, np.float64)
     wall = dominant_seen_through_wall(placed, samples, plan, best.floor_z, opt)
-    if (wall is None or wall.share < MIN_WALL_SHARE
-            or wall.see_through_without > opt.max_see_through):
+    # The alignment without the wall applies its own see-through test (each frame polished,
+    # :func:`global_align`): ``wall.see_through_without``, at the refused rigid placement,
+    # is not the gate (pipeline seed 10: 19 % here, 1 % at the true poses).
+    if wall is None or wall.share < MIN_WALL_SHARE:
         return None
     try:
         again = global_align(slam_from_cam, samples, without_rows(plan, wall.rows), opt)
