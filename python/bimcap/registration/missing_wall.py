@@ -185,9 +185,10 @@ def align_without_missing_wall(slam_from_cam: F64, samples: SemanticSamples, pla
     Only when ``refusal`` (what :func:`global_align` raised for ``slam_from_cam``, ``samples``
     and ``plan`` with ``options``) says that the best placement fits badly for its see-through
     alone (fit and free space enough), and one wall (:func:`dominant_seen_through_wall`) holds
-    at least :data:`MIN_WALL_SHARE` of the seen-through points. Returns the new result and the wall, or None (then the
-    refusal stands) when any of that fails, when the alignment without the wall refuses too
-    (fits badly or ambiguous), or when its best placement is not the refused one."""
+    at least :data:`MIN_WALL_SHARE` of the seen-through points. Returns the new result and the
+    wall, or None (then the refusal stands) when any of that fails, when the alignment without
+    the wall refuses too (fits badly or ambiguous), or when its best placement is not the
+    refused one."""
     opt = GlobalAlignOptions() if options is None else options
     res = refusal.result
     if res is None or not res.hypotheses or (res.ambiguous and not opt.accept_ambiguous):
