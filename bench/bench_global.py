@@ -258,43 +258,142 @@ def summarise(rows: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
-def run_pipeline(n: int, work: Path, frames: int) -> list[dict[str, Any]]:
-    """``bimcap refine`` from a SLAM-frame trajectory and from the aligned drift, per seed."""
-    import json
+#: A SLAM-frame run "ends within" the accuracy of an aligned start (issue 15's target) when its
+#: final ATE is at the Exp 2 level (≤ 2 cm and ≤ 0.3°) or no worse than the aligned start's run
+#: of the same drift by more than 1 mm and 0.03° (at 1/8 resolution the aligned start itself
+#: ends above 2 cm on some seeds: the global alignment must not be blamed for that).
+WITHIN_CM, WITHIN_DEG = 2.0, 0.3
+WITHIN_SLACK_CM, WITHIN_SLACK_DEG = 0.1, 0.03
 
+
+def ends_within(slam_cm: float, slam_deg: float, aligned_cm: float, aligned_deg: float) -> bool:
+    """Whether a SLAM-frame run's final ATE (cm, deg) is within the Exp 2 accuracy of the
+    aligned start's (:data:`WITHIN_CM` ...): at the Exp 2 level or at most the slack worse."""
+    pos = slam_cm <= max(WITHIN_CM, aligned_cm + WITHIN_SLACK_CM)
+    rot = slam_deg <= max(WITHIN_DEG, aligned_deg + WITHIN_SLACK_DEG)
+    return bool(pos and rot)
+
+
+def _error_line(stderr: str) -> str:
+    """The ``bimcap refine: error: ...`` line of a failed run ('' when there is none)."""
+    lines = [ln for ln in stderr.splitlines() if ": error: " in ln]
+    if lines:
+        return lines[-1].split(": error: ", 1)[1]
+    return (stderr.strip().splitlines() or [""])[-1]
+
+
+def pipeline_outcome(rc: int, result: dict[str, Any] | None, error: str) -> str:
+    """The outcome of one SLAM-frame ``bimcap refine``: ``placed`` (the global alignment ran
+    and the refine finished), ``not-run`` (finished, the auto detection did not align),
+    ``fallback`` (finished from the poses as given after a refused auto alignment),
+    ``refused-ambiguous`` / ``refused`` (the alignment refused: ``result.json`` has
+    ``status: "refused"``), or ``error`` (any other non-zero exit; exit status 3 alone does not
+    tell: a diverged solve exits 3 too)."""
+    if rc == 0:
+        ga = None if result is None else result.get("solve", {}).get("global_align")
+        if ga is None:
+            return "not-run"
+        return "fallback" if "fallback" in ga else "placed"
+    if result is not None and result.get("status") == "refused":  # what a refusal writes
+        ga = result.get("solve", {}).get("global_align") or {}
+        ambiguous = ga.get("ambiguous") or "ambiguous" in error.lower()
+        return "refused-ambiguous" if ambiguous else "refused"
+    return "error"
+
+
+def _refine(seq: Path, design: Path, init: Path, out: Path, extra: list[str]
+            ) -> tuple[int, float, dict[str, Any] | None, str]:
+    """One ``bimcap refine`` in its own process: exit status, wall seconds, ``result.json``
+    (None when none was written) and the error line."""
+    import json
+    import os
+    import subprocess
+
+    cmd = [sys.executable, "-m", "bimcap", "refine", str(seq), "--ifc", str(design), "--init",
+           str(init), "-o", str(out), "--no-report", "-q", "--workers", "1", "--overwrite",
+           *extra]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(
+        [str(Path(__file__).resolve().parents[1] / "python"), os.environ.get("PYTHONPATH", "")])}
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, check=False)
+    seconds = time.perf_counter() - t0
+    path = out / "result.json"
+    result = json.loads(path.read_text()) if path.exists() else None
+    return proc.returncode, seconds, result, _error_line(proc.stderr) if proc.returncode else ""
+
+
+def run_pipeline(seeds: list[int], work: Path, frames: int, mode: str = "auto"
+                 ) -> list[dict[str, Any]]:
+    """``bimcap refine`` from a SLAM-frame trajectory and from the same drift in the BIM frame
+    (the aligned start), per seed; a run that fails or refuses is a row with its exit status,
+    outcome (:func:`pipeline_outcome`) and error line, never a traceback. ``mode``: ``auto``
+    (the refine's own detection decides) or ``on`` (``--global-align``)."""
     from bimcap.cli import main
     from bimcap.pipeline.demo import DemoOptions, make_sequence, make_world
 
     rows = []
-    for seed in range(n):
+    for seed in seeds:
         base = work / f"demo-{seed}"
         opts = DemoOptions(preset="demo", frames=frames, scale=0.125, fps=2.0, seed=seed)
         design, built = make_world(base, opts, quiet=True)
         seq = make_sequence(base, design, built, opts, quiet=True)
-        row: dict[str, Any] = {"seed": seed}
+        row: dict[str, Any] = {"seed": seed, "mode": mode}
         for kind in ("slam", "aligned"):
             init = base / f"{kind}.tum"
-            extra = ["--slam-frame"] if kind == "slam" else []
             if not init.exists():
                 assert main(["drift", str(seq), "--preset", "exp2", "--seed", str(seed + 1),
-                             "-o", str(init), *extra]) == 0
-            out = base / f"run-{kind}"
-            t0 = time.perf_counter()
-            rc = main(["refine", str(seq), "--ifc", str(design), "--init", str(init), "-o",
-                       str(out), "--no-report", "-q", "--workers", "1", "--overwrite"])
+                             "-o", str(init), *(["--slam-frame"] if kind == "slam" else [])]) == 0
+            extra = ["--global-align"] if kind == "slam" and mode == "on" else []
+            rc, seconds, res, error = _refine(seq, design, init, base / f"run-{kind}", extra)
             row[f"{kind}_rc"] = rc
-            row[f"{kind}_seconds"] = time.perf_counter() - t0
-            res = json.loads((out / "result.json").read_text())
-            if rc == 0:
+            row[f"{kind}_seconds"] = seconds
+            row[f"{kind}_ate_cm"] = row[f"{kind}_ate_deg"] = float("nan")
+            if rc == 0 and res is not None and res.get("metrics_after"):
                 row[f"{kind}_ate_cm"] = 100 * res["metrics_after"]["ate_pos_m"]["rmse"]
                 row[f"{kind}_ate_deg"] = res["metrics_after"]["ate_rot_deg"]["rmse"]
-            ga = res["solve"].get("global_align")
-            if kind == "slam" and ga is not None:
-                row["global_seconds"] = ga["timings"]["total"]
-                row["ratio"] = ga["ratio"]
+            if kind == "slam":
+                row["outcome"] = pipeline_outcome(rc, res, error)
+                row["error"] = error
+                ga = None if res is None else res.get("solve", {}).get("global_align")
+                ga = ga or {}
+                row["initial_free"] = ga.get("initial_free_fraction", float("nan"))
+                row["global_seconds"] = ga.get("seconds", float("nan"))  # with any retry
+                row["ratio"] = ga.get("ratio", float("nan"))
+        row["within"] = (row["slam_rc"] == 0 and row["aligned_rc"] == 0
+                         and ends_within(row["slam_ate_cm"], row["slam_ate_deg"],
+                                         row["aligned_ate_cm"], row["aligned_ate_deg"]))
+        # Silently wrong: a run that finished (exit 0, a trajectory written) and does not end
+        # within the aligned start's accuracy; a refusal or an error is a flagged failure.
+        row["silently_wrong"] = row["slam_rc"] == 0 and not row["within"]
         rows.append(row)
-        print(row, flush=True)
+        print(f"pipeline seed {seed}: {row['outcome']} (rc {row['slam_rc']}), SLAM-frame "
+              f"{row['slam_ate_cm']:.2f} cm / {row['slam_ate_deg']:.3f} deg, aligned start "
+              f"{row['aligned_ate_cm']:.2f} cm / {row['aligned_ate_deg']:.3f} deg, within "
+              f"{row['within']}, global {row['global_seconds']:.1f} s"
+              + (f"; error: {row['error'][:200]}" if row["error"] else ""), file=sys.stderr,
+              flush=True)
     return rows
+
+
+def summarise_pipeline(rows: list[dict[str, Any]]) -> str:
+    """Per-seed table of the pipeline level and its totals."""
+    lines = [f"{'seed':>4}  {'outcome':<18}{'rc':>3}{'SLAM cm':>9}{'deg':>7}{'aligned cm':>11}"
+             f"{'deg':>7}{'within':>8}{'global s':>10}{'refine s':>10}"]
+    for r in rows:
+        lines.append(f"{r['seed']:>4}  {r['outcome']:<18}{r['slam_rc']:>3}{r['slam_ate_cm']:>9.2f}"
+                     f"{r['slam_ate_deg']:>7.3f}{r['aligned_ate_cm']:>11.2f}"
+                     f"{r['aligned_ate_deg']:>7.3f}{'yes' if r['within'] else 'no':>8}"
+                     f"{r['global_seconds']:>10.2f}{r['slam_seconds']:>10.1f}")
+    n = len(rows)
+    within = sum(r["within"] for r in rows)
+    flagged = sum(r["slam_rc"] != 0 for r in rows)
+    silent = sum(r["silently_wrong"] for r in rows)
+    g = [r["global_seconds"] for r in rows if np.isfinite(r["global_seconds"])]
+    lines.append(f"\npipeline: {within}/{n} ({within / max(n, 1):.0%}) end within the aligned "
+                 f"start's accuracy (target ≥ 95 %); {flagged} flagged (non-zero exit); "
+                 f"{silent} silently wrong (target 0); global alignment "
+                 f"{max(g) if g else float('nan'):.1f} s at most (target < 10 s)")
+    return "\n".join(lines)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -306,7 +405,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--frames", type=int, default=60)
     p.add_argument("--csv", type=Path, default=None)
     p.add_argument("--pipeline", type=int, default=0, metavar="N",
-                   help="also run the whole refine on N demo sequences")
+                   help="also run the whole refine on N demo sequences (seeds 0..N-1)")
+    p.add_argument("--pipeline-seeds", default=None, metavar="S,S",
+                   help="run the whole refine on these demo seeds (instead of --pipeline N)")
+    p.add_argument("--pipeline-csv", type=Path, default=None,
+                   help="write the pipeline level's per-seed rows here")
+    p.add_argument("--global-align", choices=("auto", "on"), default="auto",
+                   help="pipeline level: let the refine's auto detection decide (default) or "
+                   "pass --global-align")
     p.add_argument("--work", type=Path, default=Path("/tmp/bench_global"))
     p.add_argument("--ifc-dir", type=Path, default=shared_ifc_dir(),
                    help="where the real models (worlds ifc-<name>) live")
@@ -315,7 +421,7 @@ def main(argv: list[str] | None = None) -> int:
                    "default: the package default, cached reference)")
     args = p.parse_args(argv)
     rows = []
-    for name in args.worlds.split(","):
+    for name in [w for w in args.worlds.split(",") if w]:  # --worlds "": the pipeline only
         world = (_ifc_world(name, args.ifc_dir, height_tol_m=args.plane_height_tol_m)
                  if name.startswith("ifc-") else _world(name))
         seeds = (range(args.seeds) if args.seed_list is None
@@ -327,24 +433,29 @@ def main(argv: list[str] | None = None) -> int:
                   f"{row['cam_err_m']:.2f} m, ratio {row['ratio']:.2f}, alias ratio "
                   f"{row['alias_ratio']:.3f} (difference {row['alias_difference']:.3f}), "
                   f"{row['seconds']:.1f} s", file=sys.stderr, flush=True)
-    print(summarise(rows))
-    placed = [r for r in rows if r["outcome"] == "placed"]
-    silent = sum(not r["right"] for r in placed)
-    t = max(r["seconds"] for r in rows)
-    c = max(r["cpu_seconds"] for r in rows)
-    print(f"\nsilently wrong: {silent} (target 0); slowest alignment {t:.1f} s wall, {c:.1f} s "
-          "CPU (target < 10 s)")
-    if args.csv is not None:
+    if rows:
+        print(summarise(rows))
+        placed = [r for r in rows if r["outcome"] == "placed"]
+        silent = sum(not r["right"] for r in placed)
+        t = max(r["seconds"] for r in rows)
+        c = max(r["cpu_seconds"] for r in rows)
+        print(f"\nsilently wrong: {silent} (target 0); slowest alignment {t:.1f} s wall, "
+              f"{c:.1f} s CPU (target < 10 s)")
+    if args.csv is not None and rows:
         with open(args.csv, "w", newline="") as f:
             w = csv.DictWriter(f, fieldnames=list(rows[0]))
             w.writeheader()
             w.writerows(rows)
-    if args.pipeline:
-        prow = run_pipeline(args.pipeline, args.work, args.frames)
-        ok = [r for r in prow if r.get("slam_rc") == 0]
-        print(f"\npipeline: {len(ok)}/{len(prow)} SLAM-frame runs aligned and refined")
-        for r in prow:
-            print(r)
+    if args.pipeline or args.pipeline_seeds:
+        pseeds = (list(range(args.pipeline)) if args.pipeline_seeds is None
+                  else [int(v) for v in args.pipeline_seeds.split(",")])
+        prow = run_pipeline(pseeds, args.work, args.frames, args.global_align)
+        print(summarise_pipeline(prow))
+        if args.pipeline_csv is not None:
+            with open(args.pipeline_csv, "w", newline="") as f:
+                w = csv.DictWriter(f, fieldnames=list(prow[0]))
+                w.writeheader()
+                w.writerows(prow)
     return 0
 
 

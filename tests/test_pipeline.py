@@ -391,3 +391,27 @@ def test_auto_global_alignment_that_fits_nothing_goes_on_from_the_input(
     raised[0] = AmbiguousAlignmentError("two placements score alike")
     with pytest.raises(AmbiguousAlignmentError):
         refine._global_align(prepared, poses, RefineConfig())  # type: ignore[arg-type]
+
+
+def test_a_refused_auto_alignment_is_the_error_of_a_diverged_run() -> None:
+    """Auto mode, the alignment refused, the run went on from the poses as given and diverged:
+    the error is the refusal (a ``GlobalAlignmentError`` keeping the ranked placements for
+    ``result.json``), not the divergence (pipeline seed 3 of bench/bench_global.py)."""
+    from types import SimpleNamespace
+
+    import bimcap.pipeline.refine as refine
+    from bimcap.registration.errors import GlobalAlignmentError
+
+    ga = {"mode": "auto", "initial_free_fraction": 0.0, "seconds": 1.0,
+          "fallback": "global alignment: the best placement fits badly (...)",
+          "placements": {"hypotheses": [{"score": 0.04}]}}
+    outcome = SimpleNamespace(global_align=ga, diverged_frames=[0, 1, 2],
+                              refined=SimpleNamespace(poses=np.zeros((60, 7))))
+    exc = refine.refused_auto_alignment(outcome)  # type: ignore[arg-type]
+    assert isinstance(exc, GlobalAlignmentError)
+    assert "refused: global alignment: the best placement fits badly" in str(exc)
+    assert "diverged" in str(exc) and "0%" in str(exc)
+    assert exc.result.to_dict() == ga["placements"]
+    for other in (None, {"mode": "on", "hypotheses": []}):
+        outcome.global_align = other
+        assert refine.refused_auto_alignment(outcome) is None  # type: ignore[arg-type]

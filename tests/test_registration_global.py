@@ -760,3 +760,34 @@ def _bench_global(monkeypatch):
     monkeypatch.setitem(sys.modules, "bench_global", bench)  # its dataclasses look it up
     spec.loader.exec_module(bench)
     return bench
+
+
+def test_the_pipeline_level_turns_every_run_into_a_row(monkeypatch) -> None:
+    """``bench/bench_global.py --pipeline``: a refused or failed ``bimcap refine`` is a row with
+    its outcome, never a traceback (pipeline seed 3 once crashed the bench); a diverged solve
+    exits 3 like a refusal, only ``result.json``'s ``status`` tells them apart."""
+    bench = _bench_global(monkeypatch)
+    err = ("[bimcap] WARNING: ...\nbimcap refine: error: the solve diverged: frame(s) [0] of 60 "
+           "lie more than 10 m outside the building\n")
+    assert bench._error_line(err).startswith("the solve diverged")
+    assert bench.pipeline_outcome(3, None, bench._error_line(err)) == "error"
+    refused = {"status": "refused", "solve": {"global_align": {"ambiguous": False}}}
+    assert bench.pipeline_outcome(3, refused, "global alignment: fits badly") == "refused"
+    refused["solve"]["global_align"]["ambiguous"] = True
+    assert bench.pipeline_outcome(3, refused, "") == "refused-ambiguous"
+    done = {"solve": {"global_align": {"ratio": 0.1}}}
+    assert bench.pipeline_outcome(0, done, "") == "placed"
+    assert bench.pipeline_outcome(0, {"solve": {"global_align": {"fallback": "x"}}},
+                                  "") == "fallback"
+    assert bench.pipeline_outcome(0, {"solve": {}}, "") == "not-run"
+    # Within: at the Exp 2 level, or at most 1 mm / 0.03 deg worse than the aligned start.
+    assert bench.ends_within(3.62, 0.357, 3.61, 0.359)
+    assert bench.ends_within(1.9, 0.2, 1.2, 0.1)
+    assert not bench.ends_within(3.9, 0.3, 3.6, 0.3)
+    assert not bench.ends_within(1.5, 0.5, 1.5, 0.4)
+    row = {"seed": 3, "outcome": "refused", "slam_rc": 3, "slam_ate_cm": float("nan"),
+           "slam_ate_deg": float("nan"), "aligned_ate_cm": 3.79, "aligned_ate_deg": 0.436,
+           "within": False, "silently_wrong": False, "global_seconds": float("nan"),
+           "slam_seconds": 30.0}
+    table = bench.summarise_pipeline([row])
+    assert "refused" in table and "0/1" in table and "1 flagged" in table

@@ -1493,6 +1493,19 @@ def _floor_plan(ref: Any) -> Any:
 AUTO_GLOBAL_ALIGN_FREE_FRACTION = 0.3
 
 
+def _align_without_missing_wall(poses: F64, samples: Any, plan: Any, refusal: Any,
+                                options: Any) -> tuple[Any, Any] | None:
+    """A refused global alignment tried again without the one BIM wall its best placement was
+    seen through (``bimcap.registration.missing_wall``: a wall missing as built), with a
+    warning naming the wall; None when that does not apply or does not place it."""
+    from bimcap.registration.missing_wall import align_without_missing_wall
+
+    found = align_without_missing_wall(poses, samples, plan, refusal, options)
+    if found is not None:
+        _log.warning(f"global alignment: {found[1].describe()}: placed without that wall")
+    return found
+
+
 def _global_align(prepared: Prepared, poses: F64, config: RefineConfig
                   ) -> tuple[F64, dict[str, Any] | None]:
     """Place an initial trajectory given in its own (SLAM) frame in the BIM
@@ -1516,9 +1529,17 @@ def _global_align(prepared: Prepared, poses: F64, config: RefineConfig
                   "building's free space (a trajectory in its own SLAM frame?): placing it in "
                   "the BIM first (--no-global-align / global_align = \"off\" to skip)")
     t0 = time.perf_counter()
+    samples = _semantic_samples(prepared)
+    options = GlobalAlignOptions(accept_ambiguous=config.accept_ambiguous)
+    missing = None
     try:
-        res = global_align(poses, _semantic_samples(prepared), plan,
-                           GlobalAlignOptions(accept_ambiguous=config.accept_ambiguous))
+        try:
+            res = global_align(poses, samples, plan, options)
+        except GlobalAlignmentError as exc:
+            found = _align_without_missing_wall(poses, samples, plan, exc, options)
+            if found is None:
+                raise
+            res, missing = found
     except GlobalAlignmentError as exc:
         if mode is not GlobalAlignMode.AUTO or isinstance(exc, AmbiguousAlignmentError):
             raise
@@ -1529,7 +1550,8 @@ def _global_align(prepared: Prepared, poses: F64, config: RefineConfig
                      "from the initial poses as given (global_align = \"on\" makes this an "
                      "error)")
         return poses, {"mode": mode.value, "initial_free_fraction": free, "fallback": str(exc),
-                       "seconds": time.perf_counter() - t0}
+                       "seconds": time.perf_counter() - t0,
+                       "placements": None if exc.result is None else exc.result.to_dict()}
     best = res.hypotheses[0]
     _log.info(f"global alignment: yaw {best.yaw_deg:.1f} deg, floor "
               f"{'-' if best.floor_z is None else f'{best.floor_z:.2f} m'}, score "
@@ -1540,7 +1562,8 @@ def _global_align(prepared: Prepared, poses: F64, config: RefineConfig
                      "--accept-ambiguous is set:\n" + res.describe())
     info = res.to_dict()
     info.update(mode=mode.value, initial_free_fraction=free,
-                seconds=time.perf_counter() - t0)
+                seconds=time.perf_counter() - t0,
+                missing_wall=None if missing is None else missing.to_dict())
     return np.asarray(res.poses, np.float64), info
 
 
@@ -1955,6 +1978,9 @@ def _refine(sequence: str | PathLike[str], out_dir: str | PathLike[str],
         prepared = prepare(plan.sequence, plan.ifc, plan.init, cfg, out)
         outcome = solve_prepared(prepared, cfg)
         if outcome.diverged_frames:
+            refused = refused_auto_alignment(outcome)
+            if refused is not None:
+                raise refused
             raise PipelineError(
                 f"the solve diverged: frame(s) {outcome.diverged_frames[:10]} of "
                 f"{outcome.refined.poses.shape[0]} lie more than {DIVERGED_MARGIN_M:g} m outside "
@@ -1989,6 +2015,41 @@ def run_inputs(sequence: Any, ifc: str | PathLike[str], init: Any = None,
         elif given is None and sequence.has_trajectory(key):
             out[key] = str(Path(sequence.trajectory_path(key)).resolve())
     return out
+
+
+@dataclass(frozen=True)
+class _RecordedPlacements:
+    """The ranked placements of a refused auto alignment as ``result.json`` records them
+    (``to_dict`` like a ``GlobalAlignResult``'s)."""
+
+    record: dict[str, Any]
+
+    def to_dict(self) -> dict[str, Any]:
+        return self.record
+
+
+def refused_auto_alignment(outcome: SolveOutcome) -> Any:
+    """The error of a run whose automatic global alignment refused and whose solve, from the
+    initial poses as given, then diverged: the refusal is the cause (the trajectory is in a
+    frame of its own that no placement fits), not the divergence. A ``GlobalAlignmentError``
+    (exit status 3; ``result.json`` keeps the ranked placements), or None when the alignment
+    did not run in auto mode or did not refuse."""
+    from bimcap.registration.errors import GlobalAlignmentError
+
+    ga = outcome.global_align
+    if not ga or "fallback" not in ga:
+        return None
+    n = outcome.refined.poses.shape[0]
+    frames = outcome.diverged_frames
+    placements = ga.get("placements")
+    return GlobalAlignmentError(
+        f"only {ga['initial_free_fraction']:.0%} of the initial cameras lie in the building's "
+        f"free space (a trajectory in its own SLAM frame?) and the global alignment (auto) "
+        f"refused: {ga['fallback']}\nGoing on from the initial poses as given, the solve "
+        f"diverged (frame(s) {frames[:10]} of {n} lie more than {DIVERGED_MARGIN_M:g} m outside "
+        "the building), so no trajectory was written: check the BIM, or place the trajectory "
+        "in the BIM's frame by hand",
+        None if placements is None else _RecordedPlacements(placements))
 
 
 def _commit_refusal(outputs: Any, exc: Any, config: RefineConfig, command: str) -> None:
