@@ -73,9 +73,10 @@ class SiftOptions:
         first octave 0 (64 vs 189 ms a frame, one thread; the front end 2.1 → 2.9 frames/s per
         core) at the same match error on the ground truth; BIMCaP's accuracy on 8 runs was
         within 0.0105 cm / 0.0016° of pycolmap's, better on 5 (docs/speed.md, "SIFT cost"),
-        but on the ten worlds × four runs it lost the matches around one frame of
-        AC20-FZK-Haus Exp. 1 (26.7 cm against pycolmap's 11.9 cm; docs/speed.md, "New
-        defaults"): an option, not the default.
+        and on the ten worlds × four runs of the standard setting within 0.034 cm / 0.0042°
+        (docs/generalization.md, "The two lone frames fixed"), but on the hard setting it lost
+        the four end frames of gen-small-s3 Exp. 1 (21.3 cm against pycolmap's 1.2 cm;
+        docs/speed.md, "OpenCV's SIFT on the hard setting"): an option, not the default.
     orb_max_num_features: ORB's keypoint budget (``max_num_features`` is SIFT's): matching
         binary descriptors costs the square of it, and at 516×386 a pair of frames with 2048
         (about 1600 kept) costs as much as their extraction.
