@@ -551,31 +551,11 @@ def range_agreement(cam_xy: F64, p_xy: F64, segments: F64, tol_m: float = 0.3,
     """
     cam = np.asarray(cam_xy, dtype=np.float64).reshape(-1, 2)
     pts = np.asarray(p_xy, dtype=np.float64).reshape(-1, 2)
-    seg = np.asarray(segments, dtype=np.float64).reshape(-1, 4)
-    agree = np.zeros(len(pts), dtype=bool)
-    if len(pts) == 0 or len(seg) == 0:
+    # the ray extended tol_m beyond the point: its first wall, if any, must not lie short of it
+    first = plan_ranges(cam, pts, segments, tol_m, chunk)
+    agree = np.isfinite(first) & (first >= np.linalg.norm(pts - cam, axis=1) - tol_m)
+    if len(pts) == 0:
         return 0.0, agree
-    ray = pts - cam
-    length = np.linalg.norm(ray, axis=1)
-    use = np.flatnonzero(length > 1e-9)
-    reach = length[use] + tol_m
-    o_all = cam[use]
-    d_all = ray[use] * (reach / length[use])[:, None]  # the ray up to tol_m beyond the point
-    seg_lo = np.minimum(seg[:, :2], seg[:, 2:])
-    seg_hi = np.maximum(seg[:, :2], seg[:, 2:])
-    for k in range(0, len(use), chunk):
-        o, d = o_all[k:k + chunk, None], d_all[k:k + chunk, None]
-        ends = np.r_[o_all[k:k + chunk], o_all[k:k + chunk] + d_all[k:k + chunk]]
-        near = ((seg_lo <= ends.max(0) + 1e-6) & (seg_hi >= ends.min(0) - 1e-6)).all(1)
-        a, e = seg[near, :2], seg[near, 2:] - seg[near, :2]
-        den = d[..., 0] * e[None, :, 1] - d[..., 1] * e[None, :, 0]
-        w = a[None] - o
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s = (w[..., 0] * e[None, :, 1] - w[..., 1] * e[None, :, 0]) / den  # along the ray
-            t = (w[..., 0] * d[..., 1] - w[..., 1] * d[..., 0]) / den  # along the segment
-        cross = (np.abs(den) > 1e-12) & (s >= 0) & (s <= 1) & (t >= 0) & (t <= 1)
-        first = np.where(cross, s, np.inf).min(1, initial=np.inf) * reach[k:k + chunk]
-        agree[use[k:k + chunk]] = np.isfinite(first) & (first >= length[use[k:k + chunk]] - tol_m)
     return float(agree.mean()), agree
 
 
