@@ -178,24 +178,40 @@ def icp_2d(
         use = dist < radius
         if use.sum() < 3:
             break
-        qu, cu, du = q[use], closest[use], dist[use]
-        n = (qu - cu) / np.maximum(du, 1e-9)[:, None]
-        m = qu.mean(0)
-        v = qu - m
-        # d(residual)/d(dyaw) = n · J v with J v = (-v_y, v_x); d/d(t) = n.
-        jac = np.c_[n[:, 1] * v[:, 0] - n[:, 0] * v[:, 1], n]
-        w = np.where(du <= huber_m, 1.0, huber_m / np.maximum(du, 1e-12))
-        h = (jac * w[:, None]).T @ jac + np.diag([1e-6, 1e-9, 1e-9])
-        g = (jac * w[:, None]).T @ du
-        delta = -np.linalg.solve(h, g)
-        dyaw, dt = float(delta[0]), delta[1:]
-        # Compose q' = R(dyaw)(q - m) + m + dt with q = R(yaw)(p - pivot) + pivot + t.
-        t = rot2(dyaw) @ (pivot + t - m) + m + dt - pivot
-        yaw = yaw + dyaw
-        if abs(dyaw) < 1e-6 and np.linalg.norm(dt) < 1e-5 and radius <= radius_end_m * 1.01:
+        yaw, t, done = _gauss_newton_step(q[use], closest[use], dist[use], huber_m, yaw, t,
+                                          pivot)
+        if done and radius <= radius_end_m * 1.01:
             break
     q = apply_correction(p, yaw, t, pivot)
     dist, closest = associate(q, p_class, view @ rot2(yaw).T)
+    return _icp_result(q, dist, closest, inlier_m, yaw, t, pivot, it)
+
+
+def _gauss_newton_step(qu: F64, cu: F64, du: F64, huber_m: float, yaw: float, t: F64,
+                       pivot: F64) -> tuple[float, F64, bool]:
+    """One Huber-weighted Gauss-Newton step of the point-to-line ICP: the points ``qu`` (N, 2),
+    their closest plan points ``cu`` (N, 2) and distances ``du`` (N,) metres, N >= 3; returns
+    the new yaw (rad) and translation (2,) about ``pivot``, and whether the step was below
+    1e-6 rad and 1e-5 m."""
+    n = (qu - cu) / np.maximum(du, 1e-9)[:, None]
+    m = qu.mean(0)
+    v = qu - m
+    # d(residual)/d(dyaw) = n · J v with J v = (-v_y, v_x); d/d(t) = n.
+    jac = np.c_[n[:, 1] * v[:, 0] - n[:, 0] * v[:, 1], n]
+    w = np.where(du <= huber_m, 1.0, huber_m / np.maximum(du, 1e-12))
+    h = (jac * w[:, None]).T @ jac + np.diag([1e-6, 1e-9, 1e-9])
+    g = (jac * w[:, None]).T @ du
+    delta = -np.linalg.solve(h, g)
+    dyaw, dt = float(delta[0]), delta[1:]
+    # Compose q' = R(dyaw)(q - m) + m + dt with q = R(yaw)(p - pivot) + pivot + t.
+    t = rot2(dyaw) @ (pivot + t - m) + m + dt - pivot
+    return yaw + dyaw, t, bool(abs(dyaw) < 1e-6 and np.linalg.norm(dt) < 1e-5)
+
+
+def _icp_result(q: F64, dist: F64, closest: F64, inlier_m: float, yaw: float, t: F64,
+                pivot: F64, iterations: int) -> IcpResult:
+    """The result of an ICP run ending at ``yaw``, ``t``: ``q`` (M, 2) the points moved there,
+    ``dist`` (M,) / ``closest`` (M, 2) their association."""
     ok = dist < inlier_m
     rms = float(np.sqrt(np.mean(dist[ok] ** 2))) if ok.any() else float("nan")
     constraint = 0.0
@@ -206,7 +222,7 @@ def icp_2d(
         constraint = float(np.linalg.eigvalsh(n.T @ n / len(n))[0])
     yaw = float(np.arctan2(np.sin(yaw), np.cos(yaw)))
     return IcpResult(Correction2D(yaw, t, np.asarray(pivot, dtype=np.float64)),
-                     float(ok.mean()) if len(ok) else 0.0, rms, it, constraint)
+                     float(ok.mean()) if len(ok) else 0.0, rms, iterations, constraint)
 
 
 def icp_2d_many(
@@ -243,7 +259,6 @@ def icp_2d_many(
     its = [0] * k_runs
     going = list(range(k_runs))
     cls_all = np.tile(np.asarray(p_class), max(k_runs, 1))
-    damping = np.diag([1e-6, 1e-9, 1e-9])
 
     def associate_all(runs: list[int]) -> tuple[list[F64], list[F64], list[F64]]:
         qs = [apply_correction(p, yaw[r], t[r], pivot[r]) for r in runs]
@@ -265,19 +280,9 @@ def icp_2d_many(
             use = dist < radius
             if use.sum() < 3:
                 continue
-            qu, cu, du = q[use], closest[use], dist[use]
-            n = (qu - cu) / np.maximum(du, 1e-9)[:, None]
-            m = qu.mean(0)
-            v = qu - m
-            jac = np.column_stack((n[:, 1] * v[:, 0] - n[:, 0] * v[:, 1], n))
-            w = np.where(du <= huber_m, 1.0, huber_m / np.maximum(du, 1e-12))
-            h = (jac * w[:, None]).T @ jac + damping
-            g = (jac * w[:, None]).T @ du
-            delta = -np.linalg.solve(h, g)
-            dyaw, dt = float(delta[0]), delta[1:]
-            t[r] = rot2(dyaw) @ (pivot[r] + t[r] - m) + m + dt - pivot[r]
-            yaw[r] = yaw[r] + dyaw
-            if abs(dyaw) < 1e-6 and np.linalg.norm(dt) < 1e-5 and radius <= radius_end_m * 1.01:
+            yaw[r], t[r], done = _gauss_newton_step(q[use], closest[use], dist[use], huber_m,
+                                                    yaw[r], t[r], pivot[r])
+            if done and radius <= radius_end_m * 1.01:
                 continue
             still.append(r)
         going = still
@@ -286,14 +291,6 @@ def icp_2d_many(
         return out
     qs, dists, closests = associate_all(list(range(k_runs)))
     for r in range(k_runs):
-        q, dist, closest = qs[r], dists[r], closests[r]
-        ok = dist < inlier_m
-        rms = float(np.sqrt(np.mean(dist[ok] ** 2))) if ok.any() else float("nan")
-        constraint = 0.0
-        if ok.sum() >= 3:
-            n = (q[ok] - closest[ok]) / np.maximum(dist[ok], 1e-12)[:, None]
-            constraint = float(np.linalg.eigvalsh(n.T @ n / len(n))[0])
-        y = float(np.arctan2(np.sin(yaw[r]), np.cos(yaw[r])))
-        out.append(IcpResult(Correction2D(y, t[r], np.asarray(pivot[r], dtype=np.float64)),
-                             float(ok.mean()) if len(ok) else 0.0, rms, its[r], constraint))
+        out.append(_icp_result(qs[r], dists[r], closests[r], inlier_m, yaw[r], t[r], pivot[r],
+                               its[r]))
     return out
