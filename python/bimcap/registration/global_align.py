@@ -463,6 +463,30 @@ def free_space_fraction(cam_xy: NDArray[np.float64], segments: NDArray[np.float6
     return float(free.mean()), free
 
 
+def _ray_crossings(a_ray: F64, d_ray: F64, seg: F64, chunk: int
+                   ) -> Iterator[tuple[int, F64, F64, F64, NDArray[np.bool_]]]:
+    """The crossings of rays ``a + s d`` (s in [0, 1]; ``a_ray``, ``d_ray`` (N, 2) metres) with
+    plan segments ``seg`` (S, 4), ``chunk`` rays at a time: per chunk, its first row ``k``, the
+    segments' starts ``a`` (S', 2) and directions ``e`` (S', 2) that can be crossed, ``s``
+    (chunk, S') the crossing's place along each ray and ``cross`` (chunk, S') whether the ray
+    crosses the segment. Only the segments whose box meets the box of the chunk's rays are
+    tested (the points come frame by frame, so a chunk's rays are local): the same test, fewer
+    pairs."""
+    seg_lo = np.minimum(seg[:, :2], seg[:, 2:])
+    seg_hi = np.maximum(seg[:, :2], seg[:, 2:])
+    for k in range(0, len(a_ray), chunk):
+        o, d = a_ray[k:k + chunk, None], d_ray[k:k + chunk, None]
+        ends = np.r_[a_ray[k:k + chunk], a_ray[k:k + chunk] + d_ray[k:k + chunk]]
+        near = ((seg_lo <= ends.max(0) + 1e-6) & (seg_hi >= ends.min(0) - 1e-6)).all(1)
+        a, e = seg[near, :2], seg[near, 2:] - seg[near, :2]
+        den = d[..., 0] * e[None, :, 1] - d[..., 1] * e[None, :, 0]
+        w = a[None] - o
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = (w[..., 0] * e[None, :, 1] - w[..., 1] * e[None, :, 0]) / den  # along the ray
+            t = (w[..., 0] * d[..., 1] - w[..., 1] * d[..., 0]) / den  # along the segment
+        yield k, a, e, s, (np.abs(den) > 1e-12) & (s >= 0) & (s <= 1) & (t >= 0) & (t <= 1)
+
+
 def see_through_fraction(cam_xy: F64, p_xy: F64, segments: F64, margin_m: float = 0.3,
                          chunk: int = 256,
                          margin_from: SeeThroughMargin = SeeThroughMargin.RAY_ENDS
@@ -502,25 +526,12 @@ def see_through_fraction(cam_xy: F64, p_xy: F64, segments: F64, margin_m: float 
         u = ray[use] / length[use, None]
         a_ray = cam[use] + margin_m * u
         d_ray = ray[use] - 2 * margin_m * u
-    seg_lo = np.minimum(seg[:, :2], seg[:, 2:])
-    seg_hi = np.maximum(seg[:, :2], seg[:, 2:])
     hit = np.zeros(len(a_ray), dtype=bool)
-    for k in range(0, len(a_ray), chunk):
-        o, d = a_ray[k:k + chunk, None], d_ray[k:k + chunk, None]
-        # Only the segments whose box meets the box of this chunk's rays can be crossed (the
-        # points come frame by frame, so a chunk's rays are local); same test, fewer pairs.
-        ends = np.r_[a_ray[k:k + chunk], a_ray[k:k + chunk] + d_ray[k:k + chunk]]
-        near = ((seg_lo <= ends.max(0) + 1e-6) & (seg_hi >= ends.min(0) - 1e-6)).all(1)
-        a, e = seg[near, :2], seg[near, 2:] - seg[near, :2]
-        den = d[..., 0] * e[None, :, 1] - d[..., 1] * e[None, :, 0]
-        w = a[None] - o
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s = (w[..., 0] * e[None, :, 1] - w[..., 1] * e[None, :, 0]) / den
-            t = (w[..., 0] * d[..., 1] - w[..., 1] * d[..., 0]) / den
-        cross = (np.abs(den) > 1e-12) & (s >= 0) & (s <= 1) & (t >= 0) & (t <= 1)
+    for k, a, e, _s, cross in _ray_crossings(a_ray, d_ray, seg, chunk):
         if from_wall and cross.any():
-            cross &= _pair_distance(o[:, 0], a, e) >= margin_m
-            cross &= _pair_distance(o[:, 0] + d[:, 0], a, e) >= margin_m
+            o, d = a_ray[k:k + chunk], d_ray[k:k + chunk]
+            cross &= _pair_distance(o, a, e) >= margin_m
+            cross &= _pair_distance(o + d, a, e) >= margin_m
         hit[k:k + chunk] = cross.any(1)
     crossed[np.flatnonzero(use)] = hit
     return float(crossed.mean()), crossed
@@ -1275,19 +1286,7 @@ def plan_ranges(cam_xy: F64, p_xy: F64, segments: F64, beyond_m: float,
     reach = length[use] + beyond_m
     o_all = cam[use]
     d_all = ray[use] * (reach / length[use])[:, None]
-    seg_lo = np.minimum(seg[:, :2], seg[:, 2:])
-    seg_hi = np.maximum(seg[:, :2], seg[:, 2:])
-    for k in range(0, len(use), chunk):
-        o, d = o_all[k:k + chunk, None], d_all[k:k + chunk, None]
-        ends = np.r_[o_all[k:k + chunk], o_all[k:k + chunk] + d_all[k:k + chunk]]
-        near = ((seg_lo <= ends.max(0) + 1e-6) & (seg_hi >= ends.min(0) - 1e-6)).all(1)
-        a, e = seg[near, :2], seg[near, 2:] - seg[near, :2]
-        den = d[..., 0] * e[None, :, 1] - d[..., 1] * e[None, :, 0]
-        w = a[None] - o
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s = (w[..., 0] * e[None, :, 1] - w[..., 1] * e[None, :, 0]) / den  # along the ray
-            t = (w[..., 0] * d[..., 1] - w[..., 1] * d[..., 0]) / den  # along the segment
-        cross = (np.abs(den) > 1e-12) & (s >= 0) & (s <= 1) & (t >= 0) & (t <= 1)
+    for k, _a, _e, s, cross in _ray_crossings(o_all, d_all, seg, chunk):
         out[use[k:k + chunk]] = (np.where(cross, s, np.inf).min(1, initial=np.inf)
                                  * reach[k:k + chunk])
     return out
