@@ -5,8 +5,10 @@ BLAS / OpenCV on one thread inside the front end's jobs changes none of its arra
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -221,14 +223,10 @@ def test_planar_smoothing_same_as_fe4da1c(chain: list[_Frame], monkeypatch: pyte
     assert set(counts) >= {1, 2, 3}, sorted(set(counts))
 
 
-@pytest.mark.parametrize("world", ["gen-demo-s0", "ifc-SampleHouse4"])
-def test_planar_smoothing_real_frames_same_as_fe4da1c(world: str) -> None:
-    """The front end's planar smoothing (``refine``'s providers: linear completion, geometric
-    labels, planes fitted to the returns at the scan's own noise) of a generated world's first
-    6 frames: the fe4da1c code's map bit for bit; skipped without the world."""
-    seq_dir = _WORLDS / world / "seq_60_standard"
-    if not seq_dir.is_dir():
-        pytest.skip(f"{seq_dir} not generated")
+def _provider_frames(seq_dir: Path, count: int) -> Iterator[tuple[Any, np.ndarray, Any]]:
+    """``(frame context, labels, planar smoothing)`` of a sequence's first ``count`` frames as
+    ``refine``'s providers make them (linear completion into ``ctx.depth``, geometric labels);
+    the smoothing is ``refine``'s, to be called on them."""
     from bimcap.dataset import read_sequence
     from bimcap.frontend.runner import FrameContext, _load_raw_image, get_undistorter
     from bimcap.geometry.trajectory import read_tum
@@ -239,13 +237,24 @@ def test_planar_smoothing_real_frames_same_as_fe4da1c(world: str) -> None:
     depth_p, label_p, refiner = make_providers(RefineConfig(workers=1), seq)
     poses = read_tum(seq.root / "poses" / "gt.tum").poses
     und = get_undistorter(seq.camera)
-    moved = 0
-    for i in range(6):
+    for i in range(count):
         image = und.image(_load_raw_image(seq, i, seq.camera))
         ctx = FrameContext(seq, i, seq.camera, und.pinhole, image, und, poses[i])
         depth = depth_p(ctx)
         ctx.depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0).astype(np.float32)
-        labels = label_p(ctx)
+        yield ctx, label_p(ctx), refiner
+
+
+@pytest.mark.parametrize("world", ["gen-demo-s0", "ifc-SampleHouse4"])
+def test_planar_smoothing_real_frames_same_as_fe4da1c(world: str) -> None:
+    """The front end's planar smoothing (``refine``'s providers: linear completion, geometric
+    labels, planes fitted to the returns at the scan's own noise) of a generated world's first
+    6 frames: the fe4da1c code's map bit for bit; skipped without the world."""
+    seq_dir = _WORLDS / world / "seq_60_standard"
+    if not seq_dir.is_dir():
+        pytest.skip(f"{seq_dir} not generated")
+    moved = 0
+    for ctx, labels, refiner in _provider_frames(seq_dir, 6):
         new = refiner(ctx, labels)
         with ref.old_planar_smoothing():
             old = refiner(ctx, labels)
@@ -1079,26 +1088,11 @@ def _orientation_inputs(world: str, count: int
     seq_dir = _WORLDS / world / "seq_60_standard"
     if not seq_dir.is_dir():
         return []
-    from bimcap.dataset import read_sequence
-    from bimcap.frontend.runner import FrameContext, _load_raw_image, get_undistorter
-    from bimcap.geometry.trajectory import read_tum
-    from bimcap.pipeline.config import RefineConfig
-    from bimcap.pipeline.refine import make_providers
-
-    seq = read_sequence(seq_dir)
-    depth_p, label_p, refiner = make_providers(RefineConfig(workers=1), seq)
-    poses = read_tum(seq.root / "poses" / "gt.tum").poses
-    und = get_undistorter(seq.camera)
     out = []
-    for i in range(count):
-        image = und.image(_load_raw_image(seq, i, seq.camera))
-        ctx = FrameContext(seq, i, seq.camera, und.pinhole, image, und, poses[i])
-        depth = depth_p(ctx)
-        ctx.depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0).astype(np.float32)
-        labels = label_p(ctx)
+    for ctx, labels, refiner in _provider_frames(seq_dir, count):
         depth = refiner(ctx, labels)
         depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0).astype(np.float32)
-        out.append((labels, depth, und.pinhole, poses[i]))
+        out.append((labels, depth, ctx.pinhole, ctx.world_from_cam))
     return out
 
 
