@@ -1128,6 +1128,49 @@ def match_numpy_reference(a: U8, b: U8, opts: Any) -> NDArray[np.int32]:
     return np.stack([ia, ib], axis=1).astype(np.int32)
 
 
+def match_numpy_4206b3e(a: U8, b: U8, opts: Any) -> NDArray[np.int32]:
+    """``bimcap.features.matching._match_numpy`` as of 4206b3e, verbatim: the similarities as
+    one BLAS ``sgemm`` of float32 descriptors, blocks of 2,048 rows (the candidate columns
+    multiplied again as rows past one block)."""
+    from bimcap.features.matching import ORB_DESCRIPTOR_BYTES, _as_float, _passes, _top2
+
+    binary = a.shape[1] == ORB_DESCRIPTOR_BYTES
+    fa, fb = _as_float(a), _as_float(b)
+    chunk = 2048
+    best_ab = np.empty(len(a), np.int64)
+    s1_ab = np.empty(len(a), np.float32)
+    ok_ab = np.empty(len(a), bool)
+    col_s1 = np.full(len(b), -np.inf, np.float32)
+    sim = np.zeros((0, len(b)), np.float32)
+    for start in range(0, len(a), chunk):
+        sim = fa[start : start + chunk] @ fb.T
+        best, s1, s2 = _top2(sim)
+        best_ab[start : start + len(sim)] = best
+        s1_ab[start : start + len(sim)] = s1
+        ok_ab[start : start + len(sim)] = _passes(s1, s2, opts, binary)
+        np.maximum(col_s1, sim.max(axis=0), out=col_s1)
+    ia = np.flatnonzero(ok_ab)
+    ib = best_ab[ia]
+    if opts.cross_check:
+        # the rows that are their column's best, then those alone in their column
+        top = s1_ab[ia] == col_s1[ib]
+        ia, ib = ia[top], ib[top]
+        alone = np.bincount(ib, minlength=len(b))[ib] == 1
+        ia, ib = ia[alone], ib[alone]
+        if len(a) <= chunk:  # the one block of rows is still there
+            sim[ia, ib] = -np.inf
+            col_s2 = sim.max(axis=0)[ib]
+        else:  # the candidate columns again, as rows (the same numbers)
+            col_s2 = np.empty(len(ib), np.float32)
+            for start in range(0, len(ib), chunk):
+                part = fb[ib[start : start + chunk]] @ fa.T
+                part[np.arange(len(part)), ia[start : start + chunk]] = -np.inf
+                col_s2[start : start + len(part)] = part.max(axis=1)
+        keep = _passes(col_s1[ib], col_s2, opts, binary)
+        ia, ib = ia[keep], ib[keep]
+    return np.stack([ia, ib], axis=1).astype(np.int32)
+
+
 # ------------------------------------------------------------- semantic_map at 02ca12e
 # The label orientation check's coarse normals and region plane fits as of 02ca12e (numpy),
 # before the normals' per-pixel arithmetic moved to ``bimcap._core`` and the fits' normal
@@ -1279,9 +1322,18 @@ def old_label_orientation() -> AbstractContextManager[None]:
 
 
 def old_matching() -> AbstractContextManager[None]:
+    """``_match_numpy`` as of c52a7fb (issue 14's first matching speed-up)."""
     from bimcap.features import matching
 
     return swapped(matching, _match_numpy=match_numpy_reference)
+
+
+def float32_matching() -> AbstractContextManager[None]:
+    """``_match_numpy`` as of 4206b3e: the products in BLAS float32 (before the integer
+    products of ONNX Runtime)."""
+    from bimcap.features import matching
+
+    return swapped(matching, _match_numpy=match_numpy_4206b3e)
 
 
 #: Stage name (as ``bench_frontend.py --world`` prints it) → a context in which the stage's
@@ -1292,5 +1344,5 @@ REFERENCES: dict[str, Callable[[], AbstractContextManager[None]]] = {
     "geometric segmentation": old_segmentation,
     "planar smoothing": old_planar_smoothing,
     "label orientation check": old_label_orientation,
-    "matching": old_matching,
+    "matching": float32_matching,
 }

@@ -794,6 +794,142 @@ def test_matching_real_frames_same_as_before(world: str) -> None:
     assert n > 2000
 
 
+def test_matching_real_frames_same_as_float32() -> None:
+    """Every pair of a 1032 × 772 world's first 6 frames, window 4 (~1,400–3,300 keypoints, some
+    descriptors with values >= 128): the integer products give the matches of the 4206b3e code
+    (float32 BLAS) and of ``product = "float32"``; skipped without the world."""
+    seq_dir = Path("/tmp/speeddef/w1032/gen-demo-s0/seq_12_standard_1032")
+    if not seq_dir.is_dir():
+        pytest.skip(f"{seq_dir} not generated")
+    from bimcap.dataset import read_sequence
+    from bimcap.features import DescriptorProduct, MatchOptions, extract_sift, match_descriptors
+    from bimcap.frontend.runner import _load_raw_image, get_undistorter
+    from bimcap.pipeline.config import RefineConfig
+    from bimcap.pipeline.refine import sift_options
+
+    seq = read_sequence(seq_dir)
+    und = get_undistorter(seq.camera)
+    opts = sift_options(RefineConfig())
+    desc = [extract_sift(und.image(_load_raw_image(seq, i, seq.camera)), opts).descriptors
+            for i in range(6)]
+    assert min(len(d) for d in desc) > 1000 and all((d >= 128).any() for d in desc)
+    n = 0
+    f32 = MatchOptions(product=DescriptorProduct.FLOAT32)
+    for i in range(6):
+        for j in range(i + 1, min(6, i + 5)):
+            new = match_descriptors(desc[i], desc[j])
+            with ref.float32_matching():
+                old = match_descriptors(desc[i], desc[j])
+            assert np.array_equal(new, old) and new.dtype == old.dtype
+            assert np.array_equal(match_descriptors(desc[i], desc[j], f32), old)
+            n += len(new)
+    assert n > 3000
+
+
+def test_int8_products_exact() -> None:
+    """The integer products equal numpy's int64 ones: uint8 rows over the whole range (high
+    bits on both sides, as the last rows and scattered), all-255 rows (the largest sum,
+    128 · 255²) and zero rows; a variant without the high bits' terms differs."""
+    from bimcap.features import matching
+
+    rng = np.random.default_rng(3)
+    a = rng.integers(0, 256, (300, 128)).astype(np.uint8)
+    b = rng.integers(0, 120, (250, 128)).astype(np.uint8)
+    b[[3, 17, 200]] = rng.integers(128, 256, (3, 128))
+    a[7] = b[7] = 255
+    a[8] = b[8] = 0
+    for x, y in ((a, b), (b, a), (a[:40], a)):
+        want = x.astype(np.int64) @ y.astype(np.int64).T
+        order = matching._hi_last(y)
+        got = matching._int8_products(matching._Int8Rows(x), matching._Int8Rows(y[order]))
+        assert got.dtype == np.int32 and np.array_equal(got, want[:, order])
+        scattered = matching._int8_products(matching._Int8Rows(x), matching._Int8Rows(y))
+        assert np.array_equal(scattered, want)
+    assert want.max() <= 128 * 255 * 255 < 2**24
+    order = matching._hi_last(b)
+    lo_only = matching._int8_session().run(None, {"a": a & 127,
+                                                  "b": np.ascontiguousarray((b[order] & 127).T)
+                                                  .view(np.int8)})[0]
+    assert not np.array_equal(lo_only, (a.astype(np.int64) @ b[order].astype(np.int64).T))
+
+
+def _rootsift_like(rng: np.random.Generator, n: int) -> np.ndarray:
+    """(n,) uint8 of norm ~512 (as a RootSIFT descriptor), all below 128."""
+    r = rng.integers(1, 40, n).astype(np.float64)
+    return np.rint(r * 512.0 / np.linalg.norm(r)).astype(np.uint8)
+
+
+def test_int8_matching_ties_across_the_row_order() -> None:
+    """Rows reordered (those with a high bit last) change which of two equal similarities comes
+    first; the matches stay the 4206b3e code's: a row of a whose best two columns tie, one of
+    them with a high bit, and a column whose best two rows tie, one of them with a high bit."""
+    from bimcap.features import match_descriptors
+
+    rng = np.random.default_rng(5)
+    a, b = _noisy_copies(rng, 200, 150, 128, 40)  # RootSIFT-like rows, all below 128
+    assert a.max() < 128 and b.max() < 128
+    # b[10] (high bit at dimension 100) and b[11] tie on a[0] (zero at dimension 100)
+    a[0, :100] = _rootsift_like(rng, 100)
+    b[10, :100] = b[11, :100] = a[0, :100]
+    b[10, 100:], b[11, 100:] = 0, 0
+    b[10, 100] = 200
+    a[0, 100:] = 0
+    # a[20] (high bit at dimension 120) and a[21] tie on b[30] (zero at dimension 120)
+    b[30, :120] = _rootsift_like(rng, 120)
+    a[20, :120] = a[21, :120] = b[30, :120]
+    a[20, 120:], a[21, 120:] = 0, 0
+    a[20, 120] = 250
+    b[30, 120:] = 0
+    sim = a.astype(np.int64) @ b.astype(np.int64).T
+    assert sorted(np.argsort(sim[0])[-2:]) == [10, 11] and sim[0, 10] == sim[0, 11]
+    assert sorted(np.argsort(sim[:, 30])[-2:]) == [20, 21] and sim[20, 30] == sim[21, 30]
+    for x, y in ((a, b), (b, a)):
+        new = match_descriptors(x, y)
+        with ref.float32_matching():
+            old = match_descriptors(x, y)
+        assert np.array_equal(new, old) and len(new) > 50
+    both = match_descriptors(a, b)
+    assert 0 not in both[:, 0] and 30 not in both[:, 1]
+
+
+def test_matching_product_option() -> None:
+    """``product`` reads from a ``[matching]`` table; the default stays out of the cache key
+    (the same matches as before the option), ``"float32"`` is in it; a bad value names the
+    field."""
+    from bimcap.features import DescriptorProduct, MatchOptions
+    from bimcap.pipeline.config import ConfigError, RefineConfig
+    from bimcap.pipeline.refine import match_options
+
+    assert "product" not in MatchOptions().to_dict()
+    assert MatchOptions(product=DescriptorProduct.FLOAT32).to_dict()["product"] == "float32"
+    opts = match_options(RefineConfig(matching={"product": "float32"}))
+    assert opts.product is DescriptorProduct.FLOAT32
+    with pytest.raises(ConfigError) as info:
+        match_options(RefineConfig(matching={"product": "int4"}))
+    assert info.value.field == "matching.product"
+
+
+def test_int8_model_is_matmul_integer() -> None:
+    """The serialized model in ``bimcap.features.matching`` is one ``MatMulInteger`` of a uint8
+    (n, 128) by an int8 (128, m) into int32, as ``onnx.helper`` builds it."""
+    onnx = pytest.importorskip("onnx")
+    from onnx import TensorProto, helper
+
+    from bimcap.features.matching import _MATMUL_INTEGER_ONNX
+
+    model = onnx.load_from_string(_MATMUL_INTEGER_ONNX)
+    onnx.checker.check_model(model)
+    a = helper.make_tensor_value_info("a", TensorProto.UINT8, ["n", 128])
+    b = helper.make_tensor_value_info("b", TensorProto.INT8, [128, "m"])
+    y = helper.make_tensor_value_info("y", TensorProto.INT32, ["n", "m"])
+    graph = helper.make_graph([helper.make_node("MatMulInteger", ["a", "b"], ["y"])],
+                              "descriptor_products", [a, b], [y])
+    built = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 10)],
+                              producer_name="bimcap")
+    built.ir_version = 7
+    assert built.SerializeToString() == _MATMUL_INTEGER_ONNX
+
+
 def test_scan_range_noise_same_as_before() -> None:
     """The range noise of ring scans (ties in azimuth, non-finite and zero rows included): the
     a219de7 code's value exactly (it picks the segmentation's and smoothing's thresholds)."""

@@ -7,6 +7,7 @@ OpenCV are imported inside the functions that need them.
 from __future__ import annotations
 
 from bimcap.features.matching import (
+    DescriptorProduct,
     MatcherBackend,
     MatchOptions,
     PairMatches,
@@ -36,6 +37,7 @@ from bimcap.features.tracks import (
 __all__ = [
     "DepthEdgePolicy",
     "DepthLookupOptions",
+    "DescriptorProduct",
     "FeatureError",
     "Features",
     "MatchFilterOptions",

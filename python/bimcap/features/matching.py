@@ -23,6 +23,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 from enum import Enum
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -35,12 +36,29 @@ I32 = NDArray[np.int32]
 #: Norm² of COLMAP's uint8 RootSIFT descriptors (unit vectors scaled by 512).
 _DESC_NORM2 = 512.0 * 512.0
 
+#: The most similarities the matcher holds at once (a block of rows of a by all of b; 64 MB):
+#: two images of up to 4,096 keypoints are one block.
+_BLOCK_ELEMENTS = 1 << 24
+
 
 class MatcherBackend(str, Enum):
     """Who computes the putative descriptor matches."""
 
     NUMPY = "numpy"
     PYCOLMAP = "pycolmap"
+
+
+class DescriptorProduct(str, Enum):
+    """How the numpy matcher multiplies two sets of SIFT descriptors (the same integers).
+
+    ``INT8``: ONNX Runtime's ``MatMulInteger`` (uint8 × int8 → int32, VNNI or ``vpmaddubsw``
+    kernels) of the descriptors' low 7 bits, plus the few products of their high bit in BLAS;
+    ~3.5× cheaper than ``FLOAT32`` on one core. ``FLOAT32``: one BLAS ``sgemm`` of the
+    descriptors as float32. Both are exact, so they give the same matches bit for bit.
+    """
+
+    INT8 = "int8"
+    FLOAT32 = "float32"
 
 
 class Verification(str, Enum):
@@ -79,6 +97,9 @@ class MatchOptions:
         ``ransac_min_trials = 100`` gives the previous default (pycolmap's, for ``TWO_VIEW``;
         1000 for ``FUNDAMENTAL``). Left out of :meth:`to_dict` when None, as the cache keys
         were before the option existed.
+    product: how the numpy matcher multiplies SIFT descriptors (:class:`DescriptorProduct`;
+        ORB's always in BLAS). Exact both ways, so the same matches; ``INT8`` (default) is
+        left out of :meth:`to_dict` (the front end's cache key), as before the option existed.
     """
 
     backend: MatcherBackend = MatcherBackend.NUMPY
@@ -91,6 +112,7 @@ class MatchOptions:
     min_num_inliers: int = 15
     seed: int = 0
     ransac_min_trials: int | None = 10
+    product: DescriptorProduct = DescriptorProduct.INT8
 
     def __post_init__(self) -> None:
         if not 0.0 < self.max_ratio <= 1.0:
@@ -112,6 +134,10 @@ class MatchOptions:
         d = asdict(self)
         d["backend"] = self.backend.value
         d["verification"] = self.verification.value
+        if self.product is DescriptorProduct.INT8:
+            del d["product"]  # the same matches as before it existed: the same cache keys
+        else:
+            d["product"] = self.product.value
         if self.ransac_min_trials is None:
             del d["ransac_min_trials"]
         return d
@@ -167,14 +193,15 @@ def match_descriptors(
 
 
 def _top2(
-    sim: NDArray[np.float32],
-) -> tuple[NDArray[np.int64], NDArray[np.float32], NDArray[np.float32]]:
-    """Per row: index of the largest similarity, the largest and the second largest."""
+    sim: NDArray[Any], low: Any = -np.inf,
+) -> tuple[NDArray[np.int64], NDArray[Any], NDArray[Any]]:
+    """Per row: index of the largest similarity, the largest and the second largest (``low``:
+    a value below every similarity, −∞ for float32, −1 for the integer products)."""
     best = np.argmax(sim, axis=1)
     rows = np.arange(len(sim))
     s1 = sim[rows, best].copy()
     tmp = sim[rows, best]
-    sim[rows, best] = -np.inf
+    sim[rows, best] = low
     s2 = sim.max(axis=1)
     sim[rows, best] = tmp
     return best, s1, s2
@@ -200,33 +227,157 @@ def _as_float(desc: NDArray[np.uint8]) -> NDArray[np.float32]:
     return desc.astype(np.float32) / np.float32(512.0)
 
 
+#: ``MatMulInteger`` (opset 10) of a uint8 (n, 128) by an int8 (128, m) into int32 (n, m): the
+#: serialized ONNX model, built with ``onnx.helper`` (``tests/test_frontend_speed.py`` checks it),
+#: so that the matcher needs ONNX Runtime (a core dependency) and not the ``onnx`` package.
+_MATMUL_INTEGER_ONNX = bytes.fromhex(
+    "0807120662696d6361703a740a180a01610a0162120179220d4d61744d756c496e7465676572121364657363"
+    "726970746f725f70726f64756374735a150a016112100a0e0802120a0a0312016e0a030880015a150a016212"
+    "100a0e0803120a0a030880010a0312016d62150a017912100a0e0806120a0a0312016e0a0312016d42040a00"
+    "100a"
+)
+
+#: This process's ONNX Runtime session of :data:`_MATMUL_INTEGER_ONNX` (one thread; ``run`` may
+#: be called from several threads at once).
+_SESSION: Any = None
+
+
+def _int8_session() -> Any:
+    global _SESSION
+    if _SESSION is None:
+        from bimcap.errors import require
+
+        ort = require("onnxruntime", "onnxruntime", None, "the descriptor matcher's integer "
+                      "products ([matching] product = \"int8\"; \"float32\" needs no ONNX Runtime)")
+        so = ort.SessionOptions()
+        so.intra_op_num_threads = 1
+        so.inter_op_num_threads = 1
+        _SESSION = ort.InferenceSession(_MATMUL_INTEGER_ONNX, sess_options=so,
+                                        providers=["CPUExecutionProvider"])
+    return _SESSION
+
+
+class _Int8Rows:
+    """uint8 SIFT descriptors split for exact integer products: ``d = lo + 128 · hi`` with
+    ``lo = d & 127`` and ``hi = d >> 7`` (0 or 1; a few rows have it), so that every operand
+    of ``MatMulInteger`` is below 128: no two uint8 × int8 products summed in a kernel's 16-bit
+    step (``vpmaddubsw`` without VNNI) can saturate (2 · 127 · 127 < 2¹⁵).
+
+    Attributes
+    ----------
+    d: (n, 128) uint8, the descriptors.
+    lo: (n, 128) uint8, the low 7 bits.
+    lo_t: (128, n) int8, ``lo`` transposed (a right operand of ``MatMulInteger``).
+    hi_rows: (k,) int64 rows with some value >= 128, or the slice of them when they are the
+        last rows.
+    hi: (k, 128) uint8, their high bits (0 or 1).
+    hi_t: (128, k) int8, ``hi`` transposed.
+    """
+
+    def __init__(self, d: NDArray[np.uint8]) -> None:
+        self.d = d
+        self.lo = d & np.uint8(127)
+        self.lo_t = np.ascontiguousarray(self.lo.T).view(np.int8)
+        rows = np.flatnonzero((d >= 128).any(axis=1))
+        first = len(d) - len(rows)
+        self.hi_rows: slice | NDArray[np.int64] = (
+            slice(first, len(d)) if np.array_equal(rows, np.arange(first, len(d))) else rows)
+        self.hi = d[self.hi_rows] >> 7
+        self.hi_t = np.ascontiguousarray(self.hi.T).view(np.int8)
+
+    def rows(self, sel: slice | NDArray[np.int64]) -> _Int8Rows:
+        """The rows ``sel`` (a slice or indices)."""
+        return _Int8Rows(self.d[sel])
+
+
+def _int8_products(x: _Int8Rows, y: _Int8Rows) -> NDArray[np.int32]:
+    """(len(x), len(y)) int32 ``x · yᵀ`` of the uint8 descriptors, exactly, in ONNX Runtime's
+    integer kernel: ``x · y = x_lo · y_lo + 128 · x_lo · y_hi + 128 · x_hi · y_lo
+    + 128² · x_hi · y_hi``, the three last on the few rows and columns with a high bit (a slice
+    of the output when they are the last rows: :func:`_hi_last`). Every sum is an integer below
+    2²⁴ (128 · 255²)."""
+    run = _int8_session().run
+    sim = np.asarray(run(None, {"a": x.lo, "b": y.lo_t})[0], np.int32)
+    if len(x.hi) and len(y.hi):
+        hh = np.asarray(run(None, {"a": x.hi, "b": y.hi_t})[0], np.int32)
+    if len(y.hi):
+        sim[:, y.hi_rows] += 128 * np.asarray(run(None, {"a": x.lo, "b": y.hi_t})[0], np.int32)
+    if len(x.hi):
+        part = 128 * np.asarray(run(None, {"a": x.hi, "b": y.lo_t})[0], np.int32)
+        if len(y.hi):
+            part[:, y.hi_rows] += 16384 * hh
+        sim[x.hi_rows] += part
+    return sim
+
+
+def _hi_last(d: NDArray[np.uint8]) -> NDArray[np.int64]:
+    """(n,) int64 order of the rows of ``d``: those without a value >= 128, then those with one
+    (each in its order)."""
+    hi = (d >= 128).any(axis=1)
+    return np.concatenate([np.flatnonzero(~hi), np.flatnonzero(hi)])
+
+
 def _match_numpy(a: NDArray[np.uint8], b: NDArray[np.uint8], opts: MatchOptions) -> I32:
     """Mutual nearest neighbours with the ratio test in both directions, from one product.
 
-    Every similarity is exact in float32 (uint8 products summed: an integer below 2²⁴, times
-    2⁻¹⁸ for SIFT; a sum of ±1 for ORB), so it is the same whatever the order of the sums: a
-    block of rows, its transpose or a subset of columns give the same numbers bit for bit. The
-    b → a direction then needs no column-wise arg-max: row i's best column j is also j's best
-    row exactly when ``sim[i, j]`` equals the column's maximum, and where two rows reach it the
-    column's second best equals its best, which fails the ratio test (as before, when the first
-    of the two rows was the arg-max). The column's second best is its maximum once the one
-    candidate row is set to −∞.
+    Every similarity is exact (uint8 products summed: an integer below 2²⁴, in int32 or float32,
+    times 2⁻¹⁸ for SIFT; a sum of ±1 for ORB), so it is the same whatever the order of the sums
+    or the kernel (:class:`DescriptorProduct`): a block of rows, its transpose or a subset of
+    columns give the same numbers bit for bit. The b → a direction then needs no column-wise
+    arg-max: row i's best column j is also j's best row exactly when ``sim[i, j]`` equals the
+    column's maximum, and where two rows reach it the column's second best equals its best,
+    which fails the ratio test (as before, when the first of the two rows was the arg-max). The
+    column's second best is its maximum once the one candidate row is set to −∞ (−1 for the
+    integer products, all >= 0).
     """
     binary = a.shape[1] == ORB_DESCRIPTOR_BYTES
-    fa, fb = _as_float(a), _as_float(b)
-    chunk = 2048
+    if binary or opts.product is DescriptorProduct.FLOAT32:
+        fa, fb = _as_float(a), _as_float(b)
+
+        def products(rows_a: slice | None, rows_b: NDArray[np.int64] | None = None
+                     ) -> NDArray[Any]:
+            """Rows ``rows_a`` of a by b, or (``rows_b`` given) rows ``rows_b`` of b by a."""
+            if rows_b is not None:
+                return fb[rows_b] @ fa.T
+            return (fa if rows_a is None else fa[rows_a]) @ fb.T
+
+        order_a = order_b = None
+        low: Any = -np.inf
+        dtype: Any = np.float32
+        scale = np.float32(1.0)
+    else:
+        # Rows reordered so that those with a high bit come last (one slice of columns to
+        # correct); the matches do not depend on the order of the rows: a row or column whose
+        # two best are equal fails the ratio test whichever of them is first, and the index
+        # pairs are mapped back and sorted at the end.
+        order_a, order_b = _hi_last(a), _hi_last(b)
+        ia8, ib8 = _Int8Rows(a[order_a]), _Int8Rows(b[order_b])
+
+        def products(rows_a: slice | None, rows_b: NDArray[np.int64] | None = None
+                     ) -> NDArray[Any]:
+            """Rows ``rows_a`` of a by b, or (``rows_b`` given) rows ``rows_b`` of b by a."""
+            if rows_b is not None:
+                return _int8_products(ib8.rows(rows_b), ia8)
+            return _int8_products(ia8 if rows_a is None else ia8.rows(rows_a), ib8)
+
+        low = -1
+        dtype = np.int32
+        scale = np.float32(1.0 / _DESC_NORM2)  # 2⁻¹⁸: exact on integers below 2²⁴
+    chunk = max(2048, _BLOCK_ELEMENTS // max(len(b), 1))
     best_ab = np.empty(len(a), np.int64)
     s1_ab = np.empty(len(a), np.float32)
     ok_ab = np.empty(len(a), bool)
-    col_s1 = np.full(len(b), -np.inf, np.float32)
-    sim = np.zeros((0, len(b)), np.float32)
+    col_s1: NDArray[Any] = np.full(len(b), low, dtype)
+    sim: NDArray[Any] = np.zeros((0, len(b)), dtype)
     for start in range(0, len(a), chunk):
-        sim = fa[start : start + chunk] @ fb.T
-        best, s1, s2 = _top2(sim)
+        sim = products(slice(start, start + chunk) if len(a) > chunk else None)
+        best, s1, s2 = _top2(sim, low)
+        s1, s2 = s1.astype(np.float32) * scale, s2.astype(np.float32) * scale
         best_ab[start : start + len(sim)] = best
         s1_ab[start : start + len(sim)] = s1
         ok_ab[start : start + len(sim)] = _passes(s1, s2, opts, binary)
         np.maximum(col_s1, sim.max(axis=0), out=col_s1)
+    col_s1 = col_s1.astype(np.float32) * scale
     ia = np.flatnonzero(ok_ab)
     ib = best_ab[ia]
     if opts.cross_check:
@@ -236,16 +387,20 @@ def _match_numpy(a: NDArray[np.uint8], b: NDArray[np.uint8], opts: MatchOptions)
         alone = np.bincount(ib, minlength=len(b))[ib] == 1
         ia, ib = ia[alone], ib[alone]
         if len(a) <= chunk:  # the one block of rows is still there
-            sim[ia, ib] = -np.inf
+            sim[ia, ib] = low
             col_s2 = sim.max(axis=0)[ib]
         else:  # the candidate columns again, as rows (the same numbers)
-            col_s2 = np.empty(len(ib), np.float32)
+            col_s2 = np.empty(len(ib), dtype)
             for start in range(0, len(ib), chunk):
-                part = fb[ib[start : start + chunk]] @ fa.T
-                part[np.arange(len(part)), ia[start : start + chunk]] = -np.inf
+                part = products(None, ib[start : start + chunk])
+                part[np.arange(len(part)), ia[start : start + chunk]] = low
                 col_s2[start : start + len(part)] = part.max(axis=1)
-        keep = _passes(col_s1[ib], col_s2, opts, binary)
+        keep = _passes(col_s1[ib], col_s2.astype(np.float32) * scale, opts, binary)
         ia, ib = ia[keep], ib[keep]
+    if order_a is not None and order_b is not None:
+        ia, ib = order_a[ia], order_b[ib]
+        by_a = np.argsort(ia, kind="stable")
+        ia, ib = ia[by_a], ib[by_a]
     return np.stack([ia, ib], axis=1).astype(np.int32)
 
 
