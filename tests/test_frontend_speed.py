@@ -892,6 +892,66 @@ def test_int8_matching_ties_across_the_row_order() -> None:
     assert 0 not in both[:, 0] and 30 not in both[:, 1]
 
 
+@pytest.mark.parametrize(("rows", "cols"), [(1, 2), (2, 2), (3, 7), (4, 5), (9, 30), (130, 41)])
+def test_similarity_top2_same_as_numpy(rows: int, cols: int) -> None:
+    """``_core.similarity_top2`` (blocks of four rows and the rest, equal values in rows and
+    columns): numpy's first arg-max and top two a row (``_top2``), and each column's two largest
+    counted with multiplicity (sorted column), INT32_MIN with one row."""
+    from bimcap import _core
+    from bimcap.features.matching import _top2
+
+    rng = np.random.default_rng(rows * 100 + cols)
+    for high in (3, 2**23):  # many ties, few
+        sim = rng.integers(0, high, (rows, cols)).astype(np.int32)
+        best, s1, s2, c1, c2 = _core.similarity_top2(sim)
+        want = _top2(sim.copy(), -1)
+        assert np.array_equal(best, want[0]) and best.dtype == np.int64
+        assert np.array_equal(s1, want[1]) and np.array_equal(s2, want[2])
+        top = np.sort(sim, axis=0)
+        assert np.array_equal(c1, top[-1])
+        assert np.array_equal(c2, top[-2] if rows > 1 else np.full(cols, np.iinfo(np.int32).min))
+
+
+def test_similarity_top2_rejects_bad_arrays() -> None:
+    """Wrong dtype, shape or layout: ``_core.InputError`` naming ``sim``."""
+    from bimcap import _core
+
+    sim = np.zeros((3, 4), np.int32)
+    for bad, text in ((sim.astype(np.float32), "dtype int32"), (sim[:, :1].copy(), "2 columns"),
+                      (np.zeros((0, 4), np.int32), "1 row"), (sim.T, "C-contiguous"),
+                      (sim.ravel(), "shape (n, n)")):
+        with pytest.raises(_core.InputError, match="sim") as err:
+            _core.similarity_top2(bad)
+        assert err.value.field == "sim" and text in str(err.value)
+
+
+@pytest.mark.parametrize("one_pass", [True, False])
+@pytest.mark.parametrize("blocks", [False, True])
+def test_int8_matching_paths_same_as_float32(monkeypatch: pytest.MonkeyPatch, one_pass: bool,
+                                             blocks: bool) -> None:
+    """The integer products' matches with the one-pass reductions of ``_core`` or numpy's, in
+    one block or several (the candidate columns multiplied again): the 4206b3e code's, on
+    RootSIFT-like rows with high bits and ties, with and without the cross check."""
+    from bimcap.features import MatchOptions, match_descriptors, matching
+
+    if blocks:
+        monkeypatch.setattr(matching, "_BLOCK_ELEMENTS", 1)  # blocks of 2,048 rows
+    if not one_pass:
+        monkeypatch.setattr(matching, "_core_top2", lambda: False)
+    rng = np.random.default_rng(11)
+    a, b = _noisy_copies(rng, 2600, 1500, 128, 40)
+    for d in (a, b):
+        hi = rng.choice(len(d), len(d) // 10, replace=False)
+        d[hi, rng.integers(0, 128, len(hi))] = rng.integers(128, 256, len(hi))
+    for opts in (MatchOptions(), MatchOptions(cross_check=False)):
+        for x, y in ((a, b), (b, a)):
+            new = match_descriptors(x, y, opts)
+            with ref.float32_matching():
+                old = match_descriptors(x, y, opts)
+            assert np.array_equal(new, old) and new.dtype == old.dtype
+            assert len(new) > 500
+
+
 def test_matching_product_option() -> None:
     """``product`` reads from a ``[matching]`` table; the default stays out of the cache key
     (the same matches as before the option), ``"float32"`` is in it; a bad value names the

@@ -19,6 +19,7 @@
 #include "bimcap/raster/piecewise_affine.h"
 #include "bimcap/raster/plane_depth.h"
 #include "bimcap/raster/plane_scores.h"
+#include "bimcap/raster/similarity_top2.h"
 #include "bimcap/raster/surface_area.h"
 #include "python/arrays.h"
 
@@ -248,6 +249,25 @@ void AddPlaneScores(const py::handle& score_obj, const py::handle& products_obj,
   raster::AddPlaneScores(t, agree_data, d, thr, rows, cols, cos_n, out);
 }
 
+py::tuple SimilarityTop2(const py::handle& sim_obj) {
+  const py::array sim = Checked<int32_t>(sim_obj, "sim", {-1, -1});
+  const py::ssize_t rows = sim.shape(0), cols = sim.shape(1);
+  if (rows < 1 || cols < 2) {
+    throw RasterError("sim", "expected at least 1 row and 2 columns, got " + ShapeText(sim));
+  }
+  py::array_t<int64_t> best(rows);
+  py::array_t<int32_t> s1(rows), s2(rows), c1(cols), c2(cols);
+  const auto* data = static_cast<const int32_t*>(sim.data());
+  int64_t* best_p = best.mutable_data();
+  int32_t *s1_p = s1.mutable_data(), *s2_p = s2.mutable_data();
+  int32_t *c1_p = c1.mutable_data(), *c2_p = c2.mutable_data();
+  {
+    py::gil_scoped_release release;
+    raster::SimilarityTop2(data, rows, cols, best_p, s1_p, s2_p, c1_p, c2_p);
+  }
+  return py::make_tuple(best, s1, s2, c1, c2);
+}
+
 }  // namespace
 
 void BindRaster(py::module_& m) {
@@ -303,6 +323,12 @@ void BindRaster(py::module_& m) {
         "their BLAS products (numpy's arithmetic bit for bit). products, agree: (N, I) float64; "
         "offsets: (I,) float64; thresholds: (N,) float64; all C-contiguous. Raises InputError "
         "naming the bad argument (nothing is written then).");
+  m.def("similarity_top2", &SimilarityTop2, py::arg("sim"),
+        "sim (rows, cols) int32, C-contiguous, rows >= 1, cols >= 2 -> (row_best int64, row_s1, "
+        "row_s2, col_s1, col_s2 int32): per row the first column of its largest value, the "
+        "largest and the second largest (with multiplicity), per column the largest and the "
+        "second largest (INT32_MIN with one row); the descriptor matcher's reductions "
+        "(bimcap.features.matching._match_numpy) in one pass.");
   m.def("pixel_surface_area", &PixelSurfaceArea, py::arg("depth"), py::arg("fx"), py::arg("fy"),
         py::arg("cx"), py::arg("cy"), py::arg("min_cos"),
         "(H, W) float64 surface area in m² each pixel of the (H, W) float64 z-depth map (m, "

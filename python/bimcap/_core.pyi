@@ -71,6 +71,14 @@ def add_plane_scores(
     """Adds to ``score`` (I,) the rows i of a block where ``|products[i, j] + offsets[j]| <
     thresholds[i]`` and (``agree`` not None) ``|agree[i, j]| > cos_n`` (numpy's rounding): the
     segmenter's RANSAC score tables past their (N, I) BLAS products."""
+def similarity_top2(
+    sim: NDArray[np.int32],
+) -> tuple[NDArray[np.int64], NDArray[np.int32], NDArray[np.int32], NDArray[np.int32],
+           NDArray[np.int32]]:
+    """(row_best, row_s1, row_s2, col_s1, col_s2) of a C-contiguous (rows >= 1, cols >= 2)
+    int32 table: per row the first column of its largest value, the largest and the second
+    largest (with multiplicity), per column the largest and the second largest (INT32_MIN with
+    one row); the descriptor matcher's reductions in one pass."""
 def move_onto_planes(
     out: NDArray[np.float32],
     flat: NDArray[np.int64],

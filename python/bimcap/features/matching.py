@@ -369,6 +369,25 @@ def _match_numpy(a: NDArray[np.uint8], b: NDArray[np.uint8], opts: MatchOptions)
     ok_ab = np.empty(len(a), bool)
     col_s1: NDArray[Any] = np.full(len(b), low, dtype)
     sim: NDArray[Any] = np.zeros((0, len(b)), dtype)
+    if 2 <= len(a) <= chunk and dtype is np.int32 and _core_top2():
+        # one block of integer products: every reduction in one pass (bimcap._core)
+        from bimcap import _core
+
+        sim = products(None)
+        best, s1i, s2i, c1i, c2i = _core.similarity_top2(sim)
+        s1, s2 = s1i.astype(np.float32) * scale, s2i.astype(np.float32) * scale
+        col_s1 = c1i.astype(np.float32) * scale
+        ia = np.flatnonzero(_passes(s1, s2, opts, binary))
+        ib = best[ia]
+        if opts.cross_check:
+            # the rows that are their column's best; where two rows are, the column's second
+            # best equals its best and fails the ratio test (the column's top two count equal
+            # values twice, as "the column without its one candidate row" does below)
+            top = s1[ia] == col_s1[ib]
+            ia, ib = ia[top], ib[top]
+            keep = _passes(col_s1[ib], c2i[ib].astype(np.float32) * scale, opts, binary)
+            ia, ib = ia[keep], ib[keep]
+        return _original_order(ia, ib, order_a, order_b)
     for start in range(0, len(a), chunk):
         sim = products(slice(start, start + chunk) if len(a) > chunk else None)
         best, s1, s2 = _top2(sim, low)
@@ -397,11 +416,29 @@ def _match_numpy(a: NDArray[np.uint8], b: NDArray[np.uint8], opts: MatchOptions)
                 col_s2[start : start + len(part)] = part.max(axis=1)
         keep = _passes(col_s1[ib], col_s2.astype(np.float32) * scale, opts, binary)
         ia, ib = ia[keep], ib[keep]
+    return _original_order(ia, ib, order_a, order_b)
+
+
+def _original_order(ia: NDArray[np.int64], ib: NDArray[np.int64],
+                    order_a: NDArray[np.int64] | None, order_b: NDArray[np.int64] | None) -> I32:
+    """(M, 2) int32 matches ``[ia, ib]`` of reordered rows (``order_a``, ``order_b``: the
+    original index of each; None: not reordered) as indices of the original rows, sorted by
+    the index in a."""
     if order_a is not None and order_b is not None:
         ia, ib = order_a[ia], order_b[ib]
         by_a = np.argsort(ia, kind="stable")
         ia, ib = ia[by_a], ib[by_a]
     return np.stack([ia, ib], axis=1).astype(np.int32)
+
+
+def _core_top2() -> bool:
+    """Whether the compiled module has the one-pass reductions (a ``_core`` built before them
+    has not: the matcher then reduces in numpy, with the same matches)."""
+    try:
+        from bimcap import _core
+    except ImportError:  # pragma: no cover - the package is built with its module
+        return False
+    return hasattr(_core, "similarity_top2")
 
 
 def _match_pycolmap(a: NDArray[np.uint8], b: NDArray[np.uint8], opts: MatchOptions) -> I32:
