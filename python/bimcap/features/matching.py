@@ -1,11 +1,15 @@
 """Descriptor matching and geometric verification between two undistorted images.
 
-Descriptor matching reimplements COLMAP's SIFT brute-force criteria in numpy (BLAS matrix
-products): the distance of two RootSIFT descriptors is the angle ``acos(a·b / 512²)``; a match
-needs ``best < max_distance`` and ``best < max_ratio · second best`` (Lowe's ratio test), in both
-directions when ``cross_check``. It exists because pycolmap 4.2's CPU brute-force matcher took
-~13 s for one 9.6k × 9.6k pair on this machine against ~0.2 s here; a test checks that both give
-the same matches (``MatcherBackend.PYCOLMAP`` keeps the original as an oracle and an option).
+Descriptor matching reimplements COLMAP's SIFT brute-force criteria in numpy (one matrix
+product: ONNX Runtime's integer ``MatMulInteger`` of the uint8 descriptors, or BLAS in float32;
+both exact, :class:`DescriptorProduct`): the distance of two RootSIFT descriptors is the angle
+``acos(a·b / 512²)``; a match needs ``best < max_distance`` and ``best < max_ratio · second
+best`` (Lowe's ratio test), in both directions when ``cross_check``. It exists because pycolmap
+4.2's CPU brute-force matcher took ~13 s for one 9.6k × 9.6k pair on this machine against ~0.2 s
+here; a test checks that both give the same matches (``MatcherBackend.PYCOLMAP`` keeps the
+original as an oracle and an option). The integer products, with the rows' and columns' top two
+taken in one pass in ``bimcap._core`` (``similarity_top2``), make a pair ~2× cheaper than BLAS's
+at 1032 × 772 (docs/speed.md, "Matching in integers").
 
 Binary descriptors (ORB's 32 bytes, :attr:`bimcap.features.SiftBackend.ORB`) are told apart by
 their width and matched by Hamming distance in the same way: with the bits as ±1 the product of
@@ -328,7 +332,9 @@ def _match_numpy(a: NDArray[np.uint8], b: NDArray[np.uint8], opts: MatchOptions)
     column's maximum, and where two rows reach it the column's second best equals its best,
     which fails the ratio test (as before, when the first of the two rows was the arg-max). The
     column's second best is its maximum once the one candidate row is set to −∞ (−1 for the
-    integer products, all >= 0).
+    integer products, all >= 0). With the integer products in one block, ``_core``'s
+    ``similarity_top2`` takes every row's and column's top two in one pass (a column's second
+    best counted with multiplicity: the same value as "without its one candidate row").
     """
     binary = a.shape[1] == ORB_DESCRIPTOR_BYTES
     if binary or opts.product is DescriptorProduct.FLOAT32:
