@@ -174,6 +174,11 @@ def test_print_config_shows_the_matching_default(tmp_path: Path) -> None:
     text = _print_config()
     matching = text.partition("[matching]")[2].partition("\n[")[0]
     assert "ransac_min_trials = 10" in matching.splitlines()
+    assert 'product = "int8"' in matching.splitlines()
+    floats = tmp_path / "float32.toml"
+    floats.write_text('[matching]\nproduct = "float32"\n')
+    assert 'product = "float32"' in _print_config("--config", str(floats)).splitlines()
+    assert match_options(RefineConfig.from_toml(floats)).product.value == "float32"
     old = tmp_path / "old.toml"
     old.write_text("[matching]\nransac_min_trials = 100\n")
     printed = _print_config("--config", str(old))

@@ -1397,7 +1397,9 @@ def effective_settings(config: RefineConfig) -> dict[str, Any]:
     out["solver"] = solver
     out["registration"] = asdict(coarse_options(config))
     out["features"] = sift_options(config).to_dict()
-    out["matching"] = match_options(config).to_dict()
+    matching = match_options(config)
+    # every setting, the descriptor product too (left out of the cache key when it is the default)
+    out["matching"] = {**matching.to_dict(), "product": matching.product.value}
     out["geometric"] = asdict(geometric_options(config))
     return out
 
