@@ -287,6 +287,10 @@ def _extract_opencv(gray: NDArray[np.uint8], opts: SiftOptions) -> Features:
     kps, desc = sift.detectAndCompute(gray, None)
     if desc is None or len(kps) == 0:
         return Features.empty()
+    if len(kps) > opts.max_num_features:  # OpenCV keeps ties and a keypoint's orientations
+        keep = np.sort(np.argsort([-k.response for k in kps], kind="stable")
+                       [:opts.max_num_features])
+        kps, desc = [kps[i] for i in keep], desc[keep]
     d = desc.astype(np.float64)
     d /= np.maximum(d.sum(axis=1, keepdims=True), 1e-12)  # L1 normalise, then sqrt: RootSIFT
     d = np.sqrt(d)
