@@ -80,7 +80,8 @@ class SiftOptions:
         rest; since the refinement tries such blocks at the input's motion, 0.98 cm, and all
         20 hard runs within the bar (docs/speed.md, "Blocks that no match links"). Still an
         option: as the default, four front-end tests on 320×240 synthetic scenes fail (fewer
-        matches; a COLMAP export's 95th-percentile error 7 cm against the test's 5 cm).
+        matches; a COLMAP export's 95th-percentile error 7 cm against the test's 5 cm), which
+        pass at -1: halved to 160×120, small images lose.
     orb_max_num_features: ORB's keypoint budget (``max_num_features`` is SIFT's): matching
         binary descriptors costs the square of it, and at 516×386 a pair of frames with 2048
         (about 1600 kept) costs as much as their extraction.
