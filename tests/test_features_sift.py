@@ -74,9 +74,16 @@ def test_downscaled_extraction_maps_back_to_full_resolution() -> None:
         SiftOptions(max_image_size=4)
 
 
-def test_features_shapes_and_dtypes(shifted_pair: tuple) -> None:
+@pytest.mark.parametrize("backend", [SiftBackend.PYCOLMAP, SiftBackend.OPENCV])
+def test_features_shapes_and_dtypes(shifted_pair: tuple, backend: SiftBackend) -> None:
+    """Also OpenCV's SIFT at ``opencv_first_octave = 0``, ``peak_threshold = 0.004`` keeps at
+    most ``max_num_features`` (OpenCV's own ``nfeatures`` gave 501 of 500 here: it keeps ties
+    and adds a keypoint's second orientation)."""
     a, _, _ = shifted_pair
-    f = extract_sift(np.stack([a, a, a], axis=-1), SiftOptions(max_num_features=500))
+    opts = (SiftOptions(max_num_features=500) if backend is SiftBackend.PYCOLMAP else
+            SiftOptions(backend=backend, opencv_first_octave=0, peak_threshold=0.004,
+                        max_num_features=500))
+    f = extract_sift(np.stack([a, a, a], axis=-1), opts)
     assert 100 < len(f) <= 500
     assert f.uv.shape == (len(f), 2) and f.uv.dtype == np.float64
     assert f.descriptors.shape == (len(f), 128) and f.descriptors.dtype == np.uint8

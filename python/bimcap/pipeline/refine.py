@@ -840,6 +840,9 @@ def _solve_prepared(prepared: Prepared, config: RefineConfig, max_plane_rounds: 
         run, poses, repair["odometry"] = _odometry_repair_run(solver, run, poses)
         run, poses, repair["block"] = _block_repair_run(solver, run, poses, max_plane_rounds,
                                                         plane_change_tolerance)
+        run, poses, repair["unlinked"] = _unlinked_block_run(solver, run, poses,
+                                                             max_plane_rounds,
+                                                             plane_change_tolerance)
         run, poses, repair["window_shift"] = _window_shift_run(solver, run, poses,
                                                                max_plane_rounds,
                                                                plane_change_tolerance)
@@ -1240,6 +1243,72 @@ def _block_try(solver: _StageSolver, run: _StageRun, poses: F64, blocks: Any,
     run, poses = replace(moved, result=redo), redo.poses
     run, poses, _ = _rechoose_planes(solver, run, poses, max_plane_rounds, plane_change_tolerance)
     return run, poses, True, verdict
+
+
+def _unlinked_block_run(solver: _StageSolver, run: _StageRun, poses: F64, max_plane_rounds: int,
+                        plane_change_tolerance: float, min_gain: float = 0.1
+                        ) -> tuple[_StageRun, F64, dict[str, Any]]:
+    """Blocks of frames that no match links to the rest (``registration.odometry.unlinked_blocks``,
+    two frames or more), tried at the input's motion from their neighbour across the gap even
+    when the motion check passes, and moved only where the BIM agrees clearly better there: the
+    blocks' counterpart of the odometry repair's suspects (:func:`_odometry_repair_run`).
+
+    Only the BIM and the input's motion place such a block; where the solve leaves it in the
+    wrong place with its rotation near the input's, no step breaks the motion check and the
+    block repair (:func:`_block_repair_run`) does not run. gen-small-s3 hard Exp 1 with OpenCV's
+    SIFT: frames 56-59, matched only among themselves, 0.6-0.9 m off, largest step gap 0.74 m
+    against the check's 1.52 m. Each block has two candidates (``_block_prediction``): the
+    block moved as the block repair moves it (its end frame next to the gap to its prediction,
+    the rotations kept unless the block is turned away) and every frame at its own prediction
+    (the input's rotations). Each is solved with every other frame held, its planes chosen there
+    (:func:`_best_candidates`); the candidate whose frames agree best with the BIM on average
+    (``bim_agreement``) is taken when that mean exceeds the block's where it is by at least
+    ``min_gain`` (the suspects' bar), then solved with the rest and judged as the block repair's
+    moves are (:func:`_block_try`). A block the BIM agrees with as well where it is stays.
+
+    Returns the run and poses after it and its record (``blocks``: every unlinked block with the
+    BIM's agreement where it is, the best candidate's, and whether it was moved; the moved
+    blocks' verdict)."""
+    from bimcap.registration.odometry import (
+        BlockRepair,
+        _block_prediction,
+        bim_agreement,
+        motion_check,
+        unlinked_blocks,
+    )
+
+    init = solver.prepared.init.poses
+    record: dict[str, Any] = {"blocks": []}
+    for start, stop in unlinked_blocks(run.problem.arrays().get("match_frames"), len(poses)):
+        frames = list(range(start, stop))
+        now = bim_agreement(run.problem.arrays(), poses, frames)
+        seen = np.isfinite(now)  # frames with BIM samples
+        moves = [m for m in (_block_prediction(poses, init, start, stop),
+                             _block_prediction(poses, init, start, stop, turn_deg=0.0))
+                 if m is not None]
+        if not seen.any() or not moves:
+            continue
+        # a block of two frames or more is linked, so none of its frames is held
+        tries = [(_best_candidates(solver, run, [cand], frames), move) for move, cand in moves]
+        (start_poses, score, _), move = max(tries, key=lambda t: float(t[0][1][seen].mean()))
+        entry: dict[str, Any] = {"start": start, "stop": stop,
+                                 "bim_agreement": float(now[seen].mean()),
+                                 "candidate_agreement": float(score[seen].mean())}
+        entry["moved"] = bool(entry["candidate_agreement"] >= entry["bim_agreement"] + min_gain)
+        record["blocks"].append(entry)
+        if not entry["moved"]:
+            continue
+        _log.info(f"frames {start}-{stop - 1}, which no match links to the rest, agree better "
+                  f"with the BIM where the input's motion puts them ({entry['bim_agreement']:.2f}"
+                  f" -> {entry['candidate_agreement']:.2f} of their samples within 5 cm)")
+        a = run.problem.arrays()
+        check = motion_check(poses, init, a.get("match_frames"), a.get("match_uv"),
+                             a.get("match_depth"), np.asarray(a["cameras"])[0])
+        run, poses, _, verdict = _block_try(solver, run, poses,
+                                            BlockRepair(start_poses, check, [move]),
+                                            max_plane_rounds, plane_change_tolerance)
+        entry.update(verdict)
+    return run, poses, record
 
 
 def _window_shift_run(solver: _StageSolver, run: _StageRun, poses: F64, max_plane_rounds: int,

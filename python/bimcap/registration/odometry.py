@@ -591,6 +591,37 @@ def motion_check(poses: F64, input_poses: F64, match_frames: I32 | None = None,
     return MotionCheck(breaks, segments, max_m, max_deg, float(gaps[:, 0].max()))
 
 
+def unlinked_blocks(match_frames: I32 | None, n: int, min_frames: int = 2) -> list[tuple[int, int]]:
+    """Runs of frames that no match links to a frame outside them: ``[start, stop)`` ranges of
+    ``n`` frames with no match between a frame inside and one outside, at least ``min_frames``
+    long, the longest such run (the rest of the walk, the first on a tie) left out.
+
+    Only the BIM and the input's relative motion place such a block relative to the others; a
+    solve that puts it in the wrong place converges, and where its rotation stays near the
+    input's the motion check cannot tell (gen-small-s3 hard Exp 1 with OpenCV's SIFT: frames
+    56-59, matched only among themselves, 0.6-0.9 m off, their largest step gap 0.74 m under the
+    check's 1.52 m).
+
+    Parameters
+    ----------
+    match_frames: (M, 2) the frame pairs of the verified matches (None: no match).
+    n: the number of frames. min_frames: the shortest block returned.
+    """
+    if n <= 0:
+        return []
+    spans = np.zeros(n + 1, np.int64)  # spans[c]: matches between a frame < c and one >= c
+    if match_frames is not None and len(match_frames):
+        mf = np.asarray(match_frames, np.int64)
+        lo, hi = mf.min(axis=1), mf.max(axis=1)
+        np.add.at(spans, lo[lo < hi] + 1, 1)
+        np.add.at(spans, hi[lo < hi] + 1, -1)
+        spans = np.cumsum(spans)
+    cuts = [0, *(np.flatnonzero(spans[1:n] == 0) + 1).tolist(), n]
+    runs = list(itertools.pairwise(cuts))
+    rest = max(runs, key=lambda r: r[1] - r[0])
+    return [r for r in runs if r is not rest and r[1] - r[0] >= min_frames]
+
+
 class BlockMoveSource(enum.Enum):
     """What placed a moved block (:class:`BlockMove`): PnP on the ``matches`` across its
     break, or, with no usable match across, the input's relative ``motion`` from the frame
@@ -790,7 +821,8 @@ def _block_prediction(poses: F64, input_poses: F64, start: int, stop: int,
     A block whose correction turns it more than ``turn_deg`` is not trusted inside either: each
     of its frames goes to its own prediction from the neighbour across the break
     (``poses[g] ∘ input[g]⁻¹ ∘ input[f]``; gen-small-s3 hard Exp 1: frames 56-59 57° off and
-    bent, 57-59 a further 0.8 m / 20° from 56, which one rigid correction left off).
+    bent, 57-59 a further 0.8 m / 20° from 56, which one rigid correction left off);
+    ``turn_deg = 0`` sends every frame of a block to its own prediction.
     Returns the move and the poses (N, 7) after it, or None (the block is the whole walk)."""
     n = len(poses)
     if start > 0:
