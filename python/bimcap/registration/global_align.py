@@ -39,7 +39,10 @@ bundle adjustment can take over:
    ambiguous:
    :func:`global_align` raises :class:`AmbiguousAlignmentError` (with the ranked hypotheses)
    unless ``accept_ambiguous`` is set. A best hypothesis that fits badly raises
-   :class:`GlobalAlignmentError`. Never a confident wrong answer.
+   :class:`GlobalAlignmentError`, after steps 3-4 ran once more on the scan with each frame
+   turned by the yaw error its own walls show (:class:`FrameYaw`, :func:`_frame_yaws`: the
+   frames' independent yaw errors can blur the rigid scan so that the truth is no peak of the
+   search). Never a confident wrong answer.
 
 Arrays follow docs/architecture.md: poses ``(N, 7)`` TUM order, metres; angles in degrees in
 the options and results, radians inside.
@@ -875,7 +878,8 @@ def _line_angles(p_xy: F64, cell_m: float, neighbours: int, radius_m: float,
     rel = near - near.mean(1, keepdims=True)
     w, v = np.linalg.eigh(np.einsum("mki,mkj->mij", rel, rel))
     line = (dist[:, -1] < radius_m) & (w[:, 1] > 10.0 * np.maximum(w[:, 0], 1e-12))
-    return np.degrees(np.arctan2(v[line, 1, 1], v[line, 0, 1])) % 180.0
+    ang: F64 = np.degrees(np.arctan2(v[line, 1, 1], v[line, 0, 1])) % 180.0
+    return ang
 
 
 def _frame_yaws(scan: _Scan, opt: GlobalAlignOptions, min_lines: int = 10,
@@ -907,14 +911,13 @@ def _frame_yaws(scan: _Scan, opt: GlobalAlignOptions, min_lines: int = 10,
     smooth = np.stack([np.convolve(h, ker, "valid") for h in wrapped])
     limit = int(np.floor(opt.frame_yaw_max_deg))
     shifts = np.arange(-limit, limit + 1)
-    # (S, bins, bins) would be large: roll per shift instead; (N, S) scores per round.
     for _ in range(iterations):
         turned = np.stack([np.roll(smooth[i], -turn[i]) for i in range(n)])
         total = turned[has].sum(0)
-        for i in np.flatnonzero(has):
-            others = total - turned[i]
-            scores = [float(np.dot(np.roll(smooth[i], -int(sh)), others)) for sh in shifts]
-            turn[i] = shifts[int(np.argmax(scores))]
+        for j in np.flatnonzero(has):
+            others = total - turned[j]
+            scores = [float(np.dot(np.roll(smooth[j], -int(sh)), others)) for sh in shifts]
+            turn[j] = int(shifts[int(np.argmax(scores))])
         turn[has] -= int(np.round(np.median(turn[has])))
         turn = np.clip(turn, -limit, limit)
     return np.deg2rad(turn.astype(np.float64))
