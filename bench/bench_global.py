@@ -162,8 +162,10 @@ def _ifc_world(name: str, ifc_dir: Path, min_walkable_m2: float = 10.0,
     return World(name, plan, scenes, tours, closed=False)
 
 
-def run_registration(world: World, seed: int, frames: int) -> dict[str, Any]:
-    """One global alignment on ``world``; the outcome and its numbers."""
+def run_registration(world: World, seed: int, frames: int, options: Any = None
+                     ) -> dict[str, Any]:
+    """One global alignment on ``world`` (``options``: :class:`GlobalAlignOptions`, None: the
+    defaults); the outcome and its numbers."""
     from bimcap.geometry import Trajectory
     from bimcap.geometry.poses import compose, invert
     from bimcap.registration import (
@@ -188,7 +190,9 @@ def run_registration(world: World, seed: int, frames: int) -> dict[str, Any]:
     t0, c0 = time.perf_counter(), time.process_time()
     outcome, res = "placed", None
     try:
-        res = global_align(slam.trajectory.poses, samples, world.plan)
+        # Three arguments unless options are given (tests swap in three-argument wrappers).
+        res = (global_align(slam.trajectory.poses, samples, world.plan) if options is None
+               else global_align(slam.trajectory.poses, samples, world.plan, options))
     except AmbiguousAlignmentError as exc:
         outcome, res = "ambiguous", exc.result
     except GlobalAlignmentError as exc:
@@ -202,7 +206,8 @@ def run_registration(world: World, seed: int, frames: int) -> dict[str, Any]:
                 "right_storey": False, "score": nan, "fit": nan, "free": nan,
                 "see_through": nan, "agreement": nan, "constraint": nan, "alias_ratio": nan,
                 "alias_difference": nan, "alias_fit": nan, "twins": 0, "vote_rays": nan,
-                "vote_best": nan, "vote_alias": nan, "vote_frames": nan, "vote_low": nan}
+                "vote_best": nan, "vote_alias": nan, "vote_frames": nan, "vote_low": nan,
+                "frames_turned": False}
     est = compose(res.world_from_slam, slam.trajectory.poses)
     true = compose(invert(slam.slam_from_world), slam.trajectory.poses)
     cam_err = float(np.linalg.norm(est[:, :3] - true[:, :3], axis=1).mean())
@@ -219,7 +224,8 @@ def run_registration(world: World, seed: int, frames: int) -> dict[str, Any]:
             "alias_ratio": float("nan") if res.alias is None else res.alias.score_ratio,
             "alias_difference": float("nan") if res.alias is None else res.alias.difference,
             "alias_fit": float("nan") if res.alias is None else res.alias.fit_score,
-            "twins": len(res.twin_floors), **_vote_columns(res)}
+            "twins": len(res.twin_floors), **_vote_columns(res),
+            "frames_turned": res.frames_turned}
 
 
 def _vote_columns(res: Any) -> dict[str, float]:
@@ -419,7 +425,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--plane-height-tol-m", type=float, default=None, metavar="M",
                    help="real models: floor planes merged within M (PlaneOptions.height_tol_m; "
                    "default: the package default, cached reference)")
+    p.add_argument("--frame-yaw", choices=("off", "on_refusal", "always"), default=None,
+                   help="registration level: GlobalAlignOptions.frame_yaw (default: the "
+                   "package default)")
     args = p.parse_args(argv)
+    from bimcap.registration import GlobalAlignOptions
+
+    options = (None if args.frame_yaw is None
+               else GlobalAlignOptions(frame_yaw=args.frame_yaw))  # type: ignore[arg-type]
     rows = []
     for name in [w for w in args.worlds.split(",") if w]:  # --worlds "": the pipeline only
         world = (_ifc_world(name, args.ifc_dir, height_tol_m=args.plane_height_tol_m)
@@ -427,7 +440,7 @@ def main(argv: list[str] | None = None) -> int:
         seeds = (range(args.seeds) if args.seed_list is None
                  else [int(v) for v in args.seed_list.split(",")])
         for seed in seeds:
-            row = run_registration(world, seed, args.frames)
+            row = run_registration(world, seed, args.frames, options)
             rows.append(row)
             print(f"{name} seed {seed}: {row['outcome']}, right {row['right']}, cam error "
                   f"{row['cam_err_m']:.2f} m, ratio {row['ratio']:.2f}, alias ratio "
