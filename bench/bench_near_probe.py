@@ -9,7 +9,11 @@ refine``:
   spaced frames (the probe), with the CPU seconds of each;
 * the decision: the probe hands back when it reads less than ``near_probe_m``; a hand-back is
   *wrong* if the full pass reads ``frame_gate_m`` or more (it would have moved the poses);
-* for the runs handed back, the whole ``coarse_register`` call with the probe off and on.
+* for the runs handed back, the whole ``coarse_register`` call: with the probe off (the full
+  pass), with the code of 4206b3e (``tests/_coarse_reference.py``: its correlative search, stage
+  0's ICPs one at a time, the probe's yaw step of 1°) and with the code now, the two alternating
+  in this process (``--repeats`` times each, the least CPU time kept); every hand-back's poses
+  and fit are checked to be the full pass's, bit for bit.
 
 Goals (issue "Fast enough for real sequences"): a hand-back under 1 s; wrong hand-backs: 0.
 
@@ -47,14 +51,22 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--work", default="/tmp/bimcap_generalization", help="worlds and caches")
     ap.add_argument("--worlds", default="gen-demo-s0," + DEFAULT_WORLDS, help="comma list")
+    ap.add_argument("--repeats", type=int, default=2,
+                    help="timings of each hand-back per code version (alternating; the least)")
     args = ap.parse_args()
     work = Path(args.work)
     opt = CoarseOptions()
+    # The code of 4206b3e: its probe's yaw step, its correlative search and stage 0's ICPs.
+    old_opt = replace(opt, near_probe_yaw_step_deg=opt.yaw_step_deg)
+    old_code = _old_code()
     wrong = handed = total = 0
+    wrong_old = handed_old = 0
     t_full: list[float] = []
-    t_probe: list[float] = []
-    print("| world | run | full pass: drift / CPU s | probe: drift / CPU s | decision |")
-    print("|---|---|---|---|---|")
+    t_old: list[float] = []
+    t_new: list[float] = []
+    print("| world | run | full pass: drift / CPU s | probe 4206b3e: drift / CPU s | "
+          "probe now: drift / CPU s | decision |")
+    print("|---|---|---|---|---|---|")
     for world in args.worlds.split(","):
         seq, reference, runs = world_runs(work, world)
         for name, init in runs.items():
@@ -68,35 +80,67 @@ def main() -> None:
             plan = FloorPlan.from_planes(ref.segments, ref.segment_class, ref.segment_z,
                                          ref.planes, ref.plane_kind)
             poses = prep.init.poses.copy()
-            maps_for = stages._storey_maps(plan, opt, {})
+            cache: dict = {}
+            maps_for = stages._storey_maps(plan, opt, cache)
             full, tf = _cpu(stages._level_frames, poses, samples, plan, maps_for, opt,
                             np.random.default_rng(opt.seed))
+            with old_code():
+                probe_old, tpo = _cpu(stages._near_probe, poses, samples, plan, maps_for,
+                                      old_opt)
             probe, tp = _cpu(stages._near_probe, poses, samples, plan, maps_for, opt)
             exits = probe is not None and probe < opt.near_probe_m
-            bad = exits and full.drift_m >= opt.frame_gate_m
+            exits_old = probe_old is not None and probe_old < opt.near_probe_m
+            far = full.drift_m >= opt.frame_gate_m
+            bad = exits and far
             total += 1
             handed += exits
             wrong += bad
+            handed_old += exits_old
+            wrong_old += exits_old and far
             decision = ("WRONG hand-back" if bad else "hand back" if exits else "full pass")
             if exits:
-                cache: dict = {}
-                coarse_register(poses, samples, plan, opt, cache)  # build the maps once
                 off, t0 = _cpu(coarse_register, poses, samples, plan,
                                replace(opt, near_probe_frames=0), cache)
-                on, t1 = _cpu(coarse_register, poses, samples, plan, opt, cache)
-                assert np.array_equal(off.poses, on.poses)
+                before, after = [], []
+                for _ in range(max(args.repeats, 1)):
+                    with old_code():
+                        was, t1 = _cpu(coarse_register, poses, samples, plan, old_opt, cache)
+                    on, t2 = _cpu(coarse_register, poses, samples, plan, opt, cache)
+                    before.append(t1)
+                    after.append(t2)
+                    # A hand-back gives the full pass's poses and fit, bit for bit.
+                    for res in (was, on):
+                        assert np.array_equal(off.poses, res.poses)
+                        assert np.array_equal(off.frame_score, res.frame_score)
                 t_full.append(t0)
-                t_probe.append(t1)
-                decision += f" (coarse stage {t0:.2f} → {t1:.2f} CPU s)"
-            shown = "–" if probe is None else f"{probe:.3f} m"
-            print(f"| {world} | {name} | {full.drift_m:.3f} m / {tf:.1f} | {shown} / {tp:.1f} | "
-                  f"{decision} |", flush=True)
+                t_old.append(min(before))
+                t_new.append(min(after))
+                decision += (f" (coarse stage: full pass {t0:.2f}, 4206b3e {min(before):.2f}"
+                             f" → now {min(after):.2f} CPU s, goal < 1 s)")
+            print(f"| {world} | {name} | {full.drift_m:.3f} m / {tf:.1f} | {_m(probe_old)} / "
+                  f"{tpo:.2f} | {_m(probe)} / {tp:.2f} | {decision} |", flush=True)
     print()
-    print(f"runs: {total}; handed back: {handed}; wrong hand-backs: {wrong} (goal 0)")
-    if t_full:
-        print(f"hand-back, coarse stage CPU s: mean {np.mean(t_full):.2f} → {np.mean(t_probe):.2f}"
-              f", worst {max(t_full):.2f} → {max(t_probe):.2f} (goal < 1 s; ratio "
-              f"{np.mean(t_full) / np.mean(t_probe):.1f}×)")
+    print(f"runs: {total}; handed back: {handed} (4206b3e: {handed_old}); wrong hand-backs: "
+          f"{wrong} (4206b3e: {wrong_old}; goal 0)")
+    if t_new:
+        print(f"hand-back, coarse stage CPU s: full pass mean {np.mean(t_full):.2f} / worst "
+              f"{max(t_full):.2f}; 4206b3e mean {np.mean(t_old):.2f} / worst {max(t_old):.2f}; "
+              f"now mean {np.mean(t_new):.2f} / worst {max(t_new):.2f} (goal < 1 s, worst); "
+              f"now vs 4206b3e {np.mean(t_old) / np.mean(t_new):.2f}× (mean of the ratios "
+              f"{np.mean(np.array(t_old) / np.array(t_new)):.2f}×)")
+
+
+def _m(drift: float | None) -> str:
+    return "–" if drift is None else f"{drift:.3f} m"
+
+
+def _old_code():
+    """A context in which the coarse stage runs the code of 4206b3e
+    (``tests/_coarse_reference.py``)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+    from _coarse_reference import old_coarse
+
+    return old_coarse
 
 
 if __name__ == "__main__":

@@ -422,3 +422,102 @@ def test_a_window_is_not_put_in_a_storey_its_cameras_do_not_fit() -> None:
     assert _pick_floor(plan, np.full(5, 0.3), np.full(5, 1.8), 1.8) == pytest.approx(0.016)
     # no floor points: the highest floor at or below the cameras, as before
     assert _pick_floor(plan, np.zeros(0), np.zeros(0), 1.5) == pytest.approx(0.016)
+
+
+# ------------------------------------------------------------------------------------------------
+# Issue 14: a hand-back under 1 s. The faster code gives the previous code's arrays bit for bit
+# (``tests/_coarse_reference.py``), and a hand-back gives the full pass's result.
+
+
+def test_score_volume_is_the_previous_code_bit_for_bit(demo: Scene) -> None:
+    import _coarse_reference as ref
+    from bimcap.registration.coarse import _build_maps
+    from bimcap.registration.correlative import score_volume
+
+    plan = demo.floor_plan()
+    maps = _build_maps(plan, np.ones(len(plan.segments), dtype=bool), CoarseOptions())
+    rng = np.random.default_rng(3)
+    pivot = np.array([6.0, -0.3])
+    step = np.deg2rad(1.0)
+    for m_pts, yaws, kwargs in (
+            (1500, np.arange(-25, 26) * step, {}),
+            (1500, np.arange(-25, 26) * step, {"column_weight": 0.5}),
+            (1500, np.arange(-25, 26) * step, {"column_weight": 0.0}),
+            (800, np.arange(-10, 11) * step, {"y_range_m": 1.0}),
+            (20_000, np.arange(-np.pi, np.pi, np.deg2rad(5.0)), {}),  # several yaw blocks
+            (300, np.arange(-5, 6) * step, {"p_weight": rng.uniform(0.1, 1.0, 300)}),
+            (0, np.arange(-5, 6) * step, {})):
+        p_xy = pivot + rng.uniform(-6.0, 6.0, (m_pts, 2))
+        p_cls = rng.choice(np.array([1, 4], np.int32), m_pts, p=[0.8, 0.2]).astype(np.int32)
+        view = p_xy - (pivot + rng.normal(0.0, 0.5, (m_pts, 2)))
+        old = ref.score_volume_4206b3e(p_xy, p_cls, view, maps, pivot, yaws, 2.0, **kwargs)
+        new = score_volume(p_xy, p_cls, view, maps, pivot, yaws, 2.0, **kwargs)
+        assert old[1:] == new[1:]
+        assert np.array_equal(old[0], new[0]), (m_pts, kwargs)
+
+
+def _near_walk(demo: Scene, n: int = 30) -> tuple[np.ndarray, object]:
+    """``n`` frames along the demo corridor with small per-frame errors (within the bundle
+    adjustment's reach) and their scans."""
+    gt = corridor_walk(n, x0=2.5)
+    samples = scan_sequence(gt, demo, seed=6, clutter_fraction=0.03)
+    return per_frame_drift(gt, 4, 3.0, 2.0, 0.02, np.array([0.05, 0.03, 0.0])), samples
+
+
+def test_stage0_is_the_previous_code_bit_for_bit(demo: Scene) -> None:
+    import _coarse_reference as ref
+    from bimcap.registration import coarse as stages
+
+    init, samples = _near_walk(demo, 12)
+    plan = demo.floor_plan()
+    opt = CoarseOptions()
+    maps_for = stages._storey_maps(plan, opt, {})
+    new = stages._level_frames(init, samples, plan, maps_for, opt, np.random.default_rng(0))
+    with ref.old_coarse():
+        old = stages._level_frames(init, samples, plan, maps_for, opt, np.random.default_rng(0))
+    assert new.t_ok.any() and new.yaw_ok.any()
+    for name in ("world_from_world", "tilt_ok", "yaw_ok", "yaw_deg", "tilt_deg", "t_ok",
+                 "score", "constraint", "translation"):
+        assert np.array_equal(getattr(old, name), getattr(new, name)), name
+    assert old.drift_m == new.drift_m
+
+
+def _same_result(a: object, b: object) -> None:
+    """Two :class:`CoarseResult` are the same bit for bit (but for the seconds they took)."""
+    for name in ("poses", "frame_score", "frame_inlier_ratio", "accepted", "frame_window"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
+    strip = [{k: v for k, v in w.to_dict().items() if k != "seconds"} for w in a.windows]
+    assert strip == [{k: v for k, v in w.to_dict().items() if k != "seconds"}
+                     for w in b.windows]
+    assert a.translation_dropped == b.translation_dropped
+
+
+def test_a_hand_back_is_the_full_pass_result_bit_for_bit(demo: Scene) -> None:
+    """With the defaults (the probe on 15 of 30 frames, its yaw step 2°), the probe hands the
+    input back, and every array of the result is the full pass's: the poses (the input, not a
+    round trip through matrices), each frame's fit and each window's levelling; the code of
+    4206b3e (probe at 1°) gives the same."""
+    import _coarse_reference as ref
+
+    init, samples = _near_walk(demo)
+    plan = demo.floor_plan()
+    opt = CoarseOptions()
+    full = coarse_register(init, samples, plan, replace(opt, near_probe_frames=0))
+    assert full.frame_level is not None and full.frame_level.drift_m < opt.frame_gate_m
+    probed = coarse_register(init, samples, plan, opt)
+    assert probed.frame_level is None and probed.near_probe_drift_m is not None
+    assert probed.near_probe_drift_m < opt.near_probe_m
+    _same_result(full, probed)
+    assert np.array_equal(probed.poses, init)
+    with ref.old_coarse():
+        was = coarse_register(init, samples, plan, replace(opt, near_probe_yaw_step_deg=1.0))
+    assert was.near_probe_drift_m is not None
+    _same_result(was, probed)
+    assert abs(was.near_probe_drift_m - probed.near_probe_drift_m) < 0.05
+
+
+def test_near_probe_yaw_step_is_validated() -> None:
+    from bimcap.registration.errors import RegistrationInputError
+
+    with pytest.raises(RegistrationInputError, match="near_probe_yaw_step_deg"):
+        CoarseOptions(near_probe_yaw_step_deg=0.0)

@@ -51,7 +51,7 @@ from __future__ import annotations
 import itertools
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -266,6 +266,11 @@ class CoarseOptions:
         full pass also hands back (full 0.03-0.14 m, probe 0.01-0.14 m); where the full pass
         reads a drift of 0.35 m or more the probe read 0.38 m or more (Exp. 1: 0.67 m or more)
         or could not tell.
+    near_probe_yaw_step_deg: the probe's yaw step (stage 0's correlative search runs at
+        ``yaw_step_deg``): each frame's hypotheses are refined by ICP, which takes out the
+        half step, and the probe only reads the median tracked drift. 2° instead of 1° halves
+        the probe's correlation and read the same drift within 0.04 m on the 40 runs above
+        (the same 18 hand-backs; 2026-11-27, docs/speed.md).
     frame_translation_per_window: stage 0's tracked translation stands only in accepted
         windows; the frames of rejected windows take, on their stage-0 rotations alone, the
         interpolation of the accepted windows' whole corrections (see
@@ -325,6 +330,7 @@ class CoarseOptions:
     near_probe_frames: int = 15
     near_probe_m: float = 0.15
     near_probe_min_tracked: int = 5
+    near_probe_yaw_step_deg: float = 2.0
     frame_translation_per_window: bool = True
 
     def __post_init__(self) -> None:
@@ -337,7 +343,8 @@ class CoarseOptions:
                     "nms_yaw_deg", "icp_radius_start_m", "icp_radius_end_m", "icp_huber_m",
                     "inlier_m", "continuity_sigma_t_m",
                     "continuity_sigma_yaw_deg", "continuity_cap", "score_sigma",
-                    "frame_max_step_m", "frame_max_step_deg", "frame_xy_range_m")
+                    "frame_max_step_m", "frame_max_step_deg", "frame_xy_range_m",
+                    "near_probe_yaw_step_deg")
         for name in ("frame_deadband_m", "frame_gate_m", "near_probe_m", "near_probe_frames",
                      "near_probe_min_tracked"):
             if getattr(self, name) < 0:
@@ -684,7 +691,8 @@ def _near_probe(poses: F64, samples: SemanticSamples, plan: FloorPlan,
         return None
     frames = np.unique(np.round(np.linspace(0, len(poses) - 1, k)).astype(np.int64))
     rng = np.random.default_rng([opt.seed, 1])
-    probe = _level_frames(poses, samples, plan, maps_for, opt, rng, frames=frames)
+    probe_opt = replace(opt, yaw_step_deg=opt.near_probe_yaw_step_deg)
+    probe = _level_frames(poses, samples, plan, maps_for, probe_opt, rng, frames=frames)
     if int(probe.t_ok.sum()) < opt.near_probe_min_tracked:
         return None
     return probe.drift_m

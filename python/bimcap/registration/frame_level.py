@@ -40,7 +40,7 @@ from scipy.spatial.transform import Rotation
 from bimcap.progress import progress
 from bimcap.registration.correlative import Hypothesis, score_volume, top_hypotheses
 from bimcap.registration.gravity import level_window
-from bimcap.registration.icp import Correction2D, icp_2d, rot2
+from bimcap.registration.icp import Correction2D, icp_2d_many, rot2
 from bimcap.registration.plan_maps import PlanMaps
 
 F64 = NDArray[np.float64]
@@ -378,9 +378,12 @@ def _frame_candidates(points: tuple[F64, I32], cam: F64, floor_z: float | None,
     def associate(q: F64, q_class: I32, v: F64, maps: PlanMaps = maps) -> tuple[F64, F64]:
         return maps.nearest(q, maps.layer_of(q_class, v))
 
+    # The hypotheses' ICPs in lock-step (one association call per iteration for all of them;
+    # each result the bits of its own :func:`.icp.icp_2d`).
+    fits = icp_2d_many(p_xy, p_cls, associate, [Correction2D(h.yaw, h.t, pivot) for h in hyps],
+                       view, **icp)
     out = []
-    for h in hyps:
-        fit = icp_2d(p_xy, p_cls, associate, Correction2D(h.yaw, h.t, pivot), view, **icp)
+    for fit in fits:
         corr = fit.correction
         sc, _ = maps.fine_eval(corr.apply(p_xy), maps.layer_of(p_cls, view @ rot2(corr.yaw).T))
         score = float(sc.mean())
