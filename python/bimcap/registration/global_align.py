@@ -78,6 +78,7 @@ from bimcap.registration.icp import (
     rot2,
 )
 from bimcap.registration.plan_maps import PlanMaps
+from bimcap.registration.window_polish import WindowPolish, polish_windows
 
 F64 = NDArray[np.float64]
 I32 = NDArray[np.int32]
@@ -138,6 +139,12 @@ class GlobalAlignOptions:
         drift and noise at the camera and at the hit, measured as ``see_through_margin_from``
         says: :class:`SeeThroughMargin`) multiplies the ranking score by ``(1 - x) **
         see_through_power`` (0: not used).
+    see_through_window_frames, see_through_window_yaw_deg, see_through_window_shift_m: before
+        the see-through share and the range agreement are measured, each window of this many
+        consecutive frames is moved onto the plan by its own rigid ICP, taken only within this
+        turn and shift (:func:`.window_polish.polish_windows`; 0 frames: off): a drifted
+        trajectory's translation walk is a small rigid offset per window, which the single
+        rigid placement cannot take out (docs/global_align.md, "The see-through under drift").
     range_tol_m, range_power: the range agreement of a placement (:func:`range_agreement`):
         the share ``a`` of wall/column points whose range from their camera agrees with the
         plan's, the first plan wall their ray crosses lying within ``range_tol_m`` of the point
@@ -219,6 +226,9 @@ class GlobalAlignOptions:
     see_through_margin_m: float = 0.3
     see_through_margin_from: SeeThroughMargin = SeeThroughMargin.WALL
     see_through_power: float = 3.0
+    see_through_window_frames: int = 10
+    see_through_window_yaw_deg: float = 5.0
+    see_through_window_shift_m: float = 0.5
     range_tol_m: float = 0.3
     range_power: float = 3.0
     distinct_m: float = 1.0
@@ -279,7 +289,9 @@ class GlobalAlignOptions:
         for name in ("wall_band_m", "gravity_min_tilt_deg", "frame_level_max_deg",
                      "free_clearance_m", "frame_yaw_deg",
                      "frame_shift_m", "see_through_margin_m", "see_through_power", "range_power",
-                     "alias_vote_min_votes", "alias_vote_min_frames"):
+                     "alias_vote_min_votes", "alias_vote_min_frames",
+                     "see_through_window_frames", "see_through_window_yaw_deg",
+                     "see_through_window_shift_m"):
             if getattr(self, name) < 0:
                 raise RegistrationInputError("must be >= 0", None, name)
 
@@ -1385,16 +1397,13 @@ def alias_range_vote(cam_best: F64, q_best: F64, cam_alias: F64, q_alias: F64, f
 def _polished_points(corr: Correction2D, p_xy: F64, p_cls: I32, p_view: F64, p_frame: I32,
                      cams_xy: F64, maps: PlanMaps, opt: GlobalAlignOptions) -> tuple[F64, F64]:
     """Each point (M, 2) and its camera (M, 2), world, under ``corr`` polished as for the
-    see-through share (:func:`_see_through`: the mean of the frames' best turns and shifts,
-    then each frame turned by its own best turn)."""
+    see-through share (:func:`_see_through_rays`: the mean of the frames' best turns and
+    shifts, then each frame turned by its own best turn) but without the windows' ICP: the
+    alias vote reads the rays as it was measured with (docs/global_align.md, "The
+    discriminating-ray vote")."""
     _, _, _, turn, shift = _frame_fit(corr, p_xy, p_cls, p_view, p_frame, cams_xy, maps, opt)
-    centre = corr.apply(cams_xy).mean(0)
-    r = rot2(turn)
-    t = r @ (corr.pivot + corr.t - centre) + centre + shift - corr.pivot
-    polished = Correction2D(corr.yaw + turn, t, corr.pivot)
-    _, q_turned, cam, _, _ = _frame_fit(polished, p_xy, p_cls, p_view, p_frame, cams_xy, maps,
-                                        replace(opt, frame_shift_m=0.0))
-    return q_turned, cam
+    return _see_through_rays(corr, turn, shift, p_xy, p_cls, p_view, p_frame, cams_xy, maps, opt,
+                             windows=False)
 
 
 def _free_map(segments: F64, bounds: tuple[float, float, float, float],
@@ -1511,21 +1520,52 @@ def _frame_fit(corr: Correction2D, p_xy: F64, p_cls: I32, p_view: F64, p_frame: 
             float(best_turn[has].mean()), best_shift[has].mean(0))
 
 
+_IDENTITY = Correction2D(0.0, np.zeros(2), np.zeros(2))
+
+
+def _window_polish(opt: GlobalAlignOptions) -> WindowPolish:
+    """The window polish of the see-through test (``see_through_window_*``)."""
+    return WindowPolish(window_frames=opt.see_through_window_frames,
+                        max_yaw_deg=opt.see_through_window_yaw_deg,
+                        max_shift_m=opt.see_through_window_shift_m)
+
+
+def _see_through_rays(corr: Correction2D, turn: float, shift: F64, p_xy: F64, p_cls: I32,
+                      p_view: F64, p_frame: I32, cams_xy: F64, maps: PlanMaps,
+                      opt: GlobalAlignOptions, windows: bool = True) -> tuple[F64, F64]:
+    """Each point (M, 2) and its camera (M, 2), world, as the see-through test reads them: the
+    placement ``corr`` polished by the mean turn (about the cameras' centroid) and shift of its
+    frames' best per-frame fits, then (``windows`` and ``see_through_window_frames`` > 0) each
+    window of frames moved by its own bounded rigid ICP (:func:`.window_polish.polish_windows`:
+    the trajectory's translation walk), each frame then turned by its own best turn."""
+    centre = corr.apply(cams_xy).mean(0)
+    r = rot2(turn)
+    t = r @ (corr.pivot + corr.t - centre) + centre + shift - corr.pivot
+    polished = Correction2D(corr.yaw + turn, t, corr.pivot)
+    frame_opt = replace(opt, frame_shift_m=0.0)
+    if windows and opt.see_through_window_frames > 0:
+        q, view, cams, _ = polish_windows(
+            polished.apply(p_xy), p_cls, p_view @ rot2(polished.yaw).T, p_frame,
+            polished.apply(cams_xy), maps, _window_polish(opt))
+        _, q_turned, cam, _, _ = _frame_fit(_IDENTITY, q, p_cls, view, p_frame, cams, maps,
+                                            frame_opt)
+    else:
+        _, q_turned, cam, _, _ = _frame_fit(polished, p_xy, p_cls, p_view, p_frame, cams_xy,
+                                            maps, frame_opt)
+    return q_turned, cam
+
+
 def _see_through(corr: Correction2D, turn: float, shift: F64, p_xy: F64, p_cls: I32,
                  p_view: F64, p_frame: I32, cams_xy: F64, segments: F64, maps: PlanMaps,
                  opt: GlobalAlignOptions) -> tuple[float, float]:
     """The share of points seen through a wall (:func:`see_through_fraction`) and the range
     agreement (:func:`range_agreement`, 1 when ``range_power`` is 0: not computed) for the
-    placement ``corr`` polished by the mean turn (about the cameras' centroid) and shift of its
-    frames' best per-frame fits, each frame then turned by its own best turn: the negative
-    evidence must not punish the rigid placement's residual error or the per-frame yaw noise
-    (a ray that grazes a wall's end), which differ between a placement and its exact alias."""
-    centre = corr.apply(cams_xy).mean(0)
-    r = rot2(turn)
-    t = r @ (corr.pivot + corr.t - centre) + centre + shift - corr.pivot
-    polished = Correction2D(corr.yaw + turn, t, corr.pivot)
-    _, q_turned, cam, _, _ = _frame_fit(polished, p_xy, p_cls, p_view, p_frame, cams_xy, maps,
-                                        replace(opt, frame_shift_m=0.0))
+    placement ``corr`` polished as :func:`_see_through_rays` says (``turn`` and ``shift``: the
+    mean of its frames' best turns and shifts): the negative evidence must not punish the rigid
+    placement's residual error, the drift's walk or the per-frame yaw noise (a ray that grazes
+    a wall's end), which differ between a placement and its exact alias."""
+    q_turned, cam = _see_through_rays(corr, turn, shift, p_xy, p_cls, p_view, p_frame, cams_xy,
+                                      maps, opt)
     seen = see_through_fraction(cam, q_turned, segments, opt.see_through_margin_m,
                                 margin_from=opt.see_through_margin_from)[0]
     agree = (range_agreement(cam, q_turned, segments, opt.range_tol_m)[0]
