@@ -64,11 +64,12 @@ def test_downscaled_extraction_maps_back_to_full_resolution() -> None:
     centres = [(100.0, 60.0), (300.5, 180.25)]
     img = _blob_image(centres, shape=(300, 400))
     # The small blobs need the upsampled octave once the image is halved.
-    feats = extract_sift(img, SiftOptions(max_image_size=200, first_octave=-1))
+    feats = extract_sift(img, SiftOptions(backend=SiftBackend.PYCOLMAP, max_image_size=200,
+                                          first_octave=-1))
     for c in centres:
         d = np.linalg.norm(feats.uv - np.array(c), axis=1)
         assert d.min() < 0.15, (c, feats.uv)
-    full = extract_sift(img, SiftOptions(first_octave=-1))
+    full = extract_sift(img, SiftOptions(backend=SiftBackend.PYCOLMAP, first_octave=-1))
     assert np.median(feats.scale) == pytest.approx(np.median(full.scale), rel=0.2)
     with pytest.raises(FeatureError):
         SiftOptions(max_image_size=4)
@@ -80,7 +81,8 @@ def test_features_shapes_and_dtypes(shifted_pair: tuple, backend: SiftBackend) -
     most ``max_num_features`` (OpenCV's own ``nfeatures`` gave 501 of 500 here: it keeps ties
     and adds a keypoint's second orientation)."""
     a, _, _ = shifted_pair
-    opts = (SiftOptions(max_num_features=500) if backend is SiftBackend.PYCOLMAP else
+    opts = (SiftOptions(backend=backend, peak_threshold=0.02 / 3, max_num_features=500)
+            if backend is SiftBackend.PYCOLMAP else
             SiftOptions(backend=backend, opencv_first_octave=0, peak_threshold=0.004,
                         max_num_features=500))
     f = extract_sift(np.stack([a, a, a], axis=-1), opts)
@@ -241,8 +243,10 @@ def test_sequential_pairs() -> None:
         sequential_pairs(4, 0)
 
 
-#: OpenCV's SIFT with its first octave at the native resolution (the image halved, then doubled).
-OPENCV_OCTAVE0 = SiftOptions(backend=SiftBackend.OPENCV, opencv_first_octave=0)
+#: OpenCV's SIFT with its first octave at the native resolution (the image halved, then doubled),
+#: small test images included.
+OPENCV_OCTAVE0 = SiftOptions(backend=SiftBackend.OPENCV, opencv_first_octave=0,
+                             opencv_halve_min_side=2)
 
 
 def test_opencv_first_octave_is_validated() -> None:
@@ -256,8 +260,10 @@ def test_opencv_first_octave_is_validated() -> None:
         sift_options(RefineConfig(features={"opencv_first_octave": 2}))
     with pytest.raises(ConfigError, match=r"features\.opencv_first_octave"):
         sift_options(RefineConfig(features={"opencv_first_octave": 0.5}))
-    assert sift_options(RefineConfig(features={"backend": "opencv", "opencv_first_octave": 0})
-                        ) == OPENCV_OCTAVE0
+    assert sift_options(RefineConfig(features={"backend": "opencv", "opencv_first_octave": 0,
+                                               "opencv_halve_min_side": 2})) == OPENCV_OCTAVE0
+    with pytest.raises(ConfigError, match="opencv_halve_min_side must be >= 2"):
+        sift_options(RefineConfig(features={"opencv_halve_min_side": 1}))
 
 
 def test_opencv_first_octave_0_shapes_and_dtypes(shifted_pair: tuple) -> None:
@@ -290,6 +296,20 @@ def test_opencv_first_octave_0_keypoints_at_full_resolution(shifted_pair: tuple)
     assert len(m) > 100
     disp = fa.uv[m[:, 0]] - fb.uv[m[:, 1]]
     assert np.mean(np.linalg.norm(disp - [du, dv], axis=1) < 0.5) > 0.9
-    doubled = extract_sift(a, SiftOptions(backend=SiftBackend.OPENCV))
+    doubled = extract_sift(a, SiftOptions(backend=SiftBackend.OPENCV, opencv_first_octave=-1))
     assert fa.scale.min() == pytest.approx(2.0 * doubled.scale.min(), rel=0.25)
     assert len(fa) < len(doubled)
+
+
+def test_the_default_halves_only_images_big_enough() -> None:
+    """The default is OpenCV's SIFT at its native first octave; an image whose shorter side is
+    below ``opencv_halve_min_side`` is extracted unhalved, exactly as at -1."""
+    opts = SiftOptions()
+    assert opts.backend is SiftBackend.OPENCV and opts.opencv_first_octave == 0
+    small = _noise()[:240, :320]
+    unhalved = extract_sift(small, SiftOptions(opencv_first_octave=-1))
+    same = extract_sift(small, opts)
+    assert np.array_equal(same.uv, unhalved.uv)
+    assert np.array_equal(same.descriptors, unhalved.descriptors)
+    halved = extract_sift(small, SiftOptions(opencv_halve_min_side=240))
+    assert halved.scale.min() > 1.5 * unhalved.scale.min()

@@ -1,7 +1,9 @@
 """SIFT (or ORB) keypoints and descriptors on undistorted images.
 
-The default backend is pycolmap 4.x (``pycolmap.FeatureExtractor.create`` on the CPU, the same
-SIFT as COLMAP); OpenCV's ``cv2.SIFT`` is a fallback for environments without pycolmap.
+The default backend is OpenCV's ``cv2.SIFT`` (first octave at the native resolution, DoG peak
+threshold 0.004: about 2.7× cheaper than pycolmap's SIFT at the same accuracy of the refinement,
+docs/speed.md "OpenCV's SIFT as the default"); ``SiftBackend.PYCOLMAP`` is pycolmap 4.x
+(``pycolmap.FeatureExtractor.create`` on the CPU, the same SIFT as COLMAP).
 ``SiftBackend.ORB`` is OpenCV's ORB (FAST corners with Harris scores over an image pyramid,
 rotated BRIEF): binary 256-bit descriptors, matched by Hamming distance
 (:func:`bimcap.features.match_descriptors` tells them by their 32-byte width). Its keypoints are
@@ -47,11 +49,13 @@ class SiftOptions:
 
     Attributes
     ----------
-    backend: which implementation to use.
+    backend: which implementation to use: OpenCV's SIFT (default) or pycolmap's (COLMAP's SIFT;
+        bimcap's default until 2026-11-27, then with ``peak_threshold = 0.02 / 3``).
     max_num_features: keep at most this many SIFT keypoints (pycolmap: the largest scales;
         OpenCV: the strongest responses); ORB's budget is ``orb_max_num_features``.
     peak_threshold: DoG peak threshold (COLMAP ``peak_threshold``; OpenCV ``contrastThreshold``
-        is ``3 × peak_threshold`` for the same three scales per octave).
+        is ``3 × peak_threshold`` for the same three scales per octave). 0.004 (the default)
+        was measured with OpenCV's SIFT; COLMAP's own is 0.02 / 3.
     edge_threshold: DoG edge threshold.
     first_octave: -1 upsamples the image once (finds small features; COLMAP's default), 0 does
         not (bimcap's default). At 516×386 the upsampled octave costs 3.7× the CPU (410 vs
@@ -65,23 +69,26 @@ class SiftOptions:
     max_image_size: if the image's longer side exceeds this, extract on a copy resized to it
         (area interpolation) and map keypoints back to full-resolution pixels; None: never.
         ConSLAM's 2064×1544 images with 1032 cost about a quarter of the time.
-    opencv_first_octave: OpenCV's SIFT only (``backend = "opencv"``): -1 (OpenCV's own
-        behaviour) doubles the image before the first octave; 0 extracts on a copy halved with
+    opencv_first_octave: OpenCV's SIFT only (``backend = "opencv"``): -1 (OpenCV's own behaviour)
+        doubles the image before the first octave; 0 (the default) extracts on a copy halved with
         area interpolation, so that OpenCV's doubled first octave is the native resolution, as
-        COLMAP's ``first_octave = 0`` (keypoints mapped back to full-resolution pixels). At
-        516×386, with ``peak_threshold = 0.004``, extraction is ~3× cheaper than pycolmap's
-        first octave 0 (64 vs 189 ms a frame, one thread; the front end 2.1 → 2.9 frames/s per
-        core) at the same match error on the ground truth; BIMCaP's accuracy on 8 runs was
-        within 0.0105 cm / 0.0016° of pycolmap's, better on 5 (docs/speed.md, "SIFT cost"),
-        and on the ten worlds × four runs of the standard setting within 0.034 cm / 0.0042°
-        (docs/generalization.md, "The two lone frames fixed"), but on the hard setting it lost
-        the four end frames of gen-small-s3 Exp. 1 (21.3 cm against pycolmap's 1.2 cm;
-        docs/speed.md, "OpenCV's SIFT on the hard setting"), a block no match links to the
-        rest; since the refinement tries such blocks at the input's motion, 0.98 cm, and all
-        20 hard runs within the bar (docs/speed.md, "Blocks that no match links"). Still an
-        option: as the default, four front-end tests on 320×240 synthetic scenes fail (fewer
-        matches; a COLMAP export's 95th-percentile error 7 cm against the test's 5 cm), which
-        pass at -1: halved to 160×120, small images lose.
+        COLMAP's ``first_octave = 0`` (keypoints mapped back to full-resolution pixels). At 516×386,
+        with ``peak_threshold = 0.004``, extraction is ~3× cheaper than pycolmap's first octave 0
+        (64 vs 189 ms a frame, one thread; the front end 2.1 → 2.9 frames/s per core) at the same
+        match error on the ground truth; BIMCaP's accuracy on 8 runs was within 0.0105 cm / 0.0016°
+        of pycolmap's, better on 5 (docs/speed.md, "SIFT cost"), and on the ten worlds × four runs
+        of the standard setting within 0.034 cm / 0.0042° (docs/generalization.md, "The two lone
+        frames fixed"), but on the hard setting it lost the four end frames of gen-small-s3 Exp. 1
+        (21.3 cm against pycolmap's 1.2 cm; docs/speed.md, "OpenCV's SIFT on the hard setting"), a
+        block no match links to the rest; since the refinement tries such blocks at the input's
+        motion, 0.98 cm, and all 20 hard runs within the bar (docs/speed.md, "Blocks that no match
+        links"). Small images are not halved (``opencv_halve_min_side``).
+    opencv_halve_min_side: with ``opencv_first_octave = 0``, an image whose shorter side is
+        below this many pixels is not halved (OpenCV's doubled first octave, as at -1): halved
+        to 160×120, 320×240 scenes lose matches (four front-end tests failed: fewer than their
+        1,000 / 500 matches, a COLMAP export's 95th-percentile error 7 cm against 5 cm; they
+        pass unhalved), while 516×386 (halved to 258×193) passed the standard, hard and
+        unseen matrices (docs/speed.md).
     orb_max_num_features: ORB's keypoint budget (``max_num_features`` is SIFT's): matching
         binary descriptors costs the square of it, and at 516×386 a pair of frames with 2048
         (about 1600 kept) costs as much as their extraction.
@@ -98,16 +105,17 @@ class SiftOptions:
         off by default.
     """
 
-    backend: SiftBackend = SiftBackend.PYCOLMAP
+    backend: SiftBackend = SiftBackend.OPENCV
     max_num_features: int = 4096
-    peak_threshold: float = 0.02 / 3.0
+    peak_threshold: float = 0.004
     edge_threshold: float = 10.0
     first_octave: int = 0
     num_octaves: int = 4
     max_num_orientations: int = 2
     num_threads: int = 1
     max_image_size: int | None = None
-    opencv_first_octave: int = -1
+    opencv_first_octave: int = 0
+    opencv_halve_min_side: int = 384
     orb_max_num_features: int = 2048
     orb_grid_cols: int = 8
     orb_grid_rows: int = 6
@@ -127,6 +135,9 @@ class SiftOptions:
         if self.opencv_first_octave not in (-1, 0):
             raise FeatureError(
                 f"opencv_first_octave must be -1 or 0, got {self.opencv_first_octave!r}")
+        if self.opencv_halve_min_side < 2:
+            raise FeatureError(
+                f"opencv_halve_min_side must be >= 2, got {self.opencv_halve_min_side}")
         if self.orb_max_num_features <= 0:
             raise FeatureError(
                 f"orb_max_num_features must be positive, got {self.orb_max_num_features}")
@@ -267,11 +278,12 @@ def _extract_opencv(gray: NDArray[np.uint8], opts: SiftOptions) -> Features:
 
     OpenCV always doubles its input before the first octave; with ``opencv_first_octave = 0``
     the input is the image halved (area interpolation: each pixel the mean of a 2 × 2 block), so
-    that the first octave is the native resolution, and the keypoints are mapped back.
+    that the first octave is the native resolution, and the keypoints are mapped back; images
+    whose shorter side is below ``opencv_halve_min_side`` are not halved.
     """
     import cv2
 
-    if opts.opencv_first_octave == 0 and min(gray.shape) >= 2:
+    if opts.opencv_first_octave == 0 and min(gray.shape) >= opts.opencv_halve_min_side:
         h, w = gray.shape
         size = (max(1, round(w / 2)), max(1, round(h / 2)))
         half = np.ascontiguousarray(cv2.resize(gray, size, interpolation=cv2.INTER_AREA))
