@@ -225,6 +225,13 @@ class GlobalAlignOptions:
         frame (degrees), and the neighbourhood of a point whose principal direction is the
         wall's (the frame's points thinned to one per ``frame_yaw_cell_m`` cell; the point's
         ``frame_yaw_neighbours`` nearest, all within ``frame_yaw_radius_m``).
+    frame_yaw_max_ratio: a placement found only on the turned scan after a refusal
+        (``FrameYaw.ON_REFUSAL``) is taken only when the second-best scores at most this share
+        of it, as the windowed see-through's ``see_through_window_max_ratio``: a second try
+        must win by a wide margin (without it, a demo walk with its ends 0.5 m off, refused on
+        the scan as given, was placed one bay along, 5 m off, at ratio 0.71;
+        tests/test_registration_window_polish.py). Office_A seed 12, the run the turn places,
+        has 0.06.
     accept_ambiguous: take the best hypothesis even when the result is ambiguous (flagged in
         the result, never hidden).
     report_top: hypotheses kept in the result.
@@ -292,6 +299,7 @@ class GlobalAlignOptions:
     frame_yaw_cell_m: float = 0.1
     frame_yaw_neighbours: int = 10
     frame_yaw_radius_m: float = 1.0
+    frame_yaw_max_ratio: float = 0.2
     accept_ambiguous: bool = False
     report_top: int = 5
     seed: int = 0
@@ -324,7 +332,7 @@ class GlobalAlignOptions:
                                              name)
         for name in ("ambiguity_ratio", "min_score", "min_free_fraction", "max_see_through",
                      "alias_max_difference", "alias_exact_difference", "alias_vote_min_share",
-                     "see_through_window_max_ratio"):
+                     "see_through_window_max_ratio", "frame_yaw_max_ratio"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise RegistrationInputError("must be in [0, 1]", None, name)
         if not 0 <= self.enclosed_min_hits <= self.enclosed_rays:
@@ -1967,6 +1975,13 @@ def global_align(
         timings["drift_see_through"] = time.perf_counter() - t0
         timings["total"] = time.perf_counter() - t_start
     drift_ok = result.drift_see_through is not None and result.drift_see_through.accepted
+    if turned and opt.frame_yaw is FrameYaw.ON_REFUSAL and ratio > opt.frame_yaw_max_ratio:
+        raise GlobalAlignmentError(
+            f"global alignment: the best placement on the scan as given was refused, and on the "
+            f"scan with each frame's yaw error taken out the second-best scores {ratio:.0%} of "
+            f"the best (a placement found on a second try is taken at most at "
+            f"{opt.frame_yaw_max_ratio:.0%}); is this the right BIM?\n" + result.describe(),
+            result)
     if not fits or (best.see_through > opt.max_see_through and not drift_ok):
         raise GlobalAlignmentError(
             f"global alignment: the best placement fits badly (fit score {best.fit:.2f}, "
