@@ -1852,11 +1852,15 @@ def _search_all(scan: _Scan, sections: list[_Storey], plan: FloorPlan,
     return found, storeys
 
 
+def _fits(f: _Found, opt: GlobalAlignOptions) -> bool:
+    """Whether placement ``f`` fits well enough by its scores (``min_score``,
+    ``min_free_fraction``), its see-through aside."""
+    return f.fit >= opt.min_score and f.free >= opt.min_free_fraction
+
+
 def _fails(f: _Found, opt: GlobalAlignOptions) -> bool:
-    """Whether placement ``f`` fits too badly to be taken (``min_score``,
-    ``min_free_fraction``, ``max_see_through``)."""
-    return (f.fit < opt.min_score or f.free < opt.min_free_fraction
-            or f.see_through > opt.max_see_through)
+    """Whether placement ``f`` fits too badly to be taken (:func:`_fits`, ``max_see_through``)."""
+    return not _fits(f, opt) or f.see_through > opt.max_see_through
 
 
 def global_align(
@@ -1964,7 +1968,7 @@ def global_align(
         accepted_ambiguous=ambiguous and opt.accept_ambiguous, gravity_tilt_deg=tilt,
         gravity_applied=applied, storeys=storeys, timings=timings, options=opt,
         twin_floors=twin_floors, alias=alias, frames_turned=turned)
-    fits = best.fit >= opt.min_score and best.free >= opt.min_free_fraction
+    fits = _fits(best, opt)
     if (fits and best.see_through > opt.max_see_through and not ambiguous
             and opt.see_through_window_frames > 0):
         # Refused for its see-through alone: measured again with each window of frames
