@@ -56,6 +56,7 @@ the limit the options are used as given (same labels as without a noise estimate
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -267,6 +268,34 @@ def _threshold(z: F64, opts: GeometricOptions) -> F64:
     return opts.plane_threshold_m + opts.plane_threshold_rel * z
 
 
+def _percentiles(a: F64, qs: tuple[float, ...]) -> list[float]:
+    """``np.percentile(a, qs)`` (its default "linear" method) of a 1-D float64 array ``a`` (not
+    empty), bit for bit, without numpy's per-call machinery (~50 µs a call): numpy's virtual
+    index ``(n − 1) · q / 100``, the same partition (kth 0, −1 and the neighbours of every
+    index; indexes at or past the last one read the last value), numpy's interpolation
+    ``a + (b − a) t`` (``b − (b − a)(1 − t)`` from t = 0.5) and NaN when ``a`` has one. Python
+    floats are IEEE doubles, as numpy's float64 scalars (tests/test_segmentation_speed.py)."""
+    n = len(a)
+    idx = []
+    for q in qs:
+        v = (n - 1) * (q / 100)
+        lo = hi = -1
+        if v < n - 1:
+            lo = math.floor(v)
+            hi = lo + 1
+        idx.append((v, lo, hi))
+    part = np.partition(a, sorted({0, -1, *(i[1] for i in idx), *(i[2] for i in idx)}))
+    if math.isnan(part[-1]):
+        return [math.nan] * len(qs)
+    out = []
+    for v, lo, hi in idx:
+        a_lo, a_hi = float(part[lo]), float(part[hi])
+        t = v - lo
+        diff = a_hi - a_lo
+        out.append(a_hi - diff * (1 - t) if t >= 0.5 else a_lo + diff * t)
+    return out
+
+
 def _ransac_horizontal(scene: _WorkScene, cand: NDArray[np.int64], up: F64, cos_max: float,
                        opts: GeometricOptions, rng: np.random.Generator) -> _Plane | None:
     """Plane through the points of the pixels ``cand`` (N,) (raveled indices, row-major) whose
@@ -275,7 +304,7 @@ def _ransac_horizontal(scene: _WorkScene, cand: NDArray[np.int64], up: F64, cos_
     if n < 3:
         return None
     pick = cand[rng.choice(n, size=min(n, opts.ransac_sample), replace=False)]
-    sub = scene.pts_flat[pick]
+    sub = np.take(scene.pts_flat, pick, axis=0)
     idx = rng.integers(0, len(sub), size=(opts.ransac_iterations, 3))
     a, b, c = sub[idx[:, 0]], sub[idx[:, 1]], sub[idx[:, 2]]
     nrm = np.cross(b - a, c - a)
@@ -288,7 +317,7 @@ def _ransac_horizontal(scene: _WorkScene, cand: NDArray[np.int64], up: F64, cos_
         return None
     nrm, a = nrm[good], a[good]
     d = -(nrm * a).sum(1)
-    thr = scene.thr_flat[pick][:, None]  # _threshold of the sample's depths
+    thr = np.take(scene.thr_flat, pick)[:, None]  # _threshold of the sample's depths
     score = _plane_scores(sub, nrm, d, thr)
     best = int(np.argmax(score))
     inl = np.abs(sub @ nrm[best] + d[best]) < thr[:, 0]
@@ -310,14 +339,14 @@ def _ransac_vertical(scene: _WorkScene, cand: NDArray[np.int64], up: F64,
     if n < 3:
         return None
     pick = cand[rng.choice(n, size=min(n, opts.ransac_sample), replace=False)]
-    sub, sub_n = scene.pts_flat[pick], scene.nrm_flat[pick]
+    sub, sub_n = np.take(scene.pts_flat, pick, axis=0), np.take(scene.nrm_flat, pick, axis=0)
     hyp = rng.integers(0, len(sub), size=opts.ransac_iterations)
     hn = sub_n[hyp] - (sub_n[hyp] @ up)[:, None] * up
     ln = np.linalg.norm(hn, axis=1)
     good = ln > 1e-6
     hn = hn[good] / ln[good, None]
     d = -(hn * sub[hyp[good]]).sum(1)
-    thr = scene.thr_flat[pick][:, None]  # _threshold of the sample's depths
+    thr = np.take(scene.thr_flat, pick)[:, None]  # _threshold of the sample's depths
     cos_n = np.cos(np.deg2rad(opts.normal_agreement_deg))
     score = _plane_scores(sub, hn, d, thr, sub_n, cos_n)
     if len(score) == 0:
@@ -386,14 +415,41 @@ def _plane_scores(sub: F64, hn: F64, d: F64, thr: F64, sub_n: F64 | None = None,
     return score
 
 
+def _rows_dot(p: F64, idx: NDArray[np.intp], v: F64) -> F64:
+    """``(p @ v)[idx]`` for points ``p`` (N, 3), rows ``idx`` (M,) and ``v`` (3,), the product
+    taken on the gathered rows only when there are at least two (numpy hands an (M, 3) × (3,)
+    product with M ≥ 2 to BLAS's gemv, whose every entry is the same 3-term sum wherever the row
+    sits, as in the whole image's row-by-row product; one row would go to its dot routine,
+    whose rounding may differ, so it is taken from the whole product:
+    tests/test_segmentation_speed.py)."""
+    if len(idx) >= 2:
+        return np.take(p, idx, axis=0) @ v  # type: ignore[no-any-return]
+    return (p @ v)[idx]  # type: ignore[no-any-return]
+
+
 def _plane_inliers(scene: _WorkScene, plane: _Plane, mask: B, opts: GeometricOptions) -> B:
-    """(h, w) the pixels of ``mask`` within the threshold of ``plane`` whose normal agrees."""
+    """(h, w) the pixels of ``mask`` within the threshold of ``plane`` whose normal agrees.
+
+    Where ``mask`` holds under a quarter of the image, the distances and agreements are
+    computed at its pixels only (:func:`_rows_dot`: the same numbers as the whole image's)."""
+    cos_n = np.cos(np.deg2rad(opts.normal_agreement_deg))
+    idx = np.flatnonzero(mask)
+    if len(idx) >= 2 and 4 * len(idx) < mask.size:
+        dist_m = _rows_dot(scene.pts_flat, idx, plane.normal)
+        dist_m += plane.offset
+        np.abs(dist_m, out=dist_m)
+        agree_m = _rows_dot(scene.nrm_flat, idx, plane.normal)
+        np.abs(agree_m, out=agree_m)
+        ok = dist_m < np.take(scene.thr_flat, idx)
+        ok &= agree_m > cos_n
+        out = np.zeros(mask.shape, dtype=bool)
+        out.reshape(-1)[idx[ok]] = True
+        return out
     dist = scene.pts @ plane.normal
     dist += plane.offset
     np.abs(dist, out=dist)
     agree = scene.nrm @ plane.normal
     np.abs(agree, out=agree)
-    cos_n = np.cos(np.deg2rad(opts.normal_agreement_deg))
     inl = dist < scene.thr
     inl &= agree > cos_n
     inl &= mask
@@ -432,10 +488,20 @@ class _Region:
     def top(self) -> int:
         return int(self.rows.start)
 
+    def flat(self) -> NDArray[np.intp]:
+        """(M,) the region's pixels as raveled indices of the whole image, row-major."""
+        row, col = np.divmod(np.flatnonzero(self.mask), self.mask.shape[1])
+        row += self.rows.start
+        row *= self.pts.shape[1]
+        row += col
+        row += self.cols.start
+        return row
+
     def points(self) -> F64:
-        """(M, 3) the region's points, row-major."""
+        """(M, 3) the region's points, row-major (``np.take`` of the raveled image: the same
+        values as a boolean gather of the box, ~3× faster)."""
         if self._p is None:
-            self._p = self.pts[self.rows, self.cols][self.mask]
+            self._p = np.take(self.pts.reshape(-1, 3), self.flat(), axis=0)
         return self._p
 
     def full_mask(self) -> B:
@@ -499,7 +565,7 @@ def _reaches_up(region: _Region, up: F64, top_needed: float, opts: GeometricOpti
     if region.top <= opts.normal_step_px + 1 or top_needed == -np.inf:
         return True  # (every finite height reaches -inf: the plane's region reaches up)
     hgt = region.points() @ up if height is None else height
-    return float(np.percentile(hgt, 98)) >= top_needed
+    return _percentiles(hgt, (98,))[0] >= top_needed
 
 
 def _classify_vertical_region(
@@ -514,8 +580,8 @@ def _classify_vertical_region(
     t = _cross3(up, plane.normal)
     t /= np.linalg.norm(t)
     s = region.points() @ t
-    lo, hi = np.percentile(s, [2, 98])
-    width = float(hi - lo)
+    lo, hi = _percentiles(s, (2, 98))
+    width = hi - lo
     if width >= opts.column_max_width_m or width < opts.column_min_width_m:
         return Label.WALL  # too wide, or as thin as a doorway's reveal (a wall's thickness)
     return Label.COLUMN if _protrudes(region, pts, plane, opts) else Label.WALL
@@ -804,7 +870,7 @@ def _is_curved_column(region: _Region, pts: F64, up_ref: F64, top_needed: float,
     hc = horiz - horiz.mean(0)
     # ≈ full width of a uniform spread
     extent = 2.0 * np.sqrt(max(np.linalg.eigvalsh(hc.T @ hc / len(hc))[-1], 0.0)) * 1.73
-    lo, hi = np.percentile(hgt, [2, 98])
+    lo, hi = _percentiles(hgt, (2, 98))
     tall = hi - lo
     if not (extent < opts.column_max_width_m and tall > opts.column_min_height_m
             and _reaches_up(region, up_ref, top_needed, opts, hgt)):
@@ -838,19 +904,25 @@ def _fill_creases(scene: _WorkScene, state: _Labelling, opts: GeometricOptions) 
     undecided = scene.valid & (state.labels == int(Label.CLUTTER)) & (state.region_id < 0)
     if not (undecided.any() and state.regions):
         return
-    r, c = np.nonzero(undecided)
-    p = scene.pts[r, c]
-    best = np.full(len(r), np.inf)
-    best_label = np.full(len(r), int(Label.CLUTTER), dtype=np.uint8)
+    flat = np.flatnonzero(undecided)
+    p = np.take(scene.pts_flat, flat, axis=0)
+    best = np.full(len(flat), np.inf)
+    best_label = np.full(len(flat), int(Label.CLUTTER), dtype=np.uint8)
     kernel = np.ones((2 * opts.crease_px + 1,) * 2, np.uint8)
     thr = 2.0 * _threshold(p[:, 2], opts)
     for k, (lab, plane) in enumerate(state.regions):
-        near = cv2.dilate((state.region_id == k).astype(np.uint8), kernel)[r, c] > 0
-        dist = np.abs(p @ plane.normal + plane.offset)
-        take = near & (dist < thr) & (dist < best)
-        best[take] = dist[take]
-        best_label[take] = int(lab)
-    state.labels[r, c] = best_label
+        # the distances at the pixels near the region only (_rows_dot: the same numbers)
+        near = np.flatnonzero(np.take(cv2.dilate((state.region_id == k).astype(np.uint8),
+                                                 kernel).reshape(-1), flat))
+        if len(near) == 0:
+            continue
+        dist = _rows_dot(p, near, plane.normal)
+        dist += plane.offset
+        np.abs(dist, out=dist)
+        take = (dist < thr[near]) & (dist < best[near])
+        best[near[take]] = dist[take]
+        best_label[near[take]] = int(lab)
+    np.put(state.labels, flat, best_label)
 
 
 @functools.lru_cache(maxsize=4)
@@ -909,11 +981,16 @@ def _upsample_labels(
     choice = np.full(len(r), -1, dtype=np.int64)
     for k, (_, plane) in enumerate(regions):
         near_lo = cv2.dilate((region_id == k).astype(np.uint8), kernel)
-        near = near_lo.ravel()[src] > 0
-        dist = np.abs(p @ plane.normal + plane.offset)
-        take = near & (dist < best)
-        best[take] = dist[take]
-        choice[take] = k
+        # the distances at the border pixels near the region only (_rows_dot: the same numbers)
+        near = np.flatnonzero(np.take(near_lo.reshape(-1), src))
+        if len(near) == 0:
+            continue
+        dist = _rows_dot(p, near, plane.normal)
+        dist += plane.offset
+        np.abs(dist, out=dist)
+        take = dist < best[near]
+        best[near[take]] = dist[take]
+        choice[near[take]] = k
     lut = np.array([int(lab) for lab, _ in regions], dtype=np.uint8)
     sel = choice >= 0
     up[r[sel], c[sel]] = lut[choice[sel]]
