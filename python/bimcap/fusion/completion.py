@@ -737,13 +737,16 @@ def smooth_planar_regions(
             sel = mask > 0
             out[sel] = num[sel] / np.maximum(den[sel], 1e-6)
             continue
-        n_comp, comp, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=4)
-        big = [c for c in range(1, n_comp) if stats[c, cv2.CC_STAT_AREA] >= opts.min_region_px]
+        # the labels alone (OpenCV's same labelling without the statistics and centroids,
+        # ~1.5x cheaper); every component's pixels in row-major order (what
+        # np.nonzero(comp == c) gives), grouped by component in one pass (a counting sort in
+        # bimcap._core), their counts the components' areas
+        n_comp, comp = cv2.connectedComponents(mask, connectivity=4)
+        pixels, starts = _core.component_pixels(comp, n_comp)
+        area = np.diff(starts)
+        big = [c for c in range(1, n_comp) if area[c] >= opts.min_region_px]
         if not big:
             continue
-        # every big component's pixels in row-major order (what np.nonzero(comp == c) gives),
-        # grouped by component in one pass (a counting sort in bimcap._core)
-        pixels, starts = _core.component_pixels(comp, n_comp)
         if rays is None:  # every pixel's ray (x, y, 1), as Camera.rays computes it
             h, w = d.shape
             rays = (np.broadcast_to((np.arange(w, dtype=np.float64) - camera.cx) / camera.fx,

@@ -542,7 +542,7 @@ def _protrudes(region: _Region, pts: F64, plane: _Plane, opts: GeometricOptions)
         inside = (col >= margin) & (col < w - margin)
         inside_any = inside.any(1)
         colc = np.clip(col, 0, w - 1)
-        p = pts[rows[:, None], colc].reshape(-1, 3)
+        p = np.take(pts.reshape(-1, 3), (rows[:, None] * w + colc).ravel(), axis=0)
         z = p[:, 2]
         sd = p @ plane.normal + plane.offset
         off = (inside.ravel() & (z > 0) & (np.abs(sd) > _threshold(z, opts))).reshape(col.shape)
