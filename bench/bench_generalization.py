@@ -201,7 +201,8 @@ def run(args: argparse.Namespace) -> None:
                     gt = seq.trajectory("gt")
                     seed = int(world.rpartition("-s")[2]) if world.startswith("gen") else 1
                     base = RefineConfig(workers=args.workers, features=dict(args.features),
-                                        matching=dict(args.matching))
+                                        matching=dict(args.matching),
+                                        geometric=dict(args.geometric))
                     if setting == "hard" and seq.has_labels and _labels_are_noisy(seq):
                         base = replace(base, segmentation=LabelSource.GROUND_TRUTH)
                     runs: list[tuple[str, Any, Path]] = [("fixed", gt, reference)]
@@ -377,6 +378,11 @@ def main() -> None:
                     type=_feature_setting,
                     help="a [matching] setting of the refine config (MatchOptions field), e.g. "
                          "ransac_min_trials=30; repeatable (default: the config's defaults)")
+    ap.add_argument("--geometric", action="append", default=[], metavar="KEY=VALUE",
+                    type=_feature_setting,
+                    help="a [geometric] setting of the refine config (GeometricOptions field of "
+                         "the geometric segmenter), e.g. work_width=194; repeatable (default: "
+                         "the config's defaults)")
     ap.add_argument("--summarise", nargs="+", metavar="CSV", help="only print the tables")
     args = ap.parse_args()
     if args.summarise:
