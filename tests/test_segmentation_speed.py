@@ -165,3 +165,30 @@ def test_segmentation_and_smoothing_unchanged_by_gather_paths(
         old = segment_geometric(depth, cam, pose)  # type: ignore[arg-type]
         assert np.array_equal(old, labels)
         assert smooth_planar_regions(depth, old, cam).tobytes() == smoothed.tobytes()  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("reach", [1, 8])
+def test_near_region_same_as_whole_dilation(reach: int) -> None:
+    """``_near_region`` (the dilation on the rows the kernel reaches, the lookups in their
+    slice) gives the positions the whole image's dilation gives, for regions touching the
+    image's top and bottom, empty regions, single pixels, with and without the rows (the
+    upsampling's lookups, with repeated indices as nearest-neighbour upsampling reads them)."""
+    import cv2
+
+    rng = np.random.default_rng(18 + reach)
+    kernel = np.ones((2 * reach + 1,) * 2, np.uint8)
+    for _ in range(200):
+        h, w = (int(x) for x in rng.integers(1, 60, 2))
+        region_id = rng.integers(-1, 6, size=(h, w)).astype(np.int32)
+        if rng.random() < 0.5:  # a few compact regions instead of noise
+            region_id[:] = -1
+            for k in range(4):
+                y, x = int(rng.integers(0, h)), int(rng.integers(0, w))
+                region_id[y:y + int(rng.integers(1, 9)), x:x + int(rng.integers(1, 9))] = k
+        at = np.sort(rng.integers(0, h * w, size=int(rng.integers(0, 3 * h * w + 1))))
+        for k in range(-1, 7):
+            whole = cv2.dilate((region_id == k).astype(np.uint8), kernel).reshape(-1)
+            want = np.flatnonzero(np.take(whole, at)) if len(at) else np.zeros(0, np.intp)
+            for rows in (at // w, None):
+                got = geometric._near_region(region_id, k, kernel, at, rows)
+                assert np.array_equal(got, want), (h, w, k, rows is None)

@@ -896,11 +896,43 @@ def _vertical_fit(p: F64, up_ref: F64) -> _Plane:
     return _Plane(normal, float(-normal @ centroid))
 
 
+def _near_region(region_id: NDArray[np.int32], k: int, kernel: NDArray[np.uint8],
+                 at: NDArray[np.integer], at_row: NDArray[np.integer] | None
+                 ) -> NDArray[np.intp]:
+    """Positions (ascending) in ``at`` (M,) (raveled indices of pixels of ``region_id`` (h, w),
+    in rows ``at_row`` that never decrease; None: not known to) of the pixels that OpenCV's
+    dilation of region ``k``'s mask by the square ``kernel`` covers.
+
+    The same pixels as ``cv2.dilate(region_id == k, kernel)`` read at ``at``, for less: the
+    dilation runs on the rows the kernel reaches from the region's only (the rows beyond have
+    no region pixel, and OpenCV's dilation reads nothing past the image, so the rows kept come
+    out the same), and only the entries of ``at`` in those rows (a slice, by ``at_row``) are
+    read."""
+    import cv2
+
+    mask = region_id == k
+    rows = np.flatnonzero(mask.any(1))
+    if len(rows) == 0:
+        return np.zeros(0, dtype=np.intp)
+    reach = kernel.shape[0] // 2
+    h, w = region_id.shape
+    y0, y1 = max(int(rows[0]) - reach, 0), min(int(rows[-1]) + reach + 1, h)
+    near = cv2.dilate(mask[y0:y1].astype(np.uint8), kernel)
+    a, b = (0, len(at)) if at_row is None else (int(i) for i in np.searchsorted(at_row, (y0, y1)))
+    look = at[a:b] - y0 * w
+    if at_row is None:  # entries outside the dilated rows read nothing
+        inside = (look >= 0) & (look < near.size)
+        hit: NDArray[np.intp] = np.flatnonzero(inside)
+        hit = hit[np.take(near.reshape(-1), look[hit]) > 0]
+        return hit
+    hit = np.flatnonzero(np.take(near.reshape(-1), look))
+    hit += a
+    return hit
+
+
 def _fill_creases(scene: _WorkScene, state: _Labelling, opts: GeometricOptions) -> None:
     """Undecided pixels (no normal at depth edges, mixed normals along creases) take the label
     of the nearby planar region (within ``crease_px``) on whose plane they lie, nearest first."""
-    import cv2
-
     undecided = scene.valid & (state.labels == int(Label.CLUTTER)) & (state.region_id < 0)
     if not (undecided.any() and state.regions):
         return
@@ -910,10 +942,10 @@ def _fill_creases(scene: _WorkScene, state: _Labelling, opts: GeometricOptions) 
     best_label = np.full(len(flat), int(Label.CLUTTER), dtype=np.uint8)
     kernel = np.ones((2 * opts.crease_px + 1,) * 2, np.uint8)
     thr = 2.0 * _threshold(p[:, 2], opts)
+    flat_row = flat // undecided.shape[1]  # ascending, as flat
     for k, (lab, plane) in enumerate(state.regions):
         # the distances at the pixels near the region only (_rows_dot: the same numbers)
-        near = np.flatnonzero(np.take(cv2.dilate((state.region_id == k).astype(np.uint8),
-                                                 kernel).reshape(-1), flat))
+        near = _near_region(state.region_id, k, kernel, flat, flat_row)
         if len(near) == 0:
             continue
         dist = _rows_dot(p, near, plane.normal)
@@ -979,10 +1011,14 @@ def _upsample_labels(
     p = np.stack([(c - camera.cx) / camera.fx * z, (r - camera.cy) / camera.fy * z, z], 1)
     best = _threshold(z, opts) * 2.0
     choice = np.full(len(r), -1, dtype=np.int64)
+    # the work rows the border pixels read: row-major border pixels and nearest-neighbour rows
+    # never decrease (else every border pixel is looked up for every region)
+    src_row: NDArray[np.integer] | None = src // region_id.shape[1]
+    if len(src) > 1 and not bool((src_row[1:] >= src_row[:-1]).all()):  # type: ignore[index]
+        src_row = None
     for k, (_, plane) in enumerate(regions):
-        near_lo = cv2.dilate((region_id == k).astype(np.uint8), kernel)
         # the distances at the border pixels near the region only (_rows_dot: the same numbers)
-        near = np.flatnonzero(np.take(near_lo.reshape(-1), src))
+        near = _near_region(region_id, k, kernel, src, src_row)
         if len(near) == 0:
             continue
         dist = _rows_dot(p, near, plane.normal)
