@@ -423,8 +423,8 @@ def _rows_dot(p: F64, idx: NDArray[np.intp], v: F64) -> F64:
     whose rounding may differ, so it is taken from the whole product:
     tests/test_segmentation_speed.py)."""
     if len(idx) >= 2:
-        return np.take(p, idx, axis=0) @ v  # type: ignore[no-any-return]
-    return (p @ v)[idx]  # type: ignore[no-any-return]
+        return np.take(p, idx, axis=0) @ v
+    return (p @ v)[idx]
 
 
 def _plane_inliers(scene: _WorkScene, plane: _Plane, mask: B, opts: GeometricOptions) -> B:
