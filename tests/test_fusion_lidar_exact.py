@@ -191,3 +191,72 @@ def test_lidar_stages_same_as_941624b_on_real_frames(world: str,
     for i in range(0, len(seq.frames), 3):
         found += _check_scan(seq.load_lidar(i), seq.cam_from_lidar, seq.camera, monkeypatch)
     assert found > 1000
+
+
+def unsupported_depths_941624b(depth: ArrayLike, measured: ArrayLike, uv: ArrayLike,
+                               noise_m: float, options: Any = None) -> NDArray[np.bool_]:
+    from scipy.spatial import cKDTree
+
+    from bimcap.features.tracks import DepthLookupOptions
+
+    opts = options or DepthLookupOptions()
+    q = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    d = np.asarray(depth, dtype=np.float64)
+    m = np.asarray(measured, dtype=np.float64)
+    out = np.zeros(len(q), dtype=bool)
+    k = opts.support_returns
+    if opts.max_support_z is None or len(q) == 0:
+        return out
+    v, u = np.nonzero((m > 0) & (d > 0))
+    if len(u) < k:
+        return out
+    diff = m[v, u] - d[v, u]
+    _, idx = cKDTree(np.stack([u, v], axis=1).astype(np.float64)).query(q, k=k)
+    bias = diff[np.asarray(idx).reshape(len(q), k)].mean(axis=1)
+    sigma = max(noise_m, opts.min_noise_m)
+    return np.asarray(np.abs(bias) > opts.max_support_z * sigma / np.sqrt(k))
+
+
+@pytest.mark.parametrize("world", ["gen-demo-s0", "ifc-SampleHouse4"])
+def test_unsupported_depths_same_as_941624b(world: str) -> None:
+    """The keypoints whose depth the returns contradict: the same flags as the 941624b code on
+    the front end's float32 maps (and as float64 / float16 / integer maps), for sub-pixel and
+    whole-pixel keypoints (equal distances to many returns), the completed depth and the depth
+    moved 6 cm off (many flagged)."""
+    seq_dir = _WORLDS / world / "seq_60_standard"
+    if not seq_dir.is_dir():
+        pytest.skip(f"{seq_dir} not generated")
+    from bimcap.dataset import read_sequence
+    from bimcap.features.tracks import DepthLookupOptions, unsupported_depths
+    from bimcap.frontend.providers import LidarDepthProvider
+    from bimcap.frontend.runner import FrameContext, get_undistorter
+
+    seq = read_sequence(seq_dir)
+    provider = LidarDepthProvider()
+    rng = np.random.default_rng(3)
+    flagged = 0
+    for i in range(0, 12, 3):
+        und = get_undistorter(seq.camera)
+        ctx = FrameContext(seq, i, seq.camera, und.pinhole, np.zeros((1, 1, 3), np.uint8), und,
+                           np.array([0, 0, 0, 0, 0, 0, 1.0]))
+        dense = provider(ctx)
+        measured = ctx.measured_depth
+        assert measured is not None and dense.dtype == np.float32
+        h, w = dense.shape
+        uv = np.concatenate([rng.uniform(-0.5, [w - 0.5, h - 0.5], (800, 2)),
+                             rng.integers(0, [w, h], (800, 2)).astype(np.float64)])
+        off = np.where(dense > 0, dense + np.float32(0.06), dense).astype(np.float32)
+        for depth in (dense, off):
+            for opts in (None, DepthLookupOptions(support_returns=4, max_support_z=2.0)):
+                want = unsupported_depths_941624b(depth, measured, uv, 0.02, opts)
+                for dd, mm in ((depth, measured), (depth.astype(np.float64), measured),
+                               (depth, measured.astype(np.float16))):
+                    assert np.array_equal(unsupported_depths(dd, mm, uv, 0.02, opts),
+                                          unsupported_depths_941624b(dd, mm, uv, 0.02, opts))
+                assert np.array_equal(unsupported_depths(depth, measured, uv, 0.02, opts), want)
+                mm_int = (measured * 1000).astype(np.uint16)
+                dd_int = (depth * 1000).astype(np.int32)
+                assert np.array_equal(unsupported_depths(dd_int, mm_int, uv, 20.0, opts),
+                                      unsupported_depths_941624b(dd_int, mm_int, uv, 20.0, opts))
+                flagged += int(want.sum())
+    assert flagged > 100
