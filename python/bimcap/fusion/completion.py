@@ -3,7 +3,8 @@
 Methods (:class:`CompletionMethod`):
 
 - ``LINEAR``: barycentric interpolation over a Delaunay triangulation of the sparse returns
-  (sub-pixel positions), of inverse depth by default (exact for a plane seen through a pinhole);
+  (sub-pixel positions; :class:`Triangulation`: a compiled sweep, or Qhull as before), of inverse
+  depth by default (exact for a plane seen through a pinhole);
   triangles with an edge longer than ``max_edge_px``, a depth ratio ``z_max / z_min >
   max_depth_ratio`` (they bridge a depth edge) or an area under 1 px² leave their pixels at 0.
 - ``CLASSICAL``: CPU morphology in the spirit of Ku et al. 2018 ("In Defense of Classical Image
@@ -52,14 +53,36 @@ class BlurType(Enum):
     NONE = "none"
 
 
+class Triangulation(Enum):
+    """How LINEAR triangulates the returns: both give the Delaunay triangles."""
+
+    #: ``bimcap._core.delaunay_triangles``, a sweep of the convex hull (cpp/bimcap/raster/
+    #: delaunay.h); ~0.5-2 ms a frame for ~3,500 returns.
+    SWEEP = "sweep"
+    #: ``scipy.spatial.Delaunay`` (Qhull), ~10-15 ms a frame: the same triangles where no four
+    #: returns lie on one circle, in Qhull's order (where triangles share edge pixels, the later
+    #: one's plane gives their depth). The default before 2026-11-27 (docs/speed.md, "LiDAR
+    #: stages and the cache writes"): its depth maps bit for bit.
+    QHULL = "qhull"
+
+
 @dataclass(frozen=True)
 class LinearOptions:
     """LINEAR: mask triangles with an edge > ``max_edge_px``
-    or ``z_max/z_min > max_depth_ratio``."""
+    or ``z_max/z_min > max_depth_ratio``; ``triangulation``: :class:`Triangulation`."""
 
     max_edge_px: float = 80.0
     max_depth_ratio: float = 1.5
     inverse_depth: bool = True  #: interpolate 1/z (exact for planes through a pinhole) or z
+    triangulation: Triangulation = Triangulation.SWEEP
+
+    def __post_init__(self) -> None:
+        try:
+            object.__setattr__(self, "triangulation", Triangulation(self.triangulation))
+        except ValueError:
+            raise FusionInputError(
+                f"triangulation must be one of {[t.value for t in Triangulation]}, "
+                f"got {self.triangulation!r}", field="triangulation") from None
 
 
 @dataclass(frozen=True)
@@ -184,13 +207,20 @@ def complete_linear(sparse: SparseDepth | ArrayLike, options: LinearOptions | No
     depth, uv, z = _sparse_arrays(sparse)
     _require_points(z, 3)
     h, w = depth.shape
-    try:
-        tri = Delaunay(uv)
-    except QhullError as exc:
-        raise FusionInputError(
-            f"cannot triangulate the sparse returns: {exc}", field="sparse_depth"
-        ) from None
-    simp = tri.simplices
+    if opts.triangulation is Triangulation.QHULL:
+        try:
+            simp = Delaunay(uv).simplices
+        except QhullError as exc:
+            raise FusionInputError(
+                f"cannot triangulate the sparse returns: {exc}", field="sparse_depth"
+            ) from None
+    else:
+        try:
+            simp = _core.delaunay_triangles(np.ascontiguousarray(uv, dtype=np.float64))
+        except _core.InputError as exc:
+            raise FusionInputError(
+                f"cannot triangulate the sparse returns: {exc}", field="sparse_depth"
+            ) from None
     pa, pb, pc = uv[simp[:, 0]], uv[simp[:, 1]], uv[simp[:, 2]]
     edge = np.maximum.reduce(
         [
