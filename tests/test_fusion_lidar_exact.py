@@ -1,7 +1,8 @@
-"""The LiDAR stages after the exact cuts of branch fe-pix (docs/speed.md, "LiDAR stages and the
-cache writes"): the projection and the scan's surface points give the 941624b code's arrays bit
-for bit (frozen below), on the box-room frames, on scans with non-finite and far rows, on
-float64 (M, 3) input, and on every frame of two generated worlds (skipped without them)."""
+"""The LiDAR stages after the exact cuts of branch fe-pix (docs/speed.md, "LiDAR stages, the
+triangulation and the cache writes"): the projection and the scan's surface points give the
+941624b code's arrays bit for bit (frozen below), on the box-room frames, on scans with
+non-finite and far rows, on float64 (M, 3) input, and on every frame of two generated worlds
+(skipped without them); so do the keypoints whose depth the returns contradict."""
 
 from __future__ import annotations
 

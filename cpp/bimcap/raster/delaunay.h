@@ -16,8 +16,9 @@
 // adaptive predicates, and again in long double when the double result is within the bound.
 // bimcap.fusion.completion.complete_linear used scipy.spatial.Delaunay (Qhull, "Qbb Qc Qz Q12"):
 // the same triangles wherever the points are in general position (no four on a circle, the
-// hull without three collinear corners), in another order; qhull took ~10 ms a frame for ~3,500
-// returns, this ~0.5 ms (docs/speed.md, "LiDAR stages and the cache writes").
+// hull without three collinear corners), in another order; for the ~3,600 returns of a 516 × 386
+// frame Qhull took 11-16 ms, this 1.3-1.8 ms (load 15; docs/speed.md, "LiDAR stages, the
+// triangulation and the cache writes").
 #ifndef BIMCAP_RASTER_DELAUNAY_H_
 #define BIMCAP_RASTER_DELAUNAY_H_
 

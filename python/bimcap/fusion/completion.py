@@ -57,12 +57,12 @@ class Triangulation(Enum):
     """How LINEAR triangulates the returns: both give the Delaunay triangles."""
 
     #: ``bimcap._core.delaunay_triangles``, a sweep of the convex hull (cpp/bimcap/raster/
-    #: delaunay.h); ~0.5-2 ms a frame for ~3,500 returns.
+    #: delaunay.h); 1.3-1.8 ms a frame for ~3,600 returns on a loaded box.
     SWEEP = "sweep"
-    #: ``scipy.spatial.Delaunay`` (Qhull), ~10-15 ms a frame: the same triangles where no four
+    #: ``scipy.spatial.Delaunay`` (Qhull), 11-16 ms a frame there: the same triangles where no four
     #: returns lie on one circle, in Qhull's order (where triangles share edge pixels, the later
     #: one's plane gives their depth). The default before 2026-11-27 (docs/speed.md, "LiDAR
-    #: stages and the cache writes"): its depth maps bit for bit.
+    #: stages, the triangulation and the cache writes"): its depth maps bit for bit.
     QHULL = "qhull"
 
 

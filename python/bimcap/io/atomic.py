@@ -24,7 +24,7 @@ def atomic_write_bytes(path: str | PathLike[str], data: bytes, durable: bool = T
     their reader checks (the front end's cache entries: a zip member's CRC-32): a killed process
     still never leaves a half file under ``path`` (the rename is atomic), only a power loss can,
     which the reader then takes as a miss. The flush is ~0.5 ms CPU and 3-4 ms wall a file on
-    the shared box (docs/speed.md, "Front-end orchestration").
+    the shared box (docs/speed.md, "LiDAR stages, the triangulation and the cache writes").
     """
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
