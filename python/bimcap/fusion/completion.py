@@ -57,7 +57,8 @@ class Triangulation(Enum):
     """How LINEAR triangulates the returns: both give the Delaunay triangles."""
 
     #: ``bimcap._core.delaunay_triangles``, a sweep of the convex hull (cpp/bimcap/raster/
-    #: delaunay.h); 1.3-1.8 ms a frame for ~3,600 returns on a loaded box.
+    #: delaunay.h), 1.3-1.8 ms a frame for ~3,600 returns on a loaded box; the triangles drawn
+    #: thinnest first, so that the fattest take the edge pixels they share.
     SWEEP = "sweep"
     #: ``scipy.spatial.Delaunay`` (Qhull), 11-16 ms a frame there: the same triangles where no four
     #: returns lie on one circle, in Qhull's order (where triangles share edge pixels, the later
@@ -239,6 +240,14 @@ def complete_linear(sparse: SparseDepth | ArrayLike, options: LinearOptions | No
     # triangle overwrites the edge pixels it shares: bimcap._core reproduces OpenCV's integer
     # algorithm (cpp/bimcap/raster/convex_fill.h), one call for all triangles
     good_idx = np.flatnonzero(good)
+    if opts.triangulation is Triangulation.SWEEP:
+        # where triangles share edge pixels the last one drawn gives their depth, extrapolated
+        # up to half a pixel outside it: draw the slivers (1-2 px across between LiDAR rings)
+        # first and the fattest triangles (largest least altitude, twice the area over the
+        # longest edge) last. The order of the triangles alone decides, not the triangulator's;
+        # against the simulator's ground truth it gave 0.04-0.07 mm lower mean and 0.7-2 mm
+        # lower 99th-percentile depth errors than Qhull's order on 4 worlds (docs/speed.md)
+        good_idx = good_idx[np.argsort(np.abs(det[good_idx]) / edge[good_idx], kind="stable")]
     corners = np.rint(np.stack([pa, pb, pc], 1)[good_idx] * 16).astype(np.int32)
     tri_id = _core.fill_triangle_ids(corners, (good_idx + 1).astype(np.int32), h, w, shift=4)
     # per triangle, the affine function f(u, v) = a u + b v + c through its three corners, with
