@@ -22,6 +22,7 @@ from bimcap.fusion import (
 )
 
 _WORLDS = Path("/tmp/gen")
+SWEEP = LinearOptions(triangulation=Triangulation.SWEEP)
 
 
 def _triangle_set(simplices: np.ndarray) -> set[tuple[int, ...]]:
@@ -92,9 +93,10 @@ def test_bad_points_are_clear_errors() -> None:
     # the completion reports such returns as the sparse depth's fault
     line = np.zeros((40, 60), np.float32)
     line[10, 5:50] = 3.0
-    with pytest.raises(FusionInputError) as err:
-        complete_linear(line)
-    assert err.value.field == "sparse_depth"
+    for triangulation in Triangulation:
+        with pytest.raises(FusionInputError) as err:
+            complete_linear(line, LinearOptions(triangulation=triangulation))
+        assert err.value.field == "sparse_depth"
     with pytest.raises(FusionInputError):
         LinearOptions(triangulation="fast")  # type: ignore[arg-type]
     assert LinearOptions(triangulation="qhull").triangulation is Triangulation.QHULL  # type: ignore[arg-type]
@@ -118,8 +120,10 @@ def test_same_triangles_as_qhull_on_real_frames(world: str) -> None:
                                distort=False)
         tri = _core.delaunay_triangles(np.ascontiguousarray(sparse.uv))
         assert _triangle_set(tri) == _triangle_set(Delaunay(sparse.uv).simplices), i
-        sweep = complete_linear(sparse)
-        qhull = complete_linear(sparse, LinearOptions(triangulation=Triangulation.QHULL))
+        sweep = complete_linear(sparse, SWEEP)
+        qhull = complete_linear(sparse)  # the default
+        assert qhull.tobytes() == complete_linear(
+            sparse, LinearOptions(triangulation=Triangulation.QHULL)).tobytes()
         assert np.array_equal(sweep > 0, qhull > 0)
         assert (sweep == qhull).mean() > 0.5
         both = sweep > 0
@@ -149,12 +153,12 @@ def test_completion_draws_the_fattest_triangles_last(world: str,
     for i in range(0, len(seq.frames), 6):
         sparse = project_lidar(seq.load_lidar(i), seq.cam_from_lidar, seq.camera, projection,
                                distort=False)
-        sweep = complete_linear(sparse)
+        sweep = complete_linear(sparse, SWEEP)
         for shuffle in (lambda t: t[::-1], lambda t: t[rng.permutation(len(t))],
                         lambda t: np.roll(t, 1, axis=1)):
             monkeypatch.setattr(_core, "delaunay_triangles",
                                 lambda pts, s=shuffle: np.ascontiguousarray(s(real(pts))))
-            other = complete_linear(sparse)
+            other = complete_linear(sparse, SWEEP)
             monkeypatch.setattr(_core, "delaunay_triangles", real)
             assert np.array_equal(other > 0, sweep > 0)
             assert (np.abs(other - sweep) <= 1e-6 * sweep).all()

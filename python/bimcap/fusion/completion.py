@@ -3,8 +3,8 @@
 Methods (:class:`CompletionMethod`):
 
 - ``LINEAR``: barycentric interpolation over a Delaunay triangulation of the sparse returns
-  (sub-pixel positions; :class:`Triangulation`: a compiled sweep, or Qhull as before), of inverse
-  depth by default (exact for a plane seen through a pinhole);
+  (sub-pixel positions; :class:`Triangulation`: Qhull, or a compiled sweep), of inverse depth
+  by default (exact for a plane seen through a pinhole);
   triangles with an edge longer than ``max_edge_px``, a depth ratio ``z_max / z_min >
   max_depth_ratio`` (they bridge a depth edge) or an area under 1 px² leave their pixels at 0.
 - ``CLASSICAL``: CPU morphology in the spirit of Ku et al. 2018 ("In Defense of Classical Image
@@ -54,17 +54,20 @@ class BlurType(Enum):
 
 
 class Triangulation(Enum):
-    """How LINEAR triangulates the returns: both give the Delaunay triangles."""
+    """How LINEAR triangulates the returns: both give the Delaunay triangles (docs/speed.md,
+    "LiDAR stages, the triangulation and the cache writes")."""
 
-    #: ``bimcap._core.delaunay_triangles``, a sweep of the convex hull (cpp/bimcap/raster/
-    #: delaunay.h), 1.3-1.8 ms a frame for ~3,600 returns on a loaded box; the triangles drawn
-    #: thinnest first, so that the fattest take the edge pixels they share.
-    SWEEP = "sweep"
-    #: ``scipy.spatial.Delaunay`` (Qhull), 11-16 ms a frame there: the same triangles where no four
-    #: returns lie on one circle, in Qhull's order (where triangles share edge pixels, the later
-    #: one's plane gives their depth). The default before 2026-11-27 (docs/speed.md, "LiDAR
-    #: stages, the triangulation and the cache writes"): its depth maps bit for bit.
+    #: ``scipy.spatial.Delaunay`` (Qhull), 11-16 ms a frame for ~3,600 returns on a loaded box,
+    #: the triangles drawn in Qhull's order (where they share edge pixels, the later one's plane
+    #: gives their depth). The default.
     QHULL = "qhull"
+    #: ``bimcap._core.delaunay_triangles``, a sweep of the convex hull (cpp/bimcap/raster/
+    #: delaunay.h), 1.3-1.8 ms there: the same triangles where no four returns lie on one
+    #: circle, drawn thinnest first, so that the fattest take the edge pixels they share. Its
+    #: depth is closer to the simulator's (mean 0.04-0.07 mm, p99 0.7-2 mm on 4 worlds) but
+    #: not the same, and the BIMCaP ATE of gen-demo-s0 moved by +0.02-0.03 cm with it: an
+    #: option until a wider accuracy run says otherwise.
+    SWEEP = "sweep"
 
 
 @dataclass(frozen=True)
@@ -75,7 +78,7 @@ class LinearOptions:
     max_edge_px: float = 80.0
     max_depth_ratio: float = 1.5
     inverse_depth: bool = True  #: interpolate 1/z (exact for planes through a pinhole) or z
-    triangulation: Triangulation = Triangulation.SWEEP
+    triangulation: Triangulation = Triangulation.QHULL
 
     def __post_init__(self) -> None:
         try:
