@@ -17,7 +17,7 @@
 // bimcap.fusion.completion.complete_linear used scipy.spatial.Delaunay (Qhull, "Qbb Qc Qz Q12"):
 // the same triangles wherever the points are in general position (no four on a circle, the
 // hull without three collinear corners), in another order; for the ~3,600 returns of a 516 × 386
-// frame Qhull took 11-16 ms, this 1.3-1.8 ms (load 15; docs/speed.md, "LiDAR stages, the
+// frame Qhull took 11-18 ms, this 1.3-1.8 ms (load 15-16; docs/speed.md, "LiDAR stages, the
 // triangulation and the cache writes").
 #ifndef BIMCAP_RASTER_DELAUNAY_H_
 #define BIMCAP_RASTER_DELAUNAY_H_

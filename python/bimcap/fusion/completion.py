@@ -57,7 +57,7 @@ class Triangulation(Enum):
     """How LINEAR triangulates the returns: both give the Delaunay triangles (docs/speed.md,
     "LiDAR stages, the triangulation and the cache writes")."""
 
-    #: ``scipy.spatial.Delaunay`` (Qhull), 11-16 ms a frame for ~3,600 returns on a loaded box,
+    #: ``scipy.spatial.Delaunay`` (Qhull), 11-18 ms a frame for ~3,600 returns on a loaded box,
     #: the triangles drawn in Qhull's order (where they share edge pixels, the later one's plane
     #: gives their depth). The default.
     QHULL = "qhull"
