@@ -65,8 +65,9 @@ class Triangulation(Enum):
     #: delaunay.h), 1.3-1.8 ms there: the same triangles where no four returns lie on one
     #: circle, drawn thinnest first, so that the fattest take the edge pixels they share. Its
     #: depth is closer to the simulator's (mean 0.04-0.07 mm, p99 0.7-2 mm on 4 worlds) but
-    #: not the same, and the BIMCaP ATE of gen-demo-s0 moved by +0.02-0.03 cm with it: an
-    #: option until a wider accuracy run says otherwise.
+    #: not the same, and BIMCaP's ATE moved with it (16 runs on 4 worlds: mean +0.007 cm, single
+    #: runs up to ±0.04 cm, gen-demo-s0 +0.02-0.03 cm in all four): an option until a wider
+    #: accuracy run says otherwise.
     SWEEP = "sweep"
 
 
