@@ -185,6 +185,49 @@ def test_cache_reuses_and_invalidates(seq: SceneSequence, result: FrontendResult
     assert counts(run(CONFIG)) == (0, 1, 0)
 
 
+def test_cache_entries_torn_by_a_power_loss_read_as_misses(seq: SceneSequence,
+                                                           result: FrontendResult,
+                                                           tmp_path: Path,
+                                                           monkeypatch: pytest.MonkeyPatch) -> None:
+    """Cache entries are renamed into place without an fsync (a rebuildable cache); an entry
+    that a power loss left cut short or zeroed is a miss (get: None), recomputed by the next
+    run with the same result, never an error."""
+    import bimcap.io.atomic as atomic
+    from bimcap.frontend import ResultCache
+
+    def no_fsync(fd: int) -> None:
+        raise AssertionError("a cache entry was flushed")
+
+    cache_dir = tmp_path / "cache"
+    monkeypatch.setattr(atomic.os, "fsync", no_fsync)
+    first = run_frontend(seq, CONFIG, seq.gt, DEPTH, LABELS, cache_dir=cache_dir, workers=1,
+                         progress=False)
+    monkeypatch.undo()
+    assert not list(cache_dir.rglob("*.tmp"))  # renamed into place, nothing left behind
+    cache = ResultCache(cache_dir)
+    arrays = {"uv": np.linspace(0.0, 1.0, 40).reshape(20, 2), "n": np.array(3)}
+    cache.put("t", "ab" + "0" * 62, arrays)
+    path = cache_dir / "t" / "ab" / ("ab" + "0" * 62 + ".npz")
+    whole = path.read_bytes()
+    for cut in range(len(whole)):
+        path.write_bytes(whole[:cut])
+        assert cache.get("t", "ab" + "0" * 62) is None, cut
+    path.write_bytes(bytes(len(whole)))
+    assert cache.get("t", "ab" + "0" * 62) is None
+    # torn entries of a real run: the next run recomputes them and gives the same arrays
+    entries = [*sorted(cache_dir.glob("frame/*/*.npz"))[:2],
+               *sorted(cache_dir.glob("pair/*/*.npz"))[:2]]
+    for k, entry in enumerate(entries):
+        data = entry.read_bytes()
+        entry.write_bytes(data[: len(data) // (k + 2)])
+    again = run_frontend(seq, CONFIG, seq.gt, DEPTH, LABELS, cache_dir=cache_dir, workers=1,
+                         progress=False)
+    assert again.run.frames_computed == 2 and again.run.pairs_computed == 2
+    for name in OBSERVATION_ARRAYS:
+        assert np.array_equal(getattr(again, name), getattr(first, name)), name
+        assert np.array_equal(getattr(first, name), getattr(result, name)), name
+
+
 @dataclasses.dataclass(frozen=True)
 class _PoseLabels:
     """A label provider that declares that it uses the initial pose (as the geometric one does)."""

@@ -26,6 +26,7 @@ from bimcap.fusion import CompletionMethod, CompletionOptions, complete_depth, p
 from bimcap.fusion.completion import (
     LinearOptions,
     PlanarSmoothingOptions,
+    Triangulation,
     complete_linear,
     smooth_planar_regions,
 )
@@ -129,23 +130,26 @@ def test_semantic_sampling_same_as_before(chain: list[_Frame]) -> None:
 
 
 def test_linear_completion_same_as_before(chain: list[_Frame]) -> None:
+    """With Qhull's triangles in Qhull's order (the references triangulate with it), the
+    completion of every earlier version bit for bit."""
+    qhull = Triangulation.QHULL
     for f in chain:
         for inverse in (True, False):
-            opts = LinearOptions(inverse_depth=inverse)
+            opts = LinearOptions(inverse_depth=inverse, triangulation=qhull)
             new = complete_linear(f.sparse, opts)
             assert np.array_equal(new, ref.complete_linear_reference(f.sparse, opts))
             assert new.tobytes() == ref.complete_linear_a219de7(f.sparse, opts).tobytes()
             assert new.tobytes() == ref.complete_linear_c52a7fb(f.sparse, opts).tobytes()
         # a dense map given as an (H, W) array takes the other input path
-        assert np.array_equal(complete_linear(f.sparse.depth),
+        assert np.array_equal(complete_linear(f.sparse.depth, LinearOptions(triangulation=qhull)),
                               ref.complete_linear_reference(f.sparse.depth))
 
 
 @pytest.mark.parametrize("world", ["gen-demo-s0", "ifc-SampleHouse4"])
 def test_linear_completion_real_frames_same_as_before(world: str) -> None:
     """The LiDAR of a generated world's first 6 frames, projected as the front end projects it:
-    the completion (inverse depth and depth) of the c52a7fb code bit for bit; skipped without
-    the world."""
+    the completion (inverse depth and depth) with Qhull's triangles, the c52a7fb code's bit for
+    bit; skipped without the world."""
     seq_dir = _WORLDS / world / "seq_60_standard"
     if not seq_dir.is_dir():
         pytest.skip(f"{seq_dir} not generated")
@@ -159,7 +163,7 @@ def test_linear_completion_real_frames_same_as_before(world: str) -> None:
                                distort=False)
         maps = []
         for inverse in (True, False):
-            opts = LinearOptions(inverse_depth=inverse)
+            opts = LinearOptions(inverse_depth=inverse, triangulation=Triangulation.QHULL)
             maps.append(complete_linear(sparse, opts))
             assert (maps[-1] > 0).mean() > 0.5
             assert maps[-1].tobytes() == ref.complete_linear_c52a7fb(sparse, opts).tobytes()

@@ -15,6 +15,7 @@
 
 #include "bimcap/raster/component_pixels.h"
 #include "bimcap/raster/convex_fill.h"
+#include "bimcap/raster/delaunay.h"
 #include "bimcap/raster/depth_normals.h"
 #include "bimcap/raster/piecewise_affine.h"
 #include "bimcap/raster/plane_depth.h"
@@ -91,6 +92,21 @@ py::array_t<int32_t> FillTriangleIds(const py::handle& corners_obj, const py::ha
     raster::FillTriangleIds(view, c, k, count, shift);
   }
   return image;
+}
+
+py::array_t<int32_t> DelaunayTriangles(const py::handle& points_obj) {
+  const py::array points = Checked<double>(points_obj, "points", {-1, 2});
+  const auto* xy = static_cast<const double*>(points.data());
+  const int64_t n = points.shape(0);
+  std::vector<int32_t> triangles;
+  {
+    py::gil_scoped_release release;
+    triangles = raster::DelaunayTriangles(xy, n);
+  }
+  const auto count = static_cast<py::ssize_t>(triangles.size() / 3);
+  py::array_t<int32_t> out({count, py::ssize_t{3}});
+  std::copy(triangles.begin(), triangles.end(), out.mutable_data());
+  return out;
 }
 
 py::array_t<float> EvaluatePiecewiseAffine(const py::handle& ids_obj, const py::handle& coef_obj,
@@ -279,6 +295,11 @@ void BindRaster(py::module_& m) {
         "... on a zero image. corners: (T, 3, 2) int32 x, y in 1/2**shift px (C-contiguous); "
         "ids: (T,) int32; shift in [1, 16]; sides and coordinates up to 16384 px. Raises "
         "InputError naming the bad argument (nothing is drawn then).");
+  m.def("delaunay_triangles", &DelaunayTriangles, py::arg("points"),
+        "(T, 3) int32 vertex indices of the Delaunay triangles of the (n, 2) float64 points "
+        "(C-contiguous, finite), each counter-clockwise in x right, y up, in the order a sweep "
+        "of the convex hull made them (bimcap/raster/delaunay.h); repeated points are used "
+        "once. Raises InputError for fewer than 3 distinct points or points on one line.");
   m.def("evaluate_piecewise_affine", &EvaluatePiecewiseAffine, py::arg("tri_id"), py::arg("coef"),
         py::arg("inverse_depth"),
         "(H, W) float32 depth from the (H, W) int32 triangle-id image and the (3, N) float64 "

@@ -52,6 +52,10 @@ def fill_triangle_ids(
     """(height, width) ids of cv2.fillConvexPoly(image, corners[t], ids[t], LINE_8, shift) drawn
     for t = 0, 1, ... on a zero image; corners (T, 3, 2) int32, ids (T,) int32."""
 
+def delaunay_triangles(points: NDArray[np.float64]) -> NDArray[np.int32]:
+    """(T, 3) int32 vertex indices of the Delaunay triangles of the (n, 2) float64 points, each
+    counter-clockwise (x right, y up), in the order a sweep of the convex hull made them."""
+
 def evaluate_piecewise_affine(
     tri_id: NDArray[np.int32], coef: NDArray[np.float64], inverse_depth: bool
 ) -> NDArray[np.float32]:

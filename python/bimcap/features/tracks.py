@@ -152,10 +152,14 @@ def unsupported_depths(
 
     opts = options or DepthLookupOptions()
     q = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
-    d = np.asarray(depth, dtype=np.float64)
-    m = np.asarray(measured, dtype=np.float64)
+    # the maps in their own dtype (float32 from the front end): widening to float64 is exact, so
+    # the tests and the differences of the returns' pixels, widened alone, are the same numbers
+    d = np.asarray(depth)
+    m = np.asarray(measured)
     if d.shape != m.shape or d.ndim != 2:
         raise FeatureError(f"depth {d.shape} and measured {m.shape} must be the same (H, W)")
+    if d.dtype not in (np.float32, np.float64) or m.dtype not in (np.float32, np.float64):
+        d, m = d.astype(np.float64), m.astype(np.float64)
     out = np.zeros(len(q), dtype=bool)
     k = opts.support_returns
     if opts.max_support_z is None or len(q) == 0:
@@ -163,7 +167,7 @@ def unsupported_depths(
     v, u = np.nonzero((m > 0) & (d > 0))
     if len(u) < k:
         return out
-    diff = m[v, u] - d[v, u]
+    diff = m[v, u].astype(np.float64) - d[v, u].astype(np.float64)
     _, idx = cKDTree(np.stack([u, v], axis=1).astype(np.float64)).query(q, k=k)
     bias = diff[np.asarray(idx).reshape(len(q), k)].mean(axis=1)
     sigma = max(noise_m, opts.min_noise_m)

@@ -4,7 +4,10 @@ An entry is one ``.npz`` file named by a SHA-256 key over everything that determ
 frame's input files (resolved path, size and modification time in nanoseconds; a changed file
 gives a new key), the settings of every step that ran (as canonical JSON) and a format version.
 Entries are written atomically, so a killed run never leaves a half entry that a later run
-would trust; an unreadable entry counts as a miss and is recomputed.
+would trust; an unreadable entry counts as a miss and is recomputed. They are not flushed to
+the disk before the rename (:func:`bimcap.io.atomic.atomic_write_bytes` with ``durable=False``):
+after a power loss an entry may be torn, which its zip CRC-32 or the ``.npy`` header shows, so
+it reads as a miss too.
 """
 
 from __future__ import annotations
@@ -13,6 +16,7 @@ import hashlib
 import io
 import json
 import os
+import zipfile
 from collections.abc import Iterable, Mapping
 from os import PathLike
 from pathlib import Path
@@ -81,9 +85,10 @@ class ResultCache:
         if not path.is_file():
             return None
         try:
-            with np.load(path, allow_pickle=False) as z:
+            # the file opened here, so that it is closed also when np.load refuses it
+            with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:
                 return {k: z[k] for k in z.files}
-        except (OSError, ValueError, EOFError):
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile, NotImplementedError):
             return None
 
     def put(self, kind: str, key: str, arrays: Mapping[str, NDArray[Any]]) -> None:
@@ -92,4 +97,4 @@ class ResultCache:
             return
         buf = io.BytesIO()
         np.savez(buf, **{k: np.asarray(v) for k, v in arrays.items()})
-        atomic_write_bytes(os.fspath(self._path(kind, key)), buf.getvalue())
+        atomic_write_bytes(os.fspath(self._path(kind, key)), buf.getvalue(), durable=False)

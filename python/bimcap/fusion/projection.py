@@ -20,7 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import Enum
 from functools import lru_cache
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -205,15 +205,16 @@ def _checked_points(points_in_lidar: ArrayLike,
                     opts: ProjectionOptions) -> tuple[F64, NDArray[np.bool_]]:
     """The scan's xyz (M, 3) metres and (M,) True where finite; raises on a bad shape, an empty
     scan, or non-finite points under ``NanPolicy.RAISE``."""
-    pts = np.asarray(points_in_lidar, dtype=np.float64)
-    if pts.ndim != 2 or pts.shape[1] < 3:
-        raise FusionInputError(f"points must have shape (M, 3) or (M, 4), got {pts.shape}",
+    raw = np.asarray(points_in_lidar)
+    if raw.ndim != 2 or raw.shape[1] < 3:
+        raise FusionInputError(f"points must have shape (M, 3) or (M, 4), got {raw.shape}",
                                field="points_in_lidar")
-    pts = pts[:, :3]
+    # the xyz columns alone, contiguous float64 (the intensity column is never read)
+    pts = np.ascontiguousarray(raw[:, :3], dtype=np.float64)
     n_input = len(pts)
     if n_input == 0:
         raise FusionInputError("the LiDAR scan is empty (0 points)", field="points_in_lidar")
-    finite = cast(NDArray[np.bool_], np.isfinite(pts).all(axis=1))
+    finite = np.isfinite(pts[:, 0]) & np.isfinite(pts[:, 1]) & np.isfinite(pts[:, 2])
     if not finite.all() and opts.nan_policy is NanPolicy.RAISE:
         bad = int((~finite).sum())
         raise FusionInputError(
@@ -229,7 +230,8 @@ def _in_front(pts: F64, finite: NDArray[np.bool_], cam_from_lidar: ArrayLike,
     normalised coordinates xy (K, 2)."""
     index = np.flatnonzero(finite)
     rot, t = _pose_rt(cam_from_lidar, "cam_from_lidar")
-    p_in_cam = pts[index] @ rot.T + t
+    # every point finite (the usual scan): pts is already pts[index] (contiguous (M, 3))
+    p_in_cam = (pts if len(index) == len(pts) else pts[index]) @ rot.T + t
     z = p_in_cam[:, 2]
     front = (z > opts.min_depth_m) & (z < opts.max_depth_m)
     index, p_in_cam, z = index[front], p_in_cam[front], z[front]
