@@ -609,9 +609,11 @@ def see_through_fraction(cam_xy: F64, p_xy: F64, segments: F64, margin_m: float 
     hit = np.zeros(len(a_ray), dtype=bool)
     for k, a, e, _s, cross in _ray_crossings(a_ray, d_ray, seg, chunk):
         if from_wall and cross.any():
-            o, d = a_ray[k:k + chunk], d_ray[k:k + chunk]
-            cross &= _pair_distance(o, a, e) >= margin_m
-            cross &= _pair_distance(o + d, a, e) >= margin_m
+            # The margin at the crossed pairs only (few of the chunk's rays x segments).
+            i, j = np.nonzero(cross)
+            o, d = a_ray[k:k + chunk][i], d_ray[k:k + chunk][i]
+            cross[i, j] = ((_point_segment_distance(o, a[j], e[j]) >= margin_m)
+                           & (_point_segment_distance(o + d, a[j], e[j]) >= margin_m))
         hit[k:k + chunk] = cross.any(1)
     crossed[np.flatnonzero(use)] = hit
     return float(crossed.mean()), crossed
@@ -650,12 +652,12 @@ def range_agreement(cam_xy: F64, p_xy: F64, segments: F64, tol_m: float = 0.3,
     return float(agree.mean()), agree
 
 
-def _pair_distance(p: F64, a: F64, e: F64) -> F64:
-    """(M, S) distance of each point ``p`` (M, 2) to each segment ``a + [0, 1] e`` (S, 2)."""
-    w = p[:, None] - a[None]
+def _point_segment_distance(p: F64, a: F64, e: F64) -> F64:
+    """(M,) distance of each point ``p`` (M, 2) to its segment ``a + [0, 1] e`` (M, 2 each)."""
+    w = p - a
     ee = np.maximum((e * e).sum(1), 1e-18)
-    t = np.clip((w * e[None]).sum(2) / ee, 0.0, 1.0)
-    return np.linalg.norm(w - t[..., None] * e[None], axis=2)
+    t = np.clip((w * e).sum(1) / ee, 0.0, 1.0)
+    return np.linalg.norm(w - t[:, None] * e, axis=1)
 
 
 # ------------------------------------------------------------------------------------------------
