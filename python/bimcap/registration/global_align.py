@@ -56,7 +56,7 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field, replace
 from enum import Enum
-from typing import Any, TypeVar
+from typing import Any, TypeVar, cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -567,6 +567,21 @@ def _ray_crossings(a_ray: F64, d_ray: F64, seg: F64, chunk: int
         yield k, a, e, s, (np.abs(den) > 1e-12) & (s >= 0) & (s <= 1) & (t >= 0) & (t <= 1)
 
 
+def _ray_crossings_near(a_ray: F64, d_ray: F64, seg: F64, chunk: int
+                        ) -> Iterator[tuple[int, NDArray[np.int64], F64, F64, F64,
+                                            NDArray[np.bool_]]]:
+    """:func:`_ray_crossings` with the rows (S',) of ``seg`` that each chunk tests."""
+    seg_lo = np.minimum(seg[:, :2], seg[:, 2:])
+    seg_hi = np.maximum(seg[:, :2], seg[:, 2:])
+    for k in range(0, len(a_ray), chunk):
+        ends = np.r_[a_ray[k:k + chunk], a_ray[k:k + chunk] + d_ray[k:k + chunk]]
+        near = np.flatnonzero(((seg_lo <= ends.max(0) + 1e-6)
+                               & (seg_hi >= ends.min(0) - 1e-6)).all(1))
+        for _, a, e, s, cross in _ray_crossings(a_ray[k:k + chunk], d_ray[k:k + chunk],
+                                                seg[near], chunk):
+            yield k, near, a, e, s, cross
+
+
 def see_through_fraction(cam_xy: F64, p_xy: F64, segments: F64, margin_m: float = 0.3,
                          chunk: int = 256,
                          margin_from: SeeThroughMargin = SeeThroughMargin.RAY_ENDS
@@ -590,12 +605,24 @@ def see_through_fraction(cam_xy: F64, p_xy: F64, segments: F64, margin_m: float 
     -------
     The fraction (0-1) and the per-point flags (M,).
     """
+    crossed, _ = see_through_counts(cam_xy, p_xy, segments, margin_m, chunk, margin_from)
+    return (float(crossed.mean()) if len(crossed) else 0.0), crossed
+
+
+def see_through_counts(cam_xy: F64, p_xy: F64, segments: F64, margin_m: float = 0.3,
+                       chunk: int = 256,
+                       margin_from: SeeThroughMargin = SeeThroughMargin.RAY_ENDS
+                       ) -> tuple[NDArray[np.bool_], NDArray[np.int64]]:
+    """:func:`see_through_fraction`'s per-point flags (M,), and per segment (S,) the number of
+    points seen through it (a ray may cross several): ``counts[j]`` is the number of points
+    that ``see_through_fraction`` flags with ``segments[j]`` alone, all counted in one pass."""
     cam = np.asarray(cam_xy, dtype=np.float64).reshape(-1, 2)
     pts = np.asarray(p_xy, dtype=np.float64).reshape(-1, 2)
     seg = np.asarray(segments, dtype=np.float64).reshape(-1, 4)
     crossed = np.zeros(len(pts), dtype=bool)
+    counts = np.zeros(len(seg), dtype=np.int64)
     if len(pts) == 0 or len(seg) == 0:
-        return 0.0, crossed
+        return crossed, counts
     ray = pts - cam
     length = np.linalg.norm(ray, axis=1)
     use = length > 2 * margin_m
@@ -607,7 +634,7 @@ def see_through_fraction(cam_xy: F64, p_xy: F64, segments: F64, margin_m: float 
         a_ray = cam[use] + margin_m * u
         d_ray = ray[use] - 2 * margin_m * u
     hit = np.zeros(len(a_ray), dtype=bool)
-    for k, a, e, _s, cross in _ray_crossings(a_ray, d_ray, seg, chunk):
+    for k, near, a, e, _s, cross in _ray_crossings_near(a_ray, d_ray, seg, chunk):
         if from_wall and cross.any():
             # The margin at the crossed pairs only (few of the chunk's rays x segments).
             i, j = np.nonzero(cross)
@@ -615,8 +642,9 @@ def see_through_fraction(cam_xy: F64, p_xy: F64, segments: F64, margin_m: float 
             cross[i, j] = ((_point_segment_distance(o, a[j], e[j]) >= margin_m)
                            & (_point_segment_distance(o + d, a[j], e[j]) >= margin_m))
         hit[k:k + chunk] = cross.any(1)
+        counts[near] += cross.sum(0)
     crossed[np.flatnonzero(use)] = hit
-    return float(crossed.mean()), crossed
+    return crossed, counts
 
 
 def range_agreement(cam_xy: F64, p_xy: F64, segments: F64, tol_m: float = 0.3,
@@ -1028,6 +1056,11 @@ class _StoreyMaps:
     free_map: NDArray[np.float32]
     shell: F64 | None = None
     half_y: float | None = None
+    # The cameras' free-space volumes already correlated (:func:`_free_volume`), by the
+    # cameras and the grid: a second search of the same trajectory (its frames turned,
+    # ``frame_yaw``) moves the points, not the cameras.
+    free_volumes: dict[bytes, NDArray[np.float32]] = field(default_factory=dict, repr=False,
+                                                           compare=False)
 
 
 def _storey_maps(storey: _Storey, plan: FloorPlan, opt: GlobalAlignOptions) -> _StoreyMaps:
@@ -1046,6 +1079,29 @@ def _storey_maps(storey: _Storey, plan: FloorPlan, opt: GlobalAlignOptions) -> _
     return _StoreyMaps(seg, seg_cls, bounds, 0.5 * (lo + hi), float(half[0]), maps,
                        DistanceField.from_segments(seg, 0.1, bounds, 3.0),
                        _free_map(seg, bounds, opt, shell), shell, float(half[1]))
+
+
+def _maps_key(storey: _Storey, plan: FloorPlan, opt: GlobalAlignOptions) -> bytes:
+    """Bytes equal for two storeys whose maps (:func:`_storey_maps`) are the same, bit for bit:
+    the same section's segments (in the same order) and classes, the same shell's segments, the
+    same options. Two plans may share it (the plan without one wall: every other storey)."""
+    shell = (b"none" if storey.shell is None
+             else b"shell" + np.ascontiguousarray(plan.segments[storey.shell]).tobytes())
+    return (np.ascontiguousarray(plan.segments[storey.rows]).tobytes() + b"|"
+            + np.ascontiguousarray(plan.segment_class[storey.rows]).tobytes() + b"|" + shell
+            + b"|" + repr(opt).encode())
+
+
+def _cached_storey_maps(storey: _Storey, plan: FloorPlan, opt: GlobalAlignOptions,
+                        maps_cache: dict[bytes, Any] | None) -> _StoreyMaps:
+    """:func:`_storey_maps`, kept in ``maps_cache`` (None: built, not kept) by
+    :func:`_maps_key`."""
+    if maps_cache is None:
+        return _storey_maps(storey, plan, opt)
+    key = _maps_key(storey, plan, opt)
+    if key not in maps_cache:
+        maps_cache[key] = _storey_maps(storey, plan, opt)
+    return cast("_StoreyMaps", maps_cache[key])
 
 
 def _keep(scan: _Scan, storey: _Storey, opt: GlobalAlignOptions) -> NDArray[np.bool_]:
@@ -1095,8 +1151,12 @@ def _search_storey(scan: _Scan, storey: _Storey, sm: _StoreyMaps, opt: GlobalAli
     vol, res, n = score_volume(xy_s[occ], cls[occ], view[occ], maps, centre, yaws, half,
                                p_weight=weight, y_range_m=sm.half_y)
     # The trajectory's own shape: the share of its cameras in free space, for every (yaw, t).
-    vol *= _free_volume(cams_s, sm.free_map, maps.coarse[0].origin_xy, res, centre, yaws, n,
-                        (vol.shape[1] - 1) // 2)
+    m = (vol.shape[1] - 1) // 2
+    key = cams_s.tobytes() + yaws.tobytes() + np.array([res, n, m], np.float64).tobytes()
+    if key not in sm.free_volumes:
+        sm.free_volumes[key] = _free_volume(cams_s, sm.free_map, maps.coarse[0].origin_xy, res,
+                                            centre, yaws, n, m)
+    vol *= sm.free_volumes[key]
     peaks = top_hypotheses(vol, yaws, res, n, opt.top_k, opt.distinct_m,
                            np.deg2rad(opt.distinct_deg))
     timings["correlative"] += time.perf_counter() - t0
@@ -1827,11 +1887,13 @@ def _transform(f: _Found, gravity: F64, scan_floor_z: float | None) -> F64:
 
 def _search_all(scan: _Scan, sections: list[_Storey], plan: FloorPlan,
                 storey_maps: dict[bytes, _StoreyMaps], opt: GlobalAlignOptions,
-                rng: np.random.Generator, timings: dict[str, float]
+                rng: np.random.Generator, timings: dict[str, float],
+                maps_cache: dict[bytes, Any] | None = None
                 ) -> tuple[list[_Found], list[dict[str, Any]]]:
     """Steps 2-4 on every storey of ``sections``: the placements found and, per storey, its
     floor, segments and best score. ``storey_maps`` is filled with the storeys' maps (by
-    :func:`_section_key`) as they are built, and reused when given."""
+    :func:`_section_key`) as they are built, and reused when given; ``maps_cache`` (by
+    :func:`_maps_key`; None: none) keeps them beyond this alignment."""
     found: list[_Found] = []
     storeys = []
     searched: dict[bytes, list[_Found]] = {}
@@ -1844,7 +1906,7 @@ def _search_all(scan: _Scan, sections: list[_Storey], plan: FloorPlan,
         else:
             if key not in storey_maps:
                 t0 = time.perf_counter()
-                storey_maps[key] = _storey_maps(storey, plan, opt)
+                storey_maps[key] = _cached_storey_maps(storey, plan, opt, maps_cache)
                 timings["maps"] += time.perf_counter() - t0
             here = searched[key] = _search_storey(scan, storey, storey_maps[key], opt, rng,
                                                   timings)
@@ -1870,6 +1932,7 @@ def global_align(
     samples: SemanticSamples,
     plan: FloorPlan,
     options: GlobalAlignOptions | None = None,
+    maps_cache: dict[bytes, Any] | None = None,
 ) -> GlobalAlignResult:
     """Place a trajectory given in its own frame in the BIM (see the module docstring).
 
@@ -1879,6 +1942,10 @@ def global_align(
     samples: the labelled points of every frame, camera frame (the front end's samples).
     plan: segments and floor/ceiling heights of the BIM, every storey.
     options: settings; default :class:`GlobalAlignOptions`.
+    maps_cache: optional dict in which the storeys' maps are kept, to reuse them in a later
+        alignment with the same options on a plan that shares storeys (the missing-wall retry,
+        :func:`.missing_wall.align_without_missing_wall`: the same plan without one wall);
+        None: built for this call only. The same maps, bit for bit, either way.
 
     Returns
     -------
@@ -1921,7 +1988,7 @@ def global_align(
         t0 = time.perf_counter()
         scan = _turned(scan, _frame_yaws(scan, opt))
         timings["frame_yaw"] = time.perf_counter() - t0
-    found, storeys = _search_all(scan, sections, plan, storey_maps, opt, rng, timings)
+    found, storeys = _search_all(scan, sections, plan, storey_maps, opt, rng, timings, maps_cache)
     if (opt.frame_yaw is FrameYaw.ON_REFUSAL
             and (not found or _fails(max(found, key=lambda f: f.score), opt))):
         # The best placement would be refused: search again with each frame's yaw error, as
@@ -1930,7 +1997,8 @@ def global_align(
         t0 = time.perf_counter()
         scan = _turned(scan, _frame_yaws(scan, opt))
         timings["frame_yaw"] = time.perf_counter() - t0
-        found, storeys = _search_all(scan, sections, plan, storey_maps, opt, rng, timings)
+        found, storeys = _search_all(scan, sections, plan, storey_maps, opt, rng, timings,
+                                     maps_cache)
         turned = True
     # 5. ranking, distinct hypotheses, ambiguity.
     found.sort(key=lambda f: -f.score)
