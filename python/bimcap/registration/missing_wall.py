@@ -257,9 +257,11 @@ def align_without_missing_wall(slam_from_cam: F64, samples: SemanticSamples, pla
         return None
     placed = np.asarray(res.poses, np.float64)
     # The rays as the refusal's see-through test read them (polished: the drift's rotation and
-    # walk spread the rigid placement's rays over every wall).
-    wall = dominant_seen_through_wall(placed, samples, plan, best.floor_z, opt, polished=True,
-                                      maps_cache=maps_cache)
+    # walk spread the rigid placement's rays over every wall); measured already when the
+    # refusal decided not to search the turned scan (the same placement and rays).
+    wall = (res.seen_through_wall if res.seen_through_wall is not None
+            else dominant_seen_through_wall(placed, samples, plan, best.floor_z, opt,
+                                            polished=True, maps_cache=maps_cache))
     # The alignment without the wall applies its own see-through test (:func:`global_align`):
     # ``wall.see_through_without`` is not the gate.
     if wall is None or wall.share < MIN_WALL_SHARE:
