@@ -706,7 +706,8 @@ def _point_segment_distance(p: F64, a: F64, e: F64) -> F64:
     w = p - a
     ee = np.maximum((e * e).sum(1), 1e-18)
     t = np.clip((w * e).sum(1) / ee, 0.0, 1.0)
-    return np.linalg.norm(w - t[:, None] * e, axis=1)
+    dist: F64 = np.linalg.norm(w - t[:, None] * e, axis=1)
+    return dist
 
 
 # ------------------------------------------------------------------------------------------------
