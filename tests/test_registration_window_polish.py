@@ -145,15 +145,22 @@ def test_a_placement_found_after_turning_the_frames_with_a_competitor_near_is_re
     frame's yaw error taken out (``FrameYaw.ON_REFUSAL``) the best is one bay along, 5 m off,
     with the second-best at 71 % of it. A placement found on a second try is taken only when
     the second-best scores at most ``frame_yaw_max_ratio`` (0.2) of it: refused, not placed
-    5 m off (it was, silently, before that bound)."""
+    5 m off (it was, silently, before that bound). With the defaults, one wall holds most of
+    the first search's seen-through rays (``frame_yaw_wall_share``): refused there, the turned
+    scan not searched; ``frame_yaw_wall_share`` above 1 searches it, to test the bound."""
     scene, gt, samples = walk
     slam = _walked(gt, 0.5, 1.0)
     plan = scene.floor_plan()
-    with pytest.raises(GlobalAlignmentError, match="second try") as info:
+    with pytest.raises(GlobalAlignmentError) as first:
         global_align(slam.trajectory.poses, samples, plan)
+    assert not first.value.result.frames_turned
+    assert first.value.result.seen_through_wall is not None
+    with pytest.raises(GlobalAlignmentError, match="second try") as info:
+        global_align(slam.trajectory.poses, samples, plan,
+                     GlobalAlignOptions(frame_yaw_wall_share=2.0))
     assert info.value.result.frames_turned and info.value.result.ratio > 0.2
     res = global_align(slam.trajectory.poses, samples, plan,
-                       GlobalAlignOptions(frame_yaw_max_ratio=1.0))
+                       GlobalAlignOptions(frame_yaw_max_ratio=1.0, frame_yaw_wall_share=2.0))
     true = compose(invert(slam.slam_from_world), slam.trajectory.poses)
     assert np.linalg.norm(res.poses[:, :2] - true[:, :2], axis=1).mean() > 3.0
     with pytest.raises(RegistrationInputError, match="frame_yaw_max_ratio"):

@@ -1565,13 +1565,14 @@ AUTO_GLOBAL_ALIGN_FREE_FRACTION = 0.3
 
 
 def _align_without_missing_wall(poses: F64, samples: Any, plan: Any, refusal: Any,
-                                options: Any) -> tuple[Any, Any] | None:
+                                options: Any, maps_cache: dict[bytes, Any] | None = None
+                                ) -> tuple[Any, Any] | None:
     """A refused global alignment tried again without the one BIM wall its best placement was
     seen through (``bimcap.registration.missing_wall``: a wall missing as built), with a
     warning naming the wall; None when that does not apply or does not place it."""
     from bimcap.registration.missing_wall import align_without_missing_wall
 
-    found = align_without_missing_wall(poses, samples, plan, refusal, options)
+    found = align_without_missing_wall(poses, samples, plan, refusal, options, maps_cache)
     if found is not None:
         _log.warning(f"global alignment: {found[1].describe()}: placed without that wall")
     return found
@@ -1603,11 +1604,12 @@ def _global_align(prepared: Prepared, poses: F64, config: RefineConfig
     samples = _semantic_samples(prepared)
     options = GlobalAlignOptions(accept_ambiguous=config.accept_ambiguous)
     missing = None
+    maps_cache: dict[bytes, Any] = {}  # the storeys' maps, kept for the missing-wall retry
     try:
         try:
-            res = global_align(poses, samples, plan, options)
+            res = global_align(poses, samples, plan, options, maps_cache)
         except GlobalAlignmentError as exc:
-            found = _align_without_missing_wall(poses, samples, plan, exc, options)
+            found = _align_without_missing_wall(poses, samples, plan, exc, options, maps_cache)
             if found is None:
                 raise
             res, missing = found

@@ -29,13 +29,14 @@ from bimcap.registration.global_align import (
     _IDENTITY,
     GlobalAlignOptions,
     GlobalAlignResult,
+    _cached_storey_maps,
     _frame_fit,
     _keep,
     _scan,
     _see_through_rays,
-    _storey_maps,
     _storeys,
     global_align,
+    see_through_counts,
     see_through_fraction,
 )
 
@@ -124,7 +125,8 @@ def _wall_faces(seg: F64, k: int, max_thickness_m: float = MAX_WALL_THICKNESS_M,
 
 
 def polished_rays(world_from_cam: F64, samples: SemanticSamples, plan: FloorPlan,
-                  floor_z: float | None, options: GlobalAlignOptions | None = None
+                  floor_z: float | None, options: GlobalAlignOptions | None = None,
+                  maps_cache: dict[bytes, Any] | None = None
                   ) -> tuple[NDArray[np.int64], F64, F64]:
     """The rays of the wall/column points as the global alignment's see-through test reads them
     at the placement ``world_from_cam`` (N, 7, TUM order, world frame, level): the storey
@@ -134,7 +136,8 @@ def polished_rays(world_from_cam: F64, samples: SemanticSamples, plan: FloorPlan
     (``bimcap.registration.global_align._see_through_rays``; at most ``max_points`` points,
     every k-th). A drifted trajectory's rotation and walk spread the rigid placement's rays
     over every wall (pipeline seed 13: 38 % of the seen-through points crossed the wall missing
-    as built at the rigid placement, 67 % polished).
+    as built at the rigid placement, 67 % polished). ``maps_cache``: the storeys' maps kept by
+    an alignment of ``plan`` (:func:`.global_align.global_align`), reused; None: built here.
 
     Returns
     -------
@@ -145,7 +148,7 @@ def polished_rays(world_from_cam: F64, samples: SemanticSamples, plan: FloorPlan
     sections = _storeys(plan, opt.plan_cut_height_m)
     storey = min(sections, key=lambda st: 0.0 if st.floor_z is None or floor_z is None
                  else abs(st.floor_z - floor_z))
-    sm = _storey_maps(storey, plan, opt)
+    sm = _cached_storey_maps(storey, plan, opt, maps_cache)
     scan = _scan(np.asarray(world_from_cam, np.float64), samples, opt.frame_level_max_deg)
     keep = np.flatnonzero(_keep(scan, storey, opt))
     keep = keep[::max(1, -(-len(keep) // opt.max_points))]
@@ -160,7 +163,9 @@ def polished_rays(world_from_cam: F64, samples: SemanticSamples, plan: FloorPlan
 
 def dominant_seen_through_wall(world_from_cam: F64, samples: SemanticSamples, plan: FloorPlan,
                                floor_z: float | None, options: GlobalAlignOptions | None = None,
-                               polished: bool = False) -> SeenThroughWall | None:
+                               polished: bool = False,
+                               maps_cache: dict[bytes, Any] | None = None
+                               ) -> SeenThroughWall | None:
     """The plan wall that the most seen-through rays cross at the placement ``world_from_cam``
     (N, 7, TUM order, world frame): each wall/column point's ray from its camera, on the storey
     of ``floor_z``, crossed as :func:`see_through_fraction` counts it (``options``' margin);
@@ -169,7 +174,7 @@ def dominant_seen_through_wall(world_from_cam: F64, samples: SemanticSamples, pl
     wall."""
     opt = GlobalAlignOptions() if options is None else options
     if polished:
-        rows, cam, p = polished_rays(world_from_cam, samples, plan, floor_z, opt)
+        rows, cam, p = polished_rays(world_from_cam, samples, plan, floor_z, opt, maps_cache)
         seg = np.asarray(plan.segments, np.float64)[rows]
         if not len(p) or not len(seg):
             return None
@@ -196,8 +201,8 @@ def dominant_seen_through_wall(world_from_cam: F64, samples: SemanticSamples, pl
         return None
     # The most-crossed segment, counted on at most MAX_COUNTED of the seen-through points.
     some = np.flatnonzero(flags)[::max(1, int(flags.sum()) // MAX_COUNTED)]
-    counts = np.array([seen(seg[j:j + 1], cam[some], p[some])[1].sum()
-                       for j in range(len(seg))])
+    _, counts = see_through_counts(cam[some], p[some], seg, opt.see_through_margin_m,
+                                   margin_from=opt.see_through_margin_from)
     faces = _wall_faces(seg, int(np.argmax(counts)))
     crossing = seen(seg[faces], cam[flags], p[flags])[1]
     keep = np.ones(len(seg), bool)
@@ -228,7 +233,8 @@ def _same_placement(a: F64, b: F64) -> bool:
 
 def align_without_missing_wall(slam_from_cam: F64, samples: SemanticSamples, plan: FloorPlan,
                                refusal: GlobalAlignmentError,
-                               options: GlobalAlignOptions | None = None
+                               options: GlobalAlignOptions | None = None,
+                               maps_cache: dict[bytes, Any] | None = None
                                ) -> tuple[GlobalAlignResult, SeenThroughWall] | None:
     """The global alignment again without the one wall a refused placement was seen through.
 
@@ -238,7 +244,9 @@ def align_without_missing_wall(slam_from_cam: F64, samples: SemanticSamples, pla
     at least :data:`MIN_WALL_SHARE` of the seen-through points. Returns the new result and the
     wall, or None (then the refusal stands) when any of that fails, when the alignment without
     the wall refuses too (fits badly or ambiguous), or when its best placement is not the
-    refused one."""
+    refused one. ``maps_cache``: the dict that the refused alignment kept its storeys' maps in
+    (``global_align(..., maps_cache=...)``): the polished rays and every storey without the
+    wall reuse them (the same maps, bit for bit); None: built again."""
     opt = GlobalAlignOptions() if options is None else options
     res = refusal.result
     if res is None or not res.hypotheses or (res.ambiguous and not opt.accept_ambiguous):
@@ -249,14 +257,18 @@ def align_without_missing_wall(slam_from_cam: F64, samples: SemanticSamples, pla
         return None
     placed = np.asarray(res.poses, np.float64)
     # The rays as the refusal's see-through test read them (polished: the drift's rotation and
-    # walk spread the rigid placement's rays over every wall).
-    wall = dominant_seen_through_wall(placed, samples, plan, best.floor_z, opt, polished=True)
+    # walk spread the rigid placement's rays over every wall); measured already when the
+    # refusal decided not to search the turned scan (the same placement and rays).
+    wall = (res.seen_through_wall if res.seen_through_wall is not None
+            else dominant_seen_through_wall(placed, samples, plan, best.floor_z, opt,
+                                            polished=True, maps_cache=maps_cache))
     # The alignment without the wall applies its own see-through test (:func:`global_align`):
     # ``wall.see_through_without`` is not the gate.
     if wall is None or wall.share < MIN_WALL_SHARE:
         return None
     try:
-        again = global_align(slam_from_cam, samples, without_rows(plan, wall.rows), opt)
+        again = global_align(slam_from_cam, samples, without_rows(plan, wall.rows), opt,
+                             maps_cache)
     except GlobalAlignmentError:
         return None
     if not _same_placement(np.asarray(again.poses, np.float64), placed):
