@@ -313,3 +313,25 @@ def test_the_default_halves_only_images_big_enough() -> None:
     assert np.array_equal(same.descriptors, unhalved.descriptors)
     halved = extract_sift(small, SiftOptions(opencv_halve_min_side=240))
     assert halved.scale.min() > 1.5 * unhalved.scale.min()
+
+
+def test_opencv_octave_layers() -> None:
+    """``opencv_octave_layers``: validated; 3 is the default bit for bit and stays out of the
+    cache key (``to_dict``); 2 gives other keypoints and is in the key."""
+    from bimcap.pipeline.config import ConfigError, RefineConfig
+    from bimcap.pipeline.refine import sift_options
+
+    for bad in (0, 9):
+        with pytest.raises(FeatureError, match="opencv_octave_layers must be in"):
+            SiftOptions(opencv_octave_layers=bad)
+    with pytest.raises(ConfigError, match="opencv_octave_layers"):
+        sift_options(RefineConfig(features={"opencv_octave_layers": 0}))
+    assert "opencv_octave_layers" not in SiftOptions().to_dict()
+    assert SiftOptions(opencv_octave_layers=2).to_dict()["opencv_octave_layers"] == 2
+    img = _noise()
+    default = extract_sift(img, SiftOptions())
+    three = extract_sift(img, SiftOptions(opencv_octave_layers=3))
+    assert np.array_equal(default.uv, three.uv)
+    assert np.array_equal(default.descriptors, three.descriptors)
+    two = extract_sift(img, SiftOptions(opencv_octave_layers=2))
+    assert len(two) > 0 and len(two) != len(default)
