@@ -335,3 +335,29 @@ def test_opencv_octave_layers() -> None:
     assert np.array_equal(default.descriptors, three.descriptors)
     two = extract_sift(img, SiftOptions(opencv_octave_layers=2))
     assert len(two) > 0 and len(two) != len(default)
+
+
+def test_sampson_refinement_option(shifted_pair: tuple) -> None:
+    """``sampson_refinement``: True (pycolmap's own, the default) stays out of the cache key and
+    verifies as before the option; False is in the key and still removes the outliers."""
+    from bimcap.pipeline.config import ConfigError, RefineConfig
+    from bimcap.pipeline.refine import match_options
+
+    assert "sampson_refinement" not in MatchOptions().to_dict()
+    assert MatchOptions(sampson_refinement=False).to_dict()["sampson_refinement"] is False
+    with pytest.raises(ConfigError, match="sampson_refinement"):
+        match_options(RefineConfig(matching={"sampson_refinement": "no"}))
+    assert not match_options(RefineConfig(matching={"sampson_refinement": False})
+                             ).sampson_refinement
+    cam, uv_a, uv_b = _two_view_points(400, seed=1)
+    rng = np.random.default_rng(2)
+    uv_b = uv_b + rng.normal(scale=0.3, size=uv_b.shape)
+    n = len(uv_a)
+    good = np.stack([np.arange(n), np.arange(n)], axis=1)
+    bad = np.stack([rng.integers(0, n, n // 5), rng.integers(0, n, n // 5)], axis=1)
+    bad = bad[bad[:, 0] != bad[:, 1]]
+    matches = np.concatenate([good, bad]).astype(np.int32)
+    inl, model = verify_matches(uv_a, uv_b, matches, cam, MatchOptions(sampson_refinement=False))
+    is_good = inl[:, 0] == inl[:, 1]
+    assert model == "CALIBRATED" and is_good.sum() > 0.97 * n
+    assert (~is_good).sum() <= 0.05 * len(bad)
