@@ -361,3 +361,21 @@ def test_sampson_refinement_option(shifted_pair: tuple) -> None:
     is_good = inl[:, 0] == inl[:, 1]
     assert model == "CALIBRATED" and is_good.sum() > 0.97 * n
     assert (~is_good).sum() <= 0.05 * len(bad)
+
+
+def test_bench_generalization_reads_bool_settings() -> None:
+    """``bench_generalization.py --matching sampson_refinement=false`` gives the bool (a string
+    would be refused by the config), ints and floats as numbers."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+    try:
+        from bench_generalization import _feature_setting
+    finally:
+        sys.path.pop(0)
+    assert _feature_setting("sampson_refinement=false") == ("sampson_refinement", False)
+    assert _feature_setting("cross_check=true") == ("cross_check", True)
+    assert _feature_setting("max_num_features=2048") == ("max_num_features", 2048)
+    assert _feature_setting("peak_threshold=0.004") == ("peak_threshold", 0.004)
+    assert _feature_setting("backend=opencv") == ("backend", "opencv")
