@@ -379,3 +379,18 @@ def test_bench_generalization_reads_bool_settings() -> None:
     assert _feature_setting("max_num_features=2048") == ("max_num_features", 2048)
     assert _feature_setting("peak_threshold=0.004") == ("peak_threshold", 0.004)
     assert _feature_setting("backend=opencv") == ("backend", "opencv")
+
+
+def test_the_default_budget_keeps_the_strongest_2048() -> None:
+    """The default keeps at most 2048 SIFT keypoints (4096 before 2026-11-27): on an image with
+    more, the 2048 kept are among those of a larger budget, with the same descriptors."""
+    big = _noise(seed=3, shape=(800, 1060), sigma=1.5)
+    assert SiftOptions().max_num_features == 2048
+    kept = extract_sift(big)
+    more = extract_sift(big, SiftOptions(max_num_features=8192))
+    assert len(kept) == 2048 < len(more)
+    # a keypoint is its pixel and orientation (one pixel can carry two orientations)
+    index = {(u, v, a): i for i, (u, v, a) in
+             enumerate(zip(more.uv[:, 0], more.uv[:, 1], more.orientation, strict=True))}
+    rows = [index[k] for k in zip(kept.uv[:, 0], kept.uv[:, 1], kept.orientation, strict=True)]
+    assert np.array_equal(kept.descriptors, more.descriptors[rows])

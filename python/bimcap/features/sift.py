@@ -52,10 +52,15 @@ class SiftOptions:
     backend: which implementation to use: OpenCV's SIFT (default) or pycolmap's (COLMAP's SIFT;
         bimcap's default until 2026-11-27, then with ``peak_threshold = 0.02 / 3``).
     max_num_features: keep at most this many SIFT keypoints (pycolmap: the largest scales;
-        OpenCV: the strongest responses); ORB's budget is ``orb_max_num_features``.
+        OpenCV: the strongest responses, chosen before their descriptors are computed); ORB's
+        budget is ``orb_max_num_features``. 2048 (the default since 2026-11-27; 4096 before):
+        at 516×386 no frame of the standard and hard worlds has more than 1,326, so nothing
+        changes there; at 1032×772 (up to 4,096) SIFT is ~1.26× and matching + verification
+        ~2.2× cheaper a frame, the front end 1.25×, with BIMCaP within 0.006 cm / 0.0013° of
+        4096 on three worlds × four runs (docs/speed.md, "Keypoint budget").
     peak_threshold: DoG peak threshold (COLMAP ``peak_threshold``; OpenCV ``contrastThreshold``
-        is ``3 × peak_threshold`` for the same three scales per octave). 0.004 (the default)
-        was measured with OpenCV's SIFT; COLMAP's own is 0.02 / 3.
+        is ``opencv_octave_layers × peak_threshold``: the same threshold on each DoG value).
+        0.004 (the default) was measured with OpenCV's SIFT; COLMAP's own is 0.02 / 3.
     edge_threshold: DoG edge threshold.
     first_octave: -1 upsamples the image once (finds small features; COLMAP's default), 0 does
         not (bimcap's default). At 516×386 the upsampled octave costs 3.7× the CPU (410 vs
@@ -114,7 +119,7 @@ class SiftOptions:
     """
 
     backend: SiftBackend = SiftBackend.OPENCV
-    max_num_features: int = 4096
+    max_num_features: int = 2048
     peak_threshold: float = 0.004
     edge_threshold: float = 10.0
     first_octave: int = 0
