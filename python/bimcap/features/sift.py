@@ -56,8 +56,8 @@ class SiftOptions:
         budget is ``orb_max_num_features``. 2048 (the default since 2026-11-27; 4096 before):
         at 516×386 no frame of the standard and hard worlds has more than 1,326, so nothing
         changes there; at 1032×772 (up to 4,096) SIFT is ~1.26× and matching + verification
-        ~2.2× cheaper a frame, the front end 1.25×, with BIMCaP within 0.006 cm / 0.0013° of
-        4096 on three worlds × four runs (docs/speed.md, "Keypoint budget").
+        ~2.2× cheaper a frame, the front end 1.25×, with BIMCaP within 0.0061 cm / 0.0013° of
+        4096 on four worlds × four runs (docs/speed.md, "Keypoint budget").
     peak_threshold: DoG peak threshold (COLMAP ``peak_threshold``; OpenCV ``contrastThreshold``
         is ``opencv_octave_layers × peak_threshold``: the same threshold on each DoG value).
         0.004 (the default) was measured with OpenCV's SIFT; COLMAP's own is 0.02 / 3.
