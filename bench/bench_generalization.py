@@ -343,10 +343,13 @@ def summarise(paths: list[str]) -> None:
 
 
 def _feature_setting(text: str) -> tuple[str, Any]:
-    """``KEY=VALUE`` of ``--features``: VALUE as an int or a float where it reads as one."""
+    """``KEY=VALUE`` of ``--features``: VALUE as a bool (``true``, ``false``), an int or a float
+    where it reads as one."""
     key, sep, value = text.partition("=")
     if not sep or not key:
         raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
+    if value in ("true", "false"):
+        return key, value == "true"
     for kind in (int, float):
         try:
             return key, kind(value)

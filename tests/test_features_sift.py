@@ -313,3 +313,84 @@ def test_the_default_halves_only_images_big_enough() -> None:
     assert np.array_equal(same.descriptors, unhalved.descriptors)
     halved = extract_sift(small, SiftOptions(opencv_halve_min_side=240))
     assert halved.scale.min() > 1.5 * unhalved.scale.min()
+
+
+def test_opencv_octave_layers() -> None:
+    """``opencv_octave_layers``: validated; 3 is the default bit for bit and stays out of the
+    cache key (``to_dict``); 2 gives other keypoints and is in the key."""
+    from bimcap.pipeline.config import ConfigError, RefineConfig
+    from bimcap.pipeline.refine import sift_options
+
+    for bad in (0, 9):
+        with pytest.raises(FeatureError, match="opencv_octave_layers must be in"):
+            SiftOptions(opencv_octave_layers=bad)
+    with pytest.raises(ConfigError, match="opencv_octave_layers"):
+        sift_options(RefineConfig(features={"opencv_octave_layers": 0}))
+    assert "opencv_octave_layers" not in SiftOptions().to_dict()
+    assert SiftOptions(opencv_octave_layers=2).to_dict()["opencv_octave_layers"] == 2
+    img = _noise()
+    default = extract_sift(img, SiftOptions())
+    three = extract_sift(img, SiftOptions(opencv_octave_layers=3))
+    assert np.array_equal(default.uv, three.uv)
+    assert np.array_equal(default.descriptors, three.descriptors)
+    two = extract_sift(img, SiftOptions(opencv_octave_layers=2))
+    assert len(two) > 0 and len(two) != len(default)
+
+
+def test_sampson_refinement_option(shifted_pair: tuple) -> None:
+    """``sampson_refinement``: True (pycolmap's own, the default) stays out of the cache key and
+    verifies as before the option; False is in the key and still removes the outliers."""
+    from bimcap.pipeline.config import ConfigError, RefineConfig
+    from bimcap.pipeline.refine import match_options
+
+    assert "sampson_refinement" not in MatchOptions().to_dict()
+    assert MatchOptions(sampson_refinement=False).to_dict()["sampson_refinement"] is False
+    with pytest.raises(ConfigError, match="sampson_refinement"):
+        match_options(RefineConfig(matching={"sampson_refinement": "no"}))
+    assert not match_options(RefineConfig(matching={"sampson_refinement": False})
+                             ).sampson_refinement
+    cam, uv_a, uv_b = _two_view_points(400, seed=1)
+    rng = np.random.default_rng(2)
+    uv_b = uv_b + rng.normal(scale=0.3, size=uv_b.shape)
+    n = len(uv_a)
+    good = np.stack([np.arange(n), np.arange(n)], axis=1)
+    bad = np.stack([rng.integers(0, n, n // 5), rng.integers(0, n, n // 5)], axis=1)
+    bad = bad[bad[:, 0] != bad[:, 1]]
+    matches = np.concatenate([good, bad]).astype(np.int32)
+    inl, model = verify_matches(uv_a, uv_b, matches, cam, MatchOptions(sampson_refinement=False))
+    is_good = inl[:, 0] == inl[:, 1]
+    assert model == "CALIBRATED" and is_good.sum() > 0.97 * n
+    assert (~is_good).sum() <= 0.05 * len(bad)
+
+
+def test_bench_generalization_reads_bool_settings() -> None:
+    """``bench_generalization.py --matching sampson_refinement=false`` gives the bool (a string
+    would be refused by the config), ints and floats as numbers."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+    try:
+        from bench_generalization import _feature_setting
+    finally:
+        sys.path.pop(0)
+    assert _feature_setting("sampson_refinement=false") == ("sampson_refinement", False)
+    assert _feature_setting("cross_check=true") == ("cross_check", True)
+    assert _feature_setting("max_num_features=2048") == ("max_num_features", 2048)
+    assert _feature_setting("peak_threshold=0.004") == ("peak_threshold", 0.004)
+    assert _feature_setting("backend=opencv") == ("backend", "opencv")
+
+
+def test_the_default_budget_keeps_the_strongest_2048() -> None:
+    """The default keeps at most 2048 SIFT keypoints (4096 before 2026-11-27): on an image with
+    more, the 2048 kept are among those of a larger budget, with the same descriptors."""
+    big = _noise(seed=3, shape=(800, 1060), sigma=1.5)
+    assert SiftOptions().max_num_features == 2048
+    kept = extract_sift(big)
+    more = extract_sift(big, SiftOptions(max_num_features=8192))
+    assert len(kept) == 2048 < len(more)
+    # a keypoint is its pixel and orientation (one pixel can carry two orientations)
+    index = {(u, v, a): i for i, (u, v, a) in
+             enumerate(zip(more.uv[:, 0], more.uv[:, 1], more.orientation, strict=True))}
+    rows = [index[k] for k in zip(kept.uv[:, 0], kept.uv[:, 1], kept.orientation, strict=True)]
+    assert np.array_equal(kept.descriptors, more.descriptors[rows])

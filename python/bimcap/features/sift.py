@@ -52,10 +52,15 @@ class SiftOptions:
     backend: which implementation to use: OpenCV's SIFT (default) or pycolmap's (COLMAP's SIFT;
         bimcap's default until 2026-11-27, then with ``peak_threshold = 0.02 / 3``).
     max_num_features: keep at most this many SIFT keypoints (pycolmap: the largest scales;
-        OpenCV: the strongest responses); ORB's budget is ``orb_max_num_features``.
+        OpenCV: the strongest responses, chosen before their descriptors are computed); ORB's
+        budget is ``orb_max_num_features``. 2048 (the default since 2026-11-27; 4096 before):
+        at 516×386 no frame of the standard and hard worlds has more than 1,326, so nothing
+        changes there; at 1032×772 (up to 4,096) SIFT is ~1.26× and matching + verification
+        ~2.2× cheaper a frame, the front end 1.25×, with BIMCaP within 0.0061 cm / 0.0013° of
+        4096 on four worlds × four runs (docs/speed.md, "Keypoint budget").
     peak_threshold: DoG peak threshold (COLMAP ``peak_threshold``; OpenCV ``contrastThreshold``
-        is ``3 × peak_threshold`` for the same three scales per octave). 0.004 (the default)
-        was measured with OpenCV's SIFT; COLMAP's own is 0.02 / 3.
+        is ``opencv_octave_layers × peak_threshold``: the same threshold on each DoG value).
+        0.004 (the default) was measured with OpenCV's SIFT; COLMAP's own is 0.02 / 3.
     edge_threshold: DoG edge threshold.
     first_octave: -1 upsamples the image once (finds small features; COLMAP's default), 0 does
         not (bimcap's default). At 516×386 the upsampled octave costs 3.7× the CPU (410 vs
@@ -83,6 +88,14 @@ class SiftOptions:
         block no match links to the rest; since the refinement tries such blocks at the input's
         motion, 0.98 cm, and all 20 hard runs within the bar (docs/speed.md, "Blocks that no match
         links"). Small images are not halved (``opencv_halve_min_side``).
+    opencv_octave_layers: OpenCV's SIFT only: scale levels an octave (OpenCV's ``nOctaveLayers``,
+        COLMAP's ``octave_resolution``); OpenCV's ``contrastThreshold`` is
+        ``opencv_octave_layers × peak_threshold``, so the threshold on each DoG value stays
+        ``peak_threshold``. 3 (the default) is OpenCV's and COLMAP's own. 2 at 516×386
+        (gen-demo-s0, 12 frames): 893 keypoints a frame instead of 1,165, extraction ~1.3×
+        cheaper, a quarter fewer verified matches a pair (178 against 246) at the same match
+        error; the refinement's accuracy with it was not measured (docs/speed.md, "Keypoint
+        budget").
     opencv_halve_min_side: with ``opencv_first_octave = 0``, an image whose shorter side is
         below this many pixels is not halved (OpenCV's doubled first octave, as at -1): halved
         to 160×120, 320×240 scenes lose matches (four front-end tests failed: fewer than their
@@ -106,7 +119,7 @@ class SiftOptions:
     """
 
     backend: SiftBackend = SiftBackend.OPENCV
-    max_num_features: int = 4096
+    max_num_features: int = 2048
     peak_threshold: float = 0.004
     edge_threshold: float = 10.0
     first_octave: int = 0
@@ -116,6 +129,7 @@ class SiftOptions:
     max_image_size: int | None = None
     opencv_first_octave: int = 0
     opencv_halve_min_side: int = 384
+    opencv_octave_layers: int = 3
     orb_max_num_features: int = 2048
     orb_grid_cols: int = 8
     orb_grid_rows: int = 6
@@ -138,6 +152,9 @@ class SiftOptions:
         if self.opencv_halve_min_side < 2:
             raise FeatureError(
                 f"opencv_halve_min_side must be >= 2, got {self.opencv_halve_min_side}")
+        if not 1 <= self.opencv_octave_layers <= 8:
+            raise FeatureError(
+                f"opencv_octave_layers must be in [1, 8], got {self.opencv_octave_layers}")
         if self.orb_max_num_features <= 0:
             raise FeatureError(
                 f"orb_max_num_features must be positive, got {self.orb_max_num_features}")
@@ -150,6 +167,8 @@ class SiftOptions:
     def to_dict(self) -> dict[str, object]:
         d = asdict(self)
         d["backend"] = self.backend.value
+        if self.opencv_octave_layers == 3:
+            del d["opencv_octave_layers"]  # the cache keys of before the option: the same features
         return d
 
 
@@ -293,8 +312,8 @@ def _extract_opencv(gray: NDArray[np.uint8], opts: SiftOptions) -> Features:
 
     sift = cv2.SIFT_create(
         nfeatures=opts.max_num_features,
-        nOctaveLayers=3,
-        contrastThreshold=3.0 * opts.peak_threshold,
+        nOctaveLayers=opts.opencv_octave_layers,
+        contrastThreshold=opts.opencv_octave_layers * opts.peak_threshold,
         edgeThreshold=opts.edge_threshold,
         sigma=1.6,
         # Without this, OpenCV's doubled first octave maps pixel x to 2x + 0.5 and every keypoint

@@ -1465,10 +1465,12 @@ def effective_settings(config: RefineConfig) -> dict[str, Any]:
                loss=opts.geometric.loss.value.lower())
     out["solver"] = solver
     out["registration"] = asdict(coarse_options(config))
-    out["features"] = sift_options(config).to_dict()
+    # every setting, those left out of the cache keys when they are the defaults too
+    sift = sift_options(config)
+    out["features"] = {**sift.to_dict(), "opencv_octave_layers": sift.opencv_octave_layers}
     matching = match_options(config)
-    # every setting, the descriptor product too (left out of the cache key when it is the default)
-    out["matching"] = {**matching.to_dict(), "product": matching.product.value}
+    out["matching"] = {**matching.to_dict(), "product": matching.product.value,
+                       "sampson_refinement": matching.sampson_refinement}
     out["geometric"] = asdict(geometric_options(config))
     return out
 
