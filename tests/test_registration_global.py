@@ -860,6 +860,10 @@ def test_the_pipeline_level_turns_every_run_into_a_row(monkeypatch) -> None:
            "slam_seconds": 30.0}
     table = bench.summarise_pipeline([row])
     assert "refused" in table and "0/1" in table and "1 flagged" in table
+    # The trimmed fit (result.json's or the result's), NaN where it was not measured.
+    assert bench._trimmed_columns({"trimmed": 0.68, "accepted": True}) == {
+        "trimmed_fit": 0.68, "trimmed_accepted": True}
+    assert not bench._trimmed_columns(None)["trimmed_accepted"]
 
 
 def _yaw_noise(poses: np.ndarray, yaw_deg: np.ndarray) -> np.ndarray:
