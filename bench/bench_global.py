@@ -207,7 +207,7 @@ def run_registration(world: World, seed: int, frames: int, options: Any = None
                 "see_through": nan, "agreement": nan, "constraint": nan, "alias_ratio": nan,
                 "alias_difference": nan, "alias_fit": nan, "twins": 0, "vote_rays": nan,
                 "vote_best": nan, "vote_alias": nan, "vote_frames": nan, "vote_low": nan,
-                "frames_turned": False}
+                "frames_turned": False, "trimmed_fit": nan, "trimmed_accepted": False}
     est = compose(res.world_from_slam, slam.trajectory.poses)
     true = compose(invert(slam.slam_from_world), slam.trajectory.poses)
     cam_err = float(np.linalg.norm(est[:, :3] - true[:, :3], axis=1).mean())
@@ -225,7 +225,16 @@ def run_registration(world: World, seed: int, frames: int, options: Any = None
             "alias_difference": float("nan") if res.alias is None else res.alias.difference,
             "alias_fit": float("nan") if res.alias is None else res.alias.fit_score,
             "twins": len(res.twin_floors), **_vote_columns(res),
-            "frames_turned": res.frames_turned}
+            "frames_turned": res.frames_turned, **_trimmed_columns(res.trimmed_fit)}
+
+
+def _trimmed_columns(tf: Any) -> dict[str, Any]:
+    """The trimmed fit of a placement refused for its fit alone (``GlobalAlignResult.
+    trimmed_fit``; a dict from ``result.json`` or the object; NaN / False: not measured)."""
+    if tf is None:
+        return {"trimmed_fit": float("nan"), "trimmed_accepted": False}
+    d = tf if isinstance(tf, dict) else tf.to_dict()
+    return {"trimmed_fit": d["trimmed"], "trimmed_accepted": d["accepted"]}
 
 
 def _vote_columns(res: Any) -> dict[str, float]:
@@ -365,6 +374,9 @@ def run_pipeline(seeds: list[int], work: Path, frames: int, mode: str = "auto"
                 row["initial_free"] = ga.get("initial_free_fraction", float("nan"))
                 row["global_seconds"] = ga.get("seconds", float("nan"))  # with any retry
                 row["ratio"] = ga.get("ratio", float("nan"))
+                hyps = ga.get("hypotheses") or [{}]
+                row["fit"] = hyps[0].get("fit_score", float("nan"))
+                row.update(_trimmed_columns(ga.get("trimmed_fit")))
         row["within"] = (row["slam_rc"] == 0 and row["aligned_rc"] == 0
                          and ends_within(row["slam_ate_cm"], row["slam_ate_deg"],
                                          row["aligned_ate_cm"], row["aligned_ate_deg"]))

@@ -567,6 +567,48 @@ def test_gravity_from_the_floor_levels_a_tilted_slam_frame(demo: Scene) -> None:
     assert not level.gravity_applied
 
 
+def _frames_short_of_their_walls(samples, every: int, scale: float):
+    """``samples`` with the wall points of every ``every``-th frame pulled towards their camera
+    (times ``scale``): those frames see walls where the plan has none (a wall missing or moved
+    as built), short of the plan's, so they fit badly but see nothing through a wall."""
+    bad = samples.wall_frame % every == 0
+    p = samples.wall_p_in_cam.copy()
+    p[bad] *= scale
+    return replace(samples, wall_p_in_cam=p)
+
+
+def test_a_placement_refused_for_a_few_badly_fitting_frames_is_placed_on_the_rest(
+        demo: Scene) -> None:
+    """A quarter of the frames see walls 60 % short of the plan's: the fit over every frame
+    falls under the minimum (0.7 here), the same fit without the worst tenth of the frames does
+    not, and nothing else comes near; the placement is taken, right. Where a second placement
+    scores 39 % of the best, the same scan stays refused (pipeline seed 15: as-built
+    deviations, fit 0.64 at 0.65, docs/global_align.md)."""
+    walk = poses_along(demo_tour(seed=0), 0.25)
+    opt = GlobalAlignOptions(min_score=0.7)
+    samples, slam = _slam_case(walk[0:60], demo, seed=1)
+    samples = _frames_short_of_their_walls(samples, 4, 0.4)
+    with pytest.raises(GlobalAlignmentError, match="fits badly"):  # the fit alone
+        global_align(slam.trajectory.poses, samples, demo.floor_plan(),
+                     replace(opt, fit_trim_frames=0.0))
+    res = global_align(slam.trajectory.poses, samples, demo.floor_plan(), opt)
+    moved, yaw = _placement_error(res.world_from_slam, slam)
+    assert moved < 0.5 and yaw < 3.0, (moved, yaw)
+    tf = res.trimmed_fit
+    assert tf is not None and tf.accepted and tf.frames_set_aside == 6
+    assert res.hypotheses[0].fit_score < opt.min_score <= tf.trimmed
+    assert res.ratio <= opt.fit_trim_max_ratio
+    assert json.loads(json.dumps(res.to_dict()))["trimmed_fit"]["accepted"]
+    # A competitor near (ratio above fit_trim_max_ratio): refused, the trimmed fit reported.
+    samples, slam = _slam_case(walk[120:180], demo, seed=1)
+    samples = _frames_short_of_their_walls(samples, 4, 0.4)
+    with pytest.raises(GlobalAlignmentError) as info:
+        global_align(slam.trajectory.poses, samples, demo.floor_plan(), opt)
+    res = info.value.result
+    assert res is not None and res.ratio > opt.fit_trim_max_ratio
+    assert res.trimmed_fit is None or not res.trimmed_fit.accepted
+
+
 def test_a_wrong_bim_and_bad_input_are_errors(demo: Scene) -> None:
     gt = poses_along(demo_tour(seed=0), 0.25)[0:30]
     samples, slam = _slam_case(gt, demo, seed=5)
@@ -577,7 +619,8 @@ def test_a_wrong_bim_and_bad_input_are_errors(demo: Scene) -> None:
         global_align(slam.trajectory.poses[:, :6], samples, demo.floor_plan())
     assert info.value.field == "slam_from_cam"
     for name, value in (("ambiguity_ratio", 1.5), ("yaw_step_deg", 0.0), ("top_k", 0),
-                        ("see_through_power", -1.0), ("see_through_margin_m", float("nan"))):
+                        ("see_through_power", -1.0), ("see_through_margin_m", float("nan")),
+                        ("fit_trim_frames", 1.5), ("fit_trim_max_ratio", -0.1)):
         with pytest.raises(RegistrationInputError) as info:
             GlobalAlignOptions(**{name: value})
         assert info.value.field == name
@@ -817,6 +860,10 @@ def test_the_pipeline_level_turns_every_run_into_a_row(monkeypatch) -> None:
            "slam_seconds": 30.0}
     table = bench.summarise_pipeline([row])
     assert "refused" in table and "0/1" in table and "1 flagged" in table
+    # The trimmed fit (result.json's or the result's), NaN where it was not measured.
+    assert bench._trimmed_columns({"trimmed": 0.68, "accepted": True}) == {
+        "trimmed_fit": 0.68, "trimmed_accepted": True}
+    assert not bench._trimmed_columns(None)["trimmed_accepted"]
 
 
 def _yaw_noise(poses: np.ndarray, yaw_deg: np.ndarray) -> np.ndarray:
