@@ -10,9 +10,8 @@ from bimcap.geometry import Trajectory
 from bimcap.geometry.poses import compose, invert
 from bimcap.registration import SemanticSamples
 from bimcap.registration.errors import GlobalAlignmentError
-from bimcap.registration.global_align import global_align
+from bimcap.registration.global_align import _wall_faces, global_align
 from bimcap.registration.missing_wall import (
-    _wall_faces,
     align_without_missing_wall,
     dominant_seen_through_wall,
 )

@@ -56,7 +56,7 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field, replace
 from enum import Enum
-from typing import TYPE_CHECKING, Any, TypeVar, cast
+from typing import Any, TypeVar, cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -83,9 +83,6 @@ from bimcap.registration.icp import (
 )
 from bimcap.registration.plan_maps import PlanMaps
 from bimcap.registration.window_polish import WindowPolish, polish_windows
-
-if TYPE_CHECKING:
-    from bimcap.registration.missing_wall import SeenThroughWall
 
 F64 = NDArray[np.float64]
 I32 = NDArray[np.int32]
@@ -239,12 +236,12 @@ class GlobalAlignOptions:
     frame_yaw_wall_share: ``FrameYaw.ON_REFUSAL`` does not search the turned scan when the
         best placement fits (fine score, free space) and is refused for its see-through alone,
         and at least this share of its seen-through rays cross one plan wall
-        (:func:`.missing_wall.dominant_seen_through_wall`, the rays polished as the
+        (:func:`dominant_seen_through_wall`, the rays polished as the
         see-through test reads them): a wall missing as built, which the frames' yaw errors do
         not explain and the missing-wall retry answers (the second search only doubled the
         time: pipeline seeds 3, 10 and 13 have 0.97, 0.87 and 0.71; Office_A seed 12, the
         run the turned scan places, 0.37). The default is the retry's own bar
-        (``missing_wall.MIN_WALL_SHARE``); above 1: the turned scan is always searched.
+        (:data:`MIN_WALL_SHARE`); above 1: the turned scan is always searched.
     fit_trim_frames, fit_trim_max_ratio: a best placement refused for its fit alone (below
         ``min_score``; free space, see-through and ambiguity passed) is measured again on the
         frames whose walls exist: the fit with the worst-fitting ``fit_trim_frames`` share of
@@ -444,7 +441,7 @@ class GlobalAlignResult:
     frames_turned: the placements were searched on the scan with each frame turned by its yaw
         error as its walls tell it (:class:`FrameYaw`).
     seen_through_wall: the plan wall that most of the best placement's seen-through rays
-        cross (:class:`.missing_wall.SeenThroughWall`), when it was measured to decide whether
+        cross (:class:`SeenThroughWall`), when it was measured to decide whether
         to search the turned scan (``frame_yaw_wall_share``; the missing-wall retry reuses it);
         None: not measured, or nothing seen through.
     drift_see_through: the best placement's see-through measured again with each window of
@@ -2007,13 +2004,182 @@ def _search_all(scan: _Scan, sections: list[_Storey], plan: FloorPlan,
     return found, storeys
 
 
+# The plan wall that a placement's seen-through rays cross (a wall missing as built); the
+# missing-wall retry (:mod:`.missing_wall`) and the turned search's skip both read it.
+
+#: The faces of one wall: plan segments parallel to the most-crossed one (within 5°) and at
+#: most this far from it (metres; walls are 0.1-0.4 m thick).
+MAX_WALL_THICKNESS_M = 0.6
+#: ... and its pieces on the far side of a door: collinear segments within this gap (metres).
+MAX_DOOR_GAP_M = 1.5
+#: The wall must be crossed by at least this share of the seen-through points.
+MIN_WALL_SHARE = 0.6
+#: Seen-through points counted per segment to find the most-crossed one (every k-th of them).
+MAX_COUNTED = 400
+
+
+@dataclass(frozen=True)
+class SeenThroughWall:
+    """The plan wall that most of the seen-through rays cross at a placement.
+
+    Attributes
+    ----------
+    rows: (K,) its segment rows in the plan (its faces).
+    segments: (K, 4) those segments, ``x1 y1 x2 y2`` metres (world).
+    share: share of the seen-through points whose ray crosses it (0-1).
+    see_through: share of the wall/column points seen through any plan wall (0-1).
+    see_through_without: the same without this wall (0-1).
+    """
+
+    rows: NDArray[np.int64]
+    segments: F64
+    share: float
+    see_through: float
+    see_through_without: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"rows": [int(r) for r in self.rows],
+                "segments": np.round(self.segments, 3).tolist(), "share": self.share,
+                "see_through": self.see_through, "see_through_without": self.see_through_without}
+
+    def describe(self) -> str:
+        ends = ", ".join(f"({s[0]:.2f}, {s[1]:.2f})-({s[2]:.2f}, {s[3]:.2f})"
+                         for s in self.segments)
+        return (f"{self.see_through:.0%} of the points were seen through the BIM's walls, "
+                f"{self.share:.0%} of them through the one wall with face(s) {ends} m (missing "
+                f"as built?); {self.see_through_without:.0%} without it")
+
+
+def section_rows(plan: FloorPlan, floor_z: float | None, cut_m: float = 1.0
+                 ) -> NDArray[np.int64]:
+    """(S',) the plan's segment rows at ``cut_m`` above the floor ``floor_z`` (all of them for
+    a plan without heights or an unknown floor)."""
+    n = len(plan.segments)
+    if plan.segment_z is None or floor_z is None:
+        return np.arange(n)
+    zc = floor_z + cut_m
+    return np.flatnonzero((plan.segment_z[:, 0] <= zc) & (zc <= plan.segment_z[:, 1]))
+
+
+def _wall_faces(seg: F64, k: int, max_thickness_m: float = MAX_WALL_THICKNESS_M,
+                max_gap_m: float = MAX_DOOR_GAP_M) -> NDArray[np.int64]:
+    """Indices into ``seg`` (S, 4) of the faces of the wall of segment ``k``: ``k`` and the
+    segments parallel to it (within 5°), at most ``max_thickness_m`` from its line and
+    overlapping it, or the ``max_gap_m`` beyond either of its ends, along its length (the
+    pieces of one wall on both sides of a door)."""
+    a, b = seg[k, :2], seg[k, 2:]
+    length = float(np.linalg.norm(b - a))
+    if length < 1e-9:
+        return np.array([k])
+    u = (b - a) / length
+    n = np.array([-u[1], u[0]])
+    d = seg[:, 2:] - seg[:, :2]
+    lens = np.linalg.norm(d, axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        parallel = np.abs(d @ u) >= np.cos(np.deg2rad(5.0)) * lens
+    off = np.abs(np.c_[(seg[:, :2] - a) @ n, (seg[:, 2:] - a) @ n]).max(1)
+    s0, s1 = (seg[:, :2] - a) @ u, (seg[:, 2:] - a) @ u
+    overlap = (np.minimum(np.maximum(s0, s1), length + max_gap_m)
+               - np.maximum(np.minimum(s0, s1), -max_gap_m))
+    faces = parallel & (lens > 1e-9) & (off <= max_thickness_m) & (overlap > 0.1)
+    faces[k] = True
+    return np.flatnonzero(faces)
+
+
+def polished_rays(world_from_cam: F64, samples: SemanticSamples, plan: FloorPlan,
+                  floor_z: float | None, options: GlobalAlignOptions | None = None,
+                  maps_cache: dict[bytes, Any] | None = None
+                  ) -> tuple[NDArray[np.int64], F64, F64]:
+    """The rays of the wall/column points as the global alignment's see-through test reads them
+    at the placement ``world_from_cam`` (N, 7, TUM order, world frame, level): the storey
+    whose floor is nearest ``floor_z`` (its section and wall band), each frame levelled by its
+    floor, the placement polished by its frames' mean best turn and shift, each window of
+    frames moved by its own bounded ICP and each frame turned by its own best turn
+    (``bimcap.registration.global_align._see_through_rays``; at most ``max_points`` points,
+    every k-th). A drifted trajectory's rotation and walk spread the rigid placement's rays
+    over every wall (pipeline seed 13: 38 % of the seen-through points crossed the wall missing
+    as built at the rigid placement, 67 % polished). ``maps_cache``: the storeys' maps kept by
+    an alignment of ``plan`` (:func:`.global_align.global_align`), reused; None: built here.
+
+    Returns
+    -------
+    The storey's segment rows (S,) in ``plan``, and each ray's camera (M, 2) and point (M, 2)
+    (world, metres).
+    """
+    opt = GlobalAlignOptions() if options is None else options
+    sections = _storeys(plan, opt.plan_cut_height_m)
+    storey = min(sections, key=lambda st: 0.0 if st.floor_z is None or floor_z is None
+                 else abs(st.floor_z - floor_z))
+    sm = _cached_storey_maps(storey, plan, opt, maps_cache)
+    scan = _scan(np.asarray(world_from_cam, np.float64), samples, opt.frame_level_max_deg)
+    keep = np.flatnonzero(_keep(scan, storey, opt))
+    keep = keep[::max(1, -(-len(keep) // opt.max_points))]
+    xy, cls, view, frame = scan.xy[keep], scan.cls[keep], scan.view[keep], scan.frame[keep]
+    cams = scan.cams[:, :2]
+    if not len(xy):
+        return storey.rows, np.zeros((0, 2)), np.zeros((0, 2))
+    _, _, _, turn, shift = _frame_fit(_IDENTITY, xy, cls, view, frame, cams, sm.maps, opt)
+    q, cam = _see_through_rays(_IDENTITY, turn, shift, xy, cls, view, frame, cams, sm.maps, opt)
+    return storey.rows, cam, q
+
+
+def dominant_seen_through_wall(world_from_cam: F64, samples: SemanticSamples, plan: FloorPlan,
+                               floor_z: float | None, options: GlobalAlignOptions | None = None,
+                               polished: bool = False,
+                               maps_cache: dict[bytes, Any] | None = None
+                               ) -> SeenThroughWall | None:
+    """The plan wall that the most seen-through rays cross at the placement ``world_from_cam``
+    (N, 7, TUM order, world frame): each wall/column point's ray from its camera, on the storey
+    of ``floor_z``, crossed as :func:`see_through_fraction` counts it (``options``' margin);
+    the rays as the cameras see them (``polished`` off) or as the global alignment's
+    see-through test reads them (:func:`polished_rays`). None when no point is seen through a
+    wall."""
+    opt = GlobalAlignOptions() if options is None else options
+    if polished:
+        rows, cam, p = polished_rays(world_from_cam, samples, plan, floor_z, opt, maps_cache)
+        seg = np.asarray(plan.segments, np.float64)[rows]
+        if not len(p) or not len(seg):
+            return None
+    else:
+        rows = section_rows(plan, floor_z)
+        seg = np.asarray(plan.segments, np.float64)[rows]
+        cams, pts = [], []
+        for c in ("wall", "column"):
+            fr = getattr(samples, f"{c}_frame")
+            if len(fr):
+                cams.append(world_from_cam[fr, :2])
+                pts.append(transform_points(world_from_cam[fr],
+                                            getattr(samples, f"{c}_p_in_cam"))[:, :2])
+        if not pts or not len(seg):
+            return None
+        cam, p = np.concatenate(cams), np.concatenate(pts)
+
+    def seen(s: F64, c: F64, q: F64) -> tuple[float, NDArray[np.bool_]]:
+        return see_through_fraction(c, q, s, opt.see_through_margin_m,
+                                    margin_from=opt.see_through_margin_from)
+
+    total, flags = seen(seg, cam, p)
+    if not flags.any():
+        return None
+    # The most-crossed segment, counted on at most MAX_COUNTED of the seen-through points.
+    some = np.flatnonzero(flags)[::max(1, int(flags.sum()) // MAX_COUNTED)]
+    _, counts = see_through_counts(cam[some], p[some], seg, opt.see_through_margin_m,
+                                   margin_from=opt.see_through_margin_from)
+    faces = _wall_faces(seg, int(np.argmax(counts)))
+    crossing = seen(seg[faces], cam[flags], p[flags])[1]
+    keep = np.ones(len(seg), bool)
+    keep[faces] = False
+    return SeenThroughWall(rows=rows[faces], segments=seg[faces],
+                           share=float(crossing.mean()), see_through=total,
+                           see_through_without=seen(seg[keep], cam, p)[0])
+
+
 def _seen_through_wall(f: _Found, poses: F64, gravity: F64, scan_floor_z: float | None,
                        samples: SemanticSamples, plan: FloorPlan, opt: GlobalAlignOptions,
                        maps_cache: dict[bytes, Any]) -> SeenThroughWall | None:
     """The plan wall that most of placement ``f``'s seen-through rays cross
-    (:func:`.missing_wall.dominant_seen_through_wall` at ``f``'s placement of ``poses`` (N, 7,
+    (:func:`dominant_seen_through_wall` at ``f``'s placement of ``poses`` (N, 7,
     the SLAM frame), the rays polished; None when none is seen through)."""
-    from bimcap.registration.missing_wall import dominant_seen_through_wall
 
     placed = matrix_to_pose(_transform(f, gravity, scan_floor_z) @ pose_to_matrix(poses))
     return dominant_seen_through_wall(placed, samples, plan, f.storey.floor_z, opt,
