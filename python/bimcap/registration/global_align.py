@@ -88,6 +88,17 @@ F64 = NDArray[np.float64]
 I32 = NDArray[np.int32]
 _T = TypeVar("_T")
 
+# The wall that a placement's seen-through rays cross (:class:`SeenThroughWall`).
+#: The faces of one wall: plan segments parallel to the most-crossed one (within 5°) and at
+#: most this far from it (metres; walls are 0.1-0.4 m thick).
+MAX_WALL_THICKNESS_M = 0.6
+#: ... and its pieces on the far side of a door: collinear segments within this gap (metres).
+MAX_DOOR_GAP_M = 1.5
+#: The wall must be crossed by at least this share of the seen-through points.
+MIN_WALL_SHARE = 0.6
+#: Seen-through points counted per segment to find the most-crossed one (every k-th of them).
+MAX_COUNTED = 400
+
 
 class SeeThroughMargin(str, Enum):
     """Where the margin of :func:`see_through_fraction` is measured.
@@ -319,7 +330,7 @@ class GlobalAlignOptions:
     frame_yaw_neighbours: int = 10
     frame_yaw_radius_m: float = 1.0
     frame_yaw_max_ratio: float = 0.2
-    frame_yaw_wall_share: float = 0.6
+    frame_yaw_wall_share: float = MIN_WALL_SHARE
     fit_trim_frames: float = 0.1
     fit_trim_max_ratio: float = 0.2
     accept_ambiguous: bool = False
@@ -2006,16 +2017,6 @@ def _search_all(scan: _Scan, sections: list[_Storey], plan: FloorPlan,
 
 # The plan wall that a placement's seen-through rays cross (a wall missing as built); the
 # missing-wall retry (:mod:`.missing_wall`) and the turned search's skip both read it.
-
-#: The faces of one wall: plan segments parallel to the most-crossed one (within 5°) and at
-#: most this far from it (metres; walls are 0.1-0.4 m thick).
-MAX_WALL_THICKNESS_M = 0.6
-#: ... and its pieces on the far side of a door: collinear segments within this gap (metres).
-MAX_DOOR_GAP_M = 1.5
-#: The wall must be crossed by at least this share of the seen-through points.
-MIN_WALL_SHARE = 0.6
-#: Seen-through points counted per segment to find the most-crossed one (every k-th of them).
-MAX_COUNTED = 400
 
 
 @dataclass(frozen=True)
