@@ -14,7 +14,10 @@ suppression, are the hypotheses handed to ICP and to the trajectory-continuity c
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -24,6 +27,19 @@ from bimcap.registration.plan_maps import PlanMaps
 
 F64 = NDArray[np.float64]
 F32 = NDArray[np.float32]
+_T = TypeVar("_T")
+_R = TypeVar("_R")
+
+
+def map_threads(fn: Callable[[_T], _R], items: Iterable[_T], num_threads: int) -> list[_R]:
+    """``[fn(x) for x in items]``, in that order, on a pool of ``num_threads`` threads (1 or
+    fewer: in this thread, one after the other). For work that releases the GIL (OpenCV,
+    NumPy's large array operations) and whose items are independent."""
+    items = list(items)
+    if num_threads <= 1 or len(items) <= 1:
+        return [fn(x) for x in items]
+    with ThreadPoolExecutor(min(num_threads, len(items))) as pool:
+        return list(pool.map(fn, items))
 
 
 @dataclass(frozen=True)
@@ -61,6 +77,7 @@ def score_volume(
     column_weight: float = 1.0,
     p_weight: NDArray[np.float64] | None = None,
     y_range_m: float | None = None,
+    num_threads: int = 1,
 ) -> tuple[F32, float, int]:
     """Score of every (yaw, ty, tx) on the coarse grid of ``maps``.
 
@@ -77,6 +94,8 @@ def score_volume(
     y_range_m: half-height of the translation grid along y (None: ``xy_range_m``, a square
         grid); a grid as long as the plan's box in each direction, not the square of its
         longer side (Office_A's 50 x 36 m box: 263 x 195 translations instead of 263 x 263).
+    num_threads: threads that share the yaws (1: this thread only); the same volume, bit for
+        bit, with any number.
 
     Returns
     -------
@@ -94,17 +113,17 @@ def score_volume(
     if len(p_xy) == 0:
         return vol, res, n
     rel = p_xy - pivot  # the same arithmetic as ``(p_xy - pivot) @ r.T + pivot`` per yaw
-    total = np.empty((2 * m + 1, 2 * n + 1), dtype=np.float32)
     n_layers = maps.n_layers
     weights = [column_weight if lay >= maps.n_bins else 1.0 for lay in range(n_layers)]
-    # The yaws a block at a time (about 2^19 points in all): each point's layer and cell per
-    # yaw in one pass, then the points grouped by (yaw, layer) with one sort, the groups' cell
-    # ranges with one reduction (the per-yaw, per-layer masks and minima cost more than the
-    # correlation on a 1500-point frame). Every value is that of the loop over yaws and
-    # layers: the same products per yaw, the same templates, added in ascending layer order.
-    block = max(1, (1 << 19) // len(p_xy))
-    for k0 in range(0, len(yaws), block):
-        ks = np.arange(k0, min(k0 + block, len(yaws)))
+
+    def yaws_from(k0: int, k1: int) -> None:
+        """``vol[k0:k1]``: each point's layer and cell per yaw in one pass, then the points
+        grouped by (yaw, layer) with one sort, the groups' cell ranges with one reduction (the
+        per-yaw, per-layer masks and minima cost more than the correlation on a 1500-point
+        frame). Every value is that of the loop over yaws and layers: the same products per
+        yaw, the same templates, added in ascending layer order (whatever ``k0, k1``)."""
+        ks = np.arange(k0, k1)
+        total = np.empty((2 * m + 1, 2 * n + 1), dtype=np.float32)
         q = np.empty((len(ks), len(p_xy), 2))
         view = np.empty((len(ks), len(p_xy), 2))
         for j, k in enumerate(ks):
@@ -148,6 +167,16 @@ def score_volume(
                 total += corr if weight == 1.0 else weight * corr
             if count > 0:
                 vol[k] = total / count
+
+    # The yaws a block at a time (about 2^19 points in all); with ``num_threads`` > 1, blocks of
+    # at most a quarter of each thread's share, on a pool of threads (``cv2.matchTemplate``,
+    # most of the time, runs without the GIL): each yaw's slice of the volume is computed by
+    # one call, the same bits whichever thread computes it and however the yaws are blocked.
+    block = max(1, (1 << 19) // len(p_xy))
+    if num_threads > 1:
+        block = min(block, max(1, -(-len(yaws) // (4 * num_threads))))
+    starts = range(0, len(yaws), block)
+    map_threads(lambda k0: yaws_from(k0, min(k0 + block, len(yaws))), starts, num_threads)
     return vol, res, n
 
 

@@ -52,6 +52,8 @@ from __future__ import annotations
 
 import heapq
 import itertools
+import multiprocessing
+import os
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field, replace
@@ -67,7 +69,7 @@ from bimcap.geometry.poses import matrix_to_pose, pose_to_matrix, transform_poin
 from bimcap.labels import Label
 from bimcap.registration._coarse_steps import _subsample, cell_support
 from bimcap.registration.coarse import FloorPlan, SemanticSamples
-from bimcap.registration.correlative import score_volume, top_hypotheses
+from bimcap.registration.correlative import map_threads, score_volume, top_hypotheses
 from bimcap.registration.distance_field import DistanceField
 from bimcap.registration.errors import (
     AmbiguousAlignmentError,
@@ -266,6 +268,11 @@ class GlobalAlignOptions:
         the result, never hidden).
     report_top: hypotheses kept in the result.
     seed: seeds the random point subsampling.
+    num_threads: threads of the correlative searches (their yaws shared out,
+        :func:`.correlative.score_volume`, and the cameras' free-space volumes); 0: every core
+        this process may use, except in a worker process of a pool (one thread there, so that
+        a pool of one process per core is not oversubscribed); 1: this thread only. Every
+        result is the same, bit for bit, with any number (:func:`resolved_threads`).
     """
 
     resolution_m: float = 0.2
@@ -336,6 +343,7 @@ class GlobalAlignOptions:
     accept_ambiguous: bool = False
     report_top: int = 5
     seed: int = 0
+    num_threads: int = 0
 
     def __post_init__(self) -> None:
         for name, mode in (("see_through_margin_from", SeeThroughMargin),
@@ -377,13 +385,27 @@ class GlobalAlignOptions:
                      "frame_shift_m", "see_through_margin_m", "see_through_power", "range_power",
                      "alias_vote_min_votes", "alias_vote_min_frames", "frame_yaw_max_deg",
                      "see_through_window_frames", "see_through_window_yaw_deg",
-                     "see_through_window_shift_m", "frame_yaw_wall_share"):
+                     "see_through_window_shift_m", "frame_yaw_wall_share", "num_threads"):
             if getattr(self, name) < 0:
                 raise RegistrationInputError("must be >= 0", None, name)
 
     def to_dict(self) -> dict[str, Any]:
         return {**asdict(self), "see_through_margin_from": self.see_through_margin_from.value,
                 "frame_yaw": self.frame_yaw.value}
+
+
+def resolved_threads(num_threads: int) -> int:
+    """The threads that ``GlobalAlignOptions.num_threads`` stands for: itself when positive;
+    for 0, the cores this process may use (``os.sched_getaffinity``), or 1 in a child process
+    of ``multiprocessing`` (a worker of a process pool, which has its share of the cores)."""
+    if num_threads > 0:
+        return num_threads
+    if multiprocessing.parent_process() is not None:
+        return 1
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on every platform
+        return max(1, os.cpu_count() or 1)
 
 
 @dataclass(frozen=True)
@@ -1200,14 +1222,15 @@ def _search_storey(scan: _Scan, storey: _Storey, sm: _StoreyMaps, opt: GlobalAli
     occ = _subsample(xy_s, cls, 0.5 * opt.resolution_m, 40 * opt.max_points, rng)
     yaws = np.arange(-np.pi, np.pi, np.deg2rad(opt.yaw_step_deg))
     weight = _support_weight(xy_s, cls, occ, opt)
+    threads = resolved_threads(opt.num_threads)
     vol, res, n = score_volume(xy_s[occ], cls[occ], view[occ], maps, centre, yaws, half,
-                               p_weight=weight, y_range_m=sm.half_y)
+                               p_weight=weight, y_range_m=sm.half_y, num_threads=threads)
     # The trajectory's own shape: the share of its cameras in free space, for every (yaw, t).
     m = (vol.shape[1] - 1) // 2
     key = cams_s.tobytes() + yaws.tobytes() + np.array([res, n, m], np.float64).tobytes()
     if key not in sm.free_volumes:
         sm.free_volumes[key] = _free_volume(cams_s, sm.free_map, maps.coarse[0].origin_xy, res,
-                                            centre, yaws, n, m)
+                                            centre, yaws, n, m, threads)
     vol *= sm.free_volumes[key]
     peaks = top_hypotheses(vol, yaws, res, n, opt.top_k, opt.distinct_m,
                            np.deg2rad(opt.distinct_deg))
@@ -1219,17 +1242,22 @@ def _search_storey(scan: _Scan, storey: _Storey, sm: _StoreyMaps, opt: GlobalAli
     def associate(q: F64, q_class: I32, v: F64) -> tuple[F64, F64]:
         return maps.nearest(q, maps.layer_of(q_class, v))
 
-    found: list[_Found] = []
     fitted: list[_Found] = []
     # ICP on an even share of the sample (every k-th point: all frames keep their share).
     k = max(1, -(-len(p_xy) // opt.icp_points))
     i_xy, i_cls, i_view = p_xy[::k], p_cls[::k], p_view[::k]
     # The peaks' ICP runs in lock-step (one association call per iteration for all of them;
-    # each run the bits of ``icp_2d`` from its peak).
-    fits = icp_2d_many(i_xy, i_cls, associate,
-                       [Correction2D(peak.yaw, peak.t, centre) for peak in peaks], i_view,
-                       opt.icp_radius_start_m, opt.icp_radius_end_m, opt.icp_iterations,
-                       opt.icp_huber_m, opt.inlier_m)
+    # each run the bits of ``icp_2d`` from its peak), the peaks shared out in ``threads``
+    # consecutive parts (the same bits: each run is its own).
+    inits = [Correction2D(peak.yaw, peak.t, centre) for peak in peaks]
+    maps.prepare()
+    parts = [p.tolist() for p in np.array_split(np.arange(len(inits)), max(1, threads))
+             if len(p)]
+    fits = [fit for part in map_threads(
+        lambda part: icp_2d_many(i_xy, i_cls, associate, [inits[j] for j in part], i_view,
+                                 opt.icp_radius_start_m, opt.icp_radius_end_m,
+                                 opt.icp_iterations, opt.icp_huber_m, opt.inlier_m),
+        parts, threads) for fit in part]
     for peak, fit in zip(peaks, fits, strict=True):
         corr = fit.correction
         layer = maps.layer_of(p_cls, p_view @ rot2(corr.yaw).T)
@@ -1247,17 +1275,26 @@ def _search_storey(scan: _Scan, storey: _Storey, sm: _StoreyMaps, opt: GlobalAli
                                       shell=sm.shell)
         return replace(f, free=free)
 
+    chosen: list[_Found] = []
     for f in _by_key(fitted, lambda f: f.rigid_fit, with_free, lambda f: f.rigid_fit * f.free):
-        if len(found) >= opt.rescore_top:
+        if len(chosen) >= opt.rescore_top:
             break
-        if all(_distinct(f, g, opt) for g in found):
-            frame_fit, _, _, turn, moved = _frame_fit(f.corr, p_xy, p_cls, p_view, p_frame,
-                                                      cams_s, maps, opt)
-            seen, agree = _see_through(f.corr, turn, moved, p_xy, p_cls, p_view, p_frame, cams_s,
-                                       seg, maps, opt)
-            found.append(replace(f, fit=frame_fit, see_through=seen,
-                                 see_through_power=opt.see_through_power, agreement=agree,
-                                 agreement_power=opt.range_power))
+        if all(_distinct(f, g, opt) for g in chosen):
+            chosen.append(f)
+
+    def rescored(f: _Found) -> _Found:
+        frame_fit, _, _, turn, moved = _frame_fit(f.corr, p_xy, p_cls, p_view, p_frame, cams_s,
+                                                  maps, opt)
+        seen, agree = _see_through(f.corr, turn, moved, p_xy, p_cls, p_view, p_frame, cams_s,
+                                   seg, maps, opt)
+        return replace(f, fit=frame_fit, see_through=seen,
+                       see_through_power=opt.see_through_power, agreement=agree,
+                       agreement_power=opt.range_power)
+
+    # The choice reads the rigid fit and the free share only: the chosen placements' per-frame
+    # fits and see-through shares are independent of one another (one per thread; the maps
+    # that every thread reads were prepared before the ICP).
+    found = map_threads(rescored, chosen, threads)
     timings["rescore"] += time.perf_counter() - t0
     # Fold the shift into the correction: R (p + s - c) + c + t = R (p - (c - s)) + (c - s)
     # + (t + s).
@@ -1388,6 +1425,7 @@ def _plan_alias(best: _Found, scan: _Scan, sections: list[_Storey], plan: FloorP
                                      margin_from=opt.see_through_margin_from)[0]
     cands: list[tuple[float, Correction2D, _Storey, Correction2D, PlanAlias]] = []
     yaws = np.arange(-np.pi, np.pi, np.deg2rad(opt.yaw_step_deg))
+    threads = resolved_threads(opt.num_threads)
     done: set[bytes] = set()
     for storey in sections:
         key = _section_key(plan, storey)
@@ -1399,9 +1437,9 @@ def _plan_alias(best: _Found, scan: _Scan, sections: list[_Storey], plan: FloorP
         ps, cs = p_xy + shift, cams + shift
         occ = _subsample(ps, p_cls, 0.5 * opt.resolution_m, 40 * opt.max_points, rng)
         vol, res, n = score_volume(ps[occ], p_cls[occ], p_view[occ], sm.maps, sm.centre, yaws,
-                                   sm.half, y_range_m=sm.half_y)
+                                   sm.half, y_range_m=sm.half_y, num_threads=threads)
         vol *= _free_volume(cs, sm.free_map, sm.maps.coarse[0].origin_xy, res, sm.centre, yaws,
-                            n, (vol.shape[1] - 1) // 2)
+                            n, (vol.shape[1] - 1) // 2, threads)
         peaks = top_hypotheses(vol, yaws, res, n, opt.alias_top, opt.distinct_m,
                                np.deg2rad(opt.distinct_deg))
 
@@ -1699,11 +1737,12 @@ def _free_map(segments: F64, bounds: tuple[float, float, float, float],
 
 
 def _free_volume(cams_xy: F64, free_map: NDArray[np.float32], origin: F64, res: float,
-                 pivot: F64, yaws: F64, n: int, m: int | None = None) -> NDArray[np.float32]:
+                 pivot: F64, yaws: F64, n: int, m: int | None = None, num_threads: int = 1
+                 ) -> NDArray[np.float32]:
     """(Y, 2m+1, 2n+1) share of the cameras (N, 2) on free pixels of ``free_map`` after each
     correction ``R(yaw)(c - pivot) + pivot + t`` of the correlative grid (as
     :func:`.correlative.score_volume` indexes it; ``m``: the grid's half-height in cells, None:
-    ``n``)."""
+    ``n``). ``num_threads``: threads that share the yaws (the same bits with any number)."""
     import cv2
 
     from bimcap.registration.correlative import _crop
@@ -1711,8 +1750,9 @@ def _free_volume(cams_xy: F64, free_map: NDArray[np.float32], origin: F64, res: 
     m = n if m is None else m
     out = np.zeros((len(yaws), 2 * m + 1, 2 * n + 1), dtype=np.float32)
     rel = cams_xy - pivot
-    for k, yaw in enumerate(yaws):
-        c = rel @ rot2(float(yaw)).T + pivot
+
+    def one(k: int) -> None:
+        c = rel @ rot2(float(yaws[k])).T + pivot
         uv = np.round((c - origin) / res).astype(np.int64)
         u0, v0 = uv.min(0)
         u1, v1 = uv.max(0)
@@ -1720,6 +1760,8 @@ def _free_volume(cams_xy: F64, free_map: NDArray[np.float32], origin: F64, res: 
         np.add.at(templ, (uv[:, 1] - v0, uv[:, 0] - u0), 1.0)
         img = _crop(free_map, v0 - m, v1 + m + 1, u0 - n, u1 + n + 1)
         out[k] = cv2.matchTemplate(img, templ, cv2.TM_CCORR) / len(c)
+
+    map_threads(one, range(len(yaws)), num_threads)
     return out
 
 
@@ -1758,13 +1800,18 @@ def _frame_fit(corr: Correction2D, p_xy: F64, p_cls: I32, p_view: F64, p_frame: 
     s = opt.frame_shift_m
     shifts = [np.zeros(2)] + ([np.array([dx, dy]) for dx in (-s, 0.0, s) for dy in (-s, 0.0, s)
                                if dx or dy] if s > 0 else [])
+    # Each turn's shifts in one lookup and one sum (each point's score and each frame's sum
+    # are those of one lookup per shift: the same elements in the same order).
+    by_shift = (p_frame[None, :] + n * np.arange(len(shifts))[:, None]).ravel()
     for d in deltas:
         r = rot2(float(d))
         qd = (q - cam) @ r.T + cam
         layer = maps.layer_of(p_cls, view @ r.T)
-        for sh in shifts:
-            sc = maps.fine_score_at(qd + sh, layer)
-            mean = np.bincount(p_frame, weights=sc, minlength=n) / np.maximum(count, 1.0)
+        sc_all = maps.fine_score_at((qd[None] + np.asarray(shifts)[:, None]).reshape(-1, 2),
+                                    np.tile(layer, len(shifts)))
+        means = (np.bincount(by_shift, weights=sc_all, minlength=n * len(shifts)).reshape(
+            len(shifts), n) / np.maximum(count, 1.0))
+        for sh, mean in zip(shifts, means, strict=True):
             better = mean > best
             best[better], best_turn[better], best_shift[better] = mean[better], d, sh
             if not sh.any():

@@ -347,6 +347,11 @@ class PlanMaps:
         self.__dict__["_stacked"] = out
         return out
 
+    def prepare(self) -> None:
+        """Build what the lookups build on first use (the stacked fine rasters) now: before
+        several threads read the maps at once (each would build it again)."""
+        self._stack()
+
     def nearest(self, q_xy: NDArray[np.float64], layer: NDArray[np.int64]) -> tuple[F64, F64]:
         """(dist (M,), closest (M, 2)): the exact distance to the segment that the fine raster
         names nearest in each point's layer; ``inf`` (and the point) for an empty layer."""
