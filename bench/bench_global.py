@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import os
 import sys
 import time
 from dataclasses import dataclass
@@ -226,6 +227,13 @@ def run_registration(world: World, seed: int, frames: int, options: Any = None
             "alias_fit": float("nan") if res.alias is None else res.alias.fit_score,
             "twins": len(res.twin_floors), **_vote_columns(res),
             "frames_turned": res.frames_turned, **_trimmed_columns(res.trimmed_fit)}
+
+
+def _result_columns(row: dict[str, Any]) -> tuple[str, ...]:
+    """Every column of a registration row but the times and the thread count, as text (NaN
+    equal to NaN): two runs of one seed must agree on it."""
+    return tuple(f"{k}={v!r}" for k, v in row.items()
+                 if k not in ("seconds", "cpu_seconds", "threads"))
 
 
 def _trimmed_columns(tf: Any) -> dict[str, Any]:
@@ -440,24 +448,47 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--frame-yaw", choices=("off", "on_refusal", "always"), default=None,
                    help="registration level: GlobalAlignOptions.frame_yaw (default: the "
                    "package default)")
+    p.add_argument("--threads", default=None, metavar="T,T",
+                   help="registration level: run each seed with each of these "
+                   "GlobalAlignOptions.num_threads, one after the other (default: the package "
+                   "default, every core); the rows of one seed must agree but for the times")
     args = p.parse_args(argv)
     from bimcap.registration import GlobalAlignOptions
 
-    options = (None if args.frame_yaw is None
-               else GlobalAlignOptions(frame_yaw=args.frame_yaw))  # type: ignore[arg-type]
+    threads = [None] if args.threads is None else [int(v) for v in args.threads.split(",")]
+    if any(t is not None and t < 0 for t in threads):
+        raise SystemExit(f"--threads: must be >= 0, got {args.threads!r}")
+    variants = []
+    for t in threads:
+        kw: dict[str, Any] = {} if args.frame_yaw is None else {"frame_yaw": args.frame_yaw}
+        if t is not None:
+            kw["num_threads"] = t
+        variants.append((t, GlobalAlignOptions(**kw) if kw else None))
     rows = []
+    differ = 0
     for name in [w for w in args.worlds.split(",") if w]:  # --worlds "": the pipeline only
         world = (_ifc_world(name, args.ifc_dir, height_tol_m=args.plane_height_tol_m)
                  if name.startswith("ifc-") else _world(name))
         seeds = (range(args.seeds) if args.seed_list is None
                  else [int(v) for v in args.seed_list.split(",")])
         for seed in seeds:
-            row = run_registration(world, seed, args.frames, options)
-            rows.append(row)
-            print(f"{name} seed {seed}: {row['outcome']}, right {row['right']}, cam error "
-                  f"{row['cam_err_m']:.2f} m, ratio {row['ratio']:.2f}, alias ratio "
-                  f"{row['alias_ratio']:.3f} (difference {row['alias_difference']:.3f}), "
-                  f"{row['seconds']:.1f} s", file=sys.stderr, flush=True)
+            same = None
+            for t, options in variants:
+                row = run_registration(world, seed, args.frames, options)
+                if t is not None:
+                    row["threads"] = t
+                rows.append(row)
+                print(f"{name} seed {seed}: {row['outcome']}, right {row['right']}, cam error "
+                      f"{row['cam_err_m']:.2f} m, ratio {row['ratio']:.2f}, alias ratio "
+                      f"{row['alias_ratio']:.3f} (difference {row['alias_difference']:.3f}), "
+                      f"{row['seconds']:.1f} s, {row['cpu_seconds']:.1f} s CPU"
+                      + ("" if t is None else f", {t} threads"), file=sys.stderr, flush=True)
+                key = _result_columns(row)
+                if same is not None and key != same:
+                    differ += 1
+                    print(f"{name} seed {seed}: the result differs with {t} threads",
+                          file=sys.stderr, flush=True)
+                same = key
     if rows:
         print(summarise(rows))
         placed = [r for r in rows if r["outcome"] == "placed"]
@@ -465,7 +496,15 @@ def main(argv: list[str] | None = None) -> int:
         t = max(r["seconds"] for r in rows)
         c = max(r["cpu_seconds"] for r in rows)
         print(f"\nsilently wrong: {silent} (target 0); slowest alignment {t:.1f} s wall, "
-              f"{c:.1f} s CPU (target < 10 s)")
+              f"{c:.1f} s CPU (target < 10 s wall, on 2 cores; load average now "
+              f"{os.getloadavg()[0]:.1f}: wall times are the machine's when it is near 0)")
+        if len(variants) > 1:
+            for v in dict.fromkeys(t for t, _ in variants):
+                w = [r["seconds"] for r in rows if r.get("threads") == v]
+                print(f"{v} threads: wall mean {np.mean(w):.1f} s, max {max(w):.1f} s (target "
+                      f"< 10 s); CPU mean "
+                      f"{np.mean([r['cpu_seconds'] for r in rows if r.get('threads') == v]):.1f} s")
+            print(f"results that differ between thread counts: {differ} (must be 0)")
     if args.csv is not None and rows:
         with open(args.csv, "w", newline="") as f:
             w = csv.DictWriter(f, fieldnames=list(rows[0]))
