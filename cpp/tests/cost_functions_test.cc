@@ -1,6 +1,5 @@
 // Each functor against hand-computed values and against ceres::GradientChecker.
 #include <ceres/gradient_checker.h>
-#include <ceres/loss_function.h>
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -10,7 +9,6 @@
 #include <sstream>
 #include <string>
 
-#include "bimcap/cost_functions/batched.h"
 #include "bimcap/cost_functions/landmark.h"
 #include "bimcap/cost_functions/point_consistency.h"
 #include "bimcap/cost_functions/point_to_plane.h"
@@ -553,147 +551,6 @@ TEST(AnalyticJacobians, MatchAutoDiff) {
     }
   }
   EXPECT_GT(behind, 20);
-}
-
-// What Ceres' trust-region step reads of one block: its cost ½‖r‖², JᵀJ and Jᵀr over the
-// wanted blocks' ambient columns (`wanted[b]` false: a constant block, a null Jacobian).
-struct BlockModel {
-  double cost = 0.0;
-  Eigen::MatrixXd jtj;
-  Eigen::VectorXd jtr;
-  double residual_only_cost = 0.0;
-};
-
-BlockModel ModelOf(const ceres::CostFunction& cost, const std::vector<const double*>& blocks,
-                   const std::vector<bool>& wanted) {
-  const int m = cost.num_residuals();
-  const std::vector<int32_t>& sizes = cost.parameter_block_sizes();
-  std::vector<std::vector<double>> j(sizes.size());
-  std::vector<double*> jp(sizes.size(), nullptr);
-  int cols = 0;
-  for (size_t b = 0; b < sizes.size(); ++b) {
-    if (!wanted[b]) continue;
-    j[b].assign(static_cast<size_t>(m) * sizes[b], std::nan(""));
-    jp[b] = j[b].data();
-    cols += sizes[b];
-  }
-  std::vector<double> r(m, std::nan(""));
-  EXPECT_TRUE(cost.Evaluate(blocks.data(), r.data(), jp.data()));
-  Eigen::MatrixXd jm(m, cols);
-  for (size_t b = 0, c = 0; b < sizes.size(); ++b) {
-    if (!wanted[b]) continue;
-    for (int row = 0; row < m; ++row) {
-      for (int k = 0; k < sizes[b]; ++k) jm(row, c + k) = j[b][row * sizes[b] + k];
-    }
-    c += sizes[b];
-  }
-  const Eigen::Map<const Eigen::VectorXd> rv(r.data(), m);
-  BlockModel out;
-  out.cost = 0.5 * rv.squaredNorm();
-  out.jtj = jm.transpose() * jm;
-  out.jtr = jm.transpose() * rv;
-  std::vector<double> r2(m, std::nan(""));
-  EXPECT_TRUE(cost.Evaluate(blocks.data(), r2.data(), nullptr));
-  out.residual_only_cost = 0.5 * Eigen::Map<const Eigen::VectorXd>(r2.data(), m).squaredNorm();
-  return out;
-}
-
-// The compressed block (C + 1 rows) against the n·k + 1 rows of the same observations: the same
-// cost, JᵀJ and Jᵀr (hence the same column norms), with and without a loss, with a constant
-// block, and with a rank-deficient JᵀJ (one plane: the translation is seen along n only).
-TEST(Batched, CompressedMatchesRows) {
-  std::mt19937 rng(11);
-  std::normal_distribution<double> g(0.0, 1.0);
-  const ceres::CauchyLoss cauchy(0.5);
-  const ceres::HuberLoss huber(0.2);
-  const std::vector<const ceres::LossFunction*> losses = {nullptr, &cauchy, &huber};
-  auto expect_same = [](const BlockModel& x, const BlockModel& y) {
-    EXPECT_NEAR(x.cost, y.cost, 1e-12 * std::max(1.0, y.cost));
-    EXPECT_NEAR(x.residual_only_cost, y.cost, 1e-12 * std::max(1.0, y.cost));
-    ASSERT_EQ(x.jtj.rows(), y.jtj.rows());
-    if (y.jtj.size() == 0) return;
-    const double scale = std::max(1.0, y.jtj.cwiseAbs().maxCoeff());
-    EXPECT_LT((x.jtj - y.jtj).cwiseAbs().maxCoeff(), 1e-11 * scale);
-    EXPECT_LT((x.jtr - y.jtr).cwiseAbs().maxCoeff(),
-              1e-10 * std::max(1.0, y.jtr.cwiseAbs().maxCoeff()));
-  };
-  for (int trial = 0; trial < 20; ++trial) {
-    for (const ceres::LossFunction* loss : losses) {
-      const Pose7 a = RandomPose(&rng), b = RandomPose(&rng);
-      const int n = 9 + trial * 3;
-      {
-        SCOPED_TRACE("point to plane, one plane");
-        const Eigen::Vector3d nrm = Eigen::Vector3d(g(rng), g(rng), g(rng)).normalized();
-        const Eigen::Vector4d plane(nrm.x(), nrm.y(), nrm.z(), g(rng));
-        BatchedCostFunction rows(loss, 1, false), packed(loss, 1, true);
-        for (int i = 0; i < n; ++i) {
-          const Eigen::Vector3d p(g(rng), g(rng), 2.0 + g(rng));
-          const double s = 0.5 + std::abs(g(rng));
-          rows.Add(
-              std::unique_ptr<ceres::CostFunction>(PointToPlaneCostFunction::Create(p, plane, s)),
-              i);
-          packed.Add(
-              std::unique_ptr<ceres::CostFunction>(PointToPlaneCostFunction::Create(p, plane, s)),
-              i);
-        }
-        ASSERT_TRUE(packed.compressed());
-        ASSERT_FALSE(rows.compressed());
-        EXPECT_EQ(packed.num_residuals(), kPoseSize + 1);
-        expect_same(ModelOf(packed, {a.data()}, {true}), ModelOf(rows, {a.data()}, {true}));
-      }
-      {
-        SCOPED_TRACE("point to segment, one wall");
-        const Eigen::Vector3d centre = Eigen::Map<const Eigen::Vector3d>(a.data());
-        const Eigen::Vector4d seg(centre.x() - 3.0, centre.y() + 2.0, centre.x() + 3.0,
-                                  centre.y() + 2.5);
-        BatchedCostFunction rows(loss, 1, false), packed(loss, 1, true);
-        for (int i = 0; i < n; ++i) {
-          const Eigen::Vector3d p(g(rng), g(rng), 2.0 + g(rng));
-          const double s = 0.5 + std::abs(g(rng));
-          rows.Add(
-              std::unique_ptr<ceres::CostFunction>(PointToSegmentCostFunction::Create(p, seg, s)),
-              i);
-          packed.Add(
-              std::unique_ptr<ceres::CostFunction>(PointToSegmentCostFunction::Create(p, seg, s)),
-              i);
-        }
-        expect_same(ModelOf(packed, {a.data()}, {true}), ModelOf(rows, {a.data()}, {true}));
-      }
-      {
-        SCOPED_TRACE("reprojection, two poses");
-        BatchedCostFunction rows(loss, 2, false), packed(loss, 2, true);
-        const Eigen::Vector4d k(500 + g(rng), 480 + g(rng), 320, 240);
-        for (int i = 0; i < n; ++i) {
-          const Eigen::Vector3d p(g(rng), g(rng), 2.0 + std::abs(g(rng)));
-          const Eigen::Vector2d uv(320 + 80 * g(rng), 240 + 80 * g(rng));
-          const double s = 0.5 + std::abs(g(rng));
-          rows.Add(std::unique_ptr<ceres::CostFunction>(
-                       ReprojectionCostFunction::Create(p, uv, k, s, 1.0, 0.05)),
-                   i);
-          packed.Add(std::unique_ptr<ceres::CostFunction>(
-                         ReprojectionCostFunction::Create(p, uv, k, s, 1.0, 0.05)),
-                     i);
-        }
-        ASSERT_TRUE(packed.compressed());
-        EXPECT_EQ(packed.num_residuals(), 2 * kPoseSize + 1);
-        for (const std::vector<bool>& wanted :
-             {std::vector<bool>{true, true}, std::vector<bool>{false, true},
-              std::vector<bool>{true, false}, std::vector<bool>{false, false}}) {
-          expect_same(ModelOf(packed, {a.data(), b.data()}, wanted),
-                      ModelOf(rows, {a.data(), b.data()}, wanted));
-        }
-      }
-    }
-  }
-  // Few observations (n·k ≤ C): the rows as they are.
-  BatchedCostFunction few(&cauchy, 1, true);
-  for (int i = 0; i < kPoseSize; ++i) {
-    few.Add(std::unique_ptr<ceres::CostFunction>(PointToPlaneCostFunction::Create(
-                Eigen::Vector3d(g(rng), g(rng), 2.0), Eigen::Vector4d(0, 0, 1, 0), 1.0)),
-            i);
-  }
-  EXPECT_FALSE(few.compressed());
-  EXPECT_EQ(few.num_residuals(), kPoseSize + 1);
 }
 
 }  // namespace
