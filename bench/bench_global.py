@@ -213,7 +213,6 @@ def run_registration(world: World, seed: int, frames: int, options: Any = None,
                 "alias_difference": nan, "alias_fit": nan, "twins": 0, "vote_rays": nan,
                 "vote_best": nan, "vote_alias": nan, "vote_frames": nan, "vote_low": nan,
                 "frames_turned": False, "trimmed_fit": nan, "trimmed_accepted": False,
-                **_worst_columns(None),
                 **({} if plan_world is None else {"trimmed_all": nan,
                                                    "window_accepted": False})}
     est = compose(res.world_from_slam, slam.trajectory.poses)
@@ -234,7 +233,6 @@ def run_registration(world: World, seed: int, frames: int, options: Any = None,
             "alias_fit": float("nan") if res.alias is None else res.alias.fit_score,
             "twins": len(res.twin_floors), **_vote_columns(res),
             "frames_turned": res.frames_turned, **_trimmed_columns(res.trimmed_fit),
-            **_worst_columns(res.worst_frames),
             **({} if plan_world is None else {"trimmed_all": _trimmed_all(res.trimmed_fit),
                                                "window_accepted": _window_accepted(res)})}
 
@@ -246,16 +244,6 @@ def _trimmed_columns(tf: Any) -> dict[str, Any]:
         return {"trimmed_fit": float("nan"), "trimmed_accepted": False}
     d = tf if isinstance(tf, dict) else tf.to_dict()
     return {"trimmed_fit": d["trimmed"], "trimmed_accepted": d["accepted"]}
-
-
-def _worst_columns(wf: Any) -> dict[str, Any]:
-    """The fit of the worst-fitting frames of a placement taken while the second-best came
-    near (``GlobalAlignResult.worst_frames``; a dict from ``result.json`` or the object; NaN /
-    True: not measured)."""
-    if wf is None:
-        return {"worst_fit": float("nan"), "worst_accepted": True}
-    d = wf if isinstance(wf, dict) else wf.to_dict()
-    return {"worst_fit": d["worst"], "worst_accepted": d["accepted"]}
 
 
 def _trimmed_all(tf: Any) -> float:
@@ -281,10 +269,9 @@ def wrong_plan_refusals(row: dict[str, Any], options: Any = None) -> list[str]:
     (fit under ``min_score``, the trimmed fit not measured or under it too), ``trim-ratio``
     (the trimmed fit passes ``min_score`` and only ``fit_trim_max_ratio`` holds it), ``free``,
     ``see`` (over ``max_see_through`` and the windowed see-through did not take it),
-    ``ambiguous`` (the ratio, a twin storey or a plan alias), ``turned-ratio`` (found on the
-    turned scan, second-best over ``frame_yaw_max_ratio``) and ``worst-frames`` (second-best
-    over ``near_second_ratio``, the worst frames under ``near_second_worst_fit``). An empty
-    list for a placed run; the fewer, the nearer a wrong placement came to being taken."""
+    ``ambiguous`` (the ratio, a twin storey or a plan alias) and ``turned-ratio`` (found on the
+    turned scan, second-best over ``frame_yaw_max_ratio``). An empty list for a placed run;
+    the fewer, the nearer a wrong placement came to being taken."""
     from bimcap.registration import GlobalAlignOptions
 
     opt = GlobalAlignOptions() if options is None else options
@@ -303,8 +290,6 @@ def wrong_plan_refusals(row: dict[str, Any], options: Any = None) -> list[str]:
         out.append("ambiguous")
     if row["frames_turned"] and row["ratio"] > opt.frame_yaw_max_ratio:
         out.append("turned-ratio")
-    if not row["worst_accepted"]:
-        out.append("worst-frames")
     return [t for t in out if t]
 
 
@@ -342,7 +327,7 @@ def summarise_wrong_plan(rows: list[dict[str, Any]]) -> str:
         lines.append(f"  one gate: {r['world']} -> {r['plan']} seed {r['seed']}: "
                      f"{r['refused_by']} (fit {r['fit']:.3f}, trimmed {r['trimmed_fit']:.3f}, "
                      f"free {r['free']:.2f}, see-through {r['see_through']:.2f}, "
-                     f"ratio {r['ratio']:.3f}, worst frames {r['worst_fit']:.3f})")
+                     f"ratio {r['ratio']:.3f})")
     return "\n".join(lines)
 
 
@@ -486,7 +471,6 @@ def run_pipeline(seeds: list[int], work: Path, frames: int, mode: str = "auto"
                 hyps = ga.get("hypotheses") or [{}]
                 row["fit"] = hyps[0].get("fit_score", float("nan"))
                 row.update(_trimmed_columns(ga.get("trimmed_fit")))
-                row.update(_worst_columns(ga.get("worst_frames")))
         row["within"] = (row["slam_rc"] == 0 and row["aligned_rc"] == 0
                          and ends_within(row["slam_ate_cm"], row["slam_ate_deg"],
                                          row["aligned_ate_cm"], row["aligned_ate_deg"]))
@@ -500,49 +484,6 @@ def run_pipeline(seeds: list[int], work: Path, frames: int, mode: str = "auto"
               f"{row['within']}, global {row['global_seconds']:.1f} s"
               + (f"; error: {row['error'][:200]}" if row["error"] else ""), file=sys.stderr,
               flush=True)
-    return rows
-
-
-def run_pipeline_wrong(seeds: list[int], work: Path, frames: int, ifcs: list[Path]
-                       ) -> list[dict[str, Any]]:
-    """A wrong building at the pipeline level: each demo seed's SLAM-frame trajectory (as in
-    :func:`run_pipeline`, the same sequence and drift) refined with ``--global-align`` against
-    each of ``ifcs`` (other buildings' models), so that every placement is wrong. Outcome as
-    :func:`pipeline_outcome`; ``silently_wrong``: the refine finished (exit 0: the global
-    alignment, or its missing-wall retry, placed the trajectory)."""
-    from bimcap.cli import main
-    from bimcap.pipeline.demo import DemoOptions, make_sequence, make_world
-
-    rows = []
-    for seed in seeds:
-        base = work / f"demo-{seed}"
-        opts = DemoOptions(preset="demo", frames=frames, scale=0.125, fps=2.0, seed=seed)
-        design, built = make_world(base, opts, quiet=True)
-        seq = make_sequence(base, design, built, opts, quiet=True)
-        init = base / "slam.tum"
-        if not init.exists():
-            assert main(["drift", str(seq), "--preset", "exp2", "--seed", str(seed + 1),
-                         "-o", str(init), "--slam-frame"]) == 0
-        for ifc in ifcs:
-            rc, seconds, res, error = _refine(seq, ifc, init, base / f"run-wrong-{ifc.stem}",
-                                              ["--global-align"])
-            ga = (None if res is None else res.get("solve", {}).get("global_align")) or {}
-            hyps = ga.get("hypotheses") or (ga.get("placements") or {}).get("hypotheses") or [{}]
-            row: dict[str, Any] = {
-                "seed": seed, "plan": ifc.stem, "slam_rc": rc,
-                "outcome": pipeline_outcome(rc, res, error), "silently_wrong": rc == 0,
-                "seconds": seconds, "global_seconds": ga.get("seconds", float("nan")),
-                "fit": hyps[0].get("fit_score", float("nan")),
-                "free": hyps[0].get("free_fraction", float("nan")),
-                "see_through": hyps[0].get("see_through", float("nan")),
-                "ratio": ga.get("ratio", float("nan")),
-                **_trimmed_columns(ga.get("trimmed_fit")),
-                **_worst_columns(ga.get("worst_frames")), "error": error}
-            rows.append(row)
-            print(f"pipeline seed {seed} -> {ifc.stem}: {row['outcome']} (rc {rc})"
-                  f"{' SILENTLY WRONG' if rc == 0 else ''}, fit {row['fit']:.3f}, trimmed "
-                  f"{row['trimmed_fit']:.3f}, ratio {row['ratio']:.3f}, {seconds:.1f} s; "
-                  f"{error[:160]}", file=sys.stderr, flush=True)
     return rows
 
 
@@ -581,10 +522,6 @@ def main(argv: list[str] | None = None) -> int:
                    help="run the whole refine on these demo seeds (instead of --pipeline N)")
     p.add_argument("--pipeline-csv", type=Path, default=None,
                    help="write the pipeline level's per-seed rows here")
-    p.add_argument("--pipeline-wrong-ifc", default=None, metavar="IFC,IFC",
-                   help="pipeline level, a wrong building: refine each pipeline seed's "
-                   "SLAM-frame trajectory with --global-align against each of these other "
-                   "models instead (exit 0 = silently wrong)")
     p.add_argument("--global-align", choices=("auto", "on"), default="auto",
                    help="pipeline level: let the refine's auto detection decide (default) or "
                    "pass --global-align")
@@ -598,21 +535,14 @@ def main(argv: list[str] | None = None) -> int:
                    help="registration level, a wrong building: each run's scan (of each of "
                    "--worlds) aligned against each of these OTHER worlds' plans (pairs of one "
                    "building skipped: demo/stack/tower); placed = silently wrong")
-    p.add_argument("--near-second", default=None, metavar="RATIO,FIT",
-                   help="registration level: GlobalAlignOptions.near_second_ratio and "
-                   "near_second_worst_fit (default: the package defaults; 0,0 measures the "
-                   "worst frames of every placement taken and refuses none)")
     p.add_argument("--frame-yaw", choices=("off", "on_refusal", "always"), default=None,
                    help="registration level: GlobalAlignOptions.frame_yaw (default: the "
                    "package default)")
     args = p.parse_args(argv)
     from bimcap.registration import GlobalAlignOptions
 
-    kw: dict[str, Any] = {} if args.frame_yaw is None else {"frame_yaw": args.frame_yaw}
-    if args.near_second is not None:
-        ratio, worst = (float(v) for v in args.near_second.split(","))
-        kw.update(near_second_ratio=ratio, near_second_worst_fit=worst)
-    options = GlobalAlignOptions(**kw) if kw else None
+    options = (None if args.frame_yaw is None
+               else GlobalAlignOptions(frame_yaw=args.frame_yaw))  # type: ignore[arg-type]
     rows = []
     loaded: dict[str, World] = {}
 
@@ -651,18 +581,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.pipeline or args.pipeline_seeds:
         pseeds = (list(range(args.pipeline)) if args.pipeline_seeds is None
                   else [int(v) for v in args.pipeline_seeds.split(",")])
-        if args.pipeline_wrong_ifc is not None:
-            ifcs = [Path(v) for v in args.pipeline_wrong_ifc.split(",") if v]
-            missing = [str(v) for v in ifcs if not v.is_file()]
-            if missing:
-                raise SystemExit(f"--pipeline-wrong-ifc: not found: {', '.join(missing)}")
-            prow = run_pipeline_wrong(pseeds, args.work, args.frames, ifcs)
-            silent = sum(r["silently_wrong"] for r in prow)
-            print(f"pipeline, wrong building: {len(prow)} runs, {silent} placed (= silently "
-                  f"wrong, target 0), {len(prow) - silent} refused or failed")
-        else:
-            prow = run_pipeline(pseeds, args.work, args.frames, args.global_align)
-            print(summarise_pipeline(prow))
+        prow = run_pipeline(pseeds, args.work, args.frames, args.global_align)
+        print(summarise_pipeline(prow))
         if args.pipeline_csv is not None:
             with open(args.pipeline_csv, "w", newline="") as f:
                 w = csv.DictWriter(f, fieldnames=list(prow[0]))
@@ -687,8 +607,7 @@ def _main_wrong_plan(args: argparse.Namespace, load: Any, seeds: Any, options: A
                       f"{' (SILENTLY WRONG)' if row['outcome'] == 'placed' else ''}, fit "
                       f"{row['fit']:.3f}, trimmed {row['trimmed_fit']:.3f}, free "
                       f"{row['free']:.2f}, see-through {row['see_through']:.2f}, ratio "
-                      f"{row['ratio']:.3f}, worst frames {row['worst_fit']:.3f}, turned "
-                      f"{row['frames_turned']}, refused by "
+                      f"{row['ratio']:.3f}, turned {row['frames_turned']}, refused by "
                       f"[{row['refused_by']}], {row['cpu_seconds']:.1f} s CPU",
                       file=sys.stderr, flush=True)
     if not rows:

@@ -262,15 +262,6 @@ class GlobalAlignOptions:
         for the other answers to a refusal). Pipeline seed 15 (as-built deviations; fit 0.64,
         0.62 at the true rigid placement): trimmed 0.67, ratio 0.07 (:class:`TrimmedFit`;
         docs/global_align.md, "32 pipeline seeds").
-    near_second_ratio, near_second_worst_fit: a placement that passes every other test while
-        the second-best scores more than ``near_second_ratio`` of it is taken only when its
-        worst-fitting frames fit too: the mean per-frame fit of its worst ``fit_trim_frames``
-        share of frames (at least one) must be at least ``near_second_worst_fit``
-        (:class:`WorstFrames`; 0: off). A scan of another building that fits a part of this
-        one (a corridor and two rooms of ``tiny`` in ``demo``'s corridor) has frames that see
-        what the plan lacks, and other parts fit nearly as well; the right placements with a
-        second-best that near are the design-plan scans of repeated rooms, whose every frame
-        fits (docs/global_align.md, "A wrong building").
     accept_ambiguous: take the best hypothesis even when the result is ambiguous (flagged in
         the result, never hidden).
     report_top: hypotheses kept in the result.
@@ -342,8 +333,6 @@ class GlobalAlignOptions:
     frame_yaw_wall_share: float = MIN_WALL_SHARE
     fit_trim_frames: float = 0.1
     fit_trim_max_ratio: float = 0.2
-    near_second_ratio: float = 0.3
-    near_second_worst_fit: float = 0.0
     accept_ambiguous: bool = False
     report_top: int = 5
     seed: int = 0
@@ -377,7 +366,7 @@ class GlobalAlignOptions:
         for name in ("ambiguity_ratio", "min_score", "min_free_fraction", "max_see_through",
                      "alias_max_difference", "alias_exact_difference", "alias_vote_min_share",
                      "see_through_window_max_ratio", "frame_yaw_max_ratio", "fit_trim_frames",
-                     "fit_trim_max_ratio", "near_second_ratio", "near_second_worst_fit"):
+                     "fit_trim_max_ratio"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise RegistrationInputError("must be in [0, 1]", None, name)
         if not 0 <= self.enclosed_min_hits <= self.enclosed_rays:
@@ -472,9 +461,6 @@ class GlobalAlignResult:
     trimmed_fit: the best placement's fit measured again without its worst-fitting frames,
         when it was refused for its fit alone (:class:`TrimmedFit`; None: not needed, or
         ``fit_trim_frames`` 0).
-    worst_frames: the fit of the best placement's worst-fitting frames, when it passed every
-        other test with a second-best above ``near_second_ratio`` (:class:`WorstFrames`; None:
-        not needed).
     gravity_tilt_deg: the tilt of the SLAM frame estimated from the floor (degrees).
     gravity_applied: whether that tilt was taken out (above ``gravity_min_tilt_deg``).
     storeys: per storey tried, its floor z and the best score found there.
@@ -499,7 +485,6 @@ class GlobalAlignResult:
     drift_see_through: DriftSeeThrough | None = None
     seen_through_wall: SeenThroughWall | None = None
     trimmed_fit: TrimmedFit | None = None
-    worst_frames: WorstFrames | None = None
     n_frames: int = field(init=False)
 
     def __post_init__(self) -> None:
@@ -522,7 +507,6 @@ class GlobalAlignResult:
             "seen_through_wall": (None if self.seen_through_wall is None
                                   else self.seen_through_wall.to_dict()),
             "trimmed_fit": None if self.trimmed_fit is None else self.trimmed_fit.to_dict(),
-            "worst_frames": None if self.worst_frames is None else self.worst_frames.to_dict(),
             "gravity_tilt_deg": self.gravity_tilt_deg,
             "gravity_applied": self.gravity_applied,
             "storeys": self.storeys,
@@ -551,11 +535,6 @@ class GlobalAlignResult:
             lines.append(f"  fit without the worst {tf.frames_set_aside} of {tf.frames} frames: "
                          f"{tf.trimmed:.3f} (all frames, same points: {tf.fit:.3f})"
                          + (" (accepted)" if tf.accepted else " (not accepted)"))
-        wf = self.worst_frames
-        if wf is not None:
-            lines.append(f"  the worst {wf.worst_frames} of {wf.frames} frames fit {wf.worst:.3f} "
-                         f"(all frames {wf.fit:.3f}; second-best at {wf.ratio:.0%})"
-                         + (" (accepted)" if wf.accepted else " (not accepted)"))
         return "\n".join(lines)
 
 
@@ -1949,60 +1928,16 @@ class TrimmedFit:
         return asdict(self)
 
 
-def _frame_fits(f: _Found, scan: _Scan, sm: _StoreyMaps, opt: GlobalAlignOptions) -> F64:
-    """(K,) the per-frame fit of placement ``f`` (:func:`_frame_fit`) of each frame with points,
-    ascending, on the storey's wall/column points (every k-th, at most ``max_points``)."""
+def _trimmed_fit(f: _Found, scan: _Scan, sm: _StoreyMaps, ratio: float,
+                 opt: GlobalAlignOptions) -> TrimmedFit:
+    """:class:`TrimmedFit` of placement ``f`` (``ratio``: second-best / best score)."""
     keep = np.flatnonzero(_keep(scan, f.storey, opt))
     keep = keep[::max(1, -(-len(keep) // opt.max_points))]
     per = np.full(len(scan.cams), np.nan)
     if len(keep):
         _frame_fit(f.corr, scan.xy[keep], scan.cls[keep], scan.view[keep], scan.frame[keep],
                    scan.cams[:, :2], sm.maps, opt, frame_fits=per)
-    return np.sort(per[np.isfinite(per)])
-
-
-@dataclass(frozen=True)
-class WorstFrames:
-    """The test of a placement taken while the second-best comes near (:func:`global_align`,
-    ``near_second_ratio``): the fit of its worst-fitting frames.
-
-    Attributes
-    ----------
-    ratio: second-best / best score.
-    fit: the per-frame fit over every frame with points (0-1; as :class:`TrimmedFit`).
-    worst: the mean fit of the worst-fitting ``worst_frames`` frames (0-1).
-    frames, worst_frames: frames with points; the worst ``fit_trim_frames`` share of them
-        (at least one).
-    accepted: ``worst`` at least ``near_second_worst_fit``.
-    """
-
-    ratio: float
-    fit: float
-    worst: float
-    frames: int
-    worst_frames: int
-    accepted: bool
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
-
-def _worst_frames(f: _Found, scan: _Scan, sm: _StoreyMaps, ratio: float,
-                  opt: GlobalAlignOptions) -> WorstFrames:
-    """:class:`WorstFrames` of placement ``f`` (``ratio``: second-best / best score)."""
-    per = _frame_fits(f, scan, sm, opt)
-    if not len(per):
-        return WorstFrames(ratio, 0.0, 0.0, 0, 0, opt.near_second_worst_fit <= 0.0)
-    k = max(1, int(np.floor(opt.fit_trim_frames * len(per))))
-    worst = float(per[:k].mean())
-    return WorstFrames(ratio, float(per.mean()), worst, len(per), k,
-                       bool(worst >= opt.near_second_worst_fit))
-
-
-def _trimmed_fit(f: _Found, scan: _Scan, sm: _StoreyMaps, ratio: float,
-                 opt: GlobalAlignOptions) -> TrimmedFit:
-    """:class:`TrimmedFit` of placement ``f`` (``ratio``: second-best / best score)."""
-    per = _frame_fits(f, scan, sm, opt)
+    per = np.sort(per[np.isfinite(per)])
     if not len(per):
         return TrimmedFit(0.0, 0.0, 0, 0, False)
     drop = int(np.floor(opt.fit_trim_frames * len(per)))
@@ -2417,22 +2352,6 @@ def global_align(
             f"the best (a placement found on a second try is taken at most at "
             f"{opt.frame_yaw_max_ratio:.0%}); is this the right BIM?\n" + result.describe(),
             result)
-    if (fits and (best.see_through <= opt.max_see_through or drift_ok) and not ambiguous
-            and ratio > opt.near_second_ratio and result.trimmed_fit is None):
-        # Taken on every other test while the second-best comes near: its worst frames must
-        # fit too (a scan of another building, fitting a part of this one).
-        t0 = time.perf_counter()
-        wf = _worst_frames(best, scan, storey_maps[_section_key(plan, best.storey)], ratio, opt)
-        result.worst_frames = wf
-        timings["worst_frames"] = time.perf_counter() - t0
-        timings["total"] = time.perf_counter() - t_start
-        if not wf.accepted:
-            raise GlobalAlignmentError(
-                f"global alignment: the second-best placement scores {ratio:.0%} of the best "
-                f"and the best's worst-fitting {wf.worst_frames} of {wf.frames} frames fit "
-                f"{wf.worst:.2f} (minimum {opt.near_second_worst_fit:.2f} when the second-best "
-                f"scores over {opt.near_second_ratio:.0%}): a part of the scan is not in this "
-                f"plan; is this the right BIM?\n" + result.describe(), result)
     if not fits or (best.see_through > opt.max_see_through and not drift_ok):
         raise GlobalAlignmentError(
             f"global alignment: the best placement fits badly (fit score {best.fit:.2f}, "
