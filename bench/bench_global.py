@@ -487,6 +487,48 @@ def run_pipeline(seeds: list[int], work: Path, frames: int, mode: str = "auto"
     return rows
 
 
+def run_pipeline_wrong(seeds: list[int], work: Path, frames: int, ifcs: list[Path]
+                       ) -> list[dict[str, Any]]:
+    """A wrong building at the pipeline level: each demo seed's SLAM-frame trajectory (as in
+    :func:`run_pipeline`, the same sequence and drift) refined with ``--global-align`` against
+    each of ``ifcs`` (other buildings' models), so that every placement is wrong. Outcome as
+    :func:`pipeline_outcome`; ``silently_wrong``: the refine finished (exit 0: the global
+    alignment, or its missing-wall retry, placed the trajectory)."""
+    from bimcap.cli import main
+    from bimcap.pipeline.demo import DemoOptions, make_sequence, make_world
+
+    rows = []
+    for seed in seeds:
+        base = work / f"demo-{seed}"
+        opts = DemoOptions(preset="demo", frames=frames, scale=0.125, fps=2.0, seed=seed)
+        design, built = make_world(base, opts, quiet=True)
+        seq = make_sequence(base, design, built, opts, quiet=True)
+        init = base / "slam.tum"
+        if not init.exists():
+            assert main(["drift", str(seq), "--preset", "exp2", "--seed", str(seed + 1),
+                         "-o", str(init), "--slam-frame"]) == 0
+        for ifc in ifcs:
+            rc, seconds, res, error = _refine(seq, ifc, init, base / f"run-wrong-{ifc.stem}",
+                                              ["--global-align"])
+            ga = (None if res is None else res.get("solve", {}).get("global_align")) or {}
+            hyps = ga.get("hypotheses") or (ga.get("placements") or {}).get("hypotheses") or [{}]
+            row: dict[str, Any] = {
+                "seed": seed, "plan": ifc.stem, "slam_rc": rc,
+                "outcome": pipeline_outcome(rc, res, error), "silently_wrong": rc == 0,
+                "seconds": seconds, "global_seconds": ga.get("seconds", float("nan")),
+                "fit": hyps[0].get("fit_score", float("nan")),
+                "free": hyps[0].get("free_fraction", float("nan")),
+                "see_through": hyps[0].get("see_through", float("nan")),
+                "ratio": ga.get("ratio", float("nan")),
+                **_trimmed_columns(ga.get("trimmed_fit")), "error": error}
+            rows.append(row)
+            print(f"pipeline seed {seed} -> {ifc.stem}: {row['outcome']} (rc {rc})"
+                  f"{' SILENTLY WRONG' if rc == 0 else ''}, fit {row['fit']:.3f}, trimmed "
+                  f"{row['trimmed_fit']:.3f}, ratio {row['ratio']:.3f}, {seconds:.1f} s; "
+                  f"{error[:160]}", file=sys.stderr, flush=True)
+    return rows
+
+
 def summarise_pipeline(rows: list[dict[str, Any]]) -> str:
     """Per-seed table of the pipeline level and its totals."""
     lines = [f"{'seed':>4}  {'outcome':<18}{'rc':>3}{'SLAM cm':>9}{'deg':>7}{'aligned cm':>11}"
@@ -522,6 +564,10 @@ def main(argv: list[str] | None = None) -> int:
                    help="run the whole refine on these demo seeds (instead of --pipeline N)")
     p.add_argument("--pipeline-csv", type=Path, default=None,
                    help="write the pipeline level's per-seed rows here")
+    p.add_argument("--pipeline-wrong-ifc", default=None, metavar="IFC,IFC",
+                   help="pipeline level, a wrong building: refine each pipeline seed's "
+                   "SLAM-frame trajectory with --global-align against each of these other "
+                   "models instead (exit 0 = silently wrong)")
     p.add_argument("--global-align", choices=("auto", "on"), default="auto",
                    help="pipeline level: let the refine's auto detection decide (default) or "
                    "pass --global-align")
@@ -581,8 +627,18 @@ def main(argv: list[str] | None = None) -> int:
     if args.pipeline or args.pipeline_seeds:
         pseeds = (list(range(args.pipeline)) if args.pipeline_seeds is None
                   else [int(v) for v in args.pipeline_seeds.split(",")])
-        prow = run_pipeline(pseeds, args.work, args.frames, args.global_align)
-        print(summarise_pipeline(prow))
+        if args.pipeline_wrong_ifc is not None:
+            ifcs = [Path(v) for v in args.pipeline_wrong_ifc.split(",") if v]
+            missing = [str(v) for v in ifcs if not v.is_file()]
+            if missing:
+                raise SystemExit(f"--pipeline-wrong-ifc: not found: {', '.join(missing)}")
+            prow = run_pipeline_wrong(pseeds, args.work, args.frames, ifcs)
+            silent = sum(r["silently_wrong"] for r in prow)
+            print(f"pipeline, wrong building: {len(prow)} runs, {silent} placed (= silently "
+                  f"wrong, target 0), {len(prow) - silent} refused or failed")
+        else:
+            prow = run_pipeline(pseeds, args.work, args.frames, args.global_align)
+            print(summarise_pipeline(prow))
         if args.pipeline_csv is not None:
             with open(args.pipeline_csv, "w", newline="") as f:
                 w = csv.DictWriter(f, fieldnames=list(prow[0]))
