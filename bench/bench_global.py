@@ -163,10 +163,12 @@ def _ifc_world(name: str, ifc_dir: Path, min_walkable_m2: float = 10.0,
     return World(name, plan, scenes, tours, closed=False)
 
 
-def run_registration(world: World, seed: int, frames: int, options: Any = None
-                     ) -> dict[str, Any]:
+def run_registration(world: World, seed: int, frames: int, options: Any = None,
+                     plan_world: World | None = None) -> dict[str, Any]:
     """One global alignment on ``world`` (``options``: :class:`GlobalAlignOptions`, None: the
-    defaults); the outcome and its numbers."""
+    defaults); the outcome and its numbers. ``plan_world``: align ``world``'s scan against this
+    other world's plan instead (a wrong building: every placement is silently wrong, ``right``
+    is False; column ``plan``); None: its own."""
     from bimcap.geometry import Trajectory
     from bimcap.geometry.poses import compose, invert
     from bimcap.registration import (
@@ -188,19 +190,22 @@ def run_registration(world: World, seed: int, frames: int, options: Any = None
                         DriftParams.from_preset("exp2", seed=seed))
     samples = scan_sequence(gt, scene, seed=seed, clutter_fraction=0.05)
     slam = to_slam_frame(drift.init, seed)
+    plan = world.plan if plan_world is None else plan_world.plan
     t0, c0 = time.perf_counter(), time.process_time()
-    outcome, res = "placed", None
+    outcome, res, why = "placed", None, ""
     try:
         # Three arguments unless options are given (tests swap in three-argument wrappers).
-        res = (global_align(slam.trajectory.poses, samples, world.plan) if options is None
-               else global_align(slam.trajectory.poses, samples, world.plan, options))
+        res = (global_align(slam.trajectory.poses, samples, plan) if options is None
+               else global_align(slam.trajectory.poses, samples, plan, options))
     except AmbiguousAlignmentError as exc:
-        outcome, res = "ambiguous", exc.result
+        outcome, res, why = "ambiguous", exc.result, str(exc).split("\n")[0]
     except GlobalAlignmentError as exc:
-        outcome, res = "error", exc.result
+        outcome, res, why = "error", exc.result, str(exc).split("\n")[0]
     seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
     row: dict[str, Any] = {"world": world.name, "seed": seed, "storey": k, "outcome": outcome,
                            "seconds": seconds, "cpu_seconds": cpu}
+    if plan_world is not None:
+        row = {"world": world.name, "plan": plan_world.name, **row, "why": why}
     if res is None:
         nan = float("nan")
         return {**row, "right": False, "cam_err_m": nan, "yaw_err_deg": nan, "ratio": nan,
@@ -208,13 +213,15 @@ def run_registration(world: World, seed: int, frames: int, options: Any = None
                 "see_through": nan, "agreement": nan, "constraint": nan, "alias_ratio": nan,
                 "alias_difference": nan, "alias_fit": nan, "twins": 0, "vote_rays": nan,
                 "vote_best": nan, "vote_alias": nan, "vote_frames": nan, "vote_low": nan,
-                "frames_turned": False, "trimmed_fit": nan, "trimmed_accepted": False}
+                "frames_turned": False, "trimmed_fit": nan, "trimmed_accepted": False,
+                **({} if plan_world is None else {"trimmed_all": nan,
+                                                   "window_accepted": False})}
     est = compose(res.world_from_slam, slam.trajectory.poses)
     true = compose(invert(slam.slam_from_world), slam.trajectory.poses)
     cam_err = float(np.linalg.norm(est[:, :3] - true[:, :3], axis=1).mean())
     rel = compose(res.world_from_slam, slam.slam_from_world)
     yaw_err = float(np.rad2deg(2 * np.arccos(min(abs(rel[6]), 1.0))))
-    right = cam_err < 1.0 and yaw_err < 10.0
+    right = cam_err < 1.0 and yaw_err < 10.0 and plan_world is None
     best = res.hypotheses[0]
     floor = best.floor_z
     return {**row, "right": right, "cam_err_m": cam_err, "yaw_err_deg": yaw_err,
@@ -226,7 +233,9 @@ def run_registration(world: World, seed: int, frames: int, options: Any = None
             "alias_difference": float("nan") if res.alias is None else res.alias.difference,
             "alias_fit": float("nan") if res.alias is None else res.alias.fit_score,
             "twins": len(res.twin_floors), **_vote_columns(res),
-            "frames_turned": res.frames_turned, **_trimmed_columns(res.trimmed_fit)}
+            "frames_turned": res.frames_turned, **_trimmed_columns(res.trimmed_fit),
+            **({} if plan_world is None else {"trimmed_all": _trimmed_all(res.trimmed_fit),
+                                               "window_accepted": _window_accepted(res)})}
 
 
 def _result_columns(row: dict[str, Any]) -> tuple[str, ...]:
@@ -243,6 +252,99 @@ def _trimmed_columns(tf: Any) -> dict[str, Any]:
         return {"trimmed_fit": float("nan"), "trimmed_accepted": False}
     d = tf if isinstance(tf, dict) else tf.to_dict()
     return {"trimmed_fit": d["trimmed"], "trimmed_accepted": d["accepted"]}
+
+
+def _trimmed_all(tf: Any) -> float:
+    """The per-frame fit over every frame of a measured trimmed fit (NaN: not measured)."""
+    return float("nan") if tf is None else float(tf.fit)
+
+
+def _window_accepted(res: Any) -> bool:
+    """Whether the windowed see-through (``drift_see_through``) accepted the placement."""
+    return res.drift_see_through is not None and bool(res.drift_see_through.accepted)
+
+
+#: The building of each storey of the generated worlds made of others' storeys (``stack``'s
+#: lower storey is ``demo``, its upper storey ``long``'s layout shifted 3 m: 158 of long's 164
+#: wall segments; ``tower`` is ``demo`` three times); any other world is one building of its
+#: own name. A scan of a storey whose building is in the plan may be placed right, so the
+#: wrong-plan mode skips it (:func:`same_building`).
+STOREY_BUILDINGS = {"stack": ("demo", "long"), "tower": ("demo", "demo", "demo")}
+
+
+def same_building(scan_world: str, storey: int, plan_world: str) -> bool:
+    """Whether storey ``storey`` of ``scan_world`` is a building that ``plan_world``'s plan
+    holds (:data:`STOREY_BUILDINGS`)."""
+    scanned = STOREY_BUILDINGS.get(scan_world, (scan_world,) * (storey + 1))[storey]
+    return scanned in STOREY_BUILDINGS.get(plan_world, (plan_world,))
+
+
+def wrong_plan_refusals(row: dict[str, Any], options: Any = None) -> list[str]:
+    """The gates of :func:`global_align` that a placement in a wrong plan failed, from its
+    row's numbers (``options``: :class:`GlobalAlignOptions`, None: the defaults): ``fit``
+    (fit under ``min_score``, the trimmed fit not measured or under it too), ``trim-ratio``
+    (the trimmed fit passes ``min_score`` and only ``fit_trim_max_ratio`` holds it), ``free``,
+    ``see`` (over ``max_see_through`` and the windowed see-through did not take it),
+    ``ambiguous`` (the ratio, a twin storey or a plan alias) and ``turned-ratio`` (found on the
+    turned scan, second-best over ``frame_yaw_max_ratio``). An empty list for a placed run;
+    the fewer, the nearer a wrong placement came to being taken."""
+    from bimcap.registration import GlobalAlignOptions
+
+    opt = GlobalAlignOptions() if options is None else options
+    if not np.isfinite(row["fit"]):
+        return ["no-hypothesis"]
+    out = []
+    if row["fit"] < opt.min_score:
+        trimmed_ok = (np.isfinite(row["trimmed_fit"]) and row["trimmed_fit"] >= opt.min_score)
+        out.append("trim-ratio" if trimmed_ok and not row["trimmed_accepted"] else
+                   "" if row["trimmed_accepted"] else "fit")
+    if row["free"] < opt.min_free_fraction:
+        out.append("free")
+    if row["see_through"] > opt.max_see_through and not row["window_accepted"]:
+        out.append("see")
+    if row["outcome"] == "ambiguous" or row["ratio"] >= opt.ambiguity_ratio or row["twins"]:
+        out.append("ambiguous")
+    if row["frames_turned"] and row["ratio"] > opt.frame_yaw_max_ratio:
+        out.append("turned-ratio")
+    return [t for t in out if t]
+
+
+def summarise_wrong_plan(rows: list[dict[str, Any]]) -> str:
+    """Per pair (scan's world → plan's world): runs placed (= silently wrong), refused,
+    ambiguous; then each run's gates (:func:`wrong_plan_refusals`) and the runs that failed
+    one gate only (the nearest to a silent wrong placement)."""
+    lines = [f"{'scan':<24}{'plan':<24}{'runs':>5}{'placed':>8}{'refused':>9}{'ambig':>7}"
+             f"{'fit max':>9}{'trim max':>9}{'ratio min':>10}"]
+    pairs = sorted({(r["world"], r["plan"]) for r in rows},
+                   key=[(r["world"], r["plan"]) for r in rows].index)
+    for a, b in pairs:
+        rs = [r for r in rows if (r["world"], r["plan"]) == (a, b)]
+        fits = [r["fit"] for r in rs if np.isfinite(r["fit"])]
+        trims = [r["trimmed_fit"] for r in rs if np.isfinite(r["trimmed_fit"])]
+        ratios = [r["ratio"] for r in rs if np.isfinite(r["ratio"])]
+        lines.append(f"{a:<24}{b:<24}{len(rs):>5}"
+                     f"{sum(r['outcome'] == 'placed' for r in rs):>8}"
+                     f"{sum(r['outcome'] == 'error' for r in rs):>9}"
+                     f"{sum(r['outcome'] == 'ambiguous' for r in rs):>7}"
+                     f"{max(fits) if fits else float('nan'):>9.3f}"
+                     f"{max(trims) if trims else float('nan'):>9.3f}"
+                     f"{min(ratios) if ratios else float('nan'):>10.3f}")
+    placed = sum(r["outcome"] == "placed" for r in rows)
+    gates = [r["refused_by"] for r in rows if r["outcome"] != "placed"]
+    single = [r for r in rows
+              if r["outcome"] != "placed" and len(r["refused_by"].split(",")) == 1]
+    lines.append(f"\nwrong plan: {len(rows)} runs, {placed} placed (= silently wrong, target 0), "
+                 f"{sum(r['outcome'] == 'error' for r in rows)} refused, "
+                 f"{sum(r['outcome'] == 'ambiguous' for r in rows)} ambiguous; "
+                 f"{len(single)} held by one gate only")
+    for g in sorted(set(",".join(gates).split(",")) - {""}):
+        lines.append(f"  gate {g:<14} failed by {sum(g in x.split(',') for x in gates)} runs")
+    for r in single:
+        lines.append(f"  one gate: {r['world']} -> {r['plan']} seed {r['seed']}: "
+                     f"{r['refused_by']} (fit {r['fit']:.3f}, trimmed {r['trimmed_fit']:.3f}, "
+                     f"free {r['free']:.2f}, see-through {r['see_through']:.2f}, "
+                     f"ratio {r['ratio']:.3f})")
+    return "\n".join(lines)
 
 
 def _vote_columns(res: Any) -> dict[str, float]:
@@ -401,6 +503,48 @@ def run_pipeline(seeds: list[int], work: Path, frames: int, mode: str = "auto"
     return rows
 
 
+def run_pipeline_wrong(seeds: list[int], work: Path, frames: int, ifcs: list[Path]
+                       ) -> list[dict[str, Any]]:
+    """A wrong building at the pipeline level: each demo seed's SLAM-frame trajectory (as in
+    :func:`run_pipeline`, the same sequence and drift) refined with ``--global-align`` against
+    each of ``ifcs`` (other buildings' models), so that every placement is wrong. Outcome as
+    :func:`pipeline_outcome`; ``silently_wrong``: the refine finished (exit 0: the global
+    alignment, or its missing-wall retry, placed the trajectory)."""
+    from bimcap.cli import main
+    from bimcap.pipeline.demo import DemoOptions, make_sequence, make_world
+
+    rows = []
+    for seed in seeds:
+        base = work / f"demo-{seed}"
+        opts = DemoOptions(preset="demo", frames=frames, scale=0.125, fps=2.0, seed=seed)
+        design, built = make_world(base, opts, quiet=True)
+        seq = make_sequence(base, design, built, opts, quiet=True)
+        init = base / "slam.tum"
+        if not init.exists():
+            assert main(["drift", str(seq), "--preset", "exp2", "--seed", str(seed + 1),
+                         "-o", str(init), "--slam-frame"]) == 0
+        for ifc in ifcs:
+            rc, seconds, res, error = _refine(seq, ifc, init, base / f"run-wrong-{ifc.stem}",
+                                              ["--global-align"])
+            ga = (None if res is None else res.get("solve", {}).get("global_align")) or {}
+            hyps = ga.get("hypotheses") or (ga.get("placements") or {}).get("hypotheses") or [{}]
+            row: dict[str, Any] = {
+                "seed": seed, "plan": ifc.stem, "slam_rc": rc,
+                "outcome": pipeline_outcome(rc, res, error), "silently_wrong": rc == 0,
+                "seconds": seconds, "global_seconds": ga.get("seconds", float("nan")),
+                "fit": hyps[0].get("fit_score", float("nan")),
+                "free": hyps[0].get("free_fraction", float("nan")),
+                "see_through": hyps[0].get("see_through", float("nan")),
+                "ratio": ga.get("ratio", float("nan")),
+                **_trimmed_columns(ga.get("trimmed_fit")), "error": error}
+            rows.append(row)
+            print(f"pipeline seed {seed} -> {ifc.stem}: {row['outcome']} (rc {rc})"
+                  f"{' SILENTLY WRONG' if rc == 0 else ''}, fit {row['fit']:.3f}, trimmed "
+                  f"{row['trimmed_fit']:.3f}, ratio {row['ratio']:.3f}, {seconds:.1f} s; "
+                  f"{error[:160]}", file=sys.stderr, flush=True)
+    return rows
+
+
 def summarise_pipeline(rows: list[dict[str, Any]]) -> str:
     """Per-seed table of the pipeline level and its totals."""
     lines = [f"{'seed':>4}  {'outcome':<18}{'rc':>3}{'SLAM cm':>9}{'deg':>7}{'aligned cm':>11}"
@@ -436,6 +580,10 @@ def main(argv: list[str] | None = None) -> int:
                    help="run the whole refine on these demo seeds (instead of --pipeline N)")
     p.add_argument("--pipeline-csv", type=Path, default=None,
                    help="write the pipeline level's per-seed rows here")
+    p.add_argument("--pipeline-wrong-ifc", default=None, metavar="IFC,IFC",
+                   help="pipeline level, a wrong building: refine each pipeline seed's "
+                   "SLAM-frame trajectory with --global-align against each of these other "
+                   "models instead (exit 0 = silently wrong)")
     p.add_argument("--global-align", choices=("auto", "on"), default="auto",
                    help="pipeline level: let the refine's auto detection decide (default) or "
                    "pass --global-align")
@@ -445,6 +593,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--plane-height-tol-m", type=float, default=None, metavar="M",
                    help="real models: floor planes merged within M (PlaneOptions.height_tol_m; "
                    "default: the package default, cached reference)")
+    p.add_argument("--wrong-plan", default=None, metavar="W,W",
+                   help="registration level, a wrong building: each run's scan (of each of "
+                   "--worlds) aligned against each of these OTHER worlds' plans (a storey of a "
+                   "building the plan holds is skipped: stack = demo + long, tower = demo); "
+                   "placed = silently wrong")
     p.add_argument("--frame-yaw", choices=("off", "on_refusal", "always"), default=None,
                    help="registration level: GlobalAlignOptions.frame_yaw (default: the "
                    "package default)")
@@ -466,11 +619,20 @@ def main(argv: list[str] | None = None) -> int:
         variants.append((t, GlobalAlignOptions(**kw) if kw else None))
     rows = []
     differ = 0
+    loaded: dict[str, World] = {}
+
+    def load(name: str) -> World:
+        if name not in loaded:
+            loaded[name] = (_ifc_world(name, args.ifc_dir, height_tol_m=args.plane_height_tol_m)
+                            if name.startswith("ifc-") else _world(name))
+        return loaded[name]
+
+    seeds = (range(args.seeds) if args.seed_list is None
+             else [int(v) for v in args.seed_list.split(",")])
+    if args.wrong_plan is not None:
+        return _main_wrong_plan(args, load, seeds, variants[0][1])
     for name in [w for w in args.worlds.split(",") if w]:  # --worlds "": the pipeline only
-        world = (_ifc_world(name, args.ifc_dir, height_tol_m=args.plane_height_tol_m)
-                 if name.startswith("ifc-") else _world(name))
-        seeds = (range(args.seeds) if args.seed_list is None
-                 else [int(v) for v in args.seed_list.split(",")])
+        world = load(name)
         for seed in seeds:
             same = None
             for t, options in variants:
@@ -513,13 +675,57 @@ def main(argv: list[str] | None = None) -> int:
     if args.pipeline or args.pipeline_seeds:
         pseeds = (list(range(args.pipeline)) if args.pipeline_seeds is None
                   else [int(v) for v in args.pipeline_seeds.split(",")])
-        prow = run_pipeline(pseeds, args.work, args.frames, args.global_align)
-        print(summarise_pipeline(prow))
+        if args.pipeline_wrong_ifc is not None:
+            ifcs = [Path(v) for v in args.pipeline_wrong_ifc.split(",") if v]
+            missing = [str(v) for v in ifcs if not v.is_file()]
+            if missing:
+                raise SystemExit(f"--pipeline-wrong-ifc: not found: {', '.join(missing)}")
+            prow = run_pipeline_wrong(pseeds, args.work, args.frames, ifcs)
+            silent = sum(r["silently_wrong"] for r in prow)
+            print(f"pipeline, wrong building: {len(prow)} runs, {silent} placed (= silently "
+                  f"wrong, target 0), {len(prow) - silent} refused or failed")
+        else:
+            prow = run_pipeline(pseeds, args.work, args.frames, args.global_align)
+            print(summarise_pipeline(prow))
         if args.pipeline_csv is not None:
             with open(args.pipeline_csv, "w", newline="") as f:
                 w = csv.DictWriter(f, fieldnames=list(prow[0]))
                 w.writeheader()
                 w.writerows(prow)
+    return 0
+
+
+def _main_wrong_plan(args: argparse.Namespace, load: Any, seeds: Any, options: Any) -> int:
+    """``--wrong-plan``: every scan world of ``--worlds`` against every other plan world."""
+    rows = []
+    plans = [w for w in args.wrong_plan.split(",") if w]
+    for name in [w for w in args.worlds.split(",") if w]:
+        for other in plans:
+            if other == name:
+                continue
+            for seed in seeds:
+                # run_registration's first draw: the storey walked.
+                k = int(np.random.default_rng([seed, 77]).integers(len(load(name).scenes)))
+                if same_building(name, k, other):
+                    continue
+                row = run_registration(load(name), seed, args.frames, options, load(other))
+                row["refused_by"] = ",".join(wrong_plan_refusals(row, options))
+                rows.append(row)
+                print(f"{name} -> {other} seed {seed}: {row['outcome']}"
+                      f"{' (SILENTLY WRONG)' if row['outcome'] == 'placed' else ''}, fit "
+                      f"{row['fit']:.3f}, trimmed {row['trimmed_fit']:.3f}, free "
+                      f"{row['free']:.2f}, see-through {row['see_through']:.2f}, ratio "
+                      f"{row['ratio']:.3f}, turned {row['frames_turned']}, refused by "
+                      f"[{row['refused_by']}], {row['cpu_seconds']:.1f} s CPU",
+                      file=sys.stderr, flush=True)
+    if not rows:
+        raise SystemExit("--wrong-plan: no pair of different buildings among the worlds given")
+    print(summarise_wrong_plan(rows))
+    if args.csv is not None:
+        with open(args.csv, "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=list(rows[0]))
+            w.writeheader()
+            w.writerows(rows)
     return 0
 
 

@@ -36,13 +36,34 @@ Eigen::Matrix<T, 3, 1> CamToWorld(const T* world_from_cam, const Eigen::Matrix<T
   return q * p_in_cam + t;
 }
 
+// The first three columns of `out` = a [v]× + b [c]× + e [u]× [v]×, element by element
+// ([u]× [v]× = v uᵀ − (u · v) I): the quaternion Jacobians of CamToWorldWithJacobian and
+// WorldToCamWithJacobian without 3 × 3 products.
+inline void SkewJacobian(double a, const Eigen::Vector3d& v, double b, const Eigen::Vector3d& c,
+                         double e, const Eigen::Vector3d& u, Eigen::Matrix<double, 3, 4>* out) {
+  const Eigen::Vector3d s = a * v + b * c;  // a [v]× + b [c]× = [s]×
+  const Eigen::Vector3d ev = e * v;
+  const double diag = -e * u.dot(v);
+  Eigen::Matrix<double, 3, 4>& m = *out;
+  m(0, 0) = ev.x() * u.x() + diag;
+  m(0, 1) = -s.z() + ev.x() * u.y();
+  m(0, 2) = s.y() + ev.x() * u.z();
+  m(1, 0) = s.z() + ev.y() * u.x();
+  m(1, 1) = ev.y() * u.y() + diag;
+  m(1, 2) = -s.x() + ev.y() * u.z();
+  m(2, 0) = -s.y() + ev.z() * u.x();
+  m(2, 1) = s.x() + ev.z() * u.y();
+  m(2, 2) = ev.z() * u.z() + diag;
+}
+
 // p_in_world = R * p_in_cam + t for a 7-double `world_from_cam` block, with the derivative of the
 // rotated point R * p_in_cam with respect to the (ambient) quaternion [qx, qy, qz, qw] (3 x 4,
 // row-major). The formula is Eigen's Quaternion * Vector3,
 //   f = v + w (2 u × v) + u × (2 u × v),   q = [u, w],
 // differentiated as written (not only on the unit sphere), so that the values and the ambient
 // Jacobian equal those autodiff gives for CamToWorld (to rounding):
-//   ∂f/∂w = 2 u × v,   ∂f/∂u = −2w [v]× − 2 [u × v]× − 2 [u]× [v]×.
+//   ∂f/∂w = 2 u × v,   ∂f/∂u = −2w [v]× − 2 [u × v]× − 2 [u]× [v]×,
+// written out element by element with [u]× [v]× = v uᵀ − (u · v) I (no 3 × 3 products).
 inline Eigen::Vector3d CamToWorldWithJacobian(const double* world_from_cam,
                                               const Eigen::Vector3d& p_in_cam,
                                               Eigen::Matrix<double, 3, 4>* d_rotated_d_q) {
@@ -52,16 +73,8 @@ inline Eigen::Vector3d CamToWorldWithJacobian(const double* world_from_cam,
   const Eigen::Vector3d& v = p_in_cam;
   const Eigen::Vector3d uv = u.cross(v);
   const Eigen::Vector3d uv2 = 2.0 * uv;
-  if (d_rotated_d_q != nullptr) {
-    auto skew = [](const Eigen::Vector3d& a) {
-      Eigen::Matrix3d m;
-      m << 0.0, -a.z(), a.y(), a.z(), 0.0, -a.x(), -a.y(), a.x(), 0.0;
-      return m;
-    };
-    const Eigen::Matrix3d v_x = skew(v);
-    d_rotated_d_q->leftCols<3>() = -2.0 * w * v_x - skew(uv2) - 2.0 * skew(u) * v_x;
-    d_rotated_d_q->col(3) = uv2;
-  }
+  if (d_rotated_d_q != nullptr) SkewJacobian(-2.0 * w, v, -1.0, uv2, -2.0, u, d_rotated_d_q);
+  if (d_rotated_d_q != nullptr) d_rotated_d_q->col(3) = uv2;
   return v + w * uv2 + u.cross(uv2) + t;
 }
 
@@ -86,22 +99,23 @@ inline Eigen::Vector3d WorldToCamWithJacobian(const double* world_from_cam,
   const double w = world_from_cam[6];
   const Eigen::Vector3d d = p_in_world - t;
   const Eigen::Vector3d ud2 = 2.0 * u.cross(d);
-  if (d_p_d_world != nullptr || d_p_d_q != nullptr) {
-    auto skew = [](const Eigen::Vector3d& a) {
-      Eigen::Matrix3d m;
-      m << 0.0, -a.z(), a.y(), a.z(), 0.0, -a.x(), -a.y(), a.x(), 0.0;
-      return m;
-    };
-    const Eigen::Matrix3d u_x = skew(u);
-    if (d_p_d_world != nullptr) {
-      *d_p_d_world = Eigen::Matrix3d::Identity() + 2.0 * w * u_x + 2.0 * u_x * u_x;
-    }
-    if (d_p_d_q != nullptr) {
-      // ∂/∂(−u) as in CamToWorldWithJacobian, times −1 for the conjugate.
-      const Eigen::Matrix3d d_x = skew(d);
-      d_p_d_q->leftCols<3>() = 2.0 * w * d_x + skew(ud2) + 2.0 * u_x * d_x;
-      d_p_d_q->col(3) = ud2;
-    }
+  if (d_p_d_world != nullptr) {
+    // I + 2w [u]× + 2 [u]× [u]×, with [u]× [u]× = u uᵀ − (u · u) I.
+    *d_p_d_world = 2.0 * u * u.transpose();
+    d_p_d_world->diagonal().array() += 1.0 - 2.0 * u.squaredNorm();
+    const Eigen::Vector3d wu = 2.0 * w * u;
+    (*d_p_d_world)(0, 1) -= wu.z();
+    (*d_p_d_world)(0, 2) += wu.y();
+    (*d_p_d_world)(1, 0) += wu.z();
+    (*d_p_d_world)(1, 2) -= wu.x();
+    (*d_p_d_world)(2, 0) -= wu.y();
+    (*d_p_d_world)(2, 1) += wu.x();
+  }
+  if (d_p_d_q != nullptr) {
+    // ∂/∂(−u) as in CamToWorldWithJacobian, times −1 for the conjugate:
+    // 2w [d]× + [2 u × d]× + 2 [u]× [d]×.
+    SkewJacobian(2.0 * w, d, 1.0, ud2, 2.0, u, d_p_d_q);
+    d_p_d_q->col(3) = ud2;
   }
   return d + w * ud2 + u.cross(ud2);
 }
