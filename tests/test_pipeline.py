@@ -393,6 +393,36 @@ def test_auto_global_alignment_that_fits_nothing_goes_on_from_the_input(
         refine._global_align(prepared, poses, RefineConfig())  # type: ignore[arg-type]
 
 
+def test_the_global_alignment_takes_as_many_threads_as_the_front_end_has_workers(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """``--workers N`` caps the global alignment's threads too (``num_threads = N``); without it
+    the alignment takes every core (0)."""
+    from types import SimpleNamespace
+
+    import bimcap.pipeline.refine as refine
+    import bimcap.registration as registration
+    from bimcap.pipeline.config import GlobalAlignMode
+
+    seen: list[int] = []
+
+    def fake_align(poses: Any, samples: Any, plan: Any, options: Any, *args: Any) -> Any:
+        seen.append(options.num_threads)
+        raise registration.GlobalAlignmentError("stop here")
+
+    monkeypatch.setattr(registration, "global_align", fake_align)
+    monkeypatch.setattr(registration, "initial_free_fraction", lambda p, plan: 0.1)
+    monkeypatch.setattr(refine, "_floor_plan", lambda ref: None)
+    monkeypatch.setattr(refine, "_semantic_samples", lambda prepared: None)
+    monkeypatch.setattr(refine, "_align_without_missing_wall", lambda *a, **k: None)
+    prepared = SimpleNamespace(reference=None)
+    poses = np.tile([1.0, 2.0, 1.5, 0.0, 0.0, 0.0, 1.0], (4, 1))
+    for workers, expected in ((1, 1), (3, 3), (None, 0)):
+        with pytest.raises(registration.GlobalAlignmentError):
+            refine._global_align(prepared, poses,  # type: ignore[arg-type]
+                                 RefineConfig(global_align=GlobalAlignMode.ON, workers=workers))
+        assert seen[-1] == expected
+
+
 def test_a_refused_auto_alignment_is_the_error_of_a_diverged_run() -> None:
     """Auto mode, the alignment refused, the run went on from the poses as given and diverged:
     the error is the refusal (a ``GlobalAlignmentError`` keeping the ranked placements for

@@ -66,7 +66,9 @@ def add_config_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--window", type=int, help="match each frame with its next N frames")
     g.add_argument("--max-match-distance", type=float,
                    help="drop matches whose points are further apart under the initial poses (m)")
-    g.add_argument("--workers", type=int, help="front-end processes (default: all cores)")
+    g.add_argument("--workers", type=int,
+                   help="front-end processes, and the global alignment's threads (default: all "
+                        "cores)")
     g.add_argument("--dask", action="store_true", default=None,
                    help="run the front end's per-frame work on Dask: a LocalCluster on this "
                         "machine, or the cluster of --dask-scheduler (docs/dask.md)")

@@ -154,7 +154,7 @@ class RefineConfig:
     solve_match_distance: the same filter applied each time a solver problem is built, at that
         stage's poses (m; 0: off). None (default): 0.4 for FACaP (the peers' filter), off for
         BIMCaP.
-    workers: front-end processes (None: all cores).
+    workers: front-end processes, and the global alignment's threads (None: all cores).
     executor: where the front end's per-frame and per-pair jobs run: ``local`` (a process pool
         of ``workers``) or ``dask`` (a Dask cluster, the ``dask`` table). The solve always runs
         in this process; both give the same front end bit for bit.

@@ -1604,7 +1604,10 @@ def _global_align(prepared: Prepared, poses: F64, config: RefineConfig
                   "the BIM first (--no-global-align / global_align = \"off\" to skip)")
     t0 = time.perf_counter()
     samples = _semantic_samples(prepared)
-    options = GlobalAlignOptions(accept_ambiguous=config.accept_ambiguous)
+    # the search's threads follow the front end's processes: --workers N caps both (None: every
+    # core); the placements are the same with any number (GlobalAlignOptions.num_threads)
+    options = GlobalAlignOptions(accept_ambiguous=config.accept_ambiguous,
+                                 num_threads=config.workers or 0)
     missing = None
     maps_cache: dict[bytes, Any] = {}  # the storeys' maps, kept for the missing-wall retry
     try:
