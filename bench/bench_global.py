@@ -668,10 +668,7 @@ def main(argv: list[str] | None = None) -> int:
                       f"{np.mean([r['cpu_seconds'] for r in rows if r.get('threads') == v]):.1f} s")
             print(f"results that differ between thread counts: {differ} (must be 0)")
     if args.csv is not None and rows:
-        with open(args.csv, "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=list(rows[0]))
-            w.writeheader()
-            w.writerows(rows)
+        write_csv(args.csv, rows)
     if args.pipeline or args.pipeline_seeds:
         pseeds = (list(range(args.pipeline)) if args.pipeline_seeds is None
                   else [int(v) for v in args.pipeline_seeds.split(",")])
@@ -688,11 +685,16 @@ def main(argv: list[str] | None = None) -> int:
             prow = run_pipeline(pseeds, args.work, args.frames, args.global_align)
             print(summarise_pipeline(prow))
         if args.pipeline_csv is not None:
-            with open(args.pipeline_csv, "w", newline="") as f:
-                w = csv.DictWriter(f, fieldnames=list(prow[0]))
-                w.writeheader()
-                w.writerows(prow)
+            write_csv(args.pipeline_csv, prow)
     return 0
+
+
+def write_csv(path: str | Path, rows: list[dict[str, Any]]) -> None:
+    """``rows`` (one dict a run, the first one's keys as the header) as a CSV file at ``path``."""
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
 
 
 def _main_wrong_plan(args: argparse.Namespace, load: Any, seeds: Any, options: Any) -> int:
@@ -722,10 +724,7 @@ def _main_wrong_plan(args: argparse.Namespace, load: Any, seeds: Any, options: A
         raise SystemExit("--wrong-plan: no pair of different buildings among the worlds given")
     print(summarise_wrong_plan(rows))
     if args.csv is not None:
-        with open(args.csv, "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=list(rows[0]))
-            w.writeheader()
-            w.writerows(rows)
+        write_csv(args.csv, rows)
     return 0
 
 

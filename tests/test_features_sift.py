@@ -156,11 +156,10 @@ def _two_view_points(n: int, seed: int) -> tuple[Camera, np.ndarray, np.ndarray]
     return cam, uv_a[ok], uv_b[ok]
 
 
-@pytest.mark.parametrize("trials", [None, 30, 1])
-@pytest.mark.parametrize("ver", [Verification.TWO_VIEW, Verification.FUNDAMENTAL])
-def test_verification_removes_outliers(ver: Verification, trials: int | None) -> None:
-    """Exact correspondences with parallax plus 20 % random pairs: the random pairs go, also
-    with fewer RANSAC trials at the least (the confidence test still runs enough of them)."""
+def _matches_with_outliers() -> tuple[Camera, np.ndarray, np.ndarray, np.ndarray, int]:
+    """400 exact correspondences with parallax (0.3 px noise in the second view) plus 20 % random
+    pairs: ``(camera, uv_a, uv_b, matches, number of random pairs)``, ``matches`` (M, 2) int32
+    with the i-i pairs first."""
     cam, uv_a, uv_b = _two_view_points(400, seed=1)
     rng = np.random.default_rng(2)
     uv_b = uv_b + rng.normal(scale=0.3, size=uv_b.shape)
@@ -168,14 +167,23 @@ def test_verification_removes_outliers(ver: Verification, trials: int | None) ->
     good = np.stack([np.arange(n), np.arange(n)], axis=1)
     bad = np.stack([rng.integers(0, n, n // 5), rng.integers(0, n, n // 5)], axis=1)
     bad = bad[bad[:, 0] != bad[:, 1]]
-    matches = np.concatenate([good, bad]).astype(np.int32)
+    return cam, uv_a, uv_b, np.concatenate([good, bad]).astype(np.int32), len(bad)
+
+
+@pytest.mark.parametrize("trials", [None, 30, 1])
+@pytest.mark.parametrize("ver", [Verification.TWO_VIEW, Verification.FUNDAMENTAL])
+def test_verification_removes_outliers(ver: Verification, trials: int | None) -> None:
+    """Exact correspondences with parallax plus 20 % random pairs: the random pairs go, also
+    with fewer RANSAC trials at the least (the confidence test still runs enough of them)."""
+    cam, uv_a, uv_b, matches, n_bad = _matches_with_outliers()
+    n = len(uv_a)
     inl, model = verify_matches(uv_a, uv_b, matches, cam,
                                 MatchOptions(verification=ver, ransac_min_trials=trials))
     is_good = inl[:, 0] == inl[:, 1]
     assert model in ("CALIBRATED", "FUNDAMENTAL")
     assert is_good.sum() > 0.97 * n
     # An outlier survives only if it happens to lie within 2 px of its epipolar line.
-    assert (~is_good).sum() <= 0.05 * len(bad)
+    assert (~is_good).sum() <= 0.05 * n_bad
     inl, model = verify_matches(uv_a, uv_b, matches, cam,
                                 MatchOptions(verification=Verification.NONE))
     assert len(inl) == len(matches) and model == "none"
@@ -349,18 +357,12 @@ def test_sampson_refinement_option(shifted_pair: tuple) -> None:
         match_options(RefineConfig(matching={"sampson_refinement": "no"}))
     assert not match_options(RefineConfig(matching={"sampson_refinement": False})
                              ).sampson_refinement
-    cam, uv_a, uv_b = _two_view_points(400, seed=1)
-    rng = np.random.default_rng(2)
-    uv_b = uv_b + rng.normal(scale=0.3, size=uv_b.shape)
+    cam, uv_a, uv_b, matches, n_bad = _matches_with_outliers()
     n = len(uv_a)
-    good = np.stack([np.arange(n), np.arange(n)], axis=1)
-    bad = np.stack([rng.integers(0, n, n // 5), rng.integers(0, n, n // 5)], axis=1)
-    bad = bad[bad[:, 0] != bad[:, 1]]
-    matches = np.concatenate([good, bad]).astype(np.int32)
     inl, model = verify_matches(uv_a, uv_b, matches, cam, MatchOptions(sampson_refinement=False))
     is_good = inl[:, 0] == inl[:, 1]
     assert model == "CALIBRATED" and is_good.sum() > 0.97 * n
-    assert (~is_good).sum() <= 0.05 * len(bad)
+    assert (~is_good).sum() <= 0.05 * n_bad
 
 
 def test_bench_generalization_reads_bool_settings() -> None:
