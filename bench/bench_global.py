@@ -447,27 +447,41 @@ def _refine(seq: Path, design: Path, init: Path, out: Path, extra: list[str]
     return proc.returncode, seconds, result, _error_line(proc.stderr) if proc.returncode else ""
 
 
+def _pipeline_sequence(work: Path, seed: int, frames: int) -> tuple[Path, Path, Path]:
+    """The pipeline bench's world of ``seed`` (the demo preset at 1/8 scale, 2 frames/s), made
+    once under ``work/demo-SEED``: ``(its folder, the design IFC, the sequence)``."""
+    from bimcap.pipeline.demo import DemoOptions, make_sequence, make_world
+
+    base = work / f"demo-{seed}"
+    opts = DemoOptions(preset="demo", frames=frames, scale=0.125, fps=2.0, seed=seed)
+    design, built = make_world(base, opts, quiet=True)
+    return base, design, make_sequence(base, design, built, opts, quiet=True)
+
+
+def _pipeline_drift(base: Path, seq: Path, seed: int, slam_frame: bool) -> Path:
+    """The Exp 2 drift of ``seq`` (seed + 1), in a SLAM frame (``slam.tum``) or the BIM's
+    (``aligned.tum``), written once under ``base``."""
+    from bimcap.cli import main
+
+    init = base / ("slam.tum" if slam_frame else "aligned.tum")
+    if not init.exists():
+        assert main(["drift", str(seq), "--preset", "exp2", "--seed", str(seed + 1),
+                     "-o", str(init), *(["--slam-frame"] if slam_frame else [])]) == 0
+    return init
+
+
 def run_pipeline(seeds: list[int], work: Path, frames: int, mode: str = "auto"
                  ) -> list[dict[str, Any]]:
     """``bimcap refine`` from a SLAM-frame trajectory and from the same drift in the BIM frame
     (the aligned start), per seed; a run that fails or refuses is a row with its exit status,
     outcome (:func:`pipeline_outcome`) and error line, never a traceback. ``mode``: ``auto``
     (the refine's own detection decides) or ``on`` (``--global-align``)."""
-    from bimcap.cli import main
-    from bimcap.pipeline.demo import DemoOptions, make_sequence, make_world
-
     rows = []
     for seed in seeds:
-        base = work / f"demo-{seed}"
-        opts = DemoOptions(preset="demo", frames=frames, scale=0.125, fps=2.0, seed=seed)
-        design, built = make_world(base, opts, quiet=True)
-        seq = make_sequence(base, design, built, opts, quiet=True)
+        base, design, seq = _pipeline_sequence(work, seed, frames)
         row: dict[str, Any] = {"seed": seed, "mode": mode}
         for kind in ("slam", "aligned"):
-            init = base / f"{kind}.tum"
-            if not init.exists():
-                assert main(["drift", str(seq), "--preset", "exp2", "--seed", str(seed + 1),
-                             "-o", str(init), *(["--slam-frame"] if kind == "slam" else [])]) == 0
+            init = _pipeline_drift(base, seq, seed, slam_frame=kind == "slam")
             extra = ["--global-align"] if kind == "slam" and mode == "on" else []
             rc, seconds, res, error = _refine(seq, design, init, base / f"run-{kind}", extra)
             row[f"{kind}_rc"] = rc
@@ -510,19 +524,10 @@ def run_pipeline_wrong(seeds: list[int], work: Path, frames: int, ifcs: list[Pat
     each of ``ifcs`` (other buildings' models), so that every placement is wrong. Outcome as
     :func:`pipeline_outcome`; ``silently_wrong``: the refine finished (exit 0: the global
     alignment, or its missing-wall retry, placed the trajectory)."""
-    from bimcap.cli import main
-    from bimcap.pipeline.demo import DemoOptions, make_sequence, make_world
-
     rows = []
     for seed in seeds:
-        base = work / f"demo-{seed}"
-        opts = DemoOptions(preset="demo", frames=frames, scale=0.125, fps=2.0, seed=seed)
-        design, built = make_world(base, opts, quiet=True)
-        seq = make_sequence(base, design, built, opts, quiet=True)
-        init = base / "slam.tum"
-        if not init.exists():
-            assert main(["drift", str(seq), "--preset", "exp2", "--seed", str(seed + 1),
-                         "-o", str(init), "--slam-frame"]) == 0
+        base, _, seq = _pipeline_sequence(work, seed, frames)
+        init = _pipeline_drift(base, seq, seed, slam_frame=True)
         for ifc in ifcs:
             rc, seconds, res, error = _refine(seq, ifc, init, base / f"run-wrong-{ifc.stem}",
                                               ["--global-align"])
