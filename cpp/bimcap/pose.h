@@ -73,8 +73,10 @@ inline Eigen::Vector3d CamToWorldWithJacobian(const double* world_from_cam,
   const Eigen::Vector3d& v = p_in_cam;
   const Eigen::Vector3d uv = u.cross(v);
   const Eigen::Vector3d uv2 = 2.0 * uv;
-  if (d_rotated_d_q != nullptr) SkewJacobian(-2.0 * w, v, -1.0, uv2, -2.0, u, d_rotated_d_q);
-  if (d_rotated_d_q != nullptr) d_rotated_d_q->col(3) = uv2;
+  if (d_rotated_d_q != nullptr) {
+    SkewJacobian(-2.0 * w, v, -1.0, uv2, -2.0, u, d_rotated_d_q);
+    d_rotated_d_q->col(3) = uv2;
+  }
   return v + w * uv2 + u.cross(uv2) + t;
 }
 
