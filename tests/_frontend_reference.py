@@ -1336,6 +1336,24 @@ def float32_matching() -> AbstractContextManager[None]:
     return swapped(matching, _match_numpy=match_numpy_4206b3e)
 
 
+def to_gray_u8_882f965(image: NDArray[np.generic]) -> NDArray[np.uint8]:
+    """``bimcap.features.sift.to_gray_u8``'s RGB branch as of 882f965 (numpy), verbatim."""
+    img = np.asarray(image)
+    g = img[..., 0] * 0.299 + img[..., 1] * 0.587 + img[..., 2] * 0.114
+    return np.ascontiguousarray(np.clip(np.rint(g), 0, 255).astype(np.uint8))
+
+
+def old_gray() -> AbstractContextManager[None]:
+    """SIFT's grey conversion as of 882f965 (numpy: :func:`to_gray_u8_882f965`)."""
+    from bimcap.features import sift
+
+    def to_gray_u8(image: NDArray[np.generic]) -> NDArray[np.uint8]:
+        img = np.asarray(image)
+        return to_gray_u8_882f965(img) if img.ndim == 3 else np.ascontiguousarray(img)
+
+    return swapped(sift, to_gray_u8=to_gray_u8)
+
+
 #: Stage name (as ``bench_frontend.py --world`` prints it) → a context in which the stage's
 #: functions (and the providers that call them) run the old code.
 REFERENCES: dict[str, Callable[[], AbstractContextManager[None]]] = {
@@ -1345,4 +1363,5 @@ REFERENCES: dict[str, Callable[[], AbstractContextManager[None]]] = {
     "planar smoothing": old_planar_smoothing,
     "label orientation check": old_label_orientation,
     "matching": float32_matching,
+    "SIFT": old_gray,
 }

@@ -1372,3 +1372,28 @@ def test_one_thread_makes_its_controller_once(monkeypatch: pytest.MonkeyPatch) -
     with runner.one_thread():
         pass
     assert {lib["filepath"]: lib["num_threads"] for lib in threadpool_info()} == before
+
+
+def test_gray_compiled_same_as_numpy() -> None:
+    """SIFT's grey levels from ``_core.rgb_to_gray`` against 882f965's numpy expression, bytes
+    equal, on every one of the 2²⁴ RGB colours (each rounding case of rint, halves included) and
+    on a non-contiguous view; wrong dtypes and shapes raise ``_core.InputError`` naming the
+    image; grey input passes through."""
+    from bimcap import _core
+    from bimcap.features.sift import to_gray_u8
+
+    levels = np.arange(256, dtype=np.uint8)
+    every = np.stack(np.meshgrid(levels, levels, levels, indexing="ij"), -1).reshape(4096, 4096, 3)
+    new = to_gray_u8(every)
+    assert new.dtype == np.uint8 and new.shape == (4096, 4096)
+    assert new.tobytes() == ref.to_gray_u8_882f965(every).tobytes()
+    view = every[::7, ::3]
+    assert to_gray_u8(view).tobytes() == ref.to_gray_u8_882f965(view).tobytes()
+    grey = levels.reshape(16, 16)
+    assert np.array_equal(to_gray_u8(grey), grey)
+    for bad, text in [(every[:4, :4].astype(np.int32), "dtype uint8"),
+                      (every[:4, :4, :2].copy(), "shape (n, n, 3)"),
+                      (every[:4, ::2], "C-contiguous")]:
+        with pytest.raises(_core.InputError, match="image") as err:
+            _core.rgb_to_gray(bad)
+        assert err.value.field == "image" and text in str(err.value)

@@ -17,6 +17,7 @@
 #include "bimcap/raster/convex_fill.h"
 #include "bimcap/raster/delaunay.h"
 #include "bimcap/raster/depth_normals.h"
+#include "bimcap/raster/gray.h"
 #include "bimcap/raster/piecewise_affine.h"
 #include "bimcap/raster/plane_depth.h"
 #include "bimcap/raster/plane_scores.h"
@@ -45,6 +46,7 @@ py::array Checked(const py::handle& obj, const char* name, std::vector<py::ssize
                            : std::is_same_v<T, double>  ? "float64"
                            : std::is_same_v<T, float>   ? "float32"
                            : std::is_same_v<T, int64_t> ? "int64"
+                           : std::is_same_v<T, uint8_t> ? "uint8"
                                                         : "int32";
   if (!py::isinstance<py::array>(obj)) {
     throw RasterError(name, std::string("expected a numpy array of ") + dtype_name + ", got " +
@@ -126,6 +128,19 @@ py::array_t<float> EvaluatePiecewiseAffine(const py::handle& ids_obj, const py::
         inverse_depth ? raster::AffineValue::kInverseDepth : raster::AffineValue::kDepth, view);
   }
   return out;
+}
+
+py::array_t<uint8_t> RgbToGray(const py::handle& image_obj) {
+  const py::array image = Checked<uint8_t>(image_obj, "image", {-1, -1, 3});
+  const py::ssize_t rows = image.shape(0), cols = image.shape(1);
+  py::array_t<uint8_t> gray({rows, cols});
+  const auto* rgb = static_cast<const uint8_t*>(image.data());
+  uint8_t* out = gray.mutable_data();
+  {
+    py::gil_scoped_release release;
+    raster::RgbToGray(rgb, static_cast<int64_t>(rows) * cols, out);
+  }
+  return gray;
 }
 
 py::array_t<double> PixelSurfaceArea(const py::handle& depth_obj, double fx, double fy, double cx,
@@ -350,6 +365,10 @@ void BindRaster(py::module_& m) {
         "largest and the second largest (with multiplicity), per column the largest and the "
         "second largest (INT32_MIN with one row); the descriptor matcher's reductions "
         "(bimcap.features.matching._match_numpy) in one pass.");
+  m.def("rgb_to_gray", &RgbToGray, py::arg("image"),
+        "(H, W) uint8 grey levels rint(0.299 r + 0.587 g + 0.114 b) of the (H, W, 3) uint8 RGB "
+        "image (C-contiguous): bimcap.features.sift.to_gray_u8's numpy arithmetic bit for bit, "
+        "in one pass.");
   m.def("pixel_surface_area", &PixelSurfaceArea, py::arg("depth"), py::arg("fx"), py::arg("fy"),
         py::arg("cx"), py::arg("cy"), py::arg("min_cos"),
         "(H, W) float64 surface area in m² each pixel of the (H, W) float64 z-depth map (m, "

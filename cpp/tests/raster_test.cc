@@ -13,6 +13,7 @@
 #include "bimcap/raster/component_pixels.h"
 #include "bimcap/raster/convex_fill.h"
 #include "bimcap/raster/depth_normals.h"
+#include "bimcap/raster/gray.h"
 #include "bimcap/raster/piecewise_affine.h"
 #include "bimcap/raster/plane_depth.h"
 #include "bimcap/raster/plane_scores.h"
@@ -333,6 +334,23 @@ TEST(DepthNormals, JumpOffsetWidensTheJumpTest) {
                      {points.data(), valid, ok, cross.data()}, 0.1);
   EXPECT_TRUE(ok[6]);
   EXPECT_TRUE(ok[7]);
+}
+
+// Grey levels by hand: 0.299 r + 0.587 g + 0.114 b rounded to nearest, halves to even (rint).
+TEST(Gray, Bt601LumaRoundedAsRint) {
+  const std::vector<uint8_t> rgb = {
+      0,   0,   0,    // 0
+      255, 255, 255,  // 0.299 + 0.587 + 0.114 = 1 (to rounding): 255
+      255, 0,   0,    // 76.245 -> 76
+      0,   255, 0,    // 149.685 -> 150
+      0,   0,   255,  // 29.07 -> 29
+      1,   1,   0,    // 0.886 -> 1
+      0,   0,   4,    // 0.456 -> 0
+      5,   0,   0,    // 1.495 -> 1
+  };
+  std::vector<uint8_t> gray(rgb.size() / 3, 7);
+  RgbToGray(rgb.data(), static_cast<int64_t>(gray.size()), gray.data());
+  EXPECT_EQ(gray, (std::vector<uint8_t>{0, 255, 76, 150, 29, 1, 0, 1}));
 }
 
 TEST(PlaneScores, StrictTestsAndAddedCounts) {

@@ -60,6 +60,9 @@ def evaluate_piecewise_affine(
     tri_id: NDArray[np.int32], coef: NDArray[np.float64], inverse_depth: bool
 ) -> NDArray[np.float32]:
     """(H, W) float32 depth of f = c0[id] u + c1[id] v + c2[id] (numpy's rounding), 1/f or f."""
+def rgb_to_gray(image: NDArray[np.uint8]) -> NDArray[np.uint8]:
+    """(H, W) uint8 rint(0.299 r + 0.587 g + 0.114 b) of a C-contiguous (H, W, 3) uint8 RGB
+    image (numpy's float64 rounding)."""
 def pixel_surface_area(
     depth: NDArray[np.float64], fx: float, fy: float, cx: float, cy: float, min_cos: float
 ) -> NDArray[np.float64]:

@@ -208,8 +208,12 @@ def to_gray_u8(image: NDArray[np.generic]) -> NDArray[np.uint8]:
     if img.ndim == 2:
         return np.ascontiguousarray(img)
     if img.ndim == 3 and img.shape[2] == 3:
-        g = img[..., 0] * 0.299 + img[..., 1] * 0.587 + img[..., 2] * 0.114
-        return np.ascontiguousarray(np.clip(np.rint(g), 0, 255).astype(np.uint8))
+        # rint(r · 0.299 + g · 0.587 + b · 0.114) in float64, numpy's arithmetic bit for bit, in
+        # one compiled pass (cpp/bimcap/raster/gray.h; ~6× cheaper than the numpy expression)
+        from bimcap import _core
+
+        gray: NDArray[np.uint8] = _core.rgb_to_gray(np.ascontiguousarray(img))
+        return gray
     raise FeatureError(f"expected an (H, W) or (H, W, 3) image, got shape {img.shape}")
 
 
