@@ -544,7 +544,9 @@ def bench_prepare(seq_dir: Path, frames: int, work: Path,
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=6)
-    ap.add_argument("--window", type=int, default=3)
+    ap.add_argument("--window", type=int, default=None,
+                    help="frames each frame is matched with (default: 3 for the features part, "
+                         "the config's with --world)")
     ap.add_argument("--pycolmap-matcher", action="store_true", help="also time pycolmap's matcher")
     ap.add_argument("--world", type=Path, default=None,
                     help="a sequence directory (e.g. /tmp/gen/gen-demo-s0/seq_60_standard): "
@@ -588,7 +590,7 @@ def main() -> None:
     args = ap.parse_args()
     if args.world is not None and args.backends:
         frames = args.frames if args.frames != 6 else 20
-        window = args.window if args.window != 3 else None
+        window = args.window
         print(f"# features per backend on {args.world}, first {frames} frames, window "
               f"{window or 'of the config'}, 1 thread, process CPU time, load average "
               f"{os.getloadavg()[0]:.1f}")
@@ -626,7 +628,7 @@ def main() -> None:
         return
     if args.world is not None:
         frames = args.frames if args.frames != 6 else 20
-        window = args.window if args.window != 3 else None
+        window = args.window
         print(f"# front end per stage on {args.world}, first {frames} frames, window "
               f"{window or 'of the config'}, 1 thread, process CPU ms a frame, load average "
               f"{os.getloadavg()[0]:.1f}"
@@ -646,6 +648,8 @@ def main() -> None:
         for stage, ms, prev, ratio, same in rows:
             print(f"{stage:<{w}}  {ms:>9}  {prev:>9}  {ratio:>7}  {same}")
         return
+    if args.window is None:
+        args.window = 3
     cam = _camera()
     print(f"# front-end features benchmark: {cam.width}x{cam.height}, {args.frames} frames, "
           f"window {args.window}, 1 thread, CPU time, load average {os.getloadavg()[0]:.1f}")
