@@ -247,10 +247,11 @@ class _Stages:
         return out
 
 
-#: The front end's default settings (window 4, segmentation 258 px across): ``--before-defaults``
-#: times these beside a run with other settings (e.g. ``--window 2``; their accuracy is in
-#: docs/speed.md).
-BEFORE_DEFAULTS = {"window": 4, "geometric": {"work_width": 258}}
+#: The front end's settings before 2026-11-28 (window 4, COLMAP's Sampson refinement in the
+#: verification): ``--before-defaults`` times these beside the defaults (or other settings, e.g.
+#: ``--window 2``) on the same inputs in the same process; their accuracy is in docs/speed.md,
+#: "Cheaper defaults". A ``geometric`` table here would time the segmentation both ways too.
+BEFORE_DEFAULTS: dict[str, Any] = {"window": 4, "matching": {"sampson_refinement": True}}
 
 
 def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool = True,
@@ -262,8 +263,9 @@ def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool =
     """Per-stage rows ``(stage, ms/frame, previous ms/frame, ratio, same result)`` and the total
     ms a frame, on the first ``frames`` frames of the sequence at ``seq_dir`` (``previous``:
     also time the previous code of the stages that have it; ``before_defaults``: instead, as
-    "previous", the stages whose settings changed (segmentation, matching, verification) with
-    :data:`BEFORE_DEFAULTS`, on the same inputs in the same process; window None: the config's;
+    "previous", the stages whose settings changed (matching, verification; segmentation with a
+    ``geometric`` table) with :data:`BEFORE_DEFAULTS`, on the same inputs in the same process;
+    window None: the config's;
     ``features``: a ``[features]`` table for the main column, and as "previous" the features
     stages (extraction, keypoint depths, matching, verification) with the default one, on the
     same images in the same process; ``matching``: a ``[matching]`` table for the main column's
@@ -292,12 +294,16 @@ def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool =
     window = config.window if window is None else window
     depth_p, label_p, refiner = make_providers(config, seq)
     old_label_p = None
+    before_match = None
     if before_defaults:
         from dataclasses import replace
 
         previous = False
-        old_config = replace(config, geometric=dict(BEFORE_DEFAULTS["geometric"]))
-        old_label_p = make_providers(old_config, seq)[1]
+        if "geometric" in BEFORE_DEFAULTS:
+            old_config = replace(config, geometric=dict(BEFORE_DEFAULTS["geometric"]))
+            old_label_p = make_providers(old_config, seq)[1]
+        before_match = match_options(RefineConfig(workers=1,
+                                                  matching=BEFORE_DEFAULTS.get("matching", {})))
     sift = sift_options(config)
     old_sift = None
     if features is not None or old_features is not None:
@@ -365,7 +371,7 @@ def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool =
             st.run("scan surface points", _scan_points, seq, i, und.pinhole, scan_opts)
     pin = cam.pinhole()
     pairs = [(a, b) for a in range(n) for b in range(a + 1, min(n, a + window + 1))]
-    if old_label_p is None:
+    if not before_defaults:
         for a, b in pairs:
             m = st.run("matching", match_descriptors, feats[a].descriptors, feats[b].descriptors,
                        match_opts)
@@ -386,17 +392,27 @@ def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool =
                     st.prev[stage] = st.prev.get(stage, 0.0) + t
                     st.equal[stage] = False
     else:  # each pair timed once, counted in the windows that hold it
-        old_window = int(BEFORE_DEFAULTS["window"])  # type: ignore[call-overload]
+        # the matching options differ in the verification only (its Sampson refinement): each
+        # pair matched once, verified with both where they differ
+        old_window = int(BEFORE_DEFAULTS["window"])
+        new_match = match_options(config)
+        same_verification = before_match == new_match
         for a in range(n):
             for b in range(a + 1, min(n, a + max(window, old_window) + 1)):
-                m, tm = _timed(match_descriptors, feats[a].descriptors, feats[b].descriptors)
-                _, tv = _timed(verify_matches, feats[a].uv, feats[b].uv, m, pin)
-                for stage, t in (("matching", tm), ("verification", tv)):
+                m, tm = _timed(match_descriptors, feats[a].descriptors, feats[b].descriptors,
+                               new_match)
+                _, tv = _timed(verify_matches, feats[a].uv, feats[b].uv, m, pin, new_match)
+                tv_old = tv
+                if not same_verification and b - a <= old_window:
+                    _, tv_old = _timed(verify_matches, feats[a].uv, feats[b].uv, m, pin,
+                                       before_match)
+                for stage, t, t_old in (("matching", tm, tm), ("verification", tv, tv_old)):
                     if b - a <= window:
                         st.t[stage] = st.t.get(stage, 0.0) + t
                     if b - a <= old_window:
-                        st.prev[stage] = st.prev.get(stage, 0.0) + t
-                    st.equal[stage] = window == old_window
+                        st.prev[stage] = st.prev.get(stage, 0.0) + t_old
+                    st.equal[stage] = window == old_window and (
+                        stage == "matching" or same_verification)
     # the provider's time includes its projection: report the completion alone
     st.t["completion + support radius"] = st.t.pop("depth provider") - st.t["LiDAR projection"]
     if "depth provider" in st.prev:
@@ -555,9 +571,9 @@ def main() -> None:
     ap.add_argument("--no-previous", action="store_true",
                     help="with --world: do not time the previous code of the stages")
     ap.add_argument("--before-defaults", action="store_true",
-                    help="with --world: as 'previous', the stages with the default settings "
-                         "(window 4, segmentation at 258 pixels across) beside --window N, "
-                         "on the same inputs in the same process")
+                    help="with --world: as 'previous', matching and verification with the "
+                         "settings before 2026-11-28 (window 4, Sampson refinement) beside the "
+                         "defaults or --window N, on the same inputs in the same process")
     ap.add_argument("--features", action="append", default=[], metavar="KEY=VALUE",
                     help="with --world (per stage): a [features] setting for the main column; "
                          "'previous' is then the features stages with the default settings, "

@@ -346,13 +346,16 @@ def test_opencv_octave_layers() -> None:
 
 
 def test_sampson_refinement_option(shifted_pair: tuple) -> None:
-    """``sampson_refinement``: True (pycolmap's own, the default) stays out of the cache key and
-    verifies as before the option; False is in the key and still removes the outliers."""
+    """``sampson_refinement``: True (pycolmap's own, the default before 2026-11-28) stays out of
+    the cache key and verifies as before the option; False (the default now) is in the key, so
+    pairs verified with the refinement are never read back as the default's, and still removes
+    the outliers."""
     from bimcap.pipeline.config import ConfigError, RefineConfig
     from bimcap.pipeline.refine import match_options
 
-    assert "sampson_refinement" not in MatchOptions().to_dict()
-    assert MatchOptions(sampson_refinement=False).to_dict()["sampson_refinement"] is False
+    assert MatchOptions().sampson_refinement is False
+    assert "sampson_refinement" not in MatchOptions(sampson_refinement=True).to_dict()
+    assert MatchOptions().to_dict()["sampson_refinement"] is False
     with pytest.raises(ConfigError, match="sampson_refinement"):
         match_options(RefineConfig(matching={"sampson_refinement": "no"}))
     assert not match_options(RefineConfig(matching={"sampson_refinement": False})

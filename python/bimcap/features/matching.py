@@ -103,10 +103,11 @@ class MatchOptions:
         were before the option existed.
     sampson_refinement: ``TWO_VIEW`` only: COLMAP's ``use_sampson_refinement`` (after RANSAC,
         the essential / fundamental matrix refined on its inliers by their Sampson errors and the
-        inliers taken again). True (default) is pycolmap's own and stays out of :meth:`to_dict`;
-        False makes a pair ~1.3× cheaper to verify (gen-demo-s0, 65 pairs: 4.08 against 3.18 ms;
-        13 of 17,333 inliers and no model changed); BIMCaP's accuracy with it: docs/speed.md,
-        "Keypoint budget".
+        inliers taken again). False (the default since 2026-11-28) makes a pair ~1.3× cheaper to
+        verify (gen-demo-s0, 65 pairs: 4.08 against 3.18 ms; 13 of 17,333 inliers and no model
+        changed); on the hard setting alone it moved BIMCaP by at most 0.0015 cm / 0.0002°
+        (docs/speed.md, "Safe defaults"). True is pycolmap's own (the default before) and stays
+        out of :meth:`to_dict`, as before the option existed.
     product: how the numpy matcher multiplies SIFT descriptors (:class:`DescriptorProduct`;
         ORB's always in BLAS). Exact both ways, so the same matches; ``INT8`` (default) is
         left out of :meth:`to_dict` (the front end's cache key), as before the option existed.
@@ -123,7 +124,7 @@ class MatchOptions:
     seed: int = 0
     ransac_min_trials: int | None = 10
     product: DescriptorProduct = DescriptorProduct.INT8
-    sampson_refinement: bool = True
+    sampson_refinement: bool = False
 
     def __post_init__(self) -> None:
         if not 0.0 < self.max_ratio <= 1.0:

@@ -15,7 +15,7 @@ sigma = 0.03``), a ``[registration]`` table (``bimcap.registration.CoarseOptions
     loss = "cauchy"
     completion = "linear"      # linear | classical | onnx | hybrid | ground_truth
     segmentation = "geometric" # geometric | disk | onnx | ground_truth
-    window = 4
+    window = 3
     colmap = "images"          # images | model | off: the COLMAP workspace colmap/
     rerun = false              # true: also write run.rrd, a Rerun recording (rerun extra)
     [solver]
@@ -144,10 +144,11 @@ class RefineConfig:
         robust-loss scales widened 4× (``bimcap.registration.Schedule.default``). Off by
         default: without G each frame fits the plan on its own and corridor frames slide, so
         on the demo world it failed 3 of 9 runs (0.25–0.79 m) that the single solve converges.
-    window: match each frame with its next ``window`` frames. 2 halves the matching and the
-        verification (1.8 pairs a frame instead of 3.5) for 6 % of the front end's time, and
-        moved BIMCaP's rotation by up to +0.002° on four worlds (docs/speed.md): not the
-        default.
+    window: match each frame with its next ``window`` frames. 3 (the default since
+        2026-11-28; 4 before) matches 3 pairs a frame instead of 4 (about 5 ms a frame less
+        at 516×386); on the hard setting alone it moved BIMCaP by at most +0.026 cm / +0.003°
+        (docs/speed.md, "Safe defaults"). 2 halves the matching and the verification against 4
+        and moved BIMCaP's rotation by up to +0.002° on four worlds: not the default.
     max_match_distance: the peers' filter on matches (metres between the two back-projected
         points under the initial poses; the paper used 0.4). None (default) keeps every
         geometrically verified match: with per-frame rotation drift the filter drops most of them.
@@ -229,7 +230,7 @@ class RefineConfig:
     rotation_first: bool = False
     staged: bool = False
     samples: str = "dense"
-    window: int = 4
+    window: int = 3
     max_match_distance: float | None = None
     solve_match_distance: float | None = None
     workers: int | None = None
