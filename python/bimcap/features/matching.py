@@ -106,7 +106,7 @@ class MatchOptions:
         inliers taken again). False (the default since 2026-11-28) makes a pair ~1.3× cheaper to
         verify (gen-demo-s0, 65 pairs: 4.08 against 3.18 ms; 13 of 17,333 inliers and no model
         changed); on the hard setting alone it moved BIMCaP by at most 0.0015 cm / 0.0002°
-        (docs/speed.md, "Safe defaults"). True is pycolmap's own (the default before) and stays
+        (docs/speed.md, "Cheaper defaults"). True is pycolmap's own (the default before) and stays
         out of :meth:`to_dict`, as before the option existed.
     product: how the numpy matcher multiplies SIFT descriptors (:class:`DescriptorProduct`;
         ORB's always in BLAS). Exact both ways, so the same matches; ``INT8`` (default) is

@@ -145,10 +145,12 @@ class RefineConfig:
         default: without G each frame fits the plan on its own and corridor frames slide, so
         on the demo world it failed 3 of 9 runs (0.25–0.79 m) that the single solve converges.
     window: match each frame with its next ``window`` frames. 3 (the default since
-        2026-11-28; 4 before) matches 3 pairs a frame instead of 4 (about 5 ms a frame less
-        at 516×386); on the hard setting alone it moved BIMCaP by at most +0.026 cm / +0.003°
-        (docs/speed.md, "Safe defaults"). 2 halves the matching and the verification against 4
-        and moved BIMCaP's rotation by up to +0.002° on four worlds: not the default.
+        2026-11-28; 4 before) matches 3 pairs a frame instead of 4; with the verification's
+        Sampson refinement off (the same day) the front end is 2–4 ms a frame cheaper at
+        516×386, and BIMCaP moved by at most +0.0035 cm (standard), +0.0069 cm (unseen seeds)
+        and +0.024 cm / +0.003° (hard) (docs/speed.md, "Cheaper defaults"). 2 halves the
+        matching and the verification against 4 and moved BIMCaP's rotation by up to +0.002°
+        on four worlds: not the default.
     max_match_distance: the peers' filter on matches (metres between the two back-projected
         points under the initial poses; the paper used 0.4). None (default) keeps every
         geometrically verified match: with per-frame rotation drift the filter drops most of them.
