@@ -6,13 +6,20 @@
    frame 0 fixed, intrinsics fixed, plain L2, same tolerances);
 3. the paper objective (PAPER weighting, G point + F + Ce + W with the association of the initial
    poses) against the peers' optimiser re-implemented in numpy — full-batch SGD, learning rate
-   0.1, momentum 0.9 — and against scipy.optimize.least_squares with a sparse Jacobian.
+   0.1, momentum 0.9 — and against scipy.optimize.least_squares with a sparse Jacobian;
+4. problem files (``--problems P.bimcap ...``, e.g. written from inside ``bimcap refine`` with
+   ``bimcap.optimize.write_problem``): each solved with its own options, batches compressed
+   (the default) and as one row per residual (``compress_batches=False``, the peer), alternating
+   in this process; wall and CPU seconds against the goal (1000 frames in 5 s), the ratio, and
+   how far the two results' poses are apart.
 
 Usage::
 
     PYTHONPATH=python python bench/bench_solver.py                       # everything, full sizes
     PYTHONPATH=python python bench/bench_solver.py --sizes 100 300 --sgd-iterations 20000 \
         --peer-frames 30
+    PYTHONPATH=python python bench/bench_solver.py --skip scaling pycolmap peers \
+        --problems p_0.bimcap p_1.bimcap --repeats 2
 """
 
 from __future__ import annotations
@@ -380,6 +387,42 @@ def bench_peers(frames: int, sgd_iterations: int) -> None:
           f"(≤ 0 means bimcap reached the same or lower cost)")
 
 
+# ----------------------------------------------------------------------------- problem files
+def bench_problems(paths: list[str], repeats: int) -> None:
+    from dataclasses import replace
+
+    from bimcap.optimize import read_problem
+
+    print("\n## Problem files: compressed batches (default) vs one row per residual, alternating "
+          "in one process (wall s, CPU s of the process; goal: 1000 frames < 5 s wall)")
+    print(f"{'problem':28} {'poses':>5} {'residuals':>10} {'form':>10} {'wall s':>7} {'cpu s':>7} "
+          f"{'iters':>5} {'rounds':>6} {'final cost':>16} {'goal':>6}")
+    for path in paths:
+        problem, options = read_problem(path)
+        runs: dict[bool, list[tuple[float, float, Any]]] = {True: [], False: []}
+        for _ in range(repeats):
+            for compress in (False, True):
+                before = resource.getrusage(resource.RUSAGE_SELF)
+                t = time.perf_counter()
+                r = solve(problem, replace(options, compress_batches=compress), check=False)
+                wall = time.perf_counter() - t
+                after = resource.getrusage(resource.RUSAGE_SELF)
+                cpu = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
+                runs[compress].append((wall, cpu, r))
+                goal = 5.0 * problem.num_poses / 1000.0
+                print(f"{path[-28:]:28} {problem.num_poses:5d} {r.summary.num_residuals:10d} "
+                      f"{'compressed' if compress else 'rows':>10} {wall:7.2f} {cpu:7.2f} "
+                      f"{r.summary.iterations:5d} {r.summary.outer_iterations:6d} "
+                      f"{r.summary.final_cost:16.9g} {goal:6.2f}")
+        best = {c: min(runs[c], key=lambda x: x[0]) for c in runs}
+        a, b = best[False][2].poses, best[True][2].poses
+        dt = float(np.abs(a[:, :3] - b[:, :3]).max())
+        dq = float(np.abs(np.abs((a[:, 3:] * b[:, 3:]).sum(axis=1)) - 1.0).max())
+        print(f"  best wall: rows {best[False][0]:.2f} s, compressed {best[True][0]:.2f} s, "
+              f"ratio {best[False][0] / best[True][0]:.2f}×; poses apart by at most {dt:.2e} m "
+              f"(1 − |q·q'| ≤ {dq:.1e})")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -388,6 +431,8 @@ def main() -> None:
     ap.add_argument("--peer-frames", type=int, default=60)
     ap.add_argument("--sgd-iterations", type=int, default=20000)
     ap.add_argument("--skip", nargs="*", default=[], choices=["scaling", "pycolmap", "peers"])
+    ap.add_argument("--problems", nargs="*", default=[], help="problem files to solve both ways")
+    ap.add_argument("--repeats", type=int, default=1, help="alternations per problem file")
     args = ap.parse_args()
     print(f"bimcap solver benchmark — {time.strftime('%Y-%m-%d %H:%M:%S')}, "
           f"SyntheticConfig defaults: {SyntheticConfig().intrinsics}")
@@ -397,6 +442,8 @@ def main() -> None:
         bench_pycolmap(args.ba_frames)
     if "peers" not in args.skip:
         bench_peers(args.peer_frames, args.sgd_iterations)
+    if args.problems:
+        bench_problems(args.problems, args.repeats)
 
 
 if __name__ == "__main__":

@@ -150,12 +150,16 @@ void ProblemBuilder::FlushObservations(int term) {
   } else {
     for (const PendingGroup& group : pending_) {
       const auto& samples = group.samples;
+      // The manifold Build() sets on each parameter block (a constant pose's is never used).
+      std::vector<const ceres::Manifold*> manifolds;
+      for (const double* block : group.parameters) manifolds.push_back(ManifoldOf(block));
       // Chunks of at most `batch`, as even as the count allows.
       const size_t chunks = (samples.size() + batch - 1) / batch;
       for (size_t c = 0; c < chunks; ++c) {
         const size_t begin = samples.size() * c / chunks;
         const size_t end = samples.size() * (c + 1) / chunks;
-        auto* batched = new BatchedCostFunction(loss, blocks.residual_size);
+        auto* batched = new BatchedCostFunction(loss, blocks.residual_size, manifolds,
+                                                options_.compress_batches);
         for (size_t i = begin; i < end; ++i)
           batched->Add(std::unique_ptr<ceres::CostFunction>(samples[i].first), samples[i].second);
         blocks.ids.push_back(problem_->AddResidualBlock(batched, nullptr, group.parameters));
@@ -165,6 +169,14 @@ void ProblemBuilder::FlushObservations(int term) {
   pending_.clear();
   pending_index_.clear();
   pending_count_ = 0;
+}
+
+const ceres::Manifold* ProblemBuilder::ManifoldOf(const double* block) const {
+  const double* poses = state_->poses.data();
+  if (block >= poses && block < poses + state_->poses.size()) return pose_manifold_.get();
+  const double* planes = state_->facap_planes.data();
+  if (block >= planes && block < planes + state_->facap_planes.size()) return plane_manifold_.get();
+  return nullptr;
 }
 
 void ProblemBuilder::InitFacapPlanes() {

@@ -95,6 +95,8 @@ class ProblemBuilder {
  private:
   // Groups the pending observations of `term` by parameter blocks and adds its residual blocks.
   void FlushObservations(int term);
+  // The manifold Build() sets on a parameter block (poses, FACaP planes), null for the others.
+  const ceres::Manifold* ManifoldOf(const double* block) const;
 
   struct PendingGroup {
     std::vector<double*> parameters;

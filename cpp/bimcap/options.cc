@@ -243,6 +243,7 @@ std::map<std::string, std::string> OptionsToKeyValues(const SolverOptions& o) {
   kv["max_time_s"] = FormatDouble(o.max_time_s);
   kv["num_threads"] = std::to_string(o.num_threads);
   kv["batch_size"] = std::to_string(o.batch_size);
+  kv["compress_batches"] = o.compress_batches ? "1" : "0";
   kv["linear_solver"] = EnumToString(o.linear_solver);
   kv["compute_covariance"] = o.compute_covariance ? "1" : "0";
   kv["verbose"] = o.verbose ? "1" : "0";
@@ -288,6 +289,8 @@ SolverOptions OptionsFromKeyValues(const std::map<std::string, std::string>& val
       o.num_threads = ParseInt(key, value);
     } else if (key == "batch_size") {
       o.batch_size = ParseInt(key, value);
+    } else if (key == "compress_batches") {
+      o.compress_batches = ParseBool(key, value);
     } else if (key == "linear_solver") {
       o.linear_solver = EnumFromString<LinearSolver>(key, value);
     } else if (key == "compute_covariance") {
@@ -345,7 +348,8 @@ std::vector<OptionSpec> OptionSpecs() {
     if (enums.count(leaf)) {
       spec.kind = "enum";
       spec.choices = enums.at(leaf);
-    } else if (leaf == "enabled" || leaf == "compute_covariance" || leaf == "verbose") {
+    } else if (leaf == "enabled" || leaf == "compute_covariance" || leaf == "verbose" ||
+               leaf == "compress_batches") {
       spec.kind = "bool";
     } else if (std::find(ints.begin(), ints.end(), leaf) != ints.end()) {
       spec.kind = "int";

@@ -83,6 +83,10 @@ struct SolverOptions {
   // applied to each (cost_functions/batched.h): the same cost and gradient, a fraction of
   // Ceres' per-block work. 1: one residual block per observation, with Ceres' loss.
   int batch_size = 64;
+  // A batch of more residuals than its parameter blocks' tangent size goes to Ceres as that many
+  // rows plus one, built from its Gauss-Newton matrix and gradient (cost_functions/batched.h: the
+  // same cost, gradient and Gauss-Newton matrix to rounding); false: one row per residual.
+  bool compress_batches = true;
   LinearSolver linear_solver = LinearSolver::kAuto;
   bool compute_covariance = false;
   bool verbose = false;

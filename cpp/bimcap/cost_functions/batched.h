@@ -6,6 +6,7 @@
 
 #include <ceres/cost_function.h>
 #include <ceres/loss_function.h>
+#include <ceres/manifold.h>
 
 #include <algorithm>
 #include <cmath>
@@ -19,10 +20,10 @@ namespace bimcap {
 
 // The observations i = 1..n of a term whose cost functions take the same parameter blocks, each
 // with raw residual r_i (k values, the term's whitening and weight inside) and Jacobian J_i,
-// in one residual block of n·k + 1 values. Ceres applies a loss to the squared norm of a whole
-// block, so the block carries no Ceres loss: the term's loss ρ acts on each observation here, as
-// Ceres would on a block of its own (its Corrector, Triggs et al.'s correction), and one last
-// residual carries the rest of the robust cost:
+// in one residual block. Ceres applies a loss to the squared norm of a whole block, so the
+// block carries no Ceres loss: the term's loss ρ acts on each observation here, as Ceres would
+// on a block of its own (its Corrector, Triggs et al.'s correction), and one last residual
+// carries the rest of the robust cost:
 //
 //   s_i = ‖r_i‖²,   ρ_i = ρ(s_i), ρ′_i, ρ″_i
 //   α_i = 1 − √(1 + 2 s_i ρ″_i / ρ′_i)   where s_i > 0 and ρ″_i > 0, else α_i = 0
@@ -37,28 +38,74 @@ namespace bimcap {
 // with ρ″ ≤ 0 (Huber, Cauchy, soft-L1, arctan, Tukey); it is clamped at 0 otherwise. Without a
 // loss the block is the n·k rows r̃_i = r_i, J̃_i = J_i (no last row).
 //
-// The per-observation cost functions are kept (owned) and evaluated one after the other into
-// their rows of the block's residuals and Jacobians (row-major, rows × block size).
+// Row form: the per-observation cost functions (owned) are evaluated one after the other into
+// their rows of the block's residuals and Jacobians (row-major, rows × block size): n·k + 1
+// rows.
+//
+// Compressed form (the default once n·k > T). All that Ceres' trust-region step uses of a block
+// is its cost, the Gauss-Newton matrix and gradient in the tangent space of its parameter blocks
+// and their column norms; its linear solver forms that matrix row by row, after multiplying each
+// row by the manifolds' Plus Jacobians P_b (ambient × tangent). With T = Σ_b tangent sizes (6 for
+// one pose, 12 for two), the block is T + 1 rows instead, made from the same r̃_i and the
+// tangent Jacobians J̃_i P of the parameter blocks Ceres asks for (P = diag P_b):
+//
+//   H = Σ_i (J̃_i P)ᵀ (J̃_i P) (T × T),   g = Σ_i (J̃_i P)ᵀ r̃_i,   c = Σ_i ρ_i (Σ_i s_i without a
+//   loss) S⁻¹ H S⁻¹ ≈ Πᵀ L Lᵀ Π    (S = diag √H_aa; Cholesky with diagonal pivoting, rank m: pivots
+//                             ≤ 1e-12 of the equilibrated H, directions H does not see, dropped)
+//   R = Lᵀ Π S   (m × T),   z = L⁻¹ Π S⁻¹ g   (so Rᵀ R = H and Rᵀ z = g)
+//   rows: z (m values), zeros up to T, then t = √(c − ‖z‖²)        (the last row's Jacobian is 0)
+//   ambient Jacobian of block b: R_b P_b⁺,   P_b⁺ = (P_bᵀ P_b)⁻¹ P_bᵀ  (so Ceres' R_b P_b⁺ P_b =
+//   R_b)
+//
+// So Ceres sees the same cost, tangent gradient, Gauss-Newton matrix and column norms (hence the
+// same Levenberg-Marquardt diagonal and Jacobi scaling), to rounding, from T + 1 rows instead of
+// n·k + 1. The factorisation is in the tangent space: a direction a term does not see stays
+// empty there (compressing the 7-vector ambient Jacobians instead leaked rounding into such
+// directions). A residual-only evaluation (Ceres' candidate points read the cost only) writes
+// [0, ..., 0, √c]. Constant parameter blocks (a null jacobians[b]) are left out of H and g.
 class BatchedCostFunction final : public ceres::CostFunction {
  public:
   // `loss` (null: plain squares) must outlive the cost function; `residuals_per_sample` = k.
-  BatchedCostFunction(const ceres::LossFunction* loss, int residuals_per_sample)
-      : loss_(loss), k_(residuals_per_sample) {}
+  // `manifolds`: the manifold of each parameter block, as the problem sets it (null or absent:
+  // Euclidean; they must outlive the cost function); `compress`: the compressed form once
+  // n·k > T (false: always the row form).
+  BatchedCostFunction(const ceres::LossFunction* loss, int residuals_per_sample,
+                      std::vector<const ceres::Manifold*> manifolds = {}, bool compress = true)
+      : loss_(loss),
+        k_(residuals_per_sample),
+        manifolds_(std::move(manifolds)),
+        compress_(compress) {}
 
   // Appends an observation (before the block goes into a problem); `index` is its position in
   // its term (for messages). All observations take the same parameter block sizes.
   void Add(std::unique_ptr<ceres::CostFunction> sample, int64_t index) {
     if (samples_.empty()) {
       const std::vector<int32_t>& sizes = sample->parameter_block_sizes();
-      if (sizes.size() > kMaxBlocks || sample->num_residuals() != k_)
+      if (sizes.size() > kMaxBlocks || sample->num_residuals() != k_ || k_ > kMaxK ||
+          manifolds_.size() > sizes.size())
+        throw std::logic_error("BatchedCostFunction: an observation of unexpected size");
+      manifolds_.resize(sizes.size(), nullptr);
+      tangent_cols_ = 0;
+      for (size_t b = 0; b < sizes.size(); ++b) {
+        const ceres::Manifold* m = manifolds_[b];
+        if (m != nullptr && m->AmbientSize() != sizes[b])
+          throw std::logic_error("BatchedCostFunction: a manifold of unexpected size");
+        if (sizes[b] > kMaxAmbient)
+          throw std::logic_error("BatchedCostFunction: an observation of unexpected size");
+        tangent_cols_ += m != nullptr ? m->TangentSize() : sizes[b];
+      }
+      if (tangent_cols_ > kMaxCols)
         throw std::logic_error("BatchedCostFunction: an observation of unexpected size");
       *mutable_parameter_block_sizes() = sizes;
     }
     samples_.push_back(std::move(sample));
     indices_.push_back(index);
-    set_num_residuals(k_ * static_cast<int>(samples_.size()) + (loss_ != nullptr ? 1 : 0));
+    const int rows = k_ * static_cast<int>(samples_.size());
+    compressed_ = compress_ && rows > tangent_cols_;
+    set_num_residuals(compressed_ ? tangent_cols_ + 1 : rows + (loss_ != nullptr ? 1 : 0));
   }
 
+  bool compressed() const { return compressed_; }
   int num_samples() const { return static_cast<int>(samples_.size()); }
   int residuals_per_sample() const { return k_; }
   const ceres::CostFunction& sample(int i) const { return *samples_[i]; }
@@ -66,6 +113,7 @@ class BatchedCostFunction final : public ceres::CostFunction {
 
   bool Evaluate(double const* const* parameters, double* residuals,
                 double** jacobians) const override {
+    if (compressed_) return EvaluateCompressed(parameters, residuals, jacobians);
     const std::vector<int32_t>& sizes = parameter_block_sizes();
     const size_t num_blocks = sizes.size();
     const size_t n = samples_.size();
@@ -81,36 +129,12 @@ class BatchedCostFunction final : public ceres::CostFunction {
       if (!samples_[i]->Evaluate(parameters, r, jacobians != nullptr ? sample_jacobians : nullptr))
         return false;
       if (loss_ == nullptr) continue;
-      double s = 0.0;
-      for (int row = 0; row < k_; ++row) s += r[row] * r[row];
-      double rho[3];
-      loss_->Evaluate(s, rho);
-      // Ceres' Corrector (internal/ceres/corrector.cc), observation by observation.
-      const double sqrt_rho1 = std::sqrt(rho[1]);
-      double residual_scaling = sqrt_rho1, alpha_sq_norm = 0.0;
-      if (s > 0.0 && rho[2] > 0.0) {
-        const double alpha = 1.0 - std::sqrt(1.0 + 2.0 * s * rho[2] / rho[1]);
-        residual_scaling = sqrt_rho1 / (1.0 - alpha);
-        alpha_sq_norm = alpha / s;
+      const Correction c = Corrector(r);
+      for (size_t b = 0; jacobians != nullptr && b < num_blocks; ++b) {
+        if (sample_jacobians[b] != nullptr) CorrectJacobian(c, r, sample_jacobians[b], sizes[b]);
       }
-      if (jacobians != nullptr) {
-        for (size_t b = 0; b < num_blocks; ++b) {
-          double* j = sample_jacobians[b];
-          if (j == nullptr) continue;
-          const int cols = sizes[b];
-          for (int c = 0; c < cols; ++c) {
-            double rt_j = 0.0;
-            if (alpha_sq_norm != 0.0) {
-              for (int row = 0; row < k_; ++row) rt_j += r[row] * j[row * cols + c];
-            }
-            for (int row = 0; row < k_; ++row) {
-              j[row * cols + c] = sqrt_rho1 * (j[row * cols + c] - alpha_sq_norm * r[row] * rt_j);
-            }
-          }
-        }
-      }
-      for (int row = 0; row < k_; ++row) r[row] *= residual_scaling;
-      rest += rho[0] - residual_scaling * residual_scaling * s;
+      for (int row = 0; row < k_; ++row) r[row] *= c.residual_scaling;
+      rest += c.rho - c.residual_scaling * c.residual_scaling * c.s;
     }
     if (loss_ == nullptr) return true;
     residuals[k_ * n] = std::sqrt(std::max(rest, 0.0));
@@ -124,13 +148,279 @@ class BatchedCostFunction final : public ceres::CostFunction {
   }
 
   static constexpr size_t kMaxBlocks = 8;  // parameter blocks per observation
+  static constexpr int kMaxK = 8;          // residuals per observation
+  static constexpr int kMaxAmbient = 16;   // a parameter block's size
+  static constexpr int kMaxCols = 32;      // Σ tangent sizes (T)
 
  private:
+  // Ceres' Corrector of one observation (internal/ceres/corrector.cc), from its raw residuals.
+  struct Correction {
+    double s = 0.0;    // ‖r‖²
+    double rho = 0.0;  // ρ(s); s without a loss
+    double sqrt_rho1 = 1.0;
+    double alpha_sq_norm = 0.0;  // α / s
+    double residual_scaling = 1.0;
+  };
+
+  Correction Corrector(const double* r) const {
+    Correction c;
+    for (int row = 0; row < k_; ++row) c.s += r[row] * r[row];
+    c.rho = c.s;
+    if (loss_ == nullptr) return c;
+    double rho[3];
+    loss_->Evaluate(c.s, rho);
+    c.rho = rho[0];
+    c.sqrt_rho1 = std::sqrt(rho[1]);
+    c.residual_scaling = c.sqrt_rho1;
+    if (c.s > 0.0 && rho[2] > 0.0) {
+      const double alpha = 1.0 - std::sqrt(1.0 + 2.0 * c.s * rho[2] / rho[1]);
+      c.residual_scaling = c.sqrt_rho1 / (1.0 - alpha);
+      c.alpha_sq_norm = alpha / c.s;
+    }
+    return c;
+  }
+
+  // J̃ = √ρ′ (I − α r rᵀ / s) J in place, for the k × cols row-major `j` and the raw `r`.
+  void CorrectJacobian(const Correction& c, const double* r, double* j, int cols) const {
+    for (int col = 0; col < cols; ++col) {
+      double rt_j = 0.0;
+      if (c.alpha_sq_norm != 0.0) {
+        for (int row = 0; row < k_; ++row) rt_j += r[row] * j[row * cols + col];
+      }
+      for (int row = 0; row < k_; ++row) {
+        j[row * cols + col] = c.sqrt_rho1 * (j[row * cols + col] - c.alpha_sq_norm * r[row] * rt_j);
+      }
+    }
+  }
+
+  // The compressed form (see the class comment).
+  bool EvaluateCompressed(double const* const* parameters, double* residuals,
+                          double** jacobians) const;
+
   const ceres::LossFunction* loss_;
   const int k_;
+  std::vector<const ceres::Manifold*> manifolds_;
+  const bool compress_;
+  int tangent_cols_ = 0;     // T
+  bool compressed_ = false;  // n·k > T and compress_
   std::vector<std::unique_ptr<ceres::CostFunction>> samples_;
   std::vector<int64_t> indices_;
 };
+
+namespace batched_internal {
+
+// H += Σ_rows jᵀ j (lower triangle of the cols × cols row-major h), g += Σ_rows jᵀ r over the
+// k × cols row-major j; K, C > 0 fix k and cols at compile time.
+template <int K, int C>
+inline void Accumulate(const double* j, const double* r, double* h, double* g, int k = K,
+                       int cols = C) {
+  if constexpr (K > 0) k = K;
+  if constexpr (C > 0) cols = C;
+  for (int row = 0; row < k; ++row) {
+    const double* jr = j + row * cols;
+    for (int a = 0; a < cols; ++a) {
+      g[a] += jr[a] * r[row];
+      double* ha = h + a * cols;
+      for (int c = 0; c <= a; ++c) ha[c] += jr[a] * jr[c];
+    }
+  }
+}
+
+// out (k × t, row stride `stride`) = j (k × a, row-major) · plus (a × t, row-major); A, T > 0 fix
+// a and t at compile time.
+template <int A, int T>
+inline void ToTangent(const double* j, const double* plus, int k, double* out, int stride,
+                      int a = A, int t = T) {
+  if constexpr (A > 0) a = A;
+  if constexpr (T > 0) t = T;
+  for (int row = 0; row < k; ++row) {
+    for (int c = 0; c < t; ++c) {
+      double v = 0.0;
+      for (int x = 0; x < a; ++x) v += j[row * a + x] * plus[x * t + c];
+      out[row * stride + c] = v;
+    }
+  }
+}
+
+}  // namespace batched_internal
+
+inline bool BatchedCostFunction::EvaluateCompressed(double const* const* parameters,
+                                                    double* residuals, double** jacobians) const {
+  using batched_internal::Accumulate;
+  using batched_internal::ToTangent;
+  const std::vector<int32_t>& sizes = parameter_block_sizes();
+  const size_t num_blocks = sizes.size();
+  const int rows = tangent_cols_ + 1;
+  // The blocks whose Jacobian is asked for, their first tangent column and Plus Jacobian.
+  int first[kMaxBlocks], tangent[kMaxBlocks];
+  double plus[kMaxBlocks][kMaxAmbient * kMaxAmbient];
+  double block_j[kMaxBlocks][kMaxK * kMaxAmbient];  // observation i's ambient Jacobians
+  double* sample_jacobians[kMaxBlocks];
+  int cols = 0;
+  for (size_t b = 0; b < num_blocks; ++b) {
+    const bool wanted = jacobians != nullptr && jacobians[b] != nullptr;
+    const ceres::Manifold* m = manifolds_[b];
+    first[b] = wanted ? cols : -1;
+    tangent[b] = m != nullptr ? m->TangentSize() : sizes[b];
+    sample_jacobians[b] = wanted ? block_j[b] : nullptr;
+    if (!wanted) continue;
+    cols += tangent[b];
+    if (m != nullptr && !m->PlusJacobian(parameters[b], plus[b])) return false;
+  }
+  double r[kMaxK];
+  double j[kMaxK * kMaxCols];     // observation i's tangent Jacobian, k × cols row-major
+  double h[kMaxCols * kMaxCols];  // cols × cols row-major, lower triangle used
+  double g[kMaxCols];
+  std::fill_n(h, cols * cols, 0.0);
+  std::fill_n(g, cols, 0.0);
+  double total = 0.0;
+  for (const auto& sample : samples_) {
+    if (!sample->Evaluate(parameters, r, cols > 0 ? sample_jacobians : nullptr)) return false;
+    const Correction c = Corrector(r);
+    total += c.rho;
+    if (cols == 0) continue;
+    for (size_t b = 0; b < num_blocks; ++b) {
+      if (first[b] < 0) continue;
+      if (manifolds_[b] == nullptr) {
+        for (int row = 0; row < k_; ++row) {
+          std::copy_n(block_j[b] + row * sizes[b], sizes[b], j + row * cols + first[b]);
+        }
+      } else if (sizes[b] == 7 && tangent[b] == 6) {
+        ToTangent<7, 6>(block_j[b], plus[b], k_, j + first[b], cols);
+      } else {
+        ToTangent<0, 0>(block_j[b], plus[b], k_, j + first[b], cols, sizes[b], tangent[b]);
+      }
+    }
+    if (loss_ != nullptr) {
+      CorrectJacobian(c, r, j, cols);
+      for (int row = 0; row < k_; ++row) r[row] *= c.residual_scaling;
+    }
+    // The usual sizes with compile-time bounds (unrolled), else the same loops at run time.
+    if (k_ == 1 && cols == 6) {
+      Accumulate<1, 6>(j, r, h, g);
+    } else if (k_ == 1 && cols == 12) {
+      Accumulate<1, 12>(j, r, h, g);
+    } else if (k_ == 2 && cols == 12) {
+      Accumulate<2, 12>(j, r, h, g);
+    } else {
+      Accumulate<0, 0>(j, r, h, g, k_, cols);
+    }
+  }
+  std::fill_n(residuals, rows, 0.0);
+  if (cols == 0) {
+    residuals[rows - 1] = std::sqrt(std::max(total, 0.0));
+    return true;
+  }
+  // Equilibrated: H' = S⁻¹ H S⁻¹, g' = S⁻¹ g with S = diag √H_aa (an empty column stays 0), so
+  // that the factorisation's rounding is relative to each column's own scale, as in JᵀJ.
+  double scale[kMaxCols], inv_scale[kMaxCols];
+  for (int a = 0; a < cols; ++a) {
+    scale[a] = std::sqrt(h[a * cols + a]);
+    inv_scale[a] = scale[a] > 0.0 ? 1.0 / scale[a] : 0.0;
+  }
+  for (int a = 0; a < cols; ++a) {
+    g[a] *= inv_scale[a];
+    for (int c = 0; c <= a; ++c) h[a * cols + c] *= inv_scale[a] * inv_scale[c];
+  }
+  // Cholesky with diagonal pivoting of H', in place (lower triangle): Π H' Πᵀ = L Lᵀ.
+  int perm[kMaxCols];
+  for (int a = 0; a < cols; ++a) perm[a] = a;
+  constexpr double kPivotTolerance = 1e-12;
+  auto at = [&](int a, int c) -> double& { return a >= c ? h[a * cols + c] : h[c * cols + a]; };
+  int rank = 0;
+  for (; rank < cols; ++rank) {
+    const int k = rank;
+    int p = k;
+    for (int a = k + 1; a < cols; ++a) {
+      if (at(a, a) > at(p, p)) p = a;
+    }
+    if (!(at(p, p) > kPivotTolerance)) break;
+    if (p != k) {
+      for (int c = 0; c < cols; ++c) {
+        if (c != k && c != p) std::swap(at(k, c), at(p, c));
+      }
+      std::swap(at(k, k), at(p, p));
+      std::swap(perm[k], perm[p]);
+    }
+    const double lkk = std::sqrt(at(k, k));
+    at(k, k) = lkk;
+    for (int a = k + 1; a < cols; ++a) at(a, k) /= lkk;
+    for (int a = k + 1; a < cols; ++a) {
+      for (int c = k + 1; c <= a; ++c) at(a, c) -= at(a, k) * at(c, k);
+    }
+  }
+  // z = L⁻¹ Π g' (forward substitution over the rank rows).
+  double z_sq = 0.0;
+  for (int k = 0; k < rank; ++k) {
+    double v = g[perm[k]];
+    for (int c = 0; c < k; ++c) v -= at(k, c) * residuals[c];
+    residuals[k] = v / at(k, k);
+    z_sq += residuals[k] * residuals[k];
+  }
+  residuals[rows - 1] = std::sqrt(std::max(total - z_sq, 0.0));
+  // R = Lᵀ Π S: R(k, perm[a]) = L(a, k) S_perm[a] for a ≥ k; then block b's ambient rows R_b P_b⁺.
+  double r_row[kMaxCols];
+  for (size_t b = 0; b < num_blocks; ++b) {
+    if (first[b] < 0) continue;
+    const int a_size = sizes[b], t_size = tangent[b];
+    double* jb = jacobians[b];
+    std::fill_n(jb, static_cast<size_t>(rows) * a_size, 0.0);
+    // (P_bᵀ P_b) = M M_ᵀ by Cholesky, for P_b⁺ = (P_bᵀ P_b)⁻¹ P_bᵀ.
+    const ceres::Manifold* m = manifolds_[b];
+    double gram[kMaxAmbient * kMaxAmbient];
+    if (m != nullptr) {
+      const double* pb = plus[b];
+      for (int x = 0; x < t_size; ++x) {
+        for (int y = 0; y <= x; ++y) {
+          double v = 0.0;
+          for (int a = 0; a < a_size; ++a) v += pb[a * t_size + x] * pb[a * t_size + y];
+          gram[x * t_size + y] = v;
+        }
+      }
+      for (int x = 0; x < t_size; ++x) {
+        for (int y = 0; y < x; ++y)
+          gram[x * t_size + x] -= gram[x * t_size + y] * gram[x * t_size + y];
+        if (!(gram[x * t_size + x] > 0.0)) return false;
+        gram[x * t_size + x] = std::sqrt(gram[x * t_size + x]);
+        for (int w = x + 1; w < t_size; ++w) {
+          double v = gram[w * t_size + x];
+          for (int y = 0; y < x; ++y) v -= gram[w * t_size + y] * gram[x * t_size + y];
+          gram[w * t_size + x] = v / gram[x * t_size + x];
+        }
+      }
+    }
+    for (int k = 0; k < rank; ++k) {
+      std::fill_n(r_row, t_size, 0.0);
+      for (int a = k; a < cols; ++a) {
+        const int col = perm[a] - first[b];
+        if (col >= 0 && col < t_size) r_row[col] = at(a, k) * scale[perm[a]];
+      }
+      double* out = jb + static_cast<size_t>(k) * a_size;
+      if (m == nullptr) {
+        std::copy_n(r_row, a_size, out);
+        continue;
+      }
+      // y = (P_bᵀ P_b)⁻¹ r_row by the two triangular solves, then out = P_b y.
+      for (int x = 0; x < t_size; ++x) {
+        double v = r_row[x];
+        for (int y = 0; y < x; ++y) v -= gram[x * t_size + y] * r_row[y];
+        r_row[x] = v / gram[x * t_size + x];
+      }
+      for (int x = t_size - 1; x >= 0; --x) {
+        double v = r_row[x];
+        for (int y = x + 1; y < t_size; ++y) v -= gram[y * t_size + x] * r_row[y];
+        r_row[x] = v / gram[x * t_size + x];
+      }
+      const double* pb = plus[b];
+      for (int a = 0; a < a_size; ++a) {
+        double v = 0.0;
+        for (int x = 0; x < t_size; ++x) v += pb[a * t_size + x] * r_row[x];
+        out[a] = v;
+      }
+    }
+  }
+  return true;
+}
 
 }  // namespace bimcap
 

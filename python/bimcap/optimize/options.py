@@ -8,9 +8,9 @@ file stores all come from ``bimcap._core``; this module is their typed Python vi
 (``prior.sigma_r_deg``), then ``pixel_sigma``, ``association_gate``, ``outer_iterations``,
 ``association_change_tolerance``, ``round_function_tolerance``, ``max_iterations``,
 ``function_tolerance``, ``gradient_tolerance``, ``parameter_tolerance``, ``max_time_s``,
-``num_threads``, ``batch_size``, ``linear_solver``, ``compute_covariance``, ``verbose``;
-``bimcap._core.option_specs()`` lists
-them with their kinds and defaults.
+``num_threads``, ``batch_size``, ``compress_batches``, ``linear_solver``,
+``compute_covariance``, ``verbose``; ``bimcap._core.option_specs()`` lists them with their kinds
+and defaults.
 """
 
 from __future__ import annotations
@@ -208,6 +208,10 @@ class SolverOptions:
     #: applied to each (the same cost and gradient, less of Ceres' per-block work); 1: one
     #: block per observation with Ceres' loss.
     batch_size: int = _default("batch_size")
+    #: A batch of more residuals than its poses' tangent size goes to Ceres as that many rows
+    #: plus one, from its Gauss-Newton matrix and gradient (the same step to rounding, a
+    #: fraction of Ceres' per-row work); False: one row per residual.
+    compress_batches: bool = _default("compress_batches")
     linear_solver: LinearSolver = _default("linear_solver")
     #: Pose covariance (N, 6, 6) in the tangent space [dt, dtheta] via ceres::Covariance.
     compute_covariance: bool = _default("compute_covariance")
@@ -368,6 +372,7 @@ _GLOBAL_TYPES: dict[str, type] = {
     "max_time_s": float,
     "num_threads": int,
     "batch_size": int,
+    "compress_batches": bool,
     "linear_solver": LinearSolver,
     "compute_covariance": bool,
     "verbose": bool,

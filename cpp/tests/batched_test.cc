@@ -1,0 +1,220 @@
+// BatchedCostFunction's compressed form against its row form, through ceres::Problem::Evaluate:
+// the cost, the tangent-space gradient and Gauss-Newton matrix Ceres sees must be the same.
+#include "bimcap/cost_functions/batched.h"
+
+#include <ceres/crs_matrix.h>
+#include <ceres/loss_function.h>
+#include <ceres/problem.h>
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <functional>
+#include <memory>
+#include <random>
+#include <vector>
+
+#include "bimcap/cost_functions/point_to_plane.h"
+#include "bimcap/cost_functions/point_to_segment.h"
+#include "bimcap/cost_functions/reprojection.h"
+#include "bimcap/pose.h"
+
+namespace bimcap {
+namespace {
+
+using Blocks = std::vector<std::vector<double>>;
+
+// What Ceres sees of one problem: cost, gradient and JᵀJ in the tangent space (dense).
+struct Seen {
+  double cost = 0.0;
+  double residual_only_cost = 0.0;
+  std::vector<double> gradient;
+  Eigen::MatrixXd jtj;
+  int num_residuals = 0;
+  bool compressed = false;
+};
+
+// The n observations `make(i)` on copies of `blocks`, in one BatchedCostFunction (`compress`),
+// the manifolds on the parameter blocks, `constant` blocks held constant.
+Seen Evaluate(const std::function<ceres::CostFunction*(int)>& make, int n, int k,
+              const ceres::LossFunction* loss, Blocks blocks,
+              const std::vector<const ceres::Manifold*>& manifolds,
+              const std::vector<bool>& constant, bool compress) {
+  ceres::Problem::Options options;
+  options.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  ceres::Problem problem(options);
+  auto* batched = new BatchedCostFunction(loss, k, manifolds, compress);
+  for (int i = 0; i < n; ++i) batched->Add(std::unique_ptr<ceres::CostFunction>(make(i)), i);
+  std::vector<double*> pointers;
+  for (auto& b : blocks) pointers.push_back(b.data());
+  problem.AddResidualBlock(batched, nullptr, pointers);
+  for (size_t b = 0; b < blocks.size(); ++b) {
+    if (manifolds[b] != nullptr) {
+      problem.SetManifold(pointers[b], const_cast<ceres::Manifold*>(manifolds[b]));
+    }
+    if (constant[b]) problem.SetParameterBlockConstant(pointers[b]);
+  }
+  Seen seen;
+  seen.num_residuals = batched->num_residuals();
+  seen.compressed = batched->compressed();
+  ceres::CRSMatrix jacobian;
+  EXPECT_TRUE(problem.Evaluate(ceres::Problem::EvaluateOptions(), &seen.cost, nullptr,
+                               &seen.gradient, &jacobian));
+  EXPECT_TRUE(problem.Evaluate(ceres::Problem::EvaluateOptions(), &seen.residual_only_cost, nullptr,
+                               nullptr, nullptr));
+  Eigen::MatrixXd j = Eigen::MatrixXd::Zero(jacobian.num_rows, jacobian.num_cols);
+  for (int row = 0; row < jacobian.num_rows; ++row) {
+    for (int x = jacobian.rows[row]; x < jacobian.rows[row + 1]; ++x) {
+      j(row, jacobian.cols[x]) = jacobian.values[x];
+    }
+  }
+  seen.jtj = j.transpose() * j;
+  return seen;
+}
+
+// Both forms of the same batch; returns the compressed one's view.
+Seen ExpectSameStep(const std::function<ceres::CostFunction*(int)>& make, int n, int k,
+                    const ceres::LossFunction* loss, const Blocks& blocks,
+                    const std::vector<const ceres::Manifold*>& manifolds,
+                    const std::vector<bool>& constant, int tangent_size) {
+  const Seen rows = Evaluate(make, n, k, loss, blocks, manifolds, constant, false);
+  const Seen compressed = Evaluate(make, n, k, loss, blocks, manifolds, constant, true);
+  EXPECT_FALSE(rows.compressed);
+  EXPECT_TRUE(compressed.compressed);
+  EXPECT_EQ(compressed.num_residuals, tangent_size + 1);
+  EXPECT_EQ(rows.num_residuals, n * k + (loss != nullptr ? 1 : 0));
+  EXPECT_NEAR(compressed.cost, rows.cost, 1e-12 * rows.cost);
+  EXPECT_NEAR(compressed.residual_only_cost, rows.cost, 1e-12 * rows.cost);
+  EXPECT_NEAR(rows.residual_only_cost, rows.cost, 1e-12 * rows.cost);
+  EXPECT_GT(rows.cost, 0.0);
+  EXPECT_EQ(compressed.gradient.size(), rows.gradient.size());
+  double g_max = 0.0;
+  for (double v : rows.gradient) g_max = std::max(g_max, std::abs(v));
+  EXPECT_GT(g_max, 0.0);
+  for (size_t a = 0; a < rows.gradient.size(); ++a) {
+    EXPECT_NEAR(compressed.gradient[a], rows.gradient[a], 1e-10 * g_max) << "gradient " << a;
+  }
+  EXPECT_EQ(compressed.jtj.rows(), rows.jtj.rows());
+  const double h_max = rows.jtj.cwiseAbs().maxCoeff();
+  EXPECT_GT(h_max, 0.0);
+  EXPECT_LE((compressed.jtj - rows.jtj).cwiseAbs().maxCoeff(), 1e-10 * h_max);
+  return compressed;
+}
+
+std::vector<double> RandomPose(std::mt19937* rng) {
+  std::normal_distribution<double> g(0.0, 1.0);
+  const Eigen::Quaterniond q =
+      Eigen::Quaterniond(4.0 + g(*rng), g(*rng), g(*rng), g(*rng)).normalized();
+  return {g(*rng), g(*rng), g(*rng), q.x(), q.y(), q.z(), q.w()};
+}
+
+TEST(Batched, CompressedReprojectionMatchesRows) {
+  std::mt19937 rng(3);
+  std::normal_distribution<double> g(0.0, 1.0);
+  const std::vector<double> a = RandomPose(&rng);
+  std::vector<double> b = a;
+  b[0] += 0.3;  // the second frame 30 cm along x, slightly turned
+  b[4] += 0.02;
+  Eigen::Map<Eigen::Quaterniond>(b.data() + 3).normalize();
+  const Eigen::Vector4d intrinsics(500.0, 500.0, 320.0, 240.0);
+  std::vector<Eigen::Vector3d> points;
+  std::vector<Eigen::Vector2d> uvs;
+  for (int i = 0; i < 50; ++i) {
+    points.emplace_back(g(rng), g(rng), 3.0 + std::abs(g(rng)));
+    // Outliers among them: the Cauchy loss is in its non-convex part for some.
+    uvs.emplace_back(320.0 + 100.0 * g(rng), 240.0 + 100.0 * g(rng));
+  }
+  const auto make = [&](int i) {
+    return ReprojectionCostFunction::Create(points[i], uvs[i], intrinsics, 0.5, 2.0, 0.02);
+  };
+  ceres::CauchyLoss cauchy(1.0);
+  const std::unique_ptr<ceres::Manifold> full = CreatePoseManifold(RefineMode::kFull);
+  const std::unique_ptr<ceres::Manifold> rotation = CreatePoseManifold(RefineMode::kRotation);
+  {
+    SCOPED_TRACE("two free poses");
+    ExpectSameStep(make, 50, 2, &cauchy, {a, b}, {full.get(), full.get()}, {false, false}, 12);
+  }
+  {
+    SCOPED_TRACE("the first pose constant");
+    ExpectSameStep(make, 50, 2, &cauchy, {a, b}, {full.get(), full.get()}, {true, false}, 12);
+  }
+  {
+    SCOPED_TRACE("rotations only");
+    ExpectSameStep(make, 50, 2, &cauchy, {a, b}, {rotation.get(), rotation.get()}, {false, false},
+                   6);
+  }
+  {
+    SCOPED_TRACE("no loss");
+    ExpectSameStep(make, 50, 2, nullptr, {a, b}, {full.get(), full.get()}, {false, false}, 12);
+  }
+  {
+    SCOPED_TRACE("fewer rows than the tangent size: the row form");
+    const Seen seen =
+        Evaluate(make, 6, 2, &cauchy, {a, b}, {full.get(), full.get()}, {false, false}, true);
+    EXPECT_EQ(seen.num_residuals, 13);
+    EXPECT_FALSE(seen.compressed);
+    const Seen few =
+        Evaluate(make, 5, 2, &cauchy, {a, b}, {full.get(), full.get()}, {false, false}, false);
+    EXPECT_EQ(few.num_residuals, 11);
+  }
+}
+
+// A floor point sees the pose's height, roll and pitch only: the compressed block must leave
+// the other three tangent directions (x, y, yaw) as empty as the row form does, or
+// Levenberg-Marquardt's diagonal floor turns their rounding into steps (compressing the
+// 7-vector ambient Jacobians did: a wall-only solve turned by 33°, which
+// SolverTest.WallAloneFixesPlanPositionAndYaw catches).
+TEST(Batched, CompressedFloorLeavesUnseenDirectionsEmpty) {
+  std::mt19937 rng(5);
+  std::normal_distribution<double> g(0.0, 1.0);
+  const std::vector<double> pose = RandomPose(&rng);
+  const Eigen::Vector4d floor(0.0, 0.0, 1.0, 0.0);
+  std::vector<Eigen::Vector3d> points;
+  for (int i = 0; i < 40; ++i) points.emplace_back(g(rng), g(rng), 2.0 + std::abs(g(rng)));
+  const auto make = [&](int i) {
+    return PointToPlaneCostFunction::Create(points[i], floor, 1.0 / 0.05);
+  };
+  ceres::CauchyLoss cauchy(1.0);
+  const std::unique_ptr<ceres::Manifold> full = CreatePoseManifold(RefineMode::kFull);
+  const Seen seen = ExpectSameStep(make, 40, 1, &cauchy, {pose}, {full.get()}, {false}, 6);
+  const double h_max = seen.jtj.cwiseAbs().maxCoeff();
+  for (const int unseen : {0, 1}) {  // δt_x, δt_y: exactly empty, as in the row form
+    EXPECT_EQ(seen.jtj.row(unseen).cwiseAbs().maxCoeff(), 0.0) << unseen;
+    EXPECT_EQ(seen.gradient[unseen], 0.0) << unseen;
+  }
+  // δθ_z: rounding only (the row form's is ~5e-18 of the largest entry here).
+  EXPECT_LE(seen.jtj.row(5).cwiseAbs().maxCoeff(), 1e-15 * h_max);
+  EXPECT_LE(std::abs(seen.gradient[5]), 1e-15 * h_max);
+}
+
+TEST(Batched, CompressedWithPlaneAndSegmentsMatchesRows) {
+  std::mt19937 rng(9);
+  std::normal_distribution<double> g(0.0, 1.0);
+  const std::vector<double> pose = RandomPose(&rng);
+  std::vector<Eigen::Vector3d> points;
+  for (int i = 0; i < 30; ++i) points.emplace_back(g(rng), g(rng), 2.0 + std::abs(g(rng)));
+  const Eigen::Vector3d n = Eigen::Vector3d(0.1, 0.2, 1.0).normalized();
+  const std::vector<double> plane = {n.x(), n.y(), n.z(), -0.4};
+  ceres::HuberLoss huber(0.5);
+  const std::unique_ptr<ceres::Manifold> full = CreatePoseManifold(RefineMode::kFull);
+  const std::unique_ptr<ceres::Manifold> plane_manifold = CreatePlaneManifold();
+  {
+    SCOPED_TRACE("a FACaP plane (sphere × line)");
+    const auto make = [&](int i) {
+      return PointToVariablePlaneCostFunctor::Create(points[i], 1.0 / 0.05);
+    };
+    ExpectSameStep(make, 30, 1, &huber, {pose, plane}, {full.get(), plane_manifold.get()},
+                   {false, false}, 9);
+  }
+  {
+    SCOPED_TRACE("wall segments");
+    const auto make = [&](int i) {
+      const Eigen::Vector4d segment(-1.0 + 0.1 * i, 2.0, 1.0, 2.5 - 0.05 * i);
+      return PointToSegmentCostFunction::Create(points[i], segment, 1.0 / 0.05);
+    };
+    ExpectSameStep(make, 30, 1, &huber, {pose}, {full.get()}, {false}, 6);
+  }
+}
+
+}  // namespace
+}  // namespace bimcap
