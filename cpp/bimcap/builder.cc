@@ -79,15 +79,41 @@ void ProblemBuilder::Build() {
   // parameter blocks per residual: ValidateProblem rejects a frame matched with itself), so
   // Ceres need not check each one again.
   problem_options.disable_all_safety_checks = true;
+  // RebuildAssociationTerms removes the association terms' blocks between rounds.
+  problem_options.enable_fast_removal = true;
   problem_ = std::make_unique<ceres::Problem>(problem_options);
   ordering_.reset();
   has_landmarks_ = false;
   for (auto& t : terms_) t = TermBlocks();
 
-  // 1. Residuals, term by term in registry order.
+  // 1. Residuals, term by term in registry order. RebuildAssociationTerms needs the association
+  // terms (W, Co) one after the other before the pose prior, and no pose that only they reach.
+  int first_association = -1, last_association = -1;
   for (int t = 0; t < NumTerms(); ++t) {
+    if (Terms()[t].segment_class == 0) continue;
+    if (first_association < 0) first_association = t;
+    last_association = t;
+  }
+  const auto poses_in_problem = [&]() {
+    std::vector<char> in(data_.num_poses(), 0);
+    for (int64_t i = 0; i < data_.num_poses(); ++i) in[i] = problem_->HasParameterBlock(Pose(i));
+    return in;
+  };
+  can_rebuild_associations_ = first_association >= 0 && options_.plane_mode != PlaneMode::kFacap;
+  for (int t = 0; t < NumTerms(); ++t) {
+    if (t == first_association) reached_before_associations_ = poses_in_problem();
+    if (t > first_association && t <= last_association && Terms()[t].segment_class == 0) {
+      can_rebuild_associations_ = false;  // another term between them
+    }
     Terms()[t].add(*this, t);
     FlushObservations(t);
+    if (t == last_association && poses_in_problem() != reached_before_associations_) {
+      can_rebuild_associations_ = false;
+    }
+  }
+  const int prior = TermIndex("prior");
+  if (has_landmarks_ || (prior >= 0 && prior < last_association)) {
+    can_rebuild_associations_ = false;
   }
 
   // 2. Manifolds, 3. gauge. A pose without residuals is not in the problem and stays as it is.
@@ -169,6 +195,29 @@ void ProblemBuilder::FlushObservations(int term) {
   pending_.clear();
   pending_index_.clear();
   pending_count_ = 0;
+}
+
+bool ProblemBuilder::RebuildAssociationTerms() {
+  if (problem_ == nullptr || !can_rebuild_associations_) return false;
+  // The new association must reach only poses that were in the problem before it.
+  for (int t = 0; t < NumTerms(); ++t) {
+    const TermSpec& spec = Terms()[t];
+    if (spec.segment_class == 0) continue;
+    const ArrayRef<int32_t> frame = data_.I32(std::string(spec.points) + "_frame");
+    const std::vector<int>& association = state_->segment_of[t];
+    if (static_cast<int64_t>(association.size()) != frame.rows) continue;  // not associated
+    for (int64_t i = 0; i < frame.rows; ++i) {
+      if (association[i] >= 0 && reached_before_associations_[frame(i)] == 0) return false;
+    }
+  }
+  for (int t = 0; t < NumTerms(); ++t) {
+    if (Terms()[t].segment_class == 0) continue;
+    for (const ceres::ResidualBlockId id : terms_[t].ids) problem_->RemoveResidualBlock(id);
+    terms_[t] = TermBlocks();
+    Terms()[t].add(*this, t);
+    FlushObservations(t);
+  }
+  return true;
 }
 
 const ceres::Manifold* ProblemBuilder::ManifoldOf(const double* block) const {

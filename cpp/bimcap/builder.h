@@ -56,6 +56,13 @@ class ProblemBuilder {
 
   // Builds a fresh ceres::Problem from the current state (associations included).
   void Build();
+  // After Build(): replaces the residual blocks of the association terms (W, Co: a
+  // segment_class) with ones from the state's current association and keeps every other
+  // term's blocks, so the problem is the one Build() would give (its blocks in another order,
+  // so its sums to rounding). False, with nothing changed, where only Build() can do it: no
+  // problem yet, landmarks, FACaP planes, or an association term that reaches a pose the terms
+  // before it do not (the pose prior anchors the poses the terms before it reach).
+  bool RebuildAssociationTerms();
 
   ceres::Problem& problem() { return *problem_; }
   const std::vector<TermBlocks>& terms() const { return terms_; }
@@ -115,6 +122,10 @@ class ProblemBuilder {
   std::unique_ptr<ceres::Manifold> pose_manifold_;
   std::unique_ptr<ceres::Manifold> plane_manifold_;
   std::shared_ptr<ceres::ParameterBlockOrdering> ordering_;
+  // Whether RebuildAssociationTerms may run on the current problem, and which poses the terms
+  // before the first association term reached (per frame, 1 = in the problem).
+  bool can_rebuild_associations_ = false;
+  std::vector<char> reached_before_associations_;
   bool has_landmarks_ = false;
   int64_t num_free_poses_ = 0;
 };

@@ -2,6 +2,7 @@
 // peers' formula evaluated directly; gauge, refine modes, covariance, input errors.
 #include "bimcap/solver.h"
 
+#include <ceres/crs_matrix.h>
 #include <gtest/gtest.h>
 
 #include <Eigen/Eigenvalues>
@@ -11,6 +12,7 @@
 #include <cstdio>
 #include <string>
 
+#include "bimcap/builder.h"
 #include "bimcap/cost_functions/point_to_segment.h"
 #include "bimcap/terms.h"
 #include "test_problems.h"
@@ -379,6 +381,157 @@ TEST_F(SolverTest, FiniteProblemsStillSucceed) {
   EXPECT_TRUE(r.summary.success) << r.summary.message;
   EXPECT_NE(r.summary.termination, "NON_FINITE_COST");
   EXPECT_TRUE(std::isfinite(r.summary.final_cost));
+}
+
+}  // namespace
+}  // namespace bimcap
+
+namespace bimcap {
+namespace {
+
+// Cost, gradient and JᵀJ (tangent space, dense) of a builder's problem at the state's poses.
+struct Evaluated {
+  double cost = 0.0;
+  std::vector<double> gradient;
+  Eigen::MatrixXd jtj;
+};
+
+Evaluated EvaluateProblem(ProblemBuilder* builder) {
+  Evaluated e;
+  ceres::CRSMatrix jacobian;
+  EXPECT_TRUE(builder->problem().Evaluate(ceres::Problem::EvaluateOptions(), &e.cost, nullptr,
+                                          &e.gradient, &jacobian));
+  Eigen::MatrixXd j = Eigen::MatrixXd::Zero(jacobian.num_rows, jacobian.num_cols);
+  for (int row = 0; row < jacobian.num_rows; ++row) {
+    for (int x = jacobian.rows[row]; x < jacobian.rows[row + 1]; ++x) {
+      j(row, jacobian.cols[x]) = jacobian.values[x];
+    }
+  }
+  e.jtj = j.transpose() * j;
+  return e;
+}
+
+// Every wall / column point on a segment of its class, the k-th such segment by `shift` (not the
+// right one: any valid association is a problem to build); a fifth of them, and the points of
+// `skip_frame`, on none.
+void Associate(const OwnedProblem& problem, int shift, SolverState* state, int skip_frame = -1) {
+  for (const char* key : {"W", "Co"}) {
+    const int t = TermIndex(key);
+    const std::vector<int32_t>& frames =
+        t == TermIndex("W") ? problem.wall_frame : problem.column_frame;
+    std::vector<int> of_class;
+    for (size_t s = 0; s < problem.segment_class.size(); ++s) {
+      if (problem.segment_class[s] == Terms()[t].segment_class)
+        of_class.push_back(static_cast<int>(s));
+    }
+    ASSERT_FALSE(of_class.empty());
+    state->segment_of[t].assign(frames.size(), -1);
+    for (size_t i = 0; i < frames.size(); ++i) {
+      if ((i + shift) % 5 == 0 || frames[i] == skip_frame) continue;
+      state->segment_of[t][i] = of_class[(i + shift) % of_class.size()];
+    }
+  }
+}
+
+// refine's options with only these terms.
+SolverOptions RobustOnly(std::initializer_list<int> terms) {
+  SolverOptions o = SolverOptions::Preset("robust");
+  for (int t = 0; t < NumTerms(); ++t) o.term(t).enabled = false;
+  for (int t : terms) o.term(t).enabled = true;
+  return o;
+}
+
+SolverState StateOf(const OwnedProblem& problem) {
+  SolverState state;
+  state.poses = problem.poses;
+  return state;
+}
+
+TEST(BuilderTest, RebuildAssociationTermsGivesTheProblemBuildGives) {
+  const OwnedProblem problem = MakeTestProblem();
+  const ProblemData data = problem.View();
+  const SolverOptions options = SolverOptions::Preset("robust");
+  SolverState state = StateOf(problem);
+  ProblemBuilder builder(data, options, &state);
+  Associate(problem, 0, &state);
+  builder.Build();
+  const int64_t free_poses = builder.num_free_poses();
+  Associate(problem, 3, &state);
+  ASSERT_TRUE(builder.RebuildAssociationTerms());
+
+  SolverState fresh_state = StateOf(problem);
+  ProblemBuilder fresh(data, options, &fresh_state);
+  Associate(problem, 3, &fresh_state);
+  fresh.Build();
+
+  EXPECT_EQ(builder.num_free_poses(), free_poses);
+  EXPECT_EQ(fresh.num_free_poses(), free_poses);
+  for (int t = 0; t < NumTerms(); ++t) {
+    EXPECT_EQ(builder.terms()[t].num_residual_blocks, fresh.terms()[t].num_residual_blocks) << t;
+    EXPECT_EQ(builder.terms()[t].num_skipped, fresh.terms()[t].num_skipped) << t;
+    EXPECT_EQ(builder.terms()[t].ids.size(), fresh.terms()[t].ids.size()) << t;
+  }
+  EXPECT_GT(builder.terms()[TermIndex("W")].num_residual_blocks, 0);
+  const Evaluated a = EvaluateProblem(&builder), b = EvaluateProblem(&fresh);
+  EXPECT_NEAR(a.cost, b.cost, 1e-12 * b.cost);
+  ASSERT_EQ(a.gradient.size(), b.gradient.size());
+  double g_max = 0.0;
+  for (double v : b.gradient) g_max = std::max(g_max, std::abs(v));
+  for (size_t k = 0; k < a.gradient.size(); ++k) {
+    EXPECT_NEAR(a.gradient[k], b.gradient[k], 1e-12 * g_max) << k;
+  }
+  EXPECT_LE((a.jtj - b.jtj).cwiseAbs().maxCoeff(), 1e-12 * b.jtj.cwiseAbs().maxCoeff());
+  // The association before gives another problem (the test can tell them apart).
+  Associate(problem, 0, &fresh_state);
+  fresh.Build();
+  EXPECT_GT(std::abs(EvaluateProblem(&fresh).cost - b.cost), 1e-6 * b.cost);
+}
+
+TEST(BuilderTest, RebuildAssociationTermsRefusesWhatOnlyBuildCanDo) {
+  const OwnedProblem problem = MakeTestProblem();
+  const ProblemData data = problem.View();
+  SolverState state = StateOf(problem);
+  {
+    SCOPED_TRACE("no problem yet");
+    const SolverOptions options = SolverOptions::Preset("robust");
+    ProblemBuilder builder(data, options, &state);
+    EXPECT_FALSE(builder.RebuildAssociationTerms());
+  }
+  {
+    SCOPED_TRACE("poses that only the walls reach (the prior anchors the poses before it)");
+    const SolverOptions options = RobustOnly({TermIndex("W"), TermIndex("prior")});
+    ProblemBuilder builder(data, options, &state);
+    Associate(problem, 0, &state);
+    builder.Build();
+    ASSERT_GT(builder.terms()[TermIndex("W")].num_residual_blocks, 0);
+    Associate(problem, 3, &state);
+    EXPECT_FALSE(builder.RebuildAssociationTerms());
+  }
+  {
+    SCOPED_TRACE("a pose the walls reached alone, which the new association leaves out");
+    // A frame with wall points, its floor points left out.
+    const int alone = problem.wall_frame[problem.wall_frame.size() / 2];
+    ASSERT_NE(alone, 0);
+    OwnedProblem cut = problem;
+    cut.floor_frame.clear();
+    cut.floor_plane.clear();
+    cut.floor_p_in_cam.clear();
+    for (size_t i = 0; i < problem.floor_frame.size(); ++i) {
+      if (problem.floor_frame[i] == alone) continue;
+      cut.floor_frame.push_back(problem.floor_frame[i]);
+      cut.floor_plane.push_back(problem.floor_plane[i]);
+      for (int k = 0; k < 3; ++k) cut.floor_p_in_cam.push_back(problem.floor_p_in_cam[3 * i + k]);
+    }
+    const ProblemData view = cut.View();
+    SolverState s = StateOf(cut);
+    const SolverOptions options = RobustOnly({TermIndex("F"), TermIndex("W"), TermIndex("prior")});
+    ProblemBuilder builder(view, options, &s);
+    Associate(cut, 1, &s);
+    builder.Build();
+    ASSERT_TRUE(builder.problem().HasParameterBlock(builder.Pose(alone)));  // by the walls
+    Associate(cut, 3, &s, alone);
+    EXPECT_FALSE(builder.RebuildAssociationTerms());
+  }
 }
 
 }  // namespace
