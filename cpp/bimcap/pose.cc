@@ -22,6 +22,12 @@ std::unique_ptr<ceres::Manifold> CreatePoseManifold(RefineMode mode) {
   }
 }
 
+bool IsFullPoseManifold(const ceres::Manifold* manifold) {
+  return dynamic_cast<const ceres::ProductManifold<ceres::EuclideanManifold<3>,
+                                                   ceres::EigenQuaternionManifold>*>(manifold) !=
+         nullptr;
+}
+
 std::unique_ptr<ceres::Manifold> CreatePlaneManifold() {
   return std::make_unique<
       ceres::ProductManifold<ceres::SphereManifold<3>, ceres::EuclideanManifold<1>>>();

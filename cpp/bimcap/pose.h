@@ -122,11 +122,29 @@ inline Eigen::Vector3d WorldToCamWithJacobian(const double* world_from_cam,
   return d + w * ud2 + u.cross(ud2);
 }
 
+// A world_from_cam pose as a rotation matrix and a translation (R and t of a 7-double block, its
+// quaternion taken as unit), for the observations of a batch that share it.
+struct PoseMatrix {
+  Eigen::Matrix3d rotation;     // R: p_in_world = R p_in_cam + t
+  Eigen::Vector3d translation;  // t
+  static PoseMatrix FromBlock(const double* world_from_cam) {
+    PoseMatrix m;
+    m.rotation = Eigen::Map<const Eigen::Quaterniond>(world_from_cam + 3).toRotationMatrix();
+    m.translation = Eigen::Map<const Eigen::Vector3d>(world_from_cam);
+    return m;
+  }
+};
+
 // The manifold of a 7-double pose block:
 //   kFull:        ProductManifold<EuclideanManifold<3>, EigenQuaternionManifold>   (tangent 6)
 //   kRotation:    translation held by a SubsetManifold, rotation free             (tangent 3)
 //   kTranslation: rotation held by a SubsetManifold, translation free             (tangent 3)
 std::unique_ptr<ceres::Manifold> CreatePoseManifold(RefineMode mode);
+// Whether `manifold` is CreatePoseManifold(RefineMode::kFull)'s. Its Plus is t + δt and
+// [δθ sin‖δθ‖ / ‖δθ‖, cos‖δθ‖] ⊗ q, so to first order R ⊕ δθ = (I + 2 [δθ]×) R: the tangent
+// Jacobians of a rotated point are ∂(R p)/∂δt = 0, ∂(R p)/∂δθ = −2 [R p]×, and of a point
+// brought into the camera, p_in_cam = Rᵀ (p_in_world − t): −Rᵀ and 2 Rᵀ [p_in_world − t]×.
+bool IsFullPoseManifold(const ceres::Manifold* manifold);
 
 // A plane [nx, ny, nz, d] (signed distance n·p + d) with a unit normal on the sphere and a free
 // offset: ProductManifold<SphereManifold<3>, EuclideanManifold<1>> (tangent 3).

@@ -216,5 +216,56 @@ TEST(Batched, CompressedWithPlaneAndSegmentsMatchesRows) {
   }
 }
 
+// EvaluateTangent against what Ceres would make of Evaluate: the ambient Jacobian times the
+// kFull manifold's Plus Jacobian, at random poses, with and without the depth whitening, and
+// behind camera b (zero residuals and Jacobian).
+TEST(PoseTangent, ReprojectionIsAmbientTimesPlusJacobian) {
+  std::mt19937 rng(11);
+  std::normal_distribution<double> g(0.0, 1.0);
+  const std::unique_ptr<ceres::Manifold> full = CreatePoseManifold(RefineMode::kFull);
+  const Eigen::Vector4d intrinsics(500.0, 480.0, 320.0, 240.0);
+  int behind = 0;
+  for (int trial = 0; trial < 200; ++trial) {
+    std::vector<double> a = RandomPose(&rng), b = a;
+    for (int k = 0; k < 3; ++k) b[k] += 0.3 * g(rng);
+    for (int k = 3; k < 7; ++k) b[k] += 0.05 * g(rng);
+    Eigen::Map<Eigen::Quaterniond>(b.data() + 3).normalize();
+    const Eigen::Vector3d p_a(g(rng), g(rng), trial % 10 == 0 ? 0.2 : 2.0 + std::abs(g(rng)));
+    const Eigen::Vector2d uv(320.0 + 50.0 * g(rng), 240.0 + 50.0 * g(rng));
+    const double depth_sigma = trial % 2 == 0 ? 0.02 : 0.0;
+    const std::unique_ptr<ReprojectionCostFunction> cost(static_cast<ReprojectionCostFunction*>(
+        ReprojectionCostFunction::Create(p_a, uv, intrinsics, 0.5, 2.0, depth_sigma)));
+    const double* blocks[2] = {a.data(), b.data()};
+    double r_ambient[2], j_a[14], j_b[14];
+    double* jacobians[2] = {j_a, j_b};
+    ASSERT_TRUE(cost->Evaluate(blocks, r_ambient, jacobians));
+    const PoseMatrix poses[2] = {PoseMatrix::FromBlock(a.data()), PoseMatrix::FromBlock(b.data())};
+    double r_tangent[2], j_tangent[24], r_only[2];
+    ASSERT_TRUE(cost->EvaluateTangent(poses, r_tangent, j_tangent));
+    ASSERT_TRUE(cost->EvaluateTangent(poses, r_only, nullptr));
+    if (r_ambient[0] == 0.0 && r_ambient[1] == 0.0) ++behind;
+    double scale = 1e-300;
+    for (int k = 0; k < 14; ++k) scale = std::max({scale, std::abs(j_a[k]), std::abs(j_b[k])});
+    for (int i = 0; i < 2; ++i) {
+      EXPECT_NEAR(r_tangent[i], r_ambient[i], 1e-11 * std::max(1.0, std::abs(r_ambient[i])));
+      EXPECT_EQ(r_only[i], r_tangent[i]);
+    }
+    for (int block = 0; block < 2; ++block) {
+      Eigen::Matrix<double, 7, 6, Eigen::RowMajor> plus;
+      ASSERT_TRUE(full->PlusJacobian(blocks[block], plus.data()));
+      const Eigen::Map<const Eigen::Matrix<double, 2, 7, Eigen::RowMajor>> ambient(
+          jacobians[block]);
+      const Eigen::Matrix<double, 2, 6> expected = ambient * plus;
+      for (int i = 0; i < 2; ++i) {
+        for (int c = 0; c < 6; ++c) {
+          EXPECT_NEAR(j_tangent[12 * i + 6 * block + c], expected(i, c), 1e-10 * scale)
+              << "trial " << trial << " block " << block << " row " << i << " col " << c;
+        }
+      }
+    }
+  }
+  EXPECT_GT(behind, 0);
+}
+
 }  // namespace
 }  // namespace bimcap

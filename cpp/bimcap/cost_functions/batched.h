@@ -16,6 +16,9 @@
 #include <utility>
 #include <vector>
 
+#include "bimcap/cost_functions/pose_tangent.h"
+#include "bimcap/pose.h"
+
 namespace bimcap {
 
 // The observations i = 1..n of a term whose cost functions take the same parameter blocks, each
@@ -97,7 +100,12 @@ class BatchedCostFunction final : public ceres::CostFunction {
       if (tangent_cols_ > kMaxCols)
         throw std::logic_error("BatchedCostFunction: an observation of unexpected size");
       *mutable_parameter_block_sizes() = sizes;
+      pose_tangent_ = true;
+      for (const ceres::Manifold* m : manifolds_)
+        pose_tangent_ = pose_tangent_ && IsFullPoseManifold(m);
     }
+    pose_tangent_ =
+        pose_tangent_ && dynamic_cast<const PoseTangentCostFunction*>(sample.get()) != nullptr;
     samples_.push_back(std::move(sample));
     indices_.push_back(index);
     const int rows = k_ * static_cast<int>(samples_.size());
@@ -203,6 +211,9 @@ class BatchedCostFunction final : public ceres::CostFunction {
   const bool compress_;
   int tangent_cols_ = 0;     // T
   bool compressed_ = false;  // n·k > T and compress_
+  // Every observation a PoseTangentCostFunction and every block on the kFull pose manifold: the
+  // compressed form takes the observations' tangent Jacobians from EvaluateTangent.
+  bool pose_tangent_ = false;
   std::vector<std::unique_ptr<ceres::CostFunction>> samples_;
   std::vector<int64_t> indices_;
 };
@@ -274,14 +285,31 @@ inline bool BatchedCostFunction::EvaluateCompressed(double const* const* paramet
   std::fill_n(h, cols * cols, 0.0);
   std::fill_n(g, cols, 0.0);
   double total = 0.0;
+  // With pose_tangent_: the poses as matrices, and each observation's k × 6·blocks Jacobian.
+  PoseMatrix poses[kMaxBlocks];
+  double pose_j[kMaxK * kPoseTangentSize * kMaxBlocks];
+  const int pose_cols = kPoseTangentSize * static_cast<int>(num_blocks);
+  if (pose_tangent_) {
+    for (size_t b = 0; b < num_blocks; ++b) poses[b] = PoseMatrix::FromBlock(parameters[b]);
+  }
   for (const auto& sample : samples_) {
-    if (!sample->Evaluate(parameters, r, cols > 0 ? sample_jacobians : nullptr)) return false;
+    if (pose_tangent_) {
+      const auto* tangent_sample = static_cast<const PoseTangentCostFunction*>(sample.get());
+      if (!tangent_sample->EvaluateTangent(poses, r, cols > 0 ? pose_j : nullptr)) return false;
+    } else if (!sample->Evaluate(parameters, r, cols > 0 ? sample_jacobians : nullptr)) {
+      return false;
+    }
     const Correction c = Corrector(r);
     total += c.rho;
     if (cols == 0) continue;
     for (size_t b = 0; b < num_blocks; ++b) {
       if (first[b] < 0) continue;
-      if (manifolds_[b] == nullptr) {
+      if (pose_tangent_) {
+        for (int row = 0; row < k_; ++row) {
+          std::copy_n(pose_j + row * pose_cols + kPoseTangentSize * b, kPoseTangentSize,
+                      j + row * cols + first[b]);
+        }
+      } else if (manifolds_[b] == nullptr) {
         for (int row = 0; row < k_; ++row) {
           std::copy_n(block_j[b] + row * sizes[b], sizes[b], j + row * cols + first[b]);
         }

@@ -9,6 +9,7 @@
 #include <Eigen/Core>
 #include <cmath>
 
+#include "bimcap/cost_functions/pose_tangent.h"
 #include "bimcap/pose.h"
 
 namespace bimcap {
@@ -145,7 +146,13 @@ struct ReprojectionCostFunctor {
 // 6-wide Jet), M = ∂p_b/∂p_w, D_a = ∂(R_a p_a)/∂q_a, D_v = ∂v/∂q_a, Q_p = ∂p_b/∂q_b and
 // Q_v = ∂dp_b/∂q_b (CamToWorldWithJacobian, WorldToCamWithJacobian: the ambient Jacobians
 // autodiff gives, to rounding).
-class ReprojectionCostFunction final : public ceres::SizedCostFunction<2, kPoseSize, kPoseSize> {
+//
+// In the tangent space (EvaluateTangent; pose.h for the derivatives of the kFull manifold), with
+// A = G_p R_bᵀ = ∂r/∂p_w and B = G_d R_bᵀ = ∂r/∂v (a row x times [u]× is x × u):
+//
+//   ∂r/∂δt_a = A,    ∂r/∂δθ_a = −2 (A × R_a p_a + B × v),
+//   ∂r/∂δt_b = −A,   ∂r/∂δθ_b =  2 (A × (p_w − t_b) + B × v)          (row by row)
+class ReprojectionCostFunction final : public PoseTangentCostFunction {
  public:
   ReprojectionCostFunction(const Eigen::Vector3d& p_a_in_cam, const Eigen::Vector2d& uv_b,
                            const Eigen::Vector4d& intrinsics_b, double sqrt_weight,
@@ -155,7 +162,10 @@ class ReprojectionCostFunction final : public ceres::SizedCostFunction<2, kPoseS
         intrinsics_b_(intrinsics_b),
         sqrt_weight_(sqrt_weight),
         pixel_sigma_(pixel_sigma),
-        depth_sigma_(depth_sigma > 0.0 && p_a_in_cam.z() > 0.0 ? depth_sigma : 0.0) {}
+        depth_sigma_(depth_sigma > 0.0 && p_a_in_cam.z() > 0.0 ? depth_sigma : 0.0) {
+    set_num_residuals(2);
+    *mutable_parameter_block_sizes() = {kPoseSize, kPoseSize};
+  }
 
   static ceres::CostFunction* Create(const Eigen::Vector3d& p_a_in_cam, const Eigen::Vector2d& uv_b,
                                      const Eigen::Vector4d& intrinsics_b, double sqrt_weight,
@@ -188,20 +198,8 @@ class ReprojectionCostFunction final : public ceres::SizedCostFunction<2, kPoseS
     ReprojectionResidual(p_b, dp_b, uv_b_, intrinsics_b_, sqrt_weight_, pixel_sigma_, depth_sigma_,
                          residuals);
     if (!jac) return true;
-    using Jet6 = ceres::Jet<double, 6>;
-    Eigen::Matrix<Jet6, 3, 1> p_jet, dp_jet;
-    for (int k = 0; k < 3; ++k) {
-      p_jet[k] = Jet6(p_b[k], k);
-      dp_jet[k] = Jet6(dp_b[k], 3 + k);
-    }
-    Jet6 r[2];
-    ReprojectionResidual(p_jet, dp_jet, uv_b_, intrinsics_b_, sqrt_weight_, pixel_sigma_,
-                         depth_sigma_, r);
     Eigen::Matrix<double, 2, 3> g_p, g_d;
-    for (int i = 0; i < 2; ++i) {
-      g_p.row(i) = r[i].v.head<3>().transpose();
-      g_d.row(i) = r[i].v.tail<3>().transpose();
-    }
+    ResidualGradients(p_b, dp_b, &g_p, &g_d);
     const Eigen::Matrix<double, 2, 3> g_p_m = g_p * m;
     if (jacobians[0] != nullptr) {
       Eigen::Map<Eigen::Matrix<double, 2, kPoseSize, Eigen::RowMajor>> j(jacobians[0]);
@@ -218,7 +216,57 @@ class ReprojectionCostFunction final : public ceres::SizedCostFunction<2, kPoseS
     return true;
   }
 
+  bool EvaluateTangent(const PoseMatrix* poses, double* residuals,
+                       double* jacobian) const override {
+    const PoseMatrix& a = poses[0];
+    const PoseMatrix& b = poses[1];
+    const Eigen::Vector3d r_a = a.rotation * p_a_in_cam_;           // R_a p_a
+    const Eigen::Vector3d d = r_a + a.translation - b.translation;  // p_w − t_b
+    const Eigen::Vector3d p_b = b.rotation.transpose() * d;
+    const bool whiten = depth_sigma_ > 0.0;
+    Eigen::Vector3d v = Eigen::Vector3d::Zero(), dp_b = Eigen::Vector3d::Zero();
+    if (whiten) {
+      v = r_a / p_a_in_cam_.z();  // R_a ray_a
+      dp_b = b.rotation.transpose() * v;
+    }
+    ReprojectionResidual(p_b, dp_b, uv_b_, intrinsics_b_, sqrt_weight_, pixel_sigma_, depth_sigma_,
+                         residuals);
+    if (jacobian == nullptr) return true;
+    Eigen::Matrix<double, 2, 3> g_p, g_d;
+    ResidualGradients(p_b, dp_b, &g_p, &g_d);
+    const Eigen::Matrix<double, 2, 3> a_rows = g_p * b.rotation.transpose();
+    Eigen::Map<Eigen::Matrix<double, 2, 4 * 3, Eigen::RowMajor>> j(jacobian);
+    for (int i = 0; i < 2; ++i) {
+      const Eigen::Vector3d a_i = a_rows.row(i).transpose();
+      Eigen::Vector3d b_v = Eigen::Vector3d::Zero();
+      if (whiten) b_v = (g_d.row(i) * b.rotation.transpose()).transpose().cross(v);
+      j.block<1, 3>(i, 0) = a_i.transpose();
+      j.block<1, 3>(i, 3) = -2.0 * (a_i.cross(r_a) + b_v).transpose();
+      j.block<1, 3>(i, 6) = -a_i.transpose();
+      j.block<1, 3>(i, 9) = 2.0 * (a_i.cross(d) + b_v).transpose();
+    }
+    return true;
+  }
+
  private:
+  // G_p = ∂r/∂p_b and G_d = ∂r/∂dp_b (2 × 3), by a 6-wide Jet through ReprojectionResidual.
+  void ResidualGradients(const Eigen::Vector3d& p_b, const Eigen::Vector3d& dp_b,
+                         Eigen::Matrix<double, 2, 3>* g_p, Eigen::Matrix<double, 2, 3>* g_d) const {
+    using Jet6 = ceres::Jet<double, 6>;
+    Eigen::Matrix<Jet6, 3, 1> p_jet, dp_jet;
+    for (int k = 0; k < 3; ++k) {
+      p_jet[k] = Jet6(p_b[k], k);
+      dp_jet[k] = Jet6(dp_b[k], 3 + k);
+    }
+    Jet6 r[2];
+    ReprojectionResidual(p_jet, dp_jet, uv_b_, intrinsics_b_, sqrt_weight_, pixel_sigma_,
+                         depth_sigma_, r);
+    for (int i = 0; i < 2; ++i) {
+      g_p->row(i) = r[i].v.head<3>().transpose();
+      g_d->row(i) = r[i].v.tail<3>().transpose();
+    }
+  }
+
   const Eigen::Vector3d p_a_in_cam_;
   const Eigen::Vector2d uv_b_;
   const Eigen::Vector4d intrinsics_b_;
