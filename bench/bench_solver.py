@@ -394,9 +394,9 @@ def bench_problems(paths: list[str], repeats: int) -> None:
     from bimcap.optimize import read_problem
 
     print("\n## Problem files: compressed batches (default) vs one row per residual, alternating "
-          "in one process (wall s, CPU s of the process; goal: 1000 frames < 5 s wall)")
+          "in one process (wall s, CPU s of the process; goal: 5 s wall per 1000 poses)")
     print(f"{'problem':28} {'poses':>5} {'residuals':>10} {'form':>10} {'wall s':>7} {'cpu s':>7} "
-          f"{'iters':>5} {'rounds':>6} {'final cost':>16} {'goal':>6}")
+          f"{'iters':>5} {'rounds':>6} {'final cost':>16} {'goal s':>6}")
     for path in paths:
         problem, options = read_problem(path)
         runs: dict[bool, list[tuple[float, float, Any]]] = {True: [], False: []}
