@@ -52,11 +52,15 @@ def test_prior_holds_what_the_floor_does_not_see(synthetic: SyntheticProblem) ->
     assert prior.num_residuals == 6 * prior.num_residual_blocks
     assert prior.final_cost > 0 and prior.final_paper_objective == 0.0
 
-    # Negative control: without the prior, Levenberg-Marquardt turns the unobserved yaw.
+    # Negative control: without the prior and with one Ceres row per residual (ambient
+    # Jacobians times Ceres' Plus Jacobian), Levenberg-Marquardt turns the unobserved yaw.
     options.prior.enabled = False
+    options.compress_batches = False
     bare = solve(p, options)
     assert not bare.summary.term("prior").active
     assert _plan_change(bare.poses, p.poses)[1] > 1.0
+    # (Compressed, the default, a level floor's yaw column is exactly zero in the tangent space,
+    # but frames with 6 floor points or fewer stay rows: 0.45° here. solver_test has the case.)
 
 
 def test_paper_weighting_never_adds_the_prior(synthetic: SyntheticProblem) -> None:

@@ -267,5 +267,42 @@ TEST(PoseTangent, ReprojectionIsAmbientTimesPlusJacobian) {
   EXPECT_GT(behind, 0);
 }
 
+// The same for the one-pose terms (F, Ce: point to plane; W, Co: point to segment, on both
+// pieces of the distance: across the segment and past its ends).
+TEST(PoseTangent, PlaneAndSegmentAreAmbientTimesPlusJacobian) {
+  std::mt19937 rng(13);
+  std::normal_distribution<double> g(0.0, 1.0);
+  const std::unique_ptr<ceres::Manifold> full = CreatePoseManifold(RefineMode::kFull);
+  for (int trial = 0; trial < 200; ++trial) {
+    const std::vector<double> pose = RandomPose(&rng);
+    const Eigen::Vector3d p(g(rng), g(rng), 2.0 + std::abs(g(rng)));
+    const Eigen::Vector3d n = Eigen::Vector3d(g(rng), g(rng), g(rng)).normalized();
+    const Eigen::Vector4d segment(g(rng), g(rng), g(rng), g(rng));
+    const std::unique_ptr<PoseTangentCostFunction> costs[2] = {
+        std::unique_ptr<PoseTangentCostFunction>(
+            static_cast<PointToPlaneCostFunction*>(PointToPlaneCostFunction::Create(
+                p, Eigen::Vector4d(n.x(), n.y(), n.z(), g(rng)), 20.0))),
+        std::unique_ptr<PoseTangentCostFunction>(static_cast<PointToSegmentCostFunction*>(
+            PointToSegmentCostFunction::Create(p, segment, 20.0)))};
+    const double* blocks[1] = {pose.data()};
+    const PoseMatrix matrix = PoseMatrix::FromBlock(pose.data());
+    Eigen::Matrix<double, 7, 6, Eigen::RowMajor> plus;
+    ASSERT_TRUE(full->PlusJacobian(pose.data(), plus.data()));
+    for (const auto& cost : costs) {
+      double r_ambient, j_ambient[7], r_tangent, j_tangent[6];
+      double* jacobians[1] = {j_ambient};
+      ASSERT_TRUE(cost->Evaluate(blocks, &r_ambient, jacobians));
+      ASSERT_TRUE(cost->EvaluateTangent(&matrix, &r_tangent, j_tangent));
+      EXPECT_NEAR(r_tangent, r_ambient, 1e-11 * std::max(1.0, std::abs(r_ambient)));
+      const Eigen::Matrix<double, 1, 6> expected =
+          Eigen::Map<const Eigen::Matrix<double, 1, 7>>(j_ambient) * plus;
+      const double scale = std::max(1.0, expected.cwiseAbs().maxCoeff());
+      for (int c = 0; c < 6; ++c) {
+        EXPECT_NEAR(j_tangent[c], expected(c), 1e-10 * scale) << "trial " << trial << " col " << c;
+      }
+    }
+  }
+}
+
 }  // namespace
 }  // namespace bimcap

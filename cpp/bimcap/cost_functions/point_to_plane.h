@@ -7,6 +7,7 @@
 
 #include <Eigen/Core>
 
+#include "bimcap/cost_functions/pose_tangent.h"
 #include "bimcap/pose.h"
 
 namespace bimcap {
@@ -42,12 +43,16 @@ struct PointToPlaneCostFunctor {
 };
 
 // PointToPlaneCostFunctor with hand-written Jacobians (what the builder uses: the term is hot).
-// The ambient Jacobian is [s n, s nᵀ ∂(R p)/∂q], equal to the autodiff one to rounding.
-class PointToPlaneCostFunction final : public ceres::SizedCostFunction<1, kPoseSize> {
+// The ambient Jacobian is [s n, s nᵀ ∂(R p)/∂q], equal to the autodiff one to rounding; in the
+// tangent space (EvaluateTangent) it is [s n, −2 s n × R p].
+class PointToPlaneCostFunction final : public PoseTangentCostFunction {
  public:
   PointToPlaneCostFunction(const Eigen::Vector3d& p_in_cam, const Eigen::Vector4d& plane,
                            double sqrt_weight)
-      : p_in_cam_(p_in_cam), plane_(plane), sqrt_weight_(sqrt_weight) {}
+      : p_in_cam_(p_in_cam), plane_(plane), sqrt_weight_(sqrt_weight) {
+    set_num_residuals(1);
+    *mutable_parameter_block_sizes() = {kPoseSize};
+  }
 
   static ceres::CostFunction* Create(const Eigen::Vector3d& p_in_cam, const Eigen::Vector4d& plane,
                                      double sqrt_weight) {
@@ -66,6 +71,19 @@ class PointToPlaneCostFunction final : public ceres::SizedCostFunction<1, kPoseS
       Eigen::Map<Eigen::Matrix<double, 1, kPoseSize>> j(jacobians[0]);
       j.head<3>() = sqrt_weight_ * n.transpose();
       j.tail<4>() = sqrt_weight_ * (n.transpose() * d_dq);
+    }
+    return true;
+  }
+
+  bool EvaluateTangent(const PoseMatrix* poses, double* residuals,
+                       double* jacobian) const override {
+    const Eigen::Vector3d rotated = poses[0].rotation * p_in_cam_;  // R p
+    const Eigen::Vector3d n = plane_.head<3>();
+    residuals[0] = sqrt_weight_ * (n.dot(rotated + poses[0].translation) + plane_[3]);
+    if (jacobian != nullptr) {
+      Eigen::Map<Eigen::Matrix<double, 1, kPoseTangentSize>> j(jacobian);
+      j.head<3>() = sqrt_weight_ * n.transpose();
+      j.tail<3>() = -2.0 * sqrt_weight_ * n.cross(rotated).transpose();
     }
     return true;
   }

@@ -8,6 +8,7 @@
 #include <Eigen/Core>
 #include <cmath>
 
+#include "bimcap/cost_functions/pose_tangent.h"
 #include "bimcap/pose.h"
 
 namespace bimcap {
@@ -108,11 +109,16 @@ struct PointToSegmentCostFunctor {
 };
 
 // PointToSegmentCostFunctor with hand-written Jacobians (what the builder uses: the term is hot).
-class PointToSegmentCostFunction final : public ceres::SizedCostFunction<1, kPoseSize> {
+// With g = s ∂dist/∂q (a 3-vector, z = 0): ambient [g, gᵀ ∂(R p)/∂q], tangent (EvaluateTangent)
+// [g, −2 g × R p].
+class PointToSegmentCostFunction final : public PoseTangentCostFunction {
  public:
   PointToSegmentCostFunction(const Eigen::Vector3d& p_in_cam, const Eigen::Vector4d& segment,
                              double sqrt_weight)
-      : p_in_cam_(p_in_cam), segment_(segment), sqrt_weight_(sqrt_weight) {}
+      : p_in_cam_(p_in_cam), segment_(segment), sqrt_weight_(sqrt_weight) {
+    set_num_residuals(1);
+    *mutable_parameter_block_sizes() = {kPoseSize};
+  }
 
   static ceres::CostFunction* Create(const Eigen::Vector3d& p_in_cam,
                                      const Eigen::Vector4d& segment, double sqrt_weight) {
@@ -132,6 +138,22 @@ class PointToSegmentCostFunction final : public ceres::SizedCostFunction<1, kPos
       Eigen::Map<Eigen::Matrix<double, 1, kPoseSize>> j(jacobians[0]);
       g *= sqrt_weight_;
       j << g.x(), g.y(), 0.0, g.transpose() * d_dq.topRows<2>();
+    }
+    return true;
+  }
+
+  bool EvaluateTangent(const PoseMatrix* poses, double* residuals,
+                       double* jacobian) const override {
+    const Eigen::Vector3d rotated = poses[0].rotation * p_in_cam_;  // R p
+    const Eigen::Vector3d p_in_world = rotated + poses[0].translation;
+    Eigen::Vector2d g;
+    residuals[0] = sqrt_weight_ * PointToSegmentDistance2DWithGradient(
+                                      p_in_world.x(), p_in_world.y(), segment_, &g);
+    if (jacobian != nullptr) {
+      const Eigen::Vector3d g3(sqrt_weight_ * g.x(), sqrt_weight_ * g.y(), 0.0);
+      Eigen::Map<Eigen::Matrix<double, 1, kPoseTangentSize>> j(jacobian);
+      j.head<3>() = g3.transpose();
+      j.tail<3>() = -2.0 * g3.cross(rotated).transpose();
     }
     return true;
   }
