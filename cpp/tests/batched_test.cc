@@ -18,6 +18,7 @@
 #include "bimcap/cost_functions/point_to_segment.h"
 #include "bimcap/cost_functions/reprojection.h"
 #include "bimcap/pose.h"
+#include "test_problems.h"
 
 namespace bimcap {
 namespace {
@@ -62,13 +63,7 @@ Seen Evaluate(const std::function<ceres::CostFunction*(int)>& make, int n, int k
                                &seen.gradient, &jacobian));
   EXPECT_TRUE(problem.Evaluate(ceres::Problem::EvaluateOptions(), &seen.residual_only_cost, nullptr,
                                nullptr, nullptr));
-  Eigen::MatrixXd j = Eigen::MatrixXd::Zero(jacobian.num_rows, jacobian.num_cols);
-  for (int row = 0; row < jacobian.num_rows; ++row) {
-    for (int x = jacobian.rows[row]; x < jacobian.rows[row + 1]; ++x) {
-      j(row, jacobian.cols[x]) = jacobian.values[x];
-    }
-  }
-  seen.jtj = j.transpose() * j;
+  seen.jtj = testing::DenseJtJ(jacobian);
   return seen;
 }
 

@@ -413,13 +413,7 @@ Evaluated EvaluateProblem(ProblemBuilder* builder) {
   ceres::CRSMatrix jacobian;
   EXPECT_TRUE(builder->problem().Evaluate(ceres::Problem::EvaluateOptions(), &e.cost, nullptr,
                                           &e.gradient, &jacobian));
-  Eigen::MatrixXd j = Eigen::MatrixXd::Zero(jacobian.num_rows, jacobian.num_cols);
-  for (int row = 0; row < jacobian.num_rows; ++row) {
-    for (int x = jacobian.rows[row]; x < jacobian.rows[row + 1]; ++x) {
-      j(row, jacobian.cols[x]) = jacobian.values[x];
-    }
-  }
-  e.jtj = j.transpose() * j;
+  e.jtj = testing::DenseJtJ(jacobian);
   return e;
 }
 

@@ -230,4 +230,14 @@ void PoseErrors(const std::vector<double>& poses, const std::vector<double>& gt,
   *rot_rmse_deg = std::sqrt(sr / n);
 }
 
+Eigen::MatrixXd DenseJtJ(const ceres::CRSMatrix& jacobian) {
+  Eigen::MatrixXd j = Eigen::MatrixXd::Zero(jacobian.num_rows, jacobian.num_cols);
+  for (int row = 0; row < jacobian.num_rows; ++row) {
+    for (int x = jacobian.rows[row]; x < jacobian.rows[row + 1]; ++x) {
+      j(row, jacobian.cols[x]) = jacobian.values[x];
+    }
+  }
+  return j.transpose() * j;
+}
+
 }  // namespace bimcap::testing

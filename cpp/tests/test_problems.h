@@ -5,6 +5,9 @@
 #ifndef BIMCAP_TESTS_TEST_PROBLEMS_H_
 #define BIMCAP_TESTS_TEST_PROBLEMS_H_
 
+#include <ceres/crs_matrix.h>
+
+#include <Eigen/Core>
 #include <cstdint>
 #include <vector>
 
@@ -45,6 +48,9 @@ OwnedProblem MakeTestProblem(const TestProblemOptions& options = TestProblemOpti
 // RMS translation error (m) and RMS rotation error (degrees) of (N, 7) poses against the truth.
 void PoseErrors(const std::vector<double>& poses, const std::vector<double>& gt, double* trans_rmse,
                 double* rot_rmse_deg);
+
+// JᵀJ (dense) of a Jacobian that ceres::Problem::Evaluate returned.
+Eigen::MatrixXd DenseJtJ(const ceres::CRSMatrix& jacobian);
 
 }  // namespace bimcap::testing
 
