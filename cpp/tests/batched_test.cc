@@ -2,6 +2,7 @@
 // the cost, the tangent-space gradient and Gauss-Newton matrix Ceres sees must be the same.
 #include "bimcap/cost_functions/batched.h"
 
+#include <ceres/autodiff_cost_function.h>
 #include <ceres/crs_matrix.h>
 #include <ceres/loss_function.h>
 #include <ceres/problem.h>
@@ -152,6 +153,29 @@ TEST(Batched, CompressedReprojectionMatchesRows) {
         Evaluate(make, 5, 2, &cauchy, {a, b}, {full.get(), full.get()}, {false, false}, false);
     EXPECT_EQ(few.num_residuals, 11);
   }
+}
+
+// Nine residuals an observation: more than the compressed form's buffers take (kMaxK = 8).
+struct NineResiduals {
+  template <typename T>
+  bool operator()(const T* pose, T* r) const {
+    for (int i = 0; i < 9; ++i) r[i] = pose[i % 7] * T(1.0 + i) - T(0.1 * i);
+    return true;
+  }
+};
+
+TEST(Batched, LargerObservationsStayRows) {
+  std::mt19937 rng(17);
+  const std::unique_ptr<ceres::Manifold> full = CreatePoseManifold(RefineMode::kFull);
+  const auto make = [](int) {
+    return new ceres::AutoDiffCostFunction<NineResiduals, 9, kPoseSize>(new NineResiduals);
+  };
+  ceres::CauchyLoss cauchy(1.0);
+  const Seen seen = Evaluate(make, 4, 9, &cauchy, {RandomPose(&rng)}, {full.get()}, {false}, true);
+  EXPECT_FALSE(seen.compressed);
+  EXPECT_EQ(seen.num_residuals, 4 * 9 + 1);
+  EXPECT_GT(seen.cost, 0.0);
+  EXPECT_NEAR(seen.residual_only_cost, seen.cost, 1e-12 * seen.cost);
 }
 
 // A floor point sees the pose's height, roll and pitch only: the compressed block must leave

@@ -84,21 +84,21 @@ class BatchedCostFunction final : public ceres::CostFunction {
   void Add(std::unique_ptr<ceres::CostFunction> sample, int64_t index) {
     if (samples_.empty()) {
       const std::vector<int32_t>& sizes = sample->parameter_block_sizes();
-      if (sizes.size() > kMaxBlocks || sample->num_residuals() != k_ || k_ > kMaxK ||
+      if (sizes.size() > kMaxBlocks || sample->num_residuals() != k_ ||
           manifolds_.size() > sizes.size())
         throw std::logic_error("BatchedCostFunction: an observation of unexpected size");
       manifolds_.resize(sizes.size(), nullptr);
       tangent_cols_ = 0;
+      // The compressed form's buffers are fixed: larger observations stay in the row form.
+      bool fits = k_ <= kMaxK;
       for (size_t b = 0; b < sizes.size(); ++b) {
         const ceres::Manifold* m = manifolds_[b];
         if (m != nullptr && m->AmbientSize() != sizes[b])
           throw std::logic_error("BatchedCostFunction: a manifold of unexpected size");
-        if (sizes[b] > kMaxAmbient)
-          throw std::logic_error("BatchedCostFunction: an observation of unexpected size");
+        fits = fits && sizes[b] <= kMaxAmbient;
         tangent_cols_ += m != nullptr ? m->TangentSize() : sizes[b];
       }
-      if (tangent_cols_ > kMaxCols)
-        throw std::logic_error("BatchedCostFunction: an observation of unexpected size");
+      compress_ = compress_ && fits && tangent_cols_ <= kMaxCols;
       *mutable_parameter_block_sizes() = sizes;
       pose_tangent_ = true;
       for (const ceres::Manifold* m : manifolds_)
@@ -156,9 +156,10 @@ class BatchedCostFunction final : public ceres::CostFunction {
   }
 
   static constexpr size_t kMaxBlocks = 8;  // parameter blocks per observation
-  static constexpr int kMaxK = 8;          // residuals per observation
-  static constexpr int kMaxAmbient = 16;   // a parameter block's size
-  static constexpr int kMaxCols = 32;      // Σ tangent sizes (T)
+  // The compressed form's bounds (beyond them a batch stays in the row form):
+  static constexpr int kMaxK = 8;         // residuals per observation
+  static constexpr int kMaxAmbient = 16;  // a parameter block's size
+  static constexpr int kMaxCols = 32;     // Σ tangent sizes (T)
 
  private:
   // Ceres' Corrector of one observation (internal/ceres/corrector.cc), from its raw residuals.
@@ -208,7 +209,7 @@ class BatchedCostFunction final : public ceres::CostFunction {
   const ceres::LossFunction* loss_;
   const int k_;
   std::vector<const ceres::Manifold*> manifolds_;
-  const bool compress_;
+  bool compress_;            // asked for, and the observations fit the compressed form's buffers
   int tangent_cols_ = 0;     // T
   bool compressed_ = false;  // n·k > T and compress_
   // Every observation a PoseTangentCostFunction and every block on the kFull pose manifold: the
