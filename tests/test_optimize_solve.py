@@ -224,7 +224,11 @@ def test_gil_is_released_while_solving() -> None:
     done = threading.Event()
 
     def run() -> None:
-        solve(big.problem, SolverOptions(num_threads=1))
+        # Solves for at least 0.5 s (one solve of this problem takes ~0.1 s since the compressed
+        # batches), so that the count below does not depend on how fast one solve is.
+        start = time.perf_counter()
+        while time.perf_counter() - start < 0.5:
+            solve(big.problem, SolverOptions(num_threads=1))
         done.set()
 
     worker = threading.Thread(target=run)
