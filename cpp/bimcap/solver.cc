@@ -465,8 +465,9 @@ SolveResult Solve(const ProblemData& data, const SolverOptions& options) {
   std::vector<std::vector<int>> built_with;
   const std::function<void()> build = [&]() {
     const auto build_start = Clock::now();
-    // Between rounds only the association terms change: their blocks alone are rebuilt.
-    if (built_with.empty() || !builder.RebuildAssociationTerms()) builder.Build();
+    // Between rounds only the association terms change: their blocks alone are rebuilt (false
+    // before the first Build()).
+    if (!builder.RebuildAssociationTerms()) builder.Build();
     built_with = state.segment_of;
     if (options.verbose) {
       std::cout << "bimcap: problem built in "
