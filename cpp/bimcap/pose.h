@@ -146,6 +146,30 @@ std::unique_ptr<ceres::Manifold> CreatePoseManifold(RefineMode mode);
 // brought into the camera, p_in_cam = Rᵀ (p_in_world − t): −Rᵀ and 2 Rᵀ [p_in_world − t]×.
 bool IsFullPoseManifold(const ceres::Manifold* manifold);
 
+// On that manifold, a step δ_a = [δt_a, δθ_a] of pose a changes b⁻¹ a as the step δ_b = E_ab δ_a
+// of pose b does (to first order: R_bᵀ (I + 2 [δθ_a]×) R_a = (R_b (I − 2 [δθ_a]×))ᵀ R_a, and
+// the translation follows), with d = t_a − t_b:
+//
+//   E_ab = [ −I   −2 [d]× ]
+//          [  0     −I    ]
+//
+// so a residual of b⁻¹ a alone has ∂r/∂δ_a = ∂r/∂δ_b E_ab. Writes `rows_b` · E_ab (rows × 6,
+// row-major, `stride` apart) into `rows_a`.
+inline void RelativeTangentMap(const Eigen::Vector3d& d, const double* rows_b, int rows, int stride,
+                               double* rows_a) {
+  for (int i = 0; i < rows; ++i) {
+    const double* x = rows_b + i * stride;
+    double* y = rows_a + i * stride;
+    // x_t [d]× = (x_t × d) as a row.
+    const Eigen::Vector3d x_t(x[0], x[1], x[2]);
+    const Eigen::Vector3d c = x_t.cross(d);
+    for (int k = 0; k < 3; ++k) {
+      y[k] = -x[k];
+      y[3 + k] = -2.0 * c[k] - x[3 + k];
+    }
+  }
+}
+
 // A plane [nx, ny, nz, d] (signed distance n·p + d) with a unit normal on the sphere and a free
 // offset: ProductManifold<SphereManifold<3>, EuclideanManifold<1>> (tangent 3).
 std::unique_ptr<ceres::Manifold> CreatePlaneManifold();

@@ -68,16 +68,17 @@ Seen Evaluate(const std::function<ceres::CostFunction*(int)>& make, int n, int k
   return seen;
 }
 
-// Both forms of the same batch; returns the compressed one's view.
+// Both forms of the same batch; returns the compressed one's view. `model_size`: the compressed
+// form's rows before the last (T, or 6 for a model of the relative pose).
 Seen ExpectSameStep(const std::function<ceres::CostFunction*(int)>& make, int n, int k,
                     const ceres::LossFunction* loss, const Blocks& blocks,
                     const std::vector<const ceres::Manifold*>& manifolds,
-                    const std::vector<bool>& constant, int tangent_size) {
+                    const std::vector<bool>& constant, int model_size) {
   const Seen rows = Evaluate(make, n, k, loss, blocks, manifolds, constant, false);
   const Seen compressed = Evaluate(make, n, k, loss, blocks, manifolds, constant, true);
   EXPECT_FALSE(rows.compressed);
   EXPECT_TRUE(compressed.compressed);
-  EXPECT_EQ(compressed.num_residuals, tangent_size + 1);
+  EXPECT_EQ(compressed.num_residuals, model_size + 1);
   EXPECT_EQ(rows.num_residuals, n * k + (loss != nullptr ? 1 : 0));
   EXPECT_NEAR(compressed.cost, rows.cost, 1e-12 * rows.cost);
   EXPECT_NEAR(compressed.residual_only_cost, rows.cost, 1e-12 * rows.cost);
@@ -126,13 +127,26 @@ TEST(Batched, CompressedReprojectionMatchesRows) {
   ceres::CauchyLoss cauchy(1.0);
   const std::unique_ptr<ceres::Manifold> full = CreatePoseManifold(RefineMode::kFull);
   const std::unique_ptr<ceres::Manifold> rotation = CreatePoseManifold(RefineMode::kRotation);
+  // On full pose manifolds the model is the relative pose's (6 rows + 1), mapped to both poses.
   {
     SCOPED_TRACE("two free poses");
-    ExpectSameStep(make, 50, 2, &cauchy, {a, b}, {full.get(), full.get()}, {false, false}, 12);
+    ExpectSameStep(make, 50, 2, &cauchy, {a, b}, {full.get(), full.get()}, {false, false}, 6);
   }
   {
     SCOPED_TRACE("the first pose constant");
-    ExpectSameStep(make, 50, 2, &cauchy, {a, b}, {full.get(), full.get()}, {true, false}, 12);
+    ExpectSameStep(make, 50, 2, &cauchy, {a, b}, {full.get(), full.get()}, {true, false}, 6);
+  }
+  {
+    SCOPED_TRACE("the second pose constant");
+    ExpectSameStep(make, 50, 2, &cauchy, {a, b}, {full.get(), full.get()}, {false, true}, 6);
+  }
+  {
+    SCOPED_TRACE("poses 40 m from the origin and 5 m apart");
+    Blocks far = {a, b};
+    far[0][0] += 40.0;
+    far[1][0] += 45.0;
+    far[1][1] -= 3.0;
+    ExpectSameStep(make, 50, 2, &cauchy, far, {full.get(), full.get()}, {false, false}, 6);
   }
   {
     SCOPED_TRACE("rotations only");
@@ -141,17 +155,15 @@ TEST(Batched, CompressedReprojectionMatchesRows) {
   }
   {
     SCOPED_TRACE("no loss");
-    ExpectSameStep(make, 50, 2, nullptr, {a, b}, {full.get(), full.get()}, {false, false}, 12);
+    ExpectSameStep(make, 50, 2, nullptr, {a, b}, {full.get(), full.get()}, {false, false}, 6);
   }
   {
-    SCOPED_TRACE("fewer rows than the tangent size: the row form");
+    SCOPED_TRACE("no more rows than the relative pose's 6: the row form");
     const Seen seen =
-        Evaluate(make, 6, 2, &cauchy, {a, b}, {full.get(), full.get()}, {false, false}, true);
-    EXPECT_EQ(seen.num_residuals, 13);
+        Evaluate(make, 3, 2, &cauchy, {a, b}, {full.get(), full.get()}, {false, false}, true);
+    EXPECT_EQ(seen.num_residuals, 7);
     EXPECT_FALSE(seen.compressed);
-    const Seen few =
-        Evaluate(make, 5, 2, &cauchy, {a, b}, {full.get(), full.get()}, {false, false}, false);
-    EXPECT_EQ(few.num_residuals, 11);
+    ExpectSameStep(make, 4, 2, &cauchy, {a, b}, {full.get(), full.get()}, {false, false}, 6);
   }
 }
 
@@ -280,6 +292,20 @@ TEST(PoseTangent, ReprojectionIsAmbientTimesPlusJacobian) {
           EXPECT_NEAR(j_tangent[12 * i + 6 * block + c], expected(i, c), 1e-10 * scale)
               << "trial " << trial << " block " << block << " row " << i << " col " << c;
         }
+      }
+    }
+    // The residual depends on b⁻¹ a alone: pose b's columns by themselves, and pose a's are
+    // pose b's times E_ab.
+    ASSERT_TRUE(cost->DependsOnRelativePose());
+    double r_second[2], j_second[12], j_mapped[12];
+    ASSERT_TRUE(cost->EvaluateSecondTangent(poses, r_second, j_second));
+    RelativeTangentMap(poses[0].translation - poses[1].translation, j_second, 2, 6, j_mapped);
+    for (int i = 0; i < 2; ++i) {
+      EXPECT_EQ(r_second[i], r_tangent[i]);
+      for (int c = 0; c < 6; ++c) {
+        EXPECT_EQ(j_second[6 * i + c], j_tangent[12 * i + 6 + c]);
+        EXPECT_NEAR(j_mapped[6 * i + c], j_tangent[12 * i + c], 1e-10 * scale)
+            << "trial " << trial << " row " << i << " col " << c;
       }
     }
   }

@@ -66,6 +66,15 @@ namespace bimcap {
 // empty there (compressing the 7-vector ambient Jacobians instead leaked rounding into such
 // directions). A residual-only evaluation (Ceres' candidate points read the cost only) writes
 // [0, ..., 0, √c]. Constant parameter blocks (a null jacobians[b]) are left out of H and g.
+//
+// Relative form (a compressed batch on two full poses a, b whose observations depend on b⁻¹ a
+// alone, PoseTangentCostFunction::DependsOnRelativePose: G's reprojections). Each observation's
+// Jacobian is J̃_i [E_ab, I] with J̃_i its k × 6 Jacobian in pose b's tangent (pose.h:
+// RelativeTangentMap), so H and g are made on those 6 columns, H_b = Σ J̃_iᵀ J̃_i and
+// g_b = Σ J̃_iᵀ r̃_i, and factorised as above into R_b (m × 6, m ≤ 6) and z; the rows are z,
+// zeros up to 6, then t (7 rows instead of 13), with tangent Jacobians R_b E_ab for pose a and
+// R_b for pose b, so that Ceres sees [E_ab, I]ᵀ H_b [E_ab, I] = H and [E_ab, I]ᵀ g_b = g: the
+// same model, built from a third of the products an observation (2 × 6 Jacobians, 6 × 6 sums).
 class BatchedCostFunction final : public ceres::CostFunction {
  public:
   // `loss` (null: plain squares) must outlive the cost function; `residuals_per_sample` = k.
@@ -103,17 +112,22 @@ class BatchedCostFunction final : public ceres::CostFunction {
       pose_tangent_ = true;
       for (const ceres::Manifold* m : manifolds_)
         pose_tangent_ = pose_tangent_ && IsFullPoseManifold(m);
+      relative_ = sizes.size() == 2;
     }
-    pose_tangent_ =
-        pose_tangent_ && dynamic_cast<const PoseTangentCostFunction*>(sample.get()) != nullptr;
+    const auto* tangent_sample = dynamic_cast<const PoseTangentCostFunction*>(sample.get());
+    pose_tangent_ = pose_tangent_ && tangent_sample != nullptr;
+    relative_ = relative_ && pose_tangent_ && tangent_sample->DependsOnRelativePose();
     samples_.push_back(std::move(sample));
     indices_.push_back(index);
     const int rows = k_ * static_cast<int>(samples_.size());
-    compressed_ = compress_ && rows > tangent_cols_;
-    set_num_residuals(compressed_ ? tangent_cols_ + 1 : rows + (loss_ != nullptr ? 1 : 0));
+    const int model_cols = relative_ ? kPoseTangentSize : tangent_cols_;
+    compressed_ = compress_ && rows > model_cols;
+    set_num_residuals(compressed_ ? model_cols + 1 : rows + (loss_ != nullptr ? 1 : 0));
   }
 
   bool compressed() const { return compressed_; }
+  // Compressed from the relative pose's 6 columns (see the class comment).
+  bool relative() const { return compressed_ && relative_; }
   int num_samples() const { return static_cast<int>(samples_.size()); }
   int residuals_per_sample() const { return k_; }
   const ceres::CostFunction& sample(int i) const { return *samples_[i]; }
@@ -215,6 +229,9 @@ class BatchedCostFunction final : public ceres::CostFunction {
   // Every observation a PoseTangentCostFunction and every block on the kFull pose manifold: the
   // compressed form takes the observations' tangent Jacobians from EvaluateTangent.
   bool pose_tangent_ = false;
+  // Also two poses, and every observation DependsOnRelativePose: the compressed form's model is
+  // built on pose b's 6 columns (EvaluateSecondTangent) and mapped to pose a by E_ab.
+  bool relative_ = false;
   std::vector<std::unique_ptr<ceres::CostFunction>> samples_;
   std::vector<int64_t> indices_;
 };
@@ -262,7 +279,7 @@ inline bool BatchedCostFunction::EvaluateCompressed(double const* const* paramet
   using batched_internal::ToTangent;
   const std::vector<int32_t>& sizes = parameter_block_sizes();
   const size_t num_blocks = sizes.size();
-  const int rows = tangent_cols_ + 1;
+  const int rows = (relative_ ? kPoseTangentSize : tangent_cols_) + 1;
   // The blocks whose Jacobian is asked for, their first tangent column and Plus Jacobian.
   int first[kMaxBlocks], tangent[kMaxBlocks];
   double plus[kMaxBlocks][kMaxAmbient * kMaxAmbient];
@@ -279,12 +296,15 @@ inline bool BatchedCostFunction::EvaluateCompressed(double const* const* paramet
     cols += tangent[b];
     if (m != nullptr && !m->PlusJacobian(parameters[b], plus[b])) return false;
   }
+  // The model's columns: the wanted blocks' tangent columns, or with relative_ pose b's 6 (the
+  // model of b⁻¹ a, mapped to the wanted blocks at the end).
+  const int hc = relative_ && cols > 0 ? kPoseTangentSize : cols;
   double r[kMaxK];
-  double j[kMaxK * kMaxCols];     // observation i's tangent Jacobian, k × cols row-major
-  double h[kMaxCols * kMaxCols];  // cols × cols row-major, lower triangle used
+  double j[kMaxK * kMaxCols];     // observation i's tangent Jacobian, k × hc row-major
+  double h[kMaxCols * kMaxCols];  // hc × hc row-major, lower triangle used
   double g[kMaxCols];
-  std::fill_n(h, cols * cols, 0.0);
-  std::fill_n(g, cols, 0.0);
+  std::fill_n(h, hc * hc, 0.0);
+  std::fill_n(g, hc, 0.0);
   double total = 0.0;
   // With pose_tangent_: the poses as matrices, and each observation's k × 6·blocks Jacobian.
   PoseMatrix poses[kMaxBlocks];
@@ -294,7 +314,10 @@ inline bool BatchedCostFunction::EvaluateCompressed(double const* const* paramet
     for (size_t b = 0; b < num_blocks; ++b) poses[b] = PoseMatrix::FromBlock(parameters[b]);
   }
   for (const auto& sample : samples_) {
-    if (pose_tangent_) {
+    if (relative_) {
+      const auto* tangent_sample = static_cast<const PoseTangentCostFunction*>(sample.get());
+      if (!tangent_sample->EvaluateSecondTangent(poses, r, hc > 0 ? j : nullptr)) return false;
+    } else if (pose_tangent_) {
       const auto* tangent_sample = static_cast<const PoseTangentCostFunction*>(sample.get());
       if (!tangent_sample->EvaluateTangent(poses, r, cols > 0 ? pose_j : nullptr)) return false;
     } else if (!sample->Evaluate(parameters, r, cols > 0 ? sample_jacobians : nullptr)) {
@@ -303,7 +326,7 @@ inline bool BatchedCostFunction::EvaluateCompressed(double const* const* paramet
     const Correction c = Corrector(r);
     total += c.rho;
     if (cols == 0) continue;
-    for (size_t b = 0; b < num_blocks; ++b) {
+    for (size_t b = 0; b < num_blocks && !relative_; ++b) {
       if (first[b] < 0) continue;
       if (pose_tangent_) {
         for (int row = 0; row < k_; ++row) {
@@ -321,18 +344,20 @@ inline bool BatchedCostFunction::EvaluateCompressed(double const* const* paramet
       }
     }
     if (loss_ != nullptr) {
-      CorrectJacobian(c, r, j, cols);
+      CorrectJacobian(c, r, j, hc);
       for (int row = 0; row < k_; ++row) r[row] *= c.residual_scaling;
     }
     // The usual sizes with compile-time bounds (unrolled), else the same loops at run time.
-    if (k_ == 1 && cols == 6) {
+    if (k_ == 1 && hc == 6) {
       Accumulate<1, 6>(j, r, h, g);
-    } else if (k_ == 1 && cols == 12) {
+    } else if (k_ == 2 && hc == 6) {
+      Accumulate<2, 6>(j, r, h, g);
+    } else if (k_ == 1 && hc == 12) {
       Accumulate<1, 12>(j, r, h, g);
-    } else if (k_ == 2 && cols == 12) {
+    } else if (k_ == 2 && hc == 12) {
       Accumulate<2, 12>(j, r, h, g);
     } else {
-      Accumulate<0, 0>(j, r, h, g, k_, cols);
+      Accumulate<0, 0>(j, r, h, g, k_, hc);
     }
   }
   std::fill_n(residuals, rows, 0.0);
@@ -343,29 +368,29 @@ inline bool BatchedCostFunction::EvaluateCompressed(double const* const* paramet
   // Equilibrated: H' = S⁻¹ H S⁻¹, g' = S⁻¹ g with S = diag √H_aa (an empty column stays 0), so
   // that the factorisation's rounding is relative to each column's own scale, as in JᵀJ.
   double scale[kMaxCols], inv_scale[kMaxCols];
-  for (int a = 0; a < cols; ++a) {
-    scale[a] = std::sqrt(h[a * cols + a]);
+  for (int a = 0; a < hc; ++a) {
+    scale[a] = std::sqrt(h[a * hc + a]);
     inv_scale[a] = scale[a] > 0.0 ? 1.0 / scale[a] : 0.0;
   }
-  for (int a = 0; a < cols; ++a) {
+  for (int a = 0; a < hc; ++a) {
     g[a] *= inv_scale[a];
-    for (int c = 0; c <= a; ++c) h[a * cols + c] *= inv_scale[a] * inv_scale[c];
+    for (int c = 0; c <= a; ++c) h[a * hc + c] *= inv_scale[a] * inv_scale[c];
   }
   // Cholesky with diagonal pivoting of H', in place (lower triangle): Π H' Πᵀ = L Lᵀ.
   int perm[kMaxCols];
-  for (int a = 0; a < cols; ++a) perm[a] = a;
+  for (int a = 0; a < hc; ++a) perm[a] = a;
   constexpr double kPivotTolerance = 1e-12;
-  auto at = [&](int a, int c) -> double& { return a >= c ? h[a * cols + c] : h[c * cols + a]; };
+  auto at = [&](int a, int c) -> double& { return a >= c ? h[a * hc + c] : h[c * hc + a]; };
   int rank = 0;
-  for (; rank < cols; ++rank) {
+  for (; rank < hc; ++rank) {
     const int k = rank;
     int p = k;
-    for (int a = k + 1; a < cols; ++a) {
+    for (int a = k + 1; a < hc; ++a) {
       if (at(a, a) > at(p, p)) p = a;
     }
     if (!(at(p, p) > kPivotTolerance)) break;
     if (p != k) {
-      for (int c = 0; c < cols; ++c) {
+      for (int c = 0; c < hc; ++c) {
         if (c != k && c != p) std::swap(at(k, c), at(p, c));
       }
       std::swap(at(k, k), at(p, p));
@@ -373,8 +398,8 @@ inline bool BatchedCostFunction::EvaluateCompressed(double const* const* paramet
     }
     const double lkk = std::sqrt(at(k, k));
     at(k, k) = lkk;
-    for (int a = k + 1; a < cols; ++a) at(a, k) /= lkk;
-    for (int a = k + 1; a < cols; ++a) {
+    for (int a = k + 1; a < hc; ++a) at(a, k) /= lkk;
+    for (int a = k + 1; a < hc; ++a) {
       for (int c = k + 1; c <= a; ++c) at(a, c) -= at(a, k) * at(c, k);
     }
   }
@@ -387,7 +412,26 @@ inline bool BatchedCostFunction::EvaluateCompressed(double const* const* paramet
     z_sq += residuals[k] * residuals[k];
   }
   residuals[rows - 1] = std::sqrt(std::max(total - z_sq, 0.0));
-  // R = Lᵀ Π S: R(k, perm[a]) = L(a, k) S_perm[a] for a ≥ k; then block b's ambient rows R_b P_b⁺.
+  // R = Lᵀ Π S (rank × hc): R(k, perm[a]) = L(a, k) S_perm[a] for a ≥ k. The wanted blocks'
+  // tangent rows `tangent_rows` (rank × cols): R itself, or with relative_ R for pose b and
+  // R E_ab for pose a. Then block b's ambient rows R_b P_b⁺.
+  double model_rows[kMaxCols * kMaxCols];
+  std::fill_n(model_rows, rank * hc, 0.0);
+  for (int k = 0; k < rank; ++k) {
+    for (int a = k; a < hc; ++a) model_rows[k * hc + perm[a]] = at(a, k) * scale[perm[a]];
+  }
+  double relative_rows[kMaxCols * kPoseTangentSize];
+  const double* tangent_rows = model_rows;
+  if (relative_) {
+    const Eigen::Vector3d d = poses[0].translation - poses[1].translation;  // t_a − t_b
+    for (int k = 0; k < rank; ++k) {
+      const double* row_b = model_rows + k * hc;
+      double* out = relative_rows + k * cols;
+      if (first[0] >= 0) RelativeTangentMap(d, row_b, 1, kPoseTangentSize, out + first[0]);
+      if (first[1] >= 0) std::copy_n(row_b, kPoseTangentSize, out + first[1]);
+    }
+    tangent_rows = relative_rows;
+  }
   double r_row[kMaxCols];
   for (size_t b = 0; b < num_blocks; ++b) {
     if (first[b] < 0) continue;
@@ -419,11 +463,7 @@ inline bool BatchedCostFunction::EvaluateCompressed(double const* const* paramet
       }
     }
     for (int k = 0; k < rank; ++k) {
-      std::fill_n(r_row, t_size, 0.0);
-      for (int a = k; a < cols; ++a) {
-        const int col = perm[a] - first[b];
-        if (col >= 0 && col < t_size) r_row[col] = at(a, k) * scale[perm[a]];
-      }
+      std::copy_n(tangent_rows + k * cols + first[b], t_size, r_row);
       double* out = jb + static_cast<size_t>(k) * a_size;
       if (m == nullptr) {
         std::copy_n(r_row, a_size, out);

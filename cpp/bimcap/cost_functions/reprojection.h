@@ -152,6 +152,9 @@ struct ReprojectionCostFunctor {
 //
 //   ∂r/∂δt_a = A,    ∂r/∂δθ_a = −2 (A × R_a p_a + B × v),
 //   ∂r/∂δt_b = −A,   ∂r/∂δθ_b =  2 (A × (p_w − t_b) + B × v)          (row by row)
+//
+// r depends on the poses through b⁻¹ a alone (DependsOnRelativePose): ∂r/∂δ_a = ∂r/∂δ_b E_ab
+// (pose.h: RelativeTangentMap), which the compressed batches use.
 class ReprojectionCostFunction final : public PoseTangentCostFunction {
  public:
   ReprojectionCostFunction(const Eigen::Vector3d& p_a_in_cam, const Eigen::Vector2d& uv_b,
@@ -218,6 +221,19 @@ class ReprojectionCostFunction final : public PoseTangentCostFunction {
 
   bool EvaluateTangent(const PoseMatrix* poses, double* residuals,
                        double* jacobian) const override {
+    return Tangent(poses, residuals, jacobian, true);
+  }
+
+  // p_b depends on the poses through R_bᵀ R_a and R_bᵀ (t_a − t_b) alone.
+  bool DependsOnRelativePose() const override { return true; }
+  bool EvaluateSecondTangent(const PoseMatrix* poses, double* residuals,
+                             double* jacobian_b) const override {
+    return Tangent(poses, residuals, jacobian_b, false);
+  }
+
+ private:
+  // The residuals and, with `jacobian`, ∂r/∂[δ_a, δ_b] (2 × 12, `both`) or ∂r/∂δ_b (2 × 6).
+  bool Tangent(const PoseMatrix* poses, double* residuals, double* jacobian, bool both) const {
     const PoseMatrix& a = poses[0];
     const PoseMatrix& b = poses[1];
     const Eigen::Vector3d r_a = a.rotation * p_a_in_cam_;           // R_a p_a
@@ -235,20 +251,28 @@ class ReprojectionCostFunction final : public PoseTangentCostFunction {
     Eigen::Matrix<double, 2, 3> g_p, g_d;
     ResidualGradients(p_b, dp_b, &g_p, &g_d);
     const Eigen::Matrix<double, 2, 3> a_rows = g_p * b.rotation.transpose();
-    Eigen::Map<Eigen::Matrix<double, 2, 4 * 3, Eigen::RowMajor>> j(jacobian);
+    const int stride = both ? 12 : 6;
+    const int b_col = both ? 6 : 0;
     for (int i = 0; i < 2; ++i) {
       const Eigen::Vector3d a_i = a_rows.row(i).transpose();
       Eigen::Vector3d b_v = Eigen::Vector3d::Zero();
       if (whiten) b_v = (g_d.row(i) * b.rotation.transpose()).transpose().cross(v);
-      j.block<1, 3>(i, 0) = a_i.transpose();
-      j.block<1, 3>(i, 3) = -2.0 * (a_i.cross(r_a) + b_v).transpose();
-      j.block<1, 3>(i, 6) = -a_i.transpose();
-      j.block<1, 3>(i, 9) = 2.0 * (a_i.cross(d) + b_v).transpose();
+      double* row = jacobian + i * stride;
+      const Eigen::Vector3d b_theta = 2.0 * (a_i.cross(d) + b_v);
+      for (int k = 0; k < 3; ++k) {
+        row[b_col + k] = -a_i[k];
+        row[b_col + 3 + k] = b_theta[k];
+      }
+      if (!both) continue;
+      const Eigen::Vector3d a_theta = -2.0 * (a_i.cross(r_a) + b_v);
+      for (int k = 0; k < 3; ++k) {
+        row[k] = a_i[k];
+        row[3 + k] = a_theta[k];
+      }
     }
     return true;
   }
 
- private:
   // G_p = ∂r/∂p_b and G_d = ∂r/∂dp_b (2 × 3), by a 6-wide Jet through ReprojectionResidual.
   void ResidualGradients(const Eigen::Vector3d& p_b, const Eigen::Vector3d& dp_b,
                          Eigen::Matrix<double, 2, 3>* g_p, Eigen::Matrix<double, 2, 3>* g_d) const {
