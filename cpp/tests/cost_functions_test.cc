@@ -1,5 +1,6 @@
 // Each functor against hand-computed values and against ceres::GradientChecker.
 #include <ceres/gradient_checker.h>
+#include <ceres/jet.h>
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -444,6 +445,42 @@ void ExpectSameAsAutoDiff(const ceres::CostFunction& analytic, const ceres::Cost
     ASSERT_TRUE(analytic.Evaluate(blocks.data(), r3.data(), partial.data()));
     for (size_t k = 0; k < only.size(); ++k) EXPECT_EQ(only[k], j1[1][k]);
   }
+}
+
+// ReprojectionResidualGradients against a 6-wide Jet through ReprojectionResidual: with and
+// without the depth whitening, near-zero parallax, and points behind camera b (all zero).
+TEST(AnalyticJacobians, ReprojectionGradientsMatchJets) {
+  std::mt19937 rng(5);
+  std::normal_distribution<double> g(0.0, 1.0);
+  using Jet6 = ceres::Jet<double, 6>;
+  int behind = 0;
+  for (int trial = 0; trial < 500; ++trial) {
+    const Eigen::Vector3d p(g(rng), g(rng), trial % 25 == 0 ? -0.5 : 0.3 + 3.0 * std::abs(g(rng)));
+    const double parallax = trial % 7 == 0 ? 1e-9 : 1.0;
+    const Eigen::Vector3d dp = parallax * Eigen::Vector3d(g(rng), g(rng), 1.0 + 0.2 * g(rng));
+    const Eigen::Vector2d uv(300.0 + 80.0 * g(rng), 200.0 + 80.0 * g(rng));
+    const Eigen::Vector4d k(500.0 + g(rng), 480.0 + g(rng), 320.0, 240.0);
+    const double s = 0.1 + std::abs(g(rng)), sigma_px = 0.5 + std::abs(g(rng));
+    const double sigma_z = trial % 3 == 0 ? 0.0 : 0.005 + 0.05 * std::abs(g(rng));
+    Eigen::Matrix<Jet6, 3, 1> p_jet, dp_jet;
+    for (int a = 0; a < 3; ++a) {
+      p_jet[a] = Jet6(p[a], a);
+      dp_jet[a] = Jet6(dp[a], 3 + a);
+    }
+    Jet6 r[2];
+    ReprojectionResidual(p_jet, dp_jet, uv, k, s, sigma_px, sigma_z, r);
+    Eigen::Matrix<double, 2, 3> g_p, g_d;
+    ReprojectionResidualGradients(p, dp, uv, k, s, sigma_px, sigma_z, &g_p, &g_d);
+    if (p.z() < 0.0) ++behind;
+    for (int i = 0; i < 2; ++i) {
+      const double scale = std::max(1e-300, r[i].v.cwiseAbs().maxCoeff());
+      for (int a = 0; a < 3; ++a) {
+        EXPECT_NEAR(g_p(i, a), r[i].v[a], 1e-12 * scale) << "trial " << trial;
+        EXPECT_NEAR(g_d(i, a), r[i].v[3 + a], 1e-12 * scale) << "trial " << trial;
+      }
+    }
+  }
+  EXPECT_GT(behind, 0);
 }
 
 TEST(AnalyticJacobians, MatchAutoDiff) {
