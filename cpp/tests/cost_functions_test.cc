@@ -470,7 +470,11 @@ TEST(AnalyticJacobians, ReprojectionGradientsMatchJets) {
     Jet6 r[2];
     ReprojectionResidual(p_jet, dp_jet, uv, k, s, sigma_px, sigma_z, r);
     Eigen::Matrix<double, 2, 3> g_p, g_d;
-    ReprojectionResidualGradients(p, dp, uv, k, s, sigma_px, sigma_z, &g_p, &g_d);
+    double with_gradients[2] = {-1.0, -1.0}, alone[2];
+    ReprojectionResidualGradients(p, dp, uv, k, s, sigma_px, sigma_z, &g_p, &g_d, with_gradients);
+    ReprojectionResidual(p, dp, uv, k, s, sigma_px, sigma_z, alone);
+    EXPECT_EQ(with_gradients[0], alone[0]) << "trial " << trial;  // bit for bit
+    EXPECT_EQ(with_gradients[1], alone[1]) << "trial " << trial;
     if (p.z() < 0.0) ++behind;
     for (int i = 0; i < 2; ++i) {
       const double scale = std::max(1e-300, r[i].v.cwiseAbs().maxCoeff());

@@ -96,18 +96,27 @@ bool ReprojectionResidual(const Eigen::Matrix<T, 3, 1>& p_b_in_cam,
 //   ∂(j·e) = e0 ∂j0 + j0 ∂e0 + e1 ∂j1 + j1 ∂e1
 //   ∂r_i = s (∂e_i − ∂c j_i (j·e) − c ∂j_i (j·e) − c j_i ∂(j·e))
 //
-// Zero where the point is at or behind camera b (the residual is 0 there).
+// Zero where the point is at or behind camera b (the residual is 0 there). With `residuals`, also
+// the residual, from the same intermediate values and by the same operations as
+// ReprojectionResidual<double> (so bit for bit the same: the residual-only evaluation calls that).
 inline void ReprojectionResidualGradients(const Eigen::Vector3d& p, const Eigen::Vector3d& dp,
                                           const Eigen::Vector2d& uv_b,
                                           const Eigen::Vector4d& intrinsics_b, double sqrt_weight,
                                           double pixel_sigma, double depth_sigma,
                                           Eigen::Matrix<double, 2, 3>* g_p,
-                                          Eigen::Matrix<double, 2, 3>* g_d) {
+                                          Eigen::Matrix<double, 2, 3>* g_d,
+                                          double* residuals = nullptr) {
   g_p->setZero();
   g_d->setZero();
-  if (p.z() < 1e-9) return;
+  if (p.z() < 1e-9) {
+    if (residuals != nullptr) residuals[0] = residuals[1] = 0.0;
+    return;
+  }
   const double fx = intrinsics_b[0], fy = intrinsics_b[1];
   const double iz = 1.0 / p.z();
+  // e = uv − uv_b as ProjectPinhole and ReprojectionResidual compute it.
+  const double e0 = fx * p.x() / p.z() + intrinsics_b[2] - uv_b.x();
+  const double e1 = fy * p.y() / p.z() + intrinsics_b[3] - uv_b.y();
   // Rows 0..5 of each 6-vector: ∂/∂p_b, then ∂/∂dp.
   using Vec6 = Eigen::Matrix<double, 6, 1>;
   Vec6 de0, de1;
@@ -115,12 +124,14 @@ inline void ReprojectionResidualGradients(const Eigen::Vector3d& p, const Eigen:
   de1 << 0.0, fy * iz, -fy * p.y() * iz * iz, 0.0, 0.0, 0.0;
   const double s = sqrt_weight;
   if (depth_sigma <= 0.0) {
+    if (residuals != nullptr) {
+      residuals[0] = s * e0;
+      residuals[1] = s * e1;
+    }
     g_p->row(0) = s * de0.head<3>().transpose();
     g_p->row(1) = s * de1.head<3>().transpose();
     return;
   }
-  const double e0 = fx * p.x() / p.z() + intrinsics_b[2] - uv_b.x();
-  const double e1 = fy * p.y() / p.z() + intrinsics_b[3] - uv_b.y();
   const double j0 = fx * iz * (dp.x() - p.x() * iz * dp.z());
   const double j1 = fy * iz * (dp.y() - p.y() * iz * dp.z());
   Vec6 dj0, dj1;
@@ -132,6 +143,10 @@ inline void ReprojectionResidualGradients(const Eigen::Vector3d& p, const Eigen:
   const double q = std::sqrt(sp * sp + sz2 * (j0 * j0 + j1 * j1));
   const double c = sz2 / (q * (q + sp));
   const double je = j0 * e0 + j1 * e1;
+  if (residuals != nullptr) {
+    residuals[0] = s * (e0 - c * j0 * je);
+    residuals[1] = s * (e1 - c * j1 * je);
+  }
   const Vec6 dq = (sz2 / q) * (j0 * dj0 + j1 * dj1);
   const Vec6 dc = (-c * (2.0 * q + sp) / (q * (q + sp))) * dq;
   const Vec6 dje = e0 * dj0 + j0 * de0 + e1 * dj1 + j1 * de1;
@@ -303,11 +318,15 @@ class ReprojectionCostFunction final : public PoseTangentCostFunction {
       v = r_a / p_a_in_cam_.z();  // R_a ray_a
       dp_b = b.rotation.transpose() * v;
     }
-    ReprojectionResidual(p_b, dp_b, uv_b_, intrinsics_b_, sqrt_weight_, pixel_sigma_, depth_sigma_,
-                         residuals);
-    if (jacobian == nullptr) return true;
+    if (jacobian == nullptr) {
+      ReprojectionResidual(p_b, dp_b, uv_b_, intrinsics_b_, sqrt_weight_, pixel_sigma_,
+                           depth_sigma_, residuals);
+      return true;
+    }
+    // The residuals with their gradients (bit for bit ReprojectionResidual's).
     Eigen::Matrix<double, 2, 3> g_p, g_d;
-    ResidualGradients(p_b, dp_b, &g_p, &g_d);
+    ReprojectionResidualGradients(p_b, dp_b, uv_b_, intrinsics_b_, sqrt_weight_, pixel_sigma_,
+                                  depth_sigma_, &g_p, &g_d, residuals);
     const Eigen::Matrix<double, 2, 3> a_rows = g_p * b.rotation.transpose();
     const int stride = both ? 12 : 6;
     const int b_col = both ? 6 : 0;
