@@ -327,52 +327,52 @@ def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool =
     cam = seq.camera
     feats = []
 
-    def one_frame(st: _Stages, i: int) -> None:
-        """Every per-frame stage of frame ``i``, timed into ``st``."""
+    def one_frame(stages: _Stages, i: int) -> None:
+        """Every per-frame stage of frame ``i``, timed into ``stages``."""
         und = get_undistorter(cam)
-        raw = st.run("load image", _load_raw_image, seq, i, cam)
-        image = st.run("undistort", und.image, raw)
+        raw = stages.run("load image", _load_raw_image, seq, i, cam)
+        image = stages.run("undistort", und.image, raw)
         ctx = FrameContext(seq, i, cam, und.pinhole, image, und, poses[i])
         # read once for every stage (FrameContext.lidar); the code before it read it per stage
-        scan = st.run("load LiDAR", ctx.lidar if hasattr(ctx, "lidar") else seq.load_lidar,
+        scan = stages.run("load LiDAR", ctx.lidar if hasattr(ctx, "lidar") else seq.load_lidar,
                       *(() if hasattr(ctx, "lidar") else (i,)))
-        st.run("LiDAR projection", project_lidar, scan, seq.cam_from_lidar, cam,
+        stages.run("LiDAR projection", project_lidar, scan, seq.cam_from_lidar, cam,
                depth_p.projection, distort=False)
         if hasattr(ctx, "range_noise_m"):
             # measured once a frame for every stage that asks (FrameContext.range_noise_m): timed
             # on its own, not in whichever stage asks first (the segmentation, whose new and
             # previous code then compare the same work)
-            st.run("scan range noise", ctx.range_noise_m)
-        depth = st.run("depth provider", depth_p, ctx)
+            stages.run("scan range noise", ctx.range_noise_m)
+        depth = stages.run("depth provider", depth_p, ctx)
         depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0).astype(np.float32)
         ctx.depth = depth
-        labels = st.run("geometric segmentation", label_p, ctx)
+        labels = stages.run("geometric segmentation", label_p, ctx)
         if old_label_p is not None:
             _, t_old = _timed(old_label_p, ctx)
             seg = "geometric segmentation"
-            st.prev[seg] = st.prev.get(seg, 0.0) + t_old
-            st.equal[seg] = False
-        depth = st.run("planar smoothing", refiner, ctx, labels)
+            stages.prev[seg] = stages.prev.get(seg, 0.0) + t_old
+            stages.equal[seg] = False
+        depth = stages.run("planar smoothing", refiner, ctx, labels)
         depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0).astype(np.float32)
-        f = st.run("SIFT", extract_sift, image, sift)
+        f = stages.run("SIFT", extract_sift, image, sift)
         feats.append(f)
-        st.run("keypoint depths", lookup_depth, depth, f.uv)
+        stages.run("keypoint depths", lookup_depth, depth, f.uv)
         if old_sift is not None:
             f_old, t_old = _timed(extract_sift, image, old_sift)
             old_feats.append(f_old)
             _, t_depth = _timed(lookup_depth, depth, f_old.uv)
             for stage, t in (("SIFT", t_old), ("keypoint depths", t_depth)):
-                st.prev[stage] = st.prev.get(stage, 0.0) + t
-                st.equal[stage] = False
+                stages.prev[stage] = stages.prev.get(stage, 0.0) + t
+                stages.equal[stage] = False
         # as the front end's frame job: the labels the depth contradicts dropped, then sampled
-        checked, _ = st.run("label orientation check", check_label_orientation, labels, depth,
+        checked, _ = stages.run("label orientation check", check_label_orientation, labels, depth,
                             und.pinhole, poses[i], sampling)
-        st.run("semantic sampling", sample_semantic_points, checked, depth, und.pinhole, i,
+        stages.run("semantic sampling", sample_semantic_points, checked, depth, und.pinhole, i,
                sampling)
         if hasattr(ctx, "lidar"):
-            st.run("scan surface points", _scan_points, ctx, scan_opts)
+            stages.run("scan surface points", _scan_points, ctx, scan_opts)
         else:  # the code before the frame's scan was read once (PYTHONPATH at an export)
-            st.run("scan surface points", _scan_points, seq, i, und.pinhole, scan_opts)
+            stages.run("scan surface points", _scan_points, seq, i, und.pinhole, scan_opts)
 
     # One frame and one pair first, untimed: the imports and first calls that a worker pays once
     # (OpenCV, pycolmap, ONNX Runtime) are not a frame's cost; reported apart.

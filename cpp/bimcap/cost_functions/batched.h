@@ -126,8 +126,6 @@ class BatchedCostFunction final : public ceres::CostFunction {
   }
 
   bool compressed() const { return compressed_; }
-  // Compressed from the relative pose's 6 columns (see the class comment).
-  bool relative() const { return compressed_ && relative_; }
   int num_samples() const { return static_cast<int>(samples_.size()); }
   int residuals_per_sample() const { return k_; }
   const ceres::CostFunction& sample(int i) const { return *samples_[i]; }

@@ -275,7 +275,8 @@ class ReprojectionCostFunction final : public PoseTangentCostFunction {
                          residuals);
     if (!jac) return true;
     Eigen::Matrix<double, 2, 3> g_p, g_d;
-    ResidualGradients(p_b, dp_b, &g_p, &g_d);
+    ReprojectionResidualGradients(p_b, dp_b, uv_b_, intrinsics_b_, sqrt_weight_, pixel_sigma_,
+                                  depth_sigma_, &g_p, &g_d);
     const Eigen::Matrix<double, 2, 3> g_p_m = g_p * m;
     if (jacobians[0] != nullptr) {
       Eigen::Map<Eigen::Matrix<double, 2, kPoseSize, Eigen::RowMajor>> j(jacobians[0]);
@@ -348,12 +349,6 @@ class ReprojectionCostFunction final : public PoseTangentCostFunction {
       }
     }
     return true;
-  }
-
-  void ResidualGradients(const Eigen::Vector3d& p_b, const Eigen::Vector3d& dp_b,
-                         Eigen::Matrix<double, 2, 3>* g_p, Eigen::Matrix<double, 2, 3>* g_d) const {
-    ReprojectionResidualGradients(p_b, dp_b, uv_b_, intrinsics_b_, sqrt_weight_, pixel_sigma_,
-                                  depth_sigma_, g_p, g_d);
   }
 
   const Eigen::Vector3d p_a_in_cam_;
