@@ -3,6 +3,7 @@
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
+#include <stdexcept>
 #include <utility>
 
 #include "bimcap/cost_functions/batched.h"
@@ -151,10 +152,34 @@ void ProblemBuilder::Build() {
   }
 }
 
-void ProblemBuilder::AddObservation(ceres::CostFunction* cost, std::vector<double*> parameters) {
+ProblemBuilder::PendingGroup& ProblemBuilder::Group(const std::vector<double*>& parameters) {
+  if (last_group_ < pending_.size() && pending_[last_group_].parameters == parameters)
+    return pending_[last_group_];
   const auto [it, inserted] = pending_index_.try_emplace(parameters, pending_.size());
-  if (inserted) pending_.push_back({std::move(parameters), {}});
-  pending_[it->second].samples.emplace_back(cost, pending_count_++);
+  if (inserted) {
+    pending_.emplace_back();
+    pending_.back().parameters = parameters;
+  }
+  last_group_ = it->second;
+  return pending_[last_group_];
+}
+
+void ProblemBuilder::AddObservation(ceres::CostFunction* cost, std::vector<double*> parameters) {
+  PendingGroup& group = Group(parameters);
+  if (!group.reprojections.empty())
+    throw std::logic_error("ProblemBuilder: a cost function among reprojections");
+  group.samples.emplace_back(cost, pending_count_++);
+}
+
+void ProblemBuilder::AddReprojection(const ReprojectionModel& model,
+                                     const ReprojectionObservation& observation,
+                                     double* world_from_cam_a, double* world_from_cam_b) {
+  pair_key_.assign({world_from_cam_a, world_from_cam_b});
+  PendingGroup& group = Group(pair_key_);
+  if (!group.samples.empty() || (!group.reprojections.empty() && !(group.model == model)))
+    throw std::logic_error("ProblemBuilder: a reprojection of another kind or model");
+  group.model = model;
+  group.reprojections.emplace_back(observation, pending_count_++);
 }
 
 void ProblemBuilder::FlushObservations(int term) {
@@ -162,6 +187,12 @@ void ProblemBuilder::FlushObservations(int term) {
   ceres::LossFunction* loss = losses_[term].get();
   const size_t batch = static_cast<size_t>(std::max(1, options_.batch_size));
   if (batch == 1) {
+    // Reprojections as cost functions of their own.
+    for (PendingGroup& group : pending_) {
+      for (const auto& [observation, index] : group.reprojections)
+        group.samples.emplace_back(new ReprojectionCostFunction(group.model, observation), index);
+      group.reprojections.clear();
+    }
     // One block per observation with the term's loss, in the order they were added.
     std::vector<std::pair<int64_t, size_t>> order;  // index, group
     for (size_t g = 0; g < pending_.size(); ++g) {
@@ -176,24 +207,32 @@ void ProblemBuilder::FlushObservations(int term) {
   } else {
     for (const PendingGroup& group : pending_) {
       const auto& samples = group.samples;
+      const auto& reprojections = group.reprojections;
+      const size_t count = samples.size() + reprojections.size();
       // The manifold Build() sets on each parameter block (a constant pose's is never used).
       std::vector<const ceres::Manifold*> manifolds;
       for (const double* block : group.parameters) manifolds.push_back(ManifoldOf(block));
       // Chunks of at most `batch`, as even as the count allows.
-      const size_t chunks = (samples.size() + batch - 1) / batch;
+      const size_t chunks = (count + batch - 1) / batch;
       for (size_t c = 0; c < chunks; ++c) {
-        const size_t begin = samples.size() * c / chunks;
-        const size_t end = samples.size() * (c + 1) / chunks;
+        const size_t begin = count * c / chunks;
+        const size_t end = count * (c + 1) / chunks;
         auto* batched = new BatchedCostFunction(loss, blocks.residual_size, manifolds,
                                                 options_.compress_batches);
-        for (size_t i = begin; i < end; ++i)
-          batched->Add(std::unique_ptr<ceres::CostFunction>(samples[i].first), samples[i].second);
+        for (size_t i = begin; i < end; ++i) {
+          if (reprojections.empty()) {
+            batched->Add(std::unique_ptr<ceres::CostFunction>(samples[i].first), samples[i].second);
+          } else {
+            batched->AddReprojection(group.model, reprojections[i].first, reprojections[i].second);
+          }
+        }
         blocks.ids.push_back(problem_->AddResidualBlock(batched, nullptr, group.parameters));
       }
     }
   }
   pending_.clear();
   pending_index_.clear();
+  last_group_ = 0;
   pending_count_ = 0;
 }
 

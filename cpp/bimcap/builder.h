@@ -20,6 +20,7 @@
 #include <memory>
 #include <vector>
 
+#include "bimcap/cost_functions/reprojection.h"
 #include "bimcap/options.h"
 #include "bimcap/problem.h"
 
@@ -92,6 +93,11 @@ class ProblemBuilder {
   // inside); a lone one, or every one with batch_size = 1, into a block of its own with the term's
   // loss. The blocks are made by FlushObservations, once the term's add function has returned.
   void AddObservation(ceres::CostFunction* cost, std::vector<double*> parameters);
+  // The same for one of G's reprojections from frame a into frame b, kept as plain data until
+  // its batch is made (BatchedCostFunction::AddReprojection; a ReprojectionCostFunction where it
+  // has a block of its own). The observations of one pair share `model`.
+  void AddReprojection(const ReprojectionModel& model, const ReprojectionObservation& observation,
+                       double* world_from_cam_a, double* world_from_cam_b);
   ceres::LossFunction* mutable_loss(int term) { return losses_[term].get(); }
   double* Pose(int64_t frame) { return state_->poses.data() + kPoseSize * frame; }
   double* TrackPoint(int64_t point) { return state_->track_points.data() + 3 * point; }
@@ -108,13 +114,20 @@ class ProblemBuilder {
   struct PendingGroup {
     std::vector<double*> parameters;
     std::vector<std::pair<ceres::CostFunction*, int64_t>> samples;  // cost, index in the term
+    // Or G's reprojections (a group holds one kind).
+    ReprojectionModel model;
+    std::vector<std::pair<ReprojectionObservation, int64_t>> reprojections;
   };
+  // The pending group of `parameters` (a new one at the end if there is none).
+  PendingGroup& Group(const std::vector<double*>& parameters);
 
   const ProblemData& data_;
   const SolverOptions& options_;
   SolverState* state_;
   std::vector<PendingGroup> pending_;
   std::map<std::vector<double*>, size_t> pending_index_;
+  size_t last_group_ = 0;  // the group the last observation went to (consecutive ones share it)
+  std::vector<double*> pair_key_;  // AddReprojection's key, kept to spare an allocation a call
   int64_t pending_count_ = 0;
   std::unique_ptr<ceres::Problem> problem_;
   std::vector<TermBlocks> terms_;

@@ -86,7 +86,7 @@ void ForEachObservation(ProblemBuilder& builder, int t, Visit visit) {
     }
     for (int i = 0; i < batched->num_samples(); ++i) {
       residuals.assign(static_cast<size_t>(batched->residuals_per_sample()), 0.0);
-      const bool ok = batched->sample(i).Evaluate(parameters.data(), residuals.data(), nullptr);
+      const bool ok = batched->EvaluateSample(i, parameters.data(), residuals.data());
       visit(residuals, ok, batched->sample_index(i), parameters);
     }
   }

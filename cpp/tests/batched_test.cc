@@ -13,6 +13,7 @@
 #include <functional>
 #include <memory>
 #include <random>
+#include <stdexcept>
 #include <vector>
 
 #include "bimcap/cost_functions/point_to_plane.h"
@@ -38,15 +39,16 @@ struct Seen {
 
 // The n observations `make(i)` on copies of `blocks`, in one BatchedCostFunction (`compress`),
 // the manifolds on the parameter blocks, `constant` blocks held constant.
-Seen Evaluate(const std::function<ceres::CostFunction*(int)>& make, int n, int k,
-              const ceres::LossFunction* loss, Blocks blocks,
-              const std::vector<const ceres::Manifold*>& manifolds,
-              const std::vector<bool>& constant, bool compress) {
+// The batch filled by `fill`, on copies of `blocks` (as Evaluate below).
+Seen EvaluateFilled(const std::function<void(BatchedCostFunction*)>& fill, int k,
+                    const ceres::LossFunction* loss, Blocks blocks,
+                    const std::vector<const ceres::Manifold*>& manifolds,
+                    const std::vector<bool>& constant, bool compress) {
   ceres::Problem::Options options;
   options.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   ceres::Problem problem(options);
   auto* batched = new BatchedCostFunction(loss, k, manifolds, compress);
-  for (int i = 0; i < n; ++i) batched->Add(std::unique_ptr<ceres::CostFunction>(make(i)), i);
+  fill(batched);
   std::vector<double*> pointers;
   for (auto& b : blocks) pointers.push_back(b.data());
   problem.AddResidualBlock(batched, nullptr, pointers);
@@ -66,6 +68,16 @@ Seen Evaluate(const std::function<ceres::CostFunction*(int)>& make, int n, int k
                                nullptr, nullptr));
   seen.jtj = testing::DenseJtJ(jacobian);
   return seen;
+}
+
+Seen Evaluate(const std::function<ceres::CostFunction*(int)>& make, int n, int k,
+              const ceres::LossFunction* loss, Blocks blocks,
+              const std::vector<const ceres::Manifold*>& manifolds,
+              const std::vector<bool>& constant, bool compress) {
+  const auto fill = [&](BatchedCostFunction* batched) {
+    for (int i = 0; i < n; ++i) batched->Add(std::unique_ptr<ceres::CostFunction>(make(i)), i);
+  };
+  return EvaluateFilled(fill, k, loss, std::move(blocks), manifolds, constant, compress);
 }
 
 // Both forms of the same batch; returns the compressed one's view. `model_size`: the compressed
@@ -165,6 +177,90 @@ TEST(Batched, CompressedReprojectionMatchesRows) {
     EXPECT_FALSE(seen.compressed);
     ExpectSameStep(make, 4, 2, &cauchy, {a, b}, {full.get(), full.get()}, {false, false}, 6);
   }
+}
+
+// G's reprojections kept as data (AddReprojection, what the builder makes) give what the same
+// observations as ReprojectionCostFunctions give, bit for bit, in every form.
+TEST(Batched, ReprojectionsAsDataSameBitsAsCostFunctions) {
+  std::mt19937 rng(5);
+  std::normal_distribution<double> g(0.0, 1.0);
+  const std::vector<double> a = RandomPose(&rng);
+  std::vector<double> b = a;
+  b[0] += 0.3;
+  b[5] -= 0.03;
+  Eigen::Map<Eigen::Quaterniond>(b.data() + 3).normalize();
+  const ReprojectionModel model{Eigen::Vector4d(500.0, 490.0, 320.0, 240.0), 0.5, 2.0, 0.02};
+  std::vector<ReprojectionObservation> observations;
+  for (int i = 0; i < 50; ++i) {
+    // One point behind camera a (no depth whitening) and outliers for the Cauchy loss.
+    const double z = i == 7 ? -1.0 : 3.0 + std::abs(g(rng));
+    observations.push_back({Eigen::Vector3d(g(rng), g(rng), z),
+                            Eigen::Vector2d(320.0 + 100.0 * g(rng), 240.0 + 100.0 * g(rng))});
+  }
+  ceres::CauchyLoss cauchy(1.0);
+  const std::unique_ptr<ceres::Manifold> full = CreatePoseManifold(RefineMode::kFull);
+  const std::unique_ptr<ceres::Manifold> rotation = CreatePoseManifold(RefineMode::kRotation);
+  struct Case {
+    const char* what;
+    int n;
+    const ceres::LossFunction* loss;
+    const ceres::Manifold* manifold;
+    std::vector<bool> constant;
+    bool compress;
+  };
+  const std::vector<Case> cases = {
+      {"compressed, relative", 50, &cauchy, full.get(), {false, false}, true},
+      {"compressed, the first pose constant", 50, &cauchy, full.get(), {true, false}, true},
+      {"compressed, the second pose constant", 50, &cauchy, full.get(), {false, true}, true},
+      {"compressed, no loss", 50, nullptr, full.get(), {false, false}, true},
+      {"compressed, rotations only (ambient Jacobians)",
+       50,
+       &cauchy,
+       rotation.get(),
+       {false, false},
+       true},
+      {"rows", 50, &cauchy, full.get(), {false, false}, false},
+      {"too few for the compressed form", 3, &cauchy, full.get(), {false, false}, true},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.what);
+    const auto as_costs = [&](BatchedCostFunction* batched) {
+      for (int i = 0; i < c.n; ++i) {
+        batched->Add(std::make_unique<ReprojectionCostFunction>(model, observations[i]), i);
+      }
+    };
+    const auto as_data = [&](BatchedCostFunction* batched) {
+      for (int i = 0; i < c.n; ++i) batched->AddReprojection(model, observations[i], i);
+    };
+    const std::vector<const ceres::Manifold*> manifolds = {c.manifold, c.manifold};
+    const Seen x = EvaluateFilled(as_costs, 2, c.loss, {a, b}, manifolds, c.constant, c.compress);
+    const Seen y = EvaluateFilled(as_data, 2, c.loss, {a, b}, manifolds, c.constant, c.compress);
+    EXPECT_EQ(x.compressed, y.compressed);
+    EXPECT_EQ(x.num_residuals, y.num_residuals);
+    EXPECT_GT(x.cost, 0.0);
+    EXPECT_EQ(x.cost, y.cost);
+    EXPECT_EQ(x.residual_only_cost, y.residual_only_cost);
+    EXPECT_EQ(x.gradient, y.gradient);
+    EXPECT_TRUE(x.jtj == y.jtj);
+  }
+  // One observation alone, as ForEachObservation evaluates it.
+  BatchedCostFunction batched(&cauchy, 2, {full.get(), full.get()});
+  for (int i = 0; i < 5; ++i) batched.AddReprojection(model, observations[i], 10 + i);
+  const double* blocks[2] = {a.data(), b.data()};
+  for (int i = 0; i < 5; ++i) {
+    double x[2], y[2];
+    ASSERT_TRUE(batched.EvaluateSample(i, blocks, x));
+    ASSERT_TRUE(ReprojectionCostFunction(model, observations[i]).Evaluate(blocks, y, nullptr));
+    EXPECT_EQ(x[0], y[0]);
+    EXPECT_EQ(x[1], y[1]);
+    EXPECT_EQ(batched.sample_index(i), 10 + i);
+  }
+  // A batch holds one kind of observation and one model.
+  ReprojectionModel other = model;
+  other.intrinsics_b[0] += 1.0;
+  EXPECT_THROW(batched.AddReprojection(other, observations[0], 0), std::logic_error);
+  EXPECT_THROW(batched.Add(std::make_unique<ReprojectionCostFunction>(model, observations[0]), 0),
+               std::logic_error);
 }
 
 // Nine residuals an observation: more than the compressed form's buffers take (kMaxK = 8).

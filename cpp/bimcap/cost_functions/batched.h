@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "bimcap/cost_functions/pose_tangent.h"
+#include "bimcap/cost_functions/reprojection.h"
 #include "bimcap/pose.h"
 
 namespace bimcap {
@@ -75,6 +76,11 @@ namespace bimcap {
 // zeros up to 6, then t (7 rows instead of 13), with tangent Jacobians R_b E_ab for pose a and
 // R_b for pose b, so that Ceres sees [E_ab, I]ᵀ H_b [E_ab, I] = H and [E_ab, I]ᵀ g_b = g: the
 // same model, built from a third of the products an observation (2 × 6 Jacobians, 6 × 6 sums).
+//
+// Observations come as cost functions (Add: each its own object, called through its vtable) or,
+// for G's reprojections, as plain ReprojectionObservations that share one ReprojectionModel
+// (AddReprojection: 40 bytes each, side by side, evaluated inline; the same operations as
+// ReprojectionCostFunction's, so the same numbers bit for bit). A batch holds one kind.
 class BatchedCostFunction final : public ceres::CostFunction {
  public:
   // `loss` (null: plain squares) must outlive the cost function; `residuals_per_sample` = k.
@@ -91,52 +97,54 @@ class BatchedCostFunction final : public ceres::CostFunction {
   // Appends an observation (before the block goes into a problem); `index` is its position in
   // its term (for messages). All observations take the same parameter block sizes.
   void Add(std::unique_ptr<ceres::CostFunction> sample, int64_t index) {
+    if (!reprojections_.empty())
+      throw std::logic_error("BatchedCostFunction: a cost function in a batch of reprojections");
     if (samples_.empty()) {
-      const std::vector<int32_t>& sizes = sample->parameter_block_sizes();
-      if (sizes.size() > kMaxBlocks || sample->num_residuals() != k_ ||
-          manifolds_.size() > sizes.size())
+      if (sample->num_residuals() != k_)
         throw std::logic_error("BatchedCostFunction: an observation of unexpected size");
-      manifolds_.resize(sizes.size(), nullptr);
-      tangent_cols_ = 0;
-      // The compressed form's buffers are fixed: larger observations stay in the row form.
-      bool fits = k_ <= kMaxK;
-      for (size_t b = 0; b < sizes.size(); ++b) {
-        const ceres::Manifold* m = manifolds_[b];
-        if (m != nullptr && m->AmbientSize() != sizes[b])
-          throw std::logic_error("BatchedCostFunction: a manifold of unexpected size");
-        fits = fits && sizes[b] <= kMaxAmbient;
-        tangent_cols_ += m != nullptr ? m->TangentSize() : sizes[b];
-      }
-      compress_ = compress_ && fits && tangent_cols_ <= kMaxCols;
-      *mutable_parameter_block_sizes() = sizes;
-      pose_tangent_ = true;
-      for (const ceres::Manifold* m : manifolds_)
-        pose_tangent_ = pose_tangent_ && IsFullPoseManifold(m);
-      relative_ = sizes.size() == 2;
+      SetBlocks(sample->parameter_block_sizes());
     }
     const auto* tangent_sample = dynamic_cast<const PoseTangentCostFunction*>(sample.get());
     pose_tangent_ = pose_tangent_ && tangent_sample != nullptr;
     relative_ = relative_ && pose_tangent_ && tangent_sample->DependsOnRelativePose();
     samples_.push_back(std::move(sample));
-    indices_.push_back(index);
-    const int rows = k_ * static_cast<int>(samples_.size());
-    const int model_cols = relative_ ? kPoseTangentSize : tangent_cols_;
-    compressed_ = compress_ && rows > model_cols;
-    set_num_residuals(compressed_ ? model_cols + 1 : rows + (loss_ != nullptr ? 1 : 0));
+    Added(index);
+  }
+
+  // Appends one of G's reprojections on [world_from_cam_a, world_from_cam_b] (k = 2); every
+  // observation of the batch shares `model`.
+  void AddReprojection(const ReprojectionModel& model, const ReprojectionObservation& observation,
+                       int64_t index) {
+    if (!samples_.empty() || (!reprojections_.empty() && !(model == reprojection_model_)))
+      throw std::logic_error("BatchedCostFunction: a reprojection of another kind or model");
+    if (reprojections_.empty()) {
+      if (k_ != 2) throw std::logic_error("BatchedCostFunction: a reprojection has 2 residuals");
+      SetBlocks({kPoseSize, kPoseSize});
+      reprojection_model_ = model;
+    }
+    reprojections_.push_back(observation);
+    Added(index);
   }
 
   bool compressed() const { return compressed_; }
-  int num_samples() const { return static_cast<int>(samples_.size()); }
+  int num_samples() const { return static_cast<int>(indices_.size()); }
   int residuals_per_sample() const { return k_; }
-  const ceres::CostFunction& sample(int i) const { return *samples_[i]; }
   int64_t sample_index(int i) const { return indices_[i]; }
+  // Observation i's raw residuals (k values: the term's whitening and weight, no loss) and, with
+  // `jacobians`, its ambient Jacobians, as its own cost function gives them.
+  bool EvaluateSample(int i, double const* const* parameters, double* residuals,
+                      double** jacobians = nullptr) const {
+    if (reprojections_.empty()) return samples_[i]->Evaluate(parameters, residuals, jacobians);
+    return EvaluateReprojection(reprojection_model_, reprojections_[i], parameters[0],
+                                parameters[1], residuals, jacobians);
+  }
 
   bool Evaluate(double const* const* parameters, double* residuals,
                 double** jacobians) const override {
     if (compressed_) return EvaluateCompressed(parameters, residuals, jacobians);
     const std::vector<int32_t>& sizes = parameter_block_sizes();
     const size_t num_blocks = sizes.size();
-    const size_t n = samples_.size();
+    const size_t n = indices_.size();
     double* sample_jacobians[kMaxBlocks];
     double rest = 0.0;  // Σ_i ρ_i − ‖r̃_i‖²
     for (size_t i = 0; i < n; ++i) {
@@ -146,7 +154,8 @@ class BatchedCostFunction final : public ceres::CostFunction {
                                   ? jacobians[b] + static_cast<size_t>(k_) * i * sizes[b]
                                   : nullptr;
       }
-      if (!samples_[i]->Evaluate(parameters, r, jacobians != nullptr ? sample_jacobians : nullptr))
+      if (!EvaluateSample(static_cast<int>(i), parameters, r,
+                          jacobians != nullptr ? sample_jacobians : nullptr))
         return false;
       if (loss_ == nullptr) continue;
       const Correction c = Corrector(r);
@@ -174,6 +183,38 @@ class BatchedCostFunction final : public ceres::CostFunction {
   static constexpr int kMaxCols = 32;     // Σ tangent sizes (T)
 
  private:
+  // The first observation's parameter block sizes, and what they allow.
+  void SetBlocks(const std::vector<int32_t>& sizes) {
+    if (sizes.size() > kMaxBlocks || manifolds_.size() > sizes.size())
+      throw std::logic_error("BatchedCostFunction: an observation of unexpected size");
+    manifolds_.resize(sizes.size(), nullptr);
+    tangent_cols_ = 0;
+    // The compressed form's buffers are fixed: larger observations stay in the row form.
+    bool fits = k_ <= kMaxK;
+    for (size_t b = 0; b < sizes.size(); ++b) {
+      const ceres::Manifold* m = manifolds_[b];
+      if (m != nullptr && m->AmbientSize() != sizes[b])
+        throw std::logic_error("BatchedCostFunction: a manifold of unexpected size");
+      fits = fits && sizes[b] <= kMaxAmbient;
+      tangent_cols_ += m != nullptr ? m->TangentSize() : sizes[b];
+    }
+    compress_ = compress_ && fits && tangent_cols_ <= kMaxCols;
+    *mutable_parameter_block_sizes() = sizes;
+    pose_tangent_ = true;
+    for (const ceres::Manifold* m : manifolds_)
+      pose_tangent_ = pose_tangent_ && IsFullPoseManifold(m);
+    relative_ = pose_tangent_ && sizes.size() == 2;  // a reprojection depends on b⁻¹ a
+  }
+
+  // After an observation went in: its index, the form and the number of rows.
+  void Added(int64_t index) {
+    indices_.push_back(index);
+    const int rows = k_ * num_samples();
+    const int model_cols = relative_ ? kPoseTangentSize : tangent_cols_;
+    compressed_ = compress_ && rows > model_cols;
+    set_num_residuals(compressed_ ? model_cols + 1 : rows + (loss_ != nullptr ? 1 : 0));
+  }
+
   // Ceres' Corrector of one observation (internal/ceres/corrector.cc), from its raw residuals.
   struct Correction {
     double s = 0.0;    // ‖r‖²
@@ -230,7 +271,9 @@ class BatchedCostFunction final : public ceres::CostFunction {
   // Also two poses, and every observation DependsOnRelativePose: the compressed form's model is
   // built on pose b's 6 columns (EvaluateSecondTangent) and mapped to pose a by E_ab.
   bool relative_ = false;
-  std::vector<std::unique_ptr<ceres::CostFunction>> samples_;
+  std::vector<std::unique_ptr<ceres::CostFunction>> samples_;  // observations as cost functions
+  std::vector<ReprojectionObservation> reprojections_;         // or as G's reprojections
+  ReprojectionModel reprojection_model_;
   std::vector<int64_t> indices_;
 };
 
@@ -311,19 +354,12 @@ inline bool BatchedCostFunction::EvaluateCompressed(double const* const* paramet
   if (pose_tangent_) {
     for (size_t b = 0; b < num_blocks; ++b) poses[b] = PoseMatrix::FromBlock(parameters[b]);
   }
-  for (const auto& sample : samples_) {
-    if (relative_) {
-      const auto* tangent_sample = static_cast<const PoseTangentCostFunction*>(sample.get());
-      if (!tangent_sample->EvaluateSecondTangent(poses, r, hc > 0 ? j : nullptr)) return false;
-    } else if (pose_tangent_) {
-      const auto* tangent_sample = static_cast<const PoseTangentCostFunction*>(sample.get());
-      if (!tangent_sample->EvaluateTangent(poses, r, cols > 0 ? pose_j : nullptr)) return false;
-    } else if (!sample->Evaluate(parameters, r, cols > 0 ? sample_jacobians : nullptr)) {
-      return false;
-    }
+  // Observation i's loss, cost and share of H and g, from its raw residuals r and (cols > 0)
+  // its tangent Jacobian: in j already (relative_), in pose_j (pose_tangent_), else in block_j.
+  const auto add_to_model = [&]() __attribute__((always_inline)) {
     const Correction c = Corrector(r);
     total += c.rho;
-    if (cols == 0) continue;
+    if (cols == 0) return;
     for (size_t b = 0; b < num_blocks && !relative_; ++b) {
       if (first[b] < 0) continue;
       if (pose_tangent_) {
@@ -356,6 +392,32 @@ inline bool BatchedCostFunction::EvaluateCompressed(double const* const* paramet
       Accumulate<2, 12>(j, r, h, g);
     } else {
       Accumulate<0, 0>(j, r, h, g, k_, hc);
+    }
+  };
+  if (!reprojections_.empty()) {
+    // G's reprojections, inline: relative_ on full pose manifolds, else the ambient Jacobians.
+    for (const ReprojectionObservation& observation : reprojections_) {
+      if (relative_) {
+        EvaluateReprojectionTangent(reprojection_model_, observation, poses[0], poses[1], r,
+                                    hc > 0 ? j : nullptr, false);
+      } else {
+        EvaluateReprojection(reprojection_model_, observation, parameters[0], parameters[1], r,
+                             cols > 0 ? sample_jacobians : nullptr);
+      }
+      add_to_model();
+    }
+  } else {
+    for (const auto& sample : samples_) {
+      if (relative_) {
+        const auto* tangent_sample = static_cast<const PoseTangentCostFunction*>(sample.get());
+        if (!tangent_sample->EvaluateSecondTangent(poses, r, hc > 0 ? j : nullptr)) return false;
+      } else if (pose_tangent_) {
+        const auto* tangent_sample = static_cast<const PoseTangentCostFunction*>(sample.get());
+        if (!tangent_sample->EvaluateTangent(poses, r, cols > 0 ? pose_j : nullptr)) return false;
+      } else if (!sample->Evaluate(parameters, r, cols > 0 ? sample_jacobians : nullptr)) {
+        return false;
+      }
+      add_to_model();
     }
   }
   std::fill_n(residuals, rows, 0.0);

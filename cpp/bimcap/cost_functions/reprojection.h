@@ -207,6 +207,30 @@ struct ReprojectionCostFunctor {
   const double depth_sigma;
 };
 
+// What the observations of G from frame a into frame b share: b's pinhole intrinsics and the
+// term's weights, as ReprojectionCostFunctor takes them.
+struct ReprojectionModel {
+  Eigen::Vector4d intrinsics_b = Eigen::Vector4d::Zero();  // fx fy cx cy (px)
+  double sqrt_weight = 1.0;                                // s
+  double pixel_sigma = 1.0;                                // σ_px (> 0)
+  double depth_sigma = 0.0;                                // σ_z (m, ≥ 0; 0 = the plain error)
+  bool operator==(const ReprojectionModel& o) const {
+    return intrinsics_b == o.intrinsics_b && sqrt_weight == o.sqrt_weight &&
+           pixel_sigma == o.pixel_sigma && depth_sigma == o.depth_sigma;
+  }
+};
+
+// One observation of G in reprojection mode: a keypoint of frame a back-projected with its
+// depth, and its match in frame b (40 bytes: a batch keeps them side by side).
+struct ReprojectionObservation {
+  Eigen::Vector3d p_a_in_cam;  // z_a · ray_a (m)
+  Eigen::Vector2d uv_b;        // px
+  // σ_z where the depth whitening applies (a point in front of camera a), else 0.
+  double DepthSigma(const ReprojectionModel& model) const {
+    return model.depth_sigma > 0.0 && p_a_in_cam.z() > 0.0 ? model.depth_sigma : 0.0;
+  }
+};
+
 // ReprojectionCostFunctor with its Jacobians by the chain rule (what the builder uses: G is the
 // largest term, and the functor's autodiff carries 14 derivatives through every operation).
 // The residual depends on the poses only through p_b and dp_b (ReprojectionResidual):
@@ -215,30 +239,119 @@ struct ReprojectionCostFunctor {
 //   ∂r/∂t_a = G_p M,        ∂r/∂q_a = G_p M D_a + G_d M D_v,
 //   ∂r/∂t_b = −G_p M,       ∂r/∂q_b = G_p Q_p + G_d Q_v,
 //
-// with G_p = ∂r/∂p_b and G_d = ∂r/∂dp_b (2 × 3, autodiff of ReprojectionResidual with a
-// 6-wide Jet), M = ∂p_b/∂p_w, D_a = ∂(R_a p_a)/∂q_a, D_v = ∂v/∂q_a, Q_p = ∂p_b/∂q_b and
-// Q_v = ∂dp_b/∂q_b (CamToWorldWithJacobian, WorldToCamWithJacobian: the ambient Jacobians
-// autodiff gives, to rounding).
-//
-// In the tangent space (EvaluateTangent; pose.h for the derivatives of the kFull manifold), with
-// A = G_p R_bᵀ = ∂r/∂p_w and B = G_d R_bᵀ = ∂r/∂v (a row x times [u]× is x × u):
+// with G_p = ∂r/∂p_b and G_d = ∂r/∂dp_b (2 × 3, ReprojectionResidualGradients), M = ∂p_b/∂p_w,
+// D_a = ∂(R_a p_a)/∂q_a, D_v = ∂v/∂q_a, Q_p = ∂p_b/∂q_b and Q_v = ∂dp_b/∂q_b
+// (CamToWorldWithJacobian, WorldToCamWithJacobian: the ambient Jacobians autodiff gives, to
+// rounding). `a`, `b`: the two 7-double poses; `jacobians`: null, or two 2 × 7 row-major
+// blocks (either may be null). Always true (a point behind camera b gives r = 0).
+inline bool EvaluateReprojection(const ReprojectionModel& model,
+                                 const ReprojectionObservation& observation, const double* a,
+                                 const double* b, double* residuals, double** jacobians) {
+  const Eigen::Vector3d& p_a_in_cam = observation.p_a_in_cam;
+  const double depth_sigma = observation.DepthSigma(model);
+  const bool jac = jacobians != nullptr && (jacobians[0] != nullptr || jacobians[1] != nullptr);
+  Eigen::Matrix<double, 3, 4> d_a, q_p, d_v, q_v;
+  Eigen::Matrix3d m;
+  const Eigen::Vector3d p_w = CamToWorldWithJacobian(a, p_a_in_cam, jac ? &d_a : nullptr);
+  const Eigen::Vector3d p_b =
+      WorldToCamWithJacobian(b, p_w, jac ? &m : nullptr, jac ? &q_p : nullptr);
+  const bool whiten = depth_sigma > 0.0;
+  Eigen::Vector3d dp_b = Eigen::Vector3d::Zero();
+  if (whiten) {
+    const double a_rotation[kPoseSize] = {0.0, 0.0, 0.0, a[3], a[4], a[5], a[6]};
+    const double b_rotation[kPoseSize] = {0.0, 0.0, 0.0, b[3], b[4], b[5], b[6]};
+    const Eigen::Vector3d v =
+        CamToWorldWithJacobian(a_rotation, p_a_in_cam / p_a_in_cam.z(), jac ? &d_v : nullptr);
+    dp_b = WorldToCamWithJacobian(b_rotation, v, nullptr, jac ? &q_v : nullptr);
+  }
+  // The residuals in doubles (the same with and without Jacobians), then their gradients.
+  ReprojectionResidual(p_b, dp_b, observation.uv_b, model.intrinsics_b, model.sqrt_weight,
+                       model.pixel_sigma, depth_sigma, residuals);
+  if (!jac) return true;
+  Eigen::Matrix<double, 2, 3> g_p, g_d;
+  ReprojectionResidualGradients(p_b, dp_b, observation.uv_b, model.intrinsics_b, model.sqrt_weight,
+                                model.pixel_sigma, depth_sigma, &g_p, &g_d);
+  const Eigen::Matrix<double, 2, 3> g_p_m = g_p * m;
+  if (jacobians[0] != nullptr) {
+    Eigen::Map<Eigen::Matrix<double, 2, kPoseSize, Eigen::RowMajor>> j(jacobians[0]);
+    j.leftCols<3>() = g_p_m;
+    j.rightCols<4>() = g_p_m * d_a;
+    if (whiten) j.rightCols<4>() += g_d * m * d_v;
+  }
+  if (jacobians[1] != nullptr) {
+    Eigen::Map<Eigen::Matrix<double, 2, kPoseSize, Eigen::RowMajor>> j(jacobians[1]);
+    j.leftCols<3>() = -g_p_m;
+    j.rightCols<4>() = g_p * q_p;
+    if (whiten) j.rightCols<4>() += g_d * q_v;
+  }
+  return true;
+}
+
+// The same residual from the poses as matrices, with `jacobian` null or its Jacobian in the
+// tangent space of CreatePoseManifold(RefineMode::kFull) (pose.h), row-major: ∂r/∂[δ_a, δ_b]
+// (2 × 12) with `both`, else ∂r/∂δ_b (2 × 6). With A = G_p R_bᵀ = ∂r/∂p_w and
+// B = G_d R_bᵀ = ∂r/∂v (a row x times [u]× is x × u):
 //
 //   ∂r/∂δt_a = A,    ∂r/∂δθ_a = −2 (A × R_a p_a + B × v),
 //   ∂r/∂δt_b = −A,   ∂r/∂δθ_b =  2 (A × (p_w − t_b) + B × v)          (row by row)
 //
-// r depends on the poses through b⁻¹ a alone (DependsOnRelativePose): ∂r/∂δ_a = ∂r/∂δ_b E_ab
-// (pose.h: RelativeTangentMap), which the compressed batches use.
+// r depends on the poses through b⁻¹ a alone: ∂r/∂δ_a = ∂r/∂δ_b E_ab (pose.h:
+// RelativeTangentMap), which the compressed batches use. The residual is ReprojectionResidual's
+// bit for bit, with or without the Jacobian.
+inline void EvaluateReprojectionTangent(const ReprojectionModel& model,
+                                        const ReprojectionObservation& observation,
+                                        const PoseMatrix& a, const PoseMatrix& b, double* residuals,
+                                        double* jacobian, bool both) {
+  const Eigen::Vector3d& p_a_in_cam = observation.p_a_in_cam;
+  const double depth_sigma = observation.DepthSigma(model);
+  const Eigen::Vector3d r_a = a.rotation * p_a_in_cam;            // R_a p_a
+  const Eigen::Vector3d d = r_a + a.translation - b.translation;  // p_w − t_b
+  const Eigen::Vector3d p_b = b.rotation.transpose() * d;
+  const bool whiten = depth_sigma > 0.0;
+  Eigen::Vector3d v = Eigen::Vector3d::Zero(), dp_b = Eigen::Vector3d::Zero();
+  if (whiten) {
+    v = r_a / p_a_in_cam.z();  // R_a ray_a
+    dp_b = b.rotation.transpose() * v;
+  }
+  if (jacobian == nullptr) {
+    ReprojectionResidual(p_b, dp_b, observation.uv_b, model.intrinsics_b, model.sqrt_weight,
+                         model.pixel_sigma, depth_sigma, residuals);
+    return;
+  }
+  // The residuals with their gradients (bit for bit ReprojectionResidual's).
+  Eigen::Matrix<double, 2, 3> g_p, g_d;
+  ReprojectionResidualGradients(p_b, dp_b, observation.uv_b, model.intrinsics_b, model.sqrt_weight,
+                                model.pixel_sigma, depth_sigma, &g_p, &g_d, residuals);
+  const Eigen::Matrix<double, 2, 3> a_rows = g_p * b.rotation.transpose();
+  const int stride = both ? 12 : 6;
+  const int b_col = both ? 6 : 0;
+  for (int i = 0; i < 2; ++i) {
+    const Eigen::Vector3d a_i = a_rows.row(i).transpose();
+    Eigen::Vector3d b_v = Eigen::Vector3d::Zero();
+    if (whiten) b_v = (g_d.row(i) * b.rotation.transpose()).transpose().cross(v);
+    double* row = jacobian + i * stride;
+    const Eigen::Vector3d b_theta = 2.0 * (a_i.cross(d) + b_v);
+    for (int k = 0; k < 3; ++k) {
+      row[b_col + k] = -a_i[k];
+      row[b_col + 3 + k] = b_theta[k];
+    }
+    if (!both) continue;
+    const Eigen::Vector3d a_theta = -2.0 * (a_i.cross(r_a) + b_v);
+    for (int k = 0; k < 3; ++k) {
+      row[k] = a_i[k];
+      row[3 + k] = a_theta[k];
+    }
+  }
+}
+
+// One observation as a cost function on [world_from_cam_a, world_from_cam_b] (the row form,
+// batch_size = 1, and the tests); a compressed batch keeps ReprojectionObservations instead
+// (BatchedCostFunction::AddReprojection).
 class ReprojectionCostFunction final : public PoseTangentCostFunction {
  public:
-  ReprojectionCostFunction(const Eigen::Vector3d& p_a_in_cam, const Eigen::Vector2d& uv_b,
-                           const Eigen::Vector4d& intrinsics_b, double sqrt_weight,
-                           double pixel_sigma, double depth_sigma)
-      : p_a_in_cam_(p_a_in_cam),
-        uv_b_(uv_b),
-        intrinsics_b_(intrinsics_b),
-        sqrt_weight_(sqrt_weight),
-        pixel_sigma_(pixel_sigma),
-        depth_sigma_(depth_sigma > 0.0 && p_a_in_cam.z() > 0.0 ? depth_sigma : 0.0) {
+  ReprojectionCostFunction(const ReprojectionModel& model,
+                           const ReprojectionObservation& observation)
+      : model_(model), observation_(observation) {
     set_num_residuals(2);
     *mutable_parameter_block_sizes() = {kPoseSize, kPoseSize};
   }
@@ -246,117 +359,38 @@ class ReprojectionCostFunction final : public PoseTangentCostFunction {
   static ceres::CostFunction* Create(const Eigen::Vector3d& p_a_in_cam, const Eigen::Vector2d& uv_b,
                                      const Eigen::Vector4d& intrinsics_b, double sqrt_weight,
                                      double pixel_sigma = 1.0, double depth_sigma = 0.0) {
-    return new ReprojectionCostFunction(p_a_in_cam, uv_b, intrinsics_b, sqrt_weight, pixel_sigma,
-                                        depth_sigma);
+    return new ReprojectionCostFunction({intrinsics_b, sqrt_weight, pixel_sigma, depth_sigma},
+                                        {p_a_in_cam, uv_b});
   }
+
+  const ReprojectionModel& model() const { return model_; }
+  const ReprojectionObservation& observation() const { return observation_; }
 
   bool Evaluate(double const* const* parameters, double* residuals,
                 double** jacobians) const override {
-    const double* a = parameters[0];
-    const double* b = parameters[1];
-    const bool jac = jacobians != nullptr && (jacobians[0] != nullptr || jacobians[1] != nullptr);
-    Eigen::Matrix<double, 3, 4> d_a, q_p, d_v, q_v;
-    Eigen::Matrix3d m;
-    const Eigen::Vector3d p_w = CamToWorldWithJacobian(a, p_a_in_cam_, jac ? &d_a : nullptr);
-    const Eigen::Vector3d p_b =
-        WorldToCamWithJacobian(b, p_w, jac ? &m : nullptr, jac ? &q_p : nullptr);
-    const bool whiten = depth_sigma_ > 0.0;
-    Eigen::Vector3d dp_b = Eigen::Vector3d::Zero();
-    if (whiten) {
-      const double a_rotation[kPoseSize] = {0.0, 0.0, 0.0, a[3], a[4], a[5], a[6]};
-      const double b_rotation[kPoseSize] = {0.0, 0.0, 0.0, b[3], b[4], b[5], b[6]};
-      const Eigen::Vector3d v =
-          CamToWorldWithJacobian(a_rotation, p_a_in_cam_ / p_a_in_cam_.z(), jac ? &d_v : nullptr);
-      dp_b = WorldToCamWithJacobian(b_rotation, v, nullptr, jac ? &q_v : nullptr);
-    }
-    // The residuals in doubles (the same with and without Jacobians), their derivatives from
-    // the Jets.
-    ReprojectionResidual(p_b, dp_b, uv_b_, intrinsics_b_, sqrt_weight_, pixel_sigma_, depth_sigma_,
-                         residuals);
-    if (!jac) return true;
-    Eigen::Matrix<double, 2, 3> g_p, g_d;
-    ReprojectionResidualGradients(p_b, dp_b, uv_b_, intrinsics_b_, sqrt_weight_, pixel_sigma_,
-                                  depth_sigma_, &g_p, &g_d);
-    const Eigen::Matrix<double, 2, 3> g_p_m = g_p * m;
-    if (jacobians[0] != nullptr) {
-      Eigen::Map<Eigen::Matrix<double, 2, kPoseSize, Eigen::RowMajor>> j(jacobians[0]);
-      j.leftCols<3>() = g_p_m;
-      j.rightCols<4>() = g_p_m * d_a;
-      if (whiten) j.rightCols<4>() += g_d * m * d_v;
-    }
-    if (jacobians[1] != nullptr) {
-      Eigen::Map<Eigen::Matrix<double, 2, kPoseSize, Eigen::RowMajor>> j(jacobians[1]);
-      j.leftCols<3>() = -g_p_m;
-      j.rightCols<4>() = g_p * q_p;
-      if (whiten) j.rightCols<4>() += g_d * q_v;
-    }
-    return true;
+    return EvaluateReprojection(model_, observation_, parameters[0], parameters[1], residuals,
+                                jacobians);
   }
 
   bool EvaluateTangent(const PoseMatrix* poses, double* residuals,
                        double* jacobian) const override {
-    return Tangent(poses, residuals, jacobian, true);
+    EvaluateReprojectionTangent(model_, observation_, poses[0], poses[1], residuals, jacobian,
+                                true);
+    return true;
   }
 
   // p_b depends on the poses through R_bᵀ R_a and R_bᵀ (t_a − t_b) alone.
   bool DependsOnRelativePose() const override { return true; }
   bool EvaluateSecondTangent(const PoseMatrix* poses, double* residuals,
                              double* jacobian_b) const override {
-    return Tangent(poses, residuals, jacobian_b, false);
-  }
-
- private:
-  // The residuals and, with `jacobian`, ∂r/∂[δ_a, δ_b] (2 × 12, `both`) or ∂r/∂δ_b (2 × 6).
-  bool Tangent(const PoseMatrix* poses, double* residuals, double* jacobian, bool both) const {
-    const PoseMatrix& a = poses[0];
-    const PoseMatrix& b = poses[1];
-    const Eigen::Vector3d r_a = a.rotation * p_a_in_cam_;           // R_a p_a
-    const Eigen::Vector3d d = r_a + a.translation - b.translation;  // p_w − t_b
-    const Eigen::Vector3d p_b = b.rotation.transpose() * d;
-    const bool whiten = depth_sigma_ > 0.0;
-    Eigen::Vector3d v = Eigen::Vector3d::Zero(), dp_b = Eigen::Vector3d::Zero();
-    if (whiten) {
-      v = r_a / p_a_in_cam_.z();  // R_a ray_a
-      dp_b = b.rotation.transpose() * v;
-    }
-    if (jacobian == nullptr) {
-      ReprojectionResidual(p_b, dp_b, uv_b_, intrinsics_b_, sqrt_weight_, pixel_sigma_,
-                           depth_sigma_, residuals);
-      return true;
-    }
-    // The residuals with their gradients (bit for bit ReprojectionResidual's).
-    Eigen::Matrix<double, 2, 3> g_p, g_d;
-    ReprojectionResidualGradients(p_b, dp_b, uv_b_, intrinsics_b_, sqrt_weight_, pixel_sigma_,
-                                  depth_sigma_, &g_p, &g_d, residuals);
-    const Eigen::Matrix<double, 2, 3> a_rows = g_p * b.rotation.transpose();
-    const int stride = both ? 12 : 6;
-    const int b_col = both ? 6 : 0;
-    for (int i = 0; i < 2; ++i) {
-      const Eigen::Vector3d a_i = a_rows.row(i).transpose();
-      Eigen::Vector3d b_v = Eigen::Vector3d::Zero();
-      if (whiten) b_v = (g_d.row(i) * b.rotation.transpose()).transpose().cross(v);
-      double* row = jacobian + i * stride;
-      const Eigen::Vector3d b_theta = 2.0 * (a_i.cross(d) + b_v);
-      for (int k = 0; k < 3; ++k) {
-        row[b_col + k] = -a_i[k];
-        row[b_col + 3 + k] = b_theta[k];
-      }
-      if (!both) continue;
-      const Eigen::Vector3d a_theta = -2.0 * (a_i.cross(r_a) + b_v);
-      for (int k = 0; k < 3; ++k) {
-        row[k] = a_i[k];
-        row[3 + k] = a_theta[k];
-      }
-    }
+    EvaluateReprojectionTangent(model_, observation_, poses[0], poses[1], residuals, jacobian_b,
+                                false);
     return true;
   }
 
-  const Eigen::Vector3d p_a_in_cam_;
-  const Eigen::Vector2d uv_b_;
-  const Eigen::Vector4d intrinsics_b_;
-  const double sqrt_weight_;
-  const double pixel_sigma_;
-  const double depth_sigma_;  // 0 where the functor keeps the plain error
+ private:
+  const ReprojectionModel model_;
+  const ReprojectionObservation observation_;
 };
 
 }  // namespace bimcap

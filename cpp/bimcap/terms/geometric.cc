@@ -57,18 +57,16 @@ void AddMatches(ProblemBuilder& builder, int term_id) {
     const double* k_b = data.cameras.row(data.frame_camera(b));
     if (reprojection) {
       if (depth_a > 0) {
-        builder.AddObservation(
-            ReprojectionCostFunction::Create(
-                BackprojectPixel(k_a, uv[0], uv[1], depth_a), Eigen::Vector2d(uv[2], uv[3]),
-                Eigen::Vector4d(k_b[0], k_b[1], k_b[2], k_b[3]), s, pixel_sigma, depth_sigma),
-            {builder.Pose(a), builder.Pose(b)});
+        builder.AddReprojection(
+            {Eigen::Vector4d(k_b[0], k_b[1], k_b[2], k_b[3]), s, pixel_sigma, depth_sigma},
+            {BackprojectPixel(k_a, uv[0], uv[1], depth_a), Eigen::Vector2d(uv[2], uv[3])},
+            builder.Pose(a), builder.Pose(b));
       }
       if (depth_b > 0) {
-        builder.AddObservation(
-            ReprojectionCostFunction::Create(
-                BackprojectPixel(k_b, uv[2], uv[3], depth_b), Eigen::Vector2d(uv[0], uv[1]),
-                Eigen::Vector4d(k_a[0], k_a[1], k_a[2], k_a[3]), s, pixel_sigma, depth_sigma),
-            {builder.Pose(b), builder.Pose(a)});
+        builder.AddReprojection(
+            {Eigen::Vector4d(k_a[0], k_a[1], k_a[2], k_a[3]), s, pixel_sigma, depth_sigma},
+            {BackprojectPixel(k_b, uv[2], uv[3], depth_b), Eigen::Vector2d(uv[0], uv[1])},
+            builder.Pose(b), builder.Pose(a));
       }
     } else if (depth_a > 0 && depth_b > 0) {
       builder.AddObservation(
