@@ -14,6 +14,7 @@
 #include <memory>
 #include <sstream>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "bimcap/builder.h"
@@ -167,27 +168,82 @@ std::string DescribeNonFinite(const NonFinite& bad, const char* when) {
 
 // Per-term cost (with the loss) and raw squared sum (without it, divided by s²), from one
 // evaluation of the term's observations: cost = ½ Σ_observations ρ(‖r‖²), as Ceres computes
-// it. A term whose evaluation fails (a non-finite residual) gets an infinite cost.
-std::vector<TermCosts> EvaluateTerms(ProblemBuilder& builder) {
+// it. A term whose evaluation fails (a non-finite residual) gets an infinite cost. The blocks
+// are evaluated on `num_threads` threads, each observation's ‖r‖² and ρ kept, and summed in
+// ForEachObservation's order: the same sums whatever the number of threads.
+std::vector<TermCosts> EvaluateTerms(ProblemBuilder& builder, int num_threads) {
   std::vector<TermCosts> out(Terms().size());
+  std::vector<double> sq, rho;
+  std::vector<char> ok;
   for (int t = 0; t < NumTerms(); ++t) {
     const TermBlocks& term = builder.terms()[t];
     if (!term.active || term.ids.empty()) continue;
     const ceres::LossFunction* loss = builder.loss(t);
+    // Each block's first observation in the term's order.
+    const size_t num_blocks = term.ids.size();
+    std::vector<int64_t> first(num_blocks + 1, 0);
+    for (size_t k = 0; k < num_blocks; ++k) {
+      const auto* batched = dynamic_cast<const BatchedCostFunction*>(
+          builder.problem().GetCostFunctionForResidualBlock(term.ids[k]));
+      first[k + 1] = first[k] + (batched != nullptr ? batched->num_samples() : 1);
+    }
+    const int64_t n = first.back();
+    sq.assign(n, 0.0);
+    rho.assign(n, 0.0);
+    ok.assign(n, 0);
+    const auto evaluate = [&](size_t begin, size_t end) {
+      std::vector<double> residuals;
+      std::vector<double*> parameters;
+      for (size_t k = begin; k < end; ++k) {
+        const ceres::CostFunction* cost_function =
+            builder.problem().GetCostFunctionForResidualBlock(term.ids[k]);
+        builder.problem().GetParameterBlocksForResidualBlock(term.ids[k], &parameters);
+        const auto* batched = dynamic_cast<const BatchedCostFunction*>(cost_function);
+        for (int64_t i = first[k]; i < first[k + 1]; ++i) {
+          const int sample = static_cast<int>(i - first[k]);
+          residuals.assign(
+              batched != nullptr ? batched->residuals_per_sample() : cost_function->num_residuals(),
+              0.0);
+          const bool evaluated =
+              batched != nullptr
+                  ? batched->EvaluateSample(sample, parameters.data(), residuals.data())
+                  : cost_function->Evaluate(parameters.data(), residuals.data(), nullptr);
+          double s = 0.0;
+          for (const double r : residuals) s += r * r;
+          sq[i] = s;
+          ok[i] = evaluated && std::isfinite(s);
+          if (loss == nullptr) continue;
+          double value[3];
+          loss->Evaluate(s, value);
+          rho[i] = value[0];
+        }
+      }
+    };
+    // Contiguous ranges of blocks, about as many observations each.
+    const int threads =
+        static_cast<int>(std::clamp<int64_t>(std::min<int64_t>(num_threads, n / 10000), 1, 64));
+    std::vector<std::thread> workers;
+    size_t begin = 0;
+    for (int w = 0; w < threads; ++w) {
+      size_t end = begin;
+      const int64_t until = n * (w + 1) / threads;
+      while (end < num_blocks && first[end + 1] <= until) ++end;
+      if (w + 1 == threads) end = num_blocks;
+      if (w + 1 == threads) {
+        evaluate(begin, end);
+      } else {
+        workers.emplace_back(evaluate, begin, end);
+      }
+      begin = end;
+    }
+    for (std::thread& worker : workers) worker.join();
     double plain = 0.0, cost = 0.0;
     bool all_ok = true;
-    ForEachObservation(
-        builder, t,
-        [&](const std::vector<double>& residuals, bool ok, int64_t, const std::vector<double*>&) {
-          double sq = 0.0;
-          for (const double r : residuals) sq += r * r;
-          all_ok = all_ok && ok && std::isfinite(sq);
-          plain += 0.5 * sq;
-          if (loss == nullptr) return;
-          double rho[3];
-          loss->Evaluate(sq, rho);
-          cost += 0.5 * rho[0];
-        });
+    for (int64_t i = 0; i < n; ++i) {
+      all_ok = all_ok && ok[i] != 0;
+      plain += 0.5 * sq[i];
+      cost += 0.5 * rho[i];
+    }
     if (!all_ok) {
       out[t].cost = kInf;
       out[t].sq_sum = kInf;
@@ -478,8 +534,15 @@ SolveResult Solve(const ProblemData& data, const SolverOptions& options) {
 
   // A non-finite initial cost (a pose at 1e300, a focal length of 1e-300, sigma = 1e-300 ...)
   // is a failed solve: Ceres would stop at once and report CONVERGENCE with the poses unchanged.
-  const NonFinite initial_bad = FindNonFinite(builder, state);
-  std::vector<TermCosts> initial_costs(Terms().size());
+  // Every observation's residual and cost is finite where every term's sums are, so the search
+  // for the first bad observation runs only where one is not.
+  std::vector<TermCosts> initial_costs = EvaluateTerms(builder, options.num_threads);
+  NonFinite initial_bad;
+  for (const TermCosts& costs : initial_costs) {
+    if (std::isfinite(costs.cost) && std::isfinite(costs.sq_sum)) continue;
+    initial_bad = FindNonFinite(builder, state);
+    break;
+  }
   if (initial_bad.found()) {
     // Ceres' evaluation logs a page per non-finite block: mark the terms without evaluating.
     for (int t = 0; t < NumTerms(); ++t) {
@@ -491,13 +554,12 @@ SolveResult Solve(const ProblemData& data, const SolverOptions& options) {
     Record(initial_costs, builder, options, true, &summary);
     Record(initial_costs, builder, options, false, &summary);  // nothing moved
   } else {
-    initial_costs = EvaluateTerms(builder);
     Record(initial_costs, builder, options, true, &summary);
     summary.success = true;
     RunOuterIterations(options, associator, build, &builder, &state, &summary);
     // Final costs on the final association.
     if (state.segment_of != built_with) build();
-    Record(EvaluateTerms(builder), builder, options, false, &summary);
+    Record(EvaluateTerms(builder, options.num_threads), builder, options, false, &summary);
     if (summary.success && !std::isfinite(summary.final_cost)) {
       const NonFinite final_bad = FindNonFinite(builder, state);
       summary.success = false;
