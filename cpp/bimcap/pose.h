@@ -135,6 +135,16 @@ struct PoseMatrix {
   }
 };
 
+// Frame a's camera seen from frame b's, b⁻¹ a: p_in_cam_b = rotation · p_in_cam_a + translation.
+struct RelativePose {
+  Eigen::Matrix3d rotation;     // R_bᵀ R_a
+  Eigen::Vector3d translation;  // R_bᵀ (t_a − t_b)
+  static RelativePose Between(const PoseMatrix& a, const PoseMatrix& b) {
+    return {b.rotation.transpose() * a.rotation,
+            b.rotation.transpose() * (a.translation - b.translation)};
+  }
+};
+
 // The manifold of a 7-double pose block:
 //   kFull:        ProductManifold<EuclideanManifold<3>, EigenQuaternionManifold>   (tangent 6)
 //   kRotation:    translation held by a SubsetManifold, rotation free             (tangent 3)

@@ -312,6 +312,25 @@ inline void ToTangent(const double* j, const double* plus, int k, double* out, i
   }
 }
 
+// A 6 × 6 model (h: row-major, lower triangle; g) on [δt, δθ] in a camera's axes, turned into
+// the pose's: H = D H_c Dᵀ, g = D g_c with D = diag(R, R) (R: world_from_cam's rotation).
+inline void RotatePoseModel(const Eigen::Matrix3d& rotation, double* h, double* g) {
+  Eigen::Matrix<double, 6, 6> full;
+  for (int a = 0; a < 6; ++a) {
+    for (int c = 0; c <= a; ++c) full(a, c) = full(c, a) = h[a * 6 + c];
+  }
+  Eigen::Matrix<double, 6, 6> d = Eigen::Matrix<double, 6, 6>::Zero();
+  d.topLeftCorner<3, 3>() = rotation;
+  d.bottomRightCorner<3, 3>() = rotation;
+  const Eigen::Matrix<double, 6, 6> turned = d * full * d.transpose();
+  Eigen::Map<Eigen::Matrix<double, 6, 1>> g_map(g);
+  const Eigen::Matrix<double, 6, 1> g_turned = d * g_map;
+  g_map = g_turned;
+  for (int a = 0; a < 6; ++a) {
+    for (int c = 0; c <= a; ++c) h[a * 6 + c] = turned(a, c);
+  }
+}
+
 }  // namespace batched_internal
 
 inline bool BatchedCostFunction::EvaluateCompressed(double const* const* parameters,
@@ -394,16 +413,21 @@ inline bool BatchedCostFunction::EvaluateCompressed(double const* const* paramet
       Accumulate<0, 0>(j, r, h, g, k_, hc);
     }
   };
-  if (!reprojections_.empty()) {
-    // G's reprojections, inline: relative_ on full pose manifolds, else the ambient Jacobians.
+  if (!reprojections_.empty() && relative_) {
+    // G's reprojections, inline, on b⁻¹ a: the model in camera b's axes, H_c and g_c, then
+    // turned into pose b's tangent, H = D H_c Dᵀ and g = D g_c with D = diag(R_b, R_b).
+    const RelativePose b_from_a = RelativePose::Between(poses[0], poses[1]);
     for (const ReprojectionObservation& observation : reprojections_) {
-      if (relative_) {
-        EvaluateReprojectionTangent(reprojection_model_, observation, poses[0], poses[1], r,
-                                    hc > 0 ? j : nullptr, false);
-      } else {
-        EvaluateReprojection(reprojection_model_, observation, parameters[0], parameters[1], r,
-                             cols > 0 ? sample_jacobians : nullptr);
-      }
+      EvaluateReprojectionInCameraB(reprojection_model_, observation, b_from_a, r,
+                                    hc > 0 ? j : nullptr);
+      add_to_model();
+    }
+    if (hc > 0) batched_internal::RotatePoseModel(poses[1].rotation, h, g);
+  } else if (!reprojections_.empty()) {
+    // Not on full pose manifolds: the ambient Jacobians.
+    for (const ReprojectionObservation& observation : reprojections_) {
+      EvaluateReprojection(reprojection_model_, observation, parameters[0], parameters[1], r,
+                           cols > 0 ? sample_jacobians : nullptr);
       add_to_model();
     }
   } else {

@@ -344,6 +344,47 @@ inline void EvaluateReprojectionTangent(const ReprojectionModel& model,
   }
 }
 
+// The same residual from b⁻¹ a (what a compressed batch of one frame pair computes once), with
+// `jacobian_in_b` null or 2 × 6 row-major: ∂r/∂δ_b (the tangent of pose b, as
+// EvaluateReprojectionTangent) in camera b's axes, ∂r/∂δ_b = jacobian_in_b · diag(R_bᵀ, R_bᵀ).
+// From the tangent form, with a_i = R_b g_pᵢᵀ, p_w − t_b = R_b p_b and v = R_b dp_b (a rotation
+// keeps cross products):
+//
+//   p_b = R_ba p_a + t_ba,   dp_b = R_ba p_a / z_a
+//   row i: [ −g_pᵢ,  2 (g_pᵢ × p_b + g_dᵢ × dp_b) ]
+//
+// so a batch sums its 6 × 6 model in camera b and turns it into pose b's tangent once.
+inline void EvaluateReprojectionInCameraB(const ReprojectionModel& model,
+                                          const ReprojectionObservation& observation,
+                                          const RelativePose& b_from_a, double* residuals,
+                                          double* jacobian_in_b) {
+  const Eigen::Vector3d& p_a_in_cam = observation.p_a_in_cam;
+  const double depth_sigma = observation.DepthSigma(model);
+  const Eigen::Vector3d q = b_from_a.rotation * p_a_in_cam;  // R_ba p_a
+  const Eigen::Vector3d p_b = q + b_from_a.translation;
+  const bool whiten = depth_sigma > 0.0;
+  const Eigen::Vector3d dp_b =
+      whiten ? Eigen::Vector3d(q / p_a_in_cam.z()) : Eigen::Vector3d::Zero();
+  if (jacobian_in_b == nullptr) {
+    ReprojectionResidual(p_b, dp_b, observation.uv_b, model.intrinsics_b, model.sqrt_weight,
+                         model.pixel_sigma, depth_sigma, residuals);
+    return;
+  }
+  Eigen::Matrix<double, 2, 3> g_p, g_d;
+  ReprojectionResidualGradients(p_b, dp_b, observation.uv_b, model.intrinsics_b, model.sqrt_weight,
+                                model.pixel_sigma, depth_sigma, &g_p, &g_d, residuals);
+  for (int i = 0; i < 2; ++i) {
+    const Eigen::Vector3d g_p_i = g_p.row(i).transpose();
+    Eigen::Vector3d theta = g_p_i.cross(p_b);
+    if (whiten) theta += g_d.row(i).transpose().cross(dp_b);
+    double* row = jacobian_in_b + 6 * i;
+    for (int k = 0; k < 3; ++k) {
+      row[k] = -g_p_i[k];
+      row[3 + k] = 2.0 * theta[k];
+    }
+  }
+}
+
 // One observation as a cost function on [world_from_cam_a, world_from_cam_b] (the row form,
 // batch_size = 1, and the tests); a compressed batch keeps ReprojectionObservations instead
 // (BatchedCostFunction::AddReprojection).
