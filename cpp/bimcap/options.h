@@ -81,8 +81,10 @@ struct SolverOptions {
   // At most this many observations of a term that share their parameter blocks (a frame's
   // floor points, the matches of a frame pair) go into one Ceres residual block, the term's loss
   // applied to each (cost_functions/batched.h): the same cost and gradient, a fraction of
-  // Ceres' per-block work. 1: one residual block per observation, with Ceres' loss.
-  int batch_size = 64;
+  // Ceres' per-block work. A compressed batch is 7 or 13 rows however many observations it has,
+  // so fewer, larger batches leave Ceres fewer rows (docs/speed.md: 64 → 1024 made the real
+  // 1000-frame problem 1.4× faster). 1: one residual block per observation, with Ceres' loss.
+  int batch_size = 1024;
   // A batch of more residuals than its parameter blocks' tangent size goes to Ceres as that many
   // rows plus one, built from its Gauss-Newton matrix and gradient (cost_functions/batched.h: the
   // same cost, gradient and Gauss-Newton matrix to rounding); false: one row per residual.
