@@ -8,10 +8,12 @@
    poses) against the peers' optimiser re-implemented in numpy — full-batch SGD, learning rate
    0.1, momentum 0.9 — and against scipy.optimize.least_squares with a sparse Jacobian;
 4. problem files (``--problems P.bimcap ...``, e.g. written from inside ``bimcap refine`` with
-   ``bimcap.optimize.write_problem``): each solved with its own options, batches compressed
-   (the default) and as one row per residual (``compress_batches=False``, the peer), alternating
-   in this process; wall and CPU seconds against the goal (1000 frames in 5 s), the ratio, and
-   how far the two results' poses are apart.
+   ``bimcap.optimize.write_problem``): each solved with the options written in it (the peer:
+   refine's batching when the file was written) and with today's batching (``batch_size`` and
+   ``compress_batches`` of ``SolverOptions()``, what ``bimcap refine`` uses now; ``--peer-rows``:
+   one row per residual as the peer instead), alternating in this process; wall and CPU seconds
+   against the goal (1000 frames in 5 s), the ratio, and how far the two results' poses are
+   apart.
 
 Usage::
 
@@ -388,38 +390,49 @@ def bench_peers(frames: int, sgd_iterations: int) -> None:
 
 
 # ----------------------------------------------------------------------------- problem files
-def bench_problems(paths: list[str], repeats: int) -> None:
+def bench_problems(paths: list[str], repeats: int, peer_rows: bool = False) -> None:
     from dataclasses import replace
 
     from bimcap.optimize import read_problem
 
-    print("\n## Problem files: compressed batches (default) vs one row per residual, alternating "
-          "in one process (wall s, CPU s of the process; goal: 5 s wall per 1000 poses)")
-    print(f"{'problem':28} {'poses':>5} {'residuals':>10} {'form':>10} {'wall s':>7} {'cpu s':>7} "
+    today = SolverOptions()
+    peer_name = "rows" if peer_rows else "as written"
+    print(f"\n## Problem files: today's batching (batch_size {today.batch_size}, compressed "
+          f"{today.compress_batches}) vs the peer ({peer_name}), alternating in one process "
+          "(wall s, CPU s of the process; goal: 5 s wall per 1000 poses)")
+    print(f"{'problem':28} {'poses':>5} {'residuals':>10} {'form':>22} {'wall s':>7} {'cpu s':>7} "
           f"{'iters':>5} {'rounds':>6} {'final cost':>16} {'goal s':>6}")
     for path in paths:
         problem, options = read_problem(path)
-        runs: dict[bool, list[tuple[float, float, Any]]] = {True: [], False: []}
+        forms = {
+            "peer": (replace(options, compress_batches=False) if peer_rows else options),
+            "today": replace(options, batch_size=today.batch_size,
+                             compress_batches=today.compress_batches),
+        }
+        runs: dict[str, list[tuple[float, float, Any]]] = {"peer": [], "today": []}
         for _ in range(repeats):
-            for compress in (False, True):
+            for form, opts in forms.items():
                 before = resource.getrusage(resource.RUSAGE_SELF)
                 t = time.perf_counter()
-                r = solve(problem, replace(options, compress_batches=compress), check=False)
+                r = solve(problem, opts, check=False)
                 wall = time.perf_counter() - t
                 after = resource.getrusage(resource.RUSAGE_SELF)
                 cpu = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
-                runs[compress].append((wall, cpu, r))
+                runs[form].append((wall, cpu, r))
                 goal = 5.0 * problem.num_poses / 1000.0
+                label = (f"{form}: {'rows' if not opts.compress_batches else 'batch'} "
+                         f"{opts.batch_size}")
                 print(f"{path[-28:]:28} {problem.num_poses:5d} {r.summary.num_residuals:10d} "
-                      f"{'compressed' if compress else 'rows':>10} {wall:7.2f} {cpu:7.2f} "
+                      f"{label:>22} {wall:7.2f} {cpu:7.2f} "
                       f"{r.summary.iterations:5d} {r.summary.outer_iterations:6d} "
                       f"{r.summary.final_cost:16.9g} {goal:6.2f}")
-        best = {c: min(runs[c], key=lambda x: x[0]) for c in runs}
-        a, b = best[False][2].poses, best[True][2].poses
+        best = {f: min(runs[f], key=lambda x: x[0]) for f in runs}
+        a, b = best["peer"][2].poses, best["today"][2].poses
         dt = float(np.abs(a[:, :3] - b[:, :3]).max())
         dq = float(np.abs(np.abs((a[:, 3:] * b[:, 3:]).sum(axis=1)) - 1.0).max())
-        print(f"  best wall: rows {best[False][0]:.2f} s, compressed {best[True][0]:.2f} s, "
-              f"ratio {best[False][0] / best[True][0]:.2f}×; poses apart by at most {dt:.2e} m "
+        print(f"  best wall: peer {best['peer'][0]:.2f} s, today {best['today'][0]:.2f} s "
+              f"(goal {5.0 * problem.num_poses / 1000.0:.2f}), ratio "
+              f"{best['peer'][0] / best['today'][0]:.2f}×; poses apart by at most {dt:.2e} m "
               f"(1 − |q·q'| ≤ {dq:.1e})")
 
 
@@ -433,6 +446,8 @@ def main() -> None:
     ap.add_argument("--skip", nargs="*", default=[], choices=["scaling", "pycolmap", "peers"])
     ap.add_argument("--problems", nargs="*", default=[], help="problem files to solve both ways")
     ap.add_argument("--repeats", type=int, default=1, help="alternations per problem file")
+    ap.add_argument("--peer-rows", action="store_true",
+                    help="problem files: one row per residual as the peer, not the file's options")
     args = ap.parse_args()
     print(f"bimcap solver benchmark — {time.strftime('%Y-%m-%d %H:%M:%S')}, "
           f"SyntheticConfig defaults: {SyntheticConfig().intrinsics}")
@@ -443,7 +458,7 @@ def main() -> None:
     if "peers" not in args.skip:
         bench_peers(args.peer_frames, args.sgd_iterations)
     if args.problems:
-        bench_problems(args.problems, args.repeats)
+        bench_problems(args.problems, args.repeats, args.peer_rows)
 
 
 if __name__ == "__main__":
