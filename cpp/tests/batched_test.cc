@@ -80,6 +80,25 @@ Seen Evaluate(const std::function<ceres::CostFunction*(int)>& make, int n, int k
   return EvaluateFilled(fill, k, loss, std::move(blocks), manifolds, constant, compress);
 }
 
+// What Ceres sees of `actual` is `expected`'s to rounding: the cost (both evaluations) to 1e-12,
+// the gradient and JᵀJ to `tolerance` of their largest entries.
+void ExpectSameModel(const Seen& expected, const Seen& actual, double tolerance) {
+  EXPECT_GT(expected.cost, 0.0);
+  EXPECT_NEAR(actual.cost, expected.cost, 1e-12 * expected.cost);
+  EXPECT_NEAR(actual.residual_only_cost, expected.cost, 1e-12 * expected.cost);
+  ASSERT_EQ(actual.gradient.size(), expected.gradient.size());
+  double g_max = 0.0;
+  for (double v : expected.gradient) g_max = std::max(g_max, std::abs(v));
+  EXPECT_GT(g_max, 0.0);
+  for (size_t a = 0; a < expected.gradient.size(); ++a) {
+    EXPECT_NEAR(actual.gradient[a], expected.gradient[a], tolerance * g_max) << "gradient " << a;
+  }
+  ASSERT_EQ(actual.jtj.rows(), expected.jtj.rows());
+  const double h_max = expected.jtj.cwiseAbs().maxCoeff();
+  EXPECT_GT(h_max, 0.0);
+  EXPECT_LE((actual.jtj - expected.jtj).cwiseAbs().maxCoeff(), tolerance * h_max);
+}
+
 // Both forms of the same batch; returns the compressed one's view. `model_size`: the compressed
 // form's rows before the last (T, or 6 for a model of the relative pose).
 Seen ExpectSameStep(const std::function<ceres::CostFunction*(int)>& make, int n, int k,
@@ -92,21 +111,8 @@ Seen ExpectSameStep(const std::function<ceres::CostFunction*(int)>& make, int n,
   EXPECT_TRUE(compressed.compressed);
   EXPECT_EQ(compressed.num_residuals, model_size + 1);
   EXPECT_EQ(rows.num_residuals, n * k + (loss != nullptr ? 1 : 0));
-  EXPECT_NEAR(compressed.cost, rows.cost, 1e-12 * rows.cost);
-  EXPECT_NEAR(compressed.residual_only_cost, rows.cost, 1e-12 * rows.cost);
   EXPECT_NEAR(rows.residual_only_cost, rows.cost, 1e-12 * rows.cost);
-  EXPECT_GT(rows.cost, 0.0);
-  EXPECT_EQ(compressed.gradient.size(), rows.gradient.size());
-  double g_max = 0.0;
-  for (double v : rows.gradient) g_max = std::max(g_max, std::abs(v));
-  EXPECT_GT(g_max, 0.0);
-  for (size_t a = 0; a < rows.gradient.size(); ++a) {
-    EXPECT_NEAR(compressed.gradient[a], rows.gradient[a], 1e-10 * g_max) << "gradient " << a;
-  }
-  EXPECT_EQ(compressed.jtj.rows(), rows.jtj.rows());
-  const double h_max = rows.jtj.cwiseAbs().maxCoeff();
-  EXPECT_GT(h_max, 0.0);
-  EXPECT_LE((compressed.jtj - rows.jtj).cwiseAbs().maxCoeff(), 1e-10 * h_max);
+  ExpectSameModel(rows, compressed, 1e-10);
   return compressed;
 }
 
@@ -243,18 +249,7 @@ TEST(Batched, ReprojectionsAsDataMatchCostFunctions) {
       EXPECT_TRUE(x.jtj == y.jtj);
       continue;
     }
-    EXPECT_NEAR(y.cost, x.cost, 1e-12 * x.cost);
-    EXPECT_NEAR(y.residual_only_cost, x.cost, 1e-12 * x.cost);
-    ASSERT_EQ(y.gradient.size(), x.gradient.size());
-    double g_max = 0.0;
-    for (double v : x.gradient) g_max = std::max(g_max, std::abs(v));
-    EXPECT_GT(g_max, 0.0);
-    for (size_t a = 0; a < x.gradient.size(); ++a) {
-      EXPECT_NEAR(y.gradient[a], x.gradient[a], 1e-11 * g_max) << "gradient " << a;
-    }
-    const double h_max = x.jtj.cwiseAbs().maxCoeff();
-    EXPECT_GT(h_max, 0.0);
-    EXPECT_LE((y.jtj - x.jtj).cwiseAbs().maxCoeff(), 1e-11 * h_max);
+    ExpectSameModel(x, y, 1e-11);
   }
   // One observation alone, as ForEachObservation evaluates it.
   BatchedCostFunction batched(&cauchy, 2, {full.get(), full.get()});

@@ -158,6 +158,22 @@ inline void ReprojectionResidualGradients(const Eigen::Vector3d& p, const Eigen:
   g_d->row(1) = dr1.tail<3>().transpose();
 }
 
+// The residual at p_b and dp_b and, with `g_p` (and `g_d`), its gradients: ReprojectionResidual,
+// or ReprojectionResidualGradients with the same residual bit for bit.
+inline void ReprojectionResidualAt(const Eigen::Vector3d& p_b, const Eigen::Vector3d& dp_b,
+                                   const Eigen::Vector2d& uv_b, const Eigen::Vector4d& intrinsics_b,
+                                   double sqrt_weight, double pixel_sigma, double depth_sigma,
+                                   double* residuals, Eigen::Matrix<double, 2, 3>* g_p,
+                                   Eigen::Matrix<double, 2, 3>* g_d) {
+  if (g_p == nullptr) {
+    ReprojectionResidual(p_b, dp_b, uv_b, intrinsics_b, sqrt_weight, pixel_sigma, depth_sigma,
+                         residuals);
+  } else {
+    ReprojectionResidualGradients(p_b, dp_b, uv_b, intrinsics_b, sqrt_weight, pixel_sigma,
+                                  depth_sigma, g_p, g_d, residuals);
+  }
+}
+
 struct ReprojectionCostFunctor {
   // `p_a_in_cam` = z_a · ray_a; `sqrt_weight` = s; `pixel_sigma` = σ_px (> 0);
   // `depth_sigma` = σ_z (metres, ≥ 0; 0 = the plain reprojection error s · e).
@@ -313,15 +329,11 @@ inline void EvaluateReprojectionTangent(const ReprojectionModel& model,
     v = r_a / p_a_in_cam.z();  // R_a ray_a
     dp_b = b.rotation.transpose() * v;
   }
-  if (jacobian == nullptr) {
-    ReprojectionResidual(p_b, dp_b, observation.uv_b, model.intrinsics_b, model.sqrt_weight,
-                         model.pixel_sigma, depth_sigma, residuals);
-    return;
-  }
-  // The residuals with their gradients (bit for bit ReprojectionResidual's).
   Eigen::Matrix<double, 2, 3> g_p, g_d;
-  ReprojectionResidualGradients(p_b, dp_b, observation.uv_b, model.intrinsics_b, model.sqrt_weight,
-                                model.pixel_sigma, depth_sigma, &g_p, &g_d, residuals);
+  ReprojectionResidualAt(p_b, dp_b, observation.uv_b, model.intrinsics_b, model.sqrt_weight,
+                         model.pixel_sigma, depth_sigma, residuals,
+                         jacobian != nullptr ? &g_p : nullptr, &g_d);
+  if (jacobian == nullptr) return;
   const Eigen::Matrix<double, 2, 3> a_rows = g_p * b.rotation.transpose();
   const int stride = both ? 12 : 6;
   const int b_col = both ? 6 : 0;
@@ -365,14 +377,11 @@ inline void EvaluateReprojectionInCameraB(const ReprojectionModel& model,
   const bool whiten = depth_sigma > 0.0;
   const Eigen::Vector3d dp_b =
       whiten ? Eigen::Vector3d(q / p_a_in_cam.z()) : Eigen::Vector3d::Zero();
-  if (jacobian_in_b == nullptr) {
-    ReprojectionResidual(p_b, dp_b, observation.uv_b, model.intrinsics_b, model.sqrt_weight,
-                         model.pixel_sigma, depth_sigma, residuals);
-    return;
-  }
   Eigen::Matrix<double, 2, 3> g_p, g_d;
-  ReprojectionResidualGradients(p_b, dp_b, observation.uv_b, model.intrinsics_b, model.sqrt_weight,
-                                model.pixel_sigma, depth_sigma, &g_p, &g_d, residuals);
+  ReprojectionResidualAt(p_b, dp_b, observation.uv_b, model.intrinsics_b, model.sqrt_weight,
+                         model.pixel_sigma, depth_sigma, residuals,
+                         jacobian_in_b != nullptr ? &g_p : nullptr, &g_d);
+  if (jacobian_in_b == nullptr) return;
   for (int i = 0; i < 2; ++i) {
     const Eigen::Vector3d g_p_i = g_p.row(i).transpose();
     Eigen::Vector3d theta = g_p_i.cross(p_b);
