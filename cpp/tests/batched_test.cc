@@ -101,12 +101,12 @@ void ExpectSameModel(const Seen& expected, const Seen& actual, double tolerance)
 
 // Both forms of the same batch; returns the compressed one's view. `model_size`: the compressed
 // form's rows before the last (T, or 6 for a model of the relative pose).
-Seen ExpectSameStep(const std::function<ceres::CostFunction*(int)>& make, int n, int k,
-                    const ceres::LossFunction* loss, const Blocks& blocks,
-                    const std::vector<const ceres::Manifold*>& manifolds,
-                    const std::vector<bool>& constant, int model_size) {
-  const Seen rows = Evaluate(make, n, k, loss, blocks, manifolds, constant, false);
-  const Seen compressed = Evaluate(make, n, k, loss, blocks, manifolds, constant, true);
+Seen ExpectSameStepFilled(const std::function<void(BatchedCostFunction*)>& fill, int n, int k,
+                          const ceres::LossFunction* loss, const Blocks& blocks,
+                          const std::vector<const ceres::Manifold*>& manifolds,
+                          const std::vector<bool>& constant, int model_size) {
+  const Seen rows = EvaluateFilled(fill, k, loss, blocks, manifolds, constant, false);
+  const Seen compressed = EvaluateFilled(fill, k, loss, blocks, manifolds, constant, true);
   EXPECT_FALSE(rows.compressed);
   EXPECT_TRUE(compressed.compressed);
   EXPECT_EQ(compressed.num_residuals, model_size + 1);
@@ -114,6 +114,17 @@ Seen ExpectSameStep(const std::function<ceres::CostFunction*(int)>& make, int n,
   EXPECT_NEAR(rows.residual_only_cost, rows.cost, 1e-12 * rows.cost);
   ExpectSameModel(rows, compressed, 1e-10);
   return compressed;
+}
+
+// The same for n observations `make(i)` added as cost functions.
+Seen ExpectSameStep(const std::function<ceres::CostFunction*(int)>& make, int n, int k,
+                    const ceres::LossFunction* loss, const Blocks& blocks,
+                    const std::vector<const ceres::Manifold*>& manifolds,
+                    const std::vector<bool>& constant, int model_size) {
+  const auto fill = [&](BatchedCostFunction* batched) {
+    for (int i = 0; i < n; ++i) batched->Add(std::unique_ptr<ceres::CostFunction>(make(i)), i);
+  };
+  return ExpectSameStepFilled(fill, n, k, loss, blocks, manifolds, constant, model_size);
 }
 
 std::vector<double> RandomPose(std::mt19937* rng) {
@@ -139,24 +150,32 @@ TEST(Batched, CompressedReprojectionMatchesRows) {
     // Outliers among them: the Cauchy loss is in its non-convex part for some.
     uvs.emplace_back(320.0 + 100.0 * g(rng), 240.0 + 100.0 * g(rng));
   }
-  const auto make = [&](int i) {
-    return ReprojectionCostFunction::Create(points[i], uvs[i], intrinsics, 0.5, 2.0, 0.02);
+  const ReprojectionModel model{intrinsics, 0.5, 2.0, 0.02};
+  // The first n as data (what the builder makes), or as cost functions.
+  const auto fill = [&](int n) {
+    return [&, n](BatchedCostFunction* batched) {
+      for (int i = 0; i < n; ++i) batched->AddReprojection(model, {points[i], uvs[i]}, i);
+    };
   };
+  const auto make = [&](int i) { return new ReprojectionCostFunction(model, {points[i], uvs[i]}); };
   ceres::CauchyLoss cauchy(1.0);
   const std::unique_ptr<ceres::Manifold> full = CreatePoseManifold(RefineMode::kFull);
   const std::unique_ptr<ceres::Manifold> rotation = CreatePoseManifold(RefineMode::kRotation);
   // On full pose manifolds the model is the relative pose's (6 rows + 1), mapped to both poses.
   {
     SCOPED_TRACE("two free poses");
-    ExpectSameStep(make, 50, 2, &cauchy, {a, b}, {full.get(), full.get()}, {false, false}, 6);
+    ExpectSameStepFilled(fill(50), 50, 2, &cauchy, {a, b}, {full.get(), full.get()}, {false, false},
+                         6);
   }
   {
     SCOPED_TRACE("the first pose constant");
-    ExpectSameStep(make, 50, 2, &cauchy, {a, b}, {full.get(), full.get()}, {true, false}, 6);
+    ExpectSameStepFilled(fill(50), 50, 2, &cauchy, {a, b}, {full.get(), full.get()}, {true, false},
+                         6);
   }
   {
     SCOPED_TRACE("the second pose constant");
-    ExpectSameStep(make, 50, 2, &cauchy, {a, b}, {full.get(), full.get()}, {false, true}, 6);
+    ExpectSameStepFilled(fill(50), 50, 2, &cauchy, {a, b}, {full.get(), full.get()}, {false, true},
+                         6);
   }
   {
     SCOPED_TRACE("poses 40 m from the origin and 5 m apart");
@@ -164,30 +183,38 @@ TEST(Batched, CompressedReprojectionMatchesRows) {
     far[0][0] += 40.0;
     far[1][0] += 45.0;
     far[1][1] -= 3.0;
-    ExpectSameStep(make, 50, 2, &cauchy, far, {full.get(), full.get()}, {false, false}, 6);
+    ExpectSameStepFilled(fill(50), 50, 2, &cauchy, far, {full.get(), full.get()}, {false, false},
+                         6);
   }
   {
     SCOPED_TRACE("rotations only");
-    ExpectSameStep(make, 50, 2, &cauchy, {a, b}, {rotation.get(), rotation.get()}, {false, false},
-                   6);
+    ExpectSameStepFilled(fill(50), 50, 2, &cauchy, {a, b}, {rotation.get(), rotation.get()},
+                         {false, false}, 6);
   }
   {
     SCOPED_TRACE("no loss");
-    ExpectSameStep(make, 50, 2, nullptr, {a, b}, {full.get(), full.get()}, {false, false}, 6);
+    ExpectSameStepFilled(fill(50), 50, 2, nullptr, {a, b}, {full.get(), full.get()}, {false, false},
+                         6);
   }
   {
     SCOPED_TRACE("no more rows than the relative pose's 6: the row form");
     const Seen seen =
-        Evaluate(make, 3, 2, &cauchy, {a, b}, {full.get(), full.get()}, {false, false}, true);
+        EvaluateFilled(fill(3), 2, &cauchy, {a, b}, {full.get(), full.get()}, {false, false}, true);
     EXPECT_EQ(seen.num_residuals, 7);
     EXPECT_FALSE(seen.compressed);
-    ExpectSameStep(make, 4, 2, &cauchy, {a, b}, {full.get(), full.get()}, {false, false}, 6);
+    ExpectSameStepFilled(fill(4), 4, 2, &cauchy, {a, b}, {full.get(), full.get()}, {false, false},
+                         6);
+  }
+  {
+    SCOPED_TRACE("as cost functions: both poses' tangent columns (12 rows + 1)");
+    ExpectSameStep(make, 50, 2, &cauchy, {a, b}, {full.get(), full.get()}, {false, false}, 12);
   }
 }
 
 // G's reprojections kept as data (AddReprojection, what the builder makes) give what the same
-// observations as ReprojectionCostFunctions give: in the relative form (summed in camera b's
-// axes) the same cost, gradient and Gauss-Newton matrix to rounding, in every other form (on
+// observations as ReprojectionCostFunctions give: on full pose manifolds (the data in the
+// relative form, summed in camera b's axes; the cost functions in both poses' tangent columns)
+// the same cost, gradient and Gauss-Newton matrix to rounding, in every other form (on
 // rotation-only manifolds: ambient Jacobians) the same bits.
 TEST(Batched, ReprojectionsAsDataMatchCostFunctions) {
   std::mt19937 rng(5);
@@ -240,7 +267,13 @@ TEST(Batched, ReprojectionsAsDataMatchCostFunctions) {
     const Seen x = EvaluateFilled(as_costs, 2, c.loss, {a, b}, manifolds, c.constant, c.compress);
     const Seen y = EvaluateFilled(as_data, 2, c.loss, {a, b}, manifolds, c.constant, c.compress);
     EXPECT_EQ(x.compressed, y.compressed);
-    EXPECT_EQ(x.num_residuals, y.num_residuals);
+    if (c.relative) {
+      // Cost functions give both poses' tangent columns, the data the relative pose's.
+      EXPECT_EQ(x.num_residuals, 13);
+      EXPECT_EQ(y.num_residuals, 7);
+    } else {
+      EXPECT_EQ(x.num_residuals, y.num_residuals);
+    }
     EXPECT_GT(x.cost, 0.0);
     if (!c.relative) {
       EXPECT_EQ(x.cost, y.cost);
@@ -398,16 +431,27 @@ TEST(PoseTangent, ReprojectionIsAmbientTimesPlusJacobian) {
         }
       }
     }
-    // The residual depends on b⁻¹ a alone: pose b's columns by themselves, and pose a's are
-    // pose b's times E_ab.
-    ASSERT_TRUE(cost->DependsOnRelativePose());
-    double r_second[2], j_second[12], j_mapped[12];
-    ASSERT_TRUE(cost->EvaluateSecondTangent(poses, r_second, j_second));
+    // The residual depends on b⁻¹ a alone: pose b's columns from b⁻¹ a in camera b's axes
+    // (EvaluateReprojectionInCameraB, times diag(R_bᵀ, R_bᵀ)), and pose a's are pose b's times
+    // E_ab.
+    double r_in_b[2], j_in_b[12], j_second[12], j_mapped[12];
+    EvaluateReprojectionInCameraB(cost->model(), cost->observation(),
+                                  RelativePose::Between(poses[0], poses[1]), r_in_b, j_in_b);
+    const Eigen::Matrix3d rt = poses[1].rotation.transpose();
+    for (int i = 0; i < 2; ++i) {
+      const Eigen::Vector3d t = Eigen::Map<const Eigen::RowVector3d>(j_in_b + 6 * i) * rt;
+      const Eigen::Vector3d th = Eigen::Map<const Eigen::RowVector3d>(j_in_b + 6 * i + 3) * rt;
+      for (int k = 0; k < 3; ++k) {
+        j_second[6 * i + k] = t[k];
+        j_second[6 * i + 3 + k] = th[k];
+      }
+    }
     RelativeTangentMap(poses[0].translation - poses[1].translation, j_second, 2, 6, j_mapped);
     for (int i = 0; i < 2; ++i) {
-      EXPECT_EQ(r_second[i], r_tangent[i]);
+      EXPECT_NEAR(r_in_b[i], r_tangent[i], 1e-11 * std::max(1.0, std::abs(r_tangent[i])));
       for (int c = 0; c < 6; ++c) {
-        EXPECT_EQ(j_second[6 * i + c], j_tangent[12 * i + 6 + c]);
+        EXPECT_NEAR(j_second[6 * i + c], j_tangent[12 * i + 6 + c], 1e-10 * scale)
+            << "trial " << trial << " row " << i << " col " << c;
         EXPECT_NEAR(j_mapped[6 * i + c], j_tangent[12 * i + c], 1e-10 * scale)
             << "trial " << trial << " row " << i << " col " << c;
       }

@@ -68,14 +68,15 @@ namespace bimcap {
 // directions). A residual-only evaluation (Ceres' candidate points read the cost only) writes
 // [0, ..., 0, √c]. Constant parameter blocks (a null jacobians[b]) are left out of H and g.
 //
-// Relative form (a compressed batch on two full poses a, b whose observations depend on b⁻¹ a
-// alone, PoseTangentCostFunction::DependsOnRelativePose: G's reprojections). Each observation's
+// Relative form (a compressed batch of G's reprojections, AddReprojection, on two full poses
+// a, b: each depends on b⁻¹ a alone). Each observation's
 // Jacobian is J̃_i [E_ab, I] with J̃_i its k × 6 Jacobian in pose b's tangent (pose.h:
 // RelativeTangentMap), so H and g are made on those 6 columns, H_b = Σ J̃_iᵀ J̃_i and
 // g_b = Σ J̃_iᵀ r̃_i, and factorised as above into R_b (m × 6, m ≤ 6) and z; the rows are z,
 // zeros up to 6, then t (7 rows instead of 13), with tangent Jacobians R_b E_ab for pose a and
 // R_b for pose b, so that Ceres sees [E_ab, I]ᵀ H_b [E_ab, I] = H and [E_ab, I]ᵀ g_b = g: the
-// same model, built from a third of the products an observation (2 × 6 Jacobians, 6 × 6 sums).
+// same model, built from a third of the products an observation (2 × 6 Jacobians, 6 × 6 sums),
+// and summed in camera b's axes (EvaluateReprojectionInCameraB, RotatePoseModel).
 //
 // Observations come as cost functions (Add: each its own object, called through its vtable) or,
 // for G's reprojections, as plain ReprojectionObservations that share one ReprojectionModel
@@ -104,9 +105,8 @@ class BatchedCostFunction final : public ceres::CostFunction {
         throw std::logic_error("BatchedCostFunction: an observation of unexpected size");
       SetBlocks(sample->parameter_block_sizes());
     }
-    const auto* tangent_sample = dynamic_cast<const PoseTangentCostFunction*>(sample.get());
-    pose_tangent_ = pose_tangent_ && tangent_sample != nullptr;
-    relative_ = relative_ && pose_tangent_ && tangent_sample->DependsOnRelativePose();
+    pose_tangent_ =
+        pose_tangent_ && dynamic_cast<const PoseTangentCostFunction*>(sample.get()) != nullptr;
     samples_.push_back(std::move(sample));
     Added(index);
   }
@@ -120,6 +120,7 @@ class BatchedCostFunction final : public ceres::CostFunction {
     if (reprojections_.empty()) {
       if (k_ != 2) throw std::logic_error("BatchedCostFunction: a reprojection has 2 residuals");
       SetBlocks({kPoseSize, kPoseSize});
+      relative_ = pose_tangent_;  // a reprojection depends on b⁻¹ a alone
       reprojection_model_ = model;
     }
     reprojections_.push_back(observation);
@@ -203,7 +204,6 @@ class BatchedCostFunction final : public ceres::CostFunction {
     pose_tangent_ = true;
     for (const ceres::Manifold* m : manifolds_)
       pose_tangent_ = pose_tangent_ && IsFullPoseManifold(m);
-    relative_ = pose_tangent_ && sizes.size() == 2;  // a reprojection depends on b⁻¹ a
   }
 
   // After an observation went in: its index, the form and the number of rows.
@@ -268,8 +268,8 @@ class BatchedCostFunction final : public ceres::CostFunction {
   // Every observation a PoseTangentCostFunction and every block on the kFull pose manifold: the
   // compressed form takes the observations' tangent Jacobians from EvaluateTangent.
   bool pose_tangent_ = false;
-  // Also two poses, and every observation DependsOnRelativePose: the compressed form's model is
-  // built on pose b's 6 columns (EvaluateSecondTangent) and mapped to pose a by E_ab.
+  // G's reprojections on two full poses: the compressed form's model is built on pose b's 6
+  // columns (EvaluateReprojectionInCameraB) and mapped to pose a by E_ab.
   bool relative_ = false;
   std::vector<std::unique_ptr<ceres::CostFunction>> samples_;  // observations as cost functions
   std::vector<ReprojectionObservation> reprojections_;         // or as G's reprojections
@@ -375,6 +375,8 @@ inline bool BatchedCostFunction::EvaluateCompressed(double const* const* paramet
   }
   // Observation i's loss, cost and share of H and g, from its raw residuals r and (cols > 0)
   // its tangent Jacobian: in j already (relative_), in pose_j (pose_tangent_), else in block_j.
+  // Inlined into each of the three loops below (without it the 1000-frame solve is ~6 % slower:
+  // 3.79-3.81 against 4.01-4.05 s in four alternating pairs).
   const auto add_to_model = [&]() __attribute__((always_inline)) {
     const Correction c = Corrector(r);
     total += c.rho;
@@ -413,7 +415,7 @@ inline bool BatchedCostFunction::EvaluateCompressed(double const* const* paramet
       Accumulate<0, 0>(j, r, h, g, k_, hc);
     }
   };
-  if (!reprojections_.empty() && relative_) {
+  if (relative_) {
     // G's reprojections, inline, on b⁻¹ a: the model in camera b's axes, H_c and g_c, then
     // turned into pose b's tangent, H = D H_c Dᵀ and g = D g_c with D = diag(R_b, R_b).
     const RelativePose b_from_a = RelativePose::Between(poses[0], poses[1]);
@@ -432,10 +434,7 @@ inline bool BatchedCostFunction::EvaluateCompressed(double const* const* paramet
     }
   } else {
     for (const auto& sample : samples_) {
-      if (relative_) {
-        const auto* tangent_sample = static_cast<const PoseTangentCostFunction*>(sample.get());
-        if (!tangent_sample->EvaluateSecondTangent(poses, r, hc > 0 ? j : nullptr)) return false;
-      } else if (pose_tangent_) {
+      if (pose_tangent_) {
         const auto* tangent_sample = static_cast<const PoseTangentCostFunction*>(sample.get());
         if (!tangent_sample->EvaluateTangent(poses, r, cols > 0 ? pose_j : nullptr)) return false;
       } else if (!sample->Evaluate(parameters, r, cols > 0 ? sample_jacobians : nullptr)) {

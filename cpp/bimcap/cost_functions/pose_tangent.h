@@ -20,20 +20,6 @@ class PoseTangentCostFunction : public ceres::CostFunction {
   // num_residuals() × 6 · (parameter blocks), row-major. False: not evaluable (as Evaluate).
   virtual bool EvaluateTangent(const PoseMatrix* poses, double* residuals,
                                double* jacobian) const = 0;
-
-  // Whether the observation has two poses a, b and its residual depends on them only through
-  // b⁻¹ a (a point of frame a seen from frame b): then ∂r/∂δ_a = ∂r/∂δ_b E_ab
-  // (pose.h: RelativeTangentMap), and EvaluateSecondTangent gives ∂r/∂δ_b alone.
-  virtual bool DependsOnRelativePose() const { return false; }
-  // As EvaluateTangent, with `jacobian_b` null or num_residuals() × 6 row-major: ∂r/∂δ_b, the
-  // second pose's columns alone. Only called where DependsOnRelativePose().
-  virtual bool EvaluateSecondTangent(const PoseMatrix* poses, double* residuals,
-                                     double* jacobian_b) const {
-    (void)poses;
-    (void)residuals;
-    (void)jacobian_b;
-    return false;
-  }
 };
 
 }  // namespace bimcap

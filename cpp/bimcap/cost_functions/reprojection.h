@@ -305,19 +305,19 @@ inline bool EvaluateReprojection(const ReprojectionModel& model,
 
 // The same residual from the poses as matrices, with `jacobian` null or its Jacobian in the
 // tangent space of CreatePoseManifold(RefineMode::kFull) (pose.h), row-major: ∂r/∂[δ_a, δ_b]
-// (2 × 12) with `both`, else ∂r/∂δ_b (2 × 6). With A = G_p R_bᵀ = ∂r/∂p_w and
+// (2 × 12). With A = G_p R_bᵀ = ∂r/∂p_w and
 // B = G_d R_bᵀ = ∂r/∂v (a row x times [u]× is x × u):
 //
 //   ∂r/∂δt_a = A,    ∂r/∂δθ_a = −2 (A × R_a p_a + B × v),
 //   ∂r/∂δt_b = −A,   ∂r/∂δθ_b =  2 (A × (p_w − t_b) + B × v)          (row by row)
 //
 // r depends on the poses through b⁻¹ a alone: ∂r/∂δ_a = ∂r/∂δ_b E_ab (pose.h:
-// RelativeTangentMap), which the compressed batches use. The residual is ReprojectionResidual's
-// bit for bit, with or without the Jacobian.
+// RelativeTangentMap), which the compressed batches use (with EvaluateReprojectionInCameraB
+// below). The residual is ReprojectionResidual's bit for bit, with or without the Jacobian.
 inline void EvaluateReprojectionTangent(const ReprojectionModel& model,
                                         const ReprojectionObservation& observation,
                                         const PoseMatrix& a, const PoseMatrix& b, double* residuals,
-                                        double* jacobian, bool both) {
+                                        double* jacobian) {
   const Eigen::Vector3d& p_a_in_cam = observation.p_a_in_cam;
   const double depth_sigma = observation.DepthSigma(model);
   const Eigen::Vector3d r_a = a.rotation * p_a_in_cam;            // R_a p_a
@@ -335,19 +335,16 @@ inline void EvaluateReprojectionTangent(const ReprojectionModel& model,
                          jacobian != nullptr ? &g_p : nullptr, &g_d);
   if (jacobian == nullptr) return;
   const Eigen::Matrix<double, 2, 3> a_rows = g_p * b.rotation.transpose();
-  const int stride = both ? 12 : 6;
-  const int b_col = both ? 6 : 0;
   for (int i = 0; i < 2; ++i) {
     const Eigen::Vector3d a_i = a_rows.row(i).transpose();
     Eigen::Vector3d b_v = Eigen::Vector3d::Zero();
     if (whiten) b_v = (g_d.row(i) * b.rotation.transpose()).transpose().cross(v);
-    double* row = jacobian + i * stride;
+    double* row = jacobian + i * 12;
     const Eigen::Vector3d b_theta = 2.0 * (a_i.cross(d) + b_v);
     for (int k = 0; k < 3; ++k) {
-      row[b_col + k] = -a_i[k];
-      row[b_col + 3 + k] = b_theta[k];
+      row[6 + k] = -a_i[k];
+      row[6 + 3 + k] = b_theta[k];
     }
-    if (!both) continue;
     const Eigen::Vector3d a_theta = -2.0 * (a_i.cross(r_a) + b_v);
     for (int k = 0; k < 3; ++k) {
       row[k] = a_i[k];
@@ -424,17 +421,7 @@ class ReprojectionCostFunction final : public PoseTangentCostFunction {
 
   bool EvaluateTangent(const PoseMatrix* poses, double* residuals,
                        double* jacobian) const override {
-    EvaluateReprojectionTangent(model_, observation_, poses[0], poses[1], residuals, jacobian,
-                                true);
-    return true;
-  }
-
-  // p_b depends on the poses through R_bᵀ R_a and R_bᵀ (t_a − t_b) alone.
-  bool DependsOnRelativePose() const override { return true; }
-  bool EvaluateSecondTangent(const PoseMatrix* poses, double* residuals,
-                             double* jacobian_b) const override {
-    EvaluateReprojectionTangent(model_, observation_, poses[0], poses[1], residuals, jacobian_b,
-                                false);
+    EvaluateReprojectionTangent(model_, observation_, poses[0], poses[1], residuals, jacobian);
     return true;
   }
 
