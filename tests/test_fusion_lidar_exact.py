@@ -16,8 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 from _fusion_scene import frames
 from bimcap.fusion import NanPolicy, ProjectionOptions, project_lidar
 from bimcap.fusion import projection as projection_module
-from bimcap.fusion import scan as scan_module
-from bimcap.fusion.scan import ScanSamplingOptions, scan_surface_points
+from bimcap.fusion.scan import ScanSamplingError, ScanSamplingOptions, scan_surface_points
 from bimcap.geometry import Camera, quat_to_rotmat
 
 _WORLDS = Path("/tmp/gen")
@@ -67,6 +66,23 @@ def _voxel_means_941624b(points: F64, voxel: float) -> F64:
     return sums / counts[:, None]
 
 
+def _normals_941624b(cloud: F64, query: F64, k: int, max_flatness: float, min_spread: float
+                     ) -> tuple[F64, NDArray[np.bool_]]:
+    from scipy.spatial import cKDTree
+
+    k = min(k, len(cloud))
+    _, idx = cKDTree(cloud).query(query, k=k)
+    nb = cloud[idx]  # (n, k, 3)
+    centred = nb - nb.mean(axis=1, keepdims=True)
+    cov = np.einsum("nki,nkj->nij", centred, centred) / k
+    evals, evecs = np.linalg.eigh(cov)  # ascending
+    normal = evecs[:, :, 0]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        planar = (evals[:, 0] <= max_flatness * evals[:, 1]) & (
+            evals[:, 1] >= min_spread * evals[:, 2])
+    return normal, planar
+
+
 def scan_surface_points_941624b(points_in_lidar: ArrayLike, cam_from_lidar: ArrayLike,
                                 camera: Camera, options: ScanSamplingOptions | None = None
                                 ) -> tuple[F64, F64]:
@@ -97,7 +113,7 @@ def scan_surface_points_941624b(points_in_lidar: ArrayLike, cam_from_lidar: Arra
     cand = np.flatnonzero(keep)
     if len(cand) > opts.max_candidates:
         cand = cand[np.linspace(0, len(cand) - 1, opts.max_candidates).astype(np.int64)]
-    normal, planar = scan_module._normals(vox, vox[cand], opts.neighbours, opts.max_flatness,
+    normal, planar = _normals_941624b(vox, vox[cand], opts.neighbours, opts.max_flatness,
                                           opts.min_spread)
     cand, normal = cand[planar], normal[planar]
     flip = (normal * vox[cand]).sum(axis=1) > 0
@@ -150,24 +166,55 @@ def _check_scan(scan: NDArray[np.floating], cam_from_lidar: ArrayLike, camera: C
             assert _same(new, old), k
         for opts in (ScanSamplingOptions(), ScanSamplingOptions(voxel_m=0.2, min_range_m=1.0),
                      ScanSamplingOptions(max_range_m=np.inf)):
-            p_new = scan_surface_points(s, cam_from_lidar, camera, opts)
-            assert _same(p_new, scan_surface_points_941624b(s, cam_from_lidar, camera, opts)), k
-            found += len(p_new[0])
+            p_new, n_new = scan_surface_points(s, cam_from_lidar, camera, opts)
+            p_old, n_old = scan_surface_points_941624b(s, cam_from_lidar, camera, opts)
+            # the same points; normals to rounding (compiled PCA, not LAPACK's: voxel_normals.h)
+            assert _same(p_new, p_old), k
+            assert n_new.shape == n_old.shape and n_new.dtype == n_old.dtype, k
+            np.testing.assert_allclose(n_new, n_old, rtol=0, atol=1e-12, err_msg=str(k))
+            found += len(p_new)
     return found
 
 
 # ----------------------------------------------------------------------- tests
 @pytest.mark.parametrize("n", [1, 2, 3, 7, 8, 9, 255, 256, 257, 5000])
-def test_unique_inverse_same_as_numpy(n: int) -> None:
-    """The voxels' ranks and counts: np.unique's, for few and many keys, repeated keys, keys
-    at 0, and keys too large to pack beside the positions (np.unique itself then)."""
+def test_voxel_means_same_as_numpy(n: int) -> None:
+    """The compiled voxel means: numpy's (941624b) bit for bit, for one point and many, voxels
+    of one point and of many, points at voxel edges and far apart; the range test of the scan."""
+    from bimcap import _core
+
     rng = np.random.default_rng(n)
-    for high in (1, 5, n, 10**6, 2**40, 2**61):
-        keys = rng.integers(0, high, n, dtype=np.int64)
-        inverse, counts = scan_module._unique_inverse(keys)
-        _, want_inverse, want_counts = np.unique(keys, return_inverse=True, return_counts=True)
-        assert inverse.dtype == want_inverse.dtype and counts.dtype == want_counts.dtype
-        assert np.array_equal(inverse, want_inverse) and np.array_equal(counts, want_counts)
+    for spread, voxel in ((0.05, 0.1), (3.0, 0.1), (40.0, 0.25), (1e4, 0.5)):
+        pts = rng.normal(0.0, spread, (n, 3))
+        pts[: n // 3] = np.round(pts[: n // 3] / voxel) * voxel  # exactly on voxel edges
+        means, kept = _core.voxel_means(pts, 0.0, np.inf, voxel)
+        assert kept == n
+        assert _same(means, _voxel_means_941624b(pts, voxel))
+        rng_m = np.sqrt(pts[:, 0] * pts[:, 0] + pts[:, 1] * pts[:, 1] + pts[:, 2] * pts[:, 2])
+        inside = (rng_m >= 0.5 * spread) & (rng_m <= 2.0 * spread)
+        means, kept = _core.voxel_means(pts, 0.5 * spread, 2.0 * spread, voxel)
+        assert kept == int(inside.sum())
+        if kept:
+            assert _same(means, _voxel_means_941624b(pts[inside], voxel))
+
+
+def test_voxel_means_and_pca_normals_bad_input() -> None:
+    from bimcap import _core
+
+    with pytest.raises(_core.InputError, match="voxel"):
+        _core.voxel_means(np.zeros((3, 3)), 0.0, 1.0, 0.0)
+    with pytest.raises(_core.InputError, match="points"):
+        _core.voxel_means(np.array([[1e30, 0.0, 0.0]]), 0.0, np.inf, 0.1)
+    with pytest.raises(_core.InputError, match="points"):
+        _core.voxel_means(np.zeros((3, 4)), 0.0, 1.0, 0.1)
+    with pytest.raises(_core.InputError, match="neighbours"):
+        _core.pca_normals(np.zeros((3, 3)), np.array([[0, 1, 3]]), 0.1, 0.05)
+    with pytest.raises(_core.InputError, match="neighbours"):
+        _core.pca_normals(np.zeros((3, 3)), np.zeros((2, 0), np.int64), 0.1, 0.05)
+    with pytest.raises(ScanSamplingError, match="2\\^40"):
+        scan_surface_points(np.array([[1e30, 0.0, 0.0]] * 20), [0, 0, 0, 0, 0, 0, 1],
+                            Camera(100, 100, 50, 50, 100, 80),
+                            ScanSamplingOptions(max_range_m=np.inf))
 
 
 def test_lidar_stages_same_as_941624b_on_box_room(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -23,6 +23,7 @@
 #include "bimcap/raster/plane_scores.h"
 #include "bimcap/raster/similarity_top2.h"
 #include "bimcap/raster/surface_area.h"
+#include "bimcap/raster/voxel_normals.h"
 #include "python/arrays.h"
 
 namespace bimcap::python {
@@ -155,6 +156,40 @@ py::array_t<double> PixelSurfaceArea(const py::handle& depth_obj, double fx, dou
     raster::PixelSurfaceArea(in, {fx, fy, cx, cy}, min_cos, out);
   }
   return area;
+}
+
+py::tuple VoxelMeans(const py::handle& points_obj, double min_range, double max_range,
+                     double voxel) {
+  const py::array points = Checked<double>(points_obj, "points", {-1, 3});
+  const auto* xyz = static_cast<const double*>(points.data());
+  const int64_t count = points.shape(0);
+  raster::ScanVoxels voxels;
+  {
+    py::gil_scoped_release release;
+    voxels = raster::VoxelMeans(xyz, count, min_range, max_range, voxel);
+  }
+  py::array_t<double> means({static_cast<py::ssize_t>(voxels.means.size() / 3), py::ssize_t{3}});
+  std::copy(voxels.means.begin(), voxels.means.end(), means.mutable_data());
+  return py::make_tuple(means, voxels.num_kept);
+}
+
+py::tuple PcaNormals(const py::handle& cloud_obj, const py::handle& neighbours_obj,
+                     double max_flatness, double min_spread) {
+  const py::array cloud = Checked<double>(cloud_obj, "cloud", {-1, 3});
+  const py::array neighbours = Checked<int64_t>(neighbours_obj, "neighbours", {-1, -1});
+  const py::ssize_t m = neighbours.shape(0);
+  py::array_t<double> normals({m, py::ssize_t{3}});
+  py::array_t<bool> planar(m);
+  const auto* c = static_cast<const double*>(cloud.data());
+  const auto* nb = static_cast<const int64_t*>(neighbours.data());
+  double* n = normals.mutable_data();
+  bool* p = planar.mutable_data();
+  {
+    py::gil_scoped_release release;
+    raster::PcaNormals(c, cloud.shape(0), nb, m, neighbours.shape(1), max_flatness, min_spread, n,
+                       p);
+  }
+  return py::make_tuple(normals, planar);
 }
 
 py::ssize_t MoveOntoPlanes(const py::handle& out_obj, const py::handle& flat_obj,
@@ -369,6 +404,22 @@ void BindRaster(py::module_& m) {
         "(H, W) uint8 grey levels rint(0.299 r + 0.587 g + 0.114 b) of the (H, W, 3) uint8 RGB "
         "image (C-contiguous): bimcap.features.sift.to_gray_u8's numpy arithmetic bit for bit, "
         "in one pass.");
+  m.def("pca_normals", &PcaNormals, py::arg("cloud"), py::arg("neighbours"),
+        py::arg("max_flatness"), py::arg("min_spread"),
+        "(normals (m, 3) float64, planar (m,) bool): for each row of the (m, k) int64 indices "
+        "`neighbours` into the (n, 3) float64 `cloud` (both C-contiguous), the unit eigenvector "
+        "of the least eigenvalue of the neighbours' covariance (sign arbitrary) and whether "
+        "λ0 <= max_flatness λ1 and λ1 >= min_spread λ2; numpy's algorithm (mean, einsum, eigh) "
+        "to rounding (bimcap/raster/voxel_normals.h). Raises InputError for an index out of "
+        "range or k = 0.");
+  m.def("voxel_means", &VoxelMeans, py::arg("points"), py::arg("min_range"), py::arg("max_range"),
+        py::arg("voxel"),
+        "(means (n, 3) float64, num_kept): of the (M, 3) float64 scan points (C-contiguous, m) "
+        "whose range is in [min_range, max_range] (finite coordinates only when max_range is "
+        "infinite), one mean a voxel of edge `voxel` in ascending flat key order, and how many "
+        "points were kept; numpy's arithmetic (floor(p / voxel), np.bincount's sums in input "
+        "order) bit for bit (bimcap/raster/voxel_normals.h). Raises InputError naming the bad "
+        "argument.");
   m.def("pixel_surface_area", &PixelSurfaceArea, py::arg("depth"), py::arg("fx"), py::arg("fy"),
         py::arg("cx"), py::arg("cy"), py::arg("min_cos"),
         "(H, W) float64 surface area in m² each pixel of the (H, W) float64 z-depth map (m, "

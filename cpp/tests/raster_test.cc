@@ -17,6 +17,7 @@
 #include "bimcap/raster/piecewise_affine.h"
 #include "bimcap/raster/plane_depth.h"
 #include "bimcap/raster/plane_scores.h"
+#include "bimcap/raster/voxel_normals.h"
 
 namespace bimcap::raster {
 namespace {
@@ -389,6 +390,49 @@ TEST(ComponentPixels, GroupedByLabelRowMajorInside) {
   } catch (const RasterError& e) {
     EXPECT_EQ(e.field(), "labels");
   }
+}
+
+TEST(VoxelNormals, MeansPerVoxelInKeyOrderWithinRange) {
+  // two returns in voxel (1, 0, 0), one in (0, 0, 0), one too near, one too far (voxel 1 m)
+  const std::vector<double> points = {1.25, 0.5, 0.5, 0.5, 0.5, 0.5, 1.75, 0.25,
+                                      0.75, 0.1, 0.0, 0.0, 9.0, 0.0, 0.0};
+  const ScanVoxels v = VoxelMeans(points.data(), 5, 0.5, 5.0, 1.0);
+  EXPECT_EQ(v.num_kept, 3);
+  ASSERT_EQ(v.means.size(), 6u);
+  const std::vector<double> want = {
+      0.5, 0.5, 0.5, (1.25 + 1.75) / 2, (0.5 + 0.25) / 2, (0.5 + 0.75) / 2};
+  for (size_t i = 0; i < want.size(); ++i) EXPECT_EQ(v.means[i], want[i]) << i;
+  EXPECT_THROW(VoxelMeans(points.data(), 5, 0.0, 5.0, 0.0), RasterError);
+  const double far[3] = {1e30, 0.0, 0.0};
+  EXPECT_THROW(VoxelMeans(far, 1, 0.0, INFINITY, 0.1), RasterError);
+}
+
+TEST(VoxelNormals, PlaneLineAndBadIndices) {
+  // a tilted plane z = 0.5 x sampled on a grid, and a line along x
+  std::vector<double> cloud;
+  for (int i = 0; i < 4; ++i) {
+    for (int j = 0; j < 4; ++j) cloud.insert(cloud.end(), {1.0 * i, 1.0 * j, 0.5 * i});
+  }
+  for (int i = 0; i < 4; ++i) cloud.insert(cloud.end(), {10.0 + i, 0.0, 0.0});
+  std::vector<int64_t> neighbours;
+  for (int64_t i = 0; i < 16; ++i) neighbours.push_back(i);
+  for (int64_t i = 16; i < 20; ++i) neighbours.push_back(i);
+  neighbours.resize(32, 16);  // the line's row: its 4 points, then the first again
+  double normals[6];
+  bool planar[2];
+  PcaNormals(cloud.data(), 20, neighbours.data(), 2, 16, 0.1, 0.05, normals, planar);
+  const double s = 1.0 / std::sqrt(1.25);  // (-0.5, 0, 1) / |.|
+  EXPECT_NEAR(std::fabs(normals[0]), 0.5 * s, 1e-12);
+  EXPECT_NEAR(normals[1], 0.0, 1e-12);
+  EXPECT_NEAR(std::fabs(normals[2]), s, 1e-12);
+  EXPECT_LT(normals[0] * normals[2], 0.0);
+  EXPECT_TRUE(planar[0]);
+  EXPECT_FALSE(planar[1]);  // a line: λ1 = 0 < min_spread λ2
+  neighbours[3] = 20;
+  EXPECT_THROW(PcaNormals(cloud.data(), 20, neighbours.data(), 2, 16, 0.1, 0.05, normals, planar),
+               RasterError);
+  EXPECT_THROW(PcaNormals(cloud.data(), 20, neighbours.data(), 2, 0, 0.1, 0.05, normals, planar),
+               RasterError);
 }
 
 }  // namespace

@@ -63,6 +63,20 @@ def evaluate_piecewise_affine(
 def rgb_to_gray(image: NDArray[np.uint8]) -> NDArray[np.uint8]:
     """(H, W) uint8 rint(0.299 r + 0.587 g + 0.114 b) of a C-contiguous (H, W, 3) uint8 RGB
     image (numpy's float64 rounding)."""
+def voxel_means(
+    points: NDArray[np.float64], min_range: float, max_range: float, voxel: float
+) -> tuple[NDArray[np.float64], int]:
+    """((n, 3) voxel means in ascending flat key order, returns kept) of an (M, 3) scan whose
+    range is in [min_range, max_range] (numpy's arithmetic bit for bit)."""
+
+def pca_normals(
+    cloud: NDArray[np.float64], neighbours: NDArray[np.int64], max_flatness: float,
+    min_spread: float
+) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """((m, 3) unit normals, (m,) planar) of each row of (m, k) indices into the (n, 3) cloud:
+    the covariance's least eigenvector (sign arbitrary), λ0 <= max_flatness λ1 and λ1 >=
+    min_spread λ2."""
+
 def pixel_surface_area(
     depth: NDArray[np.float64], fx: float, fy: float, cx: float, cy: float, min_cos: float
 ) -> NDArray[np.float64]:

@@ -107,58 +107,6 @@ class ScanSamplingOptions:
                 Label.CEILING: self.max_ceiling}.get(label, 0)
 
 
-def _unique_inverse(keys: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-    """``np.unique(keys, return_inverse=True, return_counts=True)[1:]`` for (n,) keys >= 0: each
-    key's rank among the distinct keys, and each distinct key's count, in ascending key order.
-
-    Sorts the keys with their positions packed into the low bits (a value sort, ~1.4× cheaper
-    than ``np.unique``'s argsort); any sort gives the same ranks and counts. Falls back to
-    ``np.unique`` where key and position do not fit in 63 bits together."""
-    n = len(keys)
-    bits = max(1, (n - 1).bit_length())
-    if n == 0 or int(keys.max()).bit_length() + bits > 62:
-        _, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
-        return inverse, counts
-    packed = np.sort((keys << bits) | np.arange(n, dtype=np.int64))
-    sorted_keys = packed >> bits
-    first = np.empty(n, bool)
-    first[0] = True
-    np.not_equal(sorted_keys[1:], sorted_keys[:-1], out=first[1:])
-    inverse = np.empty(n, np.int64)
-    inverse[packed & ((1 << bits) - 1)] = np.cumsum(first) - 1
-    starts = np.flatnonzero(first)
-    return inverse, np.diff(starts, append=n)
-
-
-def _voxel_means(points: F64, voxel: float) -> F64:
-    keys = np.floor(points / voxel).astype(np.int64)
-    keys -= np.array([keys[:, j].min() for j in range(3)])  # keys.min(axis=0), column by column
-    span = np.array([keys[:, j].max() for j in range(3)]) + 1
-    flat = (keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2]
-    inverse, counts = _unique_inverse(flat)
-    sums = np.stack([np.bincount(inverse, points[:, j], len(counts)) for j in range(3)], axis=1)
-    return sums / counts[:, None]
-
-
-def _normals(cloud: F64, query: F64, k: int, max_flatness: float, min_spread: float
-             ) -> tuple[F64, NDArray[np.bool_]]:
-    """Unit PCA normals of the k-neighbourhood in ``cloud`` of each ``query`` point, and whether
-    that neighbourhood is a plane."""
-    from scipy.spatial import cKDTree
-
-    k = min(k, len(cloud))
-    _, idx = cKDTree(cloud).query(query, k=k)
-    nb = cloud[idx]  # (n, k, 3)
-    centred = nb - nb.mean(axis=1, keepdims=True)
-    cov = np.einsum("nki,nkj->nij", centred, centred) / k
-    evals, evecs = np.linalg.eigh(cov)  # ascending
-    normal = evecs[:, :, 0]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        planar = (evals[:, 0] <= max_flatness * evals[:, 1]) & (
-            evals[:, 1] >= min_spread * evals[:, 2])
-    return normal, planar
-
-
 def scan_surface_points(points_in_lidar: ArrayLike, cam_from_lidar: ArrayLike, camera: Camera,
                         options: ScanSamplingOptions | None = None) -> tuple[F64, F64]:
     """Oriented surface points of one scan, in the camera frame (module doc, step 1).
@@ -174,25 +122,25 @@ def scan_surface_points(points_in_lidar: ArrayLike, cam_from_lidar: ArrayLike, c
     -------
     p_in_cam (n, 3) metres and n_in_cam (n, 3) unit normals, pointing towards the LiDAR.
     """
+    from scipy.spatial import cKDTree
+
+    from bimcap import _core
+
     opts = options or ScanSamplingOptions()
     raw = np.asarray(points_in_lidar)
     if raw.ndim != 2 or raw.shape[1] < 3:
         raise ScanSamplingError(f"a scan must be (M, 3+), got {raw.shape}")
-    # the xyz columns alone, as contiguous float64 (the intensity column is never read)
+    # the xyz columns alone, as contiguous float64 (the intensity column is never read); the
+    # returns in range (a row with a non-finite coordinate has a non-finite range), averaged
+    # per voxel in compiled code (bimcap/raster/voxel_normals.h: numpy's arithmetic bit for bit)
     pts = np.ascontiguousarray(raw[:, :3], dtype=np.float64)
-    x, y, z = pts[:, 0], pts[:, 1], pts[:, 2]
-    # np.linalg.norm(pts, axis=1), column by column (the same squares and sums). A row with a
-    # NaN or infinite coordinate has a NaN or infinite range and fails a finite range test: the
-    # rows with three finite coordinates in range, as before
-    rng = np.sqrt(x * x + y * y + z * z)
-    keep = (rng >= opts.min_range_m) & (rng <= opts.max_range_m)
-    if not np.isfinite(opts.max_range_m):
-        keep &= np.isfinite(x) & np.isfinite(y) & np.isfinite(z)
-    pts = pts[keep]
+    try:
+        vox, num_kept = _core.voxel_means(pts, opts.min_range_m, opts.max_range_m, opts.voxel_m)
+    except _core.InputError as exc:
+        raise ScanSamplingError(f"cannot average the scan per voxel: {exc}") from None
     empty = np.zeros((0, 3))
-    if len(pts) < opts.neighbours:
+    if num_kept < opts.neighbours:
         return empty, empty
-    vox = _voxel_means(pts, opts.voxel_m)
     if len(vox) < opts.neighbours:
         return empty, empty
     pose = np.asarray(cam_from_lidar, np.float64)
@@ -209,8 +157,11 @@ def scan_surface_points(points_in_lidar: ArrayLike, cam_from_lidar: ArrayLike, c
     cand = np.flatnonzero(keep)
     if len(cand) > opts.max_candidates:  # an even thinning, the same on every run
         cand = cand[np.linspace(0, len(cand) - 1, opts.max_candidates).astype(np.int64)]
-    normal, planar = _normals(vox, vox[cand], opts.neighbours, opts.max_flatness,
-                              opts.min_spread)
+    # PCA normals of each candidate's k nearest voxel means, in compiled code (numpy's
+    # algorithm to rounding: bimcap/raster/voxel_normals.h)
+    _, nearest = cKDTree(vox).query(vox[cand], k=opts.neighbours)
+    nearest = np.asarray(nearest, np.int64).reshape(len(cand), opts.neighbours)
+    normal, planar = _core.pca_normals(vox, nearest, opts.max_flatness, opts.min_spread)
     cand, normal = cand[planar], normal[planar]
     flip = (normal * vox[cand]).sum(axis=1) > 0  # face the sensor
     normal[flip] *= -1.0
