@@ -1015,6 +1015,17 @@ def test_scan_range_noise_same_as_before() -> None:
         new = scan_range_noise(p)
         assert new is not None and new == before.scan_range_noise(p)
         assert 0.5 * sigma < new < 2.0 * sigma
+        # in the sensor's order (each ring by azimuth, as scans come), other bins and steps,
+        # rings narrower than the returns are many (one sort), too few triples
+        in_order = d * (t + rng.normal(0.0, sigma, len(t)))[:, None]
+        for q in (p, in_order):
+            for ring_bin, step in ((0.5, 0.5), (0.25, 0.3), (1.5, 1.0), (1e-7, 0.5), (2.0, 0.01)):
+                assert scan_range_noise(q, ring_bin, step) == before.scan_range_noise(
+                    q, ring_bin, step), (ring_bin, step)
+    from bimcap.segmentation import SegmentationInputError
+
+    with pytest.raises(SegmentationInputError, match="ring_bin_deg"):
+        scan_range_noise(p, 0.0)
 
 
 # ------------------------------------------------------------- the completion's raster in C++

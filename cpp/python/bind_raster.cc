@@ -8,6 +8,7 @@
 #include <pybind11/pybind11.h>
 
 #include <algorithm>
+#include <optional>
 #include <string>
 #include <type_traits>
 #include <utility>
@@ -21,6 +22,7 @@
 #include "bimcap/raster/piecewise_affine.h"
 #include "bimcap/raster/plane_depth.h"
 #include "bimcap/raster/plane_scores.h"
+#include "bimcap/raster/range_noise.h"
 #include "bimcap/raster/similarity_top2.h"
 #include "bimcap/raster/surface_area.h"
 #include "bimcap/raster/voxel_normals.h"
@@ -156,6 +158,19 @@ py::array_t<double> PixelSurfaceArea(const py::handle& depth_obj, double fx, dou
     raster::PixelSurfaceArea(in, {fx, fy, cx, cy}, min_cos, out);
   }
   return area;
+}
+
+py::object ScanRangeNoise(const py::handle& points_obj, double ring_bin_deg, double max_step_deg) {
+  const py::array points = Checked<double>(points_obj, "points", {-1, 3});
+  const auto* xyz = static_cast<const double*>(points.data());
+  const int64_t count = points.shape(0);
+  std::optional<double> sigma;
+  {
+    py::gil_scoped_release release;
+    sigma = raster::ScanRangeNoise(xyz, count, ring_bin_deg, max_step_deg);
+  }
+  if (!sigma) return py::none();
+  return py::float_(*sigma);
 }
 
 py::tuple VoxelMeans(const py::handle& points_obj, double min_range, double max_range,
@@ -404,6 +419,12 @@ void BindRaster(py::module_& m) {
         "(H, W) uint8 grey levels rint(0.299 r + 0.587 g + 0.114 b) of the (H, W, 3) uint8 RGB "
         "image (C-contiguous): bimcap.features.sift.to_gray_u8's numpy arithmetic bit for bit, "
         "in one pass.");
+  m.def("scan_range_noise", &ScanRangeNoise, py::arg("points"), py::arg("ring_bin_deg"),
+        py::arg("max_step_deg"),
+        "The range noise σ (m) of the (M, 3) float64 scan points (C-contiguous, sensor frame) "
+        "from the second differences of the ranges along each ring, or None when fewer than "
+        "100 triples qualify: bimcap.segmentation.geometric.scan_range_noise's numpy arithmetic "
+        "bit for bit (bimcap/raster/range_noise.h).");
   m.def("pca_normals", &PcaNormals, py::arg("cloud"), py::arg("neighbours"),
         py::arg("max_flatness"), py::arg("min_spread"),
         "(normals (m, 3) float64, planar (m,) bool): for each row of the (m, k) int64 indices "

@@ -17,6 +17,7 @@
 #include "bimcap/raster/piecewise_affine.h"
 #include "bimcap/raster/plane_depth.h"
 #include "bimcap/raster/plane_scores.h"
+#include "bimcap/raster/range_noise.h"
 #include "bimcap/raster/voxel_normals.h"
 
 namespace bimcap::raster {
@@ -433,6 +434,23 @@ TEST(VoxelNormals, PlaneLineAndBadIndices) {
                RasterError);
   EXPECT_THROW(PcaNormals(cloud.data(), 20, neighbours.data(), 2, 0, 0.1, 0.05, normals, planar),
                RasterError);
+}
+
+TEST(RangeNoise, RingOfAlternatingRangesAndTooFewTriples) {
+  // one ring at elevation 0, 0.1° steps, ranges 5 + e and 5 − e alternating: every second
+  // difference is ±4e, so σ = 4e / (0.6745 √6)
+  const double e = 0.01;
+  std::vector<double> points;
+  for (int k = 0; k < 500; ++k) {
+    const double a = (0.1 * k - 25.0) * M_PI / 180.0, r = 5.0 + (k % 2 ? -e : e);
+    points.insert(points.end(), {r * std::cos(a), r * std::sin(a), 0.0});
+  }
+  const std::optional<double> sigma = ScanRangeNoise(points.data(), 500, 0.5, 0.5);
+  ASSERT_TRUE(sigma.has_value());
+  EXPECT_NEAR(*sigma, 4 * e / (0.6745 * std::sqrt(6.0)), 1e-9);
+  EXPECT_FALSE(ScanRangeNoise(points.data(), 90, 0.5, 0.5).has_value());    // 88 triples
+  EXPECT_FALSE(ScanRangeNoise(points.data(), 500, 0.5, 0.05).has_value());  // steps too wide
+  EXPECT_THROW(ScanRangeNoise(points.data(), 500, 0.0, 0.5), RasterError);
 }
 
 }  // namespace

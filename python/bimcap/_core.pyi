@@ -63,6 +63,12 @@ def evaluate_piecewise_affine(
 def rgb_to_gray(image: NDArray[np.uint8]) -> NDArray[np.uint8]:
     """(H, W) uint8 rint(0.299 r + 0.587 g + 0.114 b) of a C-contiguous (H, W, 3) uint8 RGB
     image (numpy's float64 rounding)."""
+def scan_range_noise(
+    points: NDArray[np.float64], ring_bin_deg: float, max_step_deg: float
+) -> float | None:
+    """Range noise σ (m) of an (M, 3) scan from its rings' second differences, or None
+    (bimcap.segmentation.geometric.scan_range_noise's numpy arithmetic bit for bit)."""
+
 def voxel_means(
     points: NDArray[np.float64], min_range: float, max_range: float, voxel: float
 ) -> tuple[NDArray[np.float64], int]:

@@ -197,33 +197,18 @@ def scan_range_noise(p_in_sensor: NDArray[np.floating], ring_bin_deg: float = 0.
     -------
     σ in metres, or None when fewer than 100 triples qualify.
     """
-    p = np.asarray(p_in_sensor, dtype=np.float64)
+    from bimcap import _core
+
+    p = np.asarray(p_in_sensor)
     if p.ndim != 2 or p.shape[1] < 3 or len(p) < 3:
         return None
-    p = p[:, :3]
-    x, y, z = p[:, 0], p[:, 1], p[:, 2]
-    r = np.sqrt(x * x + y * y + z * z)  # np.linalg.norm(p, axis=1), column by column
-    keep = np.isfinite(r) & (r > 0)
-    p, r = p[keep], r[keep]
-    if len(r) < 3:
-        return None
-    elevation = np.degrees(np.arcsin(np.clip(p[:, 2] / r, -1.0, 1.0)))
-    azimuth = np.degrees(np.arctan2(p[:, 1], p[:, 0]))
-    ring = np.round(elevation / ring_bin_deg).astype(np.int64)
-    # np.lexsort((azimuth, ring)): stable sorts by azimuth, then by ring
-    order = np.argsort(azimuth, kind="stable")
-    # |ring| <= 90° / ring_bin_deg: as int16 where that fits, whose stable sort is a radix sort
-    # (the same order, ~2× faster than int64's merge sort)
-    ring_key = ring[order].astype(np.int16) if 90.0 / ring_bin_deg < 32000 else ring[order]
-    order = order[np.argsort(ring_key, kind="stable")]
-    r, azimuth, ring = r[order], azimuth[order], ring[order]
-    step_a, step_b = azimuth[1:-1] - azimuth[:-2], azimuth[2:] - azimuth[1:-1]
-    ok = ((ring[1:-1] == ring[:-2]) & (ring[1:-1] == ring[2:]) & (step_a < max_step_deg)
-          & (step_b < max_step_deg) & (np.abs(step_a - step_b) < 0.1 * max_step_deg))
-    if int(ok.sum()) < 100:
-        return None
-    second = r[:-2] - 2.0 * r[1:-1] + r[2:]
-    return float(np.median(np.abs(second[ok])) / (0.6745 * np.sqrt(6.0)))
+    # in compiled code, numpy's arithmetic bit for bit (bimcap/raster/range_noise.h)
+    xyz = np.ascontiguousarray(p[:, :3], dtype=np.float64)
+    try:
+        sigma: float | None = _core.scan_range_noise(xyz, ring_bin_deg, max_step_deg)
+    except _core.InputError as exc:
+        raise SegmentationInputError(str(exc), field="ring_bin_deg") from None
+    return sigma
 
 
 @dataclass(frozen=True)
