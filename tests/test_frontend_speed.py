@@ -488,6 +488,46 @@ def test_segmentation_same_as_before(chain: list[_Frame], monkeypatch: pytest.Mo
                                                             opts))
 
 
+@pytest.mark.parametrize("threads", [1, 2])
+def test_components_on_the_box_numbered_as_on_the_image(threads: int) -> None:
+    """The segmenter's connected components, found on the even-aligned box of the mask's
+    pixels: the same numbering, pixels and stats as OpenCV's on the whole image (masks of
+    noise, of blobs, in boxes at odd and even rows and columns, touching the borders, empty)."""
+    import cv2
+
+    from bimcap.segmentation.geometric import _Components, _Region
+
+    rng = np.random.default_rng(threads)
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(threads)
+    try:
+        for t in range(400):
+            h, w = 193, 258
+            m = rng.random((h, w)) < rng.uniform(0.02, 0.8)
+            if t % 2:
+                m = cv2.morphologyEx(m.astype(np.uint8), cv2.MORPH_OPEN,
+                                     np.ones((2, 2), np.uint8)).astype(bool)
+            r0, r1 = sorted(rng.integers(0, h, 2))
+            c0, c1 = sorted(rng.integers(0, w, 2))
+            mask = np.zeros_like(m)
+            mask[r0:r1 + 1, c0:c1 + 1] = m[r0:r1 + 1, c0:c1 + 1]
+            if t == 0:
+                mask[:] = False
+            n, comp, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8),
+                                                                 connectivity=8)
+            comps = _Components.of(mask)
+            assert comps.count == n
+            pts = np.zeros((h, w, 3))
+            for c in range(1, n):
+                assert comps.stats[c, 4] == stats[c, 4]
+                region = _Region.component(comps, c, pts)
+                x, y, bw, bh = stats[c, :4]
+                assert (region.rows, region.cols) == (slice(y, y + bh), slice(x, x + bw))
+                assert np.array_equal(region.full_mask(), comp == c)
+    finally:
+        cv2.setNumThreads(before)
+
+
 def test_normals_same_as_before(chain: list[_Frame]) -> None:
     """Points, normals and their masks, component by component: the stacked code's bit for bit
     (signed zeros included), with and without the box blur."""

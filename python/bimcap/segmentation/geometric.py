@@ -441,6 +441,34 @@ def _plane_inliers(scene: _WorkScene, plane: _Plane, mask: B, opts: GeometricOpt
     return inl
 
 
+@dataclass(frozen=True)
+class _Components:
+    """``cv2.connectedComponentsWithStats`` (8-connected) of a mask, run on the box of its rows
+    and columns with pixels, widened to start at an even row and column: OpenCV's algorithms
+    scan 2 × 2 blocks, so the components come out numbered as on the whole image (checked on
+    3000 random masks, 1, 2 and 4 threads), for the box's share of the work. ``labels`` and
+    ``stats`` are the box's (stats' left and top relative to it)."""
+
+    count: int
+    labels: NDArray[np.int32]
+    stats: NDArray[np.int32]
+    top: int
+    left: int
+
+    @classmethod
+    def of(cls, mask: B) -> _Components:
+        import cv2
+
+        rows = np.flatnonzero(mask.any(1))
+        if len(rows) == 0:
+            return cls(1, np.zeros((0, 0), np.int32), np.zeros((1, 5), np.int32), 0, 0)
+        cols = np.flatnonzero(mask.any(0))
+        top, left = int(rows[0]) & ~1, int(cols[0]) & ~1
+        box = mask[top:int(rows[-1]) + 1, left:int(cols[-1]) + 1].astype(np.uint8)
+        count, labels, stats, _ = cv2.connectedComponentsWithStats(box, connectivity=8)
+        return cls(int(count), labels, stats, top, left)
+
+
 @dataclass
 class _Region:
     """A region of the working image: its bounding box ``rows`` × ``cols`` and its pixels
@@ -462,12 +490,13 @@ class _Region:
         return cls(box[0], box[1], mask[box], pts)
 
     @classmethod
-    def component(cls, comp: NDArray[Any], c: int, stats: NDArray[Any], pts: F64) -> _Region:
-        """Connected component ``c`` of the label image ``comp`` (h, w) with its OpenCV
-        ``stats`` row (left, top, width, height, area)."""
-        x, y, bw, bh = (int(v) for v in stats[c, :4])
-        rows, cols = slice(y, y + bh), slice(x, x + bw)
-        return cls(rows, cols, comp[rows, cols] == c, pts)
+    def component(cls, comps: _Components, c: int, pts: F64) -> _Region:
+        """Connected component ``c`` of ``comps``."""
+        x, y, bw, bh = (int(v) for v in comps.stats[c, :4])
+        mask = comps.labels[y:y + bh, x:x + bw] == c
+        y += comps.top
+        x += comps.left
+        return cls(slice(y, y + bh), slice(x, x + bw), mask, pts)
 
     @property
     def top(self) -> int:
@@ -817,12 +846,11 @@ def _label_plane_regions(scene: _WorkScene, state: _Labelling, inl: B, plane: _P
     """Label each large enough connected region of a vertical plane's inliers ``inl`` (h, w)."""
     import cv2
 
-    n_comp, comp, stats, _ = cv2.connectedComponentsWithStats(inl.astype(np.uint8),
-                                                              connectivity=8)
-    for c in range(1, n_comp):
-        if stats[c, cv2.CC_STAT_AREA] < scene.min_region:
+    comps = _Components.of(inl)
+    for c in range(1, comps.count):
+        if comps.stats[c, cv2.CC_STAT_AREA] < scene.min_region:
             continue
-        region = _Region.component(comp, c, stats, scene.pts)
+        region = _Region.component(comps, c, scene.pts)
         lab = _classify_vertical_region(region, scene.pts, plane, up_ref, top_needed, opts)
         state.add_box_region(region, lab, plane)
 
@@ -833,12 +861,11 @@ def _curved_columns(scene: _WorkScene, state: _Labelling, remaining: B, up_ref: 
     and protruding (a round column's normals turn, so no plane takes it)."""
     import cv2
 
-    n_comp, comp, stats, _ = cv2.connectedComponentsWithStats(remaining.astype(np.uint8),
-                                                              connectivity=8)
-    for c in range(1, n_comp):
-        if stats[c, cv2.CC_STAT_AREA] < scene.min_region:
+    comps = _Components.of(remaining)
+    for c in range(1, comps.count):
+        if comps.stats[c, cv2.CC_STAT_AREA] < scene.min_region:
             continue
-        region = _Region.component(comp, c, stats, scene.pts)
+        region = _Region.component(comps, c, scene.pts)
         if _is_curved_column(region, scene.pts, up_ref, top_needed, opts):
             box = (region.rows, region.cols)
             state.labels[box][region.mask] = int(Label.COLUMN)
