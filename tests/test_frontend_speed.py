@@ -95,16 +95,19 @@ def test_pixel_surface_area_compiled_same_as_numpy() -> None:
     """The compiled surface area (``_core.pixel_surface_area``) against ec113ba's numpy, bytes
     equal: every width and height from 2 (one-sided differences only) up, non-finite depths
     (their neighbours' cos θ is not finite: 1), other ``min_cos``, float32 and float64 and
-    non-contiguous input, a camera with integer intrinsics; and a depth map of a real plane."""
+    non-contiguous input, a camera with integer intrinsics; and a depth map of a real plane.
+    (The compiled rows vectorise on AVX2 CPUs: the same operations, the same bits.)"""
     rng = np.random.default_rng(11)
     for h, w in [(2, 2), (2, 3), (3, 2), (5, 7), (40, 2), (2, 41), (386, 516)]:
         cam = Camera(w, h, 300.7, 301.9, 0.43 * w, 0.55 * h)
         d = 0.5 + 6.0 * rng.random((h, w))
         d[rng.random(d.shape) < 0.15] = 0.0
         d[rng.random(d.shape) < 0.02] = np.nan
+        d[rng.random(d.shape) < 0.01] = np.inf
         for depth, min_cos in ((d, 0.1), (d.astype(np.float32), 0.1), (d, 0.0), (d, 0.7)):
             new = pixel_surface_area(depth, cam, min_cos)
-            with np.errstate(divide="ignore"):  # min_cos 0: a surface seen edge-on, area inf
+            # min_cos 0: a surface seen edge-on, area inf; inf depths: inf − inf
+            with np.errstate(divide="ignore", invalid="ignore"):
                 old = ref.pixel_surface_area_ec113ba(depth, cam, min_cos)
             assert new.dtype == np.float64 and new.tobytes() == old.tobytes()
     cam = Camera(60, 40, 50, 50, 30, 20)  # integer intrinsics
