@@ -23,6 +23,7 @@
 #include "bimcap/raster/plane_depth.h"
 #include "bimcap/raster/plane_scores.h"
 #include "bimcap/raster/range_noise.h"
+#include "bimcap/raster/region_sums.h"
 #include "bimcap/raster/similarity_top2.h"
 #include "bimcap/raster/surface_area.h"
 #include "bimcap/raster/voxel_normals.h"
@@ -158,6 +159,32 @@ py::array_t<double> PixelSurfaceArea(const py::handle& depth_obj, double fx, dou
     raster::PixelSurfaceArea(in, {fx, fy, cx, cy}, min_cos, out);
   }
   return area;
+}
+
+py::tuple RegionPlaneSums(const py::handle& comp_obj, const py::handle& valid_obj,
+                          const py::handle& depth_obj, double fx, double fy, double cx, double cy,
+                          int64_t num_regions) {
+  const py::array comp = Checked<int32_t>(comp_obj, "comp", {-1, -1});
+  const py::ssize_t rows = comp.shape(0), cols = comp.shape(1);
+  const py::array valid = Checked<bool>(valid_obj, "valid", {rows, cols});
+  const py::array depth = Checked<float>(depth_obj, "depth", {rows, cols});
+  if (num_regions < 1) {
+    throw RasterError("num_regions", "must be >= 1, got " + std::to_string(num_regions));
+  }
+  py::array_t<int64_t> count(num_regions);
+  py::array_t<double> ata({static_cast<py::ssize_t>(num_regions), py::ssize_t{3}, py::ssize_t{3}});
+  py::array_t<double> atb({static_cast<py::ssize_t>(num_regions), py::ssize_t{3}});
+  const raster::ImageRef<const int32_t> c{static_cast<const int32_t*>(comp.data()), rows, cols};
+  const raster::ImageRef<const bool> v{static_cast<const bool*>(valid.data()), rows, cols};
+  const raster::ImageRef<const float> z{static_cast<const float*>(depth.data()), rows, cols};
+  int64_t* n = count.mutable_data();
+  double* a = ata.mutable_data();
+  double* b = atb.mutable_data();
+  {
+    py::gil_scoped_release release;
+    raster::RegionPlaneSums(c, v, z, {fx, fy, cx, cy}, num_regions, n, a, b);
+  }
+  return py::make_tuple(count, ata, atb);
 }
 
 py::object ScanRangeNoise(const py::handle& points_obj, double ring_bin_deg, double max_step_deg) {
@@ -419,6 +446,14 @@ void BindRaster(py::module_& m) {
         "(H, W) uint8 grey levels rint(0.299 r + 0.587 g + 0.114 b) of the (H, W, 3) uint8 RGB "
         "image (C-contiguous): bimcap.features.sift.to_gray_u8's numpy arithmetic bit for bit, "
         "in one pass.");
+  m.def("region_plane_sums", &RegionPlaneSums, py::arg("comp"), py::arg("valid"), py::arg("depth"),
+        py::arg("fx"), py::arg("fy"), py::arg("cx"), py::arg("cy"), py::arg("num_regions"),
+        "(count (n,) int64, ata (n, 3, 3) float64, atb (n, 3) float64): per region of the (H, W) "
+        "int32 label image `comp`, over its pixels where the (H, W) bool `valid` holds, the "
+        "normal equations of 1 / z ≈ a x + b y + c (x, y the pinhole's normalised pixel, z the "
+        "(H, W) float32 depth); np.bincount's sums bit for bit "
+        "(bimcap/raster/region_sums.h). Raises InputError for a valid pixel's region outside "
+        "[0, num_regions) or mismatched shapes.");
   m.def("scan_range_noise", &ScanRangeNoise, py::arg("points"), py::arg("ring_bin_deg"),
         py::arg("max_step_deg"),
         "The range noise σ (m) of the (M, 3) float64 scan points (C-contiguous, sensor frame) "

@@ -63,6 +63,13 @@ def evaluate_piecewise_affine(
 def rgb_to_gray(image: NDArray[np.uint8]) -> NDArray[np.uint8]:
     """(H, W) uint8 rint(0.299 r + 0.587 g + 0.114 b) of a C-contiguous (H, W, 3) uint8 RGB
     image (numpy's float64 rounding)."""
+def region_plane_sums(
+    comp: NDArray[np.int32], valid: NDArray[np.bool_], depth: NDArray[np.float32], fx: float,
+    fy: float, cx: float, cy: float, num_regions: int
+) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
+    """(count (n,), ata (n, 3, 3), atb (n, 3)): per region, the normal equations of
+    1 / z ≈ a x + b y + c over its valid pixels (np.bincount's sums bit for bit)."""
+
 def scan_range_noise(
     points: NDArray[np.float64], ring_bin_deg: float, max_step_deg: float
 ) -> float | None:

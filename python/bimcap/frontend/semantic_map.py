@@ -186,34 +186,22 @@ def _coarse_normals(depth: NDArray[np.floating], camera: Camera, step: int = 4, 
 
 
 def _region_plane_normals(comp: NDArray[np.int32], n_comp: int, valid: NDArray[np.bool_],
-                          depth: NDArray[np.floating], camera: Camera, up: F64,
+                          depth: NDArray[np.float32], camera: Camera, up: F64,
                           min_pixels: int = 20) -> list[tuple[int, float]]:
     """Per connected region (ids 1..n_comp-1 of ``comp``) with at least ``min_pixels`` pixels of
-    depth: ``(id, |n·up|)`` of the least-squares plane through its points. A plane n·p = d seen
-    at normalised pixel (x, y) has inverse depth 1/z = (n_x x + n_y y + n_z) / d, affine in
-    (x, y): a linear fit over every pixel, so that the normal stays determined where the range
-    noise swamps local normals (a wall 1 m away seen through a narrow lens, 8 cm noise)."""
-    ids = comp[valid]
-    if len(ids) == 0:
-        return []
-    v, u = np.nonzero(valid)
-    x = (u - camera.cx) / camera.fx
-    y = (v - camera.cy) / camera.fy
-    w = 1.0 / depth[valid].astype(np.float64)
-    # per region sums of the normal equations of w ≈ a x + b y + c, columns (x, y, 1): each sum
-    # once (the products commute and 1·v = v exactly, so the symmetric entries, the constant
-    # column's and the count are the same numbers as each product summed on its own)
-    count = np.bincount(ids, minlength=n_comp)
-    ata = np.zeros((n_comp, 3, 3))
-    atb = np.zeros((n_comp, 3))
-    cols = (x, y)
-    for r in range(2):
-        atb[:, r] = np.bincount(ids, cols[r] * w, minlength=n_comp)
-        ata[:, r, 2] = ata[:, 2, r] = np.bincount(ids, cols[r], minlength=n_comp)
-        for c in range(r, 2):
-            ata[:, r, c] = ata[:, c, r] = np.bincount(ids, cols[r] * cols[c], minlength=n_comp)
-    atb[:, 2] = np.bincount(ids, w, minlength=n_comp)
-    ata[:, 2, 2] = count
+    depth (``valid``; ``depth`` (H, W) float32): ``(id, |n·up|)`` of the least-squares plane
+    through its points. A plane n·p = d seen at normalised pixel (x, y) has inverse depth
+    1/z = (n_x x + n_y y + n_z) / d, affine in (x, y): a linear fit over every pixel, so that the
+    normal stays determined where the range noise swamps local normals (a wall 1 m away seen
+    through a narrow lens, 8 cm noise)."""
+    from bimcap import _core
+
+    # per region sums of the normal equations of w ≈ a x + b y + c, columns (x, y, 1), over its
+    # pixels in row-major order (np.bincount's sums, in compiled code: raster/region_sums.h)
+    count, ata, atb = _core.region_plane_sums(
+        np.ascontiguousarray(comp, dtype=np.int32), np.ascontiguousarray(valid, dtype=bool),
+        np.ascontiguousarray(depth, dtype=np.float32), camera.fx, camera.fy, camera.cx,
+        camera.cy, n_comp)
     out = []
     for c in range(1, n_comp):
         if count[c] < min_pixels or abs(np.linalg.det(ata[c])) < 1e-18:
