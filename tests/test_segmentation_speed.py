@@ -172,7 +172,8 @@ def test_near_region_same_as_whole_dilation(reach: int) -> None:
     """``_near_region`` (the dilation on the rows the kernel reaches, the lookups in their
     slice) gives the positions the whole image's dilation gives, for regions touching the
     image's top and bottom, empty regions, single pixels, with and without the rows (the
-    upsampling's lookups, with repeated indices as nearest-neighbour upsampling reads them)."""
+    upsampling's lookups, with repeated indices as nearest-neighbour upsampling reads them), and
+    with a band of rows that holds the region (exactly its rows, or wider)."""
     import cv2
 
     rng = np.random.default_rng(18 + reach)
@@ -189,6 +190,12 @@ def test_near_region_same_as_whole_dilation(reach: int) -> None:
         for k in range(-1, 7):
             whole = cv2.dilate((region_id == k).astype(np.uint8), kernel).reshape(-1)
             want = np.flatnonzero(np.take(whole, at)) if len(at) else np.zeros(0, np.intp)
+            held = np.flatnonzero((region_id == k).any(1))
+            bands = [None, (0, h)]
+            if len(held):
+                lo, hi = int(held[0]), int(held[-1]) + 1
+                bands += [(lo, hi), (max(lo - 2, 0), min(hi + 3, h))]
             for rows in (at // w, None):
-                got = geometric._near_region(region_id, k, kernel, at, rows)
-                assert np.array_equal(got, want), (h, w, k, rows is None)
+                for band in bands:
+                    got = geometric._near_region(region_id, k, kernel, at, rows, band)
+                    assert np.array_equal(got, want), (h, w, k, rows is None, band)

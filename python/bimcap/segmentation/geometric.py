@@ -639,6 +639,7 @@ class _Labelling:
     assigned: B  # (h, w) pixels taken by a plane or a region
     region_id: NDArray[np.int32]  # (h, w) index into ``regions``, -1 = none
     regions: list[tuple[Label, _Plane]] = field(default_factory=list)  # planar regions
+    bands: list[tuple[int, int]] = field(default_factory=list)  # rows [start, stop) of each
     planes: dict[Label, _Plane] = field(default_factory=dict)  # the floor's / ceiling's plane
     chosen: dict[Label, B] = field(default_factory=dict)  # the floor's / ceiling's pixels
 
@@ -657,6 +658,8 @@ class _Labelling:
         self.assigned |= mask
         self.region_id[mask] = len(self.regions)
         self.regions.append((label, plane))
+        rows = np.flatnonzero(mask.any(1))
+        self.bands.append((int(rows[0]), int(rows[-1]) + 1) if len(rows) else (0, 0))
 
     def add_box_region(self, region: _Region, label: Label, plane: _Plane) -> None:
         """:meth:`add_region` of a :class:`_Region` (written inside its bounding box)."""
@@ -665,6 +668,7 @@ class _Labelling:
         self.assigned[box] |= region.mask
         self.region_id[box][region.mask] = len(self.regions)
         self.regions.append((label, plane))
+        self.bands.append((int(region.rows.start), int(region.rows.stop)))
 
 
 def segment_geometric(
@@ -709,7 +713,7 @@ def segment_geometric(
     _fill_creases(scene, state, opts)
     if scale < 1.0:
         return _upsample_labels(state.labels, state.region_id, state.regions, d_full, camera,
-                                opts)
+                                opts, state.bands)
     return state.labels
 
 
@@ -909,11 +913,13 @@ def _vertical_fit(p: F64, up_ref: F64) -> _Plane:
 
 
 def _near_region(region_id: NDArray[np.int32], k: int, kernel: NDArray[np.uint8],
-                 at: NDArray[np.integer], at_row: NDArray[np.integer] | None
-                 ) -> NDArray[np.intp]:
+                 at: NDArray[np.integer], at_row: NDArray[np.integer] | None,
+                 band: tuple[int, int] | None = None) -> NDArray[np.intp]:
     """Positions (ascending) in ``at`` (M,) (raveled indices of pixels of ``region_id`` (h, w),
     in rows ``at_row`` that never decrease; None: not known to) of the pixels that OpenCV's
-    dilation of region ``k``'s mask by the square ``kernel`` covers.
+    dilation of region ``k``'s mask by the square ``kernel`` covers. ``band``: rows
+    ``[start, stop)`` that hold every pixel of region ``k`` (None: any row), where it is looked
+    for.
 
     The same pixels as ``cv2.dilate(region_id == k, kernel)`` read at ``at``, for less: the
     dilation runs on the rows the kernel reaches from the region's only (the rows beyond have
@@ -922,14 +928,14 @@ def _near_region(region_id: NDArray[np.int32], k: int, kernel: NDArray[np.uint8]
     read."""
     import cv2
 
-    mask = region_id == k
-    rows = np.flatnonzero(mask.any(1))
+    top, stop = band or (0, region_id.shape[0])
+    rows = np.flatnonzero((region_id[top:stop] == k).any(1))
     if len(rows) == 0:
         return np.zeros(0, dtype=np.intp)
     reach = kernel.shape[0] // 2
     h, w = region_id.shape
-    y0, y1 = max(int(rows[0]) - reach, 0), min(int(rows[-1]) + reach + 1, h)
-    near = cv2.dilate(mask[y0:y1].astype(np.uint8), kernel)
+    y0, y1 = max(top + int(rows[0]) - reach, 0), min(top + int(rows[-1]) + reach + 1, h)
+    near = cv2.dilate((region_id[y0:y1] == k).astype(np.uint8), kernel)
     a, b = (0, len(at)) if at_row is None else (int(i) for i in np.searchsorted(at_row, (y0, y1)))
     look = at[a:b] - y0 * w
     if at_row is None:  # entries outside the dilated rows read nothing
@@ -957,7 +963,7 @@ def _fill_creases(scene: _WorkScene, state: _Labelling, opts: GeometricOptions) 
     flat_row = flat // undecided.shape[1]  # ascending, as flat
     for k, (lab, plane) in enumerate(state.regions):
         # the distances at the pixels near the region only (_rows_dot: the same numbers)
-        near = _near_region(state.region_id, k, kernel, flat, flat_row)
+        near = _near_region(state.region_id, k, kernel, flat, flat_row, state.bands[k])
         if len(near) == 0:
             continue
         dist = _rows_dot(p, near, plane.normal)
@@ -990,8 +996,10 @@ def _upsample_labels(
     depth: NDArray[np.float32],
     camera: Camera,
     opts: GeometricOptions,
+    bands: list[tuple[int, int]] | None = None,
 ) -> U8:
-    """Bring work-resolution labels to full resolution, plane-guided along borders.
+    """Bring work-resolution labels to full resolution, plane-guided along borders (``bands``:
+    each region's rows, :attr:`_Labelling.bands`; None: not known).
 
     Nearest-neighbour upsampling, then every full-resolution pixel in a border cell (a work
     pixel whose 3×3 neighbourhood holds more than one region) takes, among the planar regions
@@ -1030,7 +1038,7 @@ def _upsample_labels(
         src_row = None
     for k, (_, plane) in enumerate(regions):
         # the distances at the border pixels near the region only (_rows_dot: the same numbers)
-        near = _near_region(region_id, k, kernel, src, src_row)
+        near = _near_region(region_id, k, kernel, src, src_row, bands[k] if bands else None)
         if len(near) == 0:
             continue
         dist = _rows_dot(p, near, plane.normal)
