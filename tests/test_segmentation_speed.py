@@ -137,8 +137,10 @@ def test_region_points_same_as_boolean_gather(
         pts = rng.normal(size=(h, w, 3))
         mask = (rng.random((h, w)) < 0.6).astype(np.uint8)
         n_comp, comp, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+        comps = geometric._Components.of(mask.astype(bool))
+        assert comps.count == n_comp
         for c in range(1, min(n_comp, 200)):
-            region = geometric._Region.component(comp, c, stats, pts)
+            region = geometric._Region.component(comps, c, pts)
             want = pts[region.rows, region.cols][region.mask]
             assert region.points().tobytes() == want.tobytes()
             assert np.array_equal(region.flat(), np.flatnonzero(comp == c))
