@@ -148,6 +148,49 @@ def test_linear_completion_same_as_before(chain: list[_Frame]) -> None:
                               ref.complete_linear_reference(f.sparse.depth))
 
 
+def test_filter_triangles_same_as_numpy() -> None:
+    """The linear completion's triangle filter in compiled code: c52a7fb's numpy (lengths,
+    depth ratio, signed area, the kept ones, their 1/16 px corners) bytes equal, on random
+    triangles with long edges, slivers, collinear and repeated corners, corners on half
+    sixteenths, NaN coordinates and depths; bad indices raise."""
+    from bimcap import _core
+
+    rng = np.random.default_rng(21)
+    kept = dropped = 0
+    for n, t in ((3, 1), (50, 200), (4000, 8000)):
+        uv = rng.uniform(-0.5, 515.5, (n, 2))
+        uv[: n // 4] = np.round(uv[: n // 4] * 32) / 32  # ties of rint(16 uv)
+        z = 10.0 ** rng.uniform(-1, 1.5, n)
+        simp = rng.integers(0, n, (t, 3)).astype(np.int32)
+        simp[: t // 10, 2] = simp[: t // 10, 0]  # repeated corners: zero area
+        if n > 3:
+            uv[5, 0] = np.nan
+            z[7] = np.nan
+        for max_edge, max_ratio in ((80.0, 1.3), (1e9, 1e9), (5.0, 1.01)):
+            good, corners, edge, det = _core.filter_triangles(uv, z, simp, max_edge, max_ratio)
+            pa, pb, pc = uv[simp[:, 0]], uv[simp[:, 1]], uv[simp[:, 2]]
+            want_edge = np.maximum.reduce([np.linalg.norm(pa - pb, axis=1),
+                                           np.linalg.norm(pb - pc, axis=1),
+                                           np.linalg.norm(pc - pa, axis=1)])
+            zt = z[simp]
+            e1, e2 = pb - pa, pc - pa
+            want_det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+            with np.errstate(invalid="ignore"):
+                ok = ((want_edge <= max_edge) & (zt.max(1) / zt.min(1) <= max_ratio)
+                      & (np.abs(want_det) > 2.0))
+            want_good = np.flatnonzero(ok)
+            want_corners = np.rint(np.stack([pa, pb, pc], 1)[want_good] * 16).astype(np.int32)
+            assert edge.tobytes() == want_edge.tobytes() and det.tobytes() == want_det.tobytes()
+            assert np.array_equal(good, want_good)
+            assert corners.tobytes() == want_corners.tobytes()
+            kept += len(good)
+            dropped += t - len(good)
+    assert kept > 0 and dropped > 0
+    with pytest.raises(_core.InputError, match="triangles"):
+        _core.filter_triangles(np.zeros((3, 2)), np.ones(3), np.array([[0, 1, 3]], np.int32),
+                               80.0, 1.3)
+
+
 @pytest.mark.parametrize("world", ["gen-demo-s0", "ifc-SampleHouse4"])
 def test_linear_completion_real_frames_same_as_before(world: str) -> None:
     """The LiDAR of a generated world's first 6 frames, projected as the front end projects it:

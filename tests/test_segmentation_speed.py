@@ -136,7 +136,7 @@ def test_region_points_same_as_boolean_gather(
         h, w = depth.shape
         pts = rng.normal(size=(h, w, 3))
         mask = (rng.random((h, w)) < 0.6).astype(np.uint8)
-        n_comp, comp, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+        n_comp, comp, _, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
         comps = geometric._Components.of(mask.astype(bool))
         assert comps.count == n_comp
         for c in range(1, min(n_comp, 200)):

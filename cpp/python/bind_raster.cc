@@ -26,6 +26,7 @@
 #include "bimcap/raster/region_sums.h"
 #include "bimcap/raster/similarity_top2.h"
 #include "bimcap/raster/surface_area.h"
+#include "bimcap/raster/triangle_filter.h"
 #include "bimcap/raster/voxel_normals.h"
 #include "python/arrays.h"
 
@@ -159,6 +160,32 @@ py::array_t<double> PixelSurfaceArea(const py::handle& depth_obj, double fx, dou
     raster::PixelSurfaceArea(in, {fx, fy, cx, cy}, min_cos, out);
   }
   return area;
+}
+
+py::tuple FilterTriangles(const py::handle& uv_obj, const py::handle& z_obj,
+                          const py::handle& triangles_obj, double max_edge, double max_ratio) {
+  const py::array uv = Checked<double>(uv_obj, "uv", {-1, 2});
+  const py::ssize_t n = uv.shape(0);
+  const py::array z = Checked<double>(z_obj, "z", {n});
+  const py::array triangles = Checked<int32_t>(triangles_obj, "triangles", {-1, 3});
+  const auto* p = static_cast<const double*>(uv.data());
+  const auto* d = static_cast<const double*>(z.data());
+  const auto* t = static_cast<const int32_t*>(triangles.data());
+  const py::ssize_t count = triangles.shape(0);
+  raster::TriangleFilter filter;
+  {
+    py::gil_scoped_release release;
+    filter = raster::FilterTriangles(p, d, n, t, count, max_edge, max_ratio);
+  }
+  const auto num_good = static_cast<py::ssize_t>(filter.good.size());
+  py::array_t<int64_t> good(num_good);
+  std::copy(filter.good.begin(), filter.good.end(), good.mutable_data());
+  py::array_t<int32_t> corners({num_good, py::ssize_t{3}, py::ssize_t{2}});
+  raster::TriangleCorners(p, t, filter.good, corners.mutable_data());
+  py::array_t<double> edge(count), det(count);
+  std::copy(filter.edge.begin(), filter.edge.end(), edge.mutable_data());
+  std::copy(filter.det.begin(), filter.det.end(), det.mutable_data());
+  return py::make_tuple(good, corners, edge, det);
 }
 
 py::tuple RegionPlaneSums(const py::handle& comp_obj, const py::handle& valid_obj,
@@ -446,6 +473,14 @@ void BindRaster(py::module_& m) {
         "(H, W) uint8 grey levels rint(0.299 r + 0.587 g + 0.114 b) of the (H, W, 3) uint8 RGB "
         "image (C-contiguous): bimcap.features.sift.to_gray_u8's numpy arithmetic bit for bit, "
         "in one pass.");
+  m.def("filter_triangles", &FilterTriangles, py::arg("uv"), py::arg("z"), py::arg("triangles"),
+        py::arg("max_edge"), py::arg("max_ratio"),
+        "(good (G,) int64 ascending, corners (G, 3, 2) int32, edge (T,), det (T,)) of the (T, 3) "
+        "int32 `triangles` over the (n, 2) float64 pixels `uv` with depths `z` (n,): the "
+        "longest edge, twice the signed area, which ones the linear completion keeps (edge <= "
+        "max_edge, z ratio <= max_ratio, |det| > 2) and their corners rint(16 uv); numpy's "
+        "arithmetic bit for bit (bimcap/raster/triangle_filter.h). Raises InputError for a "
+        "vertex index out of range.");
   m.def("region_plane_sums", &RegionPlaneSums, py::arg("comp"), py::arg("valid"), py::arg("depth"),
         py::arg("fx"), py::arg("fy"), py::arg("cx"), py::arg("cy"), py::arg("num_regions"),
         "(count (n,) int64, ata (n, 3, 3) float64, atb (n, 3) float64): per region of the (H, W) "

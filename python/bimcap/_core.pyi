@@ -63,6 +63,13 @@ def evaluate_piecewise_affine(
 def rgb_to_gray(image: NDArray[np.uint8]) -> NDArray[np.uint8]:
     """(H, W) uint8 rint(0.299 r + 0.587 g + 0.114 b) of a C-contiguous (H, W, 3) uint8 RGB
     image (numpy's float64 rounding)."""
+def filter_triangles(
+    uv: NDArray[np.float64], z: NDArray[np.float64], triangles: NDArray[np.int32],
+    max_edge: float, max_ratio: float
+) -> tuple[NDArray[np.int64], NDArray[np.int32], NDArray[np.float64], NDArray[np.float64]]:
+    """(good (G,), corners (G, 3, 2) int32 in 1/16 px, edge (T,), det (T,)): the linear
+    completion's triangle filter (numpy's arithmetic bit for bit)."""
+
 def region_plane_sums(
     comp: NDArray[np.int32], valid: NDArray[np.bool_], depth: NDArray[np.float32], fx: float,
     fy: float, cx: float, cy: float, num_regions: int
