@@ -322,6 +322,11 @@ def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool =
     from bimcap.frontend.runner import FrontendConfig
 
     scan_opts = FrontendConfig().scan
+    depth_lookup = FrontendConfig().depth_lookup
+    try:
+        from bimcap.features.tracks import unsupported_depths
+    except ImportError:  # code before the check (PYTHONPATH at an export)
+        unsupported_depths = None
     poses = read_tum(seq.root / "poses" / "gt.tum").poses
     st = _Stages(previous)
     cam = seq.camera
@@ -357,6 +362,13 @@ def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool =
         f = stages.run("SIFT", extract_sift, image, sift)
         feats.append(f)
         stages.run("keypoint depths", lookup_depth, depth, f.uv)
+        # as the frame job: the keypoint depths the returns around them contradict
+        measured = getattr(ctx, "measured_depth", None)
+        if unsupported_depths is not None and measured is not None:
+            noise = ctx.range_noise_m()
+            if noise is not None:
+                stages.run("keypoint depth support", unsupported_depths, depth, measured, f.uv,
+                           noise, depth_lookup)
         if old_sift is not None:
             f_old, t_old = _timed(extract_sift, image, old_sift)
             old_feats.append(f_old)
