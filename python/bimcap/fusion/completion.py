@@ -37,6 +37,7 @@ from bimcap.fusion.projection import FusionInputError, SparseDepth
 from bimcap.fusion.sparse import downsample_sparse
 from bimcap.geometry import Camera
 from bimcap.geometry.noise import noise_factor
+from bimcap.geometry.vectors import cross_rows
 from bimcap.labels import Label
 from bimcap.methods import CompletionMethod
 
@@ -559,7 +560,7 @@ def fit_plane_ransac(
         return None
     idx = rng.integers(0, n, size=(iterations, 3))
     a, b, c = points[idx[:, 0]], points[idx[:, 1]], points[idx[:, 2]]
-    normals = np.cross(b - a, c - a)
+    normals = cross_rows(b - a, c - a)  # np.cross's numbers
     norm = np.linalg.norm(normals, axis=1)
     ok = norm > 1e-9
     if not ok.any():

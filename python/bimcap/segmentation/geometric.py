@@ -65,6 +65,7 @@ from numpy.typing import NDArray
 
 from bimcap.geometry import Camera, quat_to_rotmat
 from bimcap.geometry.noise import noise_factor
+from bimcap.geometry.vectors import cross_rows
 from bimcap.labels import Label
 from bimcap.segmentation.base import U8, FrameInput, check_shape
 from bimcap.segmentation.errors import SegmentationInputError
@@ -292,7 +293,7 @@ def _ransac_horizontal(scene: _WorkScene, cand: NDArray[np.int64], up: F64, cos_
     sub = np.take(scene.pts_flat, pick, axis=0)
     idx = rng.integers(0, len(sub), size=(opts.ransac_iterations, 3))
     a, b, c = sub[idx[:, 0]], sub[idx[:, 1]], sub[idx[:, 2]]
-    nrm = np.cross(b - a, c - a)
+    nrm = cross_rows(b - a, c - a)  # np.cross's numbers
     ln = np.linalg.norm(nrm, axis=1)
     good = ln > 1e-9
     nrm = nrm[good] / ln[good, None]
