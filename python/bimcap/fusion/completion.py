@@ -591,6 +591,24 @@ def fit_plane_ransac(
     return plane, inl
 
 
+def _median(a: F64) -> float:
+    """``float(np.median(a))`` of a 1-D float64 array bit for bit (the same partition; np.mean's
+    sum of the middle one or two, which starts from +0, over their count; NaN when a NaN is
+    present or ``a`` is empty), without np.median's generic-axis handling (~3× cheaper on the
+    refits' few thousand distances)."""
+    n = len(a)
+    if n == 0:
+        return float("nan")
+    half = n // 2
+    kth = [half, n - 1] if n % 2 else [half - 1, half, n - 1]
+    part = np.partition(a, kth)
+    if np.isnan(part[-1]):
+        return float("nan")
+    if n % 2:
+        return float(0.0 + part[half])
+    return float((0.0 + part[half - 1] + part[half]) / 2.0)
+
+
 def refit_plane_robust(points: F64, plane: F64, threshold: float, sigmas: float,
                        iterations: int) -> F64:
     """``plane`` (4,) (unit normal) refitted by least squares to the ``points`` (N, 3) within
@@ -600,7 +618,7 @@ def refit_plane_robust(points: F64, plane: F64, threshold: float, sigmas: float,
     alone truncates the noise around the plane it started from)."""
     for _ in range(iterations):
         dist = points @ plane[:3] + plane[3]
-        scale = 1.4826 * float(np.median(np.abs(dist)))
+        scale = 1.4826 * _median(np.abs(dist))
         keep = np.abs(dist) < max(threshold, sigmas * scale)
         if keep.sum() < 3:
             break
@@ -690,7 +708,7 @@ def _smooth_region(
             if planes:
                 pl = np.stack(planes)
                 d_ret = np.abs(p_ret @ pl[:, :3].T + pl[:, 3]).min(1)
-                if 1.4826 * float(np.median(d_ret)) > opts.returns_max_sigma_m:
+                if 1.4826 * _median(d_ret) > opts.returns_max_sigma_m:
                     planes = []  # the returns too noisy for their fit: the pixels'
     if not planes:
         pts = _points(x, y, cur)
