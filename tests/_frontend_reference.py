@@ -1240,11 +1240,18 @@ def region_plane_normals_02ca12e(comp: NDArray[np.int32], n_comp: int, valid: ND
 
 
 # ------------------------------------------------------------- segmentation.geometric at 02ca12e
+def _row_blocks(n: int) -> list[tuple[int, int]]:
+    """``[start, stop)`` blocks of 512 rows covering ``n``, none of one row (a one-row product
+    would go to BLAS's matrix-vector routine, whose sums may differ)."""
+    starts = list(range(0, n, 512))
+    if len(starts) > 1 and n - starts[-1] < 2:
+        starts.pop()
+    return [(a, b) for a, b in zip(starts, [*starts[1:], n], strict=True)]
+
+
 def plane_scores_02ca12e(sub: F64, hn: F64, d: F64, thr: F64, sub_n: F64 | None = None,
                          cos_n: float = 0.0) -> NDArray[np.int64]:
     """``_plane_scores`` as of 02ca12e: the blocks' elementwise tests and counts in numpy."""
-    from bimcap.segmentation.geometric import _row_blocks
-
     if len(hn) < 2:
         ok_whole = np.abs(sub @ hn.T + d) < thr
         if sub_n is not None:

@@ -1310,8 +1310,9 @@ def test_raster_rejects_bad_arrays() -> None:
 @pytest.mark.parametrize("n", [1, 2, 3, 511, 512, 513, 514, 1025, 3000])
 @pytest.mark.parametrize("hypotheses", [1, 2, 7, 150])
 def test_plane_scores_same_as_02ca12e(n: int, hypotheses: int) -> None:
-    """The RANSAC scores with their tests and counts in ``_core.add_plane_scores``: 02ca12e's
-    numpy counts, with points at exactly the threshold (``<`` is strict), NaN points and normals,
+    """The RANSAC scores with their products, tests and counts in ``_core.add_plane_scores``
+    (the products rounded as numpy's matrix products: fused multiply-adds): 02ca12e's numpy
+    counts, with points at exactly the threshold (``<`` is strict), NaN points and normals,
     zero thresholds and a normal agreement exactly at ``cos_n``, for every block remainder."""
     from bimcap.segmentation.geometric import _plane_scores
 
@@ -1351,18 +1352,20 @@ def test_plane_scores_reject_bad_arrays() -> None:
     argument, and leave the scores as they were."""
     from bimcap import _core
 
-    t = np.zeros((5, 3))
-    good = {"score": np.zeros(3, np.int64), "products": t, "agree": t, "offsets": np.zeros(3),
-            "thresholds": np.ones(5), "cos_n": 0.5}
+    p = np.zeros((5, 3))
+    good = {"score": np.zeros(3, np.int64), "points": p, "normals": p,
+            "planes": np.zeros((3, 3)), "offsets": np.zeros(3), "thresholds": np.ones(5),
+            "cos_n": 0.5}
     read_only = np.zeros(3, np.int64)
     read_only.flags.writeable = False
     for override, field, text in [
         ({"score": np.zeros(3, np.int32)}, "score", "dtype int64"),
         ({"score": read_only}, "score", "read-only"),
-        ({"products": t.astype(np.float32)}, "products", "dtype float64"),
-        ({"products": t[:, :2]}, "products", "shape (n, 3)"),
-        ({"products": np.zeros((5, 6))[:, ::2]}, "products", "C-contiguous"),
-        ({"agree": t[:4]}, "agree", "shape (5, 3)"),
+        ({"points": p.astype(np.float32)}, "points", "dtype float64"),
+        ({"points": p[:, :2]}, "points", "shape (n, 3)"),
+        ({"points": np.zeros((5, 6))[:, ::2]}, "points", "C-contiguous"),
+        ({"normals": p[:4]}, "normals", "shape (5, 3)"),
+        ({"planes": np.zeros((2, 3))}, "planes", "shape (3, 3)"),
         ({"offsets": np.zeros(4)}, "offsets", "shape (3,)"),
         ({"thresholds": np.ones((5, 1))}, "thresholds", "shape (5,)"),
     ]:
@@ -1373,7 +1376,7 @@ def test_plane_scores_reject_bad_arrays() -> None:
         assert not args["score"].any()
     _core.add_plane_scores(**good)  # |0 + 0| < 1, but |0| > 0.5 is false
     assert np.array_equal(good["score"], [0, 0, 0])
-    _core.add_plane_scores(**(good | {"agree": None}))
+    _core.add_plane_scores(**(good | {"normals": None}))
     assert np.array_equal(good["score"], [5, 5, 5])
 
 

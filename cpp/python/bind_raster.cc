@@ -360,28 +360,30 @@ py::tuple ComponentPixels(const py::handle& labels_obj, int64_t count) {
   return py::make_tuple(pixels, starts);
 }
 
-void AddPlaneScores(const py::handle& score_obj, const py::handle& products_obj,
-                    const py::handle& agree_obj, const py::handle& offsets_obj,
-                    const py::handle& thresholds_obj, double cos_n) {
+void AddPlaneScores(const py::handle& score_obj, const py::handle& points_obj,
+                    const py::handle& normals_obj, const py::handle& planes_obj,
+                    const py::handle& offsets_obj, const py::handle& thresholds_obj, double cos_n) {
   py::array score = Checked<int64_t>(score_obj, "score", {-1});
   if (!score.writeable()) throw RasterError("score", "array is read-only");
-  const py::ssize_t cols = score.shape(0);
-  const py::array products = Checked<double>(products_obj, "products", {-1, cols});
-  const py::ssize_t rows = products.shape(0);
-  py::array agree;
-  const double* agree_data = nullptr;
-  if (!agree_obj.is_none()) {
-    agree = Checked<double>(agree_obj, "agree", {rows, cols});
-    agree_data = static_cast<const double*>(agree.data());
+  const py::ssize_t hypotheses = score.shape(0);
+  const py::array points = Checked<double>(points_obj, "points", {-1, 3});
+  const py::ssize_t rows = points.shape(0);
+  py::array normals;
+  const double* normals_data = nullptr;
+  if (!normals_obj.is_none()) {
+    normals = Checked<double>(normals_obj, "normals", {rows, 3});
+    normals_data = static_cast<const double*>(normals.data());
   }
-  const py::array offsets = Checked<double>(offsets_obj, "offsets", {cols});
+  const py::array planes = Checked<double>(planes_obj, "planes", {hypotheses, 3});
+  const py::array offsets = Checked<double>(offsets_obj, "offsets", {hypotheses});
   const py::array thresholds = Checked<double>(thresholds_obj, "thresholds", {rows});
-  const auto* t = static_cast<const double*>(products.data());
+  const auto* p = static_cast<const double*>(points.data());
+  const auto* h = static_cast<const double*>(planes.data());
   const auto* d = static_cast<const double*>(offsets.data());
   const auto* thr = static_cast<const double*>(thresholds.data());
   auto* out = static_cast<int64_t*>(score.mutable_data());
   py::gil_scoped_release release;
-  raster::AddPlaneScores(t, agree_data, d, thr, rows, cols, cos_n, out);
+  raster::AddPlaneScores(p, normals_data, h, d, thr, rows, hypotheses, cos_n, out);
 }
 
 py::tuple SimilarityTop2(const py::handle& sim_obj) {
@@ -455,14 +457,17 @@ void BindRaster(py::module_& m) {
         "the camera (against `points` (H, W, 3) float64), clears `ok` (H, W) bool where the "
         "norm is <= 1e-12 and sets the normals to 0 where `ok` is false; numpy's arithmetic "
         "bit for bit.");
-  m.def("add_plane_scores", &AddPlaneScores, py::arg("score"), py::arg("products"),
-        py::arg("agree"), py::arg("offsets"), py::arg("thresholds"), py::arg("cos_n"),
-        "Adds to score (I,) int64, in place, the number of rows i of a block where "
-        "|products[i, j] + offsets[j]| < thresholds[i] and (agree not None) |agree[i, j]| > "
-        "cos_n: the RANSAC score tables of bimcap.segmentation.geometric._plane_scores past "
-        "their BLAS products (numpy's arithmetic bit for bit). products, agree: (N, I) float64; "
-        "offsets: (I,) float64; thresholds: (N,) float64; all C-contiguous. Raises InputError "
-        "naming the bad argument (nothing is written then).");
+  m.def("add_plane_scores", &AddPlaneScores, py::arg("score"), py::arg("points"),
+        py::arg("normals"), py::arg("planes"), py::arg("offsets"), py::arg("thresholds"),
+        py::arg("cos_n"),
+        "Adds to score (I,) int64, in place, the number of points i where |p_i · h_j + d_j| < "
+        "thresholds[i] and (normals not None) |n_i · h_j| > cos_n: the RANSAC score tables of "
+        "bimcap.segmentation.geometric._plane_scores and bimcap.fusion.completion."
+        "_inlier_counts, each 3-term product rounded as numpy's matrix product (OpenBLAS, FMA "
+        "CPUs) forms it, without the tables (bimcap/raster/plane_scores.h). points, normals: "
+        "(N, 3) float64; planes: (I, 3) float64 h_j; offsets: (I,) float64 d_j; thresholds: "
+        "(N,) float64; all C-contiguous. Raises InputError naming the bad argument (nothing is "
+        "written then).");
   m.def("similarity_top2", &SimilarityTop2, py::arg("sim"),
         "sim (rows, cols) int32, C-contiguous, rows >= 1, cols >= 2 -> (row_best int64, row_s1, "
         "row_s2, col_s1, col_s2 int32): per row the first column of its largest value, the "

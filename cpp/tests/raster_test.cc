@@ -4,6 +4,7 @@
 // hand (the same file compares them with numpy).
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <string>
@@ -356,19 +357,41 @@ TEST(Gray, Bt601LumaRoundedAsRint) {
 }
 
 TEST(PlaneScores, StrictTestsAndAddedCounts) {
-  // 3 points × 2 hypotheses: |t + d| < thr strictly (point 1 sits exactly at the threshold of
-  // hypothesis 0), |a| > cos_n strictly, a NaN fails both.
-  const double products[] = {0.1, 0.0, 0.5, 2.0, std::nan(""), 0.2};
-  const double agree[] = {0.9, 0.9, 0.9, 0.5, 0.9, 0.9};
+  // 3 points × 2 hypotheses along x and y, so that t_ij is the point's coordinate j:
+  // |t + d| < thr strictly (point 1 sits exactly at the threshold of hypothesis 0), |a| > cos_n
+  // strictly, a NaN coordinate makes every product NaN and fails both tests.
+  const double points[] = {0.1, 0.0, 0.0, 0.5, 2.0, 0.0, std::nan(""), 0.2, 0.0};
+  const double normals[] = {0.9, 0.9, 0.0, 0.9, 0.5, 0.0, 0.9, 0.9, 0.0};
+  const double planes[] = {1.0, 0.0, 0.0, 0.0, 1.0, 0.0};
   const double offsets[] = {0.0, -0.1};
   const double thresholds[] = {0.2, 0.5, 0.3};
   int64_t score[] = {10, 20};
-  AddPlaneScores(products, nullptr, offsets, thresholds, 3, 2, 0.0, score);
+  AddPlaneScores(points, nullptr, planes, offsets, thresholds, 3, 2, 0.0, score);
   EXPECT_EQ(score[0], 11);  // 0.1 < 0.2; 0.5 < 0.5 no; NaN no
-  EXPECT_EQ(score[1], 22);  // 0.1 < 0.2; 1.9 < 0.5 no; 0.1 < 0.3
-  AddPlaneScores(products, agree, offsets, thresholds, 3, 2, 0.5, score);
+  EXPECT_EQ(score[1], 21);  // 0.1 < 0.2; 1.9 < 0.5 no; NaN no
+  AddPlaneScores(points, normals, planes, offsets, thresholds, 3, 2, 0.5, score);
   EXPECT_EQ(score[0], 12);
-  EXPECT_EQ(score[1], 24);  // row 1's agreement is 0.5, not > 0.5 (and its distance fails)
+  EXPECT_EQ(score[1], 22);  // row 1's agreement is 0.5, not > 0.5 (and its distance fails)
+}
+
+TEST(PlaneScores, ProductsAreFusedMultiplyAdds) {
+  // p · h with p0 h0 + p1 h1 cancelling: the fused form keeps the low bits that a rounded
+  // product loses, and the threshold sits between the two results.
+  const double e = std::ldexp(1.0, -30);
+  const double points[] = {1.0 + e, 1.0 - e, 0.0, 1.0 + e, 1.0 - e, 0.0};
+  const double planes[] = {1.0 + e, -(1.0 + e), 0.0, 1.0 + e, -(1.0 + e), 0.0};
+  const double offsets[] = {0.0, 0.0};
+  const double fused = std::fma(1.0 - e, -(1.0 + e), (1.0 + e) * (1.0 + e));
+  const double rounded = (1.0 + e) * (1.0 + e) + (1.0 - e) * -(1.0 + e);
+  ASSERT_NE(fused, rounded);
+  const double thresholds[] = {std::max(std::fabs(fused), std::fabs(rounded)),
+                               std::min(std::fabs(fused), std::fabs(rounded))};
+  int64_t score[] = {0, 0};
+  AddPlaneScores(points, nullptr, planes, offsets, thresholds, 2, 2, 0.0, score);
+  // point 0 counts where |t| < max(|fused|, |rounded|): true for the smaller one only
+  const int64_t want = std::fabs(fused) < thresholds[0] ? 1 : 0;
+  EXPECT_EQ(score[0], want);
+  EXPECT_EQ(score[1], want);
 }
 
 TEST(ComponentPixels, GroupedByLabelRowMajorInside) {

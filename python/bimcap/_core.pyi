@@ -103,15 +103,17 @@ def pixel_surface_area(
     """(H, W) m² each pixel of an undistorted (H, W) z-depth map covers (numpy's rounding)."""
 def add_plane_scores(
     score: NDArray[np.int64],
-    products: NDArray[np.float64],
-    agree: NDArray[np.float64] | None,
+    points: NDArray[np.float64],
+    normals: NDArray[np.float64] | None,
+    planes: NDArray[np.float64],
     offsets: NDArray[np.float64],
     thresholds: NDArray[np.float64],
     cos_n: float,
 ) -> None:
-    """Adds to ``score`` (I,) the rows i of a block where ``|products[i, j] + offsets[j]| <
-    thresholds[i]`` and (``agree`` not None) ``|agree[i, j]| > cos_n`` (numpy's rounding): the
-    segmenter's RANSAC score tables past their (N, I) BLAS products."""
+    """Adds to ``score`` (I,) the points i where ``|p_i · h_j + d_j| < thresholds[i]`` and
+    (``normals`` not None) ``|n_i · h_j| > cos_n``: the RANSACs' score tables, each product
+    rounded as numpy's matrix product forms it (fused multiply-adds), without the tables."""
+
 def similarity_top2(
     sim: NDArray[np.int32],
 ) -> tuple[NDArray[np.int64], NDArray[np.int32], NDArray[np.int32], NDArray[np.int32],

@@ -520,24 +520,19 @@ class PlanarSmoothingOptions:
 def _inlier_counts(points: F64, normals: F64, d: F64, threshold: float) -> NDArray[np.int64]:
     """(I,) how many of ``points`` (N, 3) lie within ``threshold`` of each plane ``normals``
     (I, 3), ``d`` (I,) (all float64): ``(|points·normalsᵀ + d| < threshold).sum(0)`` bit for
-    bit, in blocks of 512 rows that stay in the cache (a one-row block would go to BLAS's
-    matrix-vector routine, so the last block takes the remainder; one plane is computed whole):
-    each block's product in numpy (BLAS), the additions, comparisons and counts past it in one
-    pass of compiled code (``_core.add_plane_scores``, numpy's arithmetic)."""
+    bit (with two planes or more each product rounded as numpy's matrix product forms it),
+    counted in compiled code without the (N, I) table (``_core.add_plane_scores``:
+    cpp/bimcap/raster/plane_scores.h); one plane (a matrix-vector product) in numpy."""
     from bimcap import _core
 
     if len(normals) < 2:
         whole: NDArray[np.int64] = (np.abs(points @ normals.T + d) < threshold).sum(0)
         return whole
-    starts = list(range(0, len(points), 512))
-    if len(starts) > 1 and len(points) - starts[-1] < 2:
-        starts.pop()
     counts = np.zeros(len(normals), np.int64)
-    offsets = np.ascontiguousarray(d, dtype=np.float64)
-    thresholds = np.full(len(points), float(threshold))
-    for a, b in zip(starts, [*starts[1:], len(points)], strict=True):
-        _core.add_plane_scores(counts, points[a:b] @ normals.T, None, offsets, thresholds[a:b],
-                               0.0)
+    _core.add_plane_scores(counts, np.ascontiguousarray(points, dtype=np.float64), None,
+                           np.ascontiguousarray(normals, dtype=np.float64),
+                           np.ascontiguousarray(d, dtype=np.float64),
+                           np.full(len(points), float(threshold)), 0.0)
     return counts
 
 

@@ -358,20 +358,6 @@ def _ransac_vertical(scene: _WorkScene, cand: NDArray[np.int64], up: F64,
     return _Plane(normal, float(-normal @ centroid))
 
 
-#: Rows of the RANSAC's (sample, hypothesis) tables computed at once: blocks that stay in the
-#: cache (3× faster than the whole 3000 × 150 table on the 2-core box).
-_SCORE_ROWS = 512
-
-
-def _row_blocks(n: int) -> list[tuple[int, int]]:
-    """``[start, stop)`` blocks of ``_SCORE_ROWS`` rows covering ``n``, none of one row (a
-    one-row product would go to BLAS's matrix-vector routine, whose sums may differ)."""
-    starts = list(range(0, n, _SCORE_ROWS))
-    if len(starts) > 1 and n - starts[-1] < 2:
-        starts.pop()
-    return [(a, b) for a, b in zip(starts, [*starts[1:], n], strict=True)]
-
-
 def _plane_scores(sub: F64, hn: F64, d: F64, thr: F64, sub_n: F64 | None = None,
                   cos_n: float = 0.0) -> NDArray[np.int64]:
     """Per hypothesis (``hn`` (I, 3) unit normals, ``d`` (I,) offsets): how many of the points
@@ -379,10 +365,10 @@ def _plane_scores(sub: F64, hn: F64, d: F64, thr: F64, sub_n: F64 | None = None,
     normal (``sub_n`` (N, 3)) within acos(``cos_n``) of it.
 
     The same counts as ``((|sub·hnᵀ + d| < thr) & (|sub_n·hnᵀ| > cos_n)).sum(0)`` bit for bit
-    (each entry of a product is the same 3-term sum in any block of rows of a matrix-matrix
-    product; one hypothesis is computed whole), in blocks of rows: each block's products in
-    numpy (BLAS), the additions, comparisons and counts past them in one pass of compiled code
-    (``_core.add_plane_scores``, numpy's arithmetic).
+    (with two hypotheses or more each product rounded as numpy's matrix product forms it),
+    counted in compiled code without the (N, I) tables (``_core.add_plane_scores``:
+    cpp/bimcap/raster/plane_scores.h); one hypothesis (a matrix-vector product, whose rounding
+    differs) in numpy.
     """
     if len(hn) < 2:
         ok_whole = np.abs(sub @ hn.T + d) < thr
@@ -393,11 +379,12 @@ def _plane_scores(sub: F64, hn: F64, d: F64, thr: F64, sub_n: F64 | None = None,
     from bimcap import _core
 
     score = np.zeros(len(hn), np.int64)
-    offsets = np.ascontiguousarray(d, dtype=np.float64)
-    thr_rows = np.ascontiguousarray(thr[:, 0], dtype=np.float64)
-    for a, b in _row_blocks(len(sub)):
-        agree = None if sub_n is None else sub_n[a:b] @ hn.T
-        _core.add_plane_scores(score, sub[a:b] @ hn.T, agree, offsets, thr_rows[a:b], cos_n)
+    _core.add_plane_scores(score, np.ascontiguousarray(sub, dtype=np.float64),
+                           None if sub_n is None else np.ascontiguousarray(sub_n,
+                                                                           dtype=np.float64),
+                           np.ascontiguousarray(hn, dtype=np.float64),
+                           np.ascontiguousarray(d, dtype=np.float64),
+                           np.ascontiguousarray(thr[:, 0], dtype=np.float64), cos_n)
     return score
 
 
