@@ -10,10 +10,11 @@
 //
 // t_ij is rounded as OpenBLAS's matrix-matrix kernels form a 3-term product on CPUs with fused
 // multiply-add (x86-64 since Haswell and Zen): numpy's `p @ h.T` with two rows or more and two
-// columns or more, bit for bit (tests compare with numpy), and the same numbers on a CPU without
-// FMA (std::fma, correctly rounded in software there, slower). The sum, absolute values and
-// comparisons are rounded as numpy's `dist += d`, `np.abs`, `<` and `>` (a NaN fails both
-// tests). Computed without forming the (N, I) tables.
+// columns or more (one row or one column goes to a matrix-vector kernel that rounds otherwise:
+// the callers keep those in numpy), bit for bit (tests compare with numpy); the same numbers on
+// a CPU without FMA (std::fma, correctly rounded in software there, slower). The sum, absolute
+// values and comparisons are rounded as numpy's `dist += d`, `np.abs`, `<` and `>` (a NaN fails
+// both tests). Computed without forming the (N, I) tables.
 #ifndef BIMCAP_RASTER_PLANE_SCORES_H_
 #define BIMCAP_RASTER_PLANE_SCORES_H_
 

@@ -520,12 +520,13 @@ class PlanarSmoothingOptions:
 def _inlier_counts(points: F64, normals: F64, d: F64, threshold: float) -> NDArray[np.int64]:
     """(I,) how many of ``points`` (N, 3) lie within ``threshold`` of each plane ``normals``
     (I, 3), ``d`` (I,) (all float64): ``(|points·normalsᵀ + d| < threshold).sum(0)`` bit for
-    bit (with two planes or more each product rounded as numpy's matrix product forms it),
-    counted in compiled code without the (N, I) table (``_core.add_plane_scores``:
-    cpp/bimcap/raster/plane_scores.h); one plane (a matrix-vector product) in numpy."""
+    bit (with two points or more and two planes or more each product rounded as numpy's
+    matrix-matrix product forms it), counted in compiled code without the (N, I) table
+    (``_core.add_plane_scores``: cpp/bimcap/raster/plane_scores.h); one point or one plane (a
+    matrix-vector product) in numpy."""
     from bimcap import _core
 
-    if len(normals) < 2:
+    if len(normals) < 2 or len(points) < 2:
         whole: NDArray[np.int64] = (np.abs(points @ normals.T + d) < threshold).sum(0)
         return whole
     counts = np.zeros(len(normals), np.int64)

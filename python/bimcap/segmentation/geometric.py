@@ -365,12 +365,12 @@ def _plane_scores(sub: F64, hn: F64, d: F64, thr: F64, sub_n: F64 | None = None,
     normal (``sub_n`` (N, 3)) within acos(``cos_n``) of it.
 
     The same counts as ``((|sub·hnᵀ + d| < thr) & (|sub_n·hnᵀ| > cos_n)).sum(0)`` bit for bit
-    (with two hypotheses or more each product rounded as numpy's matrix product forms it),
-    counted in compiled code without the (N, I) tables (``_core.add_plane_scores``:
-    cpp/bimcap/raster/plane_scores.h); one hypothesis (a matrix-vector product, whose rounding
-    differs) in numpy.
+    (with two points or more and two hypotheses or more each product rounded as numpy's
+    matrix-matrix product forms it), counted in compiled code without the (N, I) tables
+    (``_core.add_plane_scores``: cpp/bimcap/raster/plane_scores.h); one point or one hypothesis
+    (a matrix-vector product, whose rounding differs) in numpy.
     """
-    if len(hn) < 2:
+    if len(hn) < 2 or len(sub) < 2:
         ok_whole = np.abs(sub @ hn.T + d) < thr
         if sub_n is not None:
             ok_whole &= np.abs(sub_n @ hn.T) > cos_n
