@@ -278,10 +278,7 @@ py::ssize_t MoveOntoPlanes(const py::handle& out_obj, const py::handle& flat_obj
   if (k < 1) throw RasterError("planes", "needs at least one plane, got (0, 4)");
   const double* table = nullptr;
   py::array products;
-  if (k > 1) {
-    if (products_obj.is_none()) {
-      throw RasterError("products", "the (n, K) table p · n_k is needed with K > 1 planes");
-    }
+  if (k > 1 && !products_obj.is_none()) {
     products = Checked<double>(products_obj, "products", {n, k});
     table = static_cast<const double*>(products.data());
   }
@@ -441,8 +438,10 @@ void BindRaster(py::module_& m) {
         "its planes along their rays, in place (bimcap.fusion.completion._smooth_region's "
         "arithmetic bit for bit); returns how many moved. flat: (n,) int64 indices into out; "
         "ray_x, ray_y: (n,) float64 rays (x, y, 1); depth: (n,) float64 current depths (m); "
-        "planes: (K, 4) float64 n0 n1 n2 d; products: (n, K) float64 p · n_k (None when K = 1). "
-        "Raises InputError naming the bad argument (nothing is written then).");
+        "planes: (K, 4) float64 n0 n1 n2 d; products: (n, K) float64 p · n_k, or None to form "
+        "them here as numpy's matrix product of p = (x z, y z, z) forms them (fused "
+        "multiply-adds; ignored when K = 1). Raises InputError naming the bad argument (nothing "
+        "is written then).");
   m.def("points_and_cross", &PointsAndCross, py::arg("depth"), py::arg("fx"), py::arg("fy"),
         py::arg("cx"), py::arg("cy"), py::arg("step"), py::arg("float32"),
         py::arg("jump_offset_m") = 0.05,

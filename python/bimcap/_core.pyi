@@ -134,8 +134,9 @@ def move_onto_planes(
     max_change_rel: float,
 ) -> int:
     """Moves one region's pixels ``out[flat]`` (raveled float32 depth, in place) onto the nearest
-    of its (K, 4) planes along their rays (numpy's rounding); ``products`` (n, K) p · n_k, None
-    for one plane. Returns how many pixels moved."""
+    of its (K, 4) planes along their rays (numpy's rounding); ``products`` (n, K) p · n_k, or
+    None to form them as numpy's matrix product of p = (x z, y z, z) does (fused multiply-adds).
+    Returns how many pixels moved."""
 def points_and_cross(
     depth: NDArray[np.float32], fx: float, fy: float, cx: float, cy: float, step: int,
     float32: bool, jump_offset_m: float = 0.05,

@@ -2,17 +2,21 @@
 
 #include <cmath>
 #include <string>
+#include <vector>
 
 #include "bimcap/raster/image.h"
 
 namespace bimcap::raster {
-int64_t MoveOntoPlanes(const RegionPixels& region, const double* planes, int64_t plane_count,
-                       const double* products, const PlaneMove& move, float* out,
-                       int64_t out_size) {
+
+// On x86-64 with GCC or Clang an FMA clone (fused multiply-add in hardware, for the products)
+// is picked at load time where the CPU has it; both clones form the same numbers.
+#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+__attribute__((target_clones("fma", "default")))
+#endif
+int64_t
+MoveOntoPlanes(const RegionPixels& region, const double* planes, int64_t plane_count,
+               const double* products, const PlaneMove& move, float* out, int64_t out_size) {
   if (plane_count < 1) throw RasterError("planes", "needs at least one plane");
-  if (plane_count > 1 && products == nullptr) {
-    throw RasterError("products", "needed with more than one plane");
-  }
   for (int64_t i = 0; i < region.count; ++i) {
     if (region.flat[i] < 0 || region.flat[i] >= out_size) {
       throw RasterError("flat", "index " + std::to_string(region.flat[i]) + " at " +
@@ -21,11 +25,21 @@ int64_t MoveOntoPlanes(const RegionPixels& region, const double* planes, int64_t
     }
   }
   int64_t moved = 0;
+  std::vector<double> row(products == nullptr ? static_cast<size_t>(plane_count) : 0);
   for (int64_t i = 0; i < region.count; ++i) {
     int64_t best = 0;
     bool near = true;
     if (plane_count > 1) {
       const double* t = products + i * plane_count;
+      if (products == nullptr) {  // p = (x z, y z, z), t_k = p · n_k as a matrix product forms it
+        const double z = region.depth[i];
+        const double p0 = region.ray_x[i] * z, p1 = region.ray_y[i] * z;
+        for (int64_t k = 0; k < plane_count; ++k) {
+          const double* n = planes + 4 * k;
+          row[k] = std::fma(z, n[2], std::fma(p1, n[1], p0 * n[0]));
+        }
+        t = row.data();
+      }
       // np.argmin (the first minimum; the first NaN if any) and np.minimum taken column by
       // column (NaN-propagating) of |t_k + d_k|
       double least = std::fabs(t[0] + planes[3]);

@@ -5,15 +5,18 @@
 // and its K planes n_k · p + d_k = 0 (unit n_k):
 //
 //   K = 1:  k = 0, every pixel near
-//   K > 1:  dist_ik = |t_ik + d_k| with t_ik = p_i · n_k given (numpy's BLAS product, left
-//           there: its rounding is the library's), k = the first arg-min of dist_i (np.argmin:
-//           the first NaN if any), near = min_k dist_ik <= assign_threshold (np.minimum column
-//           by column: a NaN makes it false)
+//   K > 1:  dist_ik = |t_ik + d_k| with t_ik = p_i · n_k, given (numpy's product) or formed
+//           here from p_i = (x_i z_i, y_i z_i, z_i) as OpenBLAS's matrix-matrix product forms
+//           it on CPUs with fused multiply-add, fma(p2, n2, fma(p1, n1, p0 n0)) (numpy's
+//           `p @ n.T` of two rows or more, bit for bit), k = the first arg-min of dist_i
+//           (np.argmin: the first NaN if any), near = min_k dist_ik <= assign_threshold (np.minimum
+//           column by column: a NaN makes it false)
 //   denom = (x_i n_k0 + y_i n_k1) + n_k2,   z = (−d_k) / denom
 //   out[flat_i] = float32(z)  where z is finite, z > 0, |z − z_i| <= max_change_rel · z_i and near
 //
-// Every operation is rounded on its own, in numpy's order (the file is compiled with
-// -ffp-contract=off: no fused multiply-add); other pixels of `out` are left as they are.
+// Every other operation is rounded on its own, in numpy's order (the file is compiled with
+// -ffp-contract=off: no contraction into fused multiply-adds); other pixels of `out` are left as
+// they are.
 #ifndef BIMCAP_RASTER_PLANE_DEPTH_H_
 #define BIMCAP_RASTER_PLANE_DEPTH_H_
 
@@ -40,10 +43,10 @@ struct PlaneMove {
 };
 
 // Moves the region's pixels of `out` (raveled image of `out_size` floats) onto `planes`, a
-// row-major (plane_count, 4) table of n0 n1 n2 d. `products`: with plane_count > 1 the row-major
-// (count, plane_count) table p_i · n_k (ignored, may be null, with one plane). Returns the number
-// of pixels moved. Throws RasterError ("flat") for an index outside [0, out_size) and ("planes")
-// for plane_count < 1 or a missing table, before anything is written.
+// row-major (plane_count, 4) table of n0 n1 n2 d. `products`: the row-major (count, plane_count)
+// table p_i · n_k, or null to form it here (ignored with one plane). Returns the number of pixels
+// moved. Throws RasterError ("flat") for an index outside [0, out_size) and ("planes") for
+// plane_count < 1, before anything is written.
 int64_t MoveOntoPlanes(const RegionPixels& region, const double* planes, int64_t plane_count,
                        const double* products, const PlaneMove& move, float* out, int64_t out_size);
 

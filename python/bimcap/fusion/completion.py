@@ -692,7 +692,6 @@ def _smooth_region(
 
     x, y = ray_x[flat], ray_y[flat]
     cur = depth[flat].astype(np.float64)
-    pts = None
     planes: list[F64] = []
     if measured is not None and opts.fit_to is PlaneFitPoints.RETURNS:
         z_ret = measured[flat].astype(np.float64)
@@ -707,19 +706,19 @@ def _smooth_region(
                 if 1.4826 * _median(d_ret) > opts.returns_max_sigma_m:
                     planes = []  # the returns too noisy for their fit: the pixels'
     if not planes:
-        pts = _points(x, y, cur)
-        planes = _region_planes(pts, opts, rng)
+        planes = _region_planes(_points(x, y, cur), opts, rng)
     if not planes:
         return
     pl = np.stack(planes)  # (K, 4)
     products = None
-    if len(pl) > 1:
-        if pts is None:
-            pts = _points(x, y, cur)
-        products = pts @ pl[:, :3].T  # (N, K) n·p: BLAS's product, left to numpy
+    if len(pl) > 1 and len(flat) < 2:
+        # one pixel: numpy's matrix-vector product (rounded otherwise than the matrix-matrix
+        # products that move_onto_planes forms for two pixels or more)
+        products = _points(x, y, cur) @ pl[:, :3].T
     # each pixel onto its nearest plane along its ray, where that changes its depth by at most
-    # max_change_rel (with K > 1 planes: where the nearest is within assign_threshold_m); numpy's
-    # arithmetic in compiled code (cpp/bimcap/raster/plane_depth.h)
+    # max_change_rel (with K > 1 planes: where the nearest is within assign_threshold_m, the
+    # products p · n_k formed as numpy's `_points(x, y, cur) @ pl[:, :3].T`); numpy's arithmetic
+    # in compiled code (cpp/bimcap/raster/plane_depth.h)
     _core.move_onto_planes(out, flat, x, y, cur, pl, products, opts.assign_threshold_m,
                            opts.max_change_rel)
 
