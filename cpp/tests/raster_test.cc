@@ -275,8 +275,23 @@ TEST(PlaneDepth, RejectsIndicesOutsideTheImageBeforeWriting) {
   EXPECT_EQ(out[0], 5.0f);  // nothing written
   EXPECT_THROW(MoveOntoPlanes({x, x, depth, flat, 1}, plane, 0, nullptr, {0.08, 1.0}, out, 2),
                RasterError);
-  EXPECT_THROW(MoveOntoPlanes({x, x, depth, flat, 1}, plane, 2, nullptr, {0.08, 1.0}, out, 2),
-               RasterError);
+}
+
+TEST(PlaneDepth, ProductsFormedWhenNotGiven) {
+  // two planes z = 1 and z = 2 seen along the optical axis from z = 1.2 and 1.9: the nearest
+  // one taken with the products formed here as with the table given (t = z, exactly)
+  const double x[] = {0.0, 0.0};
+  const double depth[] = {1.2, 1.9};
+  const int64_t flat[] = {0, 1};
+  const double planes[] = {0, 0, 1, -1.0, 0, 0, 1, -2.0};
+  const double products[] = {1.2, 1.2, 1.9, 1.9};
+  float formed[2] = {0, 0}, given[2] = {0, 0};
+  EXPECT_EQ(MoveOntoPlanes({x, x, depth, flat, 2}, planes, 2, nullptr, {0.5, 1.0}, formed, 2), 2);
+  EXPECT_EQ(MoveOntoPlanes({x, x, depth, flat, 2}, planes, 2, products, {0.5, 1.0}, given, 2), 2);
+  EXPECT_EQ(formed[0], 1.0f);
+  EXPECT_EQ(formed[1], 2.0f);
+  EXPECT_EQ(formed[0], given[0]);
+  EXPECT_EQ(formed[1], given[1]);
 }
 
 TEST(DepthNormals, FlatWallFacingTheCameraWithSignedZeros) {
