@@ -684,10 +684,10 @@ def one_thread() -> Iterator[None]:
     block, as they were after it.
 
     The front end's parallelism is one job a core (processes, or Dask threads); BLAS and OpenCV
-    threads inside a job only compete with the other jobs, and the small products of the RANSACs
-    cost about 3× the CPU time with OpenBLAS's threads than on one (a 3000 × 150 score table:
-    8 vs 2.5 ms on the 2-core box; docs/speed.md). The results are the same bit for bit: these
-    libraries split a product's output, not its sums, across threads
+    threads inside a job only compete with the other jobs, and small products cost about 3× the
+    CPU time with OpenBLAS's threads than on one (a 3000 × 150 RANSAC score table, when numpy
+    formed it: 8 vs 2.5 ms on the 2-core box; docs/speed.md). The results are the same bit for
+    bit: these libraries split a product's output, not its sums, across threads
     (``tests/test_frontend_speed.py`` compares a whole front end both ways).
     """
     import cv2
