@@ -17,6 +17,15 @@ pycolmap and ONNX Runtime, first calls) is printed apart instead of spread over 
 
     PYTHONPATH=python python bench/bench_frontend.py --world /tmp/gen/gen-demo-s0/seq_60_standard
 
+Against another checkout (``--world SEQ_DIR --against TREE [--repeat N]``): the same per-stage
+run of this script on this checkout's code and on TREE's (a checkout of another commit whose
+``python/bimcap`` holds its built ``_core``, e.g. a ``git worktree``), alternating N times, each
+stage's least ms a frame of each, and the ratio: the VM's speed swings by ±15 % within minutes,
+which the least of alternating runs absorbs.
+
+    PYTHONPATH=python python bench/bench_frontend.py --world /tmp/gen/gen-demo-s0/seq_60_standard \
+        --frames 40 --against /tmp/base --repeat 4
+
 Backends part (``--world SEQ_DIR --backends pycolmap,orb``): the features stages alone
 (extraction, matching, verification) of each ``[features] backend`` on the same frames in the
 same process, with keypoints and verified matches a pair.
@@ -591,6 +600,58 @@ def bench_prepare(seq_dir: Path, frames: int, work: Path,
     return best, n
 
 
+def _stage_ms(output: str) -> dict[str, float]:
+    """{stage: ms a frame} of a ``--world`` run's table (columns two spaces or more apart)."""
+    import re
+
+    out: dict[str, float] = {}
+    rows = output.split("\nstage ", 1)[-1].splitlines()[1:]
+    for line in rows:
+        cells = re.split(r"\s{2,}", line.strip())
+        if len(cells) >= 2 and not cells[0].startswith(("frames/s", "pairs per", "once a")):
+            try:
+                out[cells[0]] = float(cells[1])
+            except ValueError:
+                continue
+    return out
+
+
+def bench_against(world: Path, frames: int, tree: Path, repeat: int) -> list[list[str]]:
+    """Rows (stage, this ms, TREE's ms, ratio) of the per-stage run on this checkout's code and
+    on ``tree``'s, alternating ``repeat`` times, each the least over the runs."""
+    import subprocess
+
+    here = Path(__file__).resolve().parents[1]
+    best: dict[str, dict[str, float]] = {"this": {}, "other": {}}
+    order: list[str] = []
+    for _ in range(repeat):
+        for name, root in (("this", here), ("other", tree)):
+            env = dict(os.environ, PYTHONPATH=str(root / "python"))
+            run = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--world",
+                                  str(world), "--frames", str(frames), "--no-previous"],
+                                 cwd=root, env=env, capture_output=True, text=True)
+            if run.returncode != 0:
+                raise SystemExit(f"{root}: the bench failed:\n{run.stderr[-2000:]}")
+            for stage, ms in _stage_ms(run.stdout).items():
+                if stage not in order:
+                    order.append(stage)
+                best[name][stage] = min(best[name].get(stage, float("inf")), ms)
+    rows = []
+    for stage in order:
+        a, b = best["this"].get(stage), best["other"].get(stage)
+        ratio = f"{b / a:.2f}×" if a and b else ""
+        rows.append([stage, f"{a:.1f}" if a is not None else "", f"{b:.1f}" if b is not None
+                     else "", ratio])
+    total_a, total_b = best["this"].get("total"), best["other"].get("total")
+    if total_a and total_b:
+        from bimcap.dataset import read_sequence
+
+        goal = goal_fps(read_sequence(world).camera.width)
+        rows.append([f"frames/s per core (goal {goal:g})", f"{1e3 / total_a:.2f}",
+                     f"{1e3 / total_b:.2f}", f"{total_b / total_a:.2f}×"])
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=6)
@@ -624,6 +685,10 @@ def main() -> None:
     ap.add_argument("--previous-matching", action="append", default=[], metavar="KEY=VALUE",
                     help="with --world: a [matching] setting of the 'previous' column (default: "
                          "the defaults); with --prepare as --previous-features")
+    ap.add_argument("--against", type=Path, default=None, metavar="TREE",
+                    help="with --world: the per-stage run on this checkout and on TREE's code "
+                         "(a checkout with its built _core), alternating --repeat times, the "
+                         "least of each and the ratio")
     ap.add_argument("--repeat", type=int, default=1,
                     help="with --prepare: the least CPU time of this many runs of each setting")
     ap.add_argument("--prepare", action="store_true",
@@ -675,6 +740,17 @@ def main() -> None:
                   f"{n / cpu:.2f} frames/s per core (goal {goal:.0f}; {cpu:.1f} CPU s)")
         if len(cpus) == 2:
             print(f"previous / this: {cpus[1] / cpus[0]:.2f}×")
+        return
+    if args.world is not None and args.against is not None:
+        frames = args.frames if args.frames != 6 else 20
+        print(f"# front end per stage on {args.world}, first {frames} frames, this checkout "
+              f"against {args.against}, least of {args.repeat} alternating runs each, 1 thread, "
+              f"process CPU ms a frame, load average {os.getloadavg()[0]:.1f}")
+        rows = bench_against(args.world, frames, args.against, args.repeat)
+        w = max(len(r[0]) for r in rows)
+        print(f"{'stage':<{w}}  {'this':>9}  {'against':>9}  {'ratio':>7}")
+        for stage, a, b, ratio in rows:
+            print(f"{stage:<{w}}  {a:>9}  {b:>9}  {ratio:>7}")
         return
     if args.world is not None:
         frames = args.frames if args.frames != 6 else 20
