@@ -37,7 +37,7 @@ from bimcap.fusion.projection import FusionInputError, SparseDepth
 from bimcap.fusion.sparse import downsample_sparse
 from bimcap.geometry import Camera
 from bimcap.geometry.noise import noise_factor
-from bimcap.geometry.vectors import cross_rows
+from bimcap.geometry.vectors import cross_rows, plane_inlier_counts
 from bimcap.labels import Label
 from bimcap.methods import CompletionMethod
 
@@ -520,21 +520,8 @@ class PlanarSmoothingOptions:
 def _inlier_counts(points: F64, normals: F64, d: F64, threshold: float) -> NDArray[np.int64]:
     """(I,) how many of ``points`` (N, 3) lie within ``threshold`` of each plane ``normals``
     (I, 3), ``d`` (I,) (all float64): ``(|points·normalsᵀ + d| < threshold).sum(0)`` bit for
-    bit (with two points or more and two planes or more each product rounded as numpy's
-    matrix-matrix product forms it), counted in compiled code without the (N, I) table
-    (``_core.add_plane_scores``: cpp/bimcap/raster/plane_scores.h); one point or one plane (a
-    matrix-vector product) in numpy."""
-    from bimcap import _core
-
-    if len(normals) < 2 or len(points) < 2:
-        whole: NDArray[np.int64] = (np.abs(points @ normals.T + d) < threshold).sum(0)
-        return whole
-    counts = np.zeros(len(normals), np.int64)
-    _core.add_plane_scores(counts, np.ascontiguousarray(points, dtype=np.float64), None,
-                           np.ascontiguousarray(normals, dtype=np.float64),
-                           np.ascontiguousarray(d, dtype=np.float64),
-                           np.full(len(points), float(threshold)), 0.0)
-    return counts
+    bit (:func:`bimcap.geometry.vectors.plane_inlier_counts`)."""
+    return plane_inlier_counts(points, normals, d, threshold)
 
 
 def fit_plane_ransac(

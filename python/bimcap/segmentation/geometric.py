@@ -65,7 +65,7 @@ from numpy.typing import NDArray
 
 from bimcap.geometry import Camera, quat_to_rotmat
 from bimcap.geometry.noise import noise_factor
-from bimcap.geometry.vectors import cross_rows
+from bimcap.geometry.vectors import cross_rows, plane_inlier_counts
 from bimcap.labels import Label
 from bimcap.segmentation.base import U8, FrameInput, check_shape
 from bimcap.segmentation.errors import SegmentationInputError
@@ -365,27 +365,9 @@ def _plane_scores(sub: F64, hn: F64, d: F64, thr: F64, sub_n: F64 | None = None,
     normal (``sub_n`` (N, 3)) within acos(``cos_n``) of it.
 
     The same counts as ``((|sub·hnᵀ + d| < thr) & (|sub_n·hnᵀ| > cos_n)).sum(0)`` bit for bit
-    (with two points or more and two hypotheses or more each product rounded as numpy's
-    matrix-matrix product forms it), counted in compiled code without the (N, I) tables
-    (``_core.add_plane_scores``: cpp/bimcap/raster/plane_scores.h); one point or one hypothesis
-    (a matrix-vector product, whose rounding differs) in numpy.
+    (:func:`bimcap.geometry.vectors.plane_inlier_counts`).
     """
-    if len(hn) < 2 or len(sub) < 2:
-        ok_whole = np.abs(sub @ hn.T + d) < thr
-        if sub_n is not None:
-            ok_whole &= np.abs(sub_n @ hn.T) > cos_n
-        whole: NDArray[np.int64] = ok_whole.sum(0)
-        return whole
-    from bimcap import _core
-
-    score = np.zeros(len(hn), np.int64)
-    _core.add_plane_scores(score, np.ascontiguousarray(sub, dtype=np.float64),
-                           None if sub_n is None else np.ascontiguousarray(sub_n,
-                                                                           dtype=np.float64),
-                           np.ascontiguousarray(hn, dtype=np.float64),
-                           np.ascontiguousarray(d, dtype=np.float64),
-                           np.ascontiguousarray(thr[:, 0], dtype=np.float64), cos_n)
-    return score
+    return plane_inlier_counts(sub, hn, d, thr[:, 0], sub_n, cos_n)
 
 
 def _rows_dot(p: F64, idx: NDArray[np.intp], v: F64) -> F64:
