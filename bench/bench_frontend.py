@@ -1,8 +1,9 @@
 """Front-end benchmark: per-stage CPU ms a frame on a generated world; SIFT and matching.
 
 Times are process CPU seconds of single-threaded calls (BLAS, OpenCV and pycolmap on one thread,
-as inside the front end's jobs: ``bimcap.frontend.runner.one_thread``): on a machine shared with
-other work, wall time also counts the time other processes held the core.
+and glibc's freed heap kept between frames, as inside the front end's jobs:
+``bimcap.frontend.runner.one_thread``, ``bimcap.frontend.heap.keep_freed_heap``): on a machine
+shared with other work, wall time also counts the time other processes held the core.
 
 World part (``--world SEQ_DIR``): every stage of the front end as ``bimcap refine`` runs it
 (``make_providers`` of ``RefineConfig()``: LiDAR projection, linear completion, geometric
@@ -224,6 +225,21 @@ def _references() -> dict[str, Any]:
     except ImportError:  # pragma: no cover - the tests folder is next to bench/
         return {}
     return dict(_frontend_reference.REFERENCES)
+
+
+def _as_jobs() -> Any:
+    """This process as the front end's jobs run it: BLAS and OpenCV on one thread (the context
+    returned, ``one_thread``) and the freed heap kept between frames (``keep_freed_heap``, from
+    2026-11-29; code before it, e.g. a ``--against`` tree, runs without)."""
+    from bimcap.frontend.runner import one_thread
+
+    try:
+        from bimcap.frontend.heap import keep_freed_heap
+    except ImportError:
+        pass
+    else:
+        keep_freed_heap()
+    return one_thread()
 
 
 def _same(a: Any, b: Any) -> bool:
@@ -713,9 +729,7 @@ def main() -> None:
                 "verified/pair", "pairs verified", "features ms/frame", "frames/s/core",
                 "GT match error median / p95 cm")
         print(" | ".join(head))
-        from bimcap.frontend.runner import one_thread
-
-        with one_thread():  # BLAS and OpenCV as the front end's jobs run them
+        with _as_jobs():  # BLAS, OpenCV and the heap as the front end's jobs run them
             for row in bench_world_features(args.world, frames, window,
                                             args.backends.split(",")):
                 print(" | ".join(row), flush=True)
@@ -763,9 +777,7 @@ def main() -> None:
                  if features or old_features else "")
               + (f"; [matching] {matching or {}}, 'previous' = [matching] {old_matching or {}}"
                  if matching or old_matching else ""))
-        from bimcap.frontend.runner import one_thread
-
-        with one_thread():  # BLAS and OpenCV as the front end's jobs run them
+        with _as_jobs():  # BLAS, OpenCV and the heap as the front end's jobs run them
             rows, _ = bench_world(args.world, frames, window, not args.no_previous,
                                   args.before_defaults, features, matching, old_features,
                                   old_matching)

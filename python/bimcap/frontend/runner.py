@@ -71,6 +71,7 @@ from bimcap.frontend.executor import (
     dask_client,
     require_distributed,
 )
+from bimcap.frontend.heap import keep_freed_heap
 from bimcap.frontend.semantic_map import (
     SEMANTIC_CLASSES,
     SampleSource,
@@ -731,8 +732,10 @@ def compute_frame(job: _FrameJob, *, shared: _RunShared | None = None
     ``job.features`` holds them), the keypoint depths ``depth``, the semantic samples
     ``<class>_p_in_cam`` and the timings ``time_s`` / ``sift_time_s``.
 
-    Runs with BLAS and OpenCV on one thread (:func:`one_thread`).
+    Runs with BLAS and OpenCV on one thread (:func:`one_thread`), in a process that keeps its
+    freed heap for the next job (:func:`bimcap.frontend.heap.keep_freed_heap`).
     """
+    keep_freed_heap()
     with one_thread():
         return _compute_frame(job, shared)
 
@@ -822,9 +825,10 @@ class _PairJob:
 
 
 def compute_pair(job: _PairJob) -> dict[str, NDArray[Any]]:
-    """Match and verify one pair (BLAS and OpenCV on one thread); returns the arrays that the
-    cache stores."""
+    """Match and verify one pair (BLAS and OpenCV on one thread, the freed heap kept as by
+    :func:`compute_frame`); returns the arrays that the cache stores."""
     t0 = time.perf_counter()
+    keep_freed_heap()
     with one_thread():
         pm = match_pair(job.feats_a, job.feats_b, job.camera, job.frame_a, job.frame_b,
                         job.options)
