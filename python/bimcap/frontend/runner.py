@@ -71,7 +71,7 @@ from bimcap.frontend.executor import (
     dask_client,
     require_distributed,
 )
-from bimcap.frontend.heap import keep_freed_heap
+from bimcap.frontend.heap import callers_heap, keep_freed_heap
 from bimcap.frontend.semantic_map import (
     SEMANTIC_CLASSES,
     SampleSource,
@@ -732,8 +732,9 @@ def compute_frame(job: _FrameJob, *, shared: _RunShared | None = None
     ``job.features`` holds them), the keypoint depths ``depth``, the semantic samples
     ``<class>_p_in_cam`` and the timings ``time_s`` / ``sift_time_s``.
 
-    Runs with BLAS and OpenCV on one thread (:func:`one_thread`), in a process that keeps its
-    freed heap for the next job (:func:`bimcap.frontend.heap.keep_freed_heap`).
+    Runs with BLAS and OpenCV on one thread (:func:`one_thread`), in a worker process that keeps
+    its freed heap for the next job (:func:`bimcap.frontend.heap.keep_freed_heap`; not in the
+    process that called :func:`run_frontend`).
     """
     keep_freed_heap()
     with one_thread():
@@ -931,6 +932,7 @@ def run_frontend(
     pairs = _pairs_from_cache(ctx, frames.feat_keys)
     num_jobs = len(frames.todo) + sum(not c for c in pairs.cached)
     with ExitStack() as stack:  # closes the pool / cluster however the run ends
+        stack.enter_context(callers_heap())  # jobs run here leave this process's heap alone
         backend = _open_backend(stack, ctx.shared, executor, nworkers, num_jobs)
         ctx.stats.workers, ctx.stats.executor = backend.workers, backend.kind.value
         bar = stack.enter_context(progress_bar(total=num_jobs, desc="front end", unit="job",
