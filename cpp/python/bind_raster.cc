@@ -79,7 +79,8 @@ py::array Checked(const py::handle& obj, const char* name, std::vector<py::ssize
 }
 
 py::array_t<int32_t> FillTriangleIds(const py::handle& corners_obj, const py::handle& ids_obj,
-                                     py::ssize_t height, py::ssize_t width, int shift) {
+                                     py::ssize_t height, py::ssize_t width, int shift,
+                                     bool centres) {
   for (const auto& [name, side] : {std::pair{"height", height}, std::pair{"width", width}}) {
     if (side < 0 || side > raster::kMaxCoordinatePx) {
       throw RasterError(name, "must be in [0, " + std::to_string(raster::kMaxCoordinatePx) +
@@ -97,6 +98,7 @@ py::array_t<int32_t> FillTriangleIds(const py::handle& corners_obj, const py::ha
   {
     py::gil_scoped_release release;
     raster::FillTriangleIds(view, c, k, count, shift);
+    if (centres) raster::FillContainingTriangleIds(view, c, k, count, shift);
   }
   return image;
 }
@@ -406,13 +408,15 @@ py::tuple SimilarityTop2(const py::handle& sim_obj) {
 
 void BindRaster(py::module_& m) {
   m.def("fill_triangle_ids", &FillTriangleIds, py::arg("corners"), py::arg("ids"),
-        py::arg("height"), py::arg("width"), py::arg("shift") = 4,
+        py::arg("height"), py::arg("width"), py::arg("shift") = 4, py::arg("centres") = false,
         "(height, width) int32 image, 0 where no triangle is drawn, triangle t filled with "
         "ids[t] in order (a later one overwrites shared pixels): the pixels of "
         "cv2.fillConvexPoly(image, corners[t], ids[t], cv2.LINE_8, shift) called for t = 0, 1, "
-        "... on a zero image. corners: (T, 3, 2) int32 x, y in 1/2**shift px (C-contiguous); "
-        "ids: (T,) int32; shift in [1, 16]; sides and coordinates up to 16384 px. Raises "
-        "InputError naming the bad argument (nothing is drawn then).");
+        "... on a zero image; with centres, then every pixel whose centre a triangle contains "
+        "(top-left rule on its edges: one triangle of a triangulation) takes that triangle's id, "
+        "whatever the order (bimcap/raster/convex_fill.h). corners: (T, 3, 2) int32 x, y in "
+        "1/2**shift px (C-contiguous); ids: (T,) int32; shift in [1, 16]; sides and coordinates "
+        "up to 16384 px. Raises InputError naming the bad argument (nothing is drawn then).");
   m.def("delaunay_triangles", &DelaunayTriangles, py::arg("points"),
         "(T, 3) int32 vertex indices of the Delaunay triangles of the (n, 2) float64 points "
         "(C-contiguous, finite), each counter-clockwise in x right, y up, in the order a sweep "

@@ -140,6 +140,87 @@ TEST(ConvexFill, RejectsCoordinatesBeyondTheFixedPointRange) {
   EXPECT_THROW(FillTriangleIds({pixels.data(), 16385, 1}, edge, ids, 0, 4), RasterError);
 }
 
+std::vector<int32_t> Contained(int64_t rows, int64_t cols, const std::vector<int32_t>& corners,
+                               const std::vector<int32_t>& ids) {
+  std::vector<int32_t> pixels(rows * cols, 0);
+  FillContainingTriangleIds({pixels.data(), rows, cols}, corners.data(), ids.data(),
+                            static_cast<int64_t>(ids.size()), 4);
+  return pixels;
+}
+
+TEST(ContainingTriangles, SquareSplitOnAPixelDiagonalEachCentreOnce) {
+  // The square (0, 0) – (6, 6) px split along its diagonal, which runs through the pixel
+  // centres (k, k). A centre p is read as p + (ε₁, ε₂), 0 < ε₂ ≪ ε₁: the square holds the
+  // centres 0 ≤ u, v < 6, each in one triangle, in either order and with either winding; the
+  // diagonal's centres lie right of it, in the upper triangle.
+  const std::vector<int32_t> lower = {0, 0, 96, 96, 0, 96};  // (0,0) (6,6) (0,6)
+  const std::vector<int32_t> upper = {0, 0, 96, 0, 96, 96};  // (0,0) (6,0) (6,6)
+  std::vector<int32_t> both = lower, reversed = upper;
+  both.insert(both.end(), upper.begin(), upper.end());
+  reversed.insert(reversed.end(), lower.begin(), lower.end());
+  const auto ab = Contained(8, 8, both, {1, 2});
+  EXPECT_EQ(Contained(8, 8, reversed, {2, 1}), ab);
+  // a clockwise copy of the lower triangle holds the same centres
+  const auto lower_only = Contained(8, 8, lower, {1});
+  EXPECT_EQ(Contained(8, 8, {0, 0, 0, 96, 96, 96}, {1}), lower_only);
+  const auto upper_only = Contained(8, 8, upper, {2});
+  for (int v = 0; v < 8; ++v) {
+    for (int u = 0; u < 8; ++u) {
+      const int i = v * 8 + u;
+      const bool in_square = u < 6 && v < 6;
+      EXPECT_EQ((lower_only[i] != 0) + (upper_only[i] != 0), in_square ? 1 : 0) << u << "," << v;
+      EXPECT_EQ(ab[i], in_square ? (v > u ? 1 : 2) : 0) << u << "," << v;
+    }
+  }
+}
+
+TEST(ContainingTriangles, FanAroundAPixelCentreOwnsItOnce) {
+  // Six triangles around the centre (4, 4), their edges through it along the axes and the
+  // diagonals: that centre, and each centre on a spoke, belongs to exactly one of them.
+  const int32_t c = 64, r = 48;  // (4, 4) and 3 px, in 1/16 px
+  const std::vector<std::pair<int32_t, int32_t>> rim = {{c + r, c}, {c + r, c + r}, {c, c + r},
+                                                        {c - r, c}, {c - r, c - r}, {c, c - r}};
+  std::vector<int32_t> pixels(9 * 9, 0);
+  std::vector<int32_t> count(9 * 9, 0);
+  for (size_t t = 0; t < rim.size(); ++t) {
+    const auto& [x1, y1] = rim[t];
+    const auto& [x2, y2] = rim[(t + 1) % rim.size()];
+    const auto one = Contained(9, 9, {c, c, x1, y1, x2, y2}, {static_cast<int32_t>(t + 1)});
+    for (size_t i = 0; i < one.size(); ++i) count[i] += one[i] != 0;
+  }
+  EXPECT_EQ(count[4 * 9 + 4], 1);
+  for (int k = 1; k <= 2; ++k) {  // centres on the spokes, inside the fan
+    EXPECT_EQ(count[4 * 9 + 4 + k], 1) << k;
+    EXPECT_EQ(count[(4 + k) * 9 + 4 + k], 1) << k;
+    EXPECT_EQ(count[(4 - k) * 9 + 4], 1) << k;
+  }
+  for (int32_t n : count) EXPECT_LE(n, 1);
+}
+
+TEST(ContainingTriangles, DegenerateAndOutsideDrawNothingBadInputThrows) {
+  std::vector<int32_t> pixels(4 * 4, 0);
+  const int32_t line[] = {0, 0, 16, 16, 32, 32};
+  const int32_t ids[] = {7};
+  FillContainingTriangleIds({pixels.data(), 4, 4}, line, ids, 1, 4);
+  const int32_t far[] = {1000, 1000, 1200, 1000, 1100, 1300};
+  FillContainingTriangleIds({pixels.data(), 4, 4}, far, ids, 1, 4);
+  for (int32_t p : pixels) EXPECT_EQ(p, 0);
+  // a triangle that holds no pixel centre (inside one pixel) draws nothing either
+  const int32_t tiny[] = {18, 18, 26, 18, 18, 26};
+  FillContainingTriangleIds({pixels.data(), 4, 4}, tiny, ids, 1, 4);
+  for (int32_t p : pixels) EXPECT_EQ(p, 0);
+  const int32_t tris[] = {0, 0, 32, 0, 0, 32, 0, 0, 32, 0, 0, (16384 + 1) * 16};
+  const int32_t two[] = {1, 2};
+  try {
+    FillContainingTriangleIds({pixels.data(), 4, 4}, tris, two, 2, 4);
+    FAIL() << "no exception";
+  } catch (const RasterError& e) {
+    EXPECT_EQ(e.field(), "corners");
+  }
+  for (int32_t p : pixels) EXPECT_EQ(p, 0);  // checked before drawing
+  EXPECT_THROW(FillContainingTriangleIds({pixels.data(), 4, 4}, line, ids, 1, 0), RasterError);
+}
+
 TEST(PiecewiseAffine, ValuesInNumpysOrder) {
   // 2 × 3 ids: column 0 of the table is "no triangle"; f = c0 u + c1 v + c2.
   const int32_t ids[] = {0, 1, 1, 2, 2, 0};

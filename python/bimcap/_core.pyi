@@ -47,10 +47,12 @@ def evaluate_landmark(
     intrinsics: NDArray[np.float64],
 ) -> tuple[NDArray[np.float64], tuple[NDArray[np.float64], NDArray[np.float64]]]: ...
 def fill_triangle_ids(
-    corners: NDArray[np.int32], ids: NDArray[np.int32], height: int, width: int, shift: int = 4
+    corners: NDArray[np.int32], ids: NDArray[np.int32], height: int, width: int, shift: int = 4,
+    centres: bool = False,
 ) -> NDArray[np.int32]:
     """(height, width) ids of cv2.fillConvexPoly(image, corners[t], ids[t], LINE_8, shift) drawn
-    for t = 0, 1, ... on a zero image; corners (T, 3, 2) int32, ids (T,) int32."""
+    for t = 0, 1, ... on a zero image; corners (T, 3, 2) int32, ids (T,) int32; with centres,
+    then each pixel whose centre a triangle contains (top-left rule) takes that triangle's id."""
 
 def delaunay_triangles(points: NDArray[np.float64]) -> NDArray[np.int32]:
     """(T, 3) int32 vertex indices of the Delaunay triangles of the (n, 2) float64 points, each

@@ -241,4 +241,55 @@ void FillTriangleIds(const ImageRef<int32_t>& image, const int32_t* corners, con
   for (int64_t t = 0; t < count; ++t) FillConvexPolygon(image, corners + 6 * t, 3, ids[t], shift);
 }
 
+void FillContainingTriangleIds(const ImageRef<int32_t>& image, const int32_t* corners,
+                               const int32_t* ids, int64_t count, int shift) {
+  CheckShiftAndImage(shift, image);
+  for (int64_t t = 0; t < count; ++t) {
+    CheckVertices(corners + 6 * t, 3, shift, [t] { return "triangle " + std::to_string(t); });
+  }
+  const int64_t one = int64_t{1} << shift;
+  for (int64_t t = 0; t < count; ++t) {
+    const int32_t* c = corners + 6 * t;
+    int64_t x[3] = {c[0], c[2], c[4]};
+    int64_t y[3] = {c[1], c[3], c[5]};
+    const int64_t area2 = (x[1] - x[0]) * (y[2] - y[0]) - (y[1] - y[0]) * (x[2] - x[0]);
+    if (area2 == 0) continue;
+    if (area2 < 0) {
+      std::swap(x[1], x[2]);
+      std::swap(y[1], y[2]);
+    }
+    // Per edge s -> t: E(p) = a p_x + b p_y + k, and whether E = 0 counts as inside (top-left).
+    int64_t a[3], b[3], k[3];
+    bool tie[3];
+    for (int e = 0; e < 3; ++e) {
+      const int f = (e + 1) % 3;
+      const int64_t dx = x[f] - x[e], dy = y[f] - y[e];
+      a[e] = -dy;
+      b[e] = dx;
+      k[e] = dy * x[e] - dx * y[e];
+      tie[e] = dy < 0 || (dy == 0 && dx > 0);
+    }
+    // the pixel centres u · 2^shift within the corners' box, clipped to the image
+    const int64_t x_lo = std::min({x[0], x[1], x[2]}), x_hi = std::max({x[0], x[1], x[2]});
+    const int64_t y_lo = std::min({y[0], y[1], y[2]}), y_hi = std::max({y[0], y[1], y[2]});
+    const int64_t u0 = std::max<int64_t>(-Floor2(-x_lo, shift), 0);
+    const int64_t u1 = std::min<int64_t>(Floor2(x_hi, shift), image.cols - 1);
+    const int64_t v0 = std::max<int64_t>(-Floor2(-y_lo, shift), 0);
+    const int64_t v1 = std::min<int64_t>(Floor2(y_hi, shift), image.rows - 1);
+    for (int64_t v = v0; v <= v1; ++v) {
+      const int64_t py = v * one;
+      int32_t* row = image.data + v * image.cols;
+      for (int64_t u = u0; u <= u1; ++u) {
+        const int64_t px = u * one;
+        bool inside = true;
+        for (int e = 0; e < 3 && inside; ++e) {
+          const int64_t value = a[e] * px + b[e] * py + k[e];
+          inside = value > 0 || (value == 0 && tie[e]);
+        }
+        if (inside) row[u] = ids[t];
+      }
+    }
+  }
+}
+
 }  // namespace bimcap::raster

@@ -62,6 +62,22 @@ void FillConvexPolygon(const ImageRef<int32_t>& image, const int32_t* vertices, 
 void FillTriangleIds(const ImageRef<int32_t>& image, const int32_t* corners, const int32_t* ids,
                      int64_t count, int shift);
 
+// The pixels whose centre triangle t contains, set to ids[t] (others untouched): the owner pass of
+// the linear completion (bimcap.fusion.completion.PixelOwner.CENTRE). For corners a, b, c in
+// 1/2^shift px, ordered so that the doubled area (b − a) × (c − a) is positive, and a pixel centre
+// p = (u, v) · 2^shift, each directed edge s → t gives, in exact int64 arithmetic,
+//
+//   E(p) = (t − s) × (p − s) = (t_x − s_x)(p_y − s_y) − (t_y − s_y)(p_x − s_x),
+//
+// and p is inside when for every edge E(p) > 0, or E(p) = 0 and d = t − s has d_y < 0, or d_y = 0
+// and d_x > 0 (the top-left rule: p read as p + (ε₁, ε₂), 0 < ε₂ ≪ ε₁ ≪ 1). Two triangles that
+// share an edge run it in opposite directions, so a centre on it, or on a vertex, belongs to
+// exactly one triangle of a triangulation: the result does not depend on the order of the
+// triangles. Triangles of zero area contain nothing. Every triangle is checked before any is
+// drawn (RasterError "corners", "shift" or "image", as FillTriangleIds).
+void FillContainingTriangleIds(const ImageRef<int32_t>& image, const int32_t* corners,
+                               const int32_t* ids, int64_t count, int shift);
+
 }  // namespace bimcap::raster
 
 #endif  // BIMCAP_RASTER_CONVEX_FILL_H_

@@ -64,7 +64,8 @@ class Triangulation(Enum):
     QHULL = "qhull"
     #: ``bimcap._core.delaunay_triangles``, a sweep of the convex hull (cpp/bimcap/raster/
     #: delaunay.h), 1.3-1.8 ms there: the same triangles where no four returns lie on one
-    #: circle, drawn thinnest first, so that the fattest take the edge pixels they share. Its
+    #: circle, drawn thinnest first, so that the fattest take the edge pixels they share (with
+    #: ``PixelOwner.LAST_DRAWN``; with ``CENTRE`` the same map as Qhull's). Its
     #: depth is closer to the simulator's (mean 0.04-0.07 mm, p99 0.7-2 mm on 4 worlds) but
     #: not the same, and BIMCaP's ATE moved with it (16 runs on 4 worlds: mean +0.007 cm, single
     #: runs up to ±0.04 cm, gen-demo-s0 +0.02-0.03 cm in all four): an option until a wider
@@ -72,17 +73,50 @@ class Triangulation(Enum):
     SWEEP = "sweep"
 
 
+class PixelOwner(Enum):
+    """Which kept triangle gives LINEAR a pixel's depth where several reach it.
+
+    Each triangle is first drawn with its outline (``cv2.fillConvexPoly``'s pixels, whose
+    centres may lie up to half a pixel outside it: its plane extrapolated there); between the
+    LiDAR rings most triangles are slivers 1–2 px across, so about a third of the pixels are
+    reached by two or more.
+    """
+
+    #: the last triangle drawn: the triangulator's order decides (Qhull's, or the sweep's
+    #: thinnest first; docs/speed.md, "The compiled triangulation").
+    LAST_DRAWN = "last_drawn"
+    #: the triangle that contains the pixel's centre (top-left rule on its edges: exactly one
+    #: of a triangulation, bimcap/raster/convex_fill.h), its plane interpolated, never
+    #: extrapolated; pixels that no kept triangle contains (next to a dropped one, on the hull)
+    #: keep the outline of the last drawn in the order of the triangles' sorted corner indices.
+    #: Neither depends on the triangulator's order, so Qhull and the sweep give the same map,
+    #: and with the sweep the completion costs ~6.6 instead of ~11.6 ms a frame. Its depth is
+    #: closer to the simulator's (mean 0.9–1.0 mm lower on 4 worlds, p99 1–2.5 mm), but BIMCaP's
+    #: trajectories moved both ways: better means on the standard and unseen matrices, worse
+    #: rotations on the hard one (gen-small-s3 Exp. 2 0.22° → 0.33°), 4 of 76 runs beyond the
+    #: bars (docs/speed.md, "Pixels owned by the triangle that contains them"): an option.
+    CENTRE = "centre"
+
+
 @dataclass(frozen=True)
 class LinearOptions:
     """LINEAR: mask triangles with an edge > ``max_edge_px``
-    or ``z_max/z_min > max_depth_ratio``; ``triangulation``: :class:`Triangulation`."""
+    or ``z_max/z_min > max_depth_ratio``; ``triangulation``: :class:`Triangulation`;
+    ``pixel_owner``: :class:`PixelOwner`."""
 
     max_edge_px: float = 80.0
     max_depth_ratio: float = 1.5
     inverse_depth: bool = True  #: interpolate 1/z (exact for planes through a pinhole) or z
     triangulation: Triangulation = Triangulation.QHULL
+    pixel_owner: PixelOwner = PixelOwner.LAST_DRAWN
 
     def __post_init__(self) -> None:
+        try:
+            object.__setattr__(self, "pixel_owner", PixelOwner(self.pixel_owner))
+        except ValueError:
+            raise FusionInputError(
+                f"pixel_owner must be one of {[o.value for o in PixelOwner]}, "
+                f"got {self.pixel_owner!r}", field="pixel_owner") from None
         try:
             object.__setattr__(self, "triangulation", Triangulation(self.triangulation))
         except ValueError:
@@ -234,7 +268,13 @@ def complete_linear(sparse: SparseDepth | ArrayLike, options: LinearOptions | No
     good_idx, corners, edge, det = _core.filter_triangles(
         np.ascontiguousarray(uv, dtype=np.float64), np.ascontiguousarray(z, dtype=np.float64),
         simp, float(opts.max_edge_px), float(opts.max_depth_ratio))
-    if opts.triangulation is Triangulation.SWEEP:
+    if opts.pixel_owner is PixelOwner.CENTRE:
+        # the outline pass in an order of the triangles themselves (their sorted corner
+        # indices), not the triangulator's; the centre pass below owes nothing to any order
+        key = np.sort(simp[good_idx], axis=1)
+        order = np.lexsort((key[:, 2], key[:, 1], key[:, 0]))
+        good_idx, corners = good_idx[order], corners[order]
+    elif opts.triangulation is Triangulation.SWEEP:
         # where triangles share edge pixels the last one drawn gives their depth, extrapolated
         # up to half a pixel outside it: draw the slivers (1-2 px across between LiDAR rings)
         # first and the fattest triangles (largest least altitude, twice the area over the
@@ -243,7 +283,8 @@ def complete_linear(sparse: SparseDepth | ArrayLike, options: LinearOptions | No
         # lower 99th-percentile depth errors than Qhull's order on 4 worlds (docs/speed.md)
         order = np.argsort(np.abs(det[good_idx]) / edge[good_idx], kind="stable")
         good_idx, corners = good_idx[order], corners[order]
-    tri_id = _core.fill_triangle_ids(corners, (good_idx + 1).astype(np.int32), h, w, shift=4)
+    tri_id = _core.fill_triangle_ids(corners, (good_idx + 1).astype(np.int32), h, w, shift=4,
+                                     centres=opts.pixel_owner is PixelOwner.CENTRE)
     # per triangle, the affine function f(u, v) = a u + b v + c through its three corners, with
     # f = 1/z (exact for a plane seen through a pinhole) or f = z, evaluated at every pixel by
     # its triangle id (column 0: no triangle, f = 0 and the pixel stays 0) in compiled code
