@@ -7,6 +7,7 @@ completion it gives beside Qhull's."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -134,13 +135,9 @@ def test_same_triangles_as_qhull_on_real_frames(world: str) -> None:
         assert np.median(np.abs(sweep[both] - qhull[both])) < 1e-3
 
 
-@pytest.mark.parametrize("world", ["gen-demo-s0", "ifc-SampleHouse4"])
-def test_completion_draws_the_fattest_triangles_last(world: str,
-                                                     monkeypatch: pytest.MonkeyPatch) -> None:
-    """The triangles' order from the triangulator does not matter (they are drawn by their least
-    altitude: reversing or shuffling its list gives the same map, the rotation of each
-    triangle's corners too), and against the simulator's ground truth the depth is no worse
-    than with Qhull's order, on average and at the 99th percentile."""
+def _real_world(world: str) -> tuple[Any, Any, Any]:
+    """(sequence, projection options, undistorter) of a simulated world's standard sequence in
+    /tmp/gen (skips when it was not generated)."""
     seq_dir = _WORLDS / world / "seq_60_standard"
     if not seq_dir.is_dir():
         pytest.skip(f"{seq_dir} not generated")
@@ -149,8 +146,17 @@ def test_completion_draws_the_fattest_triangles_last(world: str,
     from bimcap.frontend.runner import get_undistorter
 
     seq = read_sequence(seq_dir)
-    projection = LidarDepthProvider().projection
-    und = get_undistorter(seq.camera)
+    return seq, LidarDepthProvider().projection, get_undistorter(seq.camera)
+
+
+@pytest.mark.parametrize("world", ["gen-demo-s0", "ifc-SampleHouse4"])
+def test_completion_draws_the_fattest_triangles_last(world: str,
+                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    """The triangles' order from the triangulator does not matter (they are drawn by their least
+    altitude: reversing or shuffling its list gives the same map, the rotation of each
+    triangle's corners too), and against the simulator's ground truth the depth is no worse
+    than with Qhull's order, on average and at the 99th percentile."""
+    seq, projection, und = _real_world(world)
     rng = np.random.default_rng(2)
     real = _core.delaunay_triangles
     errors: dict[str, list[np.ndarray]] = {"sweep": [], "qhull": []}
@@ -259,16 +265,7 @@ def test_centre_owner_on_real_frames_is_closer_to_the_truth(world: str) -> None:
     """Every sixth frame: Qhull and the sweep give the same map with PixelOwner.CENTRE, the same
     support as the last drawn owner's, and against the simulator's depth a lower mean and
     99th-percentile error than Qhull's order (docs/speed.md: ~1 mm lower mean on 4 worlds)."""
-    seq_dir = _WORLDS / world / "seq_60_standard"
-    if not seq_dir.is_dir():
-        pytest.skip(f"{seq_dir} not generated")
-    from bimcap.dataset import read_sequence
-    from bimcap.frontend.providers import LidarDepthProvider
-    from bimcap.frontend.runner import get_undistorter
-
-    seq = read_sequence(seq_dir)
-    projection = LidarDepthProvider().projection
-    und = get_undistorter(seq.camera)
+    seq, projection, und = _real_world(world)
     errors: dict[str, list[np.ndarray]] = {"centre": [], "qhull": []}
     for i in range(0, len(seq.frames), 6):
         sparse = project_lidar(seq.load_lidar(i), seq.cam_from_lidar, seq.camera, projection,

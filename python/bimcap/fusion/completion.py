@@ -111,18 +111,16 @@ class LinearOptions:
     pixel_owner: PixelOwner = PixelOwner.LAST_DRAWN
 
     def __post_init__(self) -> None:
-        try:
-            object.__setattr__(self, "pixel_owner", PixelOwner(self.pixel_owner))
-        except ValueError:
-            raise FusionInputError(
-                f"pixel_owner must be one of {[o.value for o in PixelOwner]}, "
-                f"got {self.pixel_owner!r}", field="pixel_owner") from None
-        try:
-            object.__setattr__(self, "triangulation", Triangulation(self.triangulation))
-        except ValueError:
-            raise FusionInputError(
-                f"triangulation must be one of {[t.value for t in Triangulation]}, "
-                f"got {self.triangulation!r}", field="triangulation") from None
+        kinds: tuple[tuple[str, type[Enum]], ...] = (
+            ("triangulation", Triangulation), ("pixel_owner", PixelOwner))
+        for name, kind in kinds:
+            value = getattr(self, name)
+            try:
+                object.__setattr__(self, name, kind(value))
+            except ValueError:
+                raise FusionInputError(
+                    f"{name} must be one of {[k.value for k in kind]}, got {value!r}",
+                    field=name) from None
 
 
 @dataclass(frozen=True)
