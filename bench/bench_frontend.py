@@ -286,6 +286,7 @@ def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool =
                 matching: dict[str, Any] | None = None,
                 old_features: dict[str, Any] | None = None,
                 old_matching: dict[str, Any] | None = None,
+                linear: dict[str, Any] | None = None,
                 ) -> tuple[list[tuple[str, ...]], float]:
     """Per-stage rows ``(stage, ms/frame, previous ms/frame, ratio, same result)`` and the total
     ms a frame, on the first ``frames`` frames of the sequence at ``seq_dir`` (``previous``:
@@ -300,7 +301,9 @@ def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool =
     same keypoints in the same process; ``old_features`` / ``old_matching``: the tables of the
     "previous" column instead of the defaults, e.g. the defaults before a change; with both
     a features and a matching table, "previous" is the features stages with the previous
-    tables of both)."""
+    tables of both; ``linear``: ``LinearOptions`` fields of the depth provider's completion for
+    the main column, and as "previous" the depth provider with the default ones, on the same
+    scans in the same process)."""
     from bimcap.dataset import read_sequence
     from bimcap.features import extract_sift, lookup_depth, match_descriptors, verify_matches
     from bimcap.frontend.runner import FrameContext, _load_raw_image, _scan_points, get_undistorter
@@ -320,6 +323,16 @@ def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool =
     config = RefineConfig(workers=1)
     window = config.window if window is None else window
     depth_p, label_p, refiner = make_providers(config, seq)
+    old_depth_p = None
+    if linear:
+        from dataclasses import replace as _replace
+
+        from bimcap.fusion import LinearOptions
+
+        previous = False
+        old_depth_p = depth_p
+        depth_p = _replace(depth_p, completion=_replace(depth_p.completion,
+                                                        linear=LinearOptions(**linear)))
     old_label_p = None
     before_match = None
     if before_defaults:
@@ -374,6 +387,10 @@ def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool =
             # previous code then compare the same work)
             stages.run("scan range noise", ctx.range_noise_m)
         depth = stages.run("depth provider", depth_p, ctx)
+        if old_depth_p is not None:
+            _, t_old = _timed(old_depth_p, ctx)
+            stages.prev["depth provider"] = stages.prev.get("depth provider", 0.0) + t_old
+            stages.equal["depth provider"] = False
         depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0).astype(np.float32)
         ctx.depth = depth
         labels = stages.run("geometric segmentation", label_p, ctx)
@@ -483,7 +500,7 @@ def bench_world(seq_dir: Path, frames: int, window: int | None, previous: bool =
             prev = 1e3 * st.prev[stage] / n
             same = ("yes" if st.equal[stage] else "settings"
                     if before_defaults or old_sift is not None or old_match is not None
-                    else "NO")
+                    or old_depth_p is not None else "NO")
             rows.append((stage, f"{ms:.1f}", f"{prev:.1f}", f"{prev / ms:.2f}×", same))
         else:
             rows.append((stage, f"{ms:.1f}", "", "", ""))
@@ -701,6 +718,10 @@ def main() -> None:
     ap.add_argument("--previous-matching", action="append", default=[], metavar="KEY=VALUE",
                     help="with --world: a [matching] setting of the 'previous' column (default: "
                          "the defaults); with --prepare as --previous-features")
+    ap.add_argument("--linear", action="append", default=[], metavar="KEY=VALUE",
+                    help="with --world: a LinearOptions field of the linear completion for the "
+                         "main column (e.g. pixel_owner=centre, triangulation=sweep); "
+                         "'previous' is the completion with the defaults, same scans")
     ap.add_argument("--against", type=Path, default=None, metavar="TREE",
                     help="with --world: the per-stage run on this checkout and on TREE's code "
                          "(a checkout with its built _core), alternating --repeat times, the "
@@ -734,11 +755,11 @@ def main() -> None:
                                             args.backends.split(",")):
                 print(" | ".join(row), flush=True)
         return
-    features, matching, old_features, old_matching = (
+    features, matching, old_features, old_matching, linear = (
         None if not items else
         {k: _setting_value(v) for k, _, v in (f.partition("=") for f in items)}
         for items in (args.features, args.matching, args.previous_features,
-                      args.previous_matching))
+                      args.previous_matching, args.linear))
     if args.world is not None and args.prepare:
         frames = args.frames if args.frames != 6 else 60
         tables = [(features or {}, matching or {})]
@@ -776,11 +797,12 @@ def main() -> None:
               + (f"; [features] {features or {}}, 'previous' = [features] {old_features or {}}"
                  if features or old_features else "")
               + (f"; [matching] {matching or {}}, 'previous' = [matching] {old_matching or {}}"
-                 if matching or old_matching else ""))
+                 if matching or old_matching else "")
+              + (f"; linear completion {linear}, 'previous' = its defaults" if linear else ""))
         with _as_jobs():  # BLAS, OpenCV and the heap as the front end's jobs run them
             rows, _ = bench_world(args.world, frames, window, not args.no_previous,
                                   args.before_defaults, features, matching, old_features,
-                                  old_matching)
+                                  old_matching, linear)
         w = max(len(r[0]) for r in rows)
         print(f"{'stage':<{w}}  {'ms/frame':>9}  {'previous':>9}  {'ratio':>7}  same result")
         for stage, ms, prev, ratio, same in rows:
