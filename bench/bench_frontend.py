@@ -2,7 +2,7 @@
 
 Times are process CPU seconds of single-threaded calls (BLAS, OpenCV and pycolmap on one thread,
 and glibc's freed heap kept between frames, as inside the front end's jobs:
-``bimcap.frontend.runner.one_thread``, ``bimcap.frontend.heap.keep_freed_heap``): on a machine
+``bimcap.frontend.runner.job_settings``): on a machine
 shared with other work, wall time also counts the time other processes held the core.
 
 World part (``--world SEQ_DIR``): every stage of the front end as ``bimcap refine`` runs it
@@ -228,18 +228,12 @@ def _references() -> dict[str, Any]:
 
 
 def _as_jobs() -> Any:
-    """This process as the front end's jobs run it: BLAS and OpenCV on one thread (the context
-    returned, ``one_thread``) and the freed heap kept between frames (``keep_freed_heap``, from
-    2026-11-29; code before it, e.g. a ``--against`` tree, runs without)."""
-    from bimcap.frontend.runner import one_thread
+    """This process as the front end's jobs run it (``job_settings``: BLAS and OpenCV on one
+    thread, the freed heap kept between frames); code before 2026-11-28's heap, e.g. a
+    ``--against`` tree, has ``one_thread`` alone."""
+    from bimcap.frontend import runner
 
-    try:
-        from bimcap.frontend.heap import keep_freed_heap
-    except ImportError:
-        pass
-    else:
-        keep_freed_heap()
-    return one_thread()
+    return getattr(runner, "job_settings", runner.one_thread)()
 
 
 def _same(a: Any, b: Any) -> bool:

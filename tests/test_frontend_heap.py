@@ -92,12 +92,12 @@ def test_jobs_in_the_calling_process_leave_its_heap(tmp_path: Path,
                         lambda: answers.append(heap.keep_freed_heap()) or answers[-1])
     seq = SceneSequence.write(tmp_path / "seq", poses=default_poses(3), lidar=True)
     run_frontend(seq, FrontendConfig(sift=SiftOptions(max_num_features=1500), window=2), seq.gt,
-                 LidarDepthProvider(), _GroundTruthLabels(), workers=1, progress=False)
+                 LidarDepthProvider(), _AllWalls(), workers=1, progress=False)
     assert answers == [False] * 6  # 3 frames, 3 pairs (window 2)
     assert heap._APPLIED is None
 
 
-class _GroundTruthLabels:
+class _AllWalls:
     """Every pixel a wall (the labels do not matter here)."""
 
     def __call__(self, ctx: object) -> np.ndarray:

@@ -702,6 +702,16 @@ def one_thread() -> Iterator[None]:
         cv2.setNumThreads(before)
 
 
+@contextmanager
+def job_settings() -> Iterator[None]:
+    """This process as the front end's jobs run: its freed heap kept for the next job
+    (:func:`bimcap.frontend.heap.keep_freed_heap`; not in the process that called
+    :func:`run_frontend`), BLAS and OpenCV on one thread for the block (:func:`one_thread`)."""
+    keep_freed_heap()
+    with one_thread():
+        yield
+
+
 #: This process's ``threadpoolctl.ThreadpoolController`` and ``len(sys.modules)`` when it was made.
 _THREADPOOLS: tuple[int, Any] | None = None
 
@@ -732,12 +742,9 @@ def compute_frame(job: _FrameJob, *, shared: _RunShared | None = None
     ``job.features`` holds them), the keypoint depths ``depth``, the semantic samples
     ``<class>_p_in_cam`` and the timings ``time_s`` / ``sift_time_s``.
 
-    Runs with BLAS and OpenCV on one thread (:func:`one_thread`), in a worker process that keeps
-    its freed heap for the next job (:func:`bimcap.frontend.heap.keep_freed_heap`; not in the
-    process that called :func:`run_frontend`).
+    Runs in :func:`job_settings` (BLAS and OpenCV on one thread, the freed heap kept).
     """
-    keep_freed_heap()
-    with one_thread():
+    with job_settings():
         return _compute_frame(job, shared)
 
 
@@ -826,11 +833,10 @@ class _PairJob:
 
 
 def compute_pair(job: _PairJob) -> dict[str, NDArray[Any]]:
-    """Match and verify one pair (BLAS and OpenCV on one thread, the freed heap kept as by
-    :func:`compute_frame`); returns the arrays that the cache stores."""
+    """Match and verify one pair (in :func:`job_settings`); returns the arrays that the cache
+    stores."""
     t0 = time.perf_counter()
-    keep_freed_heap()
-    with one_thread():
+    with job_settings():
         pm = match_pair(job.feats_a, job.feats_b, job.camera, job.frame_a, job.frame_b,
                         job.options)
     return {
