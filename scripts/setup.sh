@@ -7,7 +7,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 DEB_PACKAGES=(build-essential cmake ninja-build python3-venv python3-dev
-              libceres-dev libeigen3-dev libgoogle-glog-dev libsuitesparse-dev
+              libceres-dev libeigen3-dev libgoogle-glog-dev libsuitesparse-dev libdeflate-dev
               libgtest-dev libgmock-dev libusb-1.0-0 clang-format)
 
 missing=()

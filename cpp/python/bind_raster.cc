@@ -22,6 +22,7 @@
 #include "bimcap/raster/piecewise_affine.h"
 #include "bimcap/raster/plane_depth.h"
 #include "bimcap/raster/plane_scores.h"
+#include "bimcap/raster/png_rows.h"
 #include "bimcap/raster/range_noise.h"
 #include "bimcap/raster/region_sums.h"
 #include "bimcap/raster/similarity_top2.h"
@@ -148,6 +149,24 @@ py::array_t<uint8_t> RgbToGray(const py::handle& image_obj) {
     raster::RgbToGray(rgb, static_cast<int64_t>(rows) * cols, out);
   }
   return gray;
+}
+
+py::array_t<uint8_t> DecodePngRows(const py::handle& stream_obj, int64_t rows, int64_t row_bytes,
+                                   int bpp) {
+  if (rows < 1 || row_bytes < 1) {
+    throw RasterError("rows", "rows and row_bytes must be >= 1, got " + std::to_string(rows) +
+                                  " and " + std::to_string(row_bytes));
+  }
+  const py::array stream = Checked<uint8_t>(stream_obj, "stream", {-1});
+  py::array_t<uint8_t> out({static_cast<py::ssize_t>(rows), static_cast<py::ssize_t>(row_bytes)});
+  const auto* in = static_cast<const uint8_t*>(stream.data());
+  const int64_t in_bytes = stream.shape(0);
+  uint8_t* dst = out.mutable_data();
+  {
+    py::gil_scoped_release release;
+    raster::DecodePngRows(in, in_bytes, rows, row_bytes, bpp, dst);
+  }
+  return out;
 }
 
 py::array_t<double> PixelSurfaceArea(const py::handle& depth_obj, double fx, double fy, double cx,
@@ -481,6 +500,13 @@ void BindRaster(py::module_& m) {
         "(H, W) uint8 grey levels rint(0.299 r + 0.587 g + 0.114 b) of the (H, W, 3) uint8 RGB "
         "image (C-contiguous): bimcap.features.sift.to_gray_u8's numpy arithmetic bit for bit, "
         "in one pass.");
+  m.def("decode_png_rows", &DecodePngRows, py::arg("stream"), py::arg("rows"), py::arg("row_bytes"),
+        py::arg("bpp"),
+        "(rows, row_bytes) uint8 scanlines of a PNG image from the zlib stream of its IDAT "
+        "chunks ((n,) uint8, their data joined), `bpp` bytes a pixel (1-8): inflated by "
+        "libdeflate and the PNG filters undone (bimcap/raster/png_rows.h). Raises InputError "
+        "naming the bad argument (a stream that is not one zlib stream of exactly rows · (1 + "
+        "row_bytes) bytes; a filter type above 4, with its row).");
   m.def("filter_triangles", &FilterTriangles, py::arg("uv"), py::arg("z"), py::arg("triangles"),
         py::arg("max_edge"), py::arg("max_ratio"),
         "(good (G,) int64 ascending, corners (G, 3, 2) int32, edge (T,), det (T,)) of the (T, 3) "

@@ -18,6 +18,7 @@
 #include "bimcap/raster/piecewise_affine.h"
 #include "bimcap/raster/plane_depth.h"
 #include "bimcap/raster/plane_scores.h"
+#include "bimcap/raster/png_rows.h"
 #include "bimcap/raster/range_noise.h"
 #include "bimcap/raster/voxel_normals.h"
 
@@ -450,6 +451,112 @@ TEST(Gray, Bt601LumaRoundedAsRint) {
   std::vector<uint8_t> gray(rgb.size() / 3, 7);
   RgbToGray(rgb.data(), static_cast<int64_t>(gray.size()), gray.data());
   EXPECT_EQ(gray, (std::vector<uint8_t>{0, 255, 76, 150, 29, 1, 0, 1}));
+}
+
+// Each PNG filter on 2 px of 2 bytes (worked by hand from the specification, mod 256).
+TEST(PngRows, EveryFilterByHand) {
+  const std::vector<uint8_t> filtered = {
+      1, 10, 20, 5, 250,  // Sub:     10 20 | 10+5 20+250        -> 10 20 15 14
+      3, 1, 2, 3, 4,      // Average: 1+5 2+10 | 3+(6+15)/2 4+(12+14)/2 -> 6 12 13 17
+      4, 100, 0, 7, 255,  // Paeth:   first pixel takes b (Up); then a = 106, b = 13,
+                          //          c = 6: p = 113 nearest a; a = 12, b = 17, c = 12: b
+      2, 1, 1, 1, 1,      // Up
+      0, 9, 8, 7, 6,      // None
+  };
+  std::vector<uint8_t> out(5 * 4, 0);
+  UnfilterPngRows(filtered.data(), 5, 4, 2, out.data());
+  EXPECT_EQ(out, (std::vector<uint8_t>{10,  20, 15,  14, 6,   12, 13, 17, 106, 12,
+                                       113, 16, 107, 13, 114, 17, 9,  8,  7,   6}));
+}
+
+// In the first row the bytes above are 0: Up copies, Average halves the left byte, Paeth is
+// Sub.
+TEST(PngRows, FirstRowHasZerosAbove) {
+  for (const uint8_t type : {2, 3, 4}) {
+    const std::vector<uint8_t> filtered = {type, 7, 200, 100};
+    std::vector<uint8_t> out(3, 0);
+    UnfilterPngRows(filtered.data(), 1, 3, 1, out.data());
+    const std::vector<uint8_t> expected =
+        type == 2   ? std::vector<uint8_t>{7, 200, 100}
+        : type == 3 ? std::vector<uint8_t>{7, 203, 201}  // 200 + 7/2, 100 + 203/2
+                    : std::vector<uint8_t>{7, 207, 51};  // 200 + 7, 100 + 207 (mod 256)
+    EXPECT_EQ(out, expected) << "filter " << int{type};
+  }
+}
+
+// Paeth's ties: |p - b| = |p - c| < |p - a| takes b, |p - a| = |p - c| < |p - b| takes a.
+TEST(PngRows, PaethTies) {
+  std::vector<uint8_t> out(4, 0);
+  const std::vector<uint8_t> b_wins = {0, 10, 8, 4, 1, 0};  // a = 11, b = 8, c = 10
+  UnfilterPngRows(b_wins.data(), 2, 2, 1, out.data());
+  EXPECT_EQ(out, (std::vector<uint8_t>{10, 8, 11, 8}));
+  const std::vector<uint8_t> a_wins = {0, 10, 11, 4, 254, 0};  // a = 8, b = 11, c = 10
+  UnfilterPngRows(a_wins.data(), 2, 2, 1, out.data());
+  EXPECT_EQ(out, (std::vector<uint8_t>{10, 11, 8, 8}));
+}
+
+// A zlib stream of one stored (uncompressed) deflate block around `data`, Adler-32 at the end.
+std::vector<uint8_t> StoredZlib(const std::vector<uint8_t>& data) {
+  const auto n = static_cast<uint16_t>(data.size());
+  std::vector<uint8_t> z = {0x78,
+                            0x01,
+                            0x01,
+                            static_cast<uint8_t>(n & 0xFF),
+                            static_cast<uint8_t>(n >> 8),
+                            static_cast<uint8_t>(~n & 0xFF),
+                            static_cast<uint8_t>((~n >> 8) & 0xFF)};
+  for (const uint8_t byte : data) z.push_back(byte);
+  uint32_t a = 1, b = 0;
+  for (const uint8_t byte : data) {
+    a = (a + byte) % 65521;
+    b = (b + a) % 65521;
+  }
+  const uint32_t adler = (b << 16) | a;
+  for (const int shift : {24, 16, 8, 0}) z.push_back(static_cast<uint8_t>(adler >> shift));
+  return z;
+}
+
+TEST(PngRows, DecodeInflatesThenUnfilters) {
+  const std::vector<uint8_t> filtered = {1, 10, 20, 5, 250, 2, 1, 1, 1, 1};
+  const std::vector<uint8_t> stream = StoredZlib(filtered);
+  std::vector<uint8_t> out(8, 0);
+  DecodePngRows(stream.data(), static_cast<int64_t>(stream.size()), 2, 4, 2, out.data());
+  EXPECT_EQ(out, (std::vector<uint8_t>{10, 20, 15, 14, 11, 21, 16, 15}));
+
+  const auto expect_stream_error = [&](const std::vector<uint8_t>& bad, const char* what) {
+    try {
+      DecodePngRows(bad.data(), static_cast<int64_t>(bad.size()), 2, 4, 2, out.data());
+      FAIL() << what << " accepted";
+    } catch (const RasterError& e) {
+      EXPECT_EQ(e.field(), "stream") << what;
+    }
+  };
+  std::vector<uint8_t> bad_sum = stream;
+  bad_sum.back() ^= 1;
+  expect_stream_error(bad_sum, "a wrong Adler-32");
+  std::vector<uint8_t> trailing = stream;
+  trailing.push_back(0);
+  expect_stream_error(trailing, "a byte after the stream");
+  expect_stream_error(StoredZlib({1, 10, 20, 5, 250, 2, 1, 1, 1}), "a byte short");
+  expect_stream_error(StoredZlib({1, 10, 20, 5, 250, 2, 1, 1, 1, 1, 0}), "a byte too many");
+  expect_stream_error({0x78, 0x01, 0x07}, "a bad block type");
+  EXPECT_THROW(
+      DecodePngRows(stream.data(), static_cast<int64_t>(stream.size()), 0, 4, 2, out.data()),
+      RasterError);
+}
+
+TEST(PngRows, BadInput) {
+  const std::vector<uint8_t> filtered = {0, 1, 2, 5, 3, 4};
+  std::vector<uint8_t> out(4, 0);
+  try {
+    UnfilterPngRows(filtered.data(), 2, 2, 1, out.data());
+    FAIL() << "filter type 5 accepted";
+  } catch (const RasterError& e) {
+    EXPECT_EQ(e.field(), "filtered");
+    EXPECT_NE(std::string(e.what()).find("row 1 has filter type 5"), std::string::npos);
+  }
+  EXPECT_THROW(UnfilterPngRows(filtered.data(), 2, 2, 0, out.data()), RasterError);
+  EXPECT_THROW(UnfilterPngRows(filtered.data(), 2, 2, 9, out.data()), RasterError);
 }
 
 TEST(PlaneScores, StrictTestsAndAddedCounts) {

@@ -65,6 +65,11 @@ def evaluate_piecewise_affine(
 def rgb_to_gray(image: NDArray[np.uint8]) -> NDArray[np.uint8]:
     """(H, W) uint8 rint(0.299 r + 0.587 g + 0.114 b) of a C-contiguous (H, W, 3) uint8 RGB
     image (numpy's float64 rounding)."""
+def decode_png_rows(
+    stream: NDArray[np.uint8], rows: int, row_bytes: int, bpp: int
+) -> NDArray[np.uint8]:
+    """(rows, row_bytes) uint8 scanlines of a PNG image from the zlib stream of its IDAT chunks
+    (their data joined; `bpp` bytes a pixel, 1-8): inflated, the PNG filters undone."""
 def filter_triangles(
     uv: NDArray[np.float64], z: NDArray[np.float64], triangles: NDArray[np.int32],
     max_edge: float, max_ratio: float
