@@ -95,6 +95,46 @@ def test_a_depth_map_that_left_its_returns_gives_its_keypoints_no_depth(seed: in
                                   DepthLookupOptions(max_support_z=None)).any()
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_nearest_returns_are_the_kd_trees(seed: int) -> None:
+    """The k returns nearest each keypoint (compiled, row by row) are scipy's cKDTree's, in its
+    order, on returns in LiDAR-like rings and at random, queries anywhere (also outside the
+    image); and the whole test gives the cKDTree version's flags bit for bit."""
+    from scipy.spatial import cKDTree
+
+    from bimcap import _core
+
+    rng = np.random.default_rng(seed)
+    h, w = 150, 200
+    mask = np.zeros((h, w), bool)
+    for r in range(6):  # curved rings, a return every ~2 px, and scattered returns
+        u = np.arange(0, w, 2) + rng.integers(0, 2, w // 2)
+        v = np.clip(np.rint(12 + 25 * r + 8 * np.sin(u / 40.0 + r)), 0, h - 1).astype(int)
+        mask[v, np.clip(u, 0, w - 1)] = True
+    mask.flat[rng.choice(h * w, 300, replace=False)] = True
+    v, u = np.nonzero(mask)
+    row_start = np.concatenate([[0], np.cumsum(np.bincount(v, minlength=h))]).astype(np.int64)
+    q = np.concatenate([rng.uniform([0, 0], [w - 1, h - 1], (500, 2)),
+                        rng.uniform([-30, -30], [w + 30, h + 30], (50, 2))])
+    tree = cKDTree(np.stack([u, v], 1).astype(np.float64))
+    for k in (1, 16, 40):
+        got = _core.nearest_pixels(row_start, u.astype(np.int64), q, k)
+        ref = np.asarray(tree.query(q, k=k)[1]).reshape(len(q), k)
+        np.testing.assert_array_equal(got, ref)
+
+    # unsupported_depths before the compiled search (cKDTree), on the same maps
+    truth, measured = _wall_returns(seed, 0.08)
+    off = truth.copy()
+    off[:, :60] += 0.05 + 0.1 * rng.random((150, 60))
+    uv = rng.uniform([0, 0], [199, 149], (400, 2))
+    vv, uu = np.nonzero((measured > 0) & (off > 0))
+    diff = measured[vv, uu] - off[vv, uu]
+    _, idx = cKDTree(np.stack([uu, vv], 1).astype(np.float64)).query(uv, k=16)
+    bias = diff[idx].mean(axis=1)
+    expected = np.abs(bias) > 3.0 * 0.08 / np.sqrt(16)
+    np.testing.assert_array_equal(unsupported_depths(off, measured, uv, 0.08), expected)
+
+
 def test_unsupported_depths_rejects_bad_input() -> None:
     with pytest.raises(FeatureError, match="same"):
         unsupported_depths(np.ones((4, 5)), np.ones((5, 4)), np.zeros((1, 2)), 0.08)

@@ -20,6 +20,7 @@
 #include "bimcap/raster/depth_normals.h"
 #include "bimcap/raster/gray.h"
 #include "bimcap/raster/piecewise_affine.h"
+#include "bimcap/raster/pixel_neighbours.h"
 #include "bimcap/raster/plane_depth.h"
 #include "bimcap/raster/plane_scores.h"
 #include "bimcap/raster/png_rows.h"
@@ -167,6 +168,29 @@ py::array_t<uint8_t> DecodePngRows(const py::handle& stream_obj, int64_t rows, i
     raster::DecodePngRows(in, in_bytes, rows, row_bytes, bpp, dst);
   }
   return out;
+}
+
+py::array_t<int64_t> NearestPixels(const py::handle& row_start_obj, const py::handle& cols_obj,
+                                   const py::handle& queries_obj, int k) {
+  const py::array row_start = Checked<int64_t>(row_start_obj, "row_start", {-1});
+  if (row_start.shape(0) < 2) {
+    throw RasterError("row_start", "needs at least 2 offsets (one row), got " +
+                                       std::to_string(row_start.shape(0)));
+  }
+  const py::array cols = Checked<int64_t>(cols_obj, "cols", {-1});
+  const py::array queries = Checked<double>(queries_obj, "queries", {-1, 2});
+  const py::ssize_t num_queries = queries.shape(0);
+  if (k < 1) throw RasterError("k", "must be >= 1, got " + std::to_string(k));
+  py::array_t<int64_t> nearest({num_queries, static_cast<py::ssize_t>(k)});
+  const auto* starts = static_cast<const int64_t*>(row_start.data());
+  const auto* c = static_cast<const int64_t*>(cols.data());
+  const auto* q = static_cast<const double*>(queries.data());
+  int64_t* out = nearest.mutable_data();
+  {
+    py::gil_scoped_release release;
+    raster::NearestPixels(starts, row_start.shape(0) - 1, c, cols.shape(0), q, num_queries, k, out);
+  }
+  return nearest;
 }
 
 py::array_t<double> PixelSurfaceArea(const py::handle& depth_obj, double fx, double fy, double cx,
@@ -507,6 +531,13 @@ void BindRaster(py::module_& m) {
         "libdeflate and the PNG filters undone (bimcap/raster/png_rows.h). Raises InputError "
         "naming the bad argument (a stream that is not one zlib stream of exactly rows · (1 + "
         "row_bytes) bytes; a filter type above 4, with its row).");
+  m.def("nearest_pixels", &NearestPixels, py::arg("row_start"), py::arg("cols"), py::arg("queries"),
+        py::arg("k"),
+        "(N, k) int64: for each of the (N, 2) float64 `queries` (x, y), the k nearest of the "
+        "distinct pixels given row by row (`row_start` (rows + 1,) int64 offsets, `cols` (n,) "
+        "int64 ascending in each row, as np.nonzero lists them), nearest first, ties by index: "
+        "scipy cKDTree.query's neighbours and distances' rounding "
+        "(bimcap/raster/pixel_neighbours.h). Raises InputError naming the bad argument.");
   m.def("filter_triangles", &FilterTriangles, py::arg("uv"), py::arg("z"), py::arg("triangles"),
         py::arg("max_edge"), py::arg("max_ratio"),
         "(good (G,) int64 ascending, corners (G, 3, 2) int32, edge (T,), det (T,)) of the (T, 3) "

@@ -16,6 +16,7 @@
 #include "bimcap/raster/depth_normals.h"
 #include "bimcap/raster/gray.h"
 #include "bimcap/raster/piecewise_affine.h"
+#include "bimcap/raster/pixel_neighbours.h"
 #include "bimcap/raster/plane_depth.h"
 #include "bimcap/raster/plane_scores.h"
 #include "bimcap/raster/png_rows.h"
@@ -557,6 +558,67 @@ TEST(PngRows, BadInput) {
   }
   EXPECT_THROW(UnfilterPngRows(filtered.data(), 2, 2, 0, out.data()), RasterError);
   EXPECT_THROW(UnfilterPngRows(filtered.data(), 2, 2, 9, out.data()), RasterError);
+}
+
+// Brute force over every pixel: (d², index) ascending, d² = dx² + dy² rounded as written.
+TEST(NearestPixels, MatchesBruteForceWithTiesByIndex) {
+  // a 9 × 7 image with pixels in a fixed pattern (rows listed left to right, as np.nonzero)
+  std::vector<int64_t> row_start = {0}, cols;
+  std::vector<std::pair<int64_t, int64_t>> pixels;  // (col, row) by index
+  for (int64_t v = 0; v < 7; ++v) {
+    for (int64_t u = 0; u < 9; ++u) {
+      if ((u * 7 + v * 3) % 5 == 0 || (u == 4 && v == 3)) {
+        cols.push_back(u);
+        pixels.emplace_back(u, v);
+      }
+    }
+    row_start.push_back(static_cast<int64_t>(cols.size()));
+  }
+  const int64_t n = static_cast<int64_t>(cols.size());
+  // queries between pixels (exact ties: 4.5 is as far from columns 4 and 5), on a pixel, and
+  // outside the image
+  const std::vector<double> queries = {4.5,  3.0,  4.0,  3.0, 0.25, 6.75,
+                                       -3.0, -2.0, 12.5, 9.0, 2.0,  2.5};
+  const int num_queries = static_cast<int>(queries.size() / 2);
+  for (const int k : {1, 3, 7, static_cast<int>(n)}) {
+    std::vector<int64_t> got(static_cast<size_t>(num_queries) * k, -1);
+    NearestPixels(row_start.data(), 7, cols.data(), n, queries.data(), num_queries, k, got.data());
+    for (int q = 0; q < num_queries; ++q) {
+      std::vector<std::pair<double, int64_t>> all;
+      for (int64_t i = 0; i < n; ++i) {
+        const double dx = queries[2 * q] - static_cast<double>(pixels[i].first);
+        const double dy = queries[2 * q + 1] - static_cast<double>(pixels[i].second);
+        all.emplace_back(dx * dx + dy * dy, i);
+      }
+      std::sort(all.begin(), all.end());
+      for (int j = 0; j < k; ++j) {
+        EXPECT_EQ(got[q * k + j], all[j].second) << "k " << k << " query " << q << " rank " << j;
+      }
+    }
+  }
+}
+
+TEST(NearestPixels, BadInput) {
+  const std::vector<int64_t> row_start = {0, 2, 3}, cols = {1, 4, 0};
+  const std::vector<double> query = {1.0, 1.0};
+  std::vector<int64_t> out(3);
+  const auto field = [&](const std::vector<int64_t>& starts, const std::vector<int64_t>& c,
+                         const std::vector<double>& q, int k) {
+    try {
+      NearestPixels(starts.data(), static_cast<int64_t>(starts.size()) - 1, c.data(),
+                    static_cast<int64_t>(c.size()), q.data(), 1, k, out.data());
+    } catch (const RasterError& e) {
+      return e.field();
+    }
+    return std::string("none");
+  };
+  EXPECT_EQ(field(row_start, cols, query, 3), "none");
+  EXPECT_EQ(field(row_start, cols, query, 0), "k");
+  EXPECT_EQ(field(row_start, cols, query, 4), "k");
+  EXPECT_EQ(field({0, 2, 2}, cols, query, 1), "row_start");
+  EXPECT_EQ(field({0, 3, 2}, cols, query, 1), "row_start");
+  EXPECT_EQ(field(row_start, {4, 1, 0}, query, 1), "cols");
+  EXPECT_EQ(field(row_start, cols, {std::nan(""), 1.0}, 1), "queries");
 }
 
 TEST(PlaneScores, StrictTestsAndAddedCounts) {

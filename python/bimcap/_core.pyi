@@ -70,6 +70,11 @@ def decode_png_rows(
 ) -> NDArray[np.uint8]:
     """(rows, row_bytes) uint8 scanlines of a PNG image from the zlib stream of its IDAT chunks
     (their data joined; `bpp` bytes a pixel, 1-8): inflated, the PNG filters undone."""
+def nearest_pixels(
+    row_start: NDArray[np.int64], cols: NDArray[np.int64], queries: NDArray[np.float64], k: int
+) -> NDArray[np.int64]:
+    """(N, k) indices of the k pixels (given row by row, as np.nonzero lists them) nearest each
+    (x, y) query, nearest first, ties by index (scipy cKDTree.query's neighbours)."""
 def filter_triangles(
     uv: NDArray[np.float64], z: NDArray[np.float64], triangles: NDArray[np.int32],
     max_edge: float, max_ratio: float

@@ -148,7 +148,7 @@ def unsupported_depths(
     (N,) bool, True where the depth is contradicted (all False when ``max_support_z`` is None,
     or fewer than k returns have a depth in the map).
     """
-    from scipy.spatial import cKDTree
+    from bimcap import _core
 
     opts = options or DepthLookupOptions()
     q = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
@@ -168,8 +168,12 @@ def unsupported_depths(
     if len(u) < k:
         return out
     diff = m[v, u].astype(np.float64) - d[v, u].astype(np.float64)
-    _, idx = cKDTree(np.stack([u, v], axis=1).astype(np.float64)).query(q, k=k)
-    bias = diff[np.asarray(idx).reshape(len(q), k)].mean(axis=1)
+    # the k returns nearest each keypoint, nearest first: scipy's cKDTree's neighbours, found
+    # row by row in compiled code (bimcap/raster/pixel_neighbours.h; ties by index)
+    row_start = np.zeros(d.shape[0] + 1, np.int64)
+    np.cumsum(np.bincount(v, minlength=d.shape[0]), out=row_start[1:])
+    idx = _core.nearest_pixels(row_start, u.astype(np.int64), np.ascontiguousarray(q), k)
+    bias = diff[idx].mean(axis=1)
     sigma = max(noise_m, opts.min_noise_m)
     return np.asarray(np.abs(bias) > opts.max_support_z * sigma / np.sqrt(k))
 
