@@ -242,7 +242,11 @@ def test_lidar_stages_same_as_941624b_on_real_frames(world: str,
 
 
 def unsupported_depths_941624b(depth: ArrayLike, measured: ArrayLike, uv: ArrayLike,
-                               noise_m: float, options: Any = None) -> NDArray[np.bool_]:
+                               noise_m: float, options: Any = None,
+                               ties_by_index: bool = False) -> NDArray[np.bool_]:
+    """The 941624b code: the k returns nearest each keypoint from scipy's cKDTree, or, with
+    ``ties_by_index``, from every return's distance (dx² + dy², rounded as cKDTree does), the
+    nearest first and equal distances by index (the compiled search's rule since f43df25)."""
     from scipy.spatial import cKDTree
 
     from bimcap.features.tracks import DepthLookupOptions
@@ -259,7 +263,12 @@ def unsupported_depths_941624b(depth: ArrayLike, measured: ArrayLike, uv: ArrayL
     if len(u) < k:
         return out
     diff = m[v, u] - d[v, u]
-    _, idx = cKDTree(np.stack([u, v], axis=1).astype(np.float64)).query(q, k=k)
+    pts = np.stack([u, v], axis=1).astype(np.float64)
+    if ties_by_index:
+        dx, dy = q[:, :1] - pts[:, 0], q[:, 1:] - pts[:, 1]
+        idx = np.argsort(dx * dx + dy * dy, axis=1, kind="stable")[:, :k]
+    else:
+        _, idx = cKDTree(pts).query(q, k=k)
     bias = diff[np.asarray(idx).reshape(len(q), k)].mean(axis=1)
     sigma = max(noise_m, opts.min_noise_m)
     return np.asarray(np.abs(bias) > opts.max_support_z * sigma / np.sqrt(k))
@@ -268,9 +277,10 @@ def unsupported_depths_941624b(depth: ArrayLike, measured: ArrayLike, uv: ArrayL
 @pytest.mark.parametrize("world", ["gen-demo-s0", "ifc-SampleHouse4"])
 def test_unsupported_depths_same_as_941624b(world: str) -> None:
     """The keypoints whose depth the returns contradict: the same flags as the 941624b code on
-    the front end's float32 maps (and as float64 / float16 / integer maps), for sub-pixel and
-    whole-pixel keypoints (equal distances to many returns), the completed depth and the depth
-    moved 6 cm off (many flagged)."""
+    the front end's float32 maps (and as float64 / float16 / integer maps), for sub-pixel
+    keypoints, and for whole-pixel keypoints (equal distances to many returns) with equal
+    distances taken by index, as the compiled search does (cKDTree takes them in the order its
+    tree visits them), on the completed depth and the depth moved 6 cm off (many flagged)."""
     seq_dir = _WORLDS / world / "seq_60_standard"
     if not seq_dir.is_dir():
         pytest.skip(f"{seq_dir} not generated")
@@ -291,20 +301,24 @@ def test_unsupported_depths_same_as_941624b(world: str) -> None:
         measured = ctx.measured_depth
         assert measured is not None and dense.dtype == np.float32
         h, w = dense.shape
-        uv = np.concatenate([rng.uniform(-0.5, [w - 0.5, h - 0.5], (800, 2)),
-                             rng.integers(0, [w, h], (800, 2)).astype(np.float64)])
+        sub = rng.uniform(-0.5, [w - 0.5, h - 0.5], (800, 2))
+        whole = rng.integers(0, [w, h], (800, 2)).astype(np.float64)
         off = np.where(dense > 0, dense + np.float32(0.06), dense).astype(np.float32)
         for depth in (dense, off):
             for opts in (None, DepthLookupOptions(support_returns=4, max_support_z=2.0)):
-                want = unsupported_depths_941624b(depth, measured, uv, 0.02, opts)
-                for dd, mm in ((depth, measured), (depth.astype(np.float64), measured),
-                               (depth, measured.astype(np.float16))):
-                    assert np.array_equal(unsupported_depths(dd, mm, uv, 0.02, opts),
-                                          unsupported_depths_941624b(dd, mm, uv, 0.02, opts))
-                assert np.array_equal(unsupported_depths(depth, measured, uv, 0.02, opts), want)
-                mm_int = (measured * 1000).astype(np.uint16)
-                dd_int = (depth * 1000).astype(np.int32)
-                assert np.array_equal(unsupported_depths(dd_int, mm_int, uv, 20.0, opts),
-                                      unsupported_depths_941624b(dd_int, mm_int, uv, 20.0, opts))
-                flagged += int(want.sum())
+                for uv, by_index in ((sub, False), (whole, True)):
+                    want = unsupported_depths_941624b(depth, measured, uv, 0.02, opts, by_index)
+                    for dd, mm in ((depth, measured), (depth.astype(np.float64), measured),
+                                   (depth, measured.astype(np.float16))):
+                        assert np.array_equal(
+                            unsupported_depths(dd, mm, uv, 0.02, opts),
+                            unsupported_depths_941624b(dd, mm, uv, 0.02, opts, by_index))
+                    assert np.array_equal(unsupported_depths(depth, measured, uv, 0.02, opts),
+                                          want)
+                    mm_int = (measured * 1000).astype(np.uint16)
+                    dd_int = (depth * 1000).astype(np.int32)
+                    assert np.array_equal(
+                        unsupported_depths(dd_int, mm_int, uv, 20.0, opts),
+                        unsupported_depths_941624b(dd_int, mm_int, uv, 20.0, opts, by_index))
+                    flagged += int(want.sum())
     assert flagged > 100

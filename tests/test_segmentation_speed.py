@@ -171,11 +171,11 @@ def test_segmentation_and_smoothing_unchanged_by_gather_paths(
 
 @pytest.mark.parametrize("reach", [1, 8])
 def test_near_region_same_as_whole_dilation(reach: int) -> None:
-    """``_near_region`` (the dilation on the rows the kernel reaches, the lookups in their
-    slice) gives the positions the whole image's dilation gives, for regions touching the
-    image's top and bottom, empty regions, single pixels, with and without the rows (the
-    upsampling's lookups, with repeated indices as nearest-neighbour upsampling reads them), and
-    with a band of rows that holds the region (exactly its rows, or wider)."""
+    """``_near_region`` (compiled: each window's count from a table over the region's band)
+    gives the positions the whole image's dilation by OpenCV gives, for regions touching the
+    image's top and bottom, empty regions, single pixels, with entries in ascending rows or in
+    any order (the upsampling's lookups, with repeated indices as nearest-neighbour upsampling
+    reads them), and with a band of rows that holds the region (exactly its rows, or wider)."""
     import cv2
 
     rng = np.random.default_rng(18 + reach)
@@ -189,15 +189,16 @@ def test_near_region_same_as_whole_dilation(reach: int) -> None:
                 y, x = int(rng.integers(0, h)), int(rng.integers(0, w))
                 region_id[y:y + int(rng.integers(1, 9)), x:x + int(rng.integers(1, 9))] = k
         at = np.sort(rng.integers(0, h * w, size=int(rng.integers(0, 3 * h * w + 1))))
+        shuffled = rng.permutation(at)
         for k in range(-1, 7):
             whole = cv2.dilate((region_id == k).astype(np.uint8), kernel).reshape(-1)
-            want = np.flatnonzero(np.take(whole, at)) if len(at) else np.zeros(0, np.intp)
             held = np.flatnonzero((region_id == k).any(1))
             bands = [None, (0, h)]
             if len(held):
                 lo, hi = int(held[0]), int(held[-1]) + 1
                 bands += [(lo, hi), (max(lo - 2, 0), min(hi + 3, h))]
-            for rows in (at // w, None):
+            for entries, ascending in ((at, True), (at, False), (shuffled, False)):
+                want = np.flatnonzero(np.take(whole, entries)) if len(entries) else []
                 for band in bands:
-                    got = geometric._near_region(region_id, k, kernel, at, rows, band)
-                    assert np.array_equal(got, want), (h, w, k, rows is None, band)
+                    got = geometric._near_region(region_id, k, reach, entries, ascending, band)
+                    assert np.array_equal(got, want), (h, w, k, ascending, band)

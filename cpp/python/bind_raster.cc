@@ -19,6 +19,7 @@
 #include "bimcap/raster/delaunay.h"
 #include "bimcap/raster/depth_normals.h"
 #include "bimcap/raster/gray.h"
+#include "bimcap/raster/near_region.h"
 #include "bimcap/raster/piecewise_affine.h"
 #include "bimcap/raster/pixel_neighbours.h"
 #include "bimcap/raster/plane_depth.h"
@@ -191,6 +192,24 @@ py::array_t<int64_t> NearestPixels(const py::handle& row_start_obj, const py::ha
     raster::NearestPixels(starts, row_start.shape(0) - 1, c, cols.shape(0), q, num_queries, k, out);
   }
   return nearest;
+}
+
+py::array_t<int64_t> NearRegion(const py::handle& region_id_obj, int32_t k, int reach,
+                                const py::handle& at_obj, bool rows_ascending, int64_t top,
+                                int64_t stop) {
+  const py::array region_id = Checked<int32_t>(region_id_obj, "region_id", {-1, -1});
+  const py::array at = Checked<int64_t>(at_obj, "at", {-1});
+  const raster::ImageRef<const int32_t> image{static_cast<const int32_t*>(region_id.data()),
+                                              region_id.shape(0), region_id.shape(1)};
+  const auto* entries = static_cast<const int64_t*>(at.data());
+  std::vector<int64_t> hits;
+  {
+    py::gil_scoped_release release;
+    hits = raster::NearRegion(image, k, reach, entries, at.shape(0), rows_ascending, top, stop);
+  }
+  py::array_t<int64_t> out(static_cast<py::ssize_t>(hits.size()));
+  std::copy(hits.begin(), hits.end(), out.mutable_data());
+  return out;
 }
 
 py::array_t<double> PixelSurfaceArea(const py::handle& depth_obj, double fx, double fy, double cx,
@@ -538,6 +557,13 @@ void BindRaster(py::module_& m) {
         "int64 ascending in each row, as np.nonzero lists them), nearest first, ties by index: "
         "scipy cKDTree.query's neighbours and distances' rounding "
         "(bimcap/raster/pixel_neighbours.h). Raises InputError naming the bad argument.");
+  m.def("near_region", &NearRegion, py::arg("region_id"), py::arg("k"), py::arg("reach"),
+        py::arg("at"), py::arg("rows_ascending"), py::arg("top"), py::arg("stop"),
+        "(n,) int64 positions (ascending) in `at` ((M,) int64 raveled pixels of the (h, w) int32 "
+        "`region_id`; their rows never decrease when `rows_ascending`) of the pixels within "
+        "`reach` rows and columns of a pixel of region `k`, whose pixels lie in rows [top, "
+        "stop): what cv2.dilate(region_id == k, a (2 reach + 1)² square) covers there "
+        "(bimcap/raster/near_region.h). Raises InputError naming the bad argument.");
   m.def("filter_triangles", &FilterTriangles, py::arg("uv"), py::arg("z"), py::arg("triangles"),
         py::arg("max_edge"), py::arg("max_ratio"),
         "(good (G,) int64 ascending, corners (G, 3, 2) int32, edge (T,), det (T,)) of the (T, 3) "

@@ -15,6 +15,7 @@
 #include "bimcap/raster/convex_fill.h"
 #include "bimcap/raster/depth_normals.h"
 #include "bimcap/raster/gray.h"
+#include "bimcap/raster/near_region.h"
 #include "bimcap/raster/piecewise_affine.h"
 #include "bimcap/raster/pixel_neighbours.h"
 #include "bimcap/raster/plane_depth.h"
@@ -619,6 +620,30 @@ TEST(NearestPixels, BadInput) {
   EXPECT_EQ(field({0, 3, 2}, cols, query, 1), "row_start");
   EXPECT_EQ(field(row_start, {4, 1, 0}, query, 1), "cols");
   EXPECT_EQ(field(row_start, cols, {std::nan(""), 1.0}, 1), "queries");
+}
+
+// One pixel of region 2 at (row 1, col 3) in a 4 × 5 image: the pixels within 1 row and column
+// of it are near, with the entries' rows ascending or not, and a band of rows wider than the
+// region changes nothing.
+TEST(NearRegion, WindowOfTheRegion) {
+  std::vector<int32_t> ids(20, -1);
+  ids[1 * 5 + 3] = 2;
+  ids[3 * 5 + 0] = 1;
+  const ImageRef<const int32_t> image{ids.data(), 4, 5};
+  const std::vector<int64_t> at = {0, 2, 4, 7, 9, 12, 14, 15, 17, 19};
+  for (const bool ascending : {true, false}) {
+    for (const auto& [top, stop] : {std::pair<int64_t, int64_t>{1, 2}, {0, 4}}) {
+      // entries (0,0) (0,2) (0,4) (1,2) (1,4) (2,2) (2,4) (3,0) (3,2) (3,4)
+      EXPECT_EQ(NearRegion(image, 2, 1, at.data(), 10, ascending, top, stop),
+                (std::vector<int64_t>{1, 2, 3, 4, 5, 6}));
+    }
+  }
+  EXPECT_EQ(NearRegion(image, 2, 0, at.data(), 10, true, 1, 2), (std::vector<int64_t>{}));
+  EXPECT_EQ(NearRegion(image, 1, 2, at.data(), 10, true, 3, 4),
+            (std::vector<int64_t>{3, 5, 7, 8}));  // (1,2) (2,2) (3,0) (3,2)
+  const std::vector<int64_t> outside = {3, 20};
+  EXPECT_THROW(NearRegion(image, 2, 1, outside.data(), 2, false, 0, 4), RasterError);
+  EXPECT_THROW(NearRegion(image, 2, -1, at.data(), 10, true, 0, 4), RasterError);
 }
 
 TEST(PlaneScores, StrictTestsAndAddedCounts) {

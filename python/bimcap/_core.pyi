@@ -75,6 +75,12 @@ def nearest_pixels(
 ) -> NDArray[np.int64]:
     """(N, k) indices of the k pixels (given row by row, as np.nonzero lists them) nearest each
     (x, y) query, nearest first, ties by index (scipy cKDTree.query's neighbours)."""
+def near_region(
+    region_id: NDArray[np.int32], k: int, reach: int, at: NDArray[np.int64],
+    rows_ascending: bool, top: int, stop: int
+) -> NDArray[np.int64]:
+    """Positions (ascending) in `at` (raveled pixels) of the pixels within `reach` rows and
+    columns of a pixel of region `k` (whose pixels lie in rows [top, stop))."""
 def filter_triangles(
     uv: NDArray[np.float64], z: NDArray[np.float64], triangles: NDArray[np.int32],
     max_edge: float, max_ratio: float

@@ -882,40 +882,22 @@ def _vertical_fit(p: F64, up_ref: F64) -> _Plane:
     return _Plane(normal, float(-normal @ centroid))
 
 
-def _near_region(region_id: NDArray[np.int32], k: int, kernel: NDArray[np.uint8],
-                 at: NDArray[np.integer], at_row: NDArray[np.integer] | None,
-                 band: tuple[int, int] | None = None) -> NDArray[np.intp]:
-    """Positions (ascending) in ``at`` (M,) (raveled indices of pixels of ``region_id`` (h, w),
-    in rows ``at_row`` that never decrease; None: not known to) of the pixels that OpenCV's
-    dilation of region ``k``'s mask by the square ``kernel`` covers. ``band``: rows
-    ``[start, stop)`` that hold every pixel of region ``k`` (None: any row), where it is looked
-    for.
+def _near_region(region_id: NDArray[np.int32], k: int, reach: int, at: NDArray[np.int64],
+                 rows_ascending: bool, band: tuple[int, int] | None = None) -> NDArray[np.int64]:
+    """Positions (ascending) in ``at`` (M,) (raveled indices of pixels of ``region_id`` (h, w);
+    ``rows_ascending``: their rows never decrease) of the pixels that OpenCV's dilation of
+    region ``k``'s mask by a ``(2 reach + 1)²`` square covers. ``band``: rows ``[start, stop)``
+    that hold every pixel of region ``k`` (None: any row).
 
-    The same pixels as ``cv2.dilate(region_id == k, kernel)`` read at ``at``, for less: the
-    dilation runs on the rows the kernel reaches from the region's only (the rows beyond have
-    no region pixel, and OpenCV's dilation reads nothing past the image, so the rows kept come
-    out the same), and only the entries of ``at`` in those rows (a slice, by ``at_row``) are
-    read."""
-    import cv2
+    The same pixels as ``cv2.dilate(region_id == k, kernel)`` read at ``at``, in compiled code:
+    a table of the region's pixel counts over its band gives each window's count from four
+    entries (bimcap/raster/near_region.h), the entries of ``at`` out of reach never read when
+    their rows are ascending."""
+    from bimcap import _core
 
     top, stop = band or (0, region_id.shape[0])
-    rows = np.flatnonzero((region_id[top:stop] == k).any(1))
-    if len(rows) == 0:
-        return np.zeros(0, dtype=np.intp)
-    reach = kernel.shape[0] // 2
-    h, w = region_id.shape
-    y0, y1 = max(top + int(rows[0]) - reach, 0), min(top + int(rows[-1]) + reach + 1, h)
-    near = cv2.dilate((region_id[y0:y1] == k).astype(np.uint8), kernel)
-    a, b = (0, len(at)) if at_row is None else (int(i) for i in np.searchsorted(at_row, (y0, y1)))
-    look = at[a:b] - y0 * w
-    if at_row is None:  # entries outside the dilated rows read nothing
-        inside = (look >= 0) & (look < near.size)
-        hit: NDArray[np.intp] = np.flatnonzero(inside)
-        hit = hit[np.take(near.reshape(-1), look[hit]) > 0]
-        return hit
-    hit = np.flatnonzero(np.take(near.reshape(-1), look))
-    hit += a
-    return hit
+    hits: NDArray[np.int64] = _core.near_region(region_id, k, reach, at, rows_ascending, top, stop)
+    return hits
 
 
 def _fill_creases(scene: _WorkScene, state: _Labelling, opts: GeometricOptions) -> None:
@@ -928,12 +910,11 @@ def _fill_creases(scene: _WorkScene, state: _Labelling, opts: GeometricOptions) 
     p = np.take(scene.pts_flat, flat, axis=0)
     best = np.full(len(flat), np.inf)
     best_label = np.full(len(flat), int(Label.CLUTTER), dtype=np.uint8)
-    kernel = np.ones((2 * opts.crease_px + 1,) * 2, np.uint8)
     thr = 2.0 * _threshold(p[:, 2], opts)
-    flat_row = flat // undecided.shape[1]  # ascending, as flat
     for k, (lab, plane) in enumerate(state.regions):
-        # the distances at the pixels near the region only (_rows_dot: the same numbers)
-        near = _near_region(state.region_id, k, kernel, flat, flat_row, state.bands[k])
+        # the distances at the pixels near the region only (_rows_dot: the same numbers); flat
+        # is ascending, so are its rows
+        near = _near_region(state.region_id, k, opts.crease_px, flat, True, state.bands[k])
         if len(near) == 0:
             continue
         dist = _rows_dot(p, near, plane.normal)
@@ -1002,13 +983,13 @@ def _upsample_labels(
     best = _threshold(z, opts) * 2.0
     choice = np.full(len(r), -1, dtype=np.int64)
     # the work rows the border pixels read: row-major border pixels and nearest-neighbour rows
-    # never decrease (else every border pixel is looked up for every region)
-    src_row: NDArray[np.integer] | None = src // region_id.shape[1]
-    if len(src) > 1 and not bool((src_row[1:] >= src_row[:-1]).all()):  # type: ignore[index]
-        src_row = None
+    # never decrease (else every border pixel is looked at for every region)
+    at = src.astype(np.int64)
+    at_row = at // region_id.shape[1]
+    ascending = len(at) < 2 or bool((at_row[1:] >= at_row[:-1]).all())
     for k, (_, plane) in enumerate(regions):
         # the distances at the border pixels near the region only (_rows_dot: the same numbers)
-        near = _near_region(region_id, k, kernel, src, src_row, bands[k] if bands else None)
+        near = _near_region(region_id, k, 1, at, ascending, bands[k] if bands else None)
         if len(near) == 0:
             continue
         dist = _rows_dot(p, near, plane.normal)
