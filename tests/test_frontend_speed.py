@@ -970,6 +970,35 @@ def test_int8_products_exact() -> None:
     assert not np.array_equal(lo_only, (a.astype(np.int64) @ b[order].astype(np.int64).T))
 
 
+@pytest.mark.parametrize("case", ["some", "none", "all", "last", "one_row", "empty"])
+def test_descriptor_split_same_bytes(case: str) -> None:
+    """``_Int8Rows.high_bits_last`` (compiled) gives ``_hi_last``'s order and the arrays of
+    ``_Int8Rows(d[order])`` byte for byte, dtypes and shapes included, whether no row, some
+    rows (scattered or already last) or every row has a value >= 128."""
+    from bimcap.features import matching
+
+    rng = np.random.default_rng(len(case))
+    d = rng.integers(0, 128, (301, 128)).astype(np.uint8)
+    if case == "some":
+        d[rng.choice(301, 40, replace=False), rng.integers(0, 128, 40)] = 200
+    elif case == "all":
+        d[:, 5] = 128
+    elif case == "last":
+        d[-7:, 0] = 255
+    elif case == "one_row":
+        d = d[:1] | np.uint8(128)
+    elif case == "empty":
+        d = d[:0]
+    order, got = matching._Int8Rows.high_bits_last(d)
+    want_order = matching._hi_last(d)
+    want = matching._Int8Rows(d[want_order])
+    assert order.dtype == want_order.dtype and np.array_equal(order, want_order)
+    for name in ("d", "lo", "lo_t", "hi", "hi_t"):
+        a, b = getattr(got, name), getattr(want, name)
+        assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes(), name
+        assert a.flags["C_CONTIGUOUS"], name
+    assert isinstance(want.hi_rows, slice) and got.hi_rows == want.hi_rows
+
 def _rootsift_like(rng: np.random.Generator, n: int) -> np.ndarray:
     """(n,) uint8 of norm ~512 (as a RootSIFT descriptor), all below 128."""
     r = rng.integers(1, 40, n).astype(np.float64)

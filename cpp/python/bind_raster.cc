@@ -18,6 +18,7 @@
 #include "bimcap/raster/convex_fill.h"
 #include "bimcap/raster/delaunay.h"
 #include "bimcap/raster/depth_normals.h"
+#include "bimcap/raster/descriptor_split.h"
 #include "bimcap/raster/gray.h"
 #include "bimcap/raster/near_region.h"
 #include "bimcap/raster/piecewise_affine.h"
@@ -210,6 +211,21 @@ py::array_t<int64_t> NearRegion(const py::handle& region_id_obj, int32_t k, int 
   py::array_t<int64_t> out(static_cast<py::ssize_t>(hits.size()));
   std::copy(hits.begin(), hits.end(), out.mutable_data());
   return out;
+}
+
+py::tuple SplitDescriptors(const py::handle& d_obj) {
+  const py::array d = Checked<uint8_t>(d_obj, "descriptors", {-1, -1});
+  const py::ssize_t rows = d.shape(0), cols = d.shape(1);
+  const auto* src = static_cast<const uint8_t*>(d.data());
+  py::array_t<int64_t> order(rows);
+  const int64_t first = raster::HighBitLastOrder(src, rows, cols, order.mutable_data());
+  const py::ssize_t num_hi = rows - static_cast<py::ssize_t>(first);
+  py::array_t<uint8_t> ordered({rows, cols}), lo({rows, cols}), hi({num_hi, cols});
+  py::array_t<int8_t> lo_t({cols, rows}), hi_t({cols, num_hi});
+  raster::SplitDescriptors(src, rows, cols, order.data(), first, ordered.mutable_data(),
+                           lo.mutable_data(), lo_t.mutable_data(), hi.mutable_data(),
+                           hi_t.mutable_data());
+  return py::make_tuple(order, first, ordered, lo, lo_t, hi, hi_t);
 }
 
 py::array_t<double> PixelSurfaceArea(const py::handle& depth_obj, double fx, double fy, double cx,
@@ -564,6 +580,12 @@ void BindRaster(py::module_& m) {
         "`reach` rows and columns of a pixel of region `k`, whose pixels lie in rows [top, "
         "stop): what cv2.dilate(region_id == k, a (2 reach + 1)² square) covers there "
         "(bimcap/raster/near_region.h). Raises InputError naming the bad argument.");
+  m.def("split_descriptors", &SplitDescriptors, py::arg("descriptors"),
+        "(order (n,) int64, first, d[order], lo, lo_t int8, hi, hi_t int8) of the (n, c) uint8 "
+        "descriptors: the rows without a value >= 128 first, then the others (first: how many "
+        "without), d[order] & 127 and its transpose, d[order][first:] >> 7 and its transpose; "
+        "bimcap.features.matching's numpy expressions byte for byte "
+        "(bimcap/raster/descriptor_split.h).");
   m.def("filter_triangles", &FilterTriangles, py::arg("uv"), py::arg("z"), py::arg("triangles"),
         py::arg("max_edge"), py::arg("max_ratio"),
         "(good (G,) int64 ascending, corners (G, 3, 2) int32, edge (T,), det (T,)) of the (T, 3) "

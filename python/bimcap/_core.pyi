@@ -81,6 +81,12 @@ def near_region(
 ) -> NDArray[np.int64]:
     """Positions (ascending) in `at` (raveled pixels) of the pixels within `reach` rows and
     columns of a pixel of region `k` (whose pixels lie in rows [top, stop))."""
+def split_descriptors(
+    descriptors: NDArray[np.uint8],
+) -> tuple[NDArray[np.int64], int, NDArray[np.uint8], NDArray[np.uint8], NDArray[np.int8],
+           NDArray[np.uint8], NDArray[np.int8]]:
+    """(order, first, d[order], lo, lo_t, hi, hi_t): the rows without a value >= 128 first, the
+    low 7 bits and the high bits of the reordered rows, and their transposes."""
 def filter_triangles(
     uv: NDArray[np.float64], z: NDArray[np.float64], triangles: NDArray[np.int32],
     max_edge: float, max_ratio: float

@@ -303,6 +303,19 @@ class _Int8Rows:
         """The rows ``sel`` (a slice or indices)."""
         return _Int8Rows(self.d[sel])
 
+    @classmethod
+    def high_bits_last(cls, d: NDArray[np.uint8]) -> tuple[NDArray[np.int64], _Int8Rows]:
+        """(:func:`_hi_last`'s order of ``d``, ``_Int8Rows(d[order])``) in one compiled pass
+        (bimcap/raster/descriptor_split.h: the same bytes; the rows with a high bit last)."""
+        from bimcap import _core
+
+        order, first, ordered, lo, lo_t, hi, hi_t = _core.split_descriptors(
+            np.ascontiguousarray(d, dtype=np.uint8))
+        rows = cls.__new__(cls)
+        rows.d, rows.lo, rows.lo_t = ordered, lo, lo_t
+        rows.hi_rows, rows.hi, rows.hi_t = slice(first, len(d)), hi, hi_t
+        return order, rows
+
 
 def _int8_products(x: _Int8Rows, y: _Int8Rows) -> NDArray[np.int32]:
     """(len(x), len(y)) int32 ``x · yᵀ`` of the uint8 descriptors, exactly, in ONNX Runtime's
@@ -366,8 +379,7 @@ def _match_numpy(a: NDArray[np.uint8], b: NDArray[np.uint8], opts: MatchOptions)
         # correct); the matches do not depend on the order of the rows: a row or column whose
         # two best are equal fails the ratio test whichever of them is first, and the index
         # pairs are mapped back and sorted at the end.
-        order_a, order_b = _hi_last(a), _hi_last(b)
-        ia8, ib8 = _Int8Rows(a[order_a]), _Int8Rows(b[order_b])
+        (order_a, ia8), (order_b, ib8) = _Int8Rows.high_bits_last(a), _Int8Rows.high_bits_last(b)
 
         def products(rows_a: slice | None, rows_b: NDArray[np.int64] | None = None
                      ) -> NDArray[Any]:
