@@ -168,3 +168,28 @@ def test_a_scan_with_8_cm_of_range_noise_is_sampled_with_a_coarser_voxel() -> No
     for classes in (made_for_3cm, widened):
         dist = _face_distance(transform_points(world_from_cam, classes[Label.WALL]))["wall"]
         assert np.median(dist) < 0.04
+
+
+@pytest.mark.parametrize("cell", [0.02, 0.1, 0.3, 5.0])
+def test_nearest_voxel_means_are_the_kd_trees(cell: float) -> None:
+    """The k voxel means nearest each candidate (compiled, a grid of cubes of any side) are
+    scipy's cKDTree's, in its order: a room's walls, floor and ceiling sampled on a 10 cm grid
+    with noise, an object far away, queries on and off the points."""
+    from scipy.spatial import cKDTree
+
+    from bimcap import _core
+
+    rng = np.random.default_rng(int(cell * 100))
+    g = np.arange(-2.0, 2.0, 0.1)
+    a, b = (x.ravel() for x in np.meshgrid(g, g))
+    faces = [np.stack([a, b, np.full_like(a, z)], 1) for z in (-1.2, 1.6)]
+    faces += [np.stack([np.full_like(a, x), a, b * 0.7], 1) for x in (-2.0, 2.0)]
+    cloud = np.concatenate([*faces, rng.normal([30.0, -5.0, 1.0], 0.05, (12, 3))])
+    cloud += rng.normal(0.0, 0.01, cloud.shape)
+    queries = np.concatenate([cloud[rng.choice(len(cloud), 300, replace=False)],
+                              rng.uniform(-3.0, 3.0, (100, 3)), [[30.0, -5.0, 1.0]]])
+    tree = cKDTree(cloud)
+    for k in (1, 10, 30):
+        got = _core.nearest_points(cloud, queries, k, cell)
+        want = np.asarray(tree.query(queries, k=k)[1]).reshape(len(queries), k)
+        np.testing.assert_array_equal(got, want)

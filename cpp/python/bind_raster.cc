@@ -26,6 +26,7 @@
 #include "bimcap/raster/plane_depth.h"
 #include "bimcap/raster/plane_scores.h"
 #include "bimcap/raster/png_rows.h"
+#include "bimcap/raster/point_neighbours.h"
 #include "bimcap/raster/range_noise.h"
 #include "bimcap/raster/region_sums.h"
 #include "bimcap/raster/similarity_top2.h"
@@ -226,6 +227,23 @@ py::tuple SplitDescriptors(const py::handle& d_obj) {
                            lo.mutable_data(), lo_t.mutable_data(), hi.mutable_data(),
                            hi_t.mutable_data());
   return py::make_tuple(order, first, ordered, lo, lo_t, hi, hi_t);
+}
+
+py::array_t<int64_t> NearestPoints(const py::handle& points_obj, const py::handle& queries_obj,
+                                   int k, double cell) {
+  const py::array points = Checked<double>(points_obj, "points", {-1, 3});
+  const py::array queries = Checked<double>(queries_obj, "queries", {-1, 3});
+  if (k < 1) throw RasterError("k", "must be >= 1, got " + std::to_string(k));
+  const py::ssize_t num_queries = queries.shape(0);
+  py::array_t<int64_t> nearest({num_queries, static_cast<py::ssize_t>(k)});
+  const auto* p = static_cast<const double*>(points.data());
+  const auto* q = static_cast<const double*>(queries.data());
+  int64_t* out = nearest.mutable_data();
+  {
+    py::gil_scoped_release release;
+    raster::NearestPoints(p, points.shape(0), q, num_queries, k, cell, out);
+  }
+  return nearest;
 }
 
 py::array_t<double> PixelSurfaceArea(const py::handle& depth_obj, double fx, double fy, double cx,
@@ -586,6 +604,12 @@ void BindRaster(py::module_& m) {
         "without), d[order] & 127 and its transpose, d[order][first:] >> 7 and its transpose; "
         "bimcap.features.matching's numpy expressions byte for byte "
         "(bimcap/raster/descriptor_split.h).");
+  m.def("nearest_points", &NearestPoints, py::arg("points"), py::arg("queries"), py::arg("k"),
+        py::arg("cell"),
+        "(N, k) int64: for each of the (N, 3) float64 `queries`, the k nearest of the (n, 3) "
+        "float64 `points`, nearest first, ties by index: scipy cKDTree.query's neighbours and "
+        "distances' rounding, found in a grid of cubes of side `cell` (only the cost depends "
+        "on it; bimcap/raster/point_neighbours.h). Raises InputError naming the bad argument.");
   m.def("filter_triangles", &FilterTriangles, py::arg("uv"), py::arg("z"), py::arg("triangles"),
         py::arg("max_edge"), py::arg("max_ratio"),
         "(good (G,) int64 ascending, corners (G, 3, 2) int32, edge (T,), det (T,)) of the (T, 3) "

@@ -21,6 +21,7 @@
 #include "bimcap/raster/plane_depth.h"
 #include "bimcap/raster/plane_scores.h"
 #include "bimcap/raster/png_rows.h"
+#include "bimcap/raster/point_neighbours.h"
 #include "bimcap/raster/range_noise.h"
 #include "bimcap/raster/voxel_normals.h"
 
@@ -644,6 +645,71 @@ TEST(NearRegion, WindowOfTheRegion) {
   const std::vector<int64_t> outside = {3, 20};
   EXPECT_THROW(NearRegion(image, 2, 1, outside.data(), 2, false, 0, 4), RasterError);
   EXPECT_THROW(NearRegion(image, 2, -1, at.data(), 10, true, 0, 4), RasterError);
+}
+
+// Brute force: (d², index) ascending, d² = ((dx² + dy²) + dz²) as written. Lattice points (many
+// equal distances), a far cluster (the all-points fallback), cells far smaller and larger than
+// the spacing.
+TEST(NearestPoints, MatchesBruteForceWithTiesByIndex) {
+  std::vector<double> points;
+  for (int i = 0; i < 4; ++i) {
+    for (int j = 0; j < 3; ++j) {
+      for (int l = 0; l < 3; ++l) {
+        points.insert(points.end(), {0.5 * i, 0.5 * j - 0.25, 0.5 * l + 0.1});
+      }
+    }
+  }
+  points.insert(points.end(), {40.0, -40.0, 7.0, 40.5, -40.0, 7.0});  // far away
+  const int64_t n = static_cast<int64_t>(points.size() / 3);
+  const std::vector<double> queries = {0.5, 0.25, 0.6, 0.3, 0.1, 0.35,  40.2, -39.9,
+                                       7.0, -3.0, 2.0, 1.0, 0.5, -0.25, 0.1};
+  const int64_t num_queries = static_cast<int64_t>(queries.size() / 3);
+  for (const double cell : {0.01, 0.3, 0.5, 2.0, 100.0}) {
+    for (const int k : {1, 5, 27, static_cast<int>(n)}) {
+      std::vector<int64_t> got(static_cast<size_t>(num_queries * k), -1);
+      NearestPoints(points.data(), n, queries.data(), num_queries, k, cell, got.data());
+      for (int64_t q = 0; q < num_queries; ++q) {
+        std::vector<std::pair<double, int64_t>> all;
+        for (int64_t i = 0; i < n; ++i) {
+          const double d0 = queries[3 * q] - points[3 * i];
+          const double d1 = queries[3 * q + 1] - points[3 * i + 1];
+          const double d2 = queries[3 * q + 2] - points[3 * i + 2];
+          double d = 0.0;
+          d += d0 * d0;
+          d += d1 * d1;
+          d += d2 * d2;
+          all.emplace_back(d, i);
+        }
+        std::sort(all.begin(), all.end());
+        for (int j = 0; j < k; ++j) {
+          ASSERT_EQ(got[q * k + j], all[j].second)
+              << "cell " << cell << " k " << k << " query " << q << " rank " << j;
+        }
+      }
+    }
+  }
+}
+
+TEST(NearestPoints, BadInput) {
+  const std::vector<double> points = {0, 0, 0, 1, 0, 0}, query = {0.2, 0, 0};
+  std::vector<int64_t> out(2);
+  const auto field = [&](const std::vector<double>& p, const std::vector<double>& q, int k,
+                         double cell) {
+    try {
+      NearestPoints(p.data(), static_cast<int64_t>(p.size() / 3), q.data(), 1, k, cell, out.data());
+    } catch (const RasterError& e) {
+      return e.field();
+    }
+    return std::string("none");
+  };
+  EXPECT_EQ(field(points, query, 2, 0.5), "none");
+  EXPECT_EQ(out, (std::vector<int64_t>{0, 1}));
+  EXPECT_EQ(field(points, query, 0, 0.5), "k");
+  EXPECT_EQ(field(points, query, 3, 0.5), "k");
+  EXPECT_EQ(field(points, query, 1, 0.0), "cell");
+  EXPECT_EQ(field(points, query, 1, std::nan("")), "cell");
+  EXPECT_EQ(field({0, 0, std::nan(""), 1, 0, 0}, query, 1, 0.5), "points");
+  EXPECT_EQ(field(points, {0, 1e300, 0}, 1, 0.5), "queries");
 }
 
 TEST(PlaneScores, StrictTestsAndAddedCounts) {

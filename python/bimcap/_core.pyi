@@ -87,6 +87,11 @@ def split_descriptors(
            NDArray[np.uint8], NDArray[np.int8]]:
     """(order, first, d[order], lo, lo_t, hi, hi_t): the rows without a value >= 128 first, the
     low 7 bits and the high bits of the reordered rows, and their transposes."""
+def nearest_points(
+    points: NDArray[np.float64], queries: NDArray[np.float64], k: int, cell: float
+) -> NDArray[np.int64]:
+    """(N, k) indices of the k points nearest each query, nearest first, ties by index
+    (scipy cKDTree.query's neighbours), found in a grid of cubes of side `cell`."""
 def filter_triangles(
     uv: NDArray[np.float64], z: NDArray[np.float64], triangles: NDArray[np.int32],
     max_edge: float, max_ratio: float

@@ -122,8 +122,6 @@ def scan_surface_points(points_in_lidar: ArrayLike, cam_from_lidar: ArrayLike, c
     -------
     p_in_cam (n, 3) metres and n_in_cam (n, 3) unit normals, pointing towards the LiDAR.
     """
-    from scipy.spatial import cKDTree
-
     from bimcap import _core
 
     opts = options or ScanSamplingOptions()
@@ -157,10 +155,11 @@ def scan_surface_points(points_in_lidar: ArrayLike, cam_from_lidar: ArrayLike, c
     cand = np.flatnonzero(keep)
     if len(cand) > opts.max_candidates:  # an even thinning, the same on every run
         cand = cand[np.linspace(0, len(cand) - 1, opts.max_candidates).astype(np.int64)]
-    # PCA normals of each candidate's k nearest voxel means, in compiled code (numpy's
-    # algorithm to rounding: bimcap/raster/voxel_normals.h)
-    _, nearest = cKDTree(vox).query(vox[cand], k=opts.neighbours)
-    nearest = np.asarray(nearest, np.int64).reshape(len(cand), opts.neighbours)
+    # PCA normals of each candidate's k nearest voxel means (scipy's cKDTree's neighbours, found
+    # in a grid of cubes of three voxels: bimcap/raster/point_neighbours.h), in compiled code
+    # (numpy's algorithm to rounding: bimcap/raster/voxel_normals.h)
+    nearest = _core.nearest_points(vox, np.ascontiguousarray(vox[cand]), opts.neighbours,
+                                   3.0 * opts.voxel_m)
     normal, planar = _core.pca_normals(vox, nearest, opts.max_flatness, opts.min_spread)
     cand, normal = cand[planar], normal[planar]
     flip = (normal * vox[cand]).sum(axis=1) > 0  # face the sensor
