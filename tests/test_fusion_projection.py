@@ -160,3 +160,32 @@ def test_pair_by_timestamp() -> None:
         pair_by_timestamp([0.0], [np.nan], 0.1)
     with pytest.raises(FusionInputError):
         pair_by_timestamp([0.0], [0.0], -1.0)
+
+
+@pytest.mark.parametrize("radius", [0, 1, 4, 9])
+def test_window_min_at_the_returns_is_opencvs_erosion(radius: int) -> None:
+    """The occlusion test's nearest return in each window, read at the returns (compiled), is
+    OpenCV's erosion of the positive depths read there: returns at the image's edges and
+    corners, windows with no other return, NaN and negative depths ignored; bad input named."""
+    import cv2
+
+    from bimcap import _core
+
+    rng = np.random.default_rng(radius)
+    for h, w in ((1, 1), (7, 3), (60, 90)):
+        depth = np.zeros((h, w), np.float32)
+        n = max(1, h * w // 6)
+        at = rng.choice(h * w, n, replace=False)
+        depth.flat[at] = rng.uniform(0.5, 20.0, n).astype(np.float32)
+        depth.flat[rng.choice(h * w, max(1, n // 10))] = np.float32(np.nan)
+        depth.flat[rng.choice(h * w, max(1, n // 10))] = np.float32(-1.0)
+        at = np.concatenate([at, [0, h * w - 1, w - 1]]).astype(np.int64)
+        big = np.float32(np.finfo(np.float32).max)
+        want = cv2.erode(np.where(depth > 0, depth, big),
+                         np.ones((2 * radius + 1,) * 2, np.uint8)).reshape(-1)[at]
+        got = _core.window_min_at(depth, at, radius)
+        assert got.dtype == np.float32 and got.tobytes() == want.tobytes()
+    with pytest.raises(_core.InputError, match="at"):
+        _core.window_min_at(depth, np.array([h * w], np.int64), radius)
+    with pytest.raises(_core.InputError, match="radius"):
+        _core.window_min_at(depth, at, -1)

@@ -33,6 +33,7 @@
 #include "bimcap/raster/surface_area.h"
 #include "bimcap/raster/triangle_filter.h"
 #include "bimcap/raster/voxel_normals.h"
+#include "bimcap/raster/window_min.h"
 #include "python/arrays.h"
 
 namespace bimcap::python {
@@ -244,6 +245,21 @@ py::array_t<int64_t> NearestPoints(const py::handle& points_obj, const py::handl
     raster::NearestPoints(p, points.shape(0), q, num_queries, k, cell, out);
   }
   return nearest;
+}
+
+py::array_t<float> WindowMinAt(const py::handle& depth_obj, const py::handle& at_obj, int radius) {
+  const py::array depth = Checked<float>(depth_obj, "depth", {-1, -1});
+  const py::array at = Checked<int64_t>(at_obj, "at", {-1});
+  const raster::ImageRef<const float> image{static_cast<const float*>(depth.data()), depth.shape(0),
+                                            depth.shape(1)};
+  py::array_t<float> zmin(at.shape(0));
+  const auto* entries = static_cast<const int64_t*>(at.data());
+  float* out = zmin.mutable_data();
+  {
+    py::gil_scoped_release release;
+    raster::WindowMinAt(image, entries, at.shape(0), radius, out);
+  }
+  return zmin;
 }
 
 py::array_t<double> PixelSurfaceArea(const py::handle& depth_obj, double fx, double fy, double cx,
@@ -610,6 +626,11 @@ void BindRaster(py::module_& m) {
         "float64 `points`, nearest first, ties by index: scipy cKDTree.query's neighbours and "
         "distances' rounding, found in a grid of cubes of side `cell` (only the cost depends "
         "on it; bimcap/raster/point_neighbours.h). Raises InputError naming the bad argument.");
+  m.def("window_min_at", &WindowMinAt, py::arg("depth"), py::arg("at"), py::arg("radius"),
+        "(K,) float32: at each of the (K,) int64 raveled pixels `at` of the (H, W) float32 "
+        "`depth`, the least positive depth within `radius` rows and columns (FLT_MAX where "
+        "none): cv2.erode(np.where(depth > 0, depth, FLT_MAX), a (2 radius + 1)² square) read "
+        "there (bimcap/raster/window_min.h). Raises InputError naming the bad argument.");
   m.def("filter_triangles", &FilterTriangles, py::arg("uv"), py::arg("z"), py::arg("triangles"),
         py::arg("max_edge"), py::arg("max_ratio"),
         "(good (G,) int64 ascending, corners (G, 3, 2) int32, edge (T,), det (T,)) of the (T, 3) "

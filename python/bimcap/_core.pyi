@@ -92,6 +92,11 @@ def nearest_points(
 ) -> NDArray[np.int64]:
     """(N, k) indices of the k points nearest each query, nearest first, ties by index
     (scipy cKDTree.query's neighbours), found in a grid of cubes of side `cell`."""
+def window_min_at(
+    depth: NDArray[np.float32], at: NDArray[np.int64], radius: int
+) -> NDArray[np.float32]:
+    """(K,) the least positive depth within `radius` rows and columns of each pixel `at`
+    (FLT_MAX where none): cv2.erode of the positive depths read there."""
 def filter_triangles(
     uv: NDArray[np.float64], z: NDArray[np.float64], triangles: NDArray[np.int32],
     max_edge: float, max_ratio: float

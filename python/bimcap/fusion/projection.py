@@ -273,12 +273,12 @@ def _drop_occluded(depth: F32, ret: _Returns, lin: NDArray[np.int64],
                    opts: ProjectionOptions) -> _Returns:
     """The parallax occlusion test (module docstring): zero the occluded returns (pixel ids
     ``lin`` (K,)) in ``depth`` (H, W) metres, in place, and keep the others."""
-    import cv2
+    from bimcap import _core
 
-    r = opts.occlusion_radius_px
-    big = np.float32(np.finfo(np.float32).max)
-    zmin = cv2.erode(np.where(depth > 0, depth, big), np.ones((2 * r + 1, 2 * r + 1), np.uint8))
-    zmin_at = zmin.reshape(-1)[lin].astype(np.float64)
+    # the nearest return in each return's window, at the returns only (compiled: what
+    # cv2.erode of the positive depths gives there, bimcap/raster/window_min.h)
+    zmin_at = _core.window_min_at(depth, np.ascontiguousarray(lin, dtype=np.int64),
+                                  opts.occlusion_radius_px).astype(np.float64)
     occluded = (ret.z - zmin_at) > np.maximum(opts.occlusion_abs_m, opts.occlusion_rel * zmin_at)
     depth.reshape(-1)[lin[occluded]] = 0.0
     return ret.select(~occluded)
