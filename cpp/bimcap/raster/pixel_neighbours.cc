@@ -5,47 +5,16 @@
 #include <string>
 #include <vector>
 
+#include "bimcap/raster/k_best.h"
+
 namespace bimcap::raster {
 
 namespace {
 
-// The k best (d², index) so far, ascending; `full` once k are held.
-class Best {
- public:
-  explicit Best(int k) : k_(k) { items_.reserve(static_cast<size_t>(k) + 1); }
-
-  bool full() const { return static_cast<int>(items_.size()) == k_; }
-  double worst() const { return items_.back().d2; }
-
-  void Offer(double d2, int64_t index) {
-    const Item item{d2, index};
-    if (full() && !Less(item, items_.back())) return;
-    items_.insert(std::upper_bound(items_.begin(), items_.end(), item, Less), item);
-    if (static_cast<int>(items_.size()) > k_) items_.pop_back();
-  }
-
-  void Write(int64_t* out) const {
-    for (size_t i = 0; i < items_.size(); ++i) out[i] = items_[i].index;
-  }
-
-  void Clear() { items_.clear(); }
-
- private:
-  struct Item {
-    double d2;
-    int64_t index;
-  };
-  static bool Less(const Item& a, const Item& b) {
-    return a.d2 < b.d2 || (a.d2 == b.d2 && a.index < b.index);
-  }
-  int k_;
-  std::vector<Item> items_;
-};
-
 // Offers the pixels of one row (columns cols[begin, end), ascending) at squared row offset dy2:
 // outward from x, the nearer of the next left and right pixel first, until the squared column
 // offset alone is beyond the k-th.
-void ScanRow(const int64_t* cols, int64_t begin, int64_t end, double x, double dy2, Best& best) {
+void ScanRow(const int64_t* cols, int64_t begin, int64_t end, double x, double dy2, KBest& best) {
   int64_t right = std::lower_bound(cols + begin, cols + end, x,
                                    [](int64_t c, double q) { return static_cast<double>(c) < q; }) -
                   cols;
@@ -86,7 +55,7 @@ void NearestPixels(const int64_t* row_start, int64_t rows, const int64_t* cols, 
       throw RasterError("queries", "query " + std::to_string(q / 2) + " is not finite");
     }
   }
-  Best best(k);
+  KBest best(k);
   for (int64_t q = 0; q < num_queries; ++q) {
     const double x = queries[2 * q], y = queries[2 * q + 1];
     best.Clear();

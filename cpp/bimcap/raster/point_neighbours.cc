@@ -7,6 +7,8 @@
 #include <string>
 #include <vector>
 
+#include "bimcap/raster/k_best.h"
+
 namespace bimcap::raster {
 
 namespace {
@@ -76,35 +78,6 @@ class Grid {
   size_t mask_ = 0;
 };
 
-// The k best (d², index) so far, ascending.
-class Best {
- public:
-  explicit Best(int k) : k_(k) { items_.reserve(static_cast<size_t>(k) + 1); }
-  bool full() const { return static_cast<int>(items_.size()) == k_; }
-  double worst() const { return items_.back().d2; }
-  void Offer(double d2, int64_t index) {
-    const Item item{d2, index};
-    if (full() && !Less(item, items_.back())) return;
-    items_.insert(std::upper_bound(items_.begin(), items_.end(), item, Less), item);
-    if (static_cast<int>(items_.size()) > k_) items_.pop_back();
-  }
-  void Write(int64_t* out) const {
-    for (size_t i = 0; i < items_.size(); ++i) out[i] = items_[i].index;
-  }
-  void Clear() { items_.clear(); }
-
- private:
-  struct Item {
-    double d2;
-    int64_t index;
-  };
-  static bool Less(const Item& a, const Item& b) {
-    return a.d2 < b.d2 || (a.d2 == b.d2 && a.index < b.index);
-  }
-  int k_;
-  std::vector<Item> items_;
-};
-
 // cKDTree's squared distance: each square rounded, summed in axis order from 0.
 inline double SquaredDistance(const double* x, const double* p) {
   const double d0 = x[0] - p[0], d1 = x[1] - p[1], d2 = x[2] - p[2];
@@ -141,7 +114,7 @@ void NearestPoints(const double* points, int64_t n, const double* queries, int64
   // A point of cube c lies in [c·cell, (c + 1)·cell] up to the rounding of p / cell: the boxes
   // are widened by `slack` so that their distances stay lower bounds.
   const double slack = 1e-9 * cell;
-  Best best(k);
+  KBest best(k);
   for (int64_t q = 0; q < num_queries; ++q) {
     const double* x = queries + 3 * q;
     const Cell own = CellOf(x, cell);
