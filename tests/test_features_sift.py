@@ -399,3 +399,22 @@ def test_the_default_budget_keeps_the_strongest_2048() -> None:
              enumerate(zip(more.uv[:, 0], more.uv[:, 1], more.orientation, strict=True))}
     rows = [index[k] for k in zip(kept.uv[:, 0], kept.uv[:, 1], kept.orientation, strict=True)]
     assert np.array_equal(kept.descriptors, more.descriptors[rows])
+
+
+@pytest.mark.parametrize("cols", [1, 7, 8, 128, 129, 300])
+def test_rootsift_in_compiled_code_is_numpys(cols: int) -> None:
+    """OpenCV's descriptors to RootSIFT ×512 uint8 (compiled) give numpy's float64 expression's
+    bytes: integer-valued rows (as OpenCV's SIFT gives them), values over twelve decades, zero
+    rows (the 1e-12 floor), a row whose values round to 255.5 · k."""
+    from bimcap import _core
+
+    rng = np.random.default_rng(cols)
+    rows = [rng.integers(0, 256, (500, cols)).astype(np.float32),
+            (10.0 ** rng.uniform(-6, 6, (500, cols))).astype(np.float32),
+            np.zeros((3, cols), np.float32), np.full((2, cols), 7.0, np.float32)]
+    for desc in rows:
+        d = desc.astype(np.float64)
+        d /= np.maximum(d.sum(axis=1, keepdims=True), 1e-12)
+        want = np.clip(np.rint(np.sqrt(d) * 512.0), 0, 255).astype(np.uint8)
+        got = _core.rootsift_u8(desc)
+        assert got.dtype == np.uint8 and got.tobytes() == want.tobytes()

@@ -29,6 +29,7 @@
 #include "bimcap/raster/point_neighbours.h"
 #include "bimcap/raster/range_noise.h"
 #include "bimcap/raster/region_sums.h"
+#include "bimcap/raster/rootsift.h"
 #include "bimcap/raster/similarity_top2.h"
 #include "bimcap/raster/surface_area.h"
 #include "bimcap/raster/triangle_filter.h"
@@ -260,6 +261,19 @@ py::array_t<float> WindowMinAt(const py::handle& depth_obj, const py::handle& at
     raster::WindowMinAt(image, entries, at.shape(0), radius, out);
   }
   return zmin;
+}
+
+py::array_t<uint8_t> RootSiftU8(const py::handle& desc_obj) {
+  const py::array desc = Checked<float>(desc_obj, "descriptors", {-1, -1});
+  const py::ssize_t rows = desc.shape(0), cols = desc.shape(1);
+  py::array_t<uint8_t> out({rows, cols});
+  const auto* in = static_cast<const float*>(desc.data());
+  uint8_t* dst = out.mutable_data();
+  {
+    py::gil_scoped_release release;
+    raster::RootSiftU8(in, rows, cols, dst);
+  }
+  return out;
 }
 
 py::array_t<double> PixelSurfaceArea(const py::handle& depth_obj, double fx, double fy, double cx,
@@ -631,6 +645,10 @@ void BindRaster(py::module_& m) {
         "`depth`, the least positive depth within `radius` rows and columns (FLT_MAX where "
         "none): cv2.erode(np.where(depth > 0, depth, FLT_MAX), a (2 radius + 1)² square) read "
         "there (bimcap/raster/window_min.h). Raises InputError naming the bad argument.");
+  m.def("rootsift_u8", &RootSiftU8, py::arg("descriptors"),
+        "(N, C) uint8 clip(rint(sqrt(d / max(Σ d, 1e-12)) · 512), 0, 255) of the (N, C) float32 "
+        "descriptors, row by row, in numpy's float64 arithmetic bit for bit (its pairwise sum; "
+        "bimcap/raster/rootsift.h).");
   m.def("filter_triangles", &FilterTriangles, py::arg("uv"), py::arg("z"), py::arg("triangles"),
         py::arg("max_edge"), py::arg("max_ratio"),
         "(good (G,) int64 ascending, corners (G, 3, 2) int32, edge (T,), det (T,)) of the (T, 3) "

@@ -97,6 +97,8 @@ def window_min_at(
 ) -> NDArray[np.float32]:
     """(K,) the least positive depth within `radius` rows and columns of each pixel `at`
     (FLT_MAX where none): cv2.erode of the positive depths read there."""
+def rootsift_u8(descriptors: NDArray[np.float32]) -> NDArray[np.uint8]:
+    """(N, C) uint8 RootSIFT ×512 of float32 descriptors (numpy's float64 arithmetic)."""
 def filter_triangles(
     uv: NDArray[np.float64], z: NDArray[np.float64], triangles: NDArray[np.int32],
     max_edge: float, max_ratio: float

@@ -331,11 +331,13 @@ def _extract_opencv(gray: NDArray[np.uint8], opts: SiftOptions) -> Features:
         keep = np.sort(np.argsort([-k.response for k in kps], kind="stable")
                        [:opts.max_num_features])
         kps, desc = [kps[i] for i in keep], desc[keep]
-    d = desc.astype(np.float64)
-    d /= np.maximum(d.sum(axis=1, keepdims=True), 1e-12)  # L1 normalise, then sqrt: RootSIFT
-    d = np.sqrt(d)
-    d = np.clip(np.rint(d * 512.0), 0, 255).astype(np.uint8)
-    uv = np.array([k.pt for k in kps], dtype=np.float64)  # OpenCV: pixel-centre origin already
+    # L1 normalise, then sqrt: RootSIFT, ×512 to uint8, in numpy's float64 arithmetic (compiled:
+    # bimcap/raster/rootsift.h)
+    from bimcap import _core
+
+    d = _core.rootsift_u8(np.ascontiguousarray(desc, dtype=np.float32))
+    # OpenCV: pixel-centre origin already; its float32 points widened, as k.pt's floats are
+    uv = np.asarray(cv2.KeyPoint_convert(kps), dtype=np.float64).reshape(-1, 2)
     scale = np.array([k.size / 2.0 for k in kps], dtype=np.float64)
     ori = np.deg2rad(np.array([k.angle for k in kps], dtype=np.float64))
     return Features(uv, scale, ori, np.ascontiguousarray(d))
