@@ -479,3 +479,35 @@ def test_plane_fit_at_8_cm_of_range_noise_fits_no_degenerate_plane(width_px: int
         fitted = np.abs(smooth_planar_regions(dense, labels, cam, old, seed=0) - truth)[wall]
         worse += int(np.percentile(fitted, 99) > before + 0.02)
     assert worse >= 3  # what the fits of old did to these patches (2-12 cm worse at the 99th)
+
+
+def test_region_rays_are_numpys() -> None:
+    """The planar smoothing's per-region gather (compiled) gives numpy's rays, depths and return
+    points bit for bit: Camera.rays's x and y, the float32 depth widened, ``_points`` of the
+    pixels with a positive return (NaN and negative returns left out); bad pixels named."""
+    from bimcap import _core
+    from bimcap.fusion.completion import _points
+
+    rng = np.random.default_rng(4)
+    h, w = 37, 53
+    cam = Camera(w, h, 41.3, 39.7, 26.1, 17.9)
+    depth = rng.uniform(0.5, 9.0, h * w).astype(np.float32)
+    measured = np.where(rng.random(h * w) < 0.3, depth + rng.normal(0, 0.05, h * w), 0.0)
+    measured = measured.astype(np.float32)
+    measured[rng.choice(h * w, 20)] = np.float32(np.nan)
+    measured[rng.choice(h * w, 20)] = np.float32(-1.0)
+    flat = np.sort(rng.choice(h * w, 700, replace=False)).astype(np.int64)
+    ray_x = np.broadcast_to((np.arange(w, dtype=np.float64) - cam.cx) / cam.fx, (h, w)).ravel()
+    ray_y = np.repeat((np.arange(h, dtype=np.float64) - cam.cy) / cam.fy, w)
+    x, y, cur, returns = _core.region_rays(flat, w, cam.fx, cam.fy, cam.cx, cam.cy, depth,
+                                           measured)
+    assert x.tobytes() == ray_x[flat].tobytes() and y.tobytes() == ray_y[flat].tobytes()
+    assert cur.tobytes() == depth[flat].astype(np.float64).tobytes()
+    z = measured[flat].astype(np.float64)
+    has = z > 0
+    assert returns.tobytes() == _points(x[has], y[has], z[has]).tobytes()
+    no_returns = _core.region_rays(flat, w, cam.fx, cam.fy, cam.cx, cam.cy, depth, None)
+    assert no_returns[3].shape == (0, 3)
+    with pytest.raises(_core.InputError, match="flat"):
+        _core.region_rays(np.array([h * w], np.int64), w, cam.fx, cam.fy, cam.cx, cam.cy, depth,
+                          None)

@@ -28,6 +28,7 @@
 #include "bimcap/raster/png_rows.h"
 #include "bimcap/raster/point_neighbours.h"
 #include "bimcap/raster/range_noise.h"
+#include "bimcap/raster/region_rays.h"
 #include "bimcap/raster/region_sums.h"
 #include "bimcap/raster/rootsift.h"
 #include "bimcap/raster/similarity_top2.h"
@@ -274,6 +275,34 @@ py::array_t<uint8_t> RootSiftU8(const py::handle& desc_obj) {
     raster::RootSiftU8(in, rows, cols, dst);
   }
   return out;
+}
+
+py::tuple RegionRays(const py::handle& flat_obj, int64_t width, double fx, double fy, double cx,
+                     double cy, const py::handle& depth_obj, const py::handle& measured_obj) {
+  const py::array flat = Checked<int64_t>(flat_obj, "flat", {-1});
+  const py::array depth = Checked<float>(depth_obj, "depth", {-1});
+  std::optional<py::array> measured;
+  if (!measured_obj.is_none()) {
+    measured = Checked<float>(measured_obj, "measured", {depth.shape(0)});
+  }
+  if (width < 1) throw RasterError("width", "must be >= 1, got " + std::to_string(width));
+  const auto* f = static_cast<const int64_t*>(flat.data());
+  const auto* d = static_cast<const float*>(depth.data());
+  const float* m = measured ? static_cast<const float*>(measured->data()) : nullptr;
+  raster::RegionRays rays;
+  {
+    py::gil_scoped_release release;
+    rays =
+        raster::GatherRegionRays(f, flat.shape(0), width, depth.shape(0), {fx, fy, cx, cy}, d, m);
+  }
+  const auto to_array = [](const std::vector<double>& v) {
+    py::array_t<double> a(static_cast<py::ssize_t>(v.size()));
+    std::copy(v.begin(), v.end(), a.mutable_data());
+    return a;
+  };
+  py::array_t<double> returns({static_cast<py::ssize_t>(rays.returns.size() / 3), py::ssize_t{3}});
+  std::copy(rays.returns.begin(), rays.returns.end(), returns.mutable_data());
+  return py::make_tuple(to_array(rays.x), to_array(rays.y), to_array(rays.cur), returns);
 }
 
 py::array_t<double> PixelSurfaceArea(const py::handle& depth_obj, double fx, double fy, double cx,
@@ -649,6 +678,13 @@ void BindRaster(py::module_& m) {
         "(N, C) uint8 clip(rint(sqrt(d / max(Σ d, 1e-12)) · 512), 0, 255) of the (N, C) float32 "
         "descriptors, row by row, in numpy's float64 arithmetic bit for bit (its pairwise sum; "
         "bimcap/raster/rootsift.h).");
+  m.def("region_rays", &RegionRays, py::arg("flat"), py::arg("width"), py::arg("fx"), py::arg("fy"),
+        py::arg("cx"), py::arg("cy"), py::arg("depth"), py::arg("measured"),
+        "(x, y, cur, returns) of the (N,) int64 raveled pixels `flat` of an image `width` wide: "
+        "their pinhole rays' x = (u − cx) / fx and y = (v − cy) / fy, the (H·W,) float32 "
+        "`depth` there (float64), and (R, 3) (x z, y z, z) where the (H·W,) float32 `measured` "
+        "(or None) has z > 0, in order; numpy's arithmetic bit for bit "
+        "(bimcap/raster/region_rays.h). Raises InputError naming the bad argument.");
   m.def("filter_triangles", &FilterTriangles, py::arg("uv"), py::arg("z"), py::arg("triangles"),
         py::arg("max_edge"), py::arg("max_ratio"),
         "(good (G,) int64 ascending, corners (G, 3, 2) int32, edge (T,), det (T,)) of the (T, 3) "

@@ -99,6 +99,12 @@ def window_min_at(
     (FLT_MAX where none): cv2.erode of the positive depths read there."""
 def rootsift_u8(descriptors: NDArray[np.float32]) -> NDArray[np.uint8]:
     """(N, C) uint8 RootSIFT ×512 of float32 descriptors (numpy's float64 arithmetic)."""
+def region_rays(
+    flat: NDArray[np.int64], width: int, fx: float, fy: float, cx: float, cy: float,
+    depth: NDArray[np.float32], measured: NDArray[np.float32] | None
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """(x, y, cur, returns): the pixels' ray x and y, their depth, and (x z, y z, z) where the
+    measured depth z > 0 (numpy's arithmetic)."""
 def filter_triangles(
     uv: NDArray[np.float64], z: NDArray[np.float64], triangles: NDArray[np.int32],
     max_edge: float, max_ratio: float

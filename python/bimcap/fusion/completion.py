@@ -700,8 +700,8 @@ def _smooth_region(
     out: F32,
     depth: F32,
     flat: NDArray[np.int64],
-    ray_x: F64,
-    ray_y: F64,
+    width: int,
+    camera: Camera,
     opts: PlanarSmoothingOptions,
     rng: np.random.Generator,
     measured: F32 | None = None,
@@ -711,26 +711,26 @@ def _smooth_region(
     ``opts.min_region_returns`` of them and ``opts.fit_to`` asks for it, else to its pixels.
 
     ``out``, ``depth``, ``measured``: (H·W,) raveled maps; ``flat``: (N,) the region's pixels
-    (raveled indices, row-major order); ``ray_x``, ``ray_y``: (H·W,) the pinhole rays' x and y
-    (z = 1) of every pixel (``Camera.rays``).
+    (raveled indices, row-major order) of an image ``width`` pixels wide seen by the pinhole
+    ``camera``.
     """
     from bimcap import _core
 
-    x, y = ray_x[flat], ray_y[flat]
-    cur = depth[flat].astype(np.float64)
+    # the pixels' rays (x, y, 1) as Camera.rays forms them, their depth, and the points of those
+    # with a return (_points of the rays and the returns' depths), in one compiled pass
+    # (bimcap/raster/region_rays.h)
+    use_returns = measured is not None and opts.fit_to is PlaneFitPoints.RETURNS
+    x, y, cur, p_ret = _core.region_rays(flat, width, camera.fx, camera.fy, camera.cx, camera.cy,
+                                         depth, measured if use_returns else None)
     planes: list[F64] = []
-    if measured is not None and opts.fit_to is PlaneFitPoints.RETURNS:
-        z_ret = measured[flat].astype(np.float64)
-        has = z_ret > 0
-        if has.sum() >= opts.min_region_returns:
-            p_ret = _points(x[has], y[has], z_ret[has])
-            planes = _region_planes(p_ret, opts, rng, opts.min_region_returns,
-                                    opts.returns_refit_iterations)
-            if planes:
-                pl = np.stack(planes)
-                d_ret = np.abs(p_ret @ pl[:, :3].T + pl[:, 3]).min(1)
-                if 1.4826 * _median(d_ret) > opts.returns_max_sigma_m:
-                    planes = []  # the returns too noisy for their fit: the pixels'
+    if use_returns and len(p_ret) >= opts.min_region_returns:
+        planes = _region_planes(p_ret, opts, rng, opts.min_region_returns,
+                                opts.returns_refit_iterations)
+        if planes:
+            pl = np.stack(planes)
+            d_ret = np.abs(p_ret @ pl[:, :3].T + pl[:, 3]).min(1)
+            if 1.4826 * _median(d_ret) > opts.returns_max_sigma_m:
+                planes = []  # the returns too noisy for their fit: the pixels'
     if not planes:
         planes = _region_planes(_points(x, y, cur), opts, rng)
     if not planes:
@@ -797,7 +797,6 @@ def smooth_planar_regions(
     out = d.copy()
     out_flat, d_flat = out.ravel(), d.ravel()
     meas_flat = None if meas is None else meas.ravel()
-    rays: tuple[F64, F64] | None = None  # (H·W,) x and y of the pixels' rays, once needed
     rng = np.random.default_rng(seed)
     for label in opts.labels:
         mask = ((lab == int(label)) & (d > 0)).astype(np.uint8)
@@ -820,12 +819,7 @@ def smooth_planar_regions(
         big = [c for c in range(1, n_comp) if area[c] >= opts.min_region_px]
         if not big:
             continue
-        if rays is None:  # every pixel's ray (x, y, 1), as Camera.rays computes it
-            h, w = d.shape
-            rays = (np.broadcast_to((np.arange(w, dtype=np.float64) - camera.cx) / camera.fx,
-                                    (h, w)).ravel(),
-                    np.repeat((np.arange(h, dtype=np.float64) - camera.cy) / camera.fy, w))
         for c in big:
-            _smooth_region(out_flat, d_flat, pixels[starts[c]:starts[c + 1]], *rays, opts, rng,
-                           meas_flat)
+            _smooth_region(out_flat, d_flat, pixels[starts[c]:starts[c + 1]], d.shape[1], camera,
+                           opts, rng, meas_flat)
     return out
