@@ -292,4 +292,14 @@ void FillContainingTriangleIds(const ImageRef<int32_t>& image, const int32_t* co
   }
 }
 
+void CheckPixelIndices(const int64_t* index, int64_t begin, int64_t end, int64_t size,
+                       const char* field) {
+  for (int64_t i = begin; i < end; ++i) {
+    if (index[i] < 0 || index[i] >= size) {
+      throw RasterError(field, "index " + std::to_string(index[i]) + " at " + std::to_string(i) +
+                                   " is outside the image's " + std::to_string(size) + " pixels");
+    }
+  }
+}
+
 }  // namespace bimcap::raster

@@ -46,6 +46,11 @@ class RasterError : public InputError {
   using InputError::InputError;
 };
 
+// Throws RasterError (`field`) at the first of index[begin, end) outside [0, size): raveled pixel
+// indices of an image of `size` pixels.
+void CheckPixelIndices(const int64_t* index, int64_t begin, int64_t end, int64_t size,
+                       const char* field);
+
 // cv::fillConvexPoly(image, vertices, value, LINE_8, shift) for a convex polygon of `count`
 // vertices given as x0, y0, x1, y1, … (in 1/2^shift px, the same int32 points cv2 takes).
 // Polygons with fewer than 3 vertices draw their outline only, as OpenCV does; `count` = 0 draws

@@ -1,21 +1,22 @@
 #include "bimcap/raster/descriptor_split.h"
 
+#include <cstddef>
+#include <vector>
+
 namespace bimcap::raster {
 
 int64_t HighBitLastOrder(const uint8_t* d, int64_t rows, int64_t cols, int64_t* order) {
+  std::vector<bool> high(static_cast<size_t>(rows));
   int64_t low = 0;
   for (int64_t i = 0; i < rows; ++i) {
-    const uint8_t* row = d + i * cols;
     uint8_t any = 0;
-    for (int64_t j = 0; j < cols; ++j) any |= row[j];
-    if (!(any & 0x80)) order[low++] = i;
+    for (int64_t j = 0; j < cols; ++j) any |= d[i * cols + j];
+    high[i] = (any & 0x80) != 0;
+    if (!high[i]) order[low++] = i;
   }
-  int64_t high = low;
+  int64_t next = low;
   for (int64_t i = 0; i < rows; ++i) {
-    const uint8_t* row = d + i * cols;
-    uint8_t any = 0;
-    for (int64_t j = 0; j < cols; ++j) any |= row[j];
-    if (any & 0x80) order[high++] = i;
+    if (high[i]) order[next++] = i;
   }
   return low;
 }

@@ -37,12 +37,8 @@ std::vector<int64_t> NearRegion(const ImageRef<const int32_t>& region_id, int32_
     }
   }
   const auto count_at = [&](int64_t y, int64_t x) { return table[y * (w + 1) + x]; };
+  CheckPixelIndices(at, begin, end, h * w, "at");
   for (int64_t i = begin; i < end; ++i) {
-    if (at[i] < 0 || at[i] >= h * w) {
-      throw RasterError("at", "entry " + std::to_string(i) + " (" + std::to_string(at[i]) +
-                                  ") is outside the " + std::to_string(h) + " × " +
-                                  std::to_string(w) + " image");
-    }
     const int64_t v = at[i] / w, u = at[i] % w;
     if (v < lo_row || v >= hi_row) continue;
     const int64_t y0 = std::max(v - reach, top) - top, y1 = std::min(v + reach + 1, stop) - top;

@@ -17,13 +17,7 @@ int64_t
 MoveOntoPlanes(const RegionPixels& region, const double* planes, int64_t plane_count,
                const double* products, const PlaneMove& move, float* out, int64_t out_size) {
   if (plane_count < 1) throw RasterError("planes", "needs at least one plane");
-  for (int64_t i = 0; i < region.count; ++i) {
-    if (region.flat[i] < 0 || region.flat[i] >= out_size) {
-      throw RasterError("flat", "index " + std::to_string(region.flat[i]) + " at " +
-                                    std::to_string(i) + " is outside the image's " +
-                                    std::to_string(out_size) + " pixels");
-    }
-  }
+  CheckPixelIndices(region.flat, 0, region.count, out_size, "flat");
   int64_t moved = 0;
   std::vector<double> row(products == nullptr ? static_cast<size_t>(plane_count) : 0);
   for (int64_t i = 0; i < region.count; ++i) {

@@ -1,18 +1,10 @@
 #include "bimcap/raster/region_rays.h"
 
-#include <string>
-
 namespace bimcap::raster {
 
 RegionRays GatherRegionRays(const int64_t* flat, int64_t count, int64_t width, int64_t size,
                             const PinholeRays& camera, const float* depth, const float* measured) {
-  for (int64_t i = 0; i < count; ++i) {
-    if (flat[i] < 0 || flat[i] >= size) {
-      throw RasterError("flat", "entry " + std::to_string(i) + " (" + std::to_string(flat[i]) +
-                                    ") is outside the image of " + std::to_string(size) +
-                                    " pixels");
-    }
-  }
+  CheckPixelIndices(flat, 0, count, size, "flat");
   RegionRays out;
   out.x.resize(static_cast<size_t>(count));
   out.y.resize(static_cast<size_t>(count));

@@ -10,13 +10,7 @@ void WindowMinAt(const ImageRef<const float>& depth, const int64_t* at, int64_t 
                  float* zmin) {
   if (radius < 0) throw RasterError("radius", "must be >= 0, got " + std::to_string(radius));
   const int64_t h = depth.rows, w = depth.cols;
-  for (int64_t i = 0; i < count; ++i) {
-    if (at[i] < 0 || at[i] >= h * w) {
-      throw RasterError("at", "entry " + std::to_string(i) + " (" + std::to_string(at[i]) +
-                                  ") is outside the " + std::to_string(h) + " × " +
-                                  std::to_string(w) + " image");
-    }
-  }
+  CheckPixelIndices(at, 0, count, h * w, "at");
   for (int64_t i = 0; i < count; ++i) {
     const int64_t v = at[i] / w, u = at[i] % w;
     const int64_t v0 = std::max<int64_t>(v - radius, 0), v1 = std::min<int64_t>(v + radius, h - 1);

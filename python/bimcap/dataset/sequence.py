@@ -404,8 +404,8 @@ def _read_image(path: Path, rgb: bool = False) -> NDArray[np.uint8] | None:
     3-channel image's channels are R, G, B (not OpenCV's B, G, R).
 
     8-bit grey and RGB PNGs (the simulator's images and labels) are read by
-    :func:`bimcap.io.png.read_png` (the same pixels, ~1.1× cheaper a frame than OpenCV's decoder
-    and channel swap: docs/speed.md "PNGs read in two calls"); everything else, and a file
+    :func:`bimcap.io.png.read_png` (the same pixels, ~2× cheaper than OpenCV's decoder and
+    channel swap: docs/speed.md, "Exact cuts in compiled code"); everything else, and a file
     that cannot be opened, by OpenCV.
     """
     import cv2
